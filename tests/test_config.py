@@ -45,7 +45,7 @@ def test_explicit_frequency_list_and_fractional_steps():
         ("sweep: {start: 1, stop: 3, step: 0}\n", "sweep.step", "greater than 0"),
         ("sweep: {start: 5, stop: 3, step: 1}\n", "sweep", "stop must be >= start"),
         ("sweep: {start: 1, stop: 3, step: 1}\nsettle_s: fast\n", "settle_s", "valid number"),
-        ("sweep: {start: 1, stop: 3, step: 1}\nrig: boat\n", "rig", "'contact' or 'walker'"),
+        ("sweep: {start: 1, stop: 3, step: 1}\nrig: boat\n", "rig", "'contact', 'walker'"),
         ("sweep: {start: 1, stop: 3, step: 1}\nfrequncy: 3\n", "frequncy", "unknown field"),
         ("rig: contact\n", "sweep", "Field required"),
         ("sweep: [1, 2\n", "line", "not valid YAML"),

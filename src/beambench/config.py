@@ -39,8 +39,8 @@ class Sweep(_Model):
         if self.frequencies is not None:
             if any(v is not None for v in ranged):
                 raise ValueError("give either start/stop/step or frequencies, not both")
-            if not self.frequencies or any(f <= 0 for f in self.frequencies):
-                raise ValueError("frequencies must be a non-empty list of positive numbers")
+            if not self.frequencies or any(f < 0 for f in self.frequencies):
+                raise ValueError("frequencies must be a non-empty list of numbers >= 0")
         elif any(v is None for v in ranged):
             raise ValueError("needs start, stop and step (Hz), or a frequencies list")
         elif self.stop < self.start:  # type: ignore[operator]
@@ -89,6 +89,13 @@ class SimOptions(_Model):
     motor_clock: ClockModel = ClockModel()
 
 
+class Release(_Model):
+    """The release test (``rig: release``): a load hangs at the tip, then is released; no drive."""
+
+    load_g: float = Field(200.0, gt=0, le=2000)
+    markers: int = Field(3, ge=1, le=3)
+
+
 class Output(_Model):
     """Session file naming; ``name`` is a template with ``{protocol}``, ``{rig}``, ``{backend}``, ``{date}``."""
 
@@ -100,7 +107,7 @@ class Protocol(_Model):
 
     name: str = Field("protocol", min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
-    rig: Literal["contact", "walker"] = "contact"
+    rig: Literal["contact", "walker", "free_beam", "release"] = "contact"
     backend: Literal["sim", "emulated", "hardware"] = "sim"
     sweep: Sweep
     settle_s: float = Field(2.0, ge=0, le=600)
@@ -108,11 +115,14 @@ class Protocol(_Model):
     amplitude_mm: float = Field(2.0, gt=0)
     limits: Limits = Limits()
     sim: SimOptions = SimOptions()
+    release: Release = Release()
     output: Output = Output()
     rig_file: str | None = None
 
     @model_validator(mode="after")
-    def _within_limits(self) -> "Protocol":
+    def _driven_rigs_need_frequencies(self) -> "Protocol":
+        if self.rig != "release" and min(self.sweep.values()) <= 0:
+            raise ValueError(f"sweep: frequencies must be > 0 Hz on the {self.rig} rig (0 is for rig: release)")
         return self
 
     def limit_violations(self) -> list[tuple[str, Any, str]]:

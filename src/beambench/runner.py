@@ -96,7 +96,7 @@ class Runner:
     # --- steps ----------------------------------------------------------------------------------------
     def _check_steps(self) -> None:
         for s in self.steps:
-            if not 0 < s.frequency_hz <= self.limits.max_frequency_hz:
+            if not 0 <= s.frequency_hz <= self.limits.max_frequency_hz:
                 raise DeviceFault(f"step {s.index}: {s.frequency_hz} Hz outside 0..{self.limits.max_frequency_hz} Hz")
 
     def _run_step(self, step: Step) -> None:
