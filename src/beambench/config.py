@@ -181,3 +181,64 @@ def load_protocol(path: str | Path) -> tuple[Protocol, str]:
     except OSError as exc:
         raise ConfigError(str(p), "(file)", _MISSING, exc.strerror or str(exc)) from None
     return parse_protocol(text, str(p)), text
+
+
+# --- rig wiring -----------------------------------------------------------------------------------------
+class NatNetWiring(_Model):
+    """Where Motive is and how frames arrive."""
+
+    server_address: str = "127.0.0.1"
+    local_address: str = "127.0.0.1"
+    command_port: int = Field(1510, ge=1, le=65535)
+    data_port: int = Field(1511, ge=1, le=65535)
+    multicast_address: str = "239.255.42.99"
+    multicast: bool = True
+    natnet_version: str | None = None  # taken from SERVERINFO when unset
+    markers: dict[str, int] = Field(default_factory=lambda: {"stage": 1, "tip": 2, "foot": 3})
+
+
+class OdriveWiring(_Model):
+    """How the ODrive is reached: CAN Simple over python-can, or USB through the ``odrive`` package."""
+
+    transport: Literal["can", "usb"] = "can"
+    interface: str = "socketcan"
+    channel: str = "can0"
+    bitrate: int = 250000
+    node_id: int = Field(0, ge=0, le=63)
+    axis: int = Field(0, ge=0, le=1)
+    serial_number: str | None = None
+    watchdog_timeout_s: float = Field(0.5, gt=0, le=5)
+
+
+class LoadCellWiring(_Model):
+    """The load-cell microcontroller's serial port."""
+
+    port: str = "/dev/ttyACM0"
+    baudrate: int = 921600
+
+
+class RigFile(_Model):
+    """``calibration/rig.yaml``: server/client addresses, CAN channel and node id, serial port, marker ids."""
+
+    natnet: NatNetWiring = NatNetWiring()
+    odrive: OdriveWiring = OdriveWiring()
+    loadcell: LoadCellWiring = LoadCellWiring()
+    loadcell_calibration: str = "loadcells.yaml"
+
+
+def load_rig_file(path: str | Path) -> RigFile:
+    """Read and validate a rig file, with the same one-line errors as protocols."""
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text()) or {}
+    except OSError as exc:
+        raise ConfigError(str(p), "(file)", _MISSING, exc.strerror or str(exc)) from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(str(p), "(file)", _MISSING, f"not valid YAML ({exc})") from None
+    try:
+        return RigFile.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = tuple(err["loc"])
+        msg = "unknown field" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
+        raise ConfigError(str(p), _field_path(loc), _lookup(data, loc), msg) from None
