@@ -9,12 +9,13 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from beambench.calibration import default_calibration
 from beambench.config import Protocol
 from beambench.hub import Batch, Hub, Sink
-from beambench.live import RerunMode, RerunSink
 from beambench.protocol import motor_limits, plan
 from beambench.provenance import provenance
 from beambench.rigs import build_rig
 from beambench.runner import RunResult, Runner
 from beambench.store import SessionWriter, read_session
+
+RerunMode = str  # spawn | connect | save | off (beambench.live is imported only when a viewer is wanted)
 
 
 def run_session(
@@ -45,6 +46,8 @@ def run_session(
         }
         sinks: list[Sink] = [SessionWriter(path, general, max_steps=len(steps))]
         if rerun_mode != "off":
+            from beambench.live import RerunSink
+
             sinks.append(RerunSink(rerun_mode, path.stem, path.with_suffix(".rrd"), t0_ns=rig.clock.now_ns()))
         hub = Hub(sinks)
         hub.open([s.describe() for s in rig.streams])
@@ -66,7 +69,9 @@ def run_session(
         def on_progress(index: int, freq: float, waited: float) -> None:
             progress.update(task, advance=waited, description=f"step {index + 1}/{len(steps)}  {freq:g} Hz")
 
-        runner = Runner(rig, hub, steps, motor_limits(protocol), on_progress=on_progress)
+        # Batches are ~10 per second of wall time: on a sim running faster than real time, longer rig-time polls.
+        poll_s = 0.5 if backend == "sim" and not realtime else 0.1
+        runner = Runner(rig, hub, steps, motor_limits(protocol), poll_s=poll_s, on_progress=on_progress)
         result = runner.run()
     for err in hub.errors:
         progress.console.print(f"[yellow]warning: live view stopped: {err}")
@@ -75,6 +80,8 @@ def run_session(
 
 def replay_session(session_path: Path, mode: RerunMode, out: Path | None = None) -> Path | None:
     """Send a recorded session to Rerun in ~1 s batches; returns the .rrd path in save mode."""
+    from beambench.live import RerunSink
+
     session = read_session(session_path)
     rrd = (out or session_path.with_suffix(".rrd")) if mode == "save" else None
     t0 = min((int(s.host_time_ns[0]) for s in session.streams.values() if len(s)), default=0)

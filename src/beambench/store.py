@@ -78,7 +78,7 @@ class SessionWriter:
         self.general = general
         self.max_steps = max_steps
         self._f: h5py.File | None = None
-        self._n_steps = 0
+        self._datasets: dict[str, list[tuple[str, _Appender]]] = {}
 
     # --- Sink -------------------------------------------------------------------------------------------
     def open(self, specs: list[StreamSpec]) -> None:
@@ -93,17 +93,21 @@ class SessionWriter:
         f.create_dataset("steps", shape=(0,), maxshape=(None,), dtype=STEP_DTYPE, chunks=(64,))
         f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(64,))
         f.create_group("processing")
+        self._datasets = {name: [(k, _Appender(ds)) for k, ds in g.items()] for name, g in acq.items()}
         f.swmr_mode = True
         f.flush()
         self._f = f
 
     def write(self, batch: Batch) -> None:
-        g = self._file["acquisition"][batch.stream]
-        _append(g["host_time_ns"], batch.host_time_ns)
-        _append(g["device_time"], batch.device_time)
-        for name, values in batch.columns.items():
-            _append(g[name], values)
-        self._file.flush()
+        f = self._file
+        for name, appender in self._datasets[batch.stream]:
+            if name == "host_time_ns":
+                appender.append(batch.host_time_ns)
+            elif name == "device_time":
+                appender.append(batch.device_time)
+            else:
+                appender.append(batch.columns[name])
+        f.flush()
 
     def event(self, host_time_ns: int, kind: str, message: str) -> None:
         row = np.array([(host_time_ns, _encode(kind, 32), _encode(message, EVENT_TEXT))], dtype=EVENT_DTYPE)
@@ -151,10 +155,30 @@ def _create_stream(g: h5py.Group, spec: StreamSpec) -> None:
             ds.attrs["labels"] = list(col.labels)
 
 
+class _Appender:
+    """Appends rows to one time-first dataset through the low-level API (~3x faster than ``ds[n:] = v``)."""
+
+    __slots__ = ("dsid", "dtype", "row_shape", "n")
+
+    def __init__(self, ds: h5py.Dataset) -> None:
+        self.dsid, self.dtype, self.row_shape, self.n = ds.id, ds.dtype, ds.shape[1:], ds.shape[0]
+
+    def append(self, values: np.ndarray) -> None:
+        arr = np.ascontiguousarray(values, dtype=self.dtype)
+        if arr.shape[1:] != self.row_shape:
+            raise ValueError(f"rows of shape {arr.shape[1:]}, expected {self.row_shape}")
+        m = len(arr)
+        if m == 0:
+            return
+        self.dsid.set_extent((self.n + m, *self.row_shape))
+        file_space = self.dsid.get_space()
+        file_space.select_hyperslab((self.n,) + (0,) * len(self.row_shape), arr.shape)
+        self.dsid.write(h5py.h5s.create_simple(arr.shape), file_space, arr)
+        self.n += m
+
+
 def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
-    n = ds.shape[0]
-    ds.resize(n + len(values), axis=0)
-    ds[n:] = values
+    _Appender(ds).append(values)
 
 
 def _write_general(g: h5py.Group, general: dict[str, Any]) -> None:
