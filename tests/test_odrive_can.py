@@ -1,0 +1,329 @@
+"""OdriveCanMotor against the emulated ODrive over python-can's virtual bus (real frames, no mocks)."""
+
+from __future__ import annotations
+
+import math
+import time
+import uuid
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from beambench.devices import odrive_cansimple as cs
+from beambench.devices.base import DeviceFault, Motor, MotorLimits
+from beambench.devices.odrive_can import MAX_VEL_LIMIT, LimitError, OdriveCanMotor, ping
+from beambench.devices.odrive_cansimple import AxisError, AxisState
+from beambench.emulators.odrive_can import EmulatedOdrive, OdriveAxisModel, OdriveEmulatorConfig
+from beambench.streams import motor_spec
+
+NODE = 3
+CAL_S = 0.25
+LIMITS = MotorLimits(max_frequency_hz=10.0, max_current_a=5.0, amplitude_mm=2.0)
+
+
+def wait_for(pred, timeout=3.0, what="condition"):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return
+        time.sleep(0.01)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def log_frames(path: Path) -> list[can.Message]:
+    return list(can.LogReader(str(path)))
+
+
+def sent_to_node(frames, cmd: cs.Cmd) -> list[tuple[int, object]]:
+    """(index in the log, decoded message) of every data frame to NODE with this command."""
+    out = []
+    for i, f in enumerate(frames):
+        if f.arbitration_id == cs.arbitration_id(NODE, cmd) and not f.is_remote_frame and f.dlc:
+            out.append((i, cs.parse_frame(f.arbitration_id, f.data)[1]))
+    return out
+
+
+@pytest.fixture
+def channel():
+    return f"odrive-{uuid.uuid4().hex}"
+
+
+@pytest.fixture
+def emu(channel):
+    cfg = OdriveEmulatorConfig(node_id=NODE, calibration_s=CAL_S, watchdog_timeout_s=0.3, vel_ramp_rate=40.0)
+    with EmulatedOdrive(channel=channel, config=cfg) as e:
+        yield e
+        assert e.error is None
+
+
+@pytest.fixture
+def motor(channel, emu, tmp_path):
+    m = OdriveCanMotor(channel, "virtual", NODE, can_log=tmp_path / "traffic.asc")
+    yield m
+    m.close()
+
+
+def test_satisfies_motor_protocol(motor):
+    assert isinstance(motor, Motor)
+    assert motor.describe() == motor_spec()
+
+
+def test_arm_calibrates_then_enters_closed_loop(motor, emu):
+    t0 = time.monotonic()
+    motor.arm(LIMITS)
+    elapsed = time.monotonic() - t0
+    assert emu.snapshot()["state"] == AxisState.CLOSED_LOOP_CONTROL
+    assert elapsed >= CAL_S  # it really waited for the calibration
+    states = [s for _, s in emu.model.transitions]
+    assert states == [AxisState.IDLE, AxisState.FULL_CALIBRATION_SEQUENCE, AxisState.IDLE,
+                      AxisState.CLOSED_LOOP_CONTROL]
+    motor.check()
+    assert motor.heartbeat.axis_state == AxisState.CLOSED_LOOP_CONTROL
+
+
+def test_limits_and_mode_sent_before_calibration_and_closed_loop(motor, emu, tmp_path):
+    motor.arm(LIMITS)
+    motor.close()
+    frames = log_frames(tmp_path / "traffic.asc")
+    (i_lim, lim), = sent_to_node(frames, cs.Cmd.SET_LIMITS)
+    (i_mode, mode), = sent_to_node(frames, cs.Cmd.SET_CONTROLLER_MODE)
+    states = sent_to_node(frames, cs.Cmd.SET_AXIS_STATE)
+    i_cal = next(i for i, m in states if m.state == AxisState.FULL_CALIBRATION_SEQUENCE)
+    i_cl = next(i for i, m in states if m.state == AxisState.CLOSED_LOOP_CONTROL)
+    assert i_lim < i_mode < i_cal < i_cl
+    assert lim.vel_limit == pytest.approx(11.0)  # 10 Hz × 1.1 headroom: a real limit, never 8000
+    assert lim.current_limit == pytest.approx(5.0)
+    assert (mode.control_mode, mode.input_mode) == (cs.ControlMode.VELOCITY_CONTROL, cs.InputMode.VEL_RAMP)
+    assert states[-1][1].state == AxisState.IDLE  # close() idled
+    assert emu.snapshot()["vel_limit"] == pytest.approx(11.0)
+
+
+def test_velocity_ramps_to_setpoint_and_telemetry_is_a_motor_batch(motor, emu):
+    motor.start()
+    motor.arm(LIMITS)
+    motor.read()
+    motor.set_frequency(8.0)
+    wait_for(lambda: emu.snapshot()["vel_setpoint"] == 8.0, what="the ramp to reach 8 turn/s")
+    time.sleep(0.8)  # the PI loop overshoots a little after the ramp, then settles (~0.1 s time constant)
+    batch = motor.read()
+    motor.check()
+    spec = motor_spec()
+    assert set(batch.columns) == set(spec.columns)
+    for name, col in spec.columns.items():
+        assert batch.columns[name].dtype == np.dtype(col.dtype)
+    assert len(batch) > 20
+    assert np.all(np.diff(batch.host_time_ns) >= 0) and np.all(np.diff(batch.device_time) >= 0)
+    vel, t = batch.columns["velocity"], batch.device_time
+    assert vel[-1] == pytest.approx(8.0, rel=0.01)
+    assert vel.max() < 8.0 * 1.05
+    assert batch.columns["velocity_setpoint"][-1] == 8.0
+    assert np.all(batch.columns["axis_state"] == AxisState.CLOSED_LOOP_CONTROL)
+    assert np.all(batch.columns["axis_error"] == 0)
+    assert batch.columns["bus_voltage"][-1] == pytest.approx(24.0, abs=0.1)
+    # the ramp: speed rises at most at vel_ramp_rate (40 turn/s²) plus a little loop overshoot
+    rising = vel < 7.5
+    slope = np.diff(vel[rising]) / np.diff(t[rising])
+    assert slope.max() < 40.0 * 1.5
+    assert np.all(np.isfinite(batch.columns["iq_measured"][-5:]))
+    assert np.all(batch.columns["position"][-1] > batch.columns["position"][0])
+
+
+def test_frequency_above_limit_is_refused_before_anything_is_sent(motor, emu, tmp_path):
+    with pytest.raises(DeviceFault, match="before arm"):
+        motor.set_frequency(1.0)
+    motor.arm(LIMITS)
+    for bad in (10.5, -11.0, math.nan, math.inf):
+        with pytest.raises(LimitError):
+            motor.set_frequency(bad)
+    motor.set_frequency(10.0)  # at the limit is allowed
+    motor.close()
+    vels = [m.vel for _, m in sent_to_node(log_frames(tmp_path / "traffic.asc"), cs.Cmd.SET_INPUT_VEL)]
+    assert max(abs(v) for v in vels) == 10.0
+    assert emu.snapshot()["input_vel"] == 0.0  # and the idle on close zeroed it
+
+
+def test_unsafe_limits_are_refused_before_anything_is_sent(channel, emu, tmp_path):
+    with OdriveCanMotor(channel, "virtual", NODE, can_log=tmp_path / "t.asc") as m:
+        with pytest.raises(LimitError):
+            m.arm(MotorLimits(8000.0, 5.0, 2.0))  # the old script's vel_limit
+        with pytest.raises(LimitError):
+            m.arm(MotorLimits(MAX_VEL_LIMIT, 5.0, 2.0))
+        with pytest.raises(LimitError):
+            m.arm(MotorLimits(10.0, 0.0, 2.0))
+    frames = log_frames(tmp_path / "t.asc")
+    assert sent_to_node(frames, cs.Cmd.SET_LIMITS) == []
+    assert emu.snapshot()["vel_limit"] == 2.0  # untouched firmware default
+
+
+def test_watchdog_expires_when_feeding_stops(motor, emu):
+    motor.arm(LIMITS)
+    motor.set_frequency(3.0)
+    time.sleep(0.4)  # longer than the 0.3 s watchdog: the feeder keeps it alive
+    motor.check()
+    motor.stop_feeding()
+    wait_for(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="watchdog idle")
+    snap = emu.snapshot()
+    assert snap["axis_error"] == AxisError.WATCHDOG_TIMER_EXPIRED
+    t_idle = emu.model.transitions[-1][0]
+    assert t_idle - emu.model.last_feed >= 0.3  # it expired only after 0.3 s without a frame
+    with pytest.raises(DeviceFault, match="WATCHDOG_TIMER_EXPIRED"):
+        wait_for_fault(motor)
+
+
+def wait_for_fault(motor, timeout=2.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        motor.check()
+        time.sleep(0.01)
+
+
+def test_heartbeat_lost_raises_device_fault(motor, emu):
+    motor.arm(LIMITS)
+    motor.check()
+    emu.stop()
+    t_stop = time.monotonic()
+    with pytest.raises(DeviceFault, match="heartbeat lost") as err:
+        wait_for_fault(motor)
+    assert time.monotonic() - t_stop > 0.3 - 0.1  # the last heartbeat may predate the stop by one period
+    assert "> 300 ms" in str(err.value)
+
+
+def test_estop(motor, emu):
+    motor.arm(LIMITS)
+    motor.set_frequency(4.0)
+    motor.estop()
+    wait_for(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="estop idle")
+    assert emu.snapshot()["axis_error"] == AxisError.ESTOP_REQUESTED
+    with pytest.raises(DeviceFault, match="ESTOP_REQUESTED"):
+        wait_for_fault(motor)
+    with pytest.raises(DeviceFault):
+        motor.set_frequency(1.0)  # disarmed
+    motor.arm(LIMITS)  # arm clears errors and recovers
+    assert emu.snapshot()["state"] == AxisState.CLOSED_LOOP_CONTROL
+    motor.check()
+
+
+def test_injected_motor_error_is_named(motor, emu):
+    motor.arm(LIMITS)
+    emu.inject_error(motor=0x1000)  # CURRENT_LIMIT_VIOLATION
+    with pytest.raises(DeviceFault, match=r"MOTOR_FAILED.*motor error 0x1000"):
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            try:
+                motor.check()
+            except DeviceFault as exc:
+                if "0x1000" in str(exc):  # the RTR answer for the motor error has arrived
+                    raise
+            time.sleep(0.01)
+
+
+def test_idle_on_exit_from_context_manager_after_exception(channel, emu):
+    with pytest.raises(RuntimeError, match="boom"):
+        with OdriveCanMotor(channel, "virtual", NODE) as m:
+            m.arm(LIMITS)
+            m.set_frequency(5.0)
+            raise RuntimeError("boom")
+    wait_for(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="idle after exception")
+    assert emu.snapshot()["axis_error"] == 0  # a commanded idle, not a watchdog trip
+    assert emu.snapshot()["input_vel"] == 0.0
+
+
+def test_close_after_fault_idles_and_is_idempotent(motor, emu, tmp_path):
+    motor.arm(LIMITS)
+    emu.inject_error(encoder=0x4)
+    with pytest.raises(DeviceFault):
+        wait_for_fault(motor)
+    motor.idle()
+    motor.idle()
+    motor.close()
+    motor.close()
+    motor.idle()  # after close: a no-op, never raises
+    states = [m.state for _, m in sent_to_node(log_frames(tmp_path / "traffic.asc"), cs.Cmd.SET_AXIS_STATE)]
+    assert states[-3:] == [AxisState.IDLE] * 3
+    assert emu.snapshot()["state"] == AxisState.IDLE
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".blf"])
+def test_can_log_has_the_traffic(channel, emu, tmp_path, suffix):
+    path = tmp_path / f"run{suffix}"
+    t_start = time.time()
+    with OdriveCanMotor(channel, "virtual", NODE, can_log=path) as m:
+        m.arm(LIMITS)
+        m.set_frequency(2.0)
+        time.sleep(0.3)
+    t_end = time.time()
+    frames = log_frames(path)
+    parsed = [cs.parse_message(f) for f in frames]  # every logged frame is valid CAN Simple
+    kinds = {type(msg) for _, msg in parsed}
+    assert {cs.Heartbeat, cs.EncoderEstimates, cs.SetLimits, cs.SetInputVel, cs.SetAxisState, cs.Iq,
+            cs.BusVoltageCurrent, cs.Request} <= kinds
+    rx = [f for f in frames if f.is_rx]
+    tx = [f for f in frames if not f.is_rx]
+    assert rx and tx
+    assert all(cs.split_id(f.arbitration_id)[1] in (cs.Cmd.HEARTBEAT, cs.Cmd.GET_ENCODER_ESTIMATES, cs.Cmd.GET_IQ,
+                                                    cs.Cmd.GET_BUS_VOLTAGE_CURRENT) for f in rx)
+    assert any(f.is_remote_frame for f in tx)
+    # timestamps span this run (rx: the sender's wall time on the virtual bus; tx: ours at send;
+    # .asc stores them relative to the first frame, .blf absolute)
+    ts = np.array([f.timestamp for f in frames])
+    assert 0.3 < ts.max() - ts.min() <= t_end - t_start + 0.01
+    assert any(isinstance(msg, cs.SetInputVel) and msg.vel == 2.0 for _, msg in parsed)
+
+
+def test_ping(channel, emu):
+    info = ping(channel, "virtual")
+    assert info["found"] and info["nodes"] == [NODE] and info["node_id"] == NODE
+    assert info["axis_state"] == "IDLE" and info["axis_error"] == "NONE"
+    assert info["bus_voltage_v"] == pytest.approx(24.0)
+    assert info["heartbeat_hz"] == pytest.approx(10, rel=0.3)
+    silent = ping(f"nothing-{uuid.uuid4().hex}", "virtual", node_id=1, listen_s=0.15)
+    assert silent["found"] is False and silent["nodes"] == []
+
+
+def test_arm_without_odrive_raises(tmp_path):
+    with OdriveCanMotor(f"empty-{uuid.uuid4().hex}", "virtual", NODE, heartbeat_timeout_s=0.1) as m:
+        with pytest.raises(DeviceFault, match="no heartbeat"):
+            m.arm(LIMITS)
+        with pytest.raises(DeviceFault, match="no heartbeat"):
+            m.check()
+
+
+@settings(max_examples=500, deadline=None)
+@given(arb_id=st.integers(0, 0x7FF), data=st.binary(max_size=8), rtr=st.booleans())
+def test_fuzz_frames_never_crash_driver_or_emulator(arb_id, data, rtr):
+    frame = can.Message(arbitration_id=arb_id, data=data, is_remote_frame=rtr, dlc=8 if rtr else len(data))
+    driver = OdriveCanMotor("unused", "virtual", NODE)  # never opened: only its receive path runs
+    driver._on_rx(frame)
+    try:
+        driver.check()  # a fuzzed heartbeat may carry error bits: then a DeviceFault, nothing else
+    except DeviceFault:
+        pass
+    model = OdriveAxisModel(OdriveEmulatorConfig(node_id=NODE, calibrated=True, watchdog_timeout_s=0))
+    model.handle(cs.SetControllerMode(cs.ControlMode.VELOCITY_CONTROL, cs.InputMode.VEL_RAMP))
+    model.handle(cs.SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
+    try:
+        _, msg = cs.parse_message(frame)
+    except cs.CanParseError:
+        return
+    for reply in model.handle(msg):
+        reply.encode()
+    model.advance(0.5)
+    for reply in (model.heartbeat(), model.estimates(), *model.handle(cs.Request(cs.Cmd.GET_IQ))):
+        cs.to_can(0, reply)  # everything the emulator would send stays encodable (finite)
+
+
+def test_axis_idled_by_someone_else_is_a_fault(channel, motor, emu):
+    motor.arm(LIMITS)
+    with can.Bus(interface="virtual", channel=channel) as other_host:
+        other_host.send(cs.to_can(NODE, cs.SetAxisState(AxisState.IDLE)))
+    with pytest.raises(DeviceFault, match="left closed loop"):
+        wait_for_fault(motor)
+
+
+def test_bad_log_suffix_is_refused_up_front(tmp_path):
+    with pytest.raises(ValueError, match="unknown log format"):
+        OdriveCanMotor("x", "virtual", NODE, can_log=tmp_path / "traffic.pcap")

@@ -1,0 +1,223 @@
+"""OdriveUsbMotor's mapping logic only (limits → config properties, frequency → input_vel, watchdog, idle).
+
+The ``odrive`` package's libusb layer cannot run here (no device, no USB), so these tests use a plain
+in-process stand-in with the firmware 0.5.x property tree; the real USB path is not exercised.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import time
+
+import numpy as np
+import pytest
+
+from beambench.devices.base import DeviceFault, Motor, MotorLimits
+from beambench.devices.odrive_can import LimitError
+from beambench.devices.odrive_cansimple import AxisError, AxisState, ControlMode, InputMode
+from beambench.devices.odrive_usb import OdriveUsbMotor, ping
+from beambench.streams import motor_spec
+
+LIMITS = MotorLimits(max_frequency_hz=20.0, max_current_a=8.0, amplitude_mm=2.0)
+
+
+class Node:
+    """A property-tree node that records every write as (path, value) into a shared log."""
+
+    def __init__(self, path: str, log: list, **props) -> None:
+        object.__setattr__(self, "_path", path)
+        object.__setattr__(self, "_log", log)
+        for k, v in props.items():
+            object.__setattr__(self, k, v)
+
+    def __setattr__(self, name, value) -> None:
+        self._log.append((f"{self._path}.{name}", value))
+        object.__setattr__(self, name, value)
+
+
+class StandInAxis(Node):
+    """``odrv.axisN`` of firmware 0.5.x: requested_state drives current_state after a calibration delay."""
+
+    def __init__(self, path, log, cal_s=0.05):
+        super().__init__(
+            path, log,
+            error=0, current_state=int(AxisState.IDLE), feeds=0, cal_s=cal_s, cal_end=None,
+            config=Node(f"{path}.config", log, watchdog_timeout=0.0, enable_watchdog=False),
+            controller=Node(f"{path}.controller", log, input_vel=0.0, error=0,
+                            config=Node(f"{path}.controller.config", log, vel_limit=2.0,
+                                        control_mode=int(ControlMode.POSITION_CONTROL),
+                                        input_mode=int(InputMode.PASSTHROUGH), vel_ramp_rate=1.0)),
+            motor=Node(f"{path}.motor", log, error=0, is_calibrated=False,
+                       config=Node(f"{path}.motor.config", log, current_lim=10.0),
+                       current_control=Node(f"{path}.motor.current_control", log, Iq_measured=0.25)),
+            encoder=Node(f"{path}.encoder", log, error=0, is_ready=False, pos_estimate=1.5, vel_estimate=0.0),
+        )
+
+    def __getattribute__(self, name):
+        if name == "current_state":
+            end = object.__getattribute__(self, "cal_end")
+            if end is not None and time.monotonic() >= end:
+                object.__setattr__(self, "cal_end", None)
+                self.motor.is_calibrated = self.encoder.is_ready = True
+                object.__setattr__(self, "current_state", int(AxisState.IDLE))
+        return object.__getattribute__(self, name)
+
+    def __setattr__(self, name, value):
+        super().__setattr__(name, value)
+        if name != "requested_state":
+            return
+        if value == AxisState.FULL_CALIBRATION_SEQUENCE:
+            object.__setattr__(self, "current_state", int(value))
+            object.__setattr__(self, "cal_end", time.monotonic() + self.cal_s)
+        elif value == AxisState.CLOSED_LOOP_CONTROL:
+            ok = self.motor.is_calibrated and self.encoder.is_ready and not self.error
+            object.__setattr__(self, "current_state", int(value) if ok else int(AxisState.IDLE))
+            if not ok:
+                object.__setattr__(self, "error", self.error | AxisError.INVALID_STATE)
+        elif value == AxisState.IDLE:
+            object.__setattr__(self, "current_state", int(AxisState.IDLE))
+
+    def watchdog_feed(self):
+        object.__setattr__(self, "feeds", self.feeds + 1)
+        self._log.append((f"{self._path}.watchdog_feed()", None))
+
+
+class StandInODrive(Node):
+    def __init__(self):
+        log: list = []
+        super().__init__("odrv", log, vbus_voltage=24.0, serial_number=0x3762364A3137, fw_version_major=0,
+                         fw_version_minor=5, fw_version_revision=6, hw_version_major=3, hw_version_minor=6,
+                         hw_version_variant=56)
+        object.__setattr__(self, "axis0", StandInAxis("odrv.axis0", log))
+        object.__setattr__(self, "axis1", StandInAxis("odrv.axis1", log))
+
+    def clear_errors(self):
+        self._log.append(("odrv.clear_errors()", None))
+        for ax in (self.axis0, self.axis1):
+            object.__setattr__(ax, "error", 0)
+
+    def writes(self, suffix: str) -> list[int]:
+        return [i for i, (p, _) in enumerate(self._log) if p.endswith(suffix)]
+
+
+@pytest.fixture
+def odrv():
+    return StandInODrive()
+
+
+@pytest.fixture
+def motor(odrv):
+    m = OdriveUsbMotor(odrv=odrv, poll_period_s=0.005)
+    yield m
+    m.close()
+
+
+def test_protocol_and_identity(motor):
+    assert isinstance(motor, Motor)
+    motor.open()
+    ident = motor.identity()
+    assert ident["serial_number"] == "3762364A3137" and ident["firmware"] == "0.5.6"
+    assert ident["hardware"] == "v3.6-56V"
+
+
+def test_arm_maps_limits_before_calibration_and_closed_loop(motor, odrv):
+    motor.arm(LIMITS)
+    ax = odrv.axis0
+    assert ax.controller.config.vel_limit == pytest.approx(22.0)  # 20 Hz × 1.1, never 8000
+    assert ax.motor.config.current_lim == 8.0
+    assert ax.controller.config.control_mode == ControlMode.VELOCITY_CONTROL
+    assert ax.controller.config.input_mode == InputMode.VEL_RAMP
+    assert ax.config.enable_watchdog is True and ax.config.watchdog_timeout == 0.5
+    assert ax.current_state == AxisState.CLOSED_LOOP_CONTROL
+    requests = [(i, v) for i, (p, v) in enumerate(odrv._log) if p == "odrv.axis0.requested_state"]
+    assert [v for _, v in requests] == [AxisState.FULL_CALIBRATION_SEQUENCE, AxisState.CLOSED_LOOP_CONTROL]
+    first_request = requests[0][0]
+    for prop in ("controller.config.vel_limit", "motor.config.current_lim", "controller.config.control_mode",
+                 "config.enable_watchdog"):
+        assert odrv.writes(prop)[0] < first_request, prop
+    assert odrv.writes("clear_errors()")[0] < odrv.writes("vel_limit")[0]
+    assert odrv.writes("watchdog_feed()")[0] < odrv.writes("enable_watchdog")[0]  # fed before enabling
+    assert odrv.axis1.controller.config.vel_limit == 2.0  # the other axis untouched
+
+
+def test_skips_calibration_when_already_calibrated(motor, odrv):
+    odrv.axis0.motor.is_calibrated = odrv.axis0.encoder.is_ready = True
+    motor.arm(LIMITS)
+    states = [v for p, v in odrv._log if p == "odrv.axis0.requested_state"]
+    assert states == [AxisState.CLOSED_LOOP_CONTROL]
+
+
+def test_frequency_to_input_vel_and_refusals(motor, odrv):
+    with pytest.raises(DeviceFault):
+        motor.set_frequency(1.0)
+    motor.arm(LIMITS)
+    motor.set_frequency(12.5)
+    assert odrv.axis0.controller.input_vel == 12.5
+    n = len(odrv.writes("input_vel"))
+    for bad in (20.5, math.nan, -25.0):
+        with pytest.raises(LimitError):
+            motor.set_frequency(bad)
+    assert len(odrv.writes("input_vel")) == n  # refused before anything was written
+    assert odrv.axis0.controller.input_vel == 12.5
+
+
+def test_unsafe_limits_write_nothing(motor, odrv):
+    with pytest.raises(LimitError):
+        motor.arm(MotorLimits(8000.0, 8.0, 2.0))
+    assert odrv.writes("vel_limit") == [] and odrv.axis0.controller.config.vel_limit == 2.0
+
+
+def test_watchdog_fed_while_armed_and_telemetry(motor, odrv):
+    motor.start()
+    motor.arm(LIMITS)
+    motor.read()
+    feeds = odrv.axis0.feeds
+    odrv.axis0.encoder.vel_estimate = 3.0
+    time.sleep(0.1)
+    assert odrv.axis0.feeds > feeds + 3
+    batch = motor.read()
+    assert set(batch.columns) == set(motor_spec().columns) and len(batch) > 3
+    assert batch.columns["velocity"][-1] == 3.0 and batch.columns["bus_voltage"][-1] == 24.0
+    assert np.all(batch.columns["axis_state"] == AxisState.CLOSED_LOOP_CONTROL)
+    motor.check()
+
+
+def test_idle_on_close_restores_watchdog_and_never_raises(odrv):
+    with pytest.raises(RuntimeError):
+        with OdriveUsbMotor(odrv=odrv, poll_period_s=0.005) as m:
+            m.arm(LIMITS)
+            m.set_frequency(5.0)
+            raise RuntimeError("boom")
+    ax = odrv.axis0
+    assert ax.current_state == AxisState.IDLE and ax.controller.input_vel == 0.0
+    assert ax.config.enable_watchdog is False  # as found
+    m.idle()
+    m.close()
+
+
+def test_check_reports_axis_errors_and_lost_link(motor, odrv):
+    motor.arm(LIMITS)
+    object.__setattr__(odrv.axis0, "error", int(AxisError.WATCHDOG_TIMER_EXPIRED))
+    object.__setattr__(odrv.axis0, "current_state", int(AxisState.IDLE))
+    time.sleep(0.05)
+    with pytest.raises(DeviceFault, match="WATCHDOG_TIMER_EXPIRED"):
+        motor.check()
+    odrv.clear_errors()
+
+    class Unplugged:
+        def __getattr__(self, name):
+            raise OSError("USB device disconnected")
+
+    object.__setattr__(odrv.axis0, "encoder", Unplugged())
+    time.sleep(0.4)
+    with pytest.raises(DeviceFault, match="link lost.*disconnected"):
+        motor.check()
+
+
+def test_ping_with_stand_in_and_without_package(odrv):
+    info = ping(odrv=odrv)
+    assert info["found"] and info["firmware"] == "0.5.6" and info["axis0"]["state"] == "IDLE"
+    if importlib.util.find_spec("odrive") is None:  # the optional extra is absent here
+        missing = ping(timeout_s=0.1)
+        assert missing["found"] is False and "pip install" in missing["error"]
