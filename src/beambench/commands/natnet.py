@@ -1,0 +1,80 @@
+"""``beambench natnet decode``: NatNet frames out of a Wireshark/tcpdump capture, one CSV row per frame."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import NoReturn, Optional
+
+import typer
+
+natnet_app = typer.Typer(
+    help="OptiTrack Motive (NatNet 3.0/4.0/4.1) tools.", no_args_is_help=True, add_completion=False
+)
+
+
+def _fail(message: str) -> NoReturn:
+    typer.echo(f"beambench: error: {message}", err=True)
+    raise typer.Exit(2)
+
+
+@natnet_app.command("decode")
+def decode(
+    capture: Path = typer.Argument(..., metavar="CAPTURE", help="A .pcapng or .pcap file with NatNet traffic."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Write the frames to this CSV file (default: stdout)."),
+    natnet_version: Optional[str] = typer.Option(
+        None, "--natnet-version", help="NatNet version X.Y, used when the capture holds no SERVERINFO."
+    ),
+    ports: str = typer.Option("1510,1511", "--ports", help="UDP ports of the NatNet traffic, comma-separated."),
+) -> None:
+    """Decode every NatNet frame of CAPTURE (UDP to or from the NatNet ports) into one row per frame.
+
+    Columns: capture time, frame number, the timestamp suffix (SMPTE timecode, timestamp in s, camera
+    mid-exposure / data-received / transmit QPC ticks, the 4.1 precision timestamp), software and system
+    latency, then per rigid body rb<id>_x..qw, error, valid and per labeled marker m<model>_<marker>_x, y, z,
+    size, occluded, params. The NatNet version is taken from a SERVERINFO in the capture, else --natnet-version.
+    Prints a summary line (frames, dropped, parse errors, version, rate).
+    """
+    from beambench.devices import natnet_protocol as nn
+    from beambench.devices.natnet_capture import decode_capture, frames_table
+    from beambench.pcap import CaptureError
+
+    if natnet_version is not None:
+        try:
+            v = nn.Version.parse(natnet_version)
+        except ValueError:
+            _fail(f"--natnet-version {natnet_version!r}: expected X.Y, e.g. 3.0, 4.0 or 4.1")
+        if (v.major, v.minor) not in [(s.major, s.minor) for s in nn.SUPPORTED_VERSIONS]:
+            _fail(f"--natnet-version {natnet_version}: supported are 3.0, 4.0 and 4.1")
+    try:
+        port_list = [int(p) for p in ports.split(",") if p.strip()]
+        if not port_list or any(not 0 < p < 65536 for p in port_list):
+            raise ValueError
+    except ValueError:
+        _fail(f"--ports {ports!r}: expected port numbers separated by commas, e.g. 1510,1511")
+    if not capture.is_file():
+        _fail(f"{capture}: no such file")
+    try:
+        decoded = decode_capture(capture, natnet_version, port_list)
+    except CaptureError as exc:
+        _fail(str(exc))
+    except ValueError as exc:
+        _fail(f"{capture}: {exc}")
+    table = frames_table(decoded)
+    summary = decoded.summary(capture.name)
+    if out is not None:
+        try:
+            table.to_csv(out, index=False)
+        except OSError as exc:
+            _fail(f"{out}: cannot write ({exc.strerror})")
+        typer.echo(summary)
+        typer.echo(f"wrote {len(table)} rows to {out}")
+    else:
+        table.to_csv(sys.stdout, index=False)
+        typer.echo(summary, err=True)
+    for err in decoded.errors[:5]:
+        typer.echo(f"  parse error: {err}", err=True)
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(natnet_app, name="natnet")

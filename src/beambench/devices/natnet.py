@@ -1,0 +1,607 @@
+"""NatNet client for OptiTrack Motive (NatNet 3.0, 4.0, 4.1) and the ``mocap`` stream built on it.
+
+:class:`NatNetClient` speaks the protocol over UDP: CONNECT → SERVERINFO on the command port (1510), then
+MODELDEF, the ``FrameRate`` request and ECHO round trips (kept for clock sync, best by minimum round-trip
+time). Frames arrive by multicast (239.255.42.99:1511 by default) or, in unicast, on the command socket, which
+is kept alive with KEEPALIVE messages. Every address and port is configurable. One receive thread decodes
+everything; a malformed packet is counted (``stats.parse_errors``) and skipped, a gap in frame numbers adds
+to ``stats.dropped_frames``; nothing received can stop the thread.
+
+:class:`NatNetMocap` adapts the client to the :class:`beambench.devices.base.Stream` seam: batches of
+:func:`beambench.streams.mocap_spec` (metres, Motive frame number, per-marker occlusion), with a
+configurable map from marker names to labeled-marker ids or rigid-body ids.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import queue
+import selectors
+import socket
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from beambench.devices import natnet_protocol as nn
+from beambench.devices.base import DeviceFault
+from beambench.hub import Batch, StreamSpec
+from beambench.streams import MOCAP, MOCAP_RATE_HZ, mocap_spec
+
+__all__ = ["NatNetConfig", "NatNetClient", "NatNetError", "NatNetStats", "EchoSample", "NatNetMocap", "ping"]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_MULTICAST = "239.255.42.99"
+DEFAULT_DATA_PORT = 1511
+CLIENT_VERSION = nn.Version(0, 1, 0, 0)
+
+
+class NatNetError(DeviceFault):
+    """The NatNet server did not answer, refused a request, or the receive thread failed."""
+
+
+@dataclass
+class NatNetConfig:
+    """Where Motive is and how to listen. ``None`` for data port / multicast group means "as SERVERINFO says"."""
+
+    server_address: str = "127.0.0.1"
+    local_address: str = "127.0.0.1"  # our interface: bind address, and where to join the multicast group
+    command_port: int = 1510
+    data_port: int | None = None
+    multicast_address: str | None = None
+    multicast: bool = True
+    bitstream_version: str | None = None  # ask a NatNet 4.x server to stream this version ("3.0", "4.0", "4.1")
+    timeout_s: float = 2.0
+    keepalive_interval_s: float = 1.0
+    echo_interval_s: float = 0.5
+    echo_history: int = 256
+    initial_echoes: int = 8
+    recv_buffer_bytes: int = 4 << 20
+    client_name: str = "beambench"
+
+    @classmethod
+    def from_mapping(cls, d: Mapping[str, Any]) -> "NatNetConfig":
+        """Build from a rig-file mapping; unknown keys are an error naming them."""
+        known = set(cls.__dataclass_fields__)
+        bad = sorted(set(d) - known)
+        if bad:
+            raise ValueError(f"unknown NatNet setting(s) {bad}; known: {sorted(known)}")
+        return cls(**dict(d))
+
+
+@dataclass(frozen=True)
+class EchoSample:
+    """One ECHO round trip: host send/receive (monotonic ns) and the server's QPC ticks on receipt."""
+
+    host_send_ns: int
+    host_recv_ns: int
+    server_ticks: int
+
+    @property
+    def rtt_ns(self) -> int:
+        return self.host_recv_ns - self.host_send_ns
+
+    @property
+    def host_mid_ns(self) -> int:
+        return (self.host_send_ns + self.host_recv_ns) // 2
+
+
+@dataclass
+class NatNetStats:
+    packets: int = 0
+    frames: int = 0
+    dropped_frames: int = 0  # sum of gaps in frame numbers
+    out_of_order: int = 0  # frame numbers that went backwards or repeated
+    parse_errors: int = 0
+    ignored: int = 0  # packets that could not be used (e.g. frames before SERVERINFO)
+    echoes: int = 0
+    overflowed: int = 0  # frames pushed out of the receive buffer because nobody read them in time
+    first_frame_number: int | None = None
+    last_frame_number: int | None = None
+    last_error: str = ""
+
+
+class NatNetClient:
+    """A NatNet client with one receive thread. Use as a context manager or ``connect()`` / ``close()``."""
+
+    def __init__(self, config: NatNetConfig | None = None, on_frame: Callable[[int, nn.FrameOfData], None] | None = None):
+        self.config = config or NatNetConfig()
+        self.on_frame = on_frame
+        self.stats = NatNetStats()
+        self.server_info: nn.ServerInfo | None = None
+        self.model_def: nn.ModelDef | None = None
+        self.frame_rate: float | None = None
+        self.version: nn.Version | None = None
+        self.echoes: collections.deque[EchoSample] = collections.deque(maxlen=self.config.echo_history)
+        self.frames: collections.deque[tuple[int, nn.FrameOfData]] = collections.deque(maxlen=100_000)
+        self.keep_frames = False
+        self._cmd: socket.socket | None = None
+        self._data: socket.socket | None = None
+        self._sel: selectors.DefaultSelector | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._serverinfo_evt = threading.Event()
+        self._modeldef_evt = threading.Event()
+        self._responses: queue.Queue[nn.Response | nn.UnrecognizedRequest] = queue.Queue()
+        self._request_lock = threading.Lock()
+        self._pending_echo: dict[int, int] = {}
+        self._last_keepalive = 0.0
+        self._last_echo = 0.0
+        self._thread_error: BaseException | None = None
+        self._lock = threading.Lock()
+
+    # ------------------------------------------------------------------ lifecycle
+
+    @property
+    def server_address(self) -> tuple[str, int]:
+        return (self.config.server_address, self.config.command_port)
+
+    def connect(self) -> "NatNetClient":
+        """Handshake (CONNECT/SERVERINFO), join the data stream, fetch MODELDEF and frame rate, sync clocks."""
+        cfg = self.config
+        try:
+            self._cmd = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+            self._cmd.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, cfg.recv_buffer_bytes)
+            self._cmd.bind((cfg.local_address, 0))
+            self._cmd.setblocking(False)
+        except OSError as exc:
+            self.close()
+            raise NatNetError(f"NatNet: cannot open the command socket on {cfg.local_address}: {exc}") from None
+        self._sel = selectors.DefaultSelector()
+        self._sel.register(self._cmd, selectors.EVENT_READ)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="natnet-rx", daemon=True)
+        self._thread.start()
+        try:
+            self._handshake()
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def _handshake(self) -> None:
+        cfg = self.config
+        hello = nn.Connect(nn.Sender(cfg.client_name, CLIENT_VERSION, nn.V4_1))
+        for _ in range(3):
+            self.send(hello)
+            if self._serverinfo_evt.wait(cfg.timeout_s / 3):
+                break
+        else:
+            raise NatNetError(f"NatNet: no SERVERINFO from {cfg.server_address}:{cfg.command_port} within {cfg.timeout_s} s")
+        info = self.server_info
+        assert info is not None
+        if info.natnet_version.major not in (3, 4):
+            raise NatNetError(f"NatNet: server speaks NatNet {info.natnet_version}; supported are 3.0, 4.0 and 4.1")
+        if info.natnet_version[:2] > (4, 1):
+            log.warning("NatNet: server speaks %s; decoding as 4.1 (newer fields are skipped)", info.natnet_version)
+        if cfg.multicast:
+            self._open_data_socket(info)
+        if cfg.bitstream_version:
+            self.set_bitstream_version(cfg.bitstream_version)
+        self.request_model_def()
+        try:
+            self.frame_rate = self.request("FrameRate").as_float()
+        except (NatNetError, nn.NatNetParseError) as exc:
+            log.warning("NatNet: FrameRate request failed: %s", exc)
+        for _ in range(cfg.initial_echoes):
+            self.send_echo()
+            time.sleep(0.005)
+        deadline = time.monotonic() + min(cfg.timeout_s, 0.5)
+        while self.stats.echoes < cfg.initial_echoes and time.monotonic() < deadline:
+            time.sleep(0.005)
+
+    def _open_data_socket(self, info: nn.ServerInfo) -> None:
+        cfg = self.config
+        port = cfg.data_port or info.data_port or DEFAULT_DATA_PORT
+        group = cfg.multicast_address or info.multicast_group or DEFAULT_MULTICAST
+        if group in ("0.0.0.0", "255.255.255.255"):
+            group = DEFAULT_MULTICAST
+        try:
+            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if hasattr(socket, "SO_REUSEPORT"):
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, cfg.recv_buffer_bytes)
+            s.bind(("" if sys.platform == "win32" else group, port))
+            iface = socket.inet_aton(cfg.local_address if cfg.local_address not in ("", "0.0.0.0") else "0.0.0.0")
+            s.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, socket.inet_aton(group) + iface)
+            s.setblocking(False)
+        except OSError as exc:
+            raise NatNetError(f"NatNet: cannot join multicast {group}:{port} on {cfg.local_address}: {exc}") from None
+        self._data = s
+        assert self._sel is not None
+        self._sel.register(s, selectors.EVENT_READ)
+
+    def close(self) -> None:
+        """Stop the thread and close the sockets (tells a unicast server we left). Idempotent."""
+        if self._cmd is not None and not self.config.multicast and self.server_info is not None:
+            try:
+                self.send(nn.Disconnect())
+            except OSError:
+                pass
+        self._stop.set()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
+        self._thread = None
+        for s in (self._data, self._cmd):
+            if s is not None:
+                try:
+                    s.close()
+                except OSError:
+                    pass
+        self._data = self._cmd = None
+        if self._sel is not None:
+            self._sel.close()
+            self._sel = None
+
+    def __enter__(self) -> "NatNetClient":
+        return self.connect() if self._cmd is None else self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ requests
+
+    def send(self, message: nn.Message) -> None:
+        if self._cmd is None:
+            raise NatNetError("NatNet: client is not connected")
+        self._cmd.sendto(nn.encode(message, self.version), self.server_address)
+
+    def request(self, command: str, timeout: float | None = None) -> nn.Response:
+        """Send a text command (e.g. ``"FrameRate"``) and wait for its RESPONSE."""
+        with self._request_lock:
+            while not self._responses.empty():
+                self._responses.get_nowait()
+            self.send(nn.Request(command))
+            try:
+                reply = self._responses.get(timeout=timeout or self.config.timeout_s)
+            except queue.Empty:
+                raise NatNetError(f"NatNet: no response to {command!r} within {timeout or self.config.timeout_s} s") from None
+        if isinstance(reply, nn.UnrecognizedRequest):
+            raise NatNetError(f"NatNet: server does not recognise {command!r}")
+        return reply
+
+    def request_model_def(self, timeout: float | None = None) -> nn.ModelDef | None:
+        self._modeldef_evt.clear()
+        self.send(nn.RequestModelDef())
+        if not self._modeldef_evt.wait(timeout or self.config.timeout_s):
+            log.warning("NatNet: no MODELDEF within %s s", timeout or self.config.timeout_s)
+        return self.model_def
+
+    def set_bitstream_version(self, version: str) -> None:
+        """Ask a NatNet 4.x server to stream another version; frames are decoded with it from then on."""
+        want = nn.Version.parse(version)
+        want = nn.Version(want.major, want.minor)
+        if want not in nn.SUPPORTED_VERSIONS:
+            raise NatNetError(f"NatNet: cannot request bitstream {want}; supported: 3.0, 4.0, 4.1")
+        assert self.server_info is not None
+        if self.version is not None and (self.version.major, self.version.minor) == want[:2]:
+            return
+        if self.server_info.natnet_version.major < 4:
+            raise NatNetError(f"NatNet: a NatNet {self.server_info.natnet_version} server cannot change its bitstream")
+        code = self.request(f"Bitstream,{want.major}.{want.minor}").as_int()
+        if code != 0:
+            raise NatNetError(f"NatNet: server refused bitstream {want} (code {code})")
+        with self._lock:
+            self.version = want
+
+    def send_echo(self) -> None:
+        stamp = time.monotonic_ns()
+        with self._lock:
+            self._pending_echo[stamp] = stamp
+            if len(self._pending_echo) > 64:
+                self._pending_echo.pop(next(iter(self._pending_echo)))
+        self._last_echo = time.monotonic()
+        self.send(nn.EchoRequest(stamp))
+
+    # ------------------------------------------------------------------ clock sync
+
+    def best_echo(self) -> EchoSample | None:
+        """The echo with the smallest round trip among those kept (the min-RTT filter)."""
+        samples = list(self.echoes)
+        return min(samples, key=lambda e: e.rtt_ns) if samples else None
+
+    def server_ticks_to_host_ns(self, ticks: int) -> int | None:
+        """Host monotonic ns of a server QPC tick count, by the best echo (offset only; drift is for sync)."""
+        best, freq = self.best_echo(), self.clock_frequency
+        if best is None or not freq:
+            return None
+        return best.host_mid_ns + round((ticks - best.server_ticks) * 1e9 / freq)
+
+    def echo_table(self) -> dict[str, np.ndarray]:
+        """All kept echoes as arrays (host send/receive ns, server ticks), for fitting a clock map in sync."""
+        e = list(self.echoes)
+        return {
+            "host_send_ns": np.array([x.host_send_ns for x in e], dtype=np.int64),
+            "host_recv_ns": np.array([x.host_recv_ns for x in e], dtype=np.int64),
+            "server_ticks": np.array([x.server_ticks for x in e], dtype=np.uint64),
+        }
+
+    @property
+    def clock_frequency(self) -> int | None:
+        return self.server_info.clock_frequency if self.server_info else None
+
+    # ------------------------------------------------------------------ receive thread
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                sel = self._sel
+                if sel is None:
+                    break
+                for key, _ in sel.select(timeout=0.05):
+                    self._drain(key.fileobj)  # type: ignore[arg-type]
+                self._timers()
+        except BaseException as exc:  # pragma: no cover - reported through read()/check()
+            if not self._stop.is_set():
+                self._thread_error = exc
+                log.exception("NatNet receive thread failed")
+
+    def _drain(self, sock: socket.socket) -> None:
+        for _ in range(256):
+            try:
+                data, _addr = sock.recvfrom(65536)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            self._handle(data, time.monotonic_ns())
+
+    def _timers(self) -> None:
+        if self.server_info is None or self._cmd is None:
+            return
+        now = time.monotonic()
+        try:
+            if not self.config.multicast and now - self._last_keepalive >= self.config.keepalive_interval_s:
+                self._last_keepalive = now
+                self.send(nn.KeepAlive())
+            if self.config.echo_interval_s > 0 and now - self._last_echo >= self.config.echo_interval_s:
+                self.send_echo()
+        except OSError as exc:
+            self.stats.last_error = f"send failed: {exc}"
+
+    def _handle(self, data: bytes, host_ns: int) -> None:
+        st = self.stats
+        st.packets += 1
+        try:
+            mid = nn.peek_message_id(data)
+            if mid in (nn.MessageId.FRAMEOFDATA, nn.MessageId.MODELDEF) and self.version is None:
+                st.ignored += 1
+                return
+            msg = nn.decode(data, self.version)
+        except nn.NatNetParseError as exc:
+            st.parse_errors += 1
+            st.last_error = str(exc)
+            return
+        if isinstance(msg, nn.FrameOfData):
+            self._on_frame(host_ns, msg)
+        elif isinstance(msg, nn.EchoResponse):
+            with self._lock:
+                sent = self._pending_echo.pop(msg.client_stamp, None)
+            if sent is not None:
+                self.echoes.append(EchoSample(sent, host_ns, msg.server_stamp))
+                st.echoes += 1
+        elif isinstance(msg, nn.ServerInfo):
+            with self._lock:
+                if self.server_info is None:
+                    self.version = nn.Version(msg.natnet_version.major, msg.natnet_version.minor)
+                self.server_info = msg
+            self._serverinfo_evt.set()
+        elif isinstance(msg, nn.ModelDef):
+            self.model_def = msg
+            self._modeldef_evt.set()
+        elif isinstance(msg, (nn.Response, nn.UnrecognizedRequest)):
+            self._responses.put(msg)
+        elif isinstance(msg, nn.MessageString):
+            log.info("NatNet server message: %s", msg.text)
+        else:
+            st.ignored += 1
+
+    def _on_frame(self, host_ns: int, frame: nn.FrameOfData) -> None:
+        st = self.stats
+        n = frame.frame_number
+        last = st.last_frame_number
+        if last is None:
+            st.first_frame_number = n
+        else:
+            if n > last + 1:
+                st.dropped_frames += n - last - 1
+            elif n <= last:
+                st.out_of_order += 1
+        st.last_frame_number = n
+        st.frames += 1
+        if self.keep_frames:
+            if len(self.frames) == self.frames.maxlen:
+                st.overflowed += 1
+            self.frames.append((host_ns, frame))
+        if self.on_frame is not None:
+            self.on_frame(host_ns, frame)
+
+    def check(self) -> None:
+        if self._thread_error is not None:
+            raise NatNetError(f"NatNet receive thread failed: {self._thread_error!r}")
+
+    def info(self) -> dict[str, Any]:
+        """What the server told us: application, versions, frame rate, clock, connection."""
+        i = self.server_info
+        best = self.best_echo()
+        return {
+            "app_name": i.app_name if i else None,
+            "app_version": str(i.app_version) if i else None,
+            "natnet_version": str(i.natnet_version) if i else None,
+            "stream_version": self.version.short() if self.version else None,
+            "frame_rate_hz": self.frame_rate,
+            "clock_frequency_hz": i.clock_frequency if i else None,
+            "multicast": self.config.multicast,
+            "server": f"{self.config.server_address}:{self.config.command_port}",
+            "min_rtt_ms": best.rtt_ns / 1e6 if best else None,
+        }
+
+
+def ping(config: NatNetConfig | None = None) -> dict[str, Any]:
+    """Connect, read the server's identity and frame rate, disconnect. For ``beambench devices``."""
+    cfg = config or NatNetConfig()
+    quick = NatNetConfig(**{**cfg.__dict__, "initial_echoes": 3, "echo_interval_s": 0.0})
+    with NatNetClient(quick) as c:
+        return c.info()
+
+
+# ---------------------------------------------------------------------------------------------- Stream adapter
+
+
+@dataclass(frozen=True)
+class MarkerSource:
+    """Where one named marker comes from: a labeled marker id (model << 16 | marker) or a rigid body id."""
+
+    kind: str  # "marker" | "rigid_body"
+    id: int
+
+    @classmethod
+    def parse(cls, value: Any) -> "MarkerSource":
+        """``1:3`` / (1, 3) → model 1 marker 3; ``rb:2`` → rigid body 2; an int → raw labeled-marker id."""
+        if isinstance(value, MarkerSource):
+            return value
+        if isinstance(value, bool):
+            raise ValueError(f"not a marker source: {value!r}")
+        if isinstance(value, int):
+            return cls("marker", value)
+        if isinstance(value, (tuple, list)) and len(value) == 2:
+            return cls("marker", (int(value[0]) << 16) | (int(value[1]) & 0xFFFF))
+        text = str(value).strip().lower()
+        if text.startswith(("rb:", "rigid_body:", "rigidbody:")):
+            return cls("rigid_body", int(text.split(":", 1)[1]))
+        if ":" in text:
+            model, marker = text.split(":", 1)
+            return cls("marker", (int(model) << 16) | (int(marker) & 0xFFFF))
+        return cls("marker", int(text))
+
+
+def default_marker_map(markers: Sequence[str], model_id: int = 1) -> dict[str, MarkerSource]:
+    """Markers in order as labeled markers 1..M of one asset (the emulator's default layout)."""
+    return {m: MarkerSource("marker", (model_id << 16) | (i + 1)) for i, m in enumerate(markers)}
+
+
+class NatNetMocap:
+    """The ``mocap`` stream from Motive: each :meth:`read` returns every frame received since the last one.
+
+    ``device_time`` is the camera mid-exposure time on Motive's QPC clock (ticks / clock frequency, s) when the
+    server sends it (``device_time="mid_exposure"``), else Motive's frame timestamp; ``host_time_ns`` is
+    ``time.monotonic_ns()`` when the packet arrived. A marker missing from a frame, flagged occluded, or a
+    rigid body not tracked, is ``occluded`` with NaN position.
+    """
+
+    def __init__(
+        self,
+        markers: Sequence[str],
+        config: NatNetConfig | None = None,
+        marker_map: Mapping[str, Any] | None = None,
+        rate_hz: float | None = None,
+        device_time: str = "mid_exposure",
+    ) -> None:
+        if device_time not in ("mid_exposure", "timestamp"):
+            raise ValueError(f"device_time must be 'mid_exposure' or 'timestamp', not {device_time!r}")
+        self.name = MOCAP
+        self.markers = tuple(markers)
+        raw = marker_map if marker_map is not None else default_marker_map(self.markers)
+        missing = [m for m in self.markers if m not in raw]
+        if missing:
+            raise ValueError(f"marker map has no source for {missing}")
+        self.sources = [MarkerSource.parse(raw[m]) for m in self.markers]
+        self.config = config or NatNetConfig()
+        self.rate_hz = rate_hz
+        self.device_time_mode = device_time
+        self.client: NatNetClient | None = None
+        self._spec = mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ)
+
+    @classmethod
+    def from_rig(cls, section: Mapping[str, Any], markers: Sequence[str] | None = None, **kw: Any) -> "NatNetMocap":
+        """From the rig file's ``natnet:`` block: NatNetConfig fields plus ``markers: {name: source}`` where a
+        source is ``"model:marker"``, ``"rb:<id>"`` or a raw labeled-marker id (``model << 16 | marker``)."""
+        d = dict(section)
+        mapping = d.pop("markers", None)
+        for key in ("rate_hz", "device_time"):
+            if key in d:
+                kw.setdefault(key, d.pop(key))
+        names = tuple(markers) if markers is not None else tuple(mapping or ())
+        if not names:
+            raise ValueError("natnet: no markers given (add markers: {name: model:marker} to the rig file)")
+        return cls(names, NatNetConfig.from_mapping(d), mapping, **kw)
+
+    def describe(self) -> StreamSpec:
+        if self.rate_hz is None and self.client is not None and self.client.frame_rate:
+            self._spec = mocap_spec(self.markers, float(self.client.frame_rate))
+        return self._spec
+
+    def start(self) -> None:
+        if self.client is None:
+            self.client = NatNetClient(self.config).connect()
+        self.client.frames.clear()
+        self.client.keep_frames = True
+
+    def stop(self) -> None:
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+
+    @property
+    def stats(self) -> NatNetStats:
+        return self.client.stats if self.client is not None else NatNetStats()
+
+    @property
+    def dropped_frames(self) -> int:
+        return self.stats.dropped_frames
+
+    @property
+    def parse_errors(self) -> int:
+        return self.stats.parse_errors
+
+    def identity(self) -> dict[str, Any]:
+        return self.client.info() if self.client is not None else {}
+
+    def read(self) -> Batch:
+        c = self.client
+        if c is None:
+            return self._spec.empty_batch()
+        c.check()
+        items = []
+        while True:
+            try:
+                items.append(c.frames.popleft())
+            except IndexError:
+                break
+        return self.to_batch(items, c.clock_frequency)
+
+    def to_batch(self, items: list[tuple[int, nn.FrameOfData]], clock_frequency: int | None) -> Batch:
+        """Frames (host ns, frame) → one Batch of the mocap stream."""
+        n, m = len(items), len(self.markers)
+        if n == 0:
+            return self._spec.empty_batch()
+        data = np.full((n, m, 3), np.nan)
+        occluded = np.ones((n, m), dtype=bool)
+        frame = np.empty(n, dtype=np.int64)
+        host = np.empty(n, dtype=np.int64)
+        dev = np.empty(n, dtype=np.float64)
+        use_ticks = self.device_time_mode == "mid_exposure" and bool(clock_frequency)
+        for i, (host_ns, f) in enumerate(items):
+            host[i] = host_ns
+            frame[i] = f.frame_number
+            dev[i] = f.mid_exposure / clock_frequency if use_ticks and f.mid_exposure else f.timestamp  # type: ignore[operator]
+            lms = {lm.id: lm for lm in f.labeled_markers}
+            rbs = {rb.id: rb for rb in f.rigid_bodies} if f.rigid_bodies else {}
+            for j, src in enumerate(self.sources):
+                if src.kind == "marker":
+                    lm = lms.get(src.id)
+                    if lm is not None and not lm.occluded:
+                        data[i, j] = lm.position
+                        occluded[i, j] = False
+                else:
+                    rb = rbs.get(src.id)
+                    if rb is not None and rb.tracking_valid:
+                        data[i, j] = rb.position
+                        occluded[i, j] = False
+        return Batch(self.name, host, dev, {"data": data, "frame": frame, "occluded": occluded})

@@ -1,0 +1,231 @@
+"""The capture decoder against a real Motive 2.1 capture and the official SDK sample client's printout of it.
+
+``traffic.pcapng`` holds 518 frames (162734–163251); ``SampleClient_output.txt`` printed the first 251 of
+them (162734–162984) before the client was stopped. Every printed field of those 251 frames is compared
+with our decoding, formatted as the sample client formats it (``%.2f``); all 518 must decode cleanly.
+"""
+
+from __future__ import annotations
+
+import re
+import socket
+import struct
+from decimal import ROUND_HALF_UP, Decimal
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from beambench.cli import app
+from beambench.devices import natnet_protocol as nn
+from beambench.devices.natnet_capture import decode_capture, frames_table
+from beambench.pcap import CaptureError, read_udp
+
+FIXTURES = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "natnet"
+CAPTURE = FIXTURES / "traffic.pcapng"
+PRINTOUT = FIXTURES / "SampleClient_output.txt"
+
+
+@pytest.fixture(scope="module")
+def decoded():
+    if not CAPTURE.is_file():
+        pytest.skip(f"Motive capture {CAPTURE} not found (../shared is absent in this checkout)")
+    return decode_capture(CAPTURE)
+
+
+def parse_printout(text: str) -> dict[int, dict]:
+    """The sample client's per-frame blocks → {frame id: fields as printed}."""
+    frames: dict[int, dict] = {}
+    cur: dict | None = None
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        if m := re.match(r"FrameID : (\d+)$", line):
+            cur = {"other": [], "rb": [], "lm": []}
+            frames[int(m.group(1))] = cur
+        elif cur is None:
+            continue
+        elif m := re.match(r"Timestamp : (\S+)$", line):
+            cur["timestamp"] = m.group(1)
+        elif m := re.match(r"Software latency : (\S+) milliseconds", line):
+            cur["software_latency"] = m.group(1)
+        elif m := re.match(r"System latency : (\S+) milliseconds", line):
+            cur["system_latency"] = m.group(1)
+        elif m := re.match(r"Timecode : (\S+)$", line):
+            cur["timecode"] = m.group(1)
+        elif m := re.match(r"Other Markers \[Count=(\d+)\]", line):
+            cur["n_other"] = int(m.group(1))
+        elif m := re.match(r"Other Marker \d+ : (\S+)\t(\S+)\t(\S+)$", line):
+            cur["other"].append(m.groups())
+        elif m := re.match(r"Rigid Bodies \[Count=(\d+)\]", line):
+            cur["n_rb"] = int(m.group(1))
+        elif m := re.match(r"Rigid Body \[ID=(\d+)\s+Error=(\S+)\s+Valid=(\d)\]", line):
+            values = lines[i + 2].split()
+            cur["rb"].append((int(m.group(1)), m.group(2), int(m.group(3)), tuple(values)))
+        elif m := re.match(r"Skeletons \[Count=(\d+)\]", line):
+            cur["n_skel"] = int(m.group(1))
+        elif m := re.match(r"Labeled Markers \[Count=(\d+)\]", line):
+            cur["n_lm"] = int(m.group(1))
+        elif m := re.match(
+            r"Labeled Marker \[ModelID=(\d+), MarkerID=(\d+), Occluded=(\d), PCSolved=(\d), ModelSolved=(\d)\] "
+            r"\[size=(\S+)\] \[pos=(\S+),(\S+),(\S+)\]",
+            line,
+        ):
+            g = m.groups()
+            cur["lm"].append((int(g[0]), int(g[1]), int(g[2]), int(g[3]), int(g[4]), g[5], g[6:]))
+        elif m := re.match(r"Force Plate \[Count=(\d+)\]", line):
+            cur["n_fp"] = int(m.group(1))
+        elif m := re.match(r"Device \[Count=(\d+)\]", line):
+            cur["n_dev"] = int(m.group(1))
+    return frames
+
+
+def f2(x: float) -> str:
+    """``printf("%.2f")`` as the MSVC-built sample client does it: the value is first rounded to 17 significant
+    digits, then half away from zero (so 1356.175, stored as 1356.17499999999995…, prints as 1356.18)."""
+    return str(Decimal("%.16e" % x).quantize(Decimal("0.01"), rounding=ROUND_HALF_UP))
+
+
+def test_all_518_frames_decode_in_order(decoded):
+    assert len(decoded.frames) == 518
+    numbers = [f.frame_number for _, f in decoded.frames]
+    assert numbers == list(range(162734, 162734 + 518))
+    assert (decoded.parse_errors, decoded.dropped_frames, decoded.out_of_order) == (0, 0, 0)
+    assert decoded.version == nn.V3_0 and decoded.version_source == "SERVERINFO"
+    assert decoded.server_info.app_name == "Motive" and decoded.server_info.clock_frequency > 0
+    assert decoded.frame_rate_hz == pytest.approx(120.0, rel=1e-6)  # the capture's FrameRate answer is 120 Hz
+    for _, f in decoded.frames:  # the same scene throughout: one valid rigid body, six labeled markers
+        assert [rb.id for rb in f.rigid_bodies] == [2] and f.rigid_bodies[0].tracking_valid
+        assert len(f.labeled_markers) == 6 and len(f.other_markers) == 5
+        assert f.mid_exposure < f.data_received < f.transmit
+        assert f.timestamp == pytest.approx(f.frame_number / 120.0, abs=1e-6)
+
+
+def test_frames_match_the_sample_client_field_by_field(decoded):
+    if not PRINTOUT.is_file():
+        pytest.skip(f"{PRINTOUT} not found (../shared is absent in this checkout)")
+    printed = parse_printout(PRINTOUT.read_text())
+    assert len(printed) == 251
+    freq = decoded.server_info.clock_frequency
+    ours = {f.frame_number: f for _, f in decoded.frames}
+    compared = 0
+    for number, p in printed.items():
+        f = ours[number]
+        assert p["timestamp"] == f2(f.timestamp), number
+        assert p["software_latency"] == f2((f.transmit - f.data_received) * 1000 / freq), number
+        assert p["system_latency"] == f2((f.transmit - f.mid_exposure) * 1000 / freq), number
+        assert p["timecode"] == f.timecode_string
+        assert p["n_other"] == len(f.other_markers)
+        assert p["other"] == [tuple(f2(x) for x in m) for m in f.other_markers], number
+        assert p["n_rb"] == len(f.rigid_bodies)
+        assert p["rb"] == [
+            (rb.id, f2(rb.error), int(rb.tracking_valid), tuple(f2(x) for x in (*rb.position, *rb.orientation)))
+            for rb in f.rigid_bodies
+        ], number
+        assert p["n_skel"] == len(f.skeletons) == 0
+        assert p["n_lm"] == len(f.labeled_markers)
+        assert p["lm"] == [
+            (m.model_id, m.marker_id, int(m.occluded), int(m.point_cloud_solved), int(m.model_solved), f2(m.size),
+             tuple(f2(x) for x in m.position))
+            for m in f.labeled_markers
+        ], number
+        assert p["n_fp"] == len(f.force_plates) and p["n_dev"] == len(f.devices)
+        compared += 1
+    assert compared == 251
+
+
+def test_capture_holds_the_handshake(decoded):
+    msgs = [nn.decode(g.payload, (3, 0)) for g in read_udp(CAPTURE, [1510, 1511])]
+    kinds = [type(m).__name__ for m in msgs]
+    assert kinds.count("FrameOfData") == 518 and kinds.count("EchoResponse") == 9
+    rate = [m for m in msgs if isinstance(m, nn.Response) and len(m.payload_bytes) == 4][0]
+    assert rate.as_float() == 120.0  # the "FrameRate" answer
+    md = [m for m in msgs if isinstance(m, nn.ModelDef)][0]
+    assert md.rigid_bodies()[0].name == "RaceQuad"
+    first_frame = next(g.payload for g in read_udp(CAPTURE, [1511]) if nn.peek_message_id(g.payload) == 7)
+    if (FIXTURES / "mocapframe_packet_v3.bin").is_file():
+        assert first_frame == (FIXTURES / "mocapframe_packet_v3.bin").read_bytes()
+
+
+def test_frames_table_has_one_row_per_frame(decoded):
+    df = frames_table(decoded)
+    assert len(df) == 518
+    assert list(df["frame"]) == list(range(162734, 163252))
+    assert {"rb2_x", "rb2_valid", "m2_1_x", "m2_1_occluded", "m0_50007_params", "mid_exposure_ticks"} <= set(df.columns)
+    assert (df["m2_1_occluded"] == 0).all() and (df["rb2_valid"] == 1).all()
+    assert df["precision_s"].isna().all()  # NatNet 3.0 has no precision timestamp
+    assert df["system_latency_ms"].between(1, 20).all()
+
+
+def test_cli_decode_writes_csv_and_summary(decoded, tmp_path):
+    out = tmp_path / "frames.csv"
+    res = CliRunner().invoke(app, ["natnet", "decode", str(CAPTURE), "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "518 frames (162734–163251), 0 dropped" in res.output and "NatNet 3.0 (SERVERINFO" in res.output
+    df = pd.read_csv(out)
+    assert len(df) == 518 and df["frame"].iloc[-1] == 163251
+    assert df["mid_exposure_ticks"].iloc[0] == decoded.frames[0][1].mid_exposure
+
+
+def test_cli_errors_are_one_line_and_exit_2(tmp_path):
+    runner = CliRunner()
+    bad = tmp_path / "junk.pcapng"
+    bad.write_bytes(b"not a capture at all")
+    for args in (["natnet", "decode", str(tmp_path / "missing.pcap")], ["natnet", "decode", str(bad)],
+                 ["natnet", "decode", str(bad), "--natnet-version", "x"], ["natnet", "decode", str(bad), "--ports", "a"]):
+        res = runner.invoke(app, args)
+        assert res.exit_code == 2, (args, res.output)
+        assert res.exception is None or isinstance(res.exception, SystemExit)
+        assert "beambench: error:" in res.output and "Traceback" not in res.output
+
+
+# ------------------------------------------------------------------------- a pcap we write ourselves
+
+
+def write_pcap(path: Path, datagrams: list[tuple[float, bytes, int, int]], mtu: int = 1500) -> None:
+    """Classic pcap of Ethernet/IPv4/UDP, fragmenting datagrams larger than the MTU (as the kernel would)."""
+    import dpkt
+
+    with path.open("wb") as fh:
+        w = dpkt.pcap.Writer(fh, linktype=dpkt.pcap.DLT_EN10MB)
+        for ident, (ts, payload, sport, dport) in enumerate(datagrams):
+            udp = bytes(dpkt.udp.UDP(sport=sport, dport=dport, data=payload, ulen=8 + len(payload)))
+            step = (mtu - 20) // 8 * 8
+            for off in range(0, len(udp), step):
+                chunk = udp[off : off + step]
+                more = off + step < len(udp)
+                ip = dpkt.ip.IP(src=socket.inet_aton("10.0.0.1"), dst=socket.inet_aton("239.255.42.99"), p=17,
+                                id=ident & 0xFFFF, mf=int(more), offset=off, data=chunk)
+                ip.len = 20 + len(chunk)
+                eth = dpkt.ethernet.Ethernet(src=b"\x00" * 6, dst=b"\x01\x00\x5e\x7f\x2a\x63", type=0x0800, data=ip)
+                w.writepkt(bytes(eth), ts=ts)
+
+
+def test_pcap_with_fragments_and_no_serverinfo_needs_the_version(tmp_path):
+    big = nn.FrameOfData(
+        10,
+        labeled_markers=tuple(nn.LabeledMarker((1 << 16) | i, (i * 0.01, 0.5, -0.25), 0.014, 2, 0.0) for i in range(200)),
+        timestamp=10 / 360, mid_exposure=100, data_received=200, transmit=300, precision_seconds=5, precision_fraction=7,
+    )
+    small = nn.FrameOfData(12, timestamp=12 / 360, mid_exposure=110, data_received=210, transmit=310)
+    packets = [nn.encode(big, (4, 1)), nn.encode(small, (4, 1)), b"\x07\x00\x05\x00junk"]
+    assert len(packets[0]) > 1500  # must be reassembled from IPv4 fragments
+    path = tmp_path / "unicast.pcap"
+    write_pcap(path, [(1.0 + i, p, 1511, 50000) for i, p in enumerate(packets)])
+    with pytest.raises(ValueError, match="--natnet-version"):
+        decode_capture(path)
+    d = decode_capture(path, "4.1")
+    assert d.version_source == "option" and d.version == nn.V4_1
+    assert [f for _, f in d.frames] == [nn.decode(p, nn.V4_1) for p in packets[:2]]
+    assert len(d.frames[0][1].labeled_markers) == 200
+    assert (d.dropped_frames, d.parse_errors) == (1, 1)
+    df = frames_table(d)
+    assert df["precision_s"].tolist() == [5, 0] and df["m1_199_x"].iloc[0] == pytest.approx(1.99)
+    assert pd.isna(df["m1_199_x"].iloc[1])
+
+
+def test_not_a_capture_is_a_capture_error(tmp_path):
+    p = tmp_path / "x.pcap"
+    p.write_bytes(struct.pack("<I", 0xDEADBEEF) + b"\0" * 40)
+    with pytest.raises(CaptureError):
+        list(read_udp(p))

@@ -1,0 +1,261 @@
+"""Our NatNet client against our emulated Motive over real UDP on 127.0.0.1, for NatNet 3.0, 4.0 and 4.1.
+
+Unicast and multicast (on loopback, TTL 0) both run here. Injected frame drops and occlusions must be counted
+exactly; garbage packets are counted and never stop the stream.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from beambench.devices import natnet_protocol as nn
+from beambench.devices.base import Stream
+from beambench.devices.natnet import MarkerSource, NatNetClient, NatNetConfig, NatNetError, NatNetMocap, ping
+from beambench.emulators.motive import EmulatorClock, MotiveEmulator
+from beambench.streams import MOCAP
+
+MARKERS = ("stage", "tip", "foot")
+VERSIONS = ("3.0", "4.0", "4.1")
+
+
+def free_udp_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+def moving(t: float) -> np.ndarray:
+    """Three markers on a 5 Hz, 2 mm oscillation: a known truth for every frame."""
+    x = 0.002 * np.sin(2 * np.pi * 5.0 * t)
+    return np.array([[x, 0.0, 0.01], [0.1 + x, 0.02, 0.05], [0.2, 0.04 + x, 0.0]])
+
+
+def emulator(version: str, multicast: bool, **kw) -> MotiveEmulator:  # type: ignore[no-untyped-def]
+    kw.setdefault("positions", moving)
+    return MotiveEmulator(version=version, command_port=0, data_port=free_udp_port(), multicast=multicast, **kw)
+
+
+def config_for(emu: MotiveEmulator, **kw) -> NatNetConfig:  # type: ignore[no-untyped-def]
+    return NatNetConfig(server_address="127.0.0.1", command_port=emu.command_address[1], multicast=emu.multicast, **kw)
+
+
+def collect(mocap: NatNetMocap, seconds: float) -> list:
+    batches, end = [], time.monotonic() + seconds
+    while time.monotonic() < end:
+        time.sleep(0.05)
+        b = mocap.read()
+        if len(b):
+            batches.append(b)
+    return batches
+
+
+def concat(batches):  # type: ignore[no-untyped-def]
+    from beambench.hub import Batch
+
+    return Batch.concat(batches)
+
+
+@pytest.mark.parametrize("multicast", [False, True], ids=["unicast", "multicast"])
+@pytest.mark.parametrize("version", VERSIONS)
+def test_stream_counts_injected_drops_and_occlusions_exactly(version, multicast):
+    first = 1  # the emulator exposes frame 1 when our CONNECT arrives; the handshake takes a few dozen frames
+    drops = {first + k for k in (110, 111, 112, 150, 200)}
+    occl = {first + 120: [1], first + 121: [0, 2], first + 160: [2], first + 210: [0, 1, 2]}
+    clock = EmulatorClock(offset_s=123.0, drift_ppm=50.0, jitter_s=0.0002, latency_s=0.001)
+    with emulator(version, multicast, drop=drops, occlude=occl, clock=clock) as emu:
+        mocap = NatNetMocap(MARKERS, config_for(emu))
+        assert isinstance(mocap, Stream) and mocap.name == MOCAP
+        mocap.start()
+        try:
+            batches = collect(mocap, 0.8)
+            stats = mocap.stats
+            info = mocap.identity()
+        finally:
+            mocap.stop()
+    b = concat(batches)
+    frames = b.columns["frame"]
+    lo, hi = int(frames[0]), int(frames[-1])
+    assert lo < first + 100 < first + 220 < hi, f"batches cover frames {lo}..{hi}: too slow a machine?"
+    expected_missing = sorted(n for n in drops if lo < n < hi)
+    assert sorted(set(range(lo, hi + 1)) - set(frames.tolist())) == expected_missing
+    assert stats.dropped_frames == sum(stats.first_frame_number < n < stats.last_frame_number for n in drops) == 5
+    assert stats.parse_errors == 0 and stats.out_of_order == 0
+    # occlusions: exactly the injected (frame, marker) pairs, NaN positions there
+    occluded = {(int(f), j) for i, f in enumerate(frames) for j in range(3) if b.columns["occluded"][i, j]}
+    injected = {(f, j) for f, js in occl.items() for j in js if lo <= f <= hi}
+    assert occluded == injected and len(injected) == 7
+    assert np.isnan(b.columns["data"][b.columns["occluded"]]).all()
+    # positions are the truth at float32 precision; t = frame index / rate
+    seen = ~b.columns["occluded"]
+    truth = np.stack([moving((f - first) / 360.0) for f in frames])
+    np.testing.assert_allclose(b.columns["data"][seen], truth[seen], atol=1e-7)
+    # device time = mid-exposure ticks / QPC rate on the emulator's clock, which never runs after receipt
+    host_s = b.host_time_ns * 1e-9
+    exposure_host_s = (b.device_time - clock.offset_s) / (1 + clock.drift_ppm * 1e-6)
+    assert (exposure_host_s < host_s).all()
+    assert np.median(host_s - exposure_host_s) < 0.05
+    np.testing.assert_allclose(np.diff(b.device_time), np.diff(frames) / 360.0 * (1 + 50e-6), atol=2e-7)
+    assert info["natnet_version"] == f"{version}.0.0" and info["stream_version"] == version
+    assert info["frame_rate_hz"] == 360.0 and info["app_name"] == "Motive"
+    assert info["clock_frequency_hz"] == clock.frequency_hz
+
+
+def test_garbage_packets_are_counted_and_never_stop_the_stream():
+    with emulator("4.1", multicast=False) as emu:
+        client = NatNetClient(config_for(emu)).connect()
+        try:
+            port = client._cmd.getsockname()[1]  # unicast frames come to the command socket
+            junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            good = nn.encode(nn.FrameOfData(1, timestamp=1.0), nn.V4_1)
+            garbage = [b"", b"\x07", b"\x07\x00\xff\xff", good[:-7], b"\x07\x00" + good[2:20], b"\xff\xff\x00\x00", b"\x05\x00\x04\x00\xff\xff\xff\x7f"]
+            before = client.stats.frames
+            for g in garbage:
+                junk.sendto(g, ("127.0.0.1", port))
+            junk.close()
+            time.sleep(0.3)
+            client.check()
+            assert client.stats.parse_errors == len(garbage)
+            assert client.stats.frames > before + 50  # still streaming
+            assert client._thread.is_alive()
+        finally:
+            client.close()
+
+
+def test_bitstream_version_can_be_requested_from_a_4_x_server():
+    with emulator("4.1", multicast=False) as emu:
+        cfg = config_for(emu, bitstream_version="3.0")
+        with NatNetClient(cfg) as client:
+            assert client.version == nn.V3_0 and emu.stream_version == nn.V3_0
+            assert client.server_info.natnet_version == (4, 1, 0, 0)
+            time.sleep(0.2)
+            assert client.stats.frames > 20 and client.stats.parse_errors == 0
+        assert "Bitstream,3.0" in emu.requests
+
+
+def test_bitstream_change_is_refused_by_a_3_0_server():
+    with emulator("3.0", multicast=False) as emu:
+        with pytest.raises(NatNetError, match="cannot change"):
+            NatNetClient(config_for(emu, bitstream_version="4.1")).connect()
+
+
+def test_echo_round_trips_give_a_clock_offset_by_minimum_rtt():
+    clock = EmulatorClock(offset_s=1e4, drift_ppm=0.0, latency_s=0.0)
+    with emulator("4.0", multicast=False, clock=clock) as emu:
+        cfg = config_for(emu, echo_interval_s=0.02, initial_echoes=10)
+        with NatNetClient(cfg) as client:
+            client.keep_frames = True
+            time.sleep(0.4)
+            echoes = list(client.echoes)
+            best = client.best_echo()
+            table = client.echo_table()
+            frames = list(client.frames)
+    assert len(echoes) >= 15 and len(table["server_ticks"]) == len(echoes)
+    assert best.rtt_ns == min(e.rtt_ns for e in echoes) and best.rtt_ns < 20e6
+    for e in echoes:  # the server stamped each echo between our send and our receive
+        server_host_s = (e.server_ticks / clock.frequency_hz - clock.offset_s)
+        assert e.host_send_ns * 1e-9 - 1e-6 <= server_host_s <= e.host_recv_ns * 1e-9 + 1e-6
+    # mid-exposure mapped to host time through the best echo lands just before the receive time
+    lag = [(host_ns - client.server_ticks_to_host_ns(f.mid_exposure)) * 1e-9 for host_ns, f in frames]
+    assert len(lag) > 50
+    assert -0.002 < np.median(lag) < 0.05
+
+
+def test_rigid_body_mapping_and_tracking_loss():
+    occl = {130: [0, 1], 131: [2]}
+    with emulator("4.1", multicast=False, rigid_bodies={5: [0, 1, 2]}, occlude=occl) as emu:
+        mocap = NatNetMocap(("body", "tip"), config_for(emu), marker_map={"body": "rb:5", "tip": "1:2"})
+        mocap.start()
+        try:
+            b = concat(collect(mocap, 0.6))
+            md = mocap.client.model_def
+        finally:
+            mocap.stop()
+    assert [d.id for d in md.rigid_bodies()] == [5]
+    assert md.rigid_bodies()[0].markers[1].name == "tip"  # 4.x rigid-body descriptions carry marker names
+    frames = b.columns["frame"].tolist()
+    i130, i131, i140 = frames.index(130), frames.index(131), frames.index(140)
+    assert b.columns["occluded"][i130].tolist() == [True, True]  # 2 of 3 rigid-body markers hidden: not tracked
+    assert b.columns["occluded"][i131].tolist() == [False, False]  # one hidden: still tracked; tip visible
+    assert b.columns["occluded"].sum() == 2
+    np.testing.assert_allclose(b.columns["data"][i140, 0], moving(139 / 360).mean(axis=0), atol=1e-7)
+    np.testing.assert_allclose(b.columns["data"][i140, 1], moving(139 / 360)[1], atol=1e-7)
+
+
+def test_unicast_server_keeps_clients_that_send_keepalives():
+    with emulator("4.0", multicast=False, unicast_timeout_s=0.3) as emu:
+        with NatNetClient(config_for(emu, keepalive_interval_s=0.1)) as client:
+            time.sleep(0.5)
+            n1 = client.stats.frames
+            time.sleep(0.4)
+            assert client.stats.frames > n1 + 80  # past the server's 0.3 s timeout, still fed
+            assert len(emu.clients) == 1
+        time.sleep(0.1)
+        assert emu.clients == {}  # DISCONNECT on close
+
+
+def test_ping_reports_the_server():
+    with emulator("4.1", multicast=True) as emu:
+        info = ping(config_for(emu))
+    assert info["app_name"] == "Motive" and info["app_version"] == "3.1.0.0"
+    assert info["natnet_version"] == "4.1.0.0" and info["frame_rate_hz"] == 360.0
+
+
+def test_no_server_is_a_clear_error_quickly():
+    port = free_udp_port()
+    t = time.monotonic()
+    with pytest.raises(NatNetError, match="no SERVERINFO"):
+        NatNetClient(NatNetConfig(command_port=port, timeout_s=0.3)).connect()
+    assert time.monotonic() - t < 2.0
+
+
+def test_marker_sources_parse():
+    assert MarkerSource.parse("2:3") == MarkerSource("marker", (2 << 16) | 3)
+    assert MarkerSource.parse((1, 4)) == MarkerSource("marker", (1 << 16) | 4)
+    assert MarkerSource.parse("rb:7") == MarkerSource("rigid_body", 7)
+    assert MarkerSource.parse(65537) == MarkerSource("marker", 65537)
+    with pytest.raises(ValueError):
+        NatNetMocap(("a", "b"), marker_map={"a": "1:1"})
+    with pytest.raises(ValueError):
+        MarkerSource.parse("rb:x")
+
+
+def test_timestamp_device_time_and_empty_reads():
+    mocap = NatNetMocap(MARKERS, device_time="timestamp")
+    assert len(mocap.read()) == 0 and mocap.describe().columns["data"].shape == (3, 3)
+    f = nn.FrameOfData(720, timestamp=2.0, mid_exposure=5, labeled_markers=(nn.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.01, 2, 0.0),))
+    b = mocap.to_batch([(123, f)], clock_frequency=10)
+    assert b.device_time.tolist() == [2.0] and b.host_time_ns.tolist() == [123]
+    assert b.columns["occluded"].tolist() == [[False, True, True]]
+    b2 = NatNetMocap(MARKERS).to_batch([(1, f)], clock_frequency=10)
+    assert b2.device_time.tolist() == [0.5]  # mid-exposure ticks / QPC rate
+
+
+def test_from_rig_section():
+    section = {"server_address": "10.0.0.5", "command_port": 1510, "multicast": False,
+               "markers": {"stage": "1:1", "tip": "1:2", "foot": "rb:3"}, "rate_hz": 240.0}
+    mocap = NatNetMocap.from_rig(section)
+    assert mocap.markers == ("stage", "tip", "foot") and mocap.config.server_address == "10.0.0.5"
+    assert mocap.sources[2] == MarkerSource("rigid_body", 3) and mocap.describe().rate_hz == 240.0
+    with pytest.raises(ValueError, match="unknown NatNet setting"):
+        NatNetMocap.from_rig({"server": "x", "markers": {"a": 1}})
+
+
+def test_a_failing_position_source_stops_the_emulator_visibly():
+    def broken(t: float) -> np.ndarray:
+        return np.zeros((2, 3))  # wrong shape for three markers
+
+    with emulator("4.0", multicast=False, positions=lambda t: moving(t)) as emu:
+        with NatNetClient(config_for(emu)) as client:
+            emu.set_positions(broken)
+            time.sleep(0.2)
+            with pytest.raises(RuntimeError, match="shape"):
+                emu.check()
+            n = client.stats.frames
+            time.sleep(0.1)
+            assert client.stats.frames == n  # nothing more arrives
