@@ -61,6 +61,8 @@ def run(
         chosen = backend or protocol.backend
         if chosen not in ("sim", "emulated", "hardware"):
             raise ConfigError("<cli>", "--backend", chosen, "must be sim, emulated or hardware")
+        if can_log is not None and chosen == "sim":
+            raise ConfigError("<cli>", "--can-log", str(can_log), "needs an ODrive on CAN (--backend emulated or hardware)")
         mode = rerun or ("spawn" if has_display() else "save")
         if mode not in ("spawn", "connect", "save", "off"):
             raise ConfigError("<cli>", "--rerun", mode, "must be spawn, connect, save or off")

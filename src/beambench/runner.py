@@ -142,12 +142,16 @@ class Runner:
                 self.rig.motor.idle()
             except Exception as exc:  # the idle attempt must not hide the original problem
                 self.hub.event(self.rig.clock.now_ns(), "error", f"idle failed: {exc}")
-            now = self.rig.clock.now_ns()
-            self.hub.event(now, "idle", "motor commanded to idle")
+            self.hub.event(self.rig.clock.now_ns(), "idle", "motor commanded to idle")
             try:
+                # real devices: record a short tail so the session shows the motor stopping
+                tail_s = float(getattr(self.rig, "idle_tail_s", 0.0))
+                if tail_s > 0:
+                    self.rig.clock.wait(tail_s)
                 self._pump()
             except Exception as exc:
-                self.hub.event(now, "error", f"final read failed: {exc}")
+                self.hub.event(self.rig.clock.now_ns(), "error", f"final read failed: {exc}")
+            now = self.rig.clock.now_ns()
             if self._current is not None:
                 self._current.t_end_ns = now
                 self._current.status = "aborted" if result.status != "fault" else "fault"
