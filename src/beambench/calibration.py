@@ -3,6 +3,11 @@
 The forward model used by simulated and emulated load cells is ``counts = tare + sensitivity @ [Fn, Ft]``
 (``sensitivity`` is 4×2, counts per newton). Measurement goes the other way through a 2×4 ``matrix`` fitted by
 least squares from known loads: ``[Fn, Ft] = matrix @ ((counts - tare) / gain)``.
+
+Calibrating: :func:`tare_counts` takes the per-channel mean over time of unloaded samples (never a mean across
+channels: each cell has its own offset), then :func:`fit_matrix` fits the matrix (and the forward sensitivity)
+from the mean counts under known loads and reports the residuals; :func:`calibrate` does both.
+``gain`` is the per-channel amplifier gain, set by the user and left as is by the fit.
 """
 
 from __future__ import annotations
@@ -72,3 +77,71 @@ def default_calibration() -> LoadCellCalibration:
     return LoadCellCalibration(
         tare=np.array([1200.0, -800.0, 450.0, -300.0]), matrix=np.linalg.pinv(sens), sensitivity=sens, source="nominal"
     )
+
+
+def tare_counts(samples: np.ndarray) -> np.ndarray:
+    """Per-channel zero offset: the mean over time (axis 0) of unloaded samples ``[n, 4]``."""
+    x = np.asarray(samples, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 4 or len(x) == 0:
+        raise ValueError(f"tare needs samples shaped [n>0, 4], got {x.shape}")
+    return x.mean(axis=0)
+
+
+@dataclass
+class MatrixFit:
+    """Result of :func:`fit_matrix`: the 2×4 matrix, the 4×2 sensitivity and how well they fit the loads."""
+
+    matrix: np.ndarray  # 2×4, N per (count/gain)
+    sensitivity: np.ndarray  # 4×2, counts per N
+    loads: np.ndarray  # k×2 known (Fn, Ft), N
+    fitted: np.ndarray  # k×2 matrix @ counts, N
+    rank: int  # singular directions of the load counts used (2 for loads at one point, up to 4)
+    singular_values: np.ndarray
+
+    @property
+    def residuals(self) -> np.ndarray:
+        """Fitted minus known force per load, N (k×2)."""
+        return self.fitted - self.loads
+
+    @property
+    def rms(self) -> np.ndarray:
+        """Root-mean-square residual of (Fn, Ft), N."""
+        return np.sqrt(np.mean(self.residuals**2, axis=0))
+
+
+def fit_matrix(
+    counts: np.ndarray, loads: np.ndarray, tare: np.ndarray, gain: np.ndarray | None = None, rcond: float = 1e-3
+) -> MatrixFit:
+    """Least-squares fit of ``[Fn, Ft] = matrix @ ((counts - tare) / gain)`` from ``k`` known loads.
+
+    ``counts`` is ``[k, 4]`` (mean counts under each load), ``loads`` ``[k, 2]`` in N. The loads must span
+    both axes (rank 2). Singular directions of the load counts weaker than ``rcond`` × the strongest are
+    dropped (loads all applied at one point excite only two directions of the four channels; fitting the
+    others would amplify noise). The forward sensitivity ``counts - tare = sensitivity @ F`` is fitted too.
+    """
+    x_raw = np.asarray(counts, dtype=np.float64) - np.asarray(tare, dtype=np.float64)
+    f = np.asarray(loads, dtype=np.float64)
+    if x_raw.ndim != 2 or x_raw.shape[1] != 4 or f.shape != (len(x_raw), 2):
+        raise ValueError(f"need counts [k, 4] and loads [k, 2], got {x_raw.shape} and {f.shape}")
+    if np.linalg.matrix_rank(f) < 2:
+        raise ValueError("the loads must include both normal and tangential components (two independent loads)")
+    g = np.ones(4) if gain is None else np.asarray(gain, dtype=np.float64).reshape(4)
+    x = x_raw / g
+    m_t, _, rank, sv = np.linalg.lstsq(x, f, rcond=rcond)
+    s_t, *_ = np.linalg.lstsq(f, x_raw, rcond=None)
+    return MatrixFit(m_t.T.copy(), s_t.T.copy(), f, x @ m_t, int(rank), sv)
+
+
+def calibrate(
+    tare_samples: np.ndarray,
+    load_counts: np.ndarray,
+    loads: np.ndarray,
+    gain: np.ndarray | None = None,
+    source: str = "",
+    rcond: float = 1e-3,
+) -> tuple[LoadCellCalibration, MatrixFit]:
+    """Tare (per channel) from unloaded samples, then fit the matrix from mean counts under known loads."""
+    tare = tare_counts(tare_samples)
+    g = np.ones(4) if gain is None else np.asarray(gain, dtype=np.float64).reshape(4)
+    fit = fit_matrix(load_counts, loads, tare, g, rcond)
+    return LoadCellCalibration(tare=tare, gain=g, matrix=fit.matrix, sensitivity=fit.sensitivity, source=source), fit

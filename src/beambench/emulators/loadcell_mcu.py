@@ -1,0 +1,272 @@
+"""Emulated load-cell MCU: writes protocol frames at 1 kHz to a pseudo-terminal, like the real board on USB.
+
+``os.openpty()`` gives a master/slave pair; a thread writes frames to the master and the driver opens the slave
+path (:attr:`EmulatedLoadCellMCU.port`) with pyserial, exactly as it opens ``/dev/ttyACM0`` on the rig.
+
+- Force: a callable ``force(t) -> (Fn, Ft)`` in newtons, ``t`` in seconds of true (host) time since
+  :meth:`start` (frame 0 is sampled at ``time.monotonic_ns() == started_ns``), called from the emulator's
+  thread, a few frames at a time; converted to counts with :meth:`LoadCellCalibration.counts_from_force` (the plate's "true"
+  calibration), plus optional Gaussian noise, rounded and clipped to int32. Drive it from a physics model by
+  passing a callable that reads the simulation's contact force.
+- Clock: the MCU samples every ``1e6 / rate_hz`` µs of *its own* clock, which runs ``drift_ppm`` fast, so on
+  the host frames arrive at ``rate_hz · (1 + drift_ppm·1e-6)`` per second while ``t_us`` steps by exactly
+  1000 µs. ``clock_start_us`` presets the 32-bit clock (e.g. just before its wraparound).
+- Sync input: ``sync_edges`` counts mocap exposure pulses at ``sync_rate_hz`` (true time).
+- Faults, drawn per frame from a seeded RNG and counted exactly in :attr:`injected`: ``crc_error_prob``
+  (one bit flipped after the header), ``drop_prob`` (1–``max_drop`` contiguous bytes removed after the header),
+  ``garbage_prob`` (1–``max_garbage`` random bytes before the frame). A faulted frame is followed by one clean
+  frame with no garbage before it, so every fault is separately visible to the decoder.
+- Like a UART/USB transmit buffer, at most ``tx_buffer`` bytes wait for the host; frames that do not fit are
+  not sent (counted as ``frames_overflowed``; the sequence number still advances).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import random
+import threading
+import time
+import tty
+from dataclasses import asdict, dataclass
+from typing import Callable
+
+import numpy as np
+
+from beambench.calibration import LoadCellCalibration, default_calibration
+from beambench.devices.loadcell_protocol import FRAME_LEN, encode_frame
+
+ForceSource = Callable[[float], tuple[float, float]]
+_I32 = (-(2**31), 2**31 - 1)
+_HEADER = 4  # sync, length, version: faults are injected after it
+
+
+def zero_force(t: float) -> tuple[float, float]:
+    return (0.0, 0.0)
+
+
+@dataclass
+class Injected:
+    """Exact counts of what the emulator sent and broke."""
+
+    frames: int = 0  # frames generated (sent or not)
+    crc_errors: int = 0
+    frames_truncated: int = 0
+    bytes_dropped: int = 0
+    garbage_bursts: int = 0
+    garbage_bytes: int = 0
+    frames_overflowed: int = 0
+    bytes_written: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+
+class EmulatedLoadCellMCU:
+    """The load-cell MCU on a pty. Use as a context manager, or :meth:`open`, :meth:`start`, :meth:`close`."""
+
+    def __init__(
+        self,
+        force: ForceSource | None = None,
+        calibration: LoadCellCalibration | None = None,
+        *,
+        rate_hz: float = 1000.0,
+        drift_ppm: float = 0.0,
+        clock_start_us: int = 0,
+        seq_start: int = 0,
+        sync_rate_hz: float = 360.0,
+        noise_counts: float = 0.0,
+        crc_error_prob: float = 0.0,
+        drop_prob: float = 0.0,
+        max_drop: int = 3,
+        garbage_prob: float = 0.0,
+        max_garbage: int = 40,
+        tx_buffer: int = 8192,
+        seed: int = 0,
+    ) -> None:
+        self.force: ForceSource = force or zero_force
+        self.calibration = calibration or default_calibration()
+        self.rate_hz = rate_hz
+        self.drift_ppm = drift_ppm
+        self.clock_start_us = clock_start_us
+        self.seq_start = seq_start
+        self.sync_rate_hz = sync_rate_hz
+        self.noise_counts = noise_counts
+        self.crc_error_prob = crc_error_prob
+        self.drop_prob = drop_prob
+        self.max_drop = max(1, min(max_drop, FRAME_LEN - _HEADER - 1))
+        self.garbage_prob = garbage_prob
+        self.max_garbage = max(1, max_garbage)
+        self.tx_buffer = tx_buffer
+        self.injected = Injected()
+        self._rng = random.Random(seed)
+        self._noise = np.random.default_rng(seed)
+        self._guard = False
+        self._k = 0
+        self._master: int | None = None
+        self._slave: int | None = None
+        self.port: str | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._tx = bytearray()
+        self.error: str | None = None
+        self.started_ns: int | None = None  # host monotonic time of frame 0
+
+    # -- frames ------------------------------------------------------------------------------------------
+    @property
+    def true_rate_hz(self) -> float:
+        """Frames per second of host (true) time: the nominal rate on a clock running ``drift_ppm`` fast."""
+        return self.rate_hz * (1.0 + self.drift_ppm * 1e-6)
+
+    def set_force(self, force: ForceSource) -> None:
+        self.force = force
+
+    def counts_at(self, t: float) -> np.ndarray:
+        """Noise-free counts (float) for the force at true time ``t``."""
+        return self.calibration.counts_from_force(np.asarray(self.force(t), dtype=float))
+
+    def frames_bytes(self, k0: int, n: int) -> list[bytes]:
+        """Frames ``k0 .. k0+n-1`` (numbered from :meth:`start`) as sent: faults and preceding garbage included."""
+        if n <= 0:
+            return []
+        ks = np.arange(k0, k0 + n)
+        ts = ks / self.true_rate_hz
+        forces = np.array([self.force(float(t)) for t in ts], dtype=float).reshape(n, 2)
+        counts = self.calibration.counts_from_force(forces)
+        if self.noise_counts:
+            counts = counts + self._noise.normal(0.0, self.noise_counts, (n, 4))
+        counts = np.clip(np.rint(counts), *_I32).astype(np.int64).tolist()
+        t_us = (self.clock_start_us + np.rint(ks * (1e6 / self.rate_hz))).astype(np.int64).tolist()
+        edges = np.floor(ts * self.sync_rate_hz).astype(np.int64).tolist() if self.sync_rate_hz else [0] * n
+        rows = zip(ks.tolist(), t_us, counts, edges)
+        return [self._faults(encode_frame(self.seq_start + k, t, c, e)) for k, t, c, e in rows]
+
+    def _faults(self, frame: bytes) -> bytes:
+        """Apply this frame's drawn faults (and garbage before it), counting them in :attr:`injected`."""
+        self.injected.frames += 1
+        if self._guard:
+            self._guard = False
+            return frame
+        rng, inj = self._rng, self.injected
+        garbage = b""
+        if self.garbage_prob and rng.random() < self.garbage_prob:
+            garbage = rng.randbytes(rng.randint(1, self.max_garbage))
+            inj.garbage_bursts += 1
+            inj.garbage_bytes += len(garbage)
+        u = rng.random()
+        if u < self.crc_error_prob:
+            b = bytearray(frame)
+            b[rng.randrange(_HEADER, FRAME_LEN)] ^= 1 << rng.randrange(8)
+            frame = bytes(b)
+            inj.crc_errors += 1
+            self._guard = True
+        elif u < self.crc_error_prob + self.drop_prob:
+            n = rng.randint(1, self.max_drop)
+            at = rng.randrange(_HEADER, FRAME_LEN - n + 1)
+            frame = frame[:at] + frame[at + n :]
+            inj.frames_truncated += 1
+            inj.bytes_dropped += n
+            self._guard = True
+        return garbage + frame
+
+    def render(self, n: int) -> bytes:
+        """The next ``n`` frames as one byte string (no pty, no timing): for tests and benchmarks."""
+        out = b"".join(self.frames_bytes(self._k, n))
+        self._k += n
+        return out
+
+    # -- pty and thread ----------------------------------------------------------------------------------
+    def open(self) -> str:
+        """Create the pseudo-terminal (raw mode) and return the path the driver should open."""
+        if self.port is None:
+            self._master, self._slave = os.openpty()
+            tty.setraw(self._slave)  # no echo, no newline translation: a clean 8-bit line
+            os.set_blocking(self._master, False)
+            self.port = os.ttyname(self._slave)
+        return self.port
+
+    def start(self) -> None:
+        """Start sending frames (opens the pty if needed); frame 0 is sampled now."""
+        self.open()
+        if self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self._run, name="loadcell-mcu", daemon=True)
+            self._thread.start()
+
+    def stop(self) -> None:
+        """Stop sending (the pty stays open, so the driver can still read what was sent)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    def close(self) -> None:
+        """Stop and close the pty (a driver still reading it sees the port disappear). Idempotent."""
+        self.stop()
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master = self._slave = None
+
+    def __enter__(self) -> "EmulatedLoadCellMCU":
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def flushed(self) -> bool:
+        """True when everything generated has been handed to the pty."""
+        return not self._tx
+
+    def _run(self) -> None:
+        self.started_ns = time.monotonic_ns()
+        t0 = self.started_ns * 1e-9
+        k0 = self._k
+        try:
+            while not self._stop.is_set():
+                due = k0 + int((time.monotonic() - t0) * self.true_rate_hz) + 1
+                if due > self._k:
+                    before = Injected(**self.injected.as_dict())
+                    frames = self.frames_bytes(self._k, due - self._k)
+                    self._k = due
+                    if len(self._tx) + sum(map(len, frames)) > self.tx_buffer:  # not sent: no fault happened
+                        before.frames = self.injected.frames
+                        before.frames_overflowed += len(frames)
+                        self.injected = before
+                    else:
+                        self._tx += b"".join(frames)
+                self._write()
+                self._drain_input()
+                time.sleep(0.001)
+            deadline = time.monotonic() + 1.0
+            while self._tx and time.monotonic() < deadline:  # flush the transmit buffer
+                self._write()
+                time.sleep(0.001)
+        except Exception as exc:  # a bad force callable must not die silently
+            self.error = f"{type(exc).__name__}: {exc}"
+
+    def _write(self) -> None:
+        if not self._tx or self._master is None:
+            return
+        try:
+            n = os.write(self._master, self._tx)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EIO):
+                return
+            raise
+        del self._tx[:n]
+        self.injected.bytes_written += n
+
+    def _drain_input(self) -> None:
+        """Discard anything the host wrote (the protocol is one-way), so the pty never fills up."""
+        try:
+            while os.read(self._master, 4096):  # type: ignore[arg-type]
+                pass
+        except OSError:
+            pass

@@ -1,0 +1,216 @@
+"""Load-cell calibration: per-channel tare, least-squares matrix, and the `calibrate loadcells` walkthrough."""
+
+import numpy as np
+import pytest
+import typer
+from rich.console import Console
+from typer.testing import CliRunner
+
+from beambench.calibration import LoadCellCalibration, calibrate, fit_matrix, tare_counts
+from beambench.commands.calibrate import parse_loads, register, walkthrough
+from beambench.devices.loadcell import SerialLoadCells
+from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+
+RNG = np.random.default_rng(42)
+
+
+def test_tare_is_the_mean_over_time_of_each_channel():
+    offsets = np.array([1200.0, -800.0, 450.0, -300.0])
+    samples = offsets + RNG.normal(0, 25, (2000, 4)) + np.linspace(0, 10, 2000)[:, None]
+    tare = tare_counts(samples)
+    np.testing.assert_allclose(tare, offsets + 5.0, atol=2.0)  # each channel its own offset
+    assert not np.allclose(tare, samples.mean())  # the lab script's bug: one mean across channels
+    with pytest.raises(ValueError):
+        tare_counts(samples[:, :3])
+
+
+def plate_4dof():
+    """A plate whose four cells also see the load's moment about two axes: counts = tare + A @ [Fn, Ft, Mx, My]."""
+    a = np.array(
+        [
+            [20000.0, 800.0, 9000.0, 7000.0],
+            [19000.0, -600.0, -8500.0, -7500.0],
+            [900.0, 21000.0, 8000.0, -7200.0],
+            [-700.0, 20500.0, -7800.0, 6900.0],
+        ]
+    )
+    tare = np.array([1500.0, -900.0, 300.0, 50.0])
+    return a, tare
+
+
+def test_fit_recovers_a_known_matrix_from_noisy_loads():
+    a, tare = plate_4dof()
+    true_matrix = np.linalg.inv(a)[:2]  # the unique 2×4 map from counts to (Fn, Ft)
+    loads, means = [], []
+    for fn in (0.5, 1.0, 2.0):
+        for ft in (-0.5, 0.0, 0.5):
+            for px, py in ((0.0, 0.0), (0.03, 0.0), (0.0, 0.03), (-0.03, -0.02)):  # load position, m
+                latent = np.array([fn, ft, fn * px * 10, fn * py * 10])
+                samples = tare + a @ latent + RNG.normal(0, 30, (500, 4))  # 500 noisy samples per load
+                loads.append((fn, ft))
+                means.append(samples.mean(axis=0))
+    tare_samples = tare + RNG.normal(0, 30, (1000, 4))
+    cal, fit = calibrate(tare_samples, np.array(means), np.array(loads), source="test")
+    assert fit.rank == 4
+    np.testing.assert_allclose(cal.matrix, true_matrix, atol=2e-3 * np.abs(true_matrix).max())
+    assert np.all(fit.rms < 2e-3)  # N
+    np.testing.assert_allclose(fit.residuals, fit.fitted - np.array(loads))
+    # a load never seen in the fit, at a new position, is measured right
+    counts = tare + a @ np.array([1.3, -0.2, 1.3 * 0.3, 1.3 * -0.1])
+    np.testing.assert_allclose(cal.force_from_counts(counts), [1.3, -0.2], atol=5e-3)
+
+
+def test_loads_at_one_point_fit_without_amplifying_noise():
+    sens = np.array([[20000.0, 1000.0], [21000.0, -800.0], [500.0, 19000.0], [-300.0, 20500.0]])
+    tare = np.array([1200.0, -800.0, 450.0, -300.0])
+    loads = np.array([[1, 0], [2, 0], [0, 0.5], [0, 1], [1.5, 0.5], [1, -0.5]], float)
+    means = tare + loads @ sens.T + RNG.normal(0, 2, (6, 4))  # means of noisy samples
+    fit = fit_matrix(means, loads, tare)
+    assert fit.rank == 2  # only (Fn, Ft) directions are excited; the other two are noise and are dropped
+    np.testing.assert_allclose(fit.matrix @ sens, np.eye(2), atol=1e-3)
+    np.testing.assert_allclose(fit.sensitivity, sens, rtol=2e-3, atol=30)
+    # the minimum-norm inverse of the plate (least channel noise in the force), not weights fitted to noise
+    np.testing.assert_allclose(fit.matrix, np.linalg.pinv(sens), atol=1e-3 * np.abs(fit.matrix).max())
+
+
+def test_fit_needs_both_axes_loaded():
+    with pytest.raises(ValueError, match="both normal and tangential"):
+        fit_matrix(np.ones((3, 4)), np.array([[1, 0], [2, 0], [3, 0]], float), np.zeros(4))
+
+
+def test_fitted_calibration_survives_yaml(tmp_path):
+    a, tare = plate_4dof()
+    loads = np.array([[1, 0], [0, 1], [1, 1], [2, -1]], float)
+    cal, _ = calibrate(tare + RNG.normal(0, 1, (50, 4)), tare + loads @ a[:, :2].T, loads, gain=[1, 2, 1, 0.5])
+    cal.save(tmp_path / "lc.yaml")
+    back = LoadCellCalibration.load(tmp_path / "lc.yaml")
+    for k in ("tare", "gain", "matrix", "sensitivity"):
+        np.testing.assert_allclose(getattr(back, k), getattr(cal, k))
+    counts = tare + loads @ a[:, :2].T
+    np.testing.assert_allclose(back.force_from_counts(counts), cal.force_from_counts(counts), rtol=1e-12)
+    np.testing.assert_allclose(back.force_from_counts(counts), loads, atol=1e-3)
+
+
+def test_parse_loads():
+    assert parse_loads(["1,0", "0,0.5 2,-1;3,3"]) == [(1, 0), (0, 0.5), (2, -1), (3, 3)]
+    with pytest.raises(ValueError, match="--loads 'x,1'"):
+        parse_loads(["x,1"])
+
+
+def test_walkthrough_over_a_pty_with_a_person_placing_weights():
+    """The emulated MCU's force follows the prompts, as a person placing weights would."""
+    rng = np.random.default_rng(5)
+    sens = np.array([[20000.0, 0], [20000.0, 0], [0, 20000.0], [0, 20000.0]]) + rng.normal(0, 500, (4, 2))
+    plate = LoadCellCalibration(tare=np.array([900.0, -100.0, 40.0, 2000.0]), sensitivity=sens)
+    mcu = EmulatedLoadCellMCU(calibration=plate, noise_counts=30.0, seed=9)
+    on_plate = {"load": (0.0, 0.0)}
+    mcu.set_force(lambda t: on_plate["load"])
+    prompts = []
+    pending = iter([(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (2.0, 0.5), (0.5, -0.5)])
+
+    def ask(text):  # the person reads the prompt, puts the next weight on, presses Enter
+        prompts.append(text)
+        on_plate["load"] = next(pending)
+        return ""
+
+    lc = SerialLoadCells(mcu.open())
+    try:
+        lc.start()
+        mcu.start()
+        loads = [(1.0, 0.0), (0.0, 1.0), (2.0, 0.5), (0.5, -0.5)]
+        console = Console(file=open("/dev/null", "w"))
+        cal, fit = walkthrough(lc, loads, ask, console, settle_s=0.1, duration_s=0.2)
+    finally:
+        lc.stop()
+        mcu.close()
+    assert "Remove every load" in prompts[0] and "Fn = 2 N, Ft = 0.5 N" in prompts[3]
+    np.testing.assert_allclose(cal.tare, plate.tare, atol=5)  # per channel, from the unloaded plate
+    np.testing.assert_allclose(cal.matrix @ sens, np.eye(2), atol=5e-3)
+    assert np.all(fit.rms < 5e-3)
+    probe = np.array([[1.2, 0.3], [0.1, -0.8]])
+    np.testing.assert_allclose(cal.force_from_counts(plate.counts_from_force(probe)), probe, atol=5e-3)
+
+
+def app():
+    a = typer.Typer()
+    register(a)
+    return a
+
+
+def test_cli_emulated_demo_with_answers_from_stdin(tmp_path):
+    out = tmp_path / "cal" / "lc.yaml"
+    args = ["calibrate", "loadcells", "--emulate", "--duration", "0.15", "--settle", "0.05", "--out", str(out)]
+    args += ["--loads", "1,0 0,1", "--loads", "2,0.5"]
+    r = CliRunner().invoke(app(), args, input="\n\n\n\ny\n")
+    assert r.exit_code == 0, r.output
+    assert "RMS residual" in r.output and f"saved {out}" in r.output
+    cal = LoadCellCalibration.load(out)
+    probe = np.array([[1.0, 0.0], [0.3, 0.7]])
+    from beambench.commands.calibrate import _emulated_plate
+
+    np.testing.assert_allclose(cal.force_from_counts(_emulated_plate().counts_from_force(probe)), probe, atol=0.01)
+    assert "3 loads" in cal.source
+
+
+def test_cli_asks_for_loads_and_notices_a_plate_that_does_not_respond(tmp_path):
+    out = tmp_path / "lc.yaml"
+    with EmulatedLoadCellMCU(noise_counts=5.0) as mcu:  # nobody puts weights on this plate
+        mcu.start()
+        r = CliRunner().invoke(
+            app(),
+            ["calibrate", "loadcells", "--port", mcu.port, "--duration", "0.1", "--settle", "0", "--out", str(out)],
+            input="\n1,0 2,0\nabc\n1,0\n\n0,1\n\n\n",
+        )
+    assert "one load at a time" in r.output and "'abc': expected FN,FT" in r.output  # typos are asked again
+    assert "Known load 3" in r.output and "Apply load 2: Fn = 0 N, Ft = 1 N" in r.output
+    assert r.exit_code == 2 and "within the noise" in r.stderr and not out.exists()
+
+
+def test_cli_declined_save_writes_nothing(tmp_path):
+    out = tmp_path / "lc.yaml"
+    args = ["calibrate", "loadcells", "--emulate", "--duration", "0.1", "--settle", "0", "--out", str(out)]
+    r = CliRunner().invoke(app(), [*args, "--loads", "1,0 0,1"], input="\n\n\nn\n")
+    assert r.exit_code == 0 and "not saved" in r.output and not out.exists()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--loads", "1,0;x"], "--loads 'x'"),
+        (["--port", "/dev/does-not-exist-beambench"], "cannot open serial port"),
+        (["--emulate", "--port", "/dev/null"], "exclude each other"),
+        (["--emulate", "--loads", "1,0", "--loads", "2,0"], "both normal and tangential"),
+        (["--rig", "/nonexistent/rig.yaml"], "no --port given"),
+        (["--emulate", "--duration", "0"], "--duration must be"),
+    ],
+)
+def test_cli_bad_input_is_one_line_and_exit_2(args, message):
+    r = CliRunner().invoke(
+        app(), ["calibrate", "loadcells", "--duration", "0.1", "--settle", "0", *args], input="\n" * 5
+    )
+    assert r.exit_code == 2
+    assert message in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    assert "Traceback" not in r.output
+
+
+def test_cli_no_answer_on_stdin_is_a_clean_abort():
+    r = CliRunner().invoke(app(), ["calibrate", "loadcells", "--emulate", "--duration", "0.1"], input="")
+    assert r.exit_code == 2 and "no answer on stdin" in r.stderr
+
+
+def test_cli_help():
+    r = CliRunner().invoke(app(), ["calibrate", "loadcells", "--help"])
+    assert r.exit_code == 0 and "--emulate" in r.output and "tare" in r.output
+
+
+def test_cli_takes_the_port_from_the_rig_file(tmp_path):
+    with EmulatedLoadCellMCU(noise_counts=5.0) as mcu:
+        mcu.start()
+        rig = tmp_path / "rig.yaml"
+        rig.write_text(f"loadcell: {{port: {mcu.port}, baudrate: 460800}}\nloadcell_calibration: lc.yaml\n")
+        r = CliRunner().invoke(
+            app(), ["calibrate", "loadcells", "--rig", str(rig), "--loads", "1,0 0,1", "--duration", "0.1"],
+            input="\n\n\n",
+        )
+    assert "Tare (" in r.output and "samples" in r.output  # it read the emulated board named in the rig file
+    assert r.exit_code == 2 and "within the noise" in r.stderr  # nobody put the weights on

@@ -1,0 +1,188 @@
+"""End to end over a real pseudo-terminal: emulated MCU at 1 kHz → pyserial → SerialLoadCells batches."""
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from beambench.calibration import LoadCellCalibration
+from beambench.devices.base import DeviceFault, Stream
+from beambench.devices.loadcell import SerialLoadCells, Unwrap32
+from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+from beambench.hub import Batch
+from beambench.streams import LOADCELL, loadcell_spec
+
+SENS = np.array([[20000.0, 1000.0], [21000.0, -800.0], [500.0, 19000.0], [-300.0, 20500.0]])
+PLATE = LoadCellCalibration(tare=np.array([1200.0, -800.0, 450.0, -300.0]), sensitivity=SENS)
+BIG_TX = 1 << 22  # a transmit buffer no scheduling stall on a busy test machine can overflow
+
+
+def force(t: float) -> tuple[float, float]:
+    return (1.0 + 0.5 * math.sin(2 * math.pi * 7 * t), 0.2 * math.cos(2 * math.pi * 3 * t))
+
+
+def acquire(
+    mcu: EmulatedLoadCellMCU, seconds: float, driver_first: bool = True, head_start_s: float = 0.05
+) -> tuple[Batch, SerialLoadCells]:
+    """Run the MCU for ``seconds``, stop it, wait until the driver has every byte it sent, return all samples."""
+    port = mcu.open()
+    lc = SerialLoadCells(port)
+    batches = []
+    try:
+        if driver_first:
+            lc.start()
+            mcu.start()
+        else:
+            mcu.start()
+            time.sleep(head_start_s)
+            lc.start()
+        t_end = time.monotonic() + seconds
+        while time.monotonic() < t_end:
+            time.sleep(0.1)
+            batches.append(lc.read())  # ~10 batches per second, as the runner reads
+        mcu.stop()
+        deadline, seen, still = time.monotonic() + 5.0, -1, 0
+        while time.monotonic() < deadline and still < 3:  # until the driver has read everything that was sent
+            time.sleep(0.05)
+            now = lc.stats()["bytes_in"]
+            still = still + 1 if now == seen and mcu.flushed() else 0
+            seen = now
+        batches.append(lc.read())
+    finally:
+        lc.stop()
+        mcu.close()
+    return Batch.concat(batches), lc
+
+
+def test_clean_link_at_1khz_loses_nothing_and_carries_the_force():
+    mcu = EmulatedLoadCellMCU(force, PLATE, tx_buffer=BIG_TX, seed=3)
+    b, lc = acquire(mcu, 1.5)
+    assert isinstance(lc, Stream) and lc.describe() == loadcell_spec()
+    assert b.stream == LOADCELL and b.columns["data"].dtype == np.int32
+    sent = mcu.injected.frames
+    assert sent > 500 and mcu.injected.frames_overflowed == 0
+    np.testing.assert_array_equal(b.columns["seq"], np.arange(sent))  # every frame, in order, none lost
+    st = lc.stats()
+    assert (st["lost_frames"], st["crc_errors"], st["truncated"], st["bytes_discarded"]) == (0, 0, 0, 0)
+    assert st["samples_delivered"] == sent
+    np.testing.assert_array_equal(np.rint(np.diff(b.device_time) * 1e6), 1000)  # exactly 1 ms MCU ticks
+    assert np.all(np.diff(b.host_time_ns) >= 0)
+    t_true = np.arange(sent) / 1000.0
+    expected = np.rint(PLATE.counts_from_force(np.array([force(t) for t in t_true])))
+    np.testing.assert_array_equal(b.columns["data"], expected)
+    edges = b.columns["sync_edges"]
+    np.testing.assert_array_equal(edges, np.floor(t_true * 360.0))  # 360 Hz mocap exposure pulses
+
+
+def test_injected_faults_are_counted_exactly():
+    mcu = EmulatedLoadCellMCU(
+        force, PLATE, crc_error_prob=0.02, drop_prob=0.02, max_drop=4, garbage_prob=0.03, max_garbage=60,
+        tx_buffer=BIG_TX, seed=11,
+    )
+    b, lc = acquire(mcu, 2.0)
+    inj, st = mcu.injected, lc.stats()
+    assert inj.crc_errors > 5 and inj.frames_truncated > 5 and inj.garbage_bursts > 5 and inj.frames_overflowed == 0
+    assert st["crc_errors"] == inj.crc_errors
+    assert st["truncated"] == inj.frames_truncated
+    assert st["lost_frames"] == inj.crc_errors + inj.frames_truncated
+    assert st["bytes_discarded"] == (
+        inj.garbage_bytes + 34 * inj.crc_errors + 34 * inj.frames_truncated - inj.bytes_dropped
+    )
+    assert len(b) == inj.frames - inj.crc_errors - inj.frames_truncated
+    seq = b.columns["seq"]
+    assert np.all(np.diff(seq) >= 1) and seq[-1] == inj.frames - 1
+    # the samples that arrived are the right ones: device time still follows seq exactly
+    np.testing.assert_allclose(b.device_time, seq * 1e-3, atol=1e-9)
+
+
+def test_driver_opening_a_running_stream_counts_startup_bytes_not_errors():
+    mcu = EmulatedLoadCellMCU(force, PLATE, seed=5)
+    b, lc = acquire(mcu, 0.5, driver_first=False)
+    st = lc.stats()
+    assert len(b) > 100 and st["lost_frames"] == st["crc_errors"] == st["truncated"] == 0
+    assert np.all(np.diff(b.columns["seq"]) == 1) and b.columns["seq"][-1] == mcu.injected.frames - 1
+
+
+def test_mcu_clock_drift_shows_in_device_time():
+    drift_ppm = 5000.0  # exaggerated, so host timing noise on a busy machine cannot hide it
+    mcu = EmulatedLoadCellMCU(force, PLATE, drift_ppm=drift_ppm, tx_buffer=BIG_TX, seed=2)
+    b, _ = acquire(mcu, 1.5)
+    np.testing.assert_array_equal(np.rint(np.diff(b.device_time) * 1e6), 1000)  # the MCU thinks it is exact
+    host_s = (b.host_time_ns - b.host_time_ns[0]) * 1e-9
+    dev_s = b.device_time - b.device_time[0]
+    # receive latency is positive and spiky on a busy machine: fit the lower envelope (least delayed sample
+    # of each tenth of the run), as a clock-sync fit would
+    pick = [i[np.argmin(host_s[i] - dev_s[i])] for i in np.array_split(np.arange(len(b)), 10)]
+    slope = np.polyfit(host_s[pick], dev_s[pick], 1)[0]  # device seconds per host second
+    assert (slope - 1) * 1e6 == pytest.approx(drift_ppm, abs=1000)
+    assert len(b) == mcu.injected.frames  # frames arrive 0.5 % faster than 1 kHz, none lost
+
+
+def test_32_bit_microsecond_clock_wraps_into_a_continuous_device_time():
+    start = 2**32 - 400_000  # wraps 0.4 s into the run
+    mcu = EmulatedLoadCellMCU(force, PLATE, clock_start_us=start, seq_start=2**32 - 300, tx_buffer=BIG_TX, seed=4)
+    b, lc = acquire(mcu, 1.0)
+    assert len(b) > 600 and lc.stats()["lost_frames"] == 0
+    np.testing.assert_allclose(np.diff(b.device_time), 1e-3, atol=1e-9)
+    assert b.device_time[0] == pytest.approx(start * 1e-6) and b.device_time[-1] > 2**32 * 1e-6
+    np.testing.assert_array_equal(b.columns["seq"], 2**32 - 300 + np.arange(len(b)))  # unwrapped too
+
+
+def test_unwrap_carries_across_batches_and_steps_back():
+    u = Unwrap32()
+    a = u(np.array([2**32 - 2, 2**32 - 1]))
+    b = u(np.array([0, 3]))
+    c = u(np.array([1]))
+    assert list(a) + list(b) + list(c) == [2**32 - 2, 2**32 - 1, 2**32, 2**32 + 3, 2**32 + 1]
+
+
+def test_port_that_disappears_raises_device_fault_after_handing_out_its_samples():
+    mcu = EmulatedLoadCellMCU(force, PLATE)
+    lc = SerialLoadCells(mcu.open())
+    lc.start()
+    mcu.start()
+    time.sleep(0.3)
+    mcu.close()  # the board is unplugged
+    time.sleep(0.3)
+    try:
+        first = lc.read()
+        assert len(first) > 50
+        with pytest.raises(DeviceFault, match="failed"):
+            lc.read()
+        with pytest.raises(DeviceFault):
+            lc.check()
+    finally:
+        lc.stop()
+        lc.stop()  # idempotent
+
+
+def test_missing_port_is_a_device_fault():
+    with pytest.raises(DeviceFault, match="cannot open serial port"):
+        SerialLoadCells("/dev/does-not-exist-beambench").start()
+
+
+def test_ping_reports_version_and_rate():
+    with EmulatedLoadCellMCU(force, PLATE, drift_ppm=100.0) as mcu:
+        mcu.start()
+        found = SerialLoadCells(mcu.port).ping(0.3)
+    assert found.ok and found.version == 1 and found.frames > 50
+    assert found.rate_hz == pytest.approx(1000.0, rel=1e-9)  # measured on the MCU clock
+    assert "protocol v1" in found.summary() and "1000.0 Hz" in found.summary()
+
+
+def test_ping_on_a_silent_port_says_so():
+    with EmulatedLoadCellMCU(force, PLATE) as mcu:  # opened but not sending
+        found = SerialLoadCells(mcu.port).ping(0.15)
+    assert not found.ok and "no valid frame" in found.error and "not found" in found.summary()
+
+
+def test_frames_nobody_reads_overflow_the_boards_buffer_and_show_up_as_lost():
+    """Like a real board: with no reader the pty fills, then the board's own transmit buffer, then frames are
+    dropped whole (sequence numbers still advance), and the driver sees exactly those as lost."""
+    mcu = EmulatedLoadCellMCU(force, PLATE, tx_buffer=34 * 20, seed=8)
+    b, lc = acquire(mcu, 1.0, driver_first=False, head_start_s=0.8)
+    st = lc.stats()
+    assert mcu.injected.frames_overflowed > 100
+    assert st["lost_frames"] == mcu.injected.frames_overflowed and st["seq_gaps"] >= 1
+    assert st["crc_errors"] == st["truncated"] == 0
