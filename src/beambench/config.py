@@ -193,8 +193,8 @@ class NatNetWiring(_Model):
     data_port: int = Field(1511, ge=1, le=65535)
     multicast_address: str = "239.255.42.99"
     multicast: bool = True
-    natnet_version: str | None = None  # taken from SERVERINFO when unset
-    markers: dict[str, int] = Field(default_factory=lambda: {"stage": 1, "tip": 2, "foot": 3})
+    bitstream_version: str | None = None  # ask a NatNet 4.x server for "3.0", "4.0" or "4.1"; else as it sends
+    markers: dict[str, str | int] = Field(default_factory=lambda: {"stage": "1:1", "tip": "1:2", "foot": "1:3"})
 
 
 class OdriveWiring(_Model):

@@ -1,0 +1,75 @@
+"""``beambench devices``: ping every device of the rig file and print what answered."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+DEFAULT_RIG = Path("calibration/rig.yaml")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def devices(
+        rig_file: Path = typer.Option(DEFAULT_RIG, "--rig", help="Rig wiring YAML (addresses, CAN channel, port)."),
+        emulate: bool = typer.Option(False, "--emulate", help="Start the emulated rig on loopback and ping it."),
+    ) -> None:
+        """Ping the mocap server, the ODrive and the load-cell MCU; print version, serial and rate. Moves nothing."""
+        from rich.console import Console
+        from rich.table import Table
+
+        from beambench.config import ConfigError, load_rig_file
+
+        try:
+            rig = load_rig_file(rig_file) if not emulate else None
+        except ConfigError as exc:
+            typer.echo(f"beambench: error: {exc}", err=True)
+            raise typer.Exit(2) from None
+        if emulate:
+            from beambench.hardware_rig import emulated_peers
+
+            with emulated_peers() as wiring:
+                results = ping_all(wiring)
+        else:
+            results = ping_all(rig)
+        table = Table(title="Devices")
+        for col in ("device", "found", "details"):
+            table.add_column(col)
+        for name, info in results.items():
+            found = bool(info.get("found", False))
+            details = ", ".join(
+                f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                for k, v in info.items()
+                if k != "found" and v not in (None, "")
+            )
+            table.add_row(name, "[green]yes" if found else "[red]no", details)
+        Console().print(table)
+        if not all(r.get("found") for r in results.values()):
+            raise typer.Exit(1)
+
+
+def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
+    """Ping each device of a :class:`beambench.config.RigFile`; never raises for a device that is absent."""
+    from beambench.devices import loadcell, natnet, odrive_can
+
+    out: dict[str, dict[str, Any]] = {}
+    nn = rig.natnet.model_dump(exclude={"markers"})
+    try:
+        out["mocap (NatNet)"] = {"found": True, **natnet.ping(natnet.NatNetConfig.from_mapping(nn))}
+    except Exception as exc:  # noqa: BLE001 - report, don't crash
+        out["mocap (NatNet)"] = {"found": False, "error": str(exc)}
+    od = rig.odrive
+    if od.transport == "can":
+        out["motor (ODrive CAN)"] = odrive_can.ping(od.channel, od.interface, od.node_id, bitrate=od.bitrate)
+    else:
+        from beambench.devices import odrive_usb
+
+        out["motor (ODrive USB)"] = odrive_usb.ping(od.serial_number)
+    try:
+        lc = loadcell.ping(rig.loadcell.port, rig.loadcell.baudrate)
+        out["load cells (serial)"] = {"found": lc.ok, **{k: v for k, v in vars(lc).items() if k not in ("ok", "stats")}}
+    except Exception as exc:  # noqa: BLE001
+        out["load cells (serial)"] = {"found": False, "error": str(exc)}
+    return out

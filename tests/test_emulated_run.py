@@ -1,0 +1,125 @@
+"""`--backend emulated`: the real drivers (NatNet over UDP, ODrive over a python-can bus, load cells over a
+pty) against emulated peers driven by the MuJoCo physics, end to end into a session file."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from beambench.config import parse_protocol
+from beambench.hardware_rig import build_emulated_rig
+from beambench.hub import Hub
+from beambench.protocol import motor_limits, plan
+from beambench.runner import Runner
+from beambench.store import SessionWriter, read_session
+
+PROTOCOL = """
+name: emu
+sweep: {frequencies: [8, 16]}
+settle_s: 0.6
+record_s: 1.0
+sim: {seed: 1}
+"""
+
+
+def _run(tmp_path, inject=None, name="emu.h5"):
+    protocol = parse_protocol(PROTOCOL)
+    rig = build_emulated_rig(protocol, inject=inject)
+    rig.open()
+    path = tmp_path / name
+    hub = Hub([SessionWriter(path, {"protocol": PROTOCOL, "backend": "emulated", "identity": rig.identity()})])
+    hub.open([s.describe() for s in rig.streams])
+    result = Runner(rig, hub, plan(protocol), motor_limits(protocol), poll_s=0.1).run()
+    assert result.status == "completed", result.message
+    return rig, read_session(path)
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    return _run(tmp_path_factory.mktemp("emu"))
+
+
+def test_same_layout_as_the_sim_backend(clean):
+    from beambench.sim.rig import SimRig
+
+    _, s = clean
+    sim = SimRig(parse_protocol(PROTOCOL))
+    for stream in sim.streams:
+        spec = stream.describe()
+        got = s.streams[spec.name]
+        assert set(got.columns) == set(spec.columns)
+        for col, cs in spec.columns.items():
+            assert got.columns[col].shape[1:] == cs.shape
+            assert np.dtype(got.columns[col].dtype) == np.dtype(cs.dtype)
+
+
+def test_every_sample_has_device_and_host_time_and_nothing_is_lost(clean):
+    rig, s = clean
+    for st in s.streams.values():
+        assert len(st) > 0
+        assert np.all(np.isfinite(st.device_time)) and np.all(st.host_time_ns > 0)
+    frames = s.streams["mocap"].columns["frame"]
+    assert np.all(np.diff(frames) == 1), "lost mocap frames"
+    seq = s.streams["loadcell"].columns["seq"]
+    assert np.all(np.diff(seq) == 1), "lost load-cell samples"
+    # rates on the host clock: ~360 Hz and ~1 kHz
+    for name, rate in (("mocap", 360.0), ("loadcell", 1000.0)):
+        st = s.streams[name]
+        span = (st.host_time_ns[-1] - st.host_time_ns[0]) * 1e-9
+        assert len(st) / span == pytest.approx(rate, rel=0.05)
+
+
+def test_the_stage_follows_the_odrive(clean):
+    _, s = clean
+    m = s.streams["mocap"]
+    stage_x = m.columns["data"][:, 0, 0]
+    for row in s.steps.itertuples():
+        sel = (m.host_time_ns >= row.t_settled_ns) & (m.host_time_ns < row.t_end_ns)
+        t = (m.host_time_ns[sel] - row.t_settled_ns) * 1e-9
+        x = stage_x[sel] - stage_x[sel].mean()
+        spec = np.abs(np.fft.rfft(x * np.hanning(len(x)), n=16 * len(x)))
+        freqs = np.fft.rfftfreq(16 * len(x), d=np.median(np.diff(t)))
+        assert freqs[np.argmax(spec)] == pytest.approx(row.frequency_hz, abs=0.5)
+        assert (x.max() - x.min()) / 2 == pytest.approx(0.002, rel=0.1)
+
+
+def test_motor_telemetry_and_idle(clean):
+    _, s = clean
+    motor = s.streams["motor"]
+    assert motor.columns["velocity"].max() == pytest.approx(16.0, rel=0.05)
+    assert motor.columns["velocity_setpoint"][-1] == 0.0
+    kinds = list(s.events["kind"])
+    assert kinds[-2:] == ["idle", "stop"]
+
+
+def test_injected_mocap_drops_are_counted_exactly(tmp_path):
+    dropped = {200, 201, 350, 600}
+    rig, s = _run(tmp_path, inject={"mocap_drop": dropped}, name="drops.h5")
+    frames = s.streams["mocap"].columns["frame"]
+    gaps = np.diff(frames) - 1
+    assert gaps.sum() == len(dropped)
+    missing = set(range(int(frames[0]), int(frames[-1]) + 1)) - set(frames.tolist())
+    assert missing == dropped
+
+
+def test_devices_ping_finds_the_emulated_peers():
+    from beambench.commands.devices import ping_all
+    from beambench.hardware_rig import emulated_peers
+
+    with emulated_peers() as wiring:
+        found = ping_all(wiring)
+    mocap, motor, lc = (found[k] for k in ("mocap (NatNet)", "motor (ODrive CAN)", "load cells (serial)"))
+    assert all(d["found"] for d in (mocap, motor, lc)), found
+    assert mocap["app_name"] == "Motive" and mocap["frame_rate_hz"] == 360.0
+    assert motor["axis_state"] == "IDLE" and motor["heartbeat_hz"] == pytest.approx(10.0, rel=0.2)
+    assert lc["rate_hz"] == pytest.approx(1000.0, rel=0.02) and lc["version"] == 1
+
+
+def test_devices_command_prints_a_table_and_exits_zero():
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+
+    res = CliRunner().invoke(app, ["devices", "--emulate"])
+    assert res.exit_code == 0, res.output
+    assert res.output.count("yes") == 3
