@@ -165,11 +165,13 @@ def test_sigkill_leaves_a_readable_file(tmp_path):
     assert s.events["kind"].iloc[-1] not in ("stop", "interrupted")  # it never got to say goodbye
 
 
-def test_sigint_closes_the_file_and_logs_the_interruption(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_sigint_and_sigterm_close_the_file_and_log_the_interruption(tmp_path, sig):
     proc, path = _start_long_run(tmp_path)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
+    assert b"Traceback" not in err
     with h5py.File(path, "r") as f:  # a normal (non-SWMR) open works only on a cleanly closed file
         assert f["steps"].shape[0] >= 3
     s = read_session(path)
@@ -179,3 +181,23 @@ def test_sigint_closes_the_file_and_logs_the_interruption(tmp_path):
     assert s.steps["status"].iloc[-1] in ("aborted", "done")
     # the motor was idled: the last telemetry rows command zero velocity
     assert s.streams["motor"].columns["velocity_setpoint"][-1] == 0.0
+
+
+def test_view_replays_a_session_into_an_rrd(short_run, tmp_path):
+    out, _ = short_run
+    rrd = tmp_path / "replay.rrd"
+    res = CliRunner().invoke(app, ["view", str(out / "s.h5"), "--rerun", "save", "--out", str(rrd)])
+    assert res.exit_code == 0, res.output
+    s = read_session(out / "s.h5")
+    rows: dict[str, int] = {}
+    for chunk in rc.RrdReader(rrd).stream():
+        if not chunk.is_static:
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    assert rows["/loadcell/lc2"] == len(s.streams["loadcell"])
+    assert rows["/mocap/tip"] == len(s.streams["mocap"])
+    assert rows["/events"] == len(s.events)
+
+
+def test_view_of_a_missing_file_is_one_clear_line(tmp_path):
+    res = CliRunner().invoke(app, ["view", str(tmp_path / "nope.h5")])
+    assert res.exit_code == 2 and "no such session file" in res.output

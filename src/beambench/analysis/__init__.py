@@ -1,0 +1,69 @@
+"""Offline analysis of beambench sessions: pure functions on arrays plus a per-session driver.
+
+Notebook use::
+
+    from beambench.store import read_session
+    from beambench.analysis import analyze_session, resample_session
+
+    s = read_session("data/contact_sweep_sim_….h5")
+    a = analyze_session(s)          # a.table: one row per step; a.fits: clock fits; a.steps: arrays
+    df = resample_session(s, 1000)  # every stream on one host-clock timeline (raw data untouched)
+
+Modules: ``signals`` (sine fit), ``trajectory`` (stage frame, ellipses, sense of travel), ``contact`` (contact
+events, ratios, regimes), ``walking`` (body speed), ``session`` (per-step driver, ``/processing``), ``report``
+(figures and HTML; imports matplotlib), ``synthetic`` (sessions with a known truth for tests and demos).
+"""
+
+from beambench.analysis.contact import (
+    ContactParams,
+    Contacts,
+    detect_contacts,
+    regime_label,
+    summarize_contacts,
+)
+from beambench.analysis.session import (
+    AnalysisOptions,
+    SessionAnalysis,
+    StepResult,
+    analyze_session,
+    contacts_table,
+    resample_session,
+    write_results,
+)
+from beambench.analysis.signals import SineFit, fit_sinusoid
+from beambench.analysis.trajectory import (
+    Ellipse,
+    StageFrame,
+    fit_ellipse_harmonic,
+    fit_ellipse_points,
+    mean_path,
+    relative_trajectory,
+    stage_frame,
+)
+from beambench.analysis.walking import Speed, body_speed
+
+__all__ = [
+    "AnalysisOptions",
+    "ContactParams",
+    "Contacts",
+    "Ellipse",
+    "SessionAnalysis",
+    "SineFit",
+    "Speed",
+    "StageFrame",
+    "StepResult",
+    "analyze_session",
+    "body_speed",
+    "contacts_table",
+    "detect_contacts",
+    "fit_ellipse_harmonic",
+    "fit_ellipse_points",
+    "fit_sinusoid",
+    "mean_path",
+    "regime_label",
+    "relative_trajectory",
+    "resample_session",
+    "stage_frame",
+    "summarize_contacts",
+    "write_results",
+]

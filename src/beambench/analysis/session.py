@@ -1,0 +1,568 @@
+"""Analyse a recorded session: clocks onto one timeline, then per-step results on each record window.
+
+``analyze_session(read_session(path))`` returns a :class:`SessionAnalysis` with a tidy per-step table
+(``.table``, one row per step), the clock fits, the encoder↔marker delay and per-step arrays for figures.
+``write_results`` stores it under ``/processing``. Everything here is read-only on the raw data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from beambench.analysis.contact import (
+    ContactParams,
+    Contacts,
+    detect_contacts,
+    summarize_contacts,
+    touchdown_velocity,
+)
+from beambench.analysis.signals import NAN_SINE, fit_sinusoid, velocity
+from beambench.analysis.trajectory import (
+    Ellipse,
+    StageFrame,
+    area_per_cycle,
+    axis_vector,
+    fit_ellipse_harmonic,
+    relative_trajectory,
+    stage_frame,
+)
+from beambench.analysis.walking import body_speed
+from beambench.calibration import LoadCellCalibration, default_calibration
+from beambench.sync import (
+    NS,
+    ClockFit,
+    DelayEstimate,
+    EdgeCheck,
+    encoder_marker_delay,
+    fit_clock,
+    fit_echo,
+    fits_table,
+    resample,
+    sync_edge_check,
+    timeline,
+)
+
+
+@dataclass(frozen=True)
+class AnalysisOptions:
+    """Choices of the analysis. Axes are world (mocap) axes such as ``"z"`` or ``"-y"``; None = from the session."""
+
+    up: str | None = None
+    forward: str | None = None
+    contact: ContactParams = ContactParams()
+    stage_marker: str = "stage"
+    tip_marker: str = "tip"
+    foot_marker: str = "foot"
+    body_marker: str = "body"
+    walker_feet: tuple[str, ...] = ("foot_left", "foot_right")
+
+
+@dataclass
+class StepResult:
+    """One step's record window: the table row plus arrays for figures (times in s from the window start)."""
+
+    index: int
+    frequency_hz: float
+    row: dict[str, Any]
+    t_mocap: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    paths: dict[str, np.ndarray] = field(default_factory=dict)  # marker → (n, 2) mm in the stage frame
+    ellipses: dict[str, Ellipse] = field(default_factory=dict)
+    t_force: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    force: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (normal, tangential) N
+    contacts: Contacts | None = None
+    touchdown_xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # foot at touchdown, stage frame
+    touchdown_v: np.ndarray = field(default_factory=lambda: np.zeros(0))  # mm/s along drive, vs plate
+    body_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    body_x_mm: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+@dataclass
+class SessionAnalysis:
+    """Everything :func:`analyze_session` found; ``table`` is the tidy per-step DataFrame."""
+
+    path: Path | None
+    rig: str
+    backend: str
+    protocol_name: str
+    general: dict[str, Any]
+    fits: dict[str, ClockFit]
+    delay: DelayEstimate | None
+    frame: StageFrame | None
+    table: pd.DataFrame
+    steps: list[StepResult]
+    calibration_source: str = ""
+    residuals_us: dict[str, np.ndarray] = field(default_factory=dict)
+    residual_t_s: dict[str, np.ndarray] = field(default_factory=dict)
+    edge_check: EdgeCheck | None = None
+    name: str = ""
+
+    @property
+    def sync_table(self) -> pd.DataFrame:
+        return fits_table(self.fits)
+
+    @property
+    def label(self) -> str:
+        """How figures and tables name this session: ``name`` if set, else the file stem."""
+        if self.name:
+            return self.name
+        return self.path.stem if self.path is not None else self.protocol_name
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+
+
+def _text(value: Any) -> str:
+    return value if isinstance(value, str) else ""
+
+
+def session_calibration(general: dict[str, Any]) -> LoadCellCalibration:
+    """The load-cell calibration stored in the session (``/general/calibration/loadcells``), else the default."""
+    cal = general.get("calibration")
+    text = cal.get("loadcells") if isinstance(cal, dict) else general.get("calibration/loadcells")
+    if isinstance(text, str) and text.strip():
+        try:
+            data = yaml.safe_load(text)
+            if isinstance(data, dict):
+                return LoadCellCalibration.from_dict(data)
+        except (yaml.YAMLError, KeyError, ValueError):
+            pass
+    return default_calibration()
+
+
+def _protocol_dict(general: dict[str, Any]) -> dict[str, Any]:
+    try:
+        data = yaml.safe_load(_text(general.get("protocol", "")))
+    except yaml.YAMLError:
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _geometry_axis(general: dict[str, Any], key: str) -> str | None:
+    """An axis named in the session (``/general/<key>`` or ``/general/geometry/<key>``), if any."""
+    for src in (general, general.get("geometry") if isinstance(general.get("geometry"), dict) else {}):
+        v = src.get(key) if isinstance(src, dict) else None
+        if isinstance(v, str) and v.strip():
+            return v.strip()
+    return None
+
+
+def stream_host_times(stream: Any, fit: ClockFit | None) -> np.ndarray:
+    """Event times of a stream on the host clock (ns): the clock fit applied to the device stamps."""
+    if fit is None or fit.method in ("none",):
+        return np.asarray(stream.host_time_ns, np.int64)
+    return fit.to_host_ns(stream.device_time)
+
+
+def fit_session_clocks(session: Any) -> dict[str, ClockFit]:
+    """One device→host clock fit per stream with samples (lower envelope of the receive stamps).
+
+    When the session holds NatNet ECHO exchanges (``/general/sync/natnet_echo``: ``host_send_ns``,
+    ``host_recv_ns``, ``server_ticks``, ``clock_frequency``), their minimum-round-trip fit is added as
+    ``mocap_echo``: a cross-check whose offset from the ``mocap`` fit is Motive's one-way latency (mid-exposure
+    to host receipt), which one-way stamps cannot see. Streams are still mapped by their own fits.
+    """
+    fits = {
+        name: fit_clock(s.device_time, s.host_time_ns, name)
+        for name, s in session.streams.items()
+        if len(s.host_time_ns) > 0
+    }
+    echo = natnet_echo_fit(session.general)
+    if echo is not None:
+        fits["mocap_echo"] = echo
+    return fits
+
+
+def natnet_echo_fit(general: dict[str, Any]) -> ClockFit | None:
+    """The ECHO-exchange clock fit from ``/general/sync/natnet_echo``, if the session has one."""
+    sync = general.get("sync")
+    table = sync.get("natnet_echo") if isinstance(sync, dict) else None
+    if not isinstance(table, dict):
+        return None
+    try:
+        freq = float(table["clock_frequency"])
+        send = np.asarray(table["host_send_ns"], np.int64)
+        recv = np.asarray(table["host_recv_ns"], np.int64)
+        ticks = np.asarray(table["server_ticks"], np.float64)
+        if freq <= 0 or len(send) == 0:
+            return None
+        return fit_echo(send, recv, ticks / freq, "mocap_echo")
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def mocap_markers(stream: Any) -> tuple[list[str], np.ndarray]:
+    """Marker labels and positions ``(n, M, 3)`` in metres, NaN where occluded."""
+    data = np.array(stream.columns["data"], dtype=np.float64)
+    spec = getattr(stream, "spec", None)
+    labels = list(spec.columns["data"].labels) if spec is not None and "data" in spec.columns else []
+    if len(labels) != data.shape[1]:
+        labels = [f"m{i}" for i in range(data.shape[1])]
+    occ = stream.columns.get("occluded")
+    if occ is not None and len(occ) == len(data):
+        data[np.asarray(occ, bool)] = np.nan
+    return labels, data
+
+
+def _window(t_ns: np.ndarray, a: int, b: int) -> slice:
+    return slice(int(np.searchsorted(t_ns, a, "left")), int(np.searchsorted(t_ns, b, "left")))
+
+
+def _sorted(t_ns: np.ndarray, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    if len(t_ns) > 1 and np.any(np.diff(t_ns) < 0):
+        order = np.argsort(t_ns, kind="stable")
+        return (t_ns[order], *(a[order] for a in arrays))
+    return (t_ns, *arrays)
+
+
+def _sense(e: Ellipse) -> str:
+    return "" if e.clockwise is None else ("cw" if e.clockwise else "ccw")
+
+
+def _sign(x: float) -> int:
+    return 0 if not np.isfinite(x) or x == 0 else int(np.sign(x))
+
+
+# ---------------------------------------------------------------------------------------------- analysis
+
+
+def analyze_session(
+    session: Any,
+    options: AnalysisOptions = AnalysisOptions(),
+    progress: Callable[[int, int], None] | None = None,
+) -> SessionAnalysis:
+    """Analyse every step of a session (as returned by :func:`beambench.store.read_session`)."""
+    general = dict(session.general)
+    proto = _protocol_dict(general)
+    rig = _text(general.get("rig")) or str(proto.get("rig", "contact"))
+    backend = _text(general.get("backend")) or str(proto.get("backend", ""))
+    name = _text(general.get("protocol_name")) or str(proto.get("name", ""))
+    amplitude_mm = float(proto.get("amplitude_mm", np.nan)) if proto else float("nan")
+    cal = session_calibration(general)
+    fits = fit_session_clocks(session)
+    residuals = {
+        n: fits[n].residuals_us(s.device_time, s.host_time_ns).astype(np.float32)
+        for n, s in session.streams.items()
+        if n in fits
+    }
+    t_first = min((int(s.host_time_ns.min()) for s in session.streams.values() if len(s.host_time_ns)), default=0)
+    residual_t = {n: ((session.streams[n].host_time_ns - t_first) / NS).astype(np.float32) for n in residuals}
+
+    # --- mocap on the host clock --------------------------------------------------------------------
+    mocap = session.streams.get("mocap")
+    labels: list[str] = []
+    mt = np.zeros(0, np.int64)
+    pos = np.zeros((0, 0, 3))
+    if mocap is not None and len(mocap.host_time_ns):
+        labels, pos = mocap_markers(mocap)
+        mt, pos = _sorted(stream_host_times(mocap, fits.get("mocap")), pos)
+
+    def marker(label: str) -> np.ndarray | None:
+        return pos[:, labels.index(label)] if label in labels else None
+
+    stage, foot, tip, body = (marker(options.stage_marker), marker(options.foot_marker), marker(options.tip_marker), marker(options.body_marker))
+    up = options.up or _geometry_axis(general, "up_axis")
+    forward = options.forward or _geometry_axis(general, "forward_axis") or "x"
+    frame: StageFrame | None = None
+    ref = stage if stage is not None else body
+    if ref is not None and np.isfinite(ref).all(axis=1).sum() >= 3:
+        try:
+            if stage is not None:
+                frame = stage_frame(stage[:: max(1, len(stage) // 20000)], up, hanging_xyz=foot)
+            else:
+                d = axis_vector(forward)
+                u = axis_vector(up) if up else _guess_up(d)
+                u = u - (u @ d) * d
+                frame = StageFrame(d, u / np.linalg.norm(u))
+        except ValueError:
+            frame = None
+
+    # --- motor and load cells on the host clock ------------------------------------------------------
+    motor = session.streams.get("motor")
+    mot_t = np.zeros(0, np.int64)
+    mot_pos = mot_vel = np.zeros(0)
+    if motor is not None and len(motor.host_time_ns):
+        mot_t, mot_pos, mot_vel = _sorted(
+            stream_host_times(motor, fits.get("motor")),
+            np.asarray(motor.columns.get("position", np.full(len(motor.host_time_ns), np.nan)), float),
+            np.asarray(motor.columns.get("velocity", np.full(len(motor.host_time_ns), np.nan)), float),
+        )
+    lc = session.streams.get("loadcell")
+    lc_t = np.zeros(0, np.int64)
+    force = np.zeros((0, 2))
+    if lc is not None and len(lc.host_time_ns):
+        lc_t, force = _sorted(stream_host_times(lc, fits.get("loadcell")), cal.force_from_counts(lc.columns["data"]))
+
+    edge = None
+    if lc is not None and mocap is not None and "sync_edges" in lc.columns and "frame" in mocap.columns and len(lc_t):
+        edge = sync_edge_check(
+            stream_host_times(lc, fits.get("loadcell")), lc.columns["sync_edges"],
+            stream_host_times(mocap, fits.get("mocap")), mocap.columns["frame"],
+        )
+
+    delay = None
+    if stage is not None and frame is not None and len(mot_t) > 4:
+        disp = (stage - np.nanmean(stage, axis=0)) @ frame.drive
+        delay = encoder_marker_delay(mot_t, mot_pos, mt, disp)
+
+    # --- steps ---------------------------------------------------------------------------------------
+    steps_df = session.steps
+    results: list[StepResult] = []
+    n_steps = len(steps_df)
+    last_ns = max([int(a[-1]) for a in (mt, lc_t, mot_t) if len(a)], default=0)
+    for k, srow in enumerate(steps_df.itertuples(index=False)):
+        res = _analyze_step(
+            srow, last_ns, amplitude_mm, rig, options, frame, forward,
+            mt, stage, tip, foot, body, {lbl: marker(lbl) for lbl in options.walker_feet},
+            mot_t, mot_vel, lc_t, force,
+        )
+        results.append(res)
+        if progress is not None:
+            progress(k + 1, n_steps)
+    table = pd.DataFrame([r.row for r in results])
+    return SessionAnalysis(
+        Path(session.path) if getattr(session, "path", None) is not None else None,
+        rig, backend, name, general, fits, delay, frame, table, results, cal.source, residuals, residual_t, edge,
+    )
+
+
+def _guess_up(drive: np.ndarray) -> np.ndarray:
+    for ax in ("z", "y", "x"):
+        v = axis_vector(ax)
+        if abs(v @ drive) < 0.9:
+            return v
+    return axis_vector("z")
+
+
+def _analyze_step(
+    srow: Any,
+    last_ns: int,
+    amplitude_mm: float,
+    rig: str,
+    opt: AnalysisOptions,
+    frame: StageFrame | None,
+    forward: str,
+    mt: np.ndarray,
+    stage: np.ndarray | None,
+    tip: np.ndarray | None,
+    foot: np.ndarray | None,
+    body: np.ndarray | None,
+    feet: dict[str, np.ndarray | None],
+    mot_t: np.ndarray,
+    mot_vel: np.ndarray,
+    lc_t: np.ndarray,
+    force: np.ndarray,
+) -> StepResult:
+    f_cmd = float(srow.frequency_hz)
+    a = int(srow.t_settled_ns)
+    b = int(srow.t_end_ns) if int(srow.t_end_ns) > 0 else last_ns
+    row: dict[str, Any] = {
+        "step": int(srow.index),
+        "frequency_hz": f_cmd,
+        "status": str(srow.status),
+        "t_settled_s": a / NS if a >= 0 else np.nan,
+        "record_s": (b - a) / NS if a >= 0 else np.nan,
+    }
+    res = StepResult(int(srow.index), f_cmd, row)
+    if a < 0 or b <= a:
+        row["regime"] = ""
+        return res
+
+    # motor speed (crank turn/s = Hz)
+    w = _window(mot_t, a, b)
+    v = mot_vel[w]
+    row["motor_frequency_hz"] = float(np.nanmean(np.abs(v))) if np.isfinite(v).any() else np.nan
+
+    # stage: measured drive frequency and amplitude
+    w = _window(mt, a, b)
+    t = (mt[w] - a) / NS
+    res.t_mocap = t
+    sine = NAN_SINE
+    if stage is not None and frame is not None:
+        st = stage[w]
+        row["mocap_valid_fraction"] = float(np.isfinite(st).all(axis=1).mean()) if len(st) else 0.0
+        disp = (st - np.nanmean(st, axis=0)) @ frame.drive if len(st) else np.zeros(0)
+        sine = fit_sinusoid(t, disp, f_cmd if f_cmd > 0 else None)
+    row["measured_frequency_hz"] = sine.frequency_hz
+    row["frequency_error_hz"] = sine.frequency_hz - f_cmd
+    row["stage_amplitude_mm"] = sine.amplitude * 1e3
+    row["commanded_amplitude_mm"] = amplitude_mm if stage is not None else np.nan
+    f_use = sine.frequency_hz if np.isfinite(sine.frequency_hz) and sine.frequency_hz > 0 else row["motor_frequency_hz"]
+    if not (np.isfinite(f_use) and f_use > 0):
+        f_use = f_cmd
+
+    # trajectories in the stage frame (or relative to the body for the walker)
+    ref = stage if stage is not None else body
+    tracked = {"tip": tip, "foot": foot} if stage is not None else dict(feet)
+    if frame is not None and ref is not None:
+        for name, m in tracked.items():
+            if m is None:
+                continue
+            xy = relative_trajectory(m[w], ref[w], frame)
+            res.paths[name] = xy
+            e = fit_ellipse_harmonic(t, xy, f_use)
+            res.ellipses[name] = e
+            row[f"{name}_major_mm"] = e.major
+            row[f"{name}_minor_mm"] = e.minor
+            row[f"{name}_tilt_deg"] = e.tilt_deg
+            row[f"{name}_sense"] = _sense(e)
+            row[f"{name}_ellipse_r2"] = e.r2
+            row[f"{name}_area_mm2"] = area_per_cycle(t, xy, f_use)
+
+    # contacts from the calibrated normal force
+    if len(lc_t):
+        wl = _window(lc_t, a, b)
+        tf = (lc_t[wl] - a) / NS
+        fw = force[wl]
+        res.t_force, res.force = tf, fw
+        foot_h = None
+        if foot is not None and frame is not None:
+            foot_h = foot[w] @ frame.up
+        c = detect_contacts(tf, fw[:, 0], f_use, opt.contact, foot_t_s=t, foot_height_m=foot_h)
+        res.contacts = c
+        s = summarize_contacts(c, f_use, opt.contact)
+        row.update(
+            n_contacts=s.n_contacts,
+            contact_frequency_hz=s.contact_frequency_hz,
+            contacts_per_cycle=s.contacts_per_cycle,
+            regime=s.regime,
+            in_contact_fraction=s.in_contact_fraction,
+            peak_normal_n=float(np.nanmax(fw[:, 0])) if len(fw) else np.nan,
+            contact_threshold_n=c.on_n,
+        )
+        ft_in = fw[c.mask, 1] if len(fw) else np.zeros(0)
+        mean_ft = float(np.nanmean(ft_in)) if np.isfinite(ft_in).any() else np.nan
+        row["mean_tangential_n"] = mean_ft
+        row["tangential_sign"] = _sign(mean_ft)
+        # direction of motion at touchdown: foot velocity along the drive axis, relative to the plate
+        td = c.touchdown_s
+        if foot is not None and frame is not None and len(td):
+            fx = foot[w] @ frame.drive * 1e3
+            fv = velocity(t, fx)
+            tv = touchdown_velocity(td, t, fv, 0.1 / f_use)
+            res.touchdown_v = tv
+            rel = res.paths.get("foot")
+            if rel is not None and len(t) > 1:
+                res.touchdown_xy = np.column_stack([np.interp(td, t, rel[:, 0]), np.interp(td, t, rel[:, 1])])
+            med = float(np.nanmedian(tv)) if np.isfinite(tv).any() else np.nan
+            row["touchdown_velocity_mm_s"] = med
+            row["touchdown_direction"] = _sign(med)
+        else:
+            row["touchdown_velocity_mm_s"] = np.nan
+            row["touchdown_direction"] = 0
+    else:
+        row["regime"] = ""
+
+    # walker: body speed
+    if body is not None:
+        sp = body_speed(t, body[w], forward)
+        row["body_speed_mm_s"] = sp.speed_mm_s
+        row["body_speed_stderr_mm_s"] = sp.stderr_mm_s
+        res.body_t = t
+        res.body_x_mm = body[w] @ axis_vector(forward) * 1e3
+    row["analysis_frequency_hz"] = f_use
+    return res
+
+
+# ------------------------------------------------------------------------------------- storing / notebooks
+
+
+def contacts_table(analysis: SessionAnalysis) -> pd.DataFrame:
+    """One row per contact interval of every step (times in s from the step's window start)."""
+    rows = []
+    for r in analysis.steps:
+        c = r.contacts
+        if c is None:
+            continue
+        tdv = iter(r.touchdown_v) if len(r.touchdown_v) == c.n_touchdowns else None
+        for s, e, td in zip(c.start_s, c.end_s, c.touchdown):
+            v = next(tdv) if (td and tdv is not None) else np.nan
+            rows.append(
+                {"step": r.index, "frequency_hz": r.frequency_hz, "start_s": s, "end_s": e, "touchdown": bool(td), "touchdown_velocity_mm_s": v}
+            )
+    cols = ["step", "frequency_hz", "start_s", "end_s", "touchdown", "touchdown_velocity_mm_s"]
+    return pd.DataFrame(rows, columns=cols)
+
+
+def write_results(analysis: SessionAnalysis, path: str | Path | None = None) -> None:
+    """Store the per-step table, clock fits (+ residuals), contacts and the delay under ``/processing``."""
+    from beambench.store import write_processing
+
+    target = Path(path) if path is not None else analysis.path
+    if target is None:
+        raise ValueError("no session path to write to")
+    write_processing(target, "steps", analysis.table)
+    write_processing(target, "sync", analysis.sync_table)
+    write_processing(target, "sync_residuals_us", analysis.residuals_us)  # row-aligned with /acquisition
+    write_processing(target, "contacts", contacts_table(analysis))
+    e = analysis.edge_check
+    if e is not None:
+        write_processing(target, "sync_edge_check", {k: np.array([v]) for k, v in asdict(e).items()})
+    d = analysis.delay
+    if d is not None:
+        write_processing(
+            target,
+            "encoder_marker_delay",
+            {"delay_s": np.array([d.delay_s]), "quality": np.array([d.quality]), "n": np.array([d.n]), "frequency_span_hz": np.array([d.frequency_span_hz])},
+        )
+
+
+def resample_session(
+    session: Any,
+    rate_hz: float = 1000.0,
+    fits: dict[str, ClockFit] | None = None,
+    start_ns: int | None = None,
+    end_ns: int | None = None,
+) -> pd.DataFrame:
+    """Every stream's numeric columns on one uniform host-clock timeline (a DataFrame indexed by seconds).
+
+    Columns are named ``stream/column[/label][/axis]``; load cells also get calibrated ``loadcell/normal_n``
+    and ``loadcell/tangential_n``. The raw data are not modified.
+    """
+    fits = fits if fits is not None else fit_session_clocks(session)
+    times = {n: stream_host_times(s, fits.get(n)) for n, s in session.streams.items() if len(s.host_time_ns)}
+    if not times:
+        return pd.DataFrame()
+    a = start_ns if start_ns is not None else min(int(t.min()) for t in times.values())
+    b = end_ns if end_ns is not None else max(int(t.max()) for t in times.values())
+    grid = timeline(a, b, rate_hz)
+    out: dict[str, np.ndarray] = {}
+    cal = session_calibration(session.general)
+    for name, t in times.items():
+        s = session.streams[name]
+        cols = dict(s.columns)
+        if name == "mocap" and "data" in cols:
+            labels, pos = mocap_markers(s)
+            cols["data"] = pos
+        if name == "loadcell" and "data" in cols:
+            fcal = cal.force_from_counts(cols["data"])
+            out["loadcell/normal_n"] = resample(t, fcal[:, 0], grid)
+            out["loadcell/tangential_n"] = resample(t, fcal[:, 1], grid)
+        for col, values in cols.items():
+            arr = np.asarray(values)
+            if arr.dtype.kind not in "fiub":
+                continue
+            spec = getattr(s, "spec", None)
+            labels = list(spec.columns[col].labels) if spec is not None and col in spec.columns else []
+            r = resample(t, arr.astype(float), grid)
+            flat = r.reshape(len(grid), -1)
+            names = _column_names(name, col, arr.shape[1:], labels)
+            for i, nm in enumerate(names):
+                out[nm] = flat[:, i]
+    return pd.DataFrame(out, index=pd.Index((grid - a) / NS, name="t_s"))
+
+
+def _column_names(stream: str, col: str, shape: tuple[int, ...], labels: list[str]) -> list[str]:
+    if not shape:
+        return [f"{stream}/{col}"]
+    if len(shape) == 1:
+        names = labels if len(labels) == shape[0] else [str(i) for i in range(shape[0])]
+        return [f"{stream}/{col}/{n}" for n in names]
+    first = labels if len(labels) == shape[0] else [str(i) for i in range(shape[0])]
+    axes = "xyz" if shape[-1] == 3 else [str(i) for i in range(shape[-1])]
+    return [f"{stream}/{col}/{m}/{ax}" for m in first for ax in axes]

@@ -1,0 +1,149 @@
+"""``beambench analyze SESSION.h5`` and ``beambench compare A.h5 B.h5``: per-step results and a report folder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn, Optional
+
+import typer
+
+if TYPE_CHECKING:
+    from beambench.analysis.session import AnalysisOptions, SessionAnalysis
+
+
+def _fail(message: str) -> NoReturn:
+    typer.echo(f"beambench: error: {message}", err=True)
+    raise typer.Exit(2)
+
+
+def _frequencies(text: Optional[str]) -> list[float] | None:
+    if not text:
+        return None
+    try:
+        vals = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        _fail(f"--force-at {text!r}: expected frequencies in Hz separated by commas, e.g. 26,40")
+    if not vals or any(v <= 0 for v in vals):
+        _fail(f"--force-at {text!r}: expected positive frequencies in Hz")
+    return vals
+
+
+def _options(up: Optional[str], forward: Optional[str]) -> AnalysisOptions:
+    from beambench.analysis.session import AnalysisOptions
+    from beambench.analysis.trajectory import axis_vector
+
+    for name, value in (("--up", up), ("--forward", forward)):
+        if value is not None:
+            try:
+                axis_vector(value)
+            except ValueError:
+                _fail(f"{name} {value!r}: expected x, y or z with an optional sign, e.g. z or -y")
+    return AnalysisOptions(up=up, forward=forward)
+
+
+def _load(path: Path, options: AnalysisOptions, progress, write: bool) -> SessionAnalysis:
+    """Read and analyse one session, with a progress task; errors become one line and exit code 2."""
+    from beambench.analysis.session import analyze_session, write_results
+    from beambench.store import read_session
+
+    if not path.is_file():
+        _fail(f"{path}: no such file")
+    try:
+        session = read_session(path)
+    except (OSError, KeyError) as exc:
+        _fail(f"{path}: not a beambench session file ({exc})")
+    if len(session.steps) == 0:
+        _fail(f"{path}: the session has no steps to analyse")
+    task = progress.add_task(f"analysing {path.name}", total=len(session.steps))
+    try:
+        analysis = analyze_session(session, options, lambda k, n: progress.update(task, completed=k))
+    except (ValueError, KeyError, IndexError) as exc:  # a malformed session: say what, no traceback
+        _fail(f"{path}: cannot analyse this session ({type(exc).__name__}: {exc})")
+    if write:
+        try:
+            write_results(analysis)
+        except OSError as exc:  # e.g. the file is read-only or still open for writing by a live run
+            progress.console.print(f"[yellow]warning: results not written into {path.name}: {exc}")
+    return analysis
+
+
+def _report(analyses: list[SessionAnalysis], out: Path, force_at: list[float] | None, progress) -> Path:
+    from beambench.analysis.report import make_report
+
+    task = progress.add_task("figures", total=8)
+    return make_report(analyses, out, force_at, lambda key: progress.update(task, advance=1, description=f"figure: {key}"))
+
+
+def _progress(quiet: bool):
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+    )
+
+    return Progress(
+        TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+        disable=quiet, transient=True,
+    )
+
+
+def register(app: typer.Typer) -> None:
+    """Add ``analyze`` and ``compare`` to the beambench app."""
+
+    @app.command()
+    def analyze(
+        session: Path = typer.Argument(..., metavar="SESSION.h5", help="A session file written by beambench run."),
+        out: Optional[Path] = typer.Option(None, "--out", "-o", help="Report folder (default: <session stem>_report/ beside the session)."),
+        force_at: Optional[str] = typer.Option(None, "--force-at", help="Frequencies (Hz) for the force-trace figure, e.g. 26,40 (default: one per contact regime)."),
+        up: Optional[str] = typer.Option(None, "--up", help="World axis pointing up, e.g. z or -y (default: from the session or the rig geometry)."),
+        forward: Optional[str] = typer.Option(None, "--forward", help="Walker: world axis of forward travel (default: from the session, else x)."),
+        no_write: bool = typer.Option(False, "--no-write", help="Do not store the results in the session's /processing group."),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    ) -> None:
+        """Analyse every step of a session and write a report folder.
+
+        Per step, on its record window: measured drive frequency and amplitude;
+        tip and foot paths in the stage frame, their ellipses and sense of travel;
+        contacts from the calibrated normal force (frequency, per cycle, regime);
+        direction of motion at touchdown and the tangential force; walker speed.
+
+        Writes PNG figures, steps.csv and index.html, stores the results in the
+        session's /processing group and prints the path of index.html.
+        """
+        freqs = _frequencies(force_at)
+        opts = _options(up, forward)
+        folder = out or session.with_name(f"{session.stem}_report")
+        with _progress(quiet) as progress:
+            a = _load(session, opts, progress, not no_write)
+            index = _report([a], folder, freqs, progress)
+        typer.echo(str(index))
+
+    @app.command()
+    def compare(
+        a: Path = typer.Argument(..., metavar="A.h5", help="First session (e.g. sim)."),
+        b: Path = typer.Argument(..., metavar="B.h5", help="Second session (e.g. rig)."),
+        out: Optional[Path] = typer.Option(None, "--out", "-o", help="Report folder (default: <A stem>_vs_<B stem>_report/ beside A)."),
+        force_at: Optional[str] = typer.Option(None, "--force-at", help="Frequencies (Hz) for the force-trace figure, e.g. 26,40."),
+        up: Optional[str] = typer.Option(None, "--up", help="World axis pointing up for both sessions (default: from each session)."),
+        forward: Optional[str] = typer.Option(None, "--forward", help="Walker: world axis of forward travel."),
+        no_write: bool = typer.Option(False, "--no-write", help="Do not store results in the sessions' /processing groups."),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+    ) -> None:
+        """Overlay two sessions (sim vs rig, two models, two beams) on the same report figures.
+
+        Writes the figures of analyze with both sessions on every plot, a
+        steps.csv with a session column and index.html with both provenances;
+        prints the path of index.html.
+        """
+        freqs = _frequencies(force_at)
+        opts = _options(up, forward)
+        folder = out or a.with_name(f"{a.stem}_vs_{b.stem}_report")
+        with _progress(quiet) as progress:
+            analyses = [_load(p, opts, progress, not no_write) for p in (a, b)]
+            if analyses[0].label == analyses[1].label:  # same file name in two folders: say which is which
+                for x in analyses:
+                    x.name = f"{x.path.parent.name}/{x.path.stem}" if x.path else x.label
+            index = _report(analyses, folder, freqs, progress)
+        typer.echo(str(index))
