@@ -11,7 +11,7 @@ from beambench.hardware_rig import build_emulated_rig
 from beambench.hub import Hub
 from beambench.protocol import motor_limits, plan
 from beambench.runner import Runner
-from beambench.store import SessionWriter, read_session
+from beambench.store import SessionWriter, append_general, read_session
 
 PROTOCOL = """
 name: emu
@@ -31,6 +31,8 @@ def _run(tmp_path, inject=None, name="emu.h5"):
     hub.open([s.describe() for s in rig.streams])
     result = Runner(rig, hub, plan(protocol), motor_limits(protocol), poll_s=0.1).run()
     assert result.status == "completed", result.message
+    if rig.post_run:
+        append_general(path, rig.post_run)
     return rig, read_session(path)
 
 
@@ -123,3 +125,15 @@ def test_devices_command_prints_a_table_and_exits_zero():
     res = CliRunner().invoke(app, ["devices", "--emulate"])
     assert res.exit_code == 0, res.output
     assert res.output.count("yes") == 3
+
+
+def test_natnet_echo_exchanges_are_kept_for_clock_sync(clean):
+    from beambench.analysis.session import natnet_echo_fit
+
+    _, s = clean
+    echo = s.general["sync"]["natnet_echo"]
+    assert echo["clock_frequency"] == 10_000_000 and len(echo["host_send_ns"]) >= 3
+    fit = natnet_echo_fit(s.general)
+    assert fit is not None
+    # the emulator's QPC clock runs at the host's rate (no drift injected): the fitted drift is ~0 ppm
+    assert abs(fit.drift_ppm) < 200

@@ -61,6 +61,7 @@ class DeviceRig:
         self._extra = extra_identity or {}
         self._opened: list[Any] = []
         self._closed = False
+        self.post_run: dict[str, Any] = {}  # what only exists after the run (NatNet ECHO table), for /general
 
     def open(self) -> None:
         try:
@@ -81,6 +82,7 @@ class DeviceRig:
         self._closed = True
         with contextlib.suppress(Exception):
             self.motor.idle()
+        self._keep_echoes()
         for s in (self.mocap, self.loadcells):
             with contextlib.suppress(Exception):
                 s.stop()
@@ -89,6 +91,14 @@ class DeviceRig:
         for peer in reversed(self.peers):
             with contextlib.suppress(Exception):
                 peer.stop()
+
+    def _keep_echoes(self) -> None:
+        client = getattr(self.mocap, "client", None)
+        if client is None or not getattr(client, "clock_frequency", None):
+            return
+        with contextlib.suppress(Exception):
+            table = {k: v.tolist() for k, v in client.echo_table().items()}
+            self.post_run = {"sync": {"natnet_echo": {**table, "clock_frequency": int(client.clock_frequency)}}}
 
     def identity(self) -> dict[str, Any]:
         out: dict[str, Any] = {"backend": self.backend}

@@ -13,7 +13,7 @@ from beambench.protocol import motor_limits, plan
 from beambench.provenance import provenance
 from beambench.rigs import build_rig
 from beambench.runner import RunResult, Runner
-from beambench.store import SessionWriter, read_session
+from beambench.store import SessionWriter, append_general, read_session
 
 RerunMode = str  # spawn | connect | save | off (beambench.live is imported only when a viewer is wanted)
 
@@ -73,6 +73,9 @@ def run_session(
         poll_s = 0.5 if backend == "sim" and not realtime else 0.1
         runner = Runner(rig, hub, steps, motor_limits(protocol), poll_s=poll_s, on_progress=on_progress)
         result = runner.run()
+    post_run = getattr(rig, "post_run", None)
+    if post_run:
+        append_general(path, post_run)
     for err in hub.errors:
         progress.console.print(f"[yellow]warning: live view stopped: {err}")
     return result

@@ -269,6 +269,16 @@ def read_session(path: str | Path) -> Session:
     return Session(path, streams, steps, events, general, attrs)
 
 
+def append_general(path: str | Path, extra: dict[str, Any]) -> None:
+    """Add entries to ``/general`` of a closed session (things known only after the run, e.g. ECHO tables)."""
+    with h5py.File(path, "r+") as f:
+        g = f["general"]
+        for key, value in extra.items():
+            if key in g:
+                del g[key]
+            _write_general(g, {key: value})
+
+
 def write_processing(path: str | Path, name: str, table: pd.DataFrame | dict[str, np.ndarray]) -> None:
     """Write analysis results to ``/processing/<name>`` (one dataset per column), replacing any old copy."""
     cols = {c: table[c].to_numpy() for c in table.columns} if isinstance(table, pd.DataFrame) else dict(table)
