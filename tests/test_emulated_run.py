@@ -137,3 +137,17 @@ def test_natnet_echo_exchanges_are_kept_for_clock_sync(clean):
     assert fit is not None
     # the emulator's QPC clock runs at the host's rate (no drift injected): the fitted drift is ~0 ppm
     assert abs(fit.drift_ppm) < 200
+
+
+def test_injected_load_cell_faults_are_exactly_the_lost_samples(tmp_path):
+    rig, s = _run(tmp_path, inject={"loadcell_crc": 0.004, "loadcell_drop": 0.004, "loadcell_garbage": 0.01},
+                  name="lc.h5")
+    mcu = rig.peers[0].mcu
+    seq = s.streams["loadcell"].columns["seq"]
+    lo, hi = int(seq[0]), int(seq[-1])
+    missing = set(range(lo, hi + 1)) - set(seq.tolist())
+    broken = {q for q in mcu.broken_seqs if lo <= q <= hi}
+    overflowed = {q for q in mcu.overflowed_seqs if lo <= q <= hi}
+    assert len(broken) >= 5  # something was injected inside the session
+    assert missing == broken | overflowed
+    assert mcu.injected.garbage_bursts > 0  # garbage costs no sample: the decoder resynchronises

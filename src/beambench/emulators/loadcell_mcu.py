@@ -99,6 +99,8 @@ class EmulatedLoadCellMCU:
         self.max_garbage = max(1, max_garbage)
         self.tx_buffer = tx_buffer
         self.injected = Injected()
+        self.broken_seqs: list[int] = []  # sequence numbers of frames sent with a CRC error or bytes dropped
+        self.overflowed_seqs: list[int] = []  # sequence numbers never sent (transmit buffer full)
         self._rng = random.Random(seed)
         self._noise = np.random.default_rng(seed)
         self._guard = False
@@ -139,9 +141,9 @@ class EmulatedLoadCellMCU:
         t_us = (self.clock_start_us + np.rint(ks * (1e6 / self.rate_hz))).astype(np.int64).tolist()
         edges = np.floor(ts * self.sync_rate_hz).astype(np.int64).tolist() if self.sync_rate_hz else [0] * n
         rows = zip(ks.tolist(), t_us, counts, edges)
-        return [self._faults(encode_frame(self.seq_start + k, t, c, e)) for k, t, c, e in rows]
+        return [self._faults(encode_frame(self.seq_start + k, t, c, e), self.seq_start + k) for k, t, c, e in rows]
 
-    def _faults(self, frame: bytes) -> bytes:
+    def _faults(self, frame: bytes, seq: int = -1) -> bytes:
         """Apply this frame's drawn faults (and garbage before it), counting them in :attr:`injected`."""
         self.injected.frames += 1
         if self._guard:
@@ -159,6 +161,7 @@ class EmulatedLoadCellMCU:
             b[rng.randrange(_HEADER, FRAME_LEN)] ^= 1 << rng.randrange(8)
             frame = bytes(b)
             inj.crc_errors += 1
+            self.broken_seqs.append(seq)
             self._guard = True
         elif u < self.crc_error_prob + self.drop_prob:
             n = rng.randint(1, self.max_drop)
@@ -166,6 +169,7 @@ class EmulatedLoadCellMCU:
             frame = frame[:at] + frame[at + n :]
             inj.frames_truncated += 1
             inj.bytes_dropped += n
+            self.broken_seqs.append(seq)
             self._guard = True
         return garbage + frame
 
@@ -231,12 +235,15 @@ class EmulatedLoadCellMCU:
                 due = k0 + int((time.monotonic() - t0) * self.true_rate_hz) + 1
                 if due > self._k:
                     before = Injected(**self.injected.as_dict())
+                    n_broken = len(self.broken_seqs)
                     frames = self.frames_bytes(self._k, due - self._k)
                     self._k = due
                     if len(self._tx) + sum(map(len, frames)) > self.tx_buffer:  # not sent: no fault happened
                         before.frames = self.injected.frames
                         before.frames_overflowed += len(frames)
                         self.injected = before
+                        del self.broken_seqs[n_broken:]
+                        self.overflowed_seqs.extend(range(self.seq_start + due - len(frames), self.seq_start + due))
                     else:
                         self._tx += b"".join(frames)
                 self._write()
