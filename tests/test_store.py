@@ -34,6 +34,7 @@ def test_layout_units_and_swmr_reader(tmp_path):
     for k in range(3):
         for b in _batches(100 * k, 100):
             hub.write(b)
+        hub.flush()
         # a reader sees every flushed batch while the writer is still open
         s = read_session(path)
         assert len(s.streams["mocap"]) == 100 * (k + 1)

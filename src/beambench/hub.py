@@ -110,6 +110,12 @@ class Hub:
         for sink in list(self.sinks):
             self._call(sink, "event", host_time_ns, kind, message)
 
+    def flush(self) -> None:
+        """End of one poll round: sinks that buffer (the HDF5 writer) make everything so far durable."""
+        for sink in list(self.sinks):
+            if hasattr(sink, "flush"):
+                self._call(sink, "flush")
+
     def step(self, record: object) -> None:
         """A protocol step started or ended (sinks without a ``step`` method ignore it)."""
         for sink in list(self.sinks):

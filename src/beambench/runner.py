@@ -130,6 +130,7 @@ class Runner:
     def _pump(self) -> None:
         for stream in self.rig.streams:
             self.hub.write(stream.read())
+        self.hub.flush()
 
     # --- shutdown -------------------------------------------------------------------------------------
     def _shutdown(self, result: RunResult) -> None:

@@ -1,4 +1,5 @@
-"""The HDF5 session file: written in SWMR mode and flushed every batch, so a killed run stays readable.
+"""The HDF5 session file: written in SWMR mode and flushed after every poll round of batches (~10 per second),
+so a killed run stays readable.
 
 Layout (NWB-like; ``schema_version`` on the root)::
 
@@ -79,6 +80,7 @@ class SessionWriter:
         self.max_steps = max_steps
         self._f: h5py.File | None = None
         self._datasets: dict[str, list[tuple[str, _Appender]]] = {}
+        self._dirty = False
 
     # --- Sink -------------------------------------------------------------------------------------------
     def open(self, specs: list[StreamSpec]) -> None:
@@ -107,7 +109,13 @@ class SessionWriter:
                 appender.append(batch.device_time)
             else:
                 appender.append(batch.columns[name])
-        f.flush()
+        self._dirty = True
+
+    def flush(self) -> None:
+        """Make every batch written so far visible to SWMR readers (called once per poll round)."""
+        if self._dirty and self._f is not None:
+            self._f.flush()
+            self._dirty = False
 
     def event(self, host_time_ns: int, kind: str, message: str) -> None:
         row = np.array([(host_time_ns, _encode(kind, 32), _encode(message, EVENT_TEXT))], dtype=EVENT_DTYPE)
