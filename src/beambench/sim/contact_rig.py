@@ -12,7 +12,7 @@ stage (beam clamp) is at the origin.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
-from typing import Any
+from typing import Any, Callable
 
 import mujoco
 import numpy as np
@@ -126,12 +126,16 @@ class ContactRigSim(DrivenScene):
     markers = CONTACT_MARKERS
 
     def __init__(self, beam: BeamModel, twist_deg: float = 90.0, gap_m: float = 0.0055, amplitude_m: float = 0.002,
-                 rig: RigParams | None = None, integrator: str = "implicitfast", timestep: float | None = None) -> None:
+                 rig: RigParams | None = None, integrator: str = "implicitfast", timestep: float | None = None,
+                 timestep_for: Callable[[float], float] | None = None, selection: dict | None = None) -> None:
         self.beam, self.twist_deg, self.gap_m, self.amplitude = beam, twist_deg, gap_m, amplitude_m
         self.rig = rig or RigParams.with_overrides(beam.params.rig)
         self.integrator = integrator
         self.fixed_timestep = timestep
-        h0 = timestep or default_timestep(1.0)
+        # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.select (model: auto)
+        self.timestep_for = timestep_for or default_timestep
+        self.selection = selection
+        h0 = timestep or self.timestep_for(1.0)
         self.spec = build_contact_spec(beam, twist_deg, gap_m, self.rig, integrator, h0)
         model = self.spec.compile()
         super().__init__(Physics(model))
@@ -147,7 +151,7 @@ class ContactRigSim(DrivenScene):
         """New crank-speed setpoint (turn/s = Hz); also picks the timestep the frequency needs."""
         self.ramp.setpoint = float(hz)
         if self.fixed_timestep is None:
-            self.physics.set_timestep(default_timestep(max(abs(hz), abs(self.ramp.omega))))
+            self.physics.set_timestep(self.timestep_for(max(abs(hz), abs(self.ramp.omega))))
 
     # --- stepping -------------------------------------------------------------------------------------
     def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -188,4 +192,5 @@ class ContactRigSim(DrivenScene):
             "nq": int(m.nq),
             "nv": int(m.nv),
             "mujoco_version": mujoco.__version__,
+            **({"selection": self.selection} if self.selection else {}),
         }

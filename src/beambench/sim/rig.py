@@ -31,8 +31,13 @@ HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the loa
 def build_scene(protocol: Protocol) -> DrivenScene:
     """The MuJoCo scene for ``protocol.rig`` with the protocol's sim options."""
     sim = protocol.sim
-    model_name = "prb3" if sim.model == "auto" else sim.model
+    plan = _auto_plan(protocol) if sim.model == "auto" else None
+    model_name = plan.model if plan else ("prb3" if sim.model == "auto" else sim.model)
     beam = make_beam_model(model_name, load_params(sim.params, model=model_family(model_name)))
+    if protocol.rig == "release":
+        from beambench.sim.release import ReleaseSim
+
+        return ReleaseSim.from_protocol(protocol, beam)
     if protocol.rig == "walker":
         from beambench.sim.walker import WalkerSim
 
@@ -40,7 +45,28 @@ def build_scene(protocol: Protocol) -> DrivenScene:
     from beambench.sim.contact_rig import ContactRigSim
 
     return ContactRigSim(beam, twist_deg=sim.twist_deg, gap_m=sim.plate_gap_mm * 1e-3,
-                         amplitude_m=protocol.amplitude_mm * 1e-3, integrator=sim.integrator, timestep=sim.timestep)
+                         amplitude_m=protocol.amplitude_mm * 1e-3,
+                         integrator=plan.integrator if plan else sim.integrator, timestep=sim.timestep,
+                         timestep_for=plan.timestep if plan else None, selection=plan.describe() if plan else None)
+
+
+AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
+
+
+def _auto_plan(protocol: Protocol):
+    """``sim.model: auto``: the cheapest measured (model, integrator, timestep per frequency) that keeps the
+    error within ``sim.tolerance_mm`` over the protocol's sweep (:mod:`beambench.sim.select`); None (PRB3 at
+    the rig's defaults) for rigs without a measured table."""
+    from beambench.config import ConfigError
+    from beambench.sim import select
+
+    if protocol.rig != "contact":
+        return None
+    tol = protocol.sim.tolerance_mm or AUTO_TOLERANCE_MM
+    try:
+        return select.plan_sweep("contact", tol, protocol.sweep.values())
+    except select.SelectionError as exc:
+        raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
 
 
 class SimRig:

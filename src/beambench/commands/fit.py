@@ -1,0 +1,163 @@
+"""``beambench fit SESSION.h5``: identify the beam model from a release-test session (:mod:`beambench.fit`)."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import NoReturn
+
+import typer
+
+
+def _fail(message: str) -> NoReturn:
+    typer.echo(f"beambench: error: {message}", err=True)
+    raise typer.Exit(2)
+
+
+def fit(
+    session: Path = typer.Argument(..., metavar="SESSION", help="A release-test session (.h5), e.g. from "
+                                   "`beambench run protocols/release_test.yaml`."),
+    out: Path = typer.Option(None, "--out", "-o", help="Folder for the figure and the JSON report "
+                             "(default: <session>_fit beside the session)."),
+    model: str = typer.Option("prb3", "--model", "-m", help="prb3, rod (= rod10), rodN, or a comma list "
+                              "such as prb3,rod10 to fit several."),
+    free_l1: bool = typer.Option(False, "--free-l1", help="PRB3: fit l1 too (default l1 = 0, as the paper "
+                                 "settled on; l3 = 50 mm − l1 − l2)."),
+    name: str = typer.Option(None, "--name", "-n", help="Name of the parameter set written to sim_backend/ "
+                             "(<model>_<name>.yaml; select it with `sim.params: <name>`). Default: the session name."),
+    params_dir: Path = typer.Option(None, "--params-dir", help="Where to write the parameter set "
+                                    "(default: the package's sim_backend/)."),
+    no_write: bool = typer.Option(False, "--no-write", help="Do not write a parameter set or /processing."),
+    popsize: int = typer.Option(12, "--popsize", help="Differential-evolution population per variable."),
+    maxiter: int = typer.Option(60, "--maxiter", help="Maximum generations."),
+    seed: int = typer.Option(0, "--seed", help="Random seed of the optimizer."),
+    threads: int = typer.Option(0, "--threads", help="Simulation threads (0: all cores)."),
+    timestep: float = typer.Option(2e-4, "--timestep", help="Simulation timestep of the fit (s)."),
+    register: bool = typer.Option(None, "--register/--no-register", help="Map the mocap frame onto the model's "
+                                  "(clamp at the origin, beam along +y, z up) from the rest pose. Default: on for "
+                                  "sessions not made by the sim."),
+) -> None:
+    """Fit the PRB3 model (k, b, l2; optionally l1) and/or the segmented rod (E, damping) to a release test.
+
+    Minimises the paper's objective — RMS distance between measured and simulated tip markers over all
+    samples — by differential evolution, each generation one batched MuJoCo rollout. Prints the fitted
+    values and the final error (mm), draws measured vs fitted tip paths, writes a JSON report, and saves each
+    fit as a parameter set in sim_backend/ that protocols select with `sim.params`.
+    """
+    models = [m.strip() for m in model.split(",") if m.strip()]
+    for m in models:
+        if m not in ("prb3", "rod") and not re.fullmatch(r"rod\d+g?s?", m):
+            _fail(f"--model = {m!r}: prb3, rod, or rodN (e.g. rod10, rod5g)")
+    if free_l1 and "prb3" not in models:
+        _fail("--free-l1 applies to the prb3 model")
+    if not session.is_file():
+        _fail(f"{session}: no such session file")
+    for opt, value, ok in (("--popsize", popsize, popsize >= 4), ("--maxiter", maxiter, maxiter >= 1),
+                           ("--threads", threads, threads >= 0), ("--timestep", timestep, 0 < timestep <= 2e-3)):
+        if not ok:
+            _fail(f"{opt} = {value}: out of range")
+    name = name or re.sub(r"[^A-Za-z0-9_.-]", "_", session.stem)
+    out = out or session.with_name(session.stem + "_fit")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
+
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from beambench.fit import (
+        FitError,
+        fit_release,
+        load_release_session,
+        plot_fit,
+        write_param_set,
+    )
+    from beambench.sim.params import SIM_BACKEND_DIR
+
+    console = Console(stderr=True)
+    try:
+        data = load_release_session(session, register=register)
+    except FitError as exc:
+        _fail(str(exc))
+    results = []
+    for m in models:
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("gen {task.completed:.0f}"),
+                      TextColumn("{task.fields[err]}"), TimeElapsedColumn(), console=console, transient=True) as prog:
+            task = prog.add_task(f"fitting {m}", total=maxiter, err="")
+
+            def progress(gen: int, best: float, task=task, prog=prog) -> None:
+                prog.update(task, completed=gen, err=f"best RMS {best * 1e3:.3f} mm")
+
+            try:
+                results.append(fit_release(data, m, free_l1=free_l1 and m == "prb3", popsize=popsize,
+                                           maxiter=maxiter, seed=seed, timestep=timestep, nthread=threads or None,
+                                           progress=progress))
+            except FitError as exc:
+                _fail(str(exc))
+    _print_results(results, data, Console())
+
+    fig = plot_fit(results, out / f"fit_{session.stem}.png", title=f"Release test {session.name}: measured vs fitted")
+    report = {"session": str(session), "results": [r.summary() for r in results], "figure": str(fig)}
+    written = []
+    if not no_write:
+        directory = params_dir or SIM_BACKEND_DIR
+        for r in results:
+            try:
+                p = write_param_set(r, name, directory, source=f"beambench fit of {session.name} ({r.model})")
+            except OSError as exc:
+                _fail(f"cannot write the parameter set to {directory} ({exc.strerror or exc})")
+            written.append(str(p))
+            _write_processing(session, r, console)
+    report["param_sets"] = written
+    rep = out / f"fit_{session.stem}.json"
+    rep.write_text(json.dumps(report, indent=2, default=float))
+    typer.echo(f"figure: {fig}")
+    typer.echo(f"report: {rep}")
+    for p in written:
+        typer.echo(f"parameter set: {p}  (select with sim.params: {name if Path(p).parent == SIM_BACKEND_DIR else p})")
+
+
+def _print_results(results, data, console) -> None:
+    from rich.table import Table
+
+    from beambench.fit import PAPER_MAE_MM
+
+    t = Table(title=f"Release-test fit ({len(data.t)} samples × {len(data.names)} tip markers)",
+              caption=f"error: fitted vs the generating model (sim sessions); paper: {PAPER_MAE_MM} mm "
+                      "mean error against its rig")
+    for col in ("model", "parameter", "fitted", "truth", "error"):
+        t.add_column(col, justify="right")
+    units = {"k": "N·m/rad", "b": "N·m·s/rad", "l1": "mm", "l2": "mm", "l3": "mm", "youngs_modulus": "MPa",
+             "beta": "s"}
+    scale = {"l1": 1e3, "l2": 1e3, "l3": 1e3, "youngs_modulus": 1e-6}
+    for r in results:
+        same = r.truth.get("model") == r.model
+        for key, v in r.values.items():
+            sc = scale.get(key, 1.0)
+            tv = r.truth.get(key) if same else None
+            err = f"{(v / tv - 1) * 100:+.2f} %" if tv else ""
+            t.add_row(r.model, f"{key} ({units.get(key, '')})", f"{v * sc:.5g}",
+                      f"{tv * sc:.5g}" if tv is not None else "", err)
+        t.add_row(r.model, "RMS error (mm)", f"{r.rms_mm:.3f}", "", "")
+        t.add_row(r.model, "mean marker error (mm)", f"{r.mae_mm:.3f}", "", "")
+        t.add_row(r.model, "evaluations", f"{r.nfev} ({r.generations} gen.)", "", "")
+        t.add_row(r.model, "wall time (s)", f"{r.wall_s:.1f}", "", "", end_section=True)
+    console.print(t)
+
+
+def _write_processing(session: Path, result, console) -> None:
+    import numpy as np
+
+    from beambench.store import write_processing
+
+    table = {"parameter": np.array(list(result.values)), "value": np.array(list(result.values.values()), float)}
+    try:
+        write_processing(session, f"fit_{result.model}", table)
+    except OSError as exc:
+        console.print(f"[yellow]warning: could not write /processing/fit_{result.model} ({exc})")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("fit")(fit)

@@ -1,0 +1,176 @@
+"""Model fitting from release tests (paper Sec. II-B): differential evolution over batched MuJoCo rollouts.
+
+Acceptance: on a synthetic release test made by the sim from known parameters plus 0.3 mm marker noise, the fit
+recovers k and l2 within 5 % and b within 15 %; the final error sits at the noise floor. End to end: a
+``beambench run`` release session → ``beambench fit`` → a parameter set a protocol can select.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from beambench.cli import app
+from beambench.config import parse_protocol
+from beambench.fit import (
+    FitError,
+    ParamSpace,
+    ReleaseObjective,
+    default_base,
+    fit_release,
+    load_release_session,
+    synthetic_release,
+)
+from beambench.sim.params import load_params
+from beambench.store import read_processing
+
+ROOT = Path(__file__).resolve().parents[1]
+NOISE = 3e-4  # m per coordinate
+
+
+def test_prb3_fit_recovers_known_parameters():
+    base = default_base("prb3")
+    truth = replace(base, k=0.30, b=0.0035, k_twist=0.30, b_twist=0.0035, l2=0.027, l3=0.023)
+    data = synthetic_release(truth, noise_m=NOISE, seed=1)
+    t0 = time.perf_counter()
+    r = fit_release(data, "prb3", seed=0)
+    wall = time.perf_counter() - t0
+    print(f"\nPRB3 fit: {r.nfev} evaluations in {wall:.1f} s wall ({r.generations} generations), "
+          f"k={r.values['k']:.4f} b={r.values['b']:.5f} l2={r.values['l2'] * 1e3:.2f} mm, RMS {r.rms_mm:.3f} mm")
+    assert r.values["k"] == pytest.approx(0.30, rel=0.05)
+    assert r.values["l2"] == pytest.approx(0.027, rel=0.05)
+    assert r.values["b"] == pytest.approx(0.0035, rel=0.15)
+    assert r.values["l1"] == 0.0 and r.values["l2"] + r.values["l3"] == pytest.approx(0.050)
+    # the residual is the marker noise: RMS of a 3-D Gaussian distance = σ·√3
+    assert r.rms_mm == pytest.approx(NOISE * 1e3 * math.sqrt(3), rel=0.1)
+    assert r.fitted.shape == data.markers.shape
+    # every generation was one batched call for the whole population, not a loop per member
+    assert r.nfev > 10 * r.generations
+
+
+def test_rod_fit_recovers_modulus_and_damping():
+    base = default_base("rod")
+    truth = replace(base, material=replace(base.material, youngs_modulus=40e6), beta=1.5e-3)
+    data = synthetic_release(truth, model="rod5", noise_m=NOISE, seed=2)
+    r = fit_release(data, "rod5", seed=0)
+    assert r.values["youngs_modulus"] == pytest.approx(40e6, rel=0.05)
+    assert r.values["beta"] == pytest.approx(1.5e-3, rel=0.15)
+    assert r.rms_mm < 1.2 * NOISE * 1e3 * math.sqrt(3)
+
+
+def test_objective_is_the_papers_rms_and_finds_the_release_shift():
+    base = default_base("prb3")
+    data = synthetic_release(base, noise_m=0.0, seed=3)
+    space = ParamSpace.prb3(base)
+    x_true = [math.log10(base.k), math.log10(base.b), base.l2]
+    shifted = replace(data, t=data.t + 0.0012)  # the clock of the data is 1.2 ms off
+    obj = ReleaseObjective(shifted, space, timestep=1e-4, shift_window_s=0.003)
+    try:
+        err, shift, _ = obj.evaluate(np.array([x_true, [math.log10(0.5), math.log10(base.b), base.l2]]))
+    finally:
+        obj.close()
+    assert shift[0] == pytest.approx(0.0012, abs=1e-4)
+    assert err[0] < 5e-5  # m: the generating parameters reproduce the data (different timestep only)
+    assert err[1] > 1e-3  # a stiffer beam is off by millimetres
+
+
+def test_free_l1_space_keeps_the_length():
+    base = default_base("prb3")
+    space = ParamSpace.prb3(base, free_l1=True)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        x = [rng.uniform(lo, hi) for lo, hi in space.bounds()]
+        v = space.values(x)
+        assert v["l1"] >= 0.001 and v["l2"] > 0 and v["l3"] > 0
+        assert v["l1"] + v["l2"] + v["l3"] == pytest.approx(base.length)
+        p = space.params(x)
+        assert p.k_twist == p.k and p.b_twist == p.b
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fit")
+    res = CliRunner().invoke(app, ["run", str(ROOT / "protocols" / "release_test.yaml"), "--rerun", "off",
+                                   "--out", str(out), "--name", "rel"])
+    assert res.exit_code == 0, res.output
+    return out / "rel.h5"
+
+
+def test_fit_command_end_to_end(session, tmp_path):
+    params_dir = tmp_path / "params"
+    res = CliRunner().invoke(app, ["fit", str(session), "--out", str(tmp_path / "fit"), "--params-dir",
+                                   str(params_dir), "--name", "bench", "--maxiter", "40"])
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "fit" / "fit_rel.json").read_text())
+    r = report["results"][0]
+    # the session was made by the paper's PRB3: its parameters come back (mocap noise 0.1 mm)
+    assert r["values"]["k"] == pytest.approx(0.340, rel=0.03)
+    assert r["values"]["l2"] == pytest.approx(0.02366, rel=0.03)
+    assert r["values"]["b"] == pytest.approx(0.0029, rel=0.10)
+    assert r["rms_mm"] < 0.25 and r["shift_ms"] == pytest.approx(0.5, abs=0.3)  # 0.5 ms = mocap latency
+    assert (tmp_path / "fit" / "fit_rel.png").stat().st_size > 10_000
+    # the parameter set loads and a protocol can select it
+    yaml_path = params_dir / "prb3_bench.yaml"
+    p = load_params(str(yaml_path))
+    assert p.k == pytest.approx(r["values"]["k"]) and p.k_twist == p.k
+    proto = parse_protocol(f"rig: release\nsweep: {{frequencies: [0]}}\nsim: {{params: {yaml_path}}}\n")
+    from beambench.sim.rig import build_scene
+
+    scene = build_scene(proto)
+    assert scene.identity()["params"]["k"] == pytest.approx(p.k)
+    scene.physics.close()
+    # and the result is in the session's /processing
+    table = read_processing(session, "fit_prb3")
+    assert dict(zip(table["parameter"], table["value"]))["k"] == pytest.approx(p.k)
+
+
+def test_session_loader_uses_the_recorded_release(session):
+    data = load_release_session(session)
+    assert data.names == ("tip1", "tip2", "tip3")
+    assert data.t.min() < -0.04 and data.t.max() > 0.3
+    assert data.load_g == 200 and data.twist_deg == 90
+    assert data.truth["k"] == 0.34
+
+
+def test_fit_command_rejects_bad_input(tmp_path, session):
+    runner = CliRunner()
+    res = runner.invoke(app, ["fit", str(tmp_path / "missing.h5")])
+    assert res.exit_code == 2 and "no such session" in res.output
+    res = runner.invoke(app, ["fit", str(session), "--model", "fea"])
+    assert res.exit_code == 2 and "--model" in res.output
+    res = runner.invoke(app, ["fit", str(session), "--model", "rod", "--free-l1"])
+    assert res.exit_code == 2
+    contact = tmp_path / "c.yaml"
+    contact.write_text("name: c\nrig: contact\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.2\n")
+    res = runner.invoke(app, ["run", str(contact), "--rerun", "off", "--out", str(tmp_path), "--name", "c"])
+    assert res.exit_code == 0, res.output
+    with pytest.raises(FitError, match="release test"):
+        load_release_session(tmp_path / "c.h5")
+    res = runner.invoke(app, ["fit", str(tmp_path / "c.h5")])
+    assert res.exit_code == 2 and "release test" in res.output and "Traceback" not in res.output
+
+
+def test_registration_maps_a_mocap_frame_onto_the_model():
+    """Data recorded in another frame (Motive: y up) comes back to the model's frame from its rest pose."""
+    from scipy.spatial.transform import Rotation
+
+    from beambench.fit import register_to_model
+
+    data = synthetic_release(default_base("prb3"), noise_m=1e-4, seed=4)
+    rot = Rotation.from_euler("xyz", [90, 10, -25], degrees=True).as_matrix()
+    # clamp-relative (a stage marker was recorded): the frames differ by a rotation
+    back, r, _ = register_to_model(replace(data, markers=data.markers @ rot.T))
+    assert np.abs(back.markers - data.markers).max() < 6e-4  # noise and the nominal model's rest pose
+    assert np.allclose(r @ rot, np.eye(3), atol=5e-3)
+    # no stage marker: any rigid motion, found from the three tip markers alone
+    moved = replace(data, markers=data.markers @ rot.T + np.array([0.3, 1.2, -0.4]), clamp_relative=False)
+    back, r, _ = register_to_model(moved)
+    assert np.abs(back.markers - data.markers).max() < 6e-4
+    assert np.allclose(r @ rot, np.eye(3), atol=5e-3)
