@@ -135,8 +135,10 @@ def test_natnet_echo_exchanges_are_kept_for_clock_sync(clean):
     assert echo["clock_frequency"] == 10_000_000 and len(echo["host_send_ns"]) >= 3
     fit = natnet_echo_fit(s.general)
     assert fit is not None
-    # the emulator's QPC clock runs at the host's rate (no drift injected): the fitted drift is ~0 ppm
-    assert abs(fit.drift_ppm) < 200
+    # the emulator's QPC clock runs at the host's rate (no drift injected); over this ~3 s run with ~0.1-1 ms
+    # round trips on a busy 2-core machine the fitted drift can only be bounded loosely
+    assert abs(fit.drift_ppm) < 2000
+    assert fit.n >= 3
 
 
 def test_injected_load_cell_faults_are_exactly_the_lost_samples(tmp_path):
