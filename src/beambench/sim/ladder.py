@@ -375,8 +375,8 @@ def pareto(summary: pd.DataFrame) -> pd.DataFrame:
 
 
 # --------------------------------------------------------------------------------------------- figures
-_MODEL_COLORS = {"prb3": "tab:blue", "rod5": "tab:green", "rod10": "tab:purple", "rod20": "tab:brown",
-                 "rod40": "tab:gray"}
+_MODEL_COLORS = {"prb3": "tab:blue", "rod3gs": "tab:olive", "rod3g": "tab:orange", "rod5": "tab:green",
+                 "rod10": "tab:purple", "rod20": "tab:brown", "rod40": "tab:gray"}
 _INTEGRATOR_MARKERS = {"euler": "v", "implicitfast": "o", "implicit": "s", "rk4": "D", "discrete": "^"}
 
 
@@ -438,7 +438,7 @@ def place_labels(ax, xs: Sequence[float], ys: Sequence[float], labels: Sequence[
         xd, yd = ax.transData.inverted().transform((box[0], (box[1] + box[3]) / 2))
         t.remove()
         t = ax.text(xd, yd, labels[k], fontsize=fontsize, va="center", ha="left")
-        if dist > 12:
+        if dist > 6:  # anything but the nearest ring gets a leader line
             near_x = min(max(pts[k, 0], box[0]), box[2])
             near = ax.transData.inverted().transform((near_x, (box[1] + box[3]) / 2))
             ax.plot([xs[k], near[0]], [ys[k], near[1]], lw=0.5, color="0.5", zorder=1)
@@ -462,10 +462,22 @@ def plot_speed_accuracy(summary: pd.DataFrame, path: Path, title: str = "", time
     ax.scatter(stable.wall_s_per_10s, stable.err_mean_mm, s=8, color="0.8", zorder=2,
                label="every stable configuration")
     shown = []
+    # label each model's Pareto front below the paper model's error (above it every model is just as bad;
+    # those configurations stay as grey dots), plus the fastest point of each model
+    paper_err = stable[(stable.model == "prb3") & (stable.integrator == "implicitfast")
+                       & np.isclose(stable.timestep, 1e-4)].err_mean_mm
+    cap = 0.5 * float(paper_err.iloc[0]) if len(paper_err) else math.inf
     for model in summary.model.unique():
         front = pareto(stable[stable.model == model])
         if front.empty:
             continue
+        front = front[(front.err_mean_mm <= cap) | (front.wall_s_per_10s == front.wall_s_per_10s.min())]
+        keep, last = [], math.inf  # along the front, only steps that buy a real (>15 %) gain in accuracy
+        for idx, r in front.iterrows():
+            if r.err_mean_mm < 0.85 * last:
+                keep.append(idx)
+                last = r.err_mean_mm
+        front = front.loc[keep]
         color = _MODEL_COLORS.get(model, "k")
         ax.plot(front.wall_s_per_10s, front.err_mean_mm, "-", color=color, lw=1, alpha=0.6, zorder=3)
         for _, r in front.iterrows():
