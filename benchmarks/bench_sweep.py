@@ -1,14 +1,15 @@
 """Scale-out of `beambench sweep`: a 500-point free-beam sweep on 1 vs 2 local worker processes, one command:
 
-    python benchmarks/bench_sweep.py             # 3 repeats each, prints and writes bench_out/bench_sweep.json
+    python benchmarks/bench_sweep.py             # 3 pairs of runs, prints and writes bench_out/bench_sweep.json
     python benchmarks/bench_sweep.py --repeats 1 --dask   # also through a Dask LocalCluster (2 workers)
 
 The sweep: 20 twist angles (0…190°) × 25 frequencies (2…50 Hz), PRB3, 0.3 s settle + 0.2 s record at
 dt = 1e-4 (5000 steps per point). Reported: median wall time per configuration, the speed-up 1 → 2 workers,
 the overhead = 1 − (seconds inside tasks) / (wall × workers), which includes starting the worker processes,
 and the workers' CPU seconds inside tasks (unchanged from 1 to 2 workers when nothing is lost to the seam).
-The machine is shared: the "capacity" probe (the same pure-Python loop in 1 and in 2 processes at once) says
-how much parallel speed the machine offers right now; read the speed-up against it.
+The machine is shared: 1- and 2-worker runs alternate in pairs, each pair with a "capacity" probe (the same
+pure-Python loop in 1 and in 2 processes at once: how much parallel speed the machine offers right then); the
+speed-up is the median of the per-pair ratios — read it against the capacity.
 """
 
 from __future__ import annotations
@@ -86,27 +87,30 @@ def main() -> None:
     args = ap.parse_args()
     assert len(SPEC.scene_points()) * len(SPEC.frequency_values()) == 500
     res: dict = {"points": 500, "steps_per_point": 5000}
-    res["machine_capacity_before"] = capacity()
-    print(f"machine parallel capacity now: {res['machine_capacity_before']:.2f}x of 2", flush=True)
+    # 1- and 2-worker runs alternate (pairs), each pair with a capacity probe: on a shared machine the
+    # conditions drift, so the speed-up is the median of the per-pair ratios
+    pairs = []
+    for i in range(args.repeats):
+        cap = capacity()
+        one, two = one_run(1), one_run(2)
+        pairs.append({"capacity": cap, "workers_1": one, "workers_2": two, "speedup": one["wall_s"] / two["wall_s"]})
+        print(f"pair {i + 1}: capacity {cap:.2f}x; 1 worker {one['wall_s']:.2f} s (CPU in tasks "
+              f"{one['task_cpu_s']:.1f} s), 2 workers {two['wall_s']:.2f} s (CPU in tasks {two['task_cpu_s']:.1f} s, "
+              f"{two['tasks']} tasks, overhead {two['overhead']:.1%}) -> speed-up {pairs[-1]['speedup']:.2f}x",
+              flush=True)
+    res["pairs"] = pairs
     for w in (1, 2):
-        runs = [one_run(w) for _ in range(args.repeats)]
-        res[f"workers_{w}"] = {
-            "wall_s_median": statistics.median(r["wall_s"] for r in runs),
-            "task_compute_s_median": statistics.median(r["task_compute_s"] for r in runs),
-            "overhead_median": statistics.median(r["overhead"] for r in runs),
-            "task_cpu_s_median": statistics.median(r["task_cpu_s"] for r in runs),
-            "tasks": runs[0]["tasks"],
-            "runs": runs,
-        }
+        runs = [p[f"workers_{w}"] for p in pairs]
+        res[f"workers_{w}"] = {k + "_median": statistics.median(r[k] for r in runs)
+                               for k in ("wall_s", "task_compute_s", "task_cpu_s", "overhead")}
         res[f"pool_startup_s_{w}"] = statistics.median(pool_startup(w) for _ in range(args.repeats))
-        print(f"{w} worker(s): {res[f'workers_{w}']['wall_s_median']:.2f} s wall (median of {args.repeats}), "
-              f"{res[f'workers_{w}']['tasks']} tasks, overhead {res[f'workers_{w}']['overhead_median']:.1%}, "
-              f"CPU in tasks {res[f'workers_{w}']['task_cpu_s_median']:.1f} s "
-              f"(pool start-up {res[f'pool_startup_s_{w}']:.2f} s)", flush=True)
-    res["speedup_2_vs_1"] = res["workers_1"]["wall_s_median"] / res["workers_2"]["wall_s_median"]
-    res["machine_capacity_after"] = capacity()
-    print(f"speed-up 1 -> 2 workers: {res['speedup_2_vs_1']:.2f}x (machine capacity "
-          f"{res['machine_capacity_before']:.2f}x before, {res['machine_capacity_after']:.2f}x after)")
+    res["speedup_2_vs_1"] = statistics.median(p["speedup"] for p in pairs)
+    res["capacity_median"] = statistics.median(p["capacity"] for p in pairs)
+    best = max(pairs, key=lambda p: p["capacity"])
+    print(f"speed-up 1 -> 2 workers: {res['speedup_2_vs_1']:.2f}x median of {len(pairs)} pairs (machine capacity "
+          f"median {res['capacity_median']:.2f}x); in the least loaded pair (capacity {best['capacity']:.2f}x): "
+          f"{best['speedup']:.2f}x. Pool start-up: {res['pool_startup_s_1']:.2f} s (1), "
+          f"{res['pool_startup_s_2']:.2f} s (2).")
     if args.dask:
         from distributed import LocalCluster
 

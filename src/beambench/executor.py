@@ -18,9 +18,12 @@ Work is submitted in *tasks* of several simulations each (:func:`chunks`; ~10–
 
 from __future__ import annotations
 
+import ctypes
 import math
 import multiprocessing
 import os
+import signal
+import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -95,11 +98,25 @@ def make_executor(workers: int | None = None, scheduler: str | None = None, clus
     n = workers or local_cores()
     if n < 1:
         raise ExecutorError(f"workers = {n}: must be >= 1")
-    pool = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"))
+    pool = ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_die_with_parent)
     try:
         yield Pool(pool, n, f"local process pool, {n} workers")
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _die_with_parent() -> None:
+    """Worker initializer: on Linux, ask the kernel to kill this worker when the sweep process dies (a killed
+    sweep must not leave orphaned workers behind)."""
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() == 1:  # the parent died before the request took effect
+        os._exit(1)
 
 
 def _dask_slots(client: Any) -> int:
@@ -124,7 +141,7 @@ def _dask_client(address: str, timeout_s: float):
         raise ExecutorError(f"--scheduler = {address!r}: cannot connect ({exc})") from None
 
 
-def batch_size(n_items: int, workers: int, lo: int = 10, hi: int = 50, tasks_per_worker: int = 4) -> int:
+def batch_size(n_items: int, workers: int, lo: int = 10, hi: int = 50, tasks_per_worker: int = 8) -> int:
     """Items per task: ~``tasks_per_worker`` tasks per worker for load balance, each of ``lo``…``hi`` items
     so that per-task overhead stays small — but never so large that a worker is left without a task."""
     if n_items <= 0:

@@ -270,29 +270,29 @@ def _run_free_beam(task: dict[str, Any]) -> list[dict[str, Any]]:
 
     rows: dict[int, dict[str, Any]] = {}
     models, freqs, jobs = [], [], []
+    compiled: dict[str, Any] = {}  # one model (and one rest pose) per scene point, shared by its frequencies
     for index, jid, point, f in task["jobs"]:
-        h = point["timestep"] or 1e-4
-        spec = build_free_beam_spec(_beam(point), point["twist_deg"] * point["chirality"], point["integrator"], h)
-        models.append(spec.compile())
+        key = json.dumps(point, sort_keys=True)
+        if key not in compiled:
+            h = point["timestep"] or 1e-4
+            compiled[key] = build_free_beam_spec(_beam(point), point["twist_deg"] * point["chirality"],
+                                                 point["integrator"], h).compile()
+        models.append(compiled[key])
         freqs.append(f)
         jobs.append((index, jid, point, f))
-    # one batch per model shape and timestep (PRB3 merges a joint at φ = 0)
+    # one batch per model shape, timestep, integrator and amplitude (PRB3 merges a joint at φ = 0)
     groups: dict[tuple, list[int]] = {}
     for i, m in enumerate(models):
-        groups.setdefault((m.nq, m.nv, float(m.opt.timestep)), []).append(i)
-    every = None
-    for (_, _, h), idx in groups.items():
+        p = jobs[i][2]
+        groups.setdefault((m.nq, m.nv, float(m.opt.timestep), p["integrator"], p["amplitude_mm"]), []).append(i)
+    for (_, _, h, integ, amp), idx in groups.items():
         every = max(1, round(task["sample_dt"] / h))
-        integ = jobs[idx[0]][2]["integrator"]
-        amps = {jobs[i][2]["amplitude_mm"] for i in idx}
-        for amp in sorted(amps):
-            sel = [i for i in idx if jobs[i][2]["amplitude_mm"] == amp]
-            t, tip, stage, ok, _ = run_batch([models[i] for i in sel], [freqs[i] for i in sel], amp * 1e-3,
-                                             task["settle_s"], task["record_s"], every, integ, nthread=1)
-            for j, i in enumerate(sel):
-                index, jid, point, f = jobs[i]
-                rows[index] = _row(index, jid, point, f, "free_beam", bool(ok[j]),
-                                   _free_metrics(t, tip[j], stage[j], f) if ok[j] else {})
+        t, tip, stage, ok, _ = run_batch([models[i] for i in idx], [freqs[i] for i in idx], amp * 1e-3,
+                                         task["settle_s"], task["record_s"], every, integ, nthread=1)
+        for j, i in enumerate(idx):
+            index, jid, point, f = jobs[i]
+            rows[index] = _row(index, jid, point, f, "free_beam", bool(ok[j]),
+                               _free_metrics(t, tip[j], stage[j], f) if ok[j] else {})
     return [rows[i] for i in sorted(rows)]
 
 
