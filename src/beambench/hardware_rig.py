@@ -314,10 +314,10 @@ def build_emulated_rig(protocol: Protocol, can_log: Path | None = None,
     from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
 
     sim = protocol.sim
-    markers = _markers(protocol)
     channel = f"beambench-{uuid.uuid4().hex[:8]}"
     odrive = EmulatedOdrive(channel=channel, config=OdriveEmulatorConfig(calibration_s=0.2))
     physics = RealtimePhysics(protocol, None)
+    markers = tuple(physics.scene.markers)  # the scene's own markers (release test: stage, tip1..tip3)
     motive = MotiveEmulator(
         marker_names=markers, positions=physics.positions, command_port=0, multicast=False,
         clock=EmulatorClock.from_model(sim.mocap_clock), seed=sim.seed,
