@@ -28,8 +28,7 @@ from __future__ import annotations
 import math
 import os
 import time
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime
 from pathlib import Path
@@ -38,6 +37,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from beambench.sim.engine import quiet_mujoco_warnings
 from beambench.sim.params import SIM_BACKEND_DIR, BeamParams, load_params
 
 NS = 1_000_000_000
@@ -391,20 +391,6 @@ def default_base(model: str) -> BeamParams:
     return load_params("paper", model="rod" if model.startswith("rod") else "prb3")
 
 
-@contextmanager
-def mujoco_warnings_counted() -> Iterator[list[str]]:
-    """Collect MuJoCo's warnings (a diverging candidate prints one per run) instead of printing them."""
-    import mujoco
-
-    caught: list[str] = []
-    old = mujoco.get_mju_user_warning()
-    mujoco.set_mju_user_warning(caught.append)
-    try:
-        yield caught
-    finally:
-        mujoco.set_mju_user_warning(old)
-
-
 def default_integrator(model: str) -> str:
     """PRB3: the scene's implicitfast. Rods: ``discrete`` (implicit in the springs), which stays stable over
     the whole search box at dt = 2e-4 — implicitfast diverges there for stiff, lightly damped candidates."""
@@ -442,7 +428,7 @@ def fit_release(data: ReleaseData, model: str = "prb3", free_l1: bool = False, b
             progress(len(history), float(intermediate_result.fun))
 
     try:
-        with mujoco_warnings_counted() as warned:
+        with quiet_mujoco_warnings() as warned:
             res = differential_evolution(obj, space.bounds(), popsize=popsize, maxiter=maxiter, tol=tol,
                                          rng=np.random.default_rng(seed), vectorized=True, updating="deferred",
                                          polish=False, init="latinhypercube", mutation=(0.5, 1.0),

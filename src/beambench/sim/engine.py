@@ -8,6 +8,8 @@ integrates; its state rows are one step later, so only sensors are used and the 
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import mujoco
@@ -160,3 +162,16 @@ class DrivenScene:
 
     def sensor(self, sens: np.ndarray, name: str) -> np.ndarray:
         return sens[:, self.physics.sensor_slices[name]]
+
+
+@contextlib.contextmanager
+def quiet_mujoco_warnings() -> Iterator[list[str]]:
+    """Collect MuJoCo's warnings (diverging configurations are expected here) instead of printing them and
+    appending them to MUJOCO_LOG.TXT in the working directory; yields the list of messages."""
+    messages: list[str] = []
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(messages.append)
+    try:
+        yield messages
+    finally:
+        mujoco.set_mju_user_warning(previous)

@@ -18,7 +18,6 @@ every run fall exactly on reference samples: no interpolation error enters the c
 
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from dataclasses import asdict, dataclass
@@ -30,6 +29,7 @@ import numpy as np
 import pandas as pd
 from mujoco.batch import Batch
 
+from beambench.sim.engine import quiet_mujoco_warnings
 from beambench.sim.free_beam import (
     beam_model,
     build_free_beam_spec,
@@ -241,19 +241,6 @@ def _cost_probe(model: str, cfg: LadderConfig) -> float:
 
 
 _INTEGRATOR_COST = {"euler": 1.0, "implicitfast": 1.0, "implicit": 1.3, "rk4": 4.0, "discrete": 1.1}
-
-
-@contextlib.contextmanager
-def quiet_mujoco_warnings():
-    """Collect MuJoCo's warnings (diverging configurations are expected here) instead of printing them and
-    appending them to MUJOCO_LOG.TXT in the working directory; yields the list of messages."""
-    messages: list[str] = []
-    previous = mujoco.get_mju_user_warning()
-    mujoco.set_mju_user_warning(messages.append)
-    try:
-        yield messages
-    finally:
-        mujoco.set_mju_user_warning(previous)
 
 
 def run_ladder(cfg: LadderConfig = FULL, progress: Progress | None = None) -> pd.DataFrame:
