@@ -101,7 +101,8 @@ class SessionWriter:
         self._f = f
 
     def write(self, batch: Batch) -> None:
-        f = self._file
+        if self._f is None:
+            raise RuntimeError("session file is not open")
         for name, appender in self._datasets[batch.stream]:
             if name == "host_time_ns":
                 appender.append(batch.host_time_ns)
