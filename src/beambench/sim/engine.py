@@ -24,6 +24,15 @@ INTEGRATORS = {
     "discrete": mujoco.mjtIntegrator.mjINT_DISCRETE,
 }
 
+
+
+def integrator_enum(name: str) -> mujoco.mjtIntegrator:
+    """MuJoCo's integrator for ``name`` (a key of :data:`INTEGRATORS`); a clear ValueError otherwise."""
+    if name not in INTEGRATORS:
+        raise ValueError(f"integrator = {name!r}: one of {', '.join(INTEGRATORS)}")
+    return INTEGRATORS[name]
+
+
 MAX_CHUNK_STEPS = 20_000  # rollout allocates nstep × nstate; bound the memory of one call
 
 

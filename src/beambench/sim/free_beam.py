@@ -24,15 +24,9 @@ import numpy as np
 from mujoco.batch import Batch
 
 from beambench.sim.beam import BeamModel, add_beam, make_beam_model
+from beambench.sim.engine import integrator_enum
 from beambench.sim.params import BeamParams, load_params
 
-INTEGRATORS = {
-    "euler": mujoco.mjtIntegrator.mjINT_EULER,
-    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
-    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
-    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
-    "discrete": mujoco.mjtIntegrator.mjINT_DISCRETE,
-}
 STAGE_ARMATURE = 1000.0  # kg
 CHUNK_ROWS = 500_000  # sensor rows (nsim × nstep) per Batch.rollout call, bounds memory
 TIP_DIVERGED_M = 0.5  # a tip this far from the clamp means the run blew up
@@ -50,12 +44,11 @@ def beam_model(name: str = "prb3", params: str | BeamParams = "paper") -> BeamMo
 def build_free_beam_spec(beam: BeamModel, twist_deg: float = 90.0, integrator: str = "implicitfast",
                          timestep: float = 1e-4, gravity: bool = True) -> mujoco.MjSpec:
     """World → stage (slide x, armature) → clamp → beam; sensors ``tip`` (framepos), ``stage`` (jointpos)."""
-    if integrator not in INTEGRATORS:
-        raise ValueError(f"integrator = {integrator!r}: one of {', '.join(INTEGRATORS)}")
+    integrator_id = integrator_enum(integrator)
     spec = mujoco.MjSpec()
     spec.modelname = "beambench_free_beam"
     spec.option.timestep = timestep
-    spec.option.integrator = INTEGRATORS[integrator]
+    spec.option.integrator = integrator_id
     spec.option.gravity = [0, 0, -9.81 if gravity else 0.0]
     spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
     spec.compiler.fusestatic = True  # the clamp and tip bodies carry no joints: fold them into their parents

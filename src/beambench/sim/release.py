@@ -31,7 +31,7 @@ from mujoco import rollout
 from beambench.sim.beam import BeamModel, add_beam, make_beam_model, model_family
 from beambench.sim.contact_rig import RigParams
 from beambench.sim.drive import VelocityRamp
-from beambench.sim.engine import INTEGRATORS, DrivenScene, Physics
+from beambench.sim.engine import DrivenScene, Physics, integrator_enum
 from beambench.sim.params import BeamParams, load_params
 
 G = 9.81
@@ -59,12 +59,11 @@ def build_release_spec(beam: BeamModel, twist_deg: float = 90.0, integrator: str
                        timestep: float = DEFAULT_TIMESTEP, markers: int = 3) -> mujoco.MjSpec:
     """Clamp (fixed) → beam → tip markers; actuator ``load`` (ctrl = hanging weight in N, pulls the tip down
     in the world frame); framepos sensors named like the markers (``stage``, ``tip1`` …)."""
-    if integrator not in INTEGRATORS:
-        raise ValueError(f"integrator = {integrator!r}: one of {', '.join(INTEGRATORS)}")
+    integrator_id = integrator_enum(integrator)
     spec = mujoco.MjSpec()
     spec.modelname = "beambench_release_test"
     spec.option.timestep = timestep
-    spec.option.integrator = INTEGRATORS[integrator]
+    spec.option.integrator = integrator_id
     spec.option.gravity = [0, 0, -G]
     spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
     world = spec.worldbody
