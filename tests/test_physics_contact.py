@@ -41,3 +41,40 @@ def test_contact_ratio_counts_only_real_flights():
     assert contact_ratio(t, normal, z, f) == pytest.approx(1.0, abs=0.05)
     chatter = np.where(lift, 1e-6, 0.0)  # a 1 µm hop is not a flight
     assert contact_ratio(t, normal, chatter, f) == 0.0
+
+
+def test_balanced_threads_give_the_same_runs_as_one_thread():
+    """Mixed per-frequency timesteps split over two worker threads: bit-identical to one thread."""
+    freqs, dts = [5.0, 12.0, 20.0, 33.0, 40.0], [2.5e-4, 1e-3 / 3, 2e-4, 1e-3 / 3, 5e-4]
+    kw = dict(settle_s=0.2, record_s=0.2, integrator="euler")
+    one = contact_sweep("prb3", freqs, dts, nthread=1, **kw)
+    two = contact_sweep("prb3", freqs, dts, nthread=2, **kw)
+    assert one.ok.all() and np.isfinite(one.foot).all()
+    assert np.array_equal(one.foot, two.foot) and np.array_equal(one.normal, two.normal)
+    assert all(np.array_equal(a[0], b[0]) for a, b in zip(one.contact, two.contact))
+
+
+def test_euler_equals_implicitfast_on_the_contact_rig():
+    """The scene's only velocity-dependent forces are joint damping, which Euler also treats implicitly: the
+    two integrators give the same foot path (so the table may pick the cheaper one)."""
+    kw = dict(settle_s=0.3, record_s=0.2)
+    a = contact_sweep("prb3", [25.0], 2.5e-4, integrator="euler", **kw)
+    b = contact_sweep("prb3", [25.0], 2.5e-4, integrator="implicitfast", **kw)
+    assert np.abs(a.foot - b.foot).max() < 1e-9
+
+
+def test_table_marks_timesteps_that_soften_the_contact():
+    """dt above half the 1 ms contact time constant: MuJoCo's refsafe softens the contact to 2·dt, so the
+    peak plate force drops — the table marks such rows solref_clamped and selection never picks them."""
+    from beambench.sim import select
+    from beambench.sim.contact_sweep import measure_contact_table
+
+    t = measure_contact_table("prb3", frequencies=(20.0,), timesteps=(2.5e-4, 1e-3), integrators=("euler",),
+                              settle_s=0.3, record_s=0.3, timing_repeats=1)
+    status = dict(zip(t.timestep, t.status))
+    assert status[1e-3] == "solref_clamped" and status[2.5e-4] in ("ok", "wrong_contacts")
+    stiff = contact_sweep("prb3", [20.0], 2.5e-4, settle_s=0.3, record_s=0.3, integrator="euler")
+    soft = contact_sweep("prb3", [20.0], 1e-3, settle_s=0.3, record_s=0.3, integrator="euler")
+    assert max(x[0].max() for x in soft.contact) < 0.8 * max(x[0].max() for x in stiff.contact)
+    plan = select.plan_sweep("contact", 10.0, [20.0], table=t)  # even a loose tolerance: never the clamped row
+    assert plan.timestep(20.0) == 2.5e-4

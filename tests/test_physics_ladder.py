@@ -146,3 +146,18 @@ def test_auto_model_picks_the_timestep_each_frequency_needs():
     for f in (5.0, 40.0):
         scene.set_frequency(f)
         assert scene.physics.timestep == pytest.approx(steps[f])
+
+
+def _table(rows):
+    cols = ["model", "integrator", "timestep", "frequency_hz", "status", "err_mm", "wall_s_per_10s"]
+    return pd.DataFrame(rows, columns=cols)
+
+
+def test_selection_skips_a_coarse_step_that_passes_where_a_finer_one_fails():
+    """A regular regime: 4e-4 s passes only by luck (2e-4 s fails), so 1e-4 s is chosen; an irregular
+    regime (no pointwise convergence) judges each timestep alone."""
+    rows = [("m", "euler", 1e-4, 10.0, "ok", 0.01, 1.0), ("m", "euler", 2e-4, 10.0, "ok", 0.5, 0.5),
+            ("m", "euler", 4e-4, 10.0, "ok", 0.05, 0.25)]
+    assert select.plan_sweep("contact", 0.1, [10.0], table=_table(rows)).timestep(10.0) == 1e-4
+    irregular = [r[:4] + ("irregular",) + r[5:] for r in rows]
+    assert select.plan_sweep("contact", 0.1, [10.0], table=_table(irregular)).timestep(10.0) == 4e-4

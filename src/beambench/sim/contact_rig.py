@@ -6,7 +6,8 @@ stage (beam clamp) is at the origin.
   acceleration of the reference x = A·sin θ, so it follows the crank to ~µm whatever the beam does.
 - Foot: rigid, ``foot_length`` below the beam tip in the natural shape, its mass at the sole (a sphere).
 - Plate: top at z = −(foot_length + gap); the gap is h' of the paper (5.5 mm) measured from the foot's
-  natural (gravity-free) position. Stiff contact: solref time constant ``contact_timeconst`` on both geoms.
+  natural (gravity-free) position. Stiff contact: solref time constant ``contact_timeconst`` on the one
+  sole–plate contact pair.
 """
 
 from __future__ import annotations
@@ -82,9 +83,9 @@ def build_contact_spec(beam: BeamModel, twist_deg: float, gap_m: float, rig: Rig
 
     world = spec.worldbody
     plate_top = -(rig.foot_length + gap_m)
+    # Only the sole can touch the plate: one explicit pair, so MuJoCo skips the broad phase (contype 0).
     world.add_geom(name=names.plate, type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.06, 0.06, 0.005],
-                   pos=[0, 0.05, plate_top - 0.005], solref=solref, friction=[rig.friction, 0.005, 0.0001],
-                   rgba=[0.6, 0.6, 0.6, 1])
+                   pos=[0, 0.05, plate_top - 0.005], contype=0, conaffinity=0, rgba=[0.6, 0.6, 0.6, 1])
     world.add_site(name="plate_site", pos=[0, 0.05, plate_top], size=[0.002, 0, 0])
 
     stage = world.add_body(name="stage")
@@ -102,9 +103,12 @@ def build_contact_spec(beam: BeamModel, twist_deg: float, gap_m: float, rig: Rig
     tip.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[0, 0, 0, 0, 0, -(rig.foot_length - 2 * r)],
                  size=[0.002, 0, 0], mass=0.0, contype=0, conaffinity=0, rgba=[0.9, 0.5, 0.1, 1])
     tip.add_geom(name=names.sole, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0, 0],
-                 pos=[0, 0, -(rig.foot_length - r)], mass=rig.foot_mass, priority=1, solref=solref,
-                 friction=[rig.friction, 0.005, 0.0001], condim=3, rgba=[0.9, 0.5, 0.1, 1])
+                 pos=[0, 0, -(rig.foot_length - r)], mass=rig.foot_mass, contype=0, conaffinity=0,
+                 rgba=[0.9, 0.5, 0.1, 1])
     tip.add_site(name="foot", pos=[0, 0, -rig.foot_length], size=[0.002, 0, 0])
+
+    spec.add_pair(name="sole_plate", geomname1=names.sole, geomname2=names.plate, condim=3, solref=solref,
+                  friction=[rig.friction, rig.friction, 0.005, 0.0001, 0.0001])
 
     spec.add_actuator(name=names.actuator, target=names.stage_joint, trntype=mujoco.mjtTrn.mjTRN_JOINT,
                       gaintype=mujoco.mjtGain.mjGAIN_FIXED, biastype=mujoco.mjtBias.mjBIAS_AFFINE)

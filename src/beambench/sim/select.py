@@ -8,7 +8,11 @@ Each row is one configuration at one drive frequency with its error, stability s
 
 The timestep is chosen *per frequency* — the one that frequency needs, not the worst case over the sweep:
 a configuration qualifies at frequency f if it is stable with error ≤ tolerance at the table frequencies
-that bracket f. One (model, integrator) is used for a whole sweep (the cheapest summed over its
+that bracket f — and so does every finer timestep of the same model and integrator there. Error shrinks
+with the timestep in a converging method; a coarse step that passes where a finer one fails passes by a
+phase coincidence (e.g. one contact bounce landing in step by chance), which a new run need not repeat.
+The exception is a frequency whose regime the table marks ``irregular`` (no timestep converges it
+pointwise; its error is the excess over the finest runs' spread): there each timestep stands alone. One (model, integrator) is used for a whole sweep (the cheapest summed over its
 frequencies); only the timestep changes from step to step.
 """
 
@@ -17,7 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 import pandas as pd
@@ -109,6 +113,25 @@ def _bracket(freqs: np.ndarray, f: float) -> list[float]:
     return [float(freqs[i])] if math.isclose(freqs[i], f) else [float(freqs[i - 1]), float(freqs[i])]
 
 
+def _converged_rows(g: pd.DataFrame, tolerance_mm: float) -> dict[tuple[float, float], Any]:
+    """(timestep, frequency) → row of one model/integrator that is stable within tolerance at that frequency,
+    with every finer timestep in the table stable within tolerance there too (unless the regime is
+    irregular there)."""
+    good = g.status.isin(STABLE).to_numpy() & (g.err_mm <= tolerance_mm).to_numpy()
+    irregular = g.status.to_numpy() == "irregular"
+    out = {}
+    for f, idx in g.groupby("frequency_hz").indices.items():
+        converging = not irregular[idx].any()
+        for i in sorted(idx, key=lambda i: g.timestep.iat[i]):  # finest first
+            if not good[i]:
+                if converging:
+                    break
+                continue
+            row = next(g.iloc[[i]].itertuples())
+            out[(row.timestep, row.frequency_hz)] = row
+    return out
+
+
 def plan_sweep(scene: str, tolerance_mm: float, frequencies: Sequence[float], models: Sequence[str] | None = None,
                integrators: Sequence[str] | None = None, table: pd.DataFrame | None = None,
                table_file: str | Path | None = None) -> Plan:
@@ -132,10 +155,11 @@ def plan_sweep(scene: str, tolerance_mm: float, frequencies: Sequence[float], mo
     if wanted and wanted[-1] > freqs[-1] + 1e-9:
         notes.append(f"{wanted[-1]:g} Hz is above the table's {freqs[-1]:g} Hz: its row is used")
 
-    good = df[df.status.isin(STABLE) & (df.err_mm <= tolerance_mm)]
     best: tuple[float, Plan] | None = None
-    for (model, integ), g in good.groupby(["model", "integrator"]):
-        ok = {(row.timestep, row.frequency_hz): row for row in g.itertuples()}
+    for (model, integ), g in df.groupby(["model", "integrator"]):
+        ok = _converged_rows(g, tolerance_mm)
+        if not ok:
+            continue
         dts = sorted({dt for dt, _ in ok}, reverse=True)  # largest (cheapest) first
         steps, errs, walls = {}, {}, {}
         for f in wanted:
