@@ -52,10 +52,13 @@ def channel():
     return f"odrive-{uuid.uuid4().hex}"
 
 
+def _emu_config() -> OdriveEmulatorConfig:
+    return OdriveEmulatorConfig(node_id=NODE, calibration_s=CAL_S, watchdog_timeout_s=0.3, vel_ramp_rate=40.0)
+
+
 @pytest.fixture
 def emu(channel):
-    cfg = OdriveEmulatorConfig(node_id=NODE, calibration_s=CAL_S, watchdog_timeout_s=0.3, vel_ramp_rate=40.0)
-    with EmulatedOdrive(channel=channel, config=cfg) as e:
+    with EmulatedOdrive(channel=channel, config=_emu_config()) as e:
         yield e
         assert e.error is None
 
@@ -247,11 +250,19 @@ def test_close_after_fault_idles_and_is_idempotent(motor, emu, tmp_path):
     assert emu.snapshot()["state"] == AxisState.IDLE
 
 
+@pytest.fixture
+def numbered_channel(channel):
+    """A bus name ending in digits beyond .blf's 16-bit channel field (python-can reads the number off it)."""
+    return channel + "-9876543"
+
+
 @pytest.mark.parametrize("suffix", [".asc", ".blf"])
-def test_can_log_has_the_traffic(channel, emu, tmp_path, suffix):
+def test_can_log_has_the_traffic(numbered_channel, tmp_path, suffix):
+    channel = numbered_channel
     path = tmp_path / f"run{suffix}"
     t_start = time.time()
-    with OdriveCanMotor(channel, "virtual", NODE, can_log=path) as m:
+    with EmulatedOdrive(channel=channel, config=_emu_config()), OdriveCanMotor(channel, "virtual", NODE,
+                                                                               can_log=path) as m:
         m.arm(LIMITS)
         m.set_frequency(2.0)
         time.sleep(0.3)

@@ -35,6 +35,7 @@ other python-can formats work too) fed by the ``can.Notifier`` that receives for
 
 from __future__ import annotations
 
+import copy
 import math
 import threading
 import time
@@ -108,6 +109,12 @@ class _TrafficLog:
         self._closed = False
 
     def on_message_received(self, msg: can.Message) -> None:
+        number = can.util.channel2int(msg.channel)
+        if msg.channel is not None and (number is None or not 0 <= number < 0xFFFF):
+            # .blf stores the channel as a 16-bit number read off the name's trailing digits; a name such as
+            # a virtual bus "odrive-…93817" would overflow it: log such frames on the file's default channel
+            msg = copy.copy(msg)
+            msg.channel = None
         with self._lock:
             if not self._closed:
                 self._writer.on_message_received(msg)
