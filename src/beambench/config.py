@@ -96,6 +96,13 @@ class Release(_Model):
     markers: int = Field(3, ge=1, le=3)
 
 
+class Monitors(_Model):
+    """What pauses a step's recording (its window then runs longer) and when a pause becomes a fault."""
+
+    mocap_lost_s: float | None = Field(0.25, gt=0, le=60)  # no complete mocap frame this long: pause; null: off
+    max_pause_s: float = Field(30.0, gt=0, le=3600)  # a longer pause stops the run (motor idle, data saved)
+
+
 class Output(_Model):
     """Session file naming; ``name`` is a template with ``{protocol}``, ``{rig}``, ``{backend}``, ``{date}``."""
 
@@ -116,6 +123,7 @@ class Protocol(_Model):
     limits: Limits = Limits()
     sim: SimOptions = SimOptions()
     release: Release = Release()
+    monitors: Monitors = Monitors()
     output: Output = Output()
     rig_file: str | None = None
 

@@ -3,6 +3,10 @@
 The runner never touches a wire or a file: devices give it batches, the hub hands them to the sinks.
 Every exit path (normal end, exception, Ctrl-C, SIGTERM, device fault) commands the motor to idle first,
 then drains what the devices still hold, logs the final event and closes the sinks.
+
+Monitors (:mod:`beambench.monitors`) may pause a step's record window: while one reports a problem the
+window's clock stops (``pause``/``resume`` events mark the gap, the step records longer), and a pause
+longer than ``max_pause_s`` ends the run as a fault.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from dataclasses import dataclass
 
 from beambench.devices.base import DeviceFault, MotorLimits, Rig
 from beambench.hub import Hub
+from beambench.monitors import Monitor
 from beambench.protocol import Step
 from beambench.store import StepRecord
 
@@ -62,10 +67,14 @@ class Runner:
         limits: MotorLimits,
         poll_s: float = 0.1,
         on_progress: ProgressCallback | None = None,
+        monitors: list[Monitor] | None = None,
+        max_pause_s: float = 30.0,
     ) -> None:
         self.rig, self.hub, self.steps, self.limits = rig, hub, steps, limits
         self.poll_s = poll_s
         self.on_progress = on_progress
+        self.monitors = list(monitors or [])
+        self.max_pause_s = max_pause_s
         self._current: StepRecord | None = None
         self.steps_done = 0
 
@@ -108,7 +117,7 @@ class Runner:
         self.hub.event(rec.t_start_ns, "step", f"step {step.index}: {step.frequency_hz:g} Hz")
         self._wait(step.settle_s, step)
         rec.t_settled_ns = clock.now_ns()
-        self._wait(step.record_s, step)
+        self._record(step)
         rec.t_end_ns = clock.now_ns()
         rec.status = "done"
         self.hub.step(rec)
@@ -126,6 +135,40 @@ class Runner:
             self.rig.motor.check()
             if self.on_progress:
                 self.on_progress(step.index, step.frequency_hz, seconds / n)
+
+    def _record(self, step: Step) -> None:
+        """The record window: ``record_s`` of rig time during which no monitor reports a problem."""
+        if not self.monitors:
+            self._wait(step.record_s, step)
+            return
+        clock = self.rig.clock
+        self._problem()  # monitors start watching here
+        remaining = step.record_s
+        paused_at: int | None = None
+        while remaining > 1e-9:
+            dt = min(self.poll_s, remaining)
+            clock.wait(dt)
+            self._pump()
+            self.rig.motor.check()
+            now = clock.now_ns()
+            problem = self._problem()
+            if problem and paused_at is None:
+                paused_at = now
+                self.hub.event(now, "pause", f"step {step.index}: {problem}")
+            elif problem and (now - paused_at) * 1e-9 > self.max_pause_s:
+                raise DeviceFault(f"{problem} (paused longer than monitors.max_pause_s = {self.max_pause_s:g} s)")
+            elif not problem and paused_at is not None:
+                self.hub.event(now, "resume", f"step {step.index}: after {(now - paused_at) * 1e-9:.2f} s")
+                paused_at = None
+            elif not problem:
+                remaining -= dt  # a poll counts only if it began and ended with good data
+                if self.on_progress:
+                    self.on_progress(step.index, step.frequency_hz, dt)
+
+    def _problem(self) -> str | None:
+        now = self.rig.clock.now_ns()
+        found = [p for p in (m.problem(now) for m in self.monitors) if p]
+        return "; ".join(found) or None
 
     def _pump(self) -> None:
         for stream in self.rig.streams:

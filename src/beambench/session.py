@@ -9,6 +9,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from beambench.calibration import default_calibration
 from beambench.config import Protocol
 from beambench.hub import Batch, Hub, Sink
+from beambench.monitors import build_monitors
 from beambench.protocol import motor_limits, plan
 from beambench.provenance import provenance
 from beambench.rigs import build_rig
@@ -45,6 +46,8 @@ def run_session(
             **provenance(),
         }
         sinks: list[Sink] = [SessionWriter(path, general, max_steps=len(steps))]
+        monitors = build_monitors(protocol, [s.describe().name for s in rig.streams])
+        sinks += monitors
         if rerun_mode != "off":
             from beambench.live import RerunSink
 
@@ -71,7 +74,8 @@ def run_session(
 
         # Batches are ~10 per second of wall time: on a sim running faster than real time, longer rig-time polls.
         poll_s = 0.5 if backend == "sim" and not realtime else 0.1
-        runner = Runner(rig, hub, steps, motor_limits(protocol), poll_s=poll_s, on_progress=on_progress)
+        runner = Runner(rig, hub, steps, motor_limits(protocol), poll_s=poll_s, on_progress=on_progress,
+                        monitors=monitors, max_pause_s=protocol.monitors.max_pause_s)
         result = runner.run()
     post_run = getattr(rig, "post_run", None)
     if post_run:
