@@ -27,7 +27,8 @@ def _run(tmp_path, inject=None, name="emu.h5"):
     rig = build_emulated_rig(protocol, inject=inject)
     rig.open()
     path = tmp_path / name
-    hub = Hub([SessionWriter(path, {"protocol": PROTOCOL, "backend": "emulated", "identity": rig.identity()})])
+    general = {"protocol": PROTOCOL, "backend": "emulated", "identity": rig.identity(), "geometry": rig.geometry}
+    hub = Hub([SessionWriter(path, general)])
     hub.open([s.describe() for s in rig.streams])
     result = Runner(rig, hub, plan(protocol), motor_limits(protocol), poll_s=0.1).run()
     assert result.status == "completed", result.message
@@ -83,6 +84,23 @@ def test_the_stage_follows_the_odrive(clean):
         freqs = np.fft.rfftfreq(16 * len(x), d=np.median(np.diff(t)))
         assert freqs[np.argmax(spec)] == pytest.approx(row.frequency_hz, abs=0.5)
         assert (x.max() - x.min()) / 2 == pytest.approx(0.002, rel=0.1)
+
+
+def test_markers_arrive_in_motives_y_up_frame_and_analysis_uses_the_recorded_axes(clean):
+    """The emulated Motive streams y-up like the real one; the session records that, so the analysis puts
+    the foot below the stage and measures the stroke without being told ``--up``."""
+    from beambench.analysis.session import analyze_session
+
+    _, s = clean
+    assert s.general["geometry"]["up_axis"] == "y"
+    data = s.streams["mocap"].columns["data"]
+    hang = np.nanmean(data[:, 2] - data[:, 0], axis=0)  # foot − stage, m
+    assert hang[1] < -0.05 and abs(hang[2]) > 0.03  # below the stage in y; the beam runs along z
+    a = analyze_session(s)
+    assert np.allclose(a.frame.up, [0, 1, 0], atol=1e-3)
+    foot = a.steps[0].paths["foot"]  # (drive, up) relative to the stage, mm
+    assert np.nanmean(foot[:, 1]) < -50
+    assert a.table.stage_amplitude_mm.to_numpy() == pytest.approx(2.0, rel=0.1)
 
 
 def test_motor_telemetry_and_idle(clean):

@@ -205,6 +205,13 @@ class NatNetWiring(_Model):
     markers: dict[str, str | int] = Field(default_factory=lambda: {"stage": "1:1", "tip": "1:2", "foot": "1:3"})
 
 
+class Geometry(_Model):
+    """The mocap's world frame as calibrated (Motive's default is y up); stored in each session for analysis."""
+
+    up_axis: str = Field("y", pattern=r"^[+-]?[xyz]$")
+    forward_axis: str = Field("x", pattern=r"^[+-]?[xyz]$")  # the walker's direction of travel
+
+
 class OdriveWiring(_Model):
     """How the ODrive is reached: CAN Simple over python-can, or USB through the ``odrive`` package."""
 
@@ -232,6 +239,7 @@ class RigFile(_Model):
     odrive: OdriveWiring = OdriveWiring()
     loadcell: LoadCellWiring = LoadCellWiring()
     loadcell_calibration: str = "loadcells.yaml"
+    geometry: Geometry = Geometry()
 
 
 def load_rig_file(path: str | Path) -> RigFile:

@@ -51,8 +51,10 @@ class DeviceRig:
     idle_tail_s = 0.3  # recorded after the idle command, so the session shows the motor stopping
 
     def __init__(self, motor: Motor, mocap: Stream, loadcells: Stream, backend: str,
-                 peers: list[Any] | None = None, extra_identity: dict[str, Any] | None = None) -> None:
+                 peers: list[Any] | None = None, extra_identity: dict[str, Any] | None = None,
+                 geometry: dict[str, str] | None = None) -> None:
         self.clock = WallClock()
+        self.geometry = geometry or {}  # the mocap's world axes (up_axis, forward_axis), for /general
         self.motor = motor
         self.mocap, self.loadcells = mocap, loadcells
         self.streams: list[Stream] = [motor, mocap, loadcells]
@@ -151,6 +153,7 @@ def build_device_rig(protocol: Protocol, backend: str, rig_file: Path | None = N
             _make_loadcells(rig.loadcell),
             backend,
             extra_identity={"rig_file": path.read_text()},
+            geometry=rig.geometry.model_dump(),
         )
     if backend == "emulated":
         return build_emulated_rig(protocol, can_log=can_log)
@@ -310,7 +313,7 @@ def build_emulated_rig(protocol: Protocol, can_log: Path | None = None,
     from beambench.devices.natnet import NatNetConfig, NatNetMocap
     from beambench.devices.odrive_can import OdriveCanMotor
     from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
-    from beambench.emulators.motive import EmulatorClock, MotiveEmulator
+    from beambench.emulators.motive import MOTIVE_GEOMETRY, EmulatorClock, MotiveEmulator, motive_frame
     from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
 
     sim = protocol.sim
@@ -319,7 +322,7 @@ def build_emulated_rig(protocol: Protocol, can_log: Path | None = None,
     physics = RealtimePhysics(protocol, None)
     markers = tuple(physics.scene.markers)  # the scene's own markers (release test: stage, tip1..tip3)
     motive = MotiveEmulator(
-        marker_names=markers, positions=physics.positions, command_port=0, multicast=False,
+        marker_names=markers, positions=motive_frame(physics.positions), command_port=0, multicast=False,
         clock=EmulatorClock.from_model(sim.mocap_clock), seed=sim.seed,
         drop=inject.get("mocap_drop"), occlude=inject.get("mocap_occlude"),
     )
@@ -344,4 +347,5 @@ def build_emulated_rig(protocol: Protocol, can_log: Path | None = None,
     motor = OdriveCanMotor(channel, "virtual", 0, can_log=can_log)
     loadcells = SerialLoadCells(port)
     return DeviceRig(motor, mocap, loadcells, "emulated", peers=[peers],
-                     extra_identity={"emulated": {"scene": physics.scene.identity(), "can_channel": channel}})
+                     extra_identity={"emulated": {"scene": physics.scene.identity(), "can_channel": channel}},
+                     geometry=dict(MOTIVE_GEOMETRY))

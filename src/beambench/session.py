@@ -45,6 +45,8 @@ def run_session(
             "calibration": {"loadcells": default_calibration().to_yaml()},
             **provenance(),
         }
+        if getattr(rig, "geometry", None):  # the mocap's world axes, which analysis needs (Motive: y up)
+            general["geometry"] = dict(rig.geometry)
         sinks: list[Sink] = [SessionWriter(path, general, max_steps=len(steps))]
         monitors = build_monitors(protocol, [s.describe().name for s in rig.streams])
         sinks += monitors

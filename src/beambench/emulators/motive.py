@@ -34,6 +34,18 @@ APP_VERSIONS = {nn.V3_0: nn.Version(2, 2, 0, 0), nn.V4_0: nn.Version(3, 0, 0, 0)
 
 PositionSource = Callable[[float], np.ndarray]
 
+MOTIVE_GEOMETRY = {"up_axis": "y", "forward_axis": "x"}  # Motive's default world frame (y up)
+_Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # (x, y, z) → (x, z, −y)
+
+
+def motive_frame(source: PositionSource) -> PositionSource:
+    """Marker positions from a z-up world (MuJoCo's) as Motive streams them: in its default y-up frame."""
+
+    def positions(t: float) -> np.ndarray:
+        return np.asarray(source(t), float) @ _Z_UP_TO_Y_UP.T
+
+    return positions
+
 
 @dataclass
 class EmulatorClock:

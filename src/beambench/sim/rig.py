@@ -72,6 +72,8 @@ def _auto_plan(protocol: Protocol):
 class SimRig:
     """Clock, motor and streams of a simulated rig (``Rig`` protocol)."""
 
+    geometry = {"up_axis": "z", "forward_axis": "x"}  # MuJoCo's world: markers are streamed in it
+
     def __init__(self, protocol: Protocol, realtime: bool = False, scene: DrivenScene | None = None,
                  prefetch: bool = True) -> None:
         self.protocol = protocol
