@@ -1,20 +1,38 @@
-"""A first version of the paper's walker (Sec. IV-B), after the structure the planning prototype ran.
+"""The paper's walker (Sec. IV-B), after the structure the planning prototype ran.
 
-Body frame: x forward (away from the cart), y left, z up; the floor is z = 0. The body slides in x, y, z and
-rolls/pitches (no yaw). On it: a 45 g plate, a 110 g motor whose rotor carries a 40 g mass at 10 mm
-spinning in the x–z plane (f Hz = f turn/s), two PRB3 legs sticking out sideways and mirrored across the
-sagittal plane (left −φ, right +φ) with a 66.5 mm rigid foot and a 3 mm sphere sole each, and a 100 g cart
+Body frame: x forward (away from the cart), y left, z up; the floor is z = 0. The body slides in x and z
+and rolls/pitches. The paper's slider holds the robot "along the x-axis and about the yaw axis" while
+"roll, pitch, z-axis and y-axis" are free; since the robot walks, the paper's y is the walking direction
+and its x the lateral one, so here lateral translation and yaw are locked (``lateral_free = 1`` frees the
+lateral slide for experiments). On the body: a 45 g carbon plate, a 110 g Maxon EC 45 flat (Ø42.9 mm)
+lying on its side with its axis along y at plate half-thickness + motor radius (23 mm) above the leg
+clamps, its rotor carrying a 40 g mass at 10 mm turning in the x–z plane (f Hz = f turn/s); two PRB3
+legs sticking out sideways, mirrored across the sagittal plane (left −φ, right +φ), each with a 66.5 mm
+rigid foot, 20 g at its sole (the paper's foot load, Sec. IV-A) and a 3 mm sphere sole; and a 100 g cart
 rigidly at the tail on two frictionless wheels (total length 295 mm).
 
-Spin sense and leg chirality are guesses (the paper does not give them); this combination walks backward
-at 23 Hz and forward above ~27 Hz like the paper, but slower (≈ −10 mm/s at 23 Hz, +14 at 65 Hz, peak
-≈ +30 at 40 Hz vs the paper's −35.7 and +156.3), and the result holds within ~5 mm/s for contact time
-constants 1 → 0.25 ms (dt 1e-4 → 2.5e-5).
+Numerics (``benchmarks/bench_walker.py``; speeds mm/s at 23 / 65 Hz): the contact time constant matters,
+the timestep much less. 2 ms: +4 / +10 (no reversal); 1 ms: −10 / +15; 0.5 ms: −14 / +15; 0.25 ms:
+−15.6 / +12.0 (dt 1.25e-5). The defaults, 0.25 ms at dt 5e-5, give −15.6 / +11.6 (within 3.3 % of the
+finest setting at a quarter of its cost; dt 1e-4 is 12 % off at 65 Hz). Stiffer still (0.125 ms):
+−16.2 / +9.4, so the 65 Hz speed carries a ±3 mm/s contact-model uncertainty. Over 1–80 Hz the defaults
+follow the finest setting within ~1.5 mm/s except at 20–32 Hz, where the speed changes sign within a few
+Hz and differs by up to 7 mm/s. The speed is a steady attractor: the same within 0.2 mm/s for ramp rates
+10–200 turn/s², a step start or a ramp down from 80 Hz. The mirror-symmetric gait is stable at 23 Hz but not at
+40 and 65 Hz (round-off grows into a few-mrad roll; with the lateral slide free, into a sideways drift).
 
-Simplifications to refine later: contact time constant 1 ms at dt = 1e-4 (the planning prototype
-converged only near 0.25 ms at dt 2.5e-5, and the walking speed's sign depends on it), unknown motor
-orientation/radius/friction as guessed in the planning notes. There is no load-cell plate under the walker:
-``force_nt`` is zero, so the load-cell stream carries tare + noise only.
+Result: backward at 12–18 and 21–27 Hz (−15.6 at 23 Hz, −30 at 24 Hz), forward above ~28 Hz (peak +30
+at 43 Hz, +11.6 at 65 Hz) vs the paper's −35.7 and +156.3: the sign pattern, not the size. The size is
+ill-conditioned in the unknowns the paper leaves open (one at a time, 23 / 65 Hz): leg rake ±5° → +71 / +65
+and −28 / −31; foot mass 10 g or 5 g at the sole → 0 / +44 and +14 / +100; 20 g spread along the foot bar
+→ −37 / +48; friction 0.3 / 0.8 → +23 / −63 at 23 Hz; reversed spin → −26 / −26; swapped chirality →
++48 / +52; offset radius 5 / 15 mm → −9 / +4 at 23 Hz. Plate/motor split, cart mass, clamp offset and the
+height of the offset plane move the speeds by ≤ 4 mm/s. The planning prototype's curve (−28 at 20 Hz,
++110 at 50, +88 at 65, strongly contact-dependent at 65 Hz) is reproduced by a light (5 g) foot: −11 at
+20, +104 at 50, +98 at 65, and 37 → 98 mm/s at 65 Hz for contact 2 → 0.25 ms, like theirs.
+
+There is no load-cell plate under the walker: ``force_nt`` is zero, so the load-cell stream carries
+tare + noise only.
 """
 
 from __future__ import annotations
@@ -26,7 +44,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from beambench.sim.beam import BeamModel, add_beam
+from beambench.sim.beam import BeamModel, add_beam, quat_y
 from beambench.sim.drive import KinematicServo, VelocityRamp
 from beambench.sim.engine import INTEGRATORS, DrivenScene, Physics
 from beambench.streams import WALKER_MARKERS
@@ -34,7 +52,8 @@ from beambench.streams import WALKER_MARKERS
 
 @dataclass(frozen=True)
 class WalkerParams:
-    """Walker constants (SI); guessed where the paper is silent (see the planning notes)."""
+    """Walker constants (SI); guessed where the paper is silent (the module docstring gives what each
+    guess does to the speed). Flags are floats (0/1) so that ``with_overrides`` can read them."""
 
     plate_mass: float = 0.045
     motor_mass: float = 0.110
@@ -45,23 +64,31 @@ class WalkerParams:
     length: float = 0.295  # m, plate front to cart tail
     leg_offset: float = 0.03  # m, clamp distance from the centre line
     foot_length: float = 0.0665
-    foot_mass: float = 0.020
+    foot_mass: float = 0.020  # kg, point mass at each sole
+    foot_bar_mass: float = 0.0  # kg, mass of each rigid foot bar (spread along it)
+    frame_mass: float = 0.0  # kg, the boom from the plate to the cart
     sole_radius: float = 0.003
     wheel_radius: float = 0.008
     friction: float = 0.5
-    contact_timeconst: float = 0.001
+    contact_timeconst: float = 0.00025  # s, solref time constant (converged; see the module docstring)
     contact_dampratio: float = 1.0
     servo_hz: float = 300.0  # rotor angle servo bandwidth
     vel_ramp_rate: float = 50.0  # turn/s²
     spin: float = -1.0  # rotor turns about -y (guess; with the legs below it walks backward at 23 Hz, forward above ~27 Hz)
     left_chirality: float = -1.0  # left leg twisted -φ, right leg +φ (mirror images)
+    right_chirality: float = 1.0
+    motor_radius: float = 0.02145  # m, EC 45 flat: Ø42.9 mm (paper footnote)
+    rotor_height: float = 0.023  # m, motor axis above the leg clamps: plate half-thickness + motor radius
+    motor_flat: float = 0.0  # 1: motor axis vertical (offset mass turns in the x–y plane) instead of along y
+    leg_mount_deg: float = 0.0  # leg rake: legs + feet turned about the lateral axis; + = soles toward the cart
+    lateral_free: float = 0.0  # 1: let the body slide sideways (the paper's slider holds it; see above)
     torque_constant: float = 0.0255  # N·m/A
     bus_voltage: float = 24.0
     preroll_s: float = 0.5
-    timestep: float = 1e-4
+    timestep: float = 5e-5  # s (converged with the contact time constant above)
 
     @classmethod
-    def with_overrides(cls, overrides: dict[str, Any]) -> "WalkerParams":
+    def with_overrides(cls, overrides: dict[str, Any]) -> WalkerParams:
         known = {f.name for f in fields(cls)}
         return cls(**{k: float(v) for k, v in overrides.items() if k in known})
 
@@ -81,18 +108,22 @@ def build_walker_spec(beam: BeamModel, twist_deg: float, wp: WalkerParams, integ
     z0 = wp.foot_length + 0.002  # clamp height: feet just above the floor before settling
     body = spec.worldbody.add_body(name="walker", pos=[0, 0, z0])
     hinge, slide = mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE
-    for name, jtype, axis in (("x", slide, [1, 0, 0]), ("y", slide, [0, 1, 0]), ("z", slide, [0, 0, 1]),
-                              ("roll", hinge, [1, 0, 0]), ("pitch", hinge, [0, 1, 0])):
-        body.add_joint(name=name, type=jtype, axis=axis)
+    dofs = [("x", slide, [1, 0, 0]), ("y", slide, [0, 1, 0]), ("z", slide, [0, 0, 1]),
+            ("roll", hinge, [1, 0, 0]), ("pitch", hinge, [0, 1, 0])]
+    for name, jtype, axis in dofs:
+        if name != "y" or wp.lateral_free:
+            body.add_joint(name=name, type=jtype, axis=axis)
     front = 0.04
     body.add_geom(name="plate", type=mujoco.mjtGeom.mjGEOM_BOX, size=[front, 0.03, 0.0015], mass=wp.plate_mass,
                   contype=0, conaffinity=0, rgba=[0.3, 0.3, 0.3, 1])
-    body.add_geom(name="motor", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.022, 0.007, 0], pos=[0, 0, 0.01],
-                  quat=[math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0], mass=wp.motor_mass, contype=0,
+    body.add_geom(name="motor", type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[wp.motor_radius, 0.007, 0], pos=[0, 0, wp.rotor_height],
+                  quat=[1, 0, 0, 0] if wp.motor_flat else [math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0],
+                  mass=wp.motor_mass, contype=0,
                   conaffinity=0, rgba=[0.2, 0.2, 0.2, 1])
     body.add_site(name="body", pos=[0, 0, 0], size=[0.003, 0, 0])
-    rotor = body.add_body(name="rotor", pos=[0, 0, 0.01])
-    rotor.add_joint(name="rotor", type=hinge, axis=[0, 1, 0], armature=wp.rotor_inertia)
+    rotor = body.add_body(name="rotor", pos=[0, 0, wp.rotor_height])
+    rotor.add_joint(name="rotor", type=hinge, axis=[0, 0, 1] if wp.motor_flat else [0, 1, 0],
+                    armature=wp.rotor_inertia)
     rotor.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.006, 0, 0], pos=[wp.eccentric_radius, 0, 0],
                    mass=wp.eccentric_mass, contype=0, conaffinity=0, rgba=[0.8, 0.1, 0.1, 1])
     # cart rigidly at the tail, on two frictionless wheels
@@ -100,7 +131,7 @@ def build_walker_spec(beam: BeamModel, twist_deg: float, wp: WalkerParams, integ
     cart_x = tail + 0.02
     wheel_z = -(z0 - wp.wheel_radius)
     body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[-front, 0, 0, cart_x, 0, 0], size=[0.003, 0, 0],
-                  mass=0.0, contype=0, conaffinity=0)
+                  mass=wp.frame_mass, contype=0, conaffinity=0)
     body.add_geom(name="cart", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.02, 0.03, 0.01], pos=[cart_x, 0, 0],
                   mass=wp.cart_mass, contype=0, conaffinity=0, rgba=[0.5, 0.4, 0.3, 1])
     for side in (1, -1):
@@ -108,14 +139,17 @@ def build_walker_spec(beam: BeamModel, twist_deg: float, wp: WalkerParams, integ
                       size=[wp.wheel_radius, 0, 0], pos=[cart_x, side * 0.03, wheel_z], mass=0.0,
                       friction=[0, 0, 0], condim=1, priority=1, solref=solref)
     # legs: left along +y with +φ, right along −y (frame turned 180° about z) with −φ: mirror images
-    for side, name in ((1, "left"), (-1, "right")):
-        quat = [1, 0, 0, 0] if side > 0 else [0, 0, 0, 1]
-        sites = add_beam(body, beam, side * wp.left_chirality * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat,
+    mount = quat_y(math.radians(wp.leg_mount_deg))
+    for side, name, chir in ((1, "left", wp.left_chirality), (-1, "right", wp.right_chirality)):
+        quat = mount.copy()
+        if side < 0:
+            mujoco.mju_mulQuat(quat, mount, np.array([0.0, 0, 0, 1]))
+        sites = add_beam(body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat,
                          prefix=f"{name}_")
         tip = spec.body(sites.tip_body)
         r = wp.sole_radius
         tip.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, fromto=[0, 0, 0, 0, 0, -(wp.foot_length - 2 * r)],
-                     size=[0.002, 0, 0], mass=0.0, contype=0, conaffinity=0, rgba=[0.9, 0.5, 0.1, 1])
+                     size=[0.002, 0, 0], mass=wp.foot_bar_mass, contype=0, conaffinity=0, rgba=[0.9, 0.5, 0.1, 1])
         tip.add_geom(name=f"sole_{name}", type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[r, 0, 0],
                      pos=[0, 0, -(wp.foot_length - r)], mass=wp.foot_mass, priority=1, solref=solref,
                      friction=friction, condim=3)
@@ -182,3 +216,20 @@ class WalkerSim(DrivenScene):
             "mass_kg": float(m.body_subtreemass[m.body("walker").id]),
             "mujoco_version": mujoco.__version__,
         }
+
+
+def measure_speed(beam: BeamModel, frequency_hz: float, params: WalkerParams | None = None, twist_deg: float = 90.0,
+                  settle_s: float = 1.0, record_s: float = 1.5, timestep: float | None = None) -> tuple[float, float]:
+    """Body speed (forward, lateral; m/s) at ``frequency_hz``: the motor ramps up from rest, the walker settles
+    for ``settle_s`` after the ramp, then a least-squares slope of the body marker over ``record_s``."""
+    sim = WalkerSim(beam, twist_deg, params, timestep=timestep)
+    try:
+        sim.set_frequency(frequency_hz)
+        t_on = frequency_hz / sim.rig.vel_ramp_rate + settle_s
+        tr = sim.advance_to(t_on + record_s)
+    finally:
+        sim.physics.close()
+    sel = tr.t >= t_on
+    body = tr.channels["markers"][sel, 0]
+    vx, vy = (float(np.polyfit(tr.t[sel], body[:, k], 1)[0]) for k in (0, 1))
+    return vx, vy

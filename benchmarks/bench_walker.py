@@ -1,0 +1,170 @@
+"""Walker (paper Sec. IV-B): numerical convergence, the 1–80 Hz speed curve, and the sensitivity to the unknowns.
+
+    python benchmarks/bench_walker.py [--quick] [--out DIR]
+
+Writes to DIR (default ``bench_out/walker``):
+- ``walker_convergence.csv``: forward speed at 23 and 65 Hz for contact time constant × timestep, with the
+  wall time per simulated second (one thread) and the deviation from the finest setting (0.25 ms, 1.25e-5 s;
+  two extra rows at 0.125 ms check the time constant itself);
+- ``walker_sweep.csv`` + ``walker_speed.png``: speed vs drive frequency at the scene's defaults and at the
+  finest numerics, with the paper's two points (−35.7 mm/s at 23 Hz, +156.3 at 65 Hz);
+- ``walker_sensitivity.csv``: speed at 23 and 65 Hz when one unknown (paper silent) is changed at a time.
+
+Single process, single thread (mujoco.rollout without a pool). ``--quick`` takes about a minute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+PAPER = {23.0: -35.7, 65.0: 156.3}  # mm/s
+
+# (label, overrides of WalkerParams): one unknown at a time around the defaults
+VARIANTS: list[tuple[str, dict[str, float]]] = [
+    ("defaults", {}),
+    ("offset radius 5 mm", {"eccentric_radius": 0.005}),
+    ("offset radius 15 mm", {"eccentric_radius": 0.015}),
+    ("spin sense reversed", {"spin": 1.0}),
+    ("leg chirality swapped (L+90/R-90)", {"left_chirality": 1.0, "right_chirality": -1.0}),
+    ("motor flat (mass turns in x-y, 23 mm up)", {"motor_flat": 1.0}),
+    ("offset plane 10 mm above clamps (old guess)", {"rotor_height": 0.010}),
+    ("plate/motor mass 110/45 g", {"plate_mass": 0.110, "motor_mass": 0.045}),
+    ("leg mount +5 deg", {"leg_mount_deg": 5.0}),
+    ("leg mount -5 deg", {"leg_mount_deg": -5.0}),
+    ("leg mount +15 deg", {"leg_mount_deg": 15.0}),
+    ("leg mount -15 deg", {"leg_mount_deg": -15.0}),
+    ("foot mass 10 g at sole", {"foot_mass": 0.010}),
+    ("foot mass 5 g at sole (planning-like)", {"foot_mass": 0.005}),
+    ("foot mass 20 g spread on bar", {"foot_mass": 0.0, "foot_bar_mass": 0.020}),
+    ("friction 0.3", {"friction": 0.3}),
+    ("friction 0.8", {"friction": 0.8}),
+    ("cart 130 g", {"cart_mass": 0.130}),
+    ("boom (frame) 30 g", {"frame_mass": 0.030}),
+    ("leg clamp offset 45 mm", {"leg_offset": 0.045}),
+]
+
+
+def _speed(beam, f: float, settle: float, record: float, **overrides: float) -> tuple[float, float]:
+    """(forward speed mm/s, wall s per simulated s)."""
+    from beambench.sim.walker import WalkerParams, measure_speed
+
+    wp = replace(WalkerParams(), **overrides)
+    t0 = time.perf_counter()
+    vx, _ = measure_speed(beam, f, wp, settle_s=settle, record_s=record)
+    sim_s = f / wp.vel_ramp_rate + settle + record + wp.preroll_s
+    return 1e3 * vx, (time.perf_counter() - t0) / sim_s
+
+
+def _write(path: Path, rows: list[dict]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="coarse grid and sweep, no sensitivity table (~1 min)")
+    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "bench_out" / "walker")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    from beambench.sim.beam import make_beam_model
+    from beambench.sim.params import load_params
+    from beambench.sim.walker import WalkerParams
+
+    beam = make_beam_model("prb3", load_params())
+    d = WalkerParams()
+    settle, record = (0.6, 1.0) if args.quick else (1.0, 1.5)
+
+    # 1. convergence at 23 and 65 Hz ------------------------------------------------------------------
+    tcs = (1e-3, 2.5e-4) if args.quick else (2e-3, 1e-3, 5e-4, 2.5e-4)
+    dts = (1e-4, 5e-5, 2.5e-5) if args.quick else (1e-4, 5e-5, 2.5e-5, 1.25e-5)
+    conv = []
+    for tc in tcs:
+        for dt in dts:
+            row = {"timeconst_ms": tc * 1e3, "timestep": dt}
+            walls = []
+            for f in PAPER:
+                v, wall = _speed(beam, f, settle, record, contact_timeconst=tc, timestep=dt)
+                row[f"v{f:.0f}_mm_s"] = round(v, 2)
+                walls.append(wall)
+            row["wall_per_sim_s"] = round(float(np.median(walls)), 3)
+            conv.append(row)
+            print(row, flush=True)
+    ref = conv[-1]
+    if not args.quick:  # beyond the grid: is the contact time constant itself converged?
+        for dt in (2.5e-5, 1.25e-5):
+            row = {"timeconst_ms": 0.125, "timestep": dt}
+            for f in PAPER:
+                row[f"v{f:.0f}_mm_s"] = round(_speed(beam, f, settle, record, contact_timeconst=1.25e-4,
+                                                     timestep=dt)[0], 2)
+            row["wall_per_sim_s"] = float("nan")
+            conv.append(row)
+            print(row, flush=True)
+    for row in conv:
+        for f in PAPER:
+            k = f"v{f:.0f}_mm_s"
+            row[f"dev{f:.0f}_pct"] = round(100 * abs(row[k] - ref[k]) / max(abs(ref[k]), 1e-9), 1)
+    _write(args.out / "walker_convergence.csv", conv)
+
+    # 2. speed vs frequency ---------------------------------------------------------------------------
+    fine = {"contact_timeconst": tcs[-1], "timestep": dts[-1]}
+    freqs = sorted({1.0, *np.arange(10.0, 81.0, 10.0), 23.0, 65.0} if args.quick else
+                   {float(f) for f in range(1, 81)})
+    fine_freqs = sorted({1.0, *np.arange(10.0, 81.0, 10.0), 23.0, 65.0} if args.quick else
+                        {1.0, *np.arange(5.0, 81.0, 5.0), 23.0, 65.0})
+    settings = [("defaults", {}, freqs), ("finest", fine, fine_freqs)]
+    if not args.quick:
+        settings.append(("previous (1 ms, dt 1e-4)", {"contact_timeconst": 1e-3, "timestep": 1e-4}, fine_freqs))
+    sweep = []
+    for label, over, fs in settings:
+        for f in fs:
+            v, _ = _speed(beam, f, settle, record, **over)
+            sweep.append({"setting": label, "frequency_hz": float(f), "speed_mm_s": round(v, 2)})
+        print(label, [(float(r["frequency_hz"]), r["speed_mm_s"]) for r in sweep if r["setting"] == label], flush=True)
+    _write(args.out / "walker_sweep.csv", sweep)
+    _plot(sweep, args.out / "walker_speed.png", d)
+
+    # 3. sensitivity to the unknowns ------------------------------------------------------------------
+    if not args.quick:
+        sens = []
+        for label, over in VARIANTS:
+            row = {"variant": label, **{f"v{f:.0f}_mm_s": round(_speed(beam, f, settle, record, **over)[0], 2)
+                                        for f in PAPER}}
+            sens.append(row)
+            print(row, flush=True)
+        _write(args.out / "walker_sensitivity.csv", sens)
+    print(f"wrote {args.out}")
+
+
+def _plot(sweep: list[dict], path: Path, d) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for label in dict.fromkeys(r["setting"] for r in sweep):
+        rows = [r for r in sweep if r["setting"] == label]
+        ax.plot([r["frequency_hz"] for r in rows], [r["speed_mm_s"] for r in rows], "o-", ms=3, label=label)
+    ax.plot(list(PAPER), list(PAPER.values()), "*", color="orange", mec="k", ms=16, label="paper (Sec. IV-B)")
+    ax.axhline(0, color="grey", lw=0.8)
+    ax.set_xlabel("drive frequency [Hz]")
+    ax.set_ylabel("body speed [mm/s] (+ away from the cart)")
+    ax.set_title(f"walker: defaults = contact {d.contact_timeconst * 1e3:g} ms, dt {d.timestep:g} s")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    main()
