@@ -31,15 +31,16 @@ def _mocap(t_ms: list[float], occluded: list[bool] | None = None) -> Batch:
 def test_mocap_lost_needs_a_complete_frame_within_the_timeout():
     m = MocapLost(0.25)
     assert m.problem(0) is None  # watching starts: a grace period of one timeout
-    assert "no frame" in m.problem(300 * MS)
+    assert m.problem(300 * MS) == ("mocap lost: no frame for 0.30 s", 0)
     m.write(_mocap([290, 295, 299]))
     assert m.problem(300 * MS) is None
     m.write(_mocap([400, 500, 600], occluded=[True, True, True]))  # frames arrive, a marker is hidden
-    assert "hidden" in m.problem(601 * MS)
+    p = m.problem(601 * MS)
+    assert "hidden" in p.reason and p.since_ns == 299 * MS  # bad since the last complete frame
     m.write(_mocap([700], occluded=[False]))
     assert m.problem(701 * MS) is None
     m.write(Batch("loadcell", np.array([2000 * MS]), np.zeros(1), {}))  # other streams do not count
-    assert "no frame" in m.problem(2000 * MS)
+    assert "no frame" in m.problem(2000 * MS).reason
 
 
 def test_protocol_can_switch_the_monitor_off():
@@ -100,7 +101,7 @@ def test_an_outage_pauses_the_window_and_the_step_still_gets_its_full_record(tmp
     assert window_s >= 1.0 + 0.5  # the window grew by about the outage
     m = s.streams["mocap"]
     inside = (m.host_time_ns >= step.t_settled_ns) & (m.host_time_ns < step.t_end_ns)
-    assert inside.sum() >= 0.95 * 360 * 1.0  # a full second of frames despite the outage
+    assert inside.sum() >= 0.99 * 360 * 1.0  # a full second of good frames despite the outage
     gaps = np.diff(m.host_time_ns[inside]) * 1e-9
     assert gaps.max() > 0.5  # and the outage really happened on the wire
     assert len(rig.peers[0].motive.dropped_frames) > 0.5 * 360

@@ -1,7 +1,7 @@
 """Monitors: sinks that watch the batches going by and tell the runner when a step's recording must pause.
 
-A monitor is a hub sink (it sees every batch) with one more method, ``problem(now_ns)``: a short reason
-while the data being recorded would be unusable, else None. The runner asks after every poll of the
+A monitor is a hub sink (it sees every batch) with one more method, ``problem(now_ns)``: a
+:class:`Problem` (a short reason, and since when the data are unusable) or None. The runner asks after every poll of the
 record window; while there is a problem the window's clock stops (the step records longer), and a pause
 longer than the protocol's ``monitors.max_pause_s`` stops the run like a device fault (motor idle first,
 then everything recorded is saved).
@@ -9,7 +9,7 @@ then everything recorded is saved).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import numpy as np
 
@@ -20,10 +20,15 @@ if TYPE_CHECKING:
     from beambench.config import Protocol as ProtocolConfig
 
 
+class Problem(NamedTuple):
+    reason: str
+    since_ns: int  # host time from which the data are unusable
+
+
 class Monitor(Protocol):
     name: str
 
-    def problem(self, now_ns: int) -> str | None: ...
+    def problem(self, now_ns: int) -> Problem | None: ...
 
 
 class MocapLost:
@@ -60,7 +65,7 @@ class MocapLost:
     def close(self) -> None:
         pass
 
-    def problem(self, now_ns: int) -> str | None:
+    def problem(self, now_ns: int) -> Problem | None:
         if self._since_ns is None:
             self._since_ns = now_ns
         last = self.last_complete_ns if self.last_complete_ns is not None else self._since_ns
@@ -68,8 +73,8 @@ class MocapLost:
         if silent <= self.timeout_ns:
             return None
         if self.last_any_ns is not None and now_ns - self.last_any_ns <= self.timeout_ns:
-            return f"mocap: a marker hidden for {silent * 1e-9:.2f} s"
-        return f"mocap lost: no frame for {silent * 1e-9:.2f} s"
+            return Problem(f"mocap: a marker hidden for {silent * 1e-9:.2f} s", last)
+        return Problem(f"mocap lost: no frame for {silent * 1e-9:.2f} s", last)
 
 
 def build_monitors(protocol: "ProtocolConfig", streams: list[str]) -> list[MocapLost]:

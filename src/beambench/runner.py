@@ -147,13 +147,15 @@ class Runner:
         paused_at: int | None = None
         while remaining > 1e-9:
             dt = min(self.poll_s, remaining)
+            began = clock.now_ns()
             clock.wait(dt)
             self._pump()
             self.rig.motor.check()
             now = clock.now_ns()
-            problem = self._problem()
+            problem, since = self._problem()
             if problem and paused_at is None:
                 paused_at = now
+                remaining += max(0, began - since) * 1e-9  # earlier polls that counted bad data (the timeout)
                 self.hub.event(now, "pause", f"step {step.index}: {problem}")
             elif problem and (now - paused_at) * 1e-9 > self.max_pause_s:
                 raise DeviceFault(f"{problem} (paused longer than monitors.max_pause_s = {self.max_pause_s:g} s)")
@@ -165,10 +167,11 @@ class Runner:
                 if self.on_progress:
                     self.on_progress(step.index, step.frequency_hz, dt)
 
-    def _problem(self) -> str | None:
+    def _problem(self) -> tuple[str | None, int]:
+        """(the monitors' reasons joined, or None; the earliest time the data went bad)."""
         now = self.rig.clock.now_ns()
         found = [p for p in (m.problem(now) for m in self.monitors) if p]
-        return "; ".join(found) or None
+        return "; ".join(p.reason for p in found) or None, min((p.since_ns for p in found), default=now)
 
     def _pump(self) -> None:
         for stream in self.rig.streams:
