@@ -146,7 +146,24 @@ _register_command_modules()
 
 
 def main() -> None:
-    app()
+    """The ``beambench`` entry point: usage errors come out as one line like every other error (exit 2)."""
+    try:
+        code = app(standalone_mode=False, prog_name="beambench")
+    except Exception as exc:
+        # click's exceptions (typer vendors its own click, so match by shape, not by class)
+        if not (hasattr(exc, "format_message") and hasattr(exc, "exit_code")):
+            raise
+        ctx = getattr(exc, "ctx", None)
+        if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:  # bare ``beambench`` or a group
+            typer.echo(ctx.get_help())
+            sys.exit(0)
+        hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+        typer.echo(f"beambench: error: {exc.format_message()}{hint}", err=True)
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        typer.echo("beambench: aborted", err=True)
+        sys.exit(130)
+    sys.exit(code if isinstance(code, int) else 0)
 
 
 if __name__ == "__main__":
