@@ -98,6 +98,34 @@ def rows_to_batch(rows: list[tuple]) -> Batch:
     return Batch(MOTOR, np.asarray(host, np.int64), np.asarray(dev, np.float64), cols)
 
 
+class TelemetryStream:
+    """The Motor's telemetry as a Stream over a row buffer, shared by the CAN and USB drivers: a driver
+    appends rows (see :func:`rows_to_batch`) to ``_rows`` under ``_guard`` while ``_streaming``."""
+
+    _guard: Any  # the driver's lock (or condition) that guards _rows and _streaming
+    _rows: deque[tuple]
+    _streaming: bool
+    open: Any  # the driver's own: connects if needed
+
+    def describe(self) -> StreamSpec:
+        return motor_spec()
+
+    def start(self) -> None:
+        self.open()
+        with self._guard:
+            self._streaming = True
+
+    def stop(self) -> None:
+        with self._guard:
+            self._streaming = False
+
+    def read(self) -> Batch:
+        with self._guard:
+            rows = list(self._rows)
+            self._rows.clear()
+        return rows_to_batch(rows)
+
+
 class _TrafficLog:
     """python-can's ``can.Logger`` shared by the Notifier thread (received) and senders (sent), locked."""
 
@@ -143,7 +171,7 @@ class _Receiver(can.Listener):
         time.sleep(0.01)  # a dead interface must not spin this thread; the heartbeat check reports it
 
 
-class OdriveCanMotor:
+class OdriveCanMotor(TelemetryStream):
     """One ODrive axis on a CAN bus (CAN Simple, firmware 0.5.x), satisfying the ``Motor`` protocol.
 
     ``interface``/``channel``/``bitrate`` are passed to ``can.Bus`` (``socketcan``/``can0`` on the rig,
@@ -188,6 +216,7 @@ class OdriveCanMotor:
         self._log: _TrafficLog | None = None
         self._tx_lock = threading.Lock()
         self._cond = threading.Condition()  # guards everything below
+        self._guard = self._cond
         self._opened_ns: int | None = None
         self._hb: cs.Heartbeat | None = None
         self._hb_ns: int | None = None
@@ -415,25 +444,7 @@ class OdriveCanMotor:
         state = AxisState(hb.axis_state).name if hb.axis_state in AxisState._value2member_map_ else hb.axis_state
         return f"ODrive node {self.node_id}: " + ", ".join(parts) + f" (state {state})"
 
-    # ------------------------------------------------------------------ Motor protocol
-    def describe(self) -> StreamSpec:
-        return motor_spec()
-
-    def start(self) -> None:
-        self.open()
-        with self._cond:
-            self._streaming = True
-
-    def stop(self) -> None:
-        with self._cond:
-            self._streaming = False
-
-    def read(self) -> Batch:
-        with self._cond:
-            rows = list(self._rows)
-            self._rows.clear()
-        return rows_to_batch(rows)
-
+    # ------------------------------------------------------------------ Motor protocol (stream: TelemetryStream)
     def arm(self, limits: MotorLimits) -> None:
         """Limits, velocity-ramp mode, watchdog feed, (calibration,) closed loop at 0 turn/s."""
         vel_limit = vel_limit_for(limits)

@@ -37,13 +37,12 @@ from beambench.devices.base import DeviceFault, MotorLimits
 from beambench.devices.odrive_can import (
     MAX_BUFFERED_ROWS,
     LimitError,
+    TelemetryStream,
     current_limit_for,
-    rows_to_batch,
     vel_limit_for,
 )
 from beambench.devices.odrive_cansimple import AxisError, AxisState, ControlMode, InputMode, error_names
-from beambench.hub import Batch, StreamSpec
-from beambench.streams import MOTOR, motor_spec
+from beambench.streams import MOTOR
 
 
 def find_odrive(serial_number: str | None = None, timeout_s: float = 10.0) -> Any:
@@ -60,7 +59,7 @@ def find_odrive(serial_number: str | None = None, timeout_s: float = 10.0) -> An
         raise DeviceFault(f"cannot reach an ODrive on USB: {exc}") from exc
 
 
-class OdriveUsbMotor:
+class OdriveUsbMotor(TelemetryStream):
     """One axis of an ODrive v3.6 reached over USB. ``odrv`` may be given (an already-found device)."""
 
     name = MOTOR
@@ -94,6 +93,7 @@ class OdriveUsbMotor:
         self._odrv = odrv
         self._ax: Any = None
         self._lock = threading.Lock()
+        self._guard = self._lock
         self._rows: deque[tuple] = deque(maxlen=MAX_BUFFERED_ROWS)
         self._streaming = False
         self._armed = False
@@ -182,25 +182,7 @@ class OdriveUsbMotor:
                 with self._lock:
                     self._link_error = f"{type(exc).__name__}: {exc}"
 
-    # ------------------------------------------------------------------ Motor protocol
-    def describe(self) -> StreamSpec:
-        return motor_spec()
-
-    def start(self) -> None:
-        self.open()
-        with self._lock:
-            self._streaming = True
-
-    def stop(self) -> None:
-        with self._lock:
-            self._streaming = False
-
-    def read(self) -> Batch:
-        with self._lock:
-            rows = list(self._rows)
-            self._rows.clear()
-        return rows_to_batch(rows)
-
+    # ------------------------------------------------------------------ Motor protocol (stream: TelemetryStream)
     def arm(self, limits: MotorLimits) -> None:
         vel_limit = vel_limit_for(limits)
         current = current_limit_for(limits)
