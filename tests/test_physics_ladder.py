@@ -161,3 +161,27 @@ def test_selection_skips_a_coarse_step_that_passes_where_a_finer_one_fails():
     assert select.plan_sweep("contact", 0.1, [10.0], table=_table(rows)).timestep(10.0) == 1e-4
     irregular = [r[:4] + ("irregular",) + r[5:] for r in rows]
     assert select.plan_sweep("contact", 0.1, [10.0], table=_table(irregular)).timestep(10.0) == 4e-4
+
+
+def test_fixed_model_gets_the_timestep_each_frequency_needs_unless_one_is_given():
+    """``sim.model: prb3`` without ``sim.timestep``: the plan for that model and integrator from the contact
+    table (recorded in the session); with ``sim.timestep`` that step is used throughout."""
+    from beambench.config import parse_protocol
+    from beambench.sim.rig import build_scene
+
+    base = "rig: contact\nsweep: {frequencies: [2, 20, 40]}\nsim: {model: prb3, integrator: implicitfast%s}\n"
+    planned = build_scene(parse_protocol(base % ""))
+    sel = planned.identity()["selection"]
+    assert sel["model"] == "prb3" and sel["integrator"] == "implicitfast"
+    table = select.load_table("contact")
+    for f in (2.0, 20.0, 40.0):
+        planned.set_frequency(f)
+        dt = planned.physics.timestep
+        assert dt == pytest.approx(sel["timesteps"][f"{f:g}"])
+        rows = table[(table.model == "prb3") & (table.integrator == "implicitfast") & (table.frequency_hz == f)]
+        finer = rows[rows.timestep <= dt + 1e-12]
+        assert (finer.err_mm <= 0.1).all() and finer.status.isin(select.STABLE).all()
+    fixed = build_scene(parse_protocol(base % ", timestep: 1.0e-4"))
+    assert "selection" not in fixed.identity()
+    fixed.set_frequency(2.0)
+    assert fixed.physics.timestep == 1e-4

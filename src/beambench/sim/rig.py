@@ -31,7 +31,7 @@ HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the loa
 def build_scene(protocol: Protocol) -> DrivenScene:
     """The MuJoCo scene for ``protocol.rig`` with the protocol's sim options."""
     sim = protocol.sim
-    plan = _auto_plan(protocol) if sim.model == "auto" else None
+    plan = _auto_plan(protocol) if sim.model == "auto" else _timestep_plan(protocol)
     model_name = plan.model if plan else ("prb3" if sim.model == "auto" else sim.model)
     beam = make_beam_model(model_name, load_params(sim.params, model=model_family(model_name)))
     if protocol.rig == "release":
@@ -67,6 +67,22 @@ def _auto_plan(protocol: Protocol):
         return select.plan_sweep("contact", tol, protocol.sweep.values())
     except select.SelectionError as exc:
         raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
+
+
+def _timestep_plan(protocol: Protocol):
+    """A fixed model on the contact rig without ``sim.timestep``: the timestep each frequency needs for that
+    model and integrator from the measured table (tolerance ``sim.tolerance_mm`` or the default), or None
+    (the rig's fixed policy) when the table does not cover them."""
+    from beambench.sim import select
+
+    sim = protocol.sim
+    if protocol.rig != "contact" or sim.timestep is not None:
+        return None
+    try:
+        return select.plan_sweep("contact", sim.tolerance_mm or AUTO_TOLERANCE_MM, protocol.sweep.values(),
+                                 models=[sim.model], integrators=[sim.integrator])
+    except select.SelectionError:
+        return None
 
 
 class SimRig:
