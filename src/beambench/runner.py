@@ -130,9 +130,7 @@ class Runner:
             return
         n = max(1, math.ceil(seconds / self.poll_s - 1e-9))
         for _ in range(n):
-            self.rig.clock.wait(seconds / n)
-            self._pump()
-            self.rig.motor.check()
+            self._poll(seconds / n)
             if self.on_progress:
                 self.on_progress(step.index, step.frequency_hz, seconds / n)
 
@@ -148,9 +146,7 @@ class Runner:
         while remaining > 1e-9:
             dt = min(self.poll_s, remaining)
             began = clock.now_ns()
-            clock.wait(dt)
-            self._pump()
-            self.rig.motor.check()
+            self._poll(dt)
             now = clock.now_ns()
             problem, since = self._problem()
             if problem and paused_at is None:
@@ -166,6 +162,12 @@ class Runner:
                 remaining -= dt  # a poll counts only if it began and ended with good data
                 if self.on_progress:
                     self.on_progress(step.index, step.frequency_hz, dt)
+
+    def _poll(self, seconds: float) -> None:
+        """Let ``seconds`` of rig time pass, hand the batches to the hub, check the motor."""
+        self.rig.clock.wait(seconds)
+        self._pump()
+        self.rig.motor.check()
 
     def _problem(self) -> tuple[str | None, int]:
         """(the monitors' reasons joined, or None; the earliest time the data went bad)."""
