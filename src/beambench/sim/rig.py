@@ -31,7 +31,7 @@ HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the loa
 def build_scene(protocol: Protocol) -> DrivenScene:
     """The MuJoCo scene for ``protocol.rig`` with the protocol's sim options."""
     sim = protocol.sim
-    plan = _auto_plan(protocol) if sim.model == "auto" else _timestep_plan(protocol)
+    plan = _contact_plan(protocol)
     model_name = plan.model if plan else ("prb3" if sim.model == "auto" else sim.model)
     beam = make_beam_model(model_name, load_params(sim.params, model=model_family(model_name)))
     if protocol.rig == "release":
@@ -53,35 +53,29 @@ def build_scene(protocol: Protocol) -> DrivenScene:
 AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
 
 
-def _auto_plan(protocol: Protocol):
-    """``sim.model: auto``: the cheapest measured (model, integrator, timestep per frequency) that keeps the
-    error within ``sim.tolerance_mm`` over the protocol's sweep (:mod:`beambench.sim.select`); None (PRB3 at
-    the rig's defaults) for rigs without a measured table."""
+def _contact_plan(protocol: Protocol):
+    """The measured plan for the contact rig (:mod:`beambench.sim.select`), within ``sim.tolerance_mm``:
+
+    - ``sim.model: auto``: the cheapest (model, integrator, timestep per frequency); a tolerance nothing
+      meets is a ConfigError;
+    - a named model without ``sim.timestep``: the timestep each frequency needs for that model and
+      integrator, or None (the rig's fixed policy) when the table does not cover them.
+
+    None for rigs without a measured table and for a fixed ``sim.timestep``."""
     from beambench.config import ConfigError
     from beambench.sim import select
 
-    if protocol.rig != "contact":
-        return None
-    tol = protocol.sim.tolerance_mm or AUTO_TOLERANCE_MM
-    try:
-        return select.plan_sweep("contact", tol, protocol.sweep.values())
-    except select.SelectionError as exc:
-        raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
-
-
-def _timestep_plan(protocol: Protocol):
-    """A fixed model on the contact rig without ``sim.timestep``: the timestep each frequency needs for that
-    model and integrator from the measured table (tolerance ``sim.tolerance_mm`` or the default), or None
-    (the rig's fixed policy) when the table does not cover them."""
-    from beambench.sim import select
-
     sim = protocol.sim
-    if protocol.rig != "contact" or sim.timestep is not None:
+    auto = sim.model == "auto"
+    if protocol.rig != "contact" or (not auto and sim.timestep is not None):
         return None
+    tol = sim.tolerance_mm or AUTO_TOLERANCE_MM
+    only = {} if auto else {"models": [sim.model], "integrators": [sim.integrator]}
     try:
-        return select.plan_sweep("contact", sim.tolerance_mm or AUTO_TOLERANCE_MM, protocol.sweep.values(),
-                                 models=[sim.model], integrators=[sim.integrator])
-    except select.SelectionError:
+        return select.plan_sweep("contact", tol, protocol.sweep.values(), **only)
+    except select.SelectionError as exc:
+        if auto:
+            raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
         return None
 
 

@@ -12,8 +12,9 @@ that bracket f — and so does every finer timestep of the same model and integr
 with the timestep in a converging method; a coarse step that passes where a finer one fails passes by a
 phase coincidence (e.g. one contact bounce landing in step by chance), which a new run need not repeat.
 The exception is a frequency whose regime the table marks ``irregular`` (no timestep converges it
-pointwise; its error is the excess over the finest runs' spread): there each timestep stands alone. One (model, integrator) is used for a whole sweep (the cheapest summed over its
-frequencies); only the timestep changes from step to step.
+pointwise; its error is the excess over the finest runs' spread): there each timestep stands alone.
+One (model, integrator) is used for a whole sweep (the cheapest summed over its frequencies); only the
+timestep changes from step to step.
 """
 
 from __future__ import annotations
@@ -119,16 +120,16 @@ def _converged_rows(g: pd.DataFrame, tolerance_mm: float) -> dict[tuple[float, f
     irregular there)."""
     good = g.status.isin(STABLE).to_numpy() & (g.err_mm <= tolerance_mm).to_numpy()
     irregular = g.status.to_numpy() == "irregular"
+    rows = list(g.itertuples())
     out = {}
-    for f, idx in g.groupby("frequency_hz").indices.items():
+    for idx in g.groupby("frequency_hz").indices.values():
         converging = not irregular[idx].any()
-        for i in sorted(idx, key=lambda i: g.timestep.iat[i]):  # finest first
+        for i in sorted(idx, key=lambda i: rows[i].timestep):  # finest first
             if not good[i]:
                 if converging:
                     break
                 continue
-            row = next(g.iloc[[i]].itertuples())
-            out[(row.timestep, row.frequency_hz)] = row
+            out[(rows[i].timestep, rows[i].frequency_hz)] = rows[i]
     return out
 
 
