@@ -63,8 +63,11 @@ def run_protocol(text: str, name: str) -> Path:
     proto.write_text(text)
     print(f"making {path} with beambench run (once) ...", flush=True)
     t = time.perf_counter()
-    subprocess.run(["beambench", "run", str(proto), "--rerun", "off", "--out", str(CACHE), "--name", name], check=True,
-                   stdout=subprocess.DEVNULL)
+    subprocess.run(
+        ["beambench", "run", str(proto), "--rerun", "off", "--out", str(CACHE), "--name", name],
+        check=True,
+        stdout=subprocess.DEVNULL,
+    )
     print(f"  {time.perf_counter() - t:.1f} s", flush=True)
     return path
 
@@ -90,8 +93,9 @@ def time_analyze(session: Path, repeats: int) -> tuple[list[float], list[float]]
         with tempfile.TemporaryDirectory() as out:
             before = resource.getrusage(resource.RUSAGE_CHILDREN)
             t = time.perf_counter()
-            subprocess.run(["beambench", "analyze", str(session), "--out", out, "-q"], check=True,
-                           stdout=subprocess.DEVNULL)
+            subprocess.run(
+                ["beambench", "analyze", str(session), "--out", out, "-q"], check=True, stdout=subprocess.DEVNULL
+            )
             walls.append(time.perf_counter() - t)
             after = resource.getrusage(resource.RUSAGE_CHILDREN)
             cpus.append((after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime))
@@ -102,9 +106,9 @@ def time_analyze(session: Path, repeats: int) -> tuple[list[float], list[float]]
 def sync_accuracy() -> None:
     import numpy as np
 
+    from beambench.acquisition.config import parse_protocol
     from beambench.analysis.session import fit_session_clocks
-    from beambench.config import parse_protocol
-    from beambench.store import read_session
+    from beambench.sinks.hdf5 import read_session
 
     path = run_protocol(SYNC, "bench_sync_5min")
     s = read_session(path)
@@ -115,12 +119,18 @@ def sync_accuracy() -> None:
     def host(stream: str, clock) -> np.ndarray:
         return fits[stream].to_host_ns(clock.offset_s + (1 + clock.drift_ppm * 1e-6) * probe)
 
-    m, lc, mo = host("mocap", p.sim.mocap_clock), host("loadcell", p.sim.loadcell_clock), host("motor", p.sim.motor_clock)
+    m, lc, mo = (
+        host("mocap", p.sim.mocap_clock),
+        host("loadcell", p.sim.loadcell_clock),
+        host("motor", p.sim.motor_clock),
+    )
     print(f"sync over {probe[-1]:.0f} s (mocap 5 ms / 50 ppm / 0.4 ms jitter; load cells -12 ms / -30 ppm / 0.4 ms):")
     print(f"  max |mocap - loadcell| alignment error: {np.max(np.abs(m - lc)) / 1e6 * 1e3:.3f} µs (goal <= 500 µs)")
     print(f"  max |mocap - motor| alignment error:    {np.max(np.abs(m - mo)) / 1e6 * 1e3:.3f} µs")
     for n, f in fits.items():
-        print(f"  {n:9s} drift {f.drift_ppm:+8.3f} ppm  offset {f.offset_s * 1e3:+8.3f} ms  median delay {f.residual_median_us:7.1f} µs")
+        print(
+            f"  {n:9s} drift {f.drift_ppm:+8.3f} ppm  offset {f.offset_s * 1e3:+8.3f} ms  median delay {f.residual_median_us:7.1f} µs"
+        )
 
 
 def main() -> int:
@@ -139,8 +149,10 @@ def main() -> int:
     print(f"beambench analyze {session.name}: {n_steps} steps, rows {rows}")
     walls, cpus = time_analyze(session, args.repeats)
     med = statistics.median(walls)
-    print(f"median {med:.2f} s wall (min {min(walls):.2f}), median {statistics.median(cpus):.2f} s CPU; goal < {GOAL_S:.0f} s:"
-          f" {'PASS' if med < GOAL_S else 'MISS'}")
+    print(
+        f"median {med:.2f} s wall (min {min(walls):.2f}), median {statistics.median(cpus):.2f} s CPU; goal < {GOAL_S:.0f} s:"
+        f" {'PASS' if med < GOAL_S else 'MISS'}"
+    )
     if args.sync:
         sync_accuracy()
     return 0 if med < GOAL_S else 1

@@ -29,8 +29,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from beambench.sim import cosserat
-from beambench.sim.free_beam import beam_model, frequency_sweep
+from beambench.sim.models import cosserat
+from beambench.sim.models.registry import beam_model
+from beambench.sim.scenes.free_beam import frequency_sweep
 
 SAMPLE_DT = 1e-4
 
@@ -49,26 +50,44 @@ def on_grid(t_ref: np.ndarray, t: np.ndarray, x: np.ndarray) -> np.ndarray:
     return x[:, idx]
 
 
-def mujoco_run(name: str, dt: float, freqs: list[float], twist: float, settle: float, record: float,
-               repeats: int) -> dict:
+def mujoco_run(
+    name: str, dt: float, freqs: list[float], twist: float, settle: float, record: float, repeats: int
+) -> dict:
     """A MuJoCo sweep on one thread; wall per simulated second = median over ``repeats``."""
     walls, res = [], None
     for _ in range(repeats):
-        res = frequency_sweep(name, freqs, twist, settle_s=settle, record_s=record, timestep=dt,
-                              sample_dt=max(dt, SAMPLE_DT), nthread=1)
+        res = frequency_sweep(
+            name, freqs, twist, settle_s=settle, record_s=record, timestep=dt, sample_dt=max(dt, SAMPLE_DT), nthread=1
+        )
         walls.append(res.wall_s)
     sim_s = len(freqs) * (settle + record)
-    return {"label": f"{name} implicitfast {dt:g}", "model": name, "integrator": "implicitfast", "dt": dt,
-            "t": res.t, "tip": res.tip, "wall_per_sim_s": statistics.median(walls) / sim_s, "ok": res.ok}
+    return {
+        "label": f"{name} implicitfast {dt:g}",
+        "model": name,
+        "integrator": "implicitfast",
+        "dt": dt,
+        "t": res.t,
+        "tip": res.tip,
+        "wall_per_sim_s": statistics.median(walls) / sim_s,
+        "ok": res.ok,
+    }
 
 
 def cosserat_run(n: int, dt: float, freqs: list[float], twist: float, settle: float, record: float) -> dict:
     p = cosserat.CosseratParams.from_beam(n_elements=n, timestep=dt)
     res = cosserat.frequency_sweep(freqs, twist, p, settle_s=settle, record_s=record, sample_dt=SAMPLE_DT)
     per = [w / res.info["simulated_per_run_s"] for w in res.info["wall_per_run_s"]]
-    return {"label": f"cosserat{n} verlet {dt:g}", "model": f"cosserat{n}", "integrator": "PositionVerlet",
-            "dt": dt, "t": res.t, "tip": res.tip, "wall_per_sim_s": statistics.median(per), "ok": res.ok,
-            "alpha": p.alpha}
+    return {
+        "label": f"cosserat{n} verlet {dt:g}",
+        "model": f"cosserat{n}",
+        "integrator": "PositionVerlet",
+        "dt": dt,
+        "t": res.t,
+        "tip": res.tip,
+        "wall_per_sim_s": statistics.median(per),
+        "ok": res.ok,
+        "alpha": p.alpha,
+    }
 
 
 def compare(runs: list[dict], freqs: list[float], twist: float) -> list[dict]:
@@ -80,10 +99,20 @@ def compare(runs: list[dict], freqs: list[float], twist: float) -> list[dict]:
             tip_c = on_grid(r["t"], ref["t"], ref["tip"])[i]
             vs40 = rms_mm(r["tip"][i], on_grid(r["t"], rod40["t"], rod40["tip"])[i]) if rod40 else float("nan")
             amp = float(1e3 * np.sqrt(np.nanmean(np.sum((tip_c - tip_c.mean(axis=0)) ** 2, axis=1))))
-            rows.append({"twist_deg": twist, "frequency_hz": f, "model": r["model"], "integrator": r["integrator"],
-                         "dt": r["dt"], "ok": bool(r["ok"][i]), "rms_vs_cosserat_mm": rms_mm(r["tip"][i], tip_c),
-                         "rms_vs_rod40_mm": vs40, "cosserat_tip_rms_motion_mm": amp,
-                         "wall_s_per_sim_s": r["wall_per_sim_s"]})
+            rows.append(
+                {
+                    "twist_deg": twist,
+                    "frequency_hz": f,
+                    "model": r["model"],
+                    "integrator": r["integrator"],
+                    "dt": r["dt"],
+                    "ok": bool(r["ok"][i]),
+                    "rms_vs_cosserat_mm": rms_mm(r["tip"][i], tip_c),
+                    "rms_vs_rod40_mm": vs40,
+                    "cosserat_tip_rms_motion_mm": amp,
+                    "wall_s_per_sim_s": r["wall_per_sim_s"],
+                }
+            )
     return rows
 
 
@@ -91,8 +120,8 @@ def modes_untwisted(n: int, dt: float) -> list[dict]:
     """First natural frequency about both axes: Euler–Bernoulli, Cosserat free vibration, rod40 modes."""
     import mujoco
 
-    from beambench.sim.beam import add_beam
-    from beambench.sim.rod import natural_frequencies
+    from beambench.sim.models.beam import add_beam
+    from beambench.sim.models.rod import natural_frequencies
 
     p = cosserat.CosseratParams.from_beam(n_elements=n, timestep=dt)
     spec = mujoco.MjSpec()
@@ -106,8 +135,16 @@ def modes_untwisted(n: int, dt: float) -> list[dict]:
         # rod40: the lowest mode of the family (weak bending is the 1st; strong bending the first above torsion
         # whose frequency is nearest the EB value)
         f_rod = float(f40[0]) if axis == "weak" else float(f40[np.argmin(np.abs(f40 - eb))])
-        rows.append({"axis": axis, "euler_bernoulli_hz": eb, f"cosserat{n}_hz": fc, "rod40_hz": f_rod,
-                     "cosserat_over_eb": fc / eb, "rod40_over_eb": f_rod / eb})
+        rows.append(
+            {
+                "axis": axis,
+                "euler_bernoulli_hz": eb,
+                f"cosserat{n}_hz": fc,
+                "rod40_hz": f_rod,
+                "cosserat_over_eb": fc / eb,
+                "rod40_over_eb": f_rod / eb,
+            }
+        )
     return rows
 
 
@@ -119,8 +156,12 @@ def plot(runs90: list[dict], runs0: list[dict], freqs: list[float], f0: float, p
 
     panels = [(runs90, i, f"φ = 90°, {f:g} Hz") for i, f in enumerate(freqs)] + [(runs0, 0, f"φ = 0°, {f0:g} Hz")]
     fig, axes = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 3.6))
-    styles = {"cosserat": {"lw": 3, "alpha": 0.45, "color": "k"}, "rod40": {"lw": 1.2, "color": "C0"},
-              "rod10": {"lw": 1, "ls": "--", "color": "C1"}, "prb3": {"lw": 1, "ls": ":", "color": "C3"}}
+    styles = {
+        "cosserat": {"lw": 3, "alpha": 0.45, "color": "k"},
+        "rod40": {"lw": 1.2, "color": "C0"},
+        "rod10": {"lw": 1, "ls": "--", "color": "C1"},
+        "prb3": {"lw": 1, "ls": ":", "color": "C3"},
+    }
     for ax, (runs, i, title) in zip(axes, panels):
         for r in runs:
             key = "cosserat" if r["model"].startswith("cosserat") else r["model"]
@@ -158,8 +199,9 @@ def main() -> None:
     t_start = time.perf_counter()
 
     t0 = time.perf_counter()
-    cosserat.frequency_sweep([f0], 0.0, cosserat.CosseratParams.from_beam(n_elements=4), settle_s=1e-3,
-                             record_s=1e-3, presettle_s=1e-3)  # compile (or load) the numba kernels once
+    cosserat.frequency_sweep(
+        [f0], 0.0, cosserat.CosseratParams.from_beam(n_elements=4), settle_s=1e-3, record_s=1e-3, presettle_s=1e-3
+    )  # compile (or load) the numba kernels once
     compile_s = time.perf_counter() - t0
 
     def ladder(freq_list: list[float], twist: float, cos: list[tuple[int, float]]) -> list[dict]:
@@ -174,7 +216,11 @@ def main() -> None:
     rows = compare(runs90, freqs, 90.0) + compare(runs0, [f0], 0.0)
     modes = modes_untwisted(*cos_cfg[0])
 
-    csv_path, modes_path, png = args.out / "crosscheck.csv", args.out / "crosscheck_modes.csv", args.out / "crosscheck_paths.png"
+    csv_path, modes_path, png = (
+        args.out / "crosscheck.csv",
+        args.out / "crosscheck_modes.csv",
+        args.out / "crosscheck_paths.png",
+    )
     for path, data in ((csv_path, rows), (modes_path, modes)):
         with path.open("w", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(data[0]))
@@ -186,8 +232,10 @@ def main() -> None:
     from rich.table import Table
 
     con = Console()
-    tab = Table(title=f"Tip RMS difference (mm) vs {runs90[0]['label']}  [{'quick' if args.quick else 'full'}: "
-                      f"settle {settle} s, record {record} s]")
+    tab = Table(
+        title=f"Tip RMS difference (mm) vs {runs90[0]['label']}  [{'quick' if args.quick else 'full'}: "
+        f"settle {settle} s, record {record} s]"
+    )
     tab.add_column("φ, f (Hz)")
     tab.add_column("tip motion rms (mm)", justify="right")
     for r in runs90[1:]:
@@ -197,7 +245,9 @@ def main() -> None:
             mot = [x for x in rows if x["twist_deg"] == twist and x["frequency_hz"] == f]
             cells = [f"{mot[0]['cosserat_tip_rms_motion_mm']:.2f}"]
             for r in runs90[1:]:
-                hit = [x for x in rows if x["twist_deg"] == twist and x["frequency_hz"] == f and x["model"] == r["model"]]
+                hit = [
+                    x for x in rows if x["twist_deg"] == twist and x["frequency_hz"] == f and x["model"] == r["model"]
+                ]
                 cells.append(f"{hit[0]['rms_vs_cosserat_mm']:.3f}" if hit else "—")
             tab.add_row(f"{twist:g}°, {f:g}", *cells)
     tab.add_row("wall s / sim s", "", *[f"{r['wall_per_sim_s']:.3f}" for r in runs90[1:]])
@@ -221,8 +271,10 @@ def main() -> None:
     for m in modes:
         t3.add_row(*[v if isinstance(v, str) else f"{v:.4g}" for v in m.values()])
     con.print(t3)
-    print(f"numba compile/load {compile_s:.1f} s; damping α = {runs90[0]['alpha']:.2f} 1/s; total "
-          f"{time.perf_counter() - t_start:.0f} s; wrote {csv_path}, {modes_path}, {png}")
+    print(
+        f"numba compile/load {compile_s:.1f} s; damping α = {runs90[0]['alpha']:.2f} 1/s; total "
+        f"{time.perf_counter() - t_start:.0f} s; wrote {csv_path}, {modes_path}, {png}"
+    )
 
 
 if __name__ == "__main__":

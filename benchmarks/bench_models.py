@@ -30,7 +30,13 @@ ROOT = Path(__file__).resolve().parents[1]
 def ladder_part(out: Path, ship: bool) -> dict:
     from dataclasses import replace
 
-    from beambench.sim.ladder import FULL, pareto, run_ladder, summarize, write_outputs
+    from beambench.studies.ladder import (
+        FULL,
+        pareto,
+        run_ladder,
+        summarize,
+        write_outputs,
+    )
 
     t0 = time.perf_counter()
     last = [0.0]
@@ -51,8 +57,17 @@ def ladder_part(out: Path, ship: bool) -> dict:
     g1_cpu = ok[(ok.err_mean_mm <= prb.err_mean_mm / 10) & (ok.cpu_s_per_10s <= prb.cpu_s_per_10s)]
     g2 = ok[(ok.err_mean_mm <= 1.0)].sort_values("wall_s_per_10s")
     g2_cpu = ok[(ok.err_mean_mm <= 1.0)].sort_values("cpu_s_per_10s")
-    cols = ["model", "integrator", "timestep", "nv", "err_mean_mm", "err_max_mm", "wall_s_per_10s",
-            "wall_min_s_per_10s", "cpu_s_per_10s"]
+    cols = [
+        "model",
+        "integrator",
+        "timestep",
+        "nv",
+        "err_mean_mm",
+        "err_max_mm",
+        "wall_s_per_10s",
+        "wall_min_s_per_10s",
+        "cpu_s_per_10s",
+    ]
     result = {
         "minutes": (time.perf_counter() - t0) / 60,
         "prb3_implicitfast_1e-4": prb[cols].to_dict(),
@@ -67,7 +82,7 @@ def ladder_part(out: Path, ship: bool) -> dict:
 
 
 def contact_part(out: Path, ship: bool, timing_only: bool = False) -> dict:
-    from beambench.sim.contact_sweep import bench_contact, time_contact_goals
+    from beambench.sim.scenes.contact_sweep import bench_contact, time_contact_goals
 
     if timing_only:  # the goals on the shipped table, without re-measuring it
         import pandas as pd
@@ -83,8 +98,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=ROOT / "bench_out" / "models_full")
     ap.add_argument("--part", choices=["all", "ladder", "contact", "contact-timing"], default="all")
-    ap.add_argument("--ship", action="store_true",
-                    help="copy the measured tables to sim_backend/ (ladder_table.csv, contact_table.csv)")
+    ap.add_argument(
+        "--ship",
+        action="store_true",
+        help="copy the measured tables to sim_backend/ (ladder_table.csv, contact_table.csv)",
+    )
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "src"))
     args.out.mkdir(parents=True, exist_ok=True)

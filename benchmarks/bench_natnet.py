@@ -16,8 +16,8 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from beambench.devices import natnet_protocol as nn
 from beambench.emulators.motive import MotiveEmulator
@@ -44,16 +44,23 @@ def main() -> None:
 
     if CAPTURE.is_file():
         from beambench.devices.natnet_capture import decode_capture
-        from beambench.pcap import read_udp
+        from beambench.devices.pcap import read_udp
 
         real = [g.payload for g in read_udp(CAPTURE, [1511]) if nn.peek_message_id(g.payload) == 7] * 4
-        rows.append(("real capture frames (3.0, 6 markers)", rate(lambda: sum(1 for p in real if nn.decode(p, nn.V3_0)), args.repeats)))
+        rows.append(
+            (
+                "real capture frames (3.0, 6 markers)",
+                rate(lambda: sum(1 for p in real if nn.decode(p, nn.V3_0)), args.repeats),
+            )
+        )
     else:
         print(f"(skipping the real capture: {CAPTURE} not found)")
 
     emu = MotiveEmulator(version="4.1", rigid_bodies={1: [0, 1, 2]})
     small = [nn.encode(emu.make_frame(k, 1.0 + k / 360, 1.001 + k / 360, set()), nn.V4_1) for k in range(2000)]
-    rows.append(("emulator frames (4.1, 3 markers)", rate(lambda: sum(1 for p in small if nn.decode(p, nn.V4_1)), args.repeats)))
+    rows.append(
+        ("emulator frames (4.1, 3 markers)", rate(lambda: sum(1 for p in small if nn.decode(p, nn.V4_1)), args.repeats))
+    )
 
     crowd = nn.FrameOfData(
         1,
@@ -61,10 +68,14 @@ def main() -> None:
         labeled_markers=tuple(nn.LabeledMarker((1 << 16) | i, (0.1, 0.2, 0.3), 0.014, 2, 1e-4) for i in range(200)),
     )
     big = [nn.encode(crowd, nn.V4_1)] * 300
-    rows.append(("crowded frames (4.1, 200 markers)", rate(lambda: sum(1 for p in big if nn.decode(p, nn.V4_1)), args.repeats)))
+    rows.append(
+        ("crowded frames (4.1, 200 markers)", rate(lambda: sum(1 for p in big if nn.decode(p, nn.V4_1)), args.repeats))
+    )
 
     if CAPTURE.is_file():
-        rows.append(("decode_capture pcapng end to end", rate(lambda: len(decode_capture(CAPTURE).frames), args.repeats)))
+        rows.append(
+            ("decode_capture pcapng end to end", rate(lambda: len(decode_capture(CAPTURE).frames), args.repeats))
+        )
 
     try:
         from natnet.data_frame import DataFrame

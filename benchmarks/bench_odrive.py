@@ -18,8 +18,8 @@ import timeit
 import uuid
 from pathlib import Path
 
+from beambench.acquisition.capabilities import MotorLimits
 from beambench.devices import odrive_cansimple as cs
-from beambench.devices.base import MotorLimits
 from beambench.devices.odrive_can import OdriveCanMotor
 from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
 
@@ -27,8 +27,15 @@ DBC = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "odri
 
 
 def bench_codec() -> None:
-    frames = [cs.to_can(3, m) for m in (cs.Heartbeat(0, 8), cs.EncoderEstimates(12.5, 3.25), cs.Iq(0.5, 0.49),
-                                        cs.BusVoltageCurrent(24.0, 0.3))]
+    frames = [
+        cs.to_can(3, m)
+        for m in (
+            cs.Heartbeat(0, 8),
+            cs.EncoderEstimates(12.5, 3.25),
+            cs.Iq(0.5, 0.49),
+            cs.BusVoltageCurrent(24.0, 0.3),
+        )
+    ]
     raw = [(f.arbitration_id, bytes(f.data)) for f in frames]
     n = 20000
 
@@ -56,8 +63,10 @@ def bench_codec() -> None:
 def bench_bus(reps: int = 15) -> None:
     channel = f"bench-{uuid.uuid4().hex}"
     cfg = OdriveEmulatorConfig(node_id=1, calibrated=True, vel_ramp_rate=1000.0)
-    with EmulatedOdrive(channel=channel, config=cfg), \
-            OdriveCanMotor(channel, "virtual", 1, calibrate=False, poll_period_s=10.0) as motor:
+    with (
+        EmulatedOdrive(channel=channel, config=cfg),
+        OdriveCanMotor(channel, "virtual", 1, calibrate=False, poll_period_s=10.0) as motor,
+    ):
         motor.arm(MotorLimits(30.0, 10.0, 2.0))
         # RTR round trip
         rtts = []
@@ -69,8 +78,10 @@ def bench_bus(reps: int = 15) -> None:
             while motor.latest()["bus_voltage"] != motor.latest()["bus_voltage"]:  # NaN until answered
                 time.sleep(0.0001)
             rtts.append(time.perf_counter() - t0)
-        print(f"RTR round trip:          median {statistics.median(rtts) * 1e3:6.2f} ms "
-              f"(p90 {sorted(rtts)[int(0.9 * len(rtts))] * 1e3:.2f} ms, n={len(rtts)})")
+        print(
+            f"RTR round trip:          median {statistics.median(rtts) * 1e3:6.2f} ms "
+            f"(p90 {sorted(rtts)[int(0.9 * len(rtts))] * 1e3:.2f} ms, n={len(rtts)})"
+        )
         # command → first telemetry row showing motion
         motor.start()
         lat = []
@@ -91,8 +102,10 @@ def bench_bus(reps: int = 15) -> None:
                 time.sleep(0.0005)
             if seen is not None:
                 lat.append((seen - t_cmd) / 1e6)
-        print(f"command → telemetry:     median {statistics.median(lat):6.2f} ms "
-              f"(min {min(lat):.2f}, max {max(lat):.2f}, n={len(lat)}; estimates are cyclic at 10 ms)")
+        print(
+            f"command → telemetry:     median {statistics.median(lat):6.2f} ms "
+            f"(min {min(lat):.2f}, max {max(lat):.2f}, n={len(lat)}; estimates are cyclic at 10 ms)"
+        )
 
 
 if __name__ == "__main__":

@@ -25,8 +25,8 @@ def main() -> None:
     ap.add_argument("--protocol", default=str(ROOT / "protocols" / "contact_sweep.yaml"))
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "src"))
-    from beambench.config import load_protocol
-    from beambench.protocol import summary
+    from beambench.acquisition.config import load_protocol
+    from beambench.acquisition.plan import summary
 
     protocol, _ = load_protocol(args.protocol)
     sim_s = summary(protocol, "sim")["total_duration_s"]
@@ -35,15 +35,29 @@ def main() -> None:
         for i in range(args.repeats):
             t0 = time.perf_counter()
             subprocess.run(
-                [sys.executable, "-m", "beambench.cli", "run", args.protocol, "--rerun", "off", "--out", tmp,
-                 "--name", f"bench{i}"],
-                check=True, capture_output=True,
+                [
+                    sys.executable,
+                    "-m",
+                    "beambench.cli",
+                    "run",
+                    args.protocol,
+                    "--rerun",
+                    "off",
+                    "--out",
+                    tmp,
+                    "--name",
+                    f"bench{i}",
+                ],
+                check=True,
+                capture_output=True,
             )
             walls.append(time.perf_counter() - t0)
             print(f"run {i + 1}/{args.repeats}: {walls[-1]:.2f} s wall", flush=True)
     med = statistics.median(walls)
-    print(f"{Path(args.protocol).name}: {sim_s:g} s simulated; median wall {med:.2f} s over {args.repeats} runs; "
-          f"real-time factor {sim_s / med:.1f}x (min {min(walls):.2f} s, max {max(walls):.2f} s)")
+    print(
+        f"{Path(args.protocol).name}: {sim_s:g} s simulated; median wall {med:.2f} s over {args.repeats} runs; "
+        f"real-time factor {sim_s / med:.1f}x (min {min(walls):.2f} s, max {max(walls):.2f} s)"
+    )
 
 
 if __name__ == "__main__":

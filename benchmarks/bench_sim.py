@@ -24,14 +24,14 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from beambench.config import load_protocol, parse_protocol  # noqa: E402
-from beambench.devices.base import MotorLimits  # noqa: E402
-from beambench.protocol import motor_limits, plan  # noqa: E402
-from beambench.sim.beam import make_beam_model  # noqa: E402
-from beambench.sim.contact_rig import ContactRigSim, default_timestep  # noqa: E402
-from beambench.sim.devices import interp_rows  # noqa: E402
-from beambench.sim.params import load_params  # noqa: E402
-from beambench.sim.rig import build_sim_rig  # noqa: E402
+from beambench.acquisition.capabilities import MotorLimits
+from beambench.acquisition.config import load_protocol, parse_protocol
+from beambench.acquisition.plan import motor_limits, plan
+from beambench.rigs.sim import build_sim_rig
+from beambench.rigs.sim_devices import interp_rows
+from beambench.sim.models.params import load_params
+from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scenes.contact_rig import ContactRigSim, default_timestep
 
 
 def timed(fn, repeats: int) -> tuple[float, float]:
@@ -111,8 +111,21 @@ def accuracy_table(freqs=(5, 10, 20, 30, 40, 60, 80), dts=(5e-5, 1e-4, 2e-4, 4e-
 def end_to_end() -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp:
         w0 = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "beambench.cli", "run", str(ROOT / "protocols" / "contact_sweep.yaml"),
-                        "--rerun", "off", "--out", tmp], check=True, capture_output=True)
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "beambench.cli",
+                "run",
+                str(ROOT / "protocols" / "contact_sweep.yaml"),
+                "--rerun",
+                "off",
+                "--out",
+                tmp,
+            ],
+            check=True,
+            capture_output=True,
+        )
         wall = time.perf_counter() - w0
     return {"wall_s": wall, "realtime_factor": 280.0 / wall}
 
@@ -128,17 +141,28 @@ def main() -> None:
     for freq, gap in ((20.0, 5.5), (40.0, 5.5), (40.0, 1.0), (60.0, 1.0)):
         phys = timed(lambda: physics_run(freq, gap), args.repeats)
         full = timed(lambda: rig_run(freq, gap), args.repeats)
-        row = {"frequency_hz": freq, "gap_mm": gap, "dt": default_timestep(freq), "physics_wall_s": phys[0],
-               "physics_cpu_s": phys[1], "rig_wall_s": full[0], "rig_cpu_s": full[1]}
+        row = {
+            "frequency_hz": freq,
+            "gap_mm": gap,
+            "dt": default_timestep(freq),
+            "physics_wall_s": phys[0],
+            "physics_cpu_s": phys[1],
+            "rig_wall_s": full[0],
+            "rig_cpu_s": full[1],
+        }
         results["per_10s"].append(row)
-        print(f"  {freq:4.0f} Hz gap {gap:3.1f} mm dt {row['dt']:.0e}: physics {phys[0]:.3f} s "
-              f"(cpu {phys[1]:.3f}), physics + devices {full[0]:.3f} s (cpu {full[1]:.3f})")
+        print(
+            f"  {freq:4.0f} Hz gap {gap:3.1f} mm dt {row['dt']:.0e}: physics {phys[0]:.3f} s "
+            f"(cpu {phys[1]:.3f}), physics + devices {full[0]:.3f} s (cpu {full[1]:.3f})"
+        )
     for prefetch in (True, False):
         sweeps = [lab_sweep(prefetch) for _ in range(args.repeats)]
         med = sorted(sweeps, key=lambda r: r["wall_s"])[len(sweeps) // 2]
         results[f"lab_sweep_prefetch_{prefetch}"] = med
-        print(f"lab sweep 40 x 7 s = {med['simulated_s']:.0f} s simulated, prefetch {prefetch}: {med['wall_s']:.2f} s "
-              f"wall (cpu {med['cpu_s']:.2f} s), real-time factor {med['realtime_factor']:.0f}x (median of {len(sweeps)})")
+        print(
+            f"lab sweep 40 x 7 s = {med['simulated_s']:.0f} s simulated, prefetch {prefetch}: {med['wall_s']:.2f} s "
+            f"wall (cpu {med['cpu_s']:.2f} s), real-time factor {med['realtime_factor']:.0f}x (median of {len(sweeps)})"
+        )
     if args.e2e:
         results["end_to_end"] = end_to_end()
         e = results["end_to_end"]

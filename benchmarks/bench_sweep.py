@@ -25,18 +25,20 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from beambench.executor import make_executor, run_tasks
-from beambench.sweep import SweepSpec, run_sweep
+from beambench.studies.executor import make_executor, run_tasks
+from beambench.studies.sweep import SweepSpec, run_sweep
 
-SPEC = SweepSpec.model_validate({
-    "name": "bench500",
-    "scene": "free_beam",
-    "base": {"model": "prb3", "params": "paper", "timestep": 1e-4},
-    "grid": {"twist_deg": {"start": 0, "stop": 190, "step": 10}},
-    "frequencies": {"start": 2, "stop": 50, "step": 2},
-    "settle_s": 0.3,
-    "record_s": 0.2,
-})
+SPEC = SweepSpec.model_validate(
+    {
+        "name": "bench500",
+        "scene": "free_beam",
+        "base": {"model": "prb3", "params": "paper", "timestep": 1e-4},
+        "grid": {"twist_deg": {"start": 0, "stop": 190, "step": 10}},
+        "frequencies": {"start": 2, "stop": 50, "step": 2},
+        "settle_s": 0.3,
+        "record_s": 0.2,
+    }
+)
 
 
 def _noop(x: int) -> int:
@@ -75,8 +77,13 @@ def one_run(workers: int | None = None, scheduler: str | None = None) -> dict:
         wall = time.perf_counter() - t0
     assert r.computed == 500 and bool(r.table["ok"].all())
     slots = workers or 2
-    return {"wall_s": wall, "task_compute_s": r.task_compute_s, "task_cpu_s": r.task_cpu_s, "tasks": r.tasks,
-            "overhead": 1 - r.task_compute_s / (wall * slots)}
+    return {
+        "wall_s": wall,
+        "task_compute_s": r.task_compute_s,
+        "task_cpu_s": r.task_cpu_s,
+        "tasks": r.tasks,
+        "overhead": 1 - r.task_compute_s / (wall * slots),
+    }
 
 
 def main() -> None:
@@ -94,32 +101,43 @@ def main() -> None:
         cap = capacity()
         one, two = one_run(1), one_run(2)
         pairs.append({"capacity": cap, "workers_1": one, "workers_2": two, "speedup": one["wall_s"] / two["wall_s"]})
-        print(f"pair {i + 1}: capacity {cap:.2f}x; 1 worker {one['wall_s']:.2f} s (CPU in tasks "
-              f"{one['task_cpu_s']:.1f} s), 2 workers {two['wall_s']:.2f} s (CPU in tasks {two['task_cpu_s']:.1f} s, "
-              f"{two['tasks']} tasks, overhead {two['overhead']:.1%}) -> speed-up {pairs[-1]['speedup']:.2f}x",
-              flush=True)
+        print(
+            f"pair {i + 1}: capacity {cap:.2f}x; 1 worker {one['wall_s']:.2f} s (CPU in tasks "
+            f"{one['task_cpu_s']:.1f} s), 2 workers {two['wall_s']:.2f} s (CPU in tasks {two['task_cpu_s']:.1f} s, "
+            f"{two['tasks']} tasks, overhead {two['overhead']:.1%}) -> speed-up {pairs[-1]['speedup']:.2f}x",
+            flush=True,
+        )
     res["pairs"] = pairs
     for w in (1, 2):
         runs = [p[f"workers_{w}"] for p in pairs]
-        res[f"workers_{w}"] = {k + "_median": statistics.median(r[k] for r in runs)
-                               for k in ("wall_s", "task_compute_s", "task_cpu_s", "overhead")}
+        res[f"workers_{w}"] = {
+            k + "_median": statistics.median(r[k] for r in runs)
+            for k in ("wall_s", "task_compute_s", "task_cpu_s", "overhead")
+        }
         res[f"pool_startup_s_{w}"] = statistics.median(pool_startup(w) for _ in range(args.repeats))
     res["speedup_2_vs_1"] = statistics.median(p["speedup"] for p in pairs)
     res["capacity_median"] = statistics.median(p["capacity"] for p in pairs)
     best = max(pairs, key=lambda p: p["capacity"])
-    print(f"speed-up 1 -> 2 workers: {res['speedup_2_vs_1']:.2f}x median of {len(pairs)} pairs (machine capacity "
-          f"median {res['capacity_median']:.2f}x); in the least loaded pair (capacity {best['capacity']:.2f}x): "
-          f"{best['speedup']:.2f}x. Pool start-up: {res['pool_startup_s_1']:.2f} s (1), "
-          f"{res['pool_startup_s_2']:.2f} s (2).")
+    print(
+        f"speed-up 1 -> 2 workers: {res['speedup_2_vs_1']:.2f}x median of {len(pairs)} pairs (machine capacity "
+        f"median {res['capacity_median']:.2f}x); in the least loaded pair (capacity {best['capacity']:.2f}x): "
+        f"{best['speedup']:.2f}x. Pool start-up: {res['pool_startup_s_1']:.2f} s (1), "
+        f"{res['pool_startup_s_2']:.2f} s (2)."
+    )
     if args.dask:
         from distributed import LocalCluster
 
         with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as c:
             runs = [one_run(scheduler=c.scheduler_address) for _ in range(args.repeats)]
-        res["dask_2"] = {"wall_s_median": statistics.median(r["wall_s"] for r in runs), "runs": runs,
-                         "overhead_median": statistics.median(r["overhead"] for r in runs)}
-        print(f"dask LocalCluster, 2 workers: {res['dask_2']['wall_s_median']:.2f} s wall, "
-              f"overhead {res['dask_2']['overhead_median']:.1%}")
+        res["dask_2"] = {
+            "wall_s_median": statistics.median(r["wall_s"] for r in runs),
+            "runs": runs,
+            "overhead_median": statistics.median(r["overhead"] for r in runs),
+        }
+        print(
+            f"dask LocalCluster, 2 workers: {res['dask_2']['wall_s_median']:.2f} s wall, "
+            f"overhead {res['dask_2']['overhead_median']:.1%}"
+        )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(res, indent=2))
     print(f"wrote {args.out}")

@@ -52,7 +52,7 @@ VARIANTS: list[tuple[str, dict[str, float]]] = [
 
 def _speed(beam, f: float, settle: float, record: float, **overrides: float) -> tuple[float, float]:
     """(forward speed mm/s, wall s per simulated s)."""
-    from beambench.sim.walker import WalkerParams, measure_speed
+    from beambench.sim.scenes.walker import WalkerParams, measure_speed
 
     wp = replace(WalkerParams(), **overrides)
     t0 = time.perf_counter()
@@ -75,9 +75,9 @@ def main() -> None:
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
 
-    from beambench.sim.beam import make_beam_model
-    from beambench.sim.params import load_params
-    from beambench.sim.walker import WalkerParams
+    from beambench.sim.models.params import load_params
+    from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scenes.walker import WalkerParams
 
     beam = make_beam_model("prb3", load_params())
     d = WalkerParams()
@@ -103,8 +103,9 @@ def main() -> None:
         for dt in (2.5e-5, 1.25e-5):
             row = {"timeconst_ms": 0.125, "timestep": dt}
             for f in PAPER:
-                row[f"v{f:.0f}_mm_s"] = round(_speed(beam, f, settle, record, contact_timeconst=1.25e-4,
-                                                     timestep=dt)[0], 2)
+                row[f"v{f:.0f}_mm_s"] = round(
+                    _speed(beam, f, settle, record, contact_timeconst=1.25e-4, timestep=dt)[0], 2
+                )
             row["wall_per_sim_s"] = float("nan")
             conv.append(row)
             print(row, flush=True)
@@ -116,10 +117,10 @@ def main() -> None:
 
     # 2. speed vs frequency ---------------------------------------------------------------------------
     fine = {"contact_timeconst": tcs[-1], "timestep": dts[-1]}
-    freqs = sorted({1.0, *np.arange(10.0, 81.0, 10.0), 23.0, 65.0} if args.quick else
-                   {float(f) for f in range(1, 81)})
-    fine_freqs = sorted({1.0, *np.arange(10.0, 81.0, 10.0), 23.0, 65.0} if args.quick else
-                        {1.0, *np.arange(5.0, 81.0, 5.0), 23.0, 65.0})
+    freqs = sorted({1.0, *np.arange(10.0, 81.0, 10.0), 23.0, 65.0} if args.quick else {float(f) for f in range(1, 81)})
+    fine_freqs = sorted(
+        {1.0, *np.arange(10.0, 81.0, 10.0), 23.0, 65.0} if args.quick else {1.0, *np.arange(5.0, 81.0, 5.0), 23.0, 65.0}
+    )
     settings = [("defaults", {}, freqs), ("finest", fine, fine_freqs)]
     if not args.quick:
         settings.append(("previous (1 ms, dt 1e-4)", {"contact_timeconst": 1e-3, "timestep": 1e-4}, fine_freqs))
@@ -136,8 +137,10 @@ def main() -> None:
     if not args.quick:
         sens = []
         for label, over in VARIANTS:
-            row = {"variant": label, **{f"v{f:.0f}_mm_s": round(_speed(beam, f, settle, record, **over)[0], 2)
-                                        for f in PAPER}}
+            row = {
+                "variant": label,
+                **{f"v{f:.0f}_mm_s": round(_speed(beam, f, settle, record, **over)[0], 2) for f in PAPER},
+            }
             sens.append(row)
             print(row, flush=True)
         _write(args.out / "walker_sensitivity.csv", sens)

@@ -15,7 +15,7 @@ from beambench.analysis.synthetic import (
     write_synthetic_session,
 )
 from beambench.cli import app
-from beambench.store import read_processing
+from beambench.sinks.hdf5 import read_processing
 
 runner = CliRunner()
 
@@ -25,16 +25,36 @@ def sessions(tmp_path_factory):
     d = tmp_path_factory.mktemp("rep")
     a = write_synthetic_session(
         d / "sim_like.h5",
-        SynthSession([SynthStep(12.0, 1), SynthStep(26.0, 2, touchdown_velocity_sign=-1, tangential_n=-0.2), SynthStep(40.0, 3), SynthStep(8.0, 0)],
-                     record_s=1.5, settle_s=0.3, mocap_dropout=0.02, seed=1),
+        SynthSession(
+            [
+                SynthStep(12.0, 1),
+                SynthStep(26.0, 2, touchdown_velocity_sign=-1, tangential_n=-0.2),
+                SynthStep(40.0, 3),
+                SynthStep(8.0, 0),
+            ],
+            record_s=1.5,
+            settle_s=0.3,
+            mocap_dropout=0.02,
+            seed=1,
+        ),
     )
     b = write_synthetic_session(
         d / "rig_like.h5",
-        SynthSession([SynthStep(12.0, 1, clockwise=False), SynthStep(26.0, 1), SynthStep(40.0, 2)], record_s=1.5, settle_s=0.3, seed=2),
+        SynthSession(
+            [SynthStep(12.0, 1, clockwise=False), SynthStep(26.0, 1), SynthStep(40.0, 2)],
+            record_s=1.5,
+            settle_s=0.3,
+            seed=2,
+        ),
     )
     w = write_synthetic_session(
         d / "walker.h5",
-        SynthSession([SynthStep(23.0, 0, body_speed_mm_s=-35.0), SynthStep(65.0, 0, body_speed_mm_s=150.0)], rig="walker", record_s=1.5, seed=3),
+        SynthSession(
+            [SynthStep(23.0, 0, body_speed_mm_s=-35.0), SynthStep(65.0, 0, body_speed_mm_s=150.0)],
+            rig="walker",
+            record_s=1.5,
+            seed=3,
+        ),
     )
     return a, b, w
 
@@ -63,7 +83,9 @@ def test_analyze_writes_a_report_and_processing(sessions):
 
 def test_force_traces_at_chosen_frequencies_and_custom_out(sessions, tmp_path):
     a, _, _ = sessions
-    res = runner.invoke(app, ["analyze", str(a), "--out", str(tmp_path / "r"), "--force-at", "26,40", "--no-write", "-q"])
+    res = runner.invoke(
+        app, ["analyze", str(a), "--out", str(tmp_path / "r"), "--force-at", "26,40", "--no-write", "-q"]
+    )
     assert res.exit_code == 0, res.output
     assert (tmp_path / "r" / "forces.png").is_file()
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from beambench.acquisition.calibration import LoadCellCalibration
 from beambench.analysis.session import (
     analyze_session,
     contacts_table,
@@ -18,8 +19,7 @@ from beambench.analysis.synthetic import (
     SynthStep,
     write_synthetic_session,
 )
-from beambench.calibration import LoadCellCalibration
-from beambench.store import read_processing, read_session
+from beambench.sinks.hdf5 import read_processing, read_session
 
 CLOCKS = {
     "mocap": SynthClock(offset_s=0.005, drift_ppm=50.0, jitter_s=0.0004),
@@ -27,9 +27,22 @@ CLOCKS = {
     "motor": SynthClock(offset_s=0.25, drift_ppm=10.0, jitter_s=0.001),
 }
 STEPS = [
-    SynthStep(10.0, 1, major_mm=3.0, minor_mm=1.0, tilt_deg=20.0, clockwise=False, touchdown_velocity_sign=1, tangential_n=0.2),
-    SynthStep(20.0, 2, major_mm=2.0, minor_mm=0.8, tilt_deg=-10.0, clockwise=True, touchdown_velocity_sign=-1, tangential_n=-0.2),
-    SynthStep(30.0, 3, major_mm=2.5, minor_mm=0.5, tilt_deg=5.0, clockwise=True, touchdown_velocity_sign=1, tangential_n=0.3),
+    SynthStep(
+        10.0, 1, major_mm=3.0, minor_mm=1.0, tilt_deg=20.0, clockwise=False, touchdown_velocity_sign=1, tangential_n=0.2
+    ),
+    SynthStep(
+        20.0,
+        2,
+        major_mm=2.0,
+        minor_mm=0.8,
+        tilt_deg=-10.0,
+        clockwise=True,
+        touchdown_velocity_sign=-1,
+        tangential_n=-0.2,
+    ),
+    SynthStep(
+        30.0, 3, major_mm=2.5, minor_mm=0.5, tilt_deg=5.0, clockwise=True, touchdown_velocity_sign=1, tangential_n=0.3
+    ),
     SynthStep(15.0, 0),
     SynthStep(12.0, -1, tangential_n=-0.1),
 ]
@@ -40,7 +53,9 @@ LABELS = ["1", "1/2", "1/3", "none", "continuous"]
 def contact_session(tmp_path_factory):
     # a calibration that is not the default, so the stored one must be used
     sens = np.array([[21000.0, 300.0], [19000.0, -200.0], [400.0, 20500.0], [-300.0, 19500.0]])
-    cal = LoadCellCalibration(np.array([900.0, -500.0, 300.0, 100.0]), np.ones(4), np.linalg.pinv(sens), sens, "test plate")
+    cal = LoadCellCalibration(
+        np.array([900.0, -500.0, 300.0, 100.0]), np.ones(4), np.linalg.pinv(sens), sens, "test plate"
+    )
     cfg = SynthSession(STEPS, clocks=CLOCKS, mocap_dropout=0.05, occlusion=0.03, calibration=cal, record_s=2.0, seed=11)
     path = write_synthetic_session(tmp_path_factory.mktemp("s") / "contact.h5", cfg)
     session = read_session(path)
@@ -98,7 +113,9 @@ def test_results_are_stored_in_processing(contact_session, tmp_path):
     assert abs(float(delay["delay_s"].iloc[0])) < 1e-3
     # raw data untouched: reading the session again gives the same acquisition
     again = read_session(path)
-    assert np.array_equal(again.streams["loadcell"].columns["data"], contact_session[1].streams["loadcell"].columns["data"])
+    assert np.array_equal(
+        again.streams["loadcell"].columns["data"], contact_session[1].streams["loadcell"].columns["data"]
+    )
     assert session_calibration(again.general).source == "test plate"
 
 

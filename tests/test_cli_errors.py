@@ -10,16 +10,18 @@ import pytest
 
 
 def _beambench(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "beambench.cli", *args], capture_output=True, text=True,
-                          timeout=60)
+    return subprocess.run([sys.executable, "-m", "beambench.cli", *args], capture_output=True, text=True, timeout=60)
 
 
-@pytest.mark.parametrize("args, words", [
-    (["run"], "Missing argument 'PROTOCOL'"),
-    (["frobnicate"], "No such command 'frobnicate'"),
-    (["bench", "models", "--quick", "--out"], "Option '--out' requires an argument"),
-    (["run", "protocols/contact_sweep.yaml", "--rerun", "bogus"], "--rerun = 'bogus'"),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["run"], "Missing argument 'PROTOCOL'"),
+        (["frobnicate"], "No such command 'frobnicate'"),
+        (["bench", "models", "--quick", "--out"], "Option '--out' requires an argument"),
+        (["run", "protocols/contact_sweep.yaml", "--rerun", "bogus"], "--rerun = 'bogus'"),
+    ],
+)
 def test_usage_errors_are_one_line_and_exit_2(args, words):
     res = _beambench(*args)
     assert res.returncode == 2

@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import rerun.chunk as rc
 
-from beambench.config import parse_protocol
-from beambench.hardware_rig import build_emulated_rig
-from beambench.hub import Hub
-from beambench.protocol import motor_limits, plan
-from beambench.runner import Runner
-from beambench.store import SessionWriter, append_general, read_session
+from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.hub import Hub
+from beambench.acquisition.plan import motor_limits, plan
+from beambench.acquisition.runner import Runner
+from beambench.rigs.emulated import build_emulated_rig
+from beambench.session.run import run_session
+from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
 
 PROTOCOL = """
 name: emu
@@ -27,13 +29,15 @@ def _run(tmp_path, inject=None, name="emu.h5"):
     rig = build_emulated_rig(protocol, inject=inject)
     rig.open()
     path = tmp_path / name
-    general = {"protocol": PROTOCOL, "backend": "emulated", "identity": rig.identity(), "geometry": rig.geometry}
-    hub = Hub([SessionWriter(path, general)])
+    geometry = rig.mocap.describe().frame.as_dict()
+    general = {"protocol": PROTOCOL, "backend": "emulated", "identity": rig.identity(), "geometry": geometry}
+    writer = SessionWriter(path, general)
+    hub = Hub([writer], critical=(writer,))
     hub.open([s.describe() for s in rig.streams])
     result = Runner(rig, hub, plan(protocol), motor_limits(protocol), poll_s=0.1).run()
     assert result.status == "completed", result.message
-    if rig.post_run:
-        append_general(path, rig.post_run)
+    if rig.after_run():
+        append_general(path, rig.after_run())
     return rig, read_session(path)
 
 
@@ -43,7 +47,7 @@ def clean(tmp_path_factory):
 
 
 def test_same_layout_as_the_sim_backend(clean):
-    from beambench.sim.rig import SimRig
+    from beambench.rigs.sim import SimRig
 
     _, s = clean
     sim = SimRig(parse_protocol(PROTOCOL))
@@ -124,7 +128,7 @@ def test_injected_mocap_drops_are_counted_exactly(tmp_path):
 
 def test_devices_ping_finds_the_emulated_peers():
     from beambench.commands.devices import ping_all
-    from beambench.hardware_rig import emulated_peers
+    from beambench.rigs.emulated import emulated_peers
 
     with emulated_peers() as wiring:
         found = ping_all(wiring)
@@ -160,8 +164,9 @@ def test_natnet_echo_exchanges_are_kept_for_clock_sync(clean):
 
 
 def test_injected_load_cell_faults_are_exactly_the_lost_samples(tmp_path):
-    rig, s = _run(tmp_path, inject={"loadcell_crc": 0.004, "loadcell_drop": 0.004, "loadcell_garbage": 0.01},
-                  name="lc.h5")
+    rig, s = _run(
+        tmp_path, inject={"loadcell_crc": 0.004, "loadcell_drop": 0.004, "loadcell_garbage": 0.01}, name="lc.h5"
+    )
     mcu = rig.peers[0].mcu
     seq = s.streams["loadcell"].columns["seq"]
     lo, hi = int(seq[0]), int(seq[-1])
@@ -171,3 +176,36 @@ def test_injected_load_cell_faults_are_exactly_the_lost_samples(tmp_path):
     assert len(broken) >= 5  # something was injected inside the session
     assert missing == broken | overflowed
     assert mcu.injected.garbage_bursts > 0  # garbage costs no sample: the decoder resynchronises
+
+
+_VIEW_CODES = {1: "", 2: "-"}  # rerun's ViewDir: Up = 1, Down = 2 (Right 3, Left 4, Forward 5, Back 6)
+
+
+def _rrd_up_axis(rrd) -> str:
+    """The up axis that the .rrd declares for /mocap, read back with Rerun's own reader."""
+    for chunk in rc.RrdReader(rrd).stream():
+        if chunk.entity_path == "/mocap":
+            cols = chunk.to_record_batch().to_pydict()
+            (xyz,) = cols["ViewCoordinates:xyz"]
+            codes = list(xyz[0] if isinstance(xyz[0], list) else xyz)
+            for axis, code in zip("xyz", codes):
+                if code in _VIEW_CODES:
+                    return _VIEW_CODES[code] + axis
+    raise AssertionError("no ViewCoordinates logged for /mocap")
+
+
+@pytest.mark.parametrize("backend", ["emulated", "sim"])
+def test_the_live_views_up_axis_is_the_sessions(tmp_path, backend):
+    """The 3-D view stands the beam up the way the mocap streams it: y up for Motive, z up for the sim."""
+    text = PROTOCOL.replace("record_s: 1.0", "record_s: 0.3")
+    path = tmp_path / f"{backend}.h5"
+    result = run_session(parse_protocol(text), text, backend, path, rerun_mode="save", show_progress=False)
+    assert result.status == "completed", result.message
+    up = read_session(path).general["geometry"]["up_axis"]
+    assert up == ("y" if backend == "emulated" else "z")
+    assert _rrd_up_axis(path.with_suffix(".rrd")) == up
+    # and the replay declares the same frame
+    from beambench.session.replay import replay_session
+
+    replayed = replay_session(path, "save", tmp_path / "replay.rrd")
+    assert _rrd_up_axis(replayed) == up

@@ -17,9 +17,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from beambench.acquisition.config import parse_protocol
 from beambench.cli import app
-from beambench.config import parse_protocol
-from beambench.fit import (
+from beambench.sim.models.params import load_params
+from beambench.sinks.hdf5 import read_processing
+from beambench.studies.fit import (
     FitError,
     ParamSpace,
     ReleaseObjective,
@@ -28,8 +30,6 @@ from beambench.fit import (
     load_release_session,
     synthetic_release,
 )
-from beambench.sim.params import load_params
-from beambench.store import read_processing
 
 ROOT = Path(__file__).resolve().parents[1]
 NOISE = 3e-4  # m per coordinate
@@ -42,8 +42,10 @@ def test_prb3_fit_recovers_known_parameters():
     t0 = time.perf_counter()
     r = fit_release(data, "prb3", seed=0)
     wall = time.perf_counter() - t0
-    print(f"\nPRB3 fit: {r.nfev} evaluations in {wall:.1f} s wall ({r.generations} generations), "
-          f"k={r.values['k']:.4f} b={r.values['b']:.5f} l2={r.values['l2'] * 1e3:.2f} mm, RMS {r.rms_mm:.3f} mm")
+    print(
+        f"\nPRB3 fit: {r.nfev} evaluations in {wall:.1f} s wall ({r.generations} generations), "
+        f"k={r.values['k']:.4f} b={r.values['b']:.5f} l2={r.values['l2'] * 1e3:.2f} mm, RMS {r.rms_mm:.3f} mm"
+    )
     assert r.values["k"] == pytest.approx(0.30, rel=0.05)
     assert r.values["l2"] == pytest.approx(0.027, rel=0.05)
     assert r.values["b"] == pytest.approx(0.0035, rel=0.15)
@@ -97,16 +99,31 @@ def test_free_l1_space_keeps_the_length():
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     out = tmp_path_factory.mktemp("fit")
-    res = CliRunner().invoke(app, ["run", str(ROOT / "protocols" / "release_test.yaml"), "--rerun", "off",
-                                   "--out", str(out), "--name", "rel"])
+    res = CliRunner().invoke(
+        app,
+        ["run", str(ROOT / "protocols" / "release_test.yaml"), "--rerun", "off", "--out", str(out), "--name", "rel"],
+    )
     assert res.exit_code == 0, res.output
     return out / "rel.h5"
 
 
 def test_fit_command_end_to_end(session, tmp_path):
     params_dir = tmp_path / "params"
-    res = CliRunner().invoke(app, ["fit", str(session), "--out", str(tmp_path / "fit"), "--params-dir",
-                                   str(params_dir), "--name", "bench", "--maxiter", "40"])
+    res = CliRunner().invoke(
+        app,
+        [
+            "fit",
+            str(session),
+            "--out",
+            str(tmp_path / "fit"),
+            "--params-dir",
+            str(params_dir),
+            "--name",
+            "bench",
+            "--maxiter",
+            "40",
+        ],
+    )
     assert res.exit_code == 0, res.output
     report = json.loads((tmp_path / "fit" / "fit_rel.json").read_text())
     r = report["results"][0]
@@ -121,7 +138,7 @@ def test_fit_command_end_to_end(session, tmp_path):
     p = load_params(str(yaml_path))
     assert p.k == pytest.approx(r["values"]["k"]) and p.k_twist == p.k
     proto = parse_protocol(f"rig: release\nsweep: {{frequencies: [0]}}\nsim: {{params: {yaml_path}}}\n")
-    from beambench.sim.rig import build_scene
+    from beambench.rigs.sim import build_scene
 
     scene = build_scene(proto)
     assert scene.identity()["params"]["k"] == pytest.approx(p.k)
@@ -161,7 +178,7 @@ def test_registration_maps_a_mocap_frame_onto_the_model():
     """Data recorded in another frame (Motive: y up) comes back to the model's frame from its rest pose."""
     from scipy.spatial.transform import Rotation
 
-    from beambench.fit import register_to_model
+    from beambench.studies.fit import register_to_model
 
     data = synthetic_release(default_base("prb3"), noise_m=1e-4, seed=4)
     rot = Rotation.from_euler("xyz", [90, 10, -25], degrees=True).as_matrix()

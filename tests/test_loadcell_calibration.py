@@ -6,7 +6,12 @@ import typer
 from rich.console import Console
 from typer.testing import CliRunner
 
-from beambench.calibration import LoadCellCalibration, calibrate, fit_matrix, tare_counts
+from beambench.acquisition.calibration import (
+    LoadCellCalibration,
+    calibrate,
+    fit_matrix,
+    tare_counts,
+)
 from beambench.commands.calibrate import parse_loads, register, walkthrough
 from beambench.devices.loadcell import SerialLoadCells
 from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
@@ -209,7 +214,8 @@ def test_cli_takes_the_port_from_the_rig_file(tmp_path):
         rig = tmp_path / "rig.yaml"
         rig.write_text(f"loadcell: {{port: {mcu.port}, baudrate: 460800}}\nloadcell_calibration: lc.yaml\n")
         r = CliRunner().invoke(
-            app(), ["calibrate", "loadcells", "--rig", str(rig), "--loads", "1,0 0,1", "--duration", "0.1"],
+            app(),
+            ["calibrate", "loadcells", "--rig", str(rig), "--loads", "1,0 0,1", "--duration", "0.1"],
             input="\n\n\n",
         )
     assert "Tare (" in r.output and "samples" in r.output  # it read the emulated board named in the rig file

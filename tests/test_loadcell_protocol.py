@@ -41,7 +41,10 @@ def test_frame_layout_field_by_field():
     assert f[4:8] == bytes([4, 3, 2, 1])  # little-endian seq
     assert int.from_bytes(f[8:12], "little") == 0xA0B0C0D0
     assert [int.from_bytes(f[12 + 4 * i : 16 + 4 * i], "little", signed=True) for i in range(4)] == [
-        -1, 2, -(2**31), 2**31 - 1
+        -1,
+        2,
+        -(2**31),
+        2**31 - 1,
     ]
     assert int.from_bytes(f[28:32], "little") == 77
     assert int.from_bytes(f[32:34], "little") == crc16(f[2:32])

@@ -6,12 +6,12 @@ import time
 import numpy as np
 import pytest
 
-from beambench.calibration import LoadCellCalibration
-from beambench.devices.base import DeviceFault, Stream
+from beambench.acquisition.batch import Batch
+from beambench.acquisition.calibration import LoadCellCalibration
+from beambench.acquisition.capabilities import DeviceFault, Stream
+from beambench.acquisition.streams import LOADCELL, loadcell_spec
 from beambench.devices.loadcell import SerialLoadCells, Unwrap32
 from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
-from beambench.hub import Batch
-from beambench.streams import LOADCELL, loadcell_spec
 
 SENS = np.array([[20000.0, 1000.0], [21000.0, -800.0], [500.0, 19000.0], [-300.0, 20500.0]])
 PLATE = LoadCellCalibration(tare=np.array([1200.0, -800.0, 450.0, -300.0]), sensitivity=SENS)
@@ -77,8 +77,15 @@ def test_clean_link_at_1khz_loses_nothing_and_carries_the_force():
 
 def test_injected_faults_are_counted_exactly():
     mcu = EmulatedLoadCellMCU(
-        force, PLATE, crc_error_prob=0.02, drop_prob=0.02, max_drop=4, garbage_prob=0.03, max_garbage=60,
-        tx_buffer=BIG_TX, seed=11,
+        force,
+        PLATE,
+        crc_error_prob=0.02,
+        drop_prob=0.02,
+        max_drop=4,
+        garbage_prob=0.03,
+        max_garbage=60,
+        tx_buffer=BIG_TX,
+        seed=11,
     )
     b, lc = acquire(mcu, 2.0)
     inj, st = mcu.injected, lc.stats()

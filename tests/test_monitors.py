@@ -7,16 +7,16 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import pytest
 
-from beambench.config import parse_protocol
+from beambench.acquisition.batch import Batch
+from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.hub import Hub
+from beambench.acquisition.monitors import MocapLost, build_monitors
+from beambench.acquisition.plan import motor_limits, plan
+from beambench.acquisition.runner import Runner
 from beambench.devices.odrive_cansimple import AxisState
-from beambench.hardware_rig import build_emulated_rig
-from beambench.hub import Batch, Hub
-from beambench.monitors import MocapLost, build_monitors
-from beambench.protocol import motor_limits, plan
-from beambench.runner import Runner
-from beambench.store import SessionWriter, read_session
+from beambench.rigs.emulated import build_emulated_rig
+from beambench.sinks.hdf5 import SessionWriter, read_session
 
 MS = 1_000_000
 
@@ -24,8 +24,12 @@ MS = 1_000_000
 def _mocap(t_ms: list[float], occluded: list[bool] | None = None) -> Batch:
     n = len(t_ms)
     occ = np.zeros((n, 3), bool) if occluded is None else np.array([[o, False, False] for o in occluded])
-    return Batch("mocap", np.array(t_ms, float).astype(np.int64) * MS, np.zeros(n),
-                 {"data": np.zeros((n, 3, 3)), "frame": np.arange(n), "occluded": occ})
+    return Batch(
+        "mocap",
+        np.array(t_ms, float).astype(np.int64) * MS,
+        np.zeros(n),
+        {"data": np.zeros((n, 3, 3)), "frame": np.arange(n), "occluded": occ},
+    )
 
 
 def test_mocap_lost_needs_a_complete_frame_within_the_timeout():
@@ -63,8 +67,10 @@ class Outage:
         return self.t0 is not None and time.monotonic() - self.t0 < self.seconds
 
 
-PROTOCOL = "name: mon\nsweep: {frequencies: [10]}\nsettle_s: 0.3\nrecord_s: 1.0\nsim: {seed: 2}\n" \
-           "monitors: {mocap_lost_s: 0.1, max_pause_s: %g}\n"
+PROTOCOL = (
+    "name: mon\nsweep: {frequencies: [10]}\nsettle_s: 0.3\nrecord_s: 1.0\nsim: {seed: 2}\n"
+    "monitors: {mocap_lost_s: 0.1, max_pause_s: %g}\n"
+)
 
 
 def _run(tmp_path, outage_s: float, max_pause_s: float):
@@ -74,7 +80,8 @@ def _run(tmp_path, outage_s: float, max_pause_s: float):
     rig.open()
     path = tmp_path / "mon.h5"
     monitors = build_monitors(protocol, [s.describe().name for s in rig.streams])
-    hub = Hub([SessionWriter(path, {"protocol": "x", "backend": "emulated"}), *monitors])
+    writer = SessionWriter(path, {"protocol": "x", "backend": "emulated"})
+    hub = Hub([writer, *monitors], critical=(writer,))
     hub.open([s.describe() for s in rig.streams])
     waited = {"s": 0.0}
 
@@ -83,8 +90,16 @@ def _run(tmp_path, outage_s: float, max_pause_s: float):
         if outage.t0 is None and waited["s"] >= protocol.settle_s + 0.3:  # 0.3 s into the record window
             outage.start()
 
-    runner = Runner(rig, hub, plan(protocol), motor_limits(protocol), poll_s=0.05, on_progress=on_progress,
-                    monitors=monitors, max_pause_s=max_pause_s)
+    runner = Runner(
+        rig,
+        hub,
+        plan(protocol),
+        motor_limits(protocol),
+        poll_s=0.05,
+        on_progress=on_progress,
+        monitors=monitors,
+        max_pause_s=max_pause_s,
+    )
     result = runner.run()
     return result, rig, read_session(path)
 

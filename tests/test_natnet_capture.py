@@ -20,7 +20,7 @@ from typer.testing import CliRunner
 from beambench.cli import app
 from beambench.devices import natnet_protocol as nn
 from beambench.devices.natnet_capture import decode_capture, frames_table
-from beambench.pcap import CaptureError, read_udp
+from beambench.devices.pcap import CaptureError, read_udp
 
 FIXTURES = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "natnet"
 CAPTURE = FIXTURES / "traffic.pcapng"
@@ -125,8 +125,15 @@ def test_frames_match_the_sample_client_field_by_field(decoded):
         assert p["n_skel"] == len(f.skeletons) == 0
         assert p["n_lm"] == len(f.labeled_markers)
         assert p["lm"] == [
-            (m.model_id, m.marker_id, int(m.occluded), int(m.point_cloud_solved), int(m.model_solved), f2(m.size),
-             tuple(f2(x) for x in m.position))
+            (
+                m.model_id,
+                m.marker_id,
+                int(m.occluded),
+                int(m.point_cloud_solved),
+                int(m.model_solved),
+                f2(m.size),
+                tuple(f2(x) for x in m.position),
+            )
             for m in f.labeled_markers
         ], number
         assert p["n_fp"] == len(f.force_plates) and p["n_dev"] == len(f.devices)
@@ -171,8 +178,12 @@ def test_cli_errors_are_one_line_and_exit_2(tmp_path):
     runner = CliRunner()
     bad = tmp_path / "junk.pcapng"
     bad.write_bytes(b"not a capture at all")
-    for args in (["natnet", "decode", str(tmp_path / "missing.pcap")], ["natnet", "decode", str(bad)],
-                 ["natnet", "decode", str(bad), "--natnet-version", "x"], ["natnet", "decode", str(bad), "--ports", "a"]):
+    for args in (
+        ["natnet", "decode", str(tmp_path / "missing.pcap")],
+        ["natnet", "decode", str(bad)],
+        ["natnet", "decode", str(bad), "--natnet-version", "x"],
+        ["natnet", "decode", str(bad), "--ports", "a"],
+    ):
         res = runner.invoke(app, args)
         assert res.exit_code == 2, (args, res.output)
         assert res.exception is None or isinstance(res.exception, SystemExit)
@@ -194,8 +205,15 @@ def write_pcap(path: Path, datagrams: list[tuple[float, bytes, int, int]], mtu: 
             for off in range(0, len(udp), step):
                 chunk = udp[off : off + step]
                 more = off + step < len(udp)
-                ip = dpkt.ip.IP(src=socket.inet_aton("10.0.0.1"), dst=socket.inet_aton("239.255.42.99"), p=17,
-                                id=ident & 0xFFFF, mf=int(more), offset=off, data=chunk)
+                ip = dpkt.ip.IP(
+                    src=socket.inet_aton("10.0.0.1"),
+                    dst=socket.inet_aton("239.255.42.99"),
+                    p=17,
+                    id=ident & 0xFFFF,
+                    mf=int(more),
+                    offset=off,
+                    data=chunk,
+                )
                 ip.len = 20 + len(chunk)
                 eth = dpkt.ethernet.Ethernet(src=b"\x00" * 6, dst=b"\x01\x00\x5e\x7f\x2a\x63", type=0x0800, data=ip)
                 w.writepkt(bytes(eth), ts=ts)
@@ -204,8 +222,15 @@ def write_pcap(path: Path, datagrams: list[tuple[float, bytes, int, int]], mtu: 
 def test_pcap_with_fragments_and_no_serverinfo_needs_the_version(tmp_path):
     big = nn.FrameOfData(
         10,
-        labeled_markers=tuple(nn.LabeledMarker((1 << 16) | i, (i * 0.01, 0.5, -0.25), 0.014, 2, 0.0) for i in range(200)),
-        timestamp=10 / 360, mid_exposure=100, data_received=200, transmit=300, precision_seconds=5, precision_fraction=7,
+        labeled_markers=tuple(
+            nn.LabeledMarker((1 << 16) | i, (i * 0.01, 0.5, -0.25), 0.014, 2, 0.0) for i in range(200)
+        ),
+        timestamp=10 / 360,
+        mid_exposure=100,
+        data_received=200,
+        transmit=300,
+        precision_seconds=5,
+        precision_fraction=7,
     )
     small = nn.FrameOfData(12, timestamp=12 / 360, mid_exposure=110, data_received=210, transmit=310)
     packets = [nn.encode(big, (4, 1)), nn.encode(small, (4, 1)), b"\x07\x00\x05\x00junk"]

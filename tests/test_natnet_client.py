@@ -12,11 +12,18 @@ import time
 import numpy as np
 import pytest
 
+from beambench.acquisition.capabilities import Stream
+from beambench.acquisition.streams import MOCAP
 from beambench.devices import natnet_protocol as nn
-from beambench.devices.base import Stream
-from beambench.devices.natnet import MarkerSource, NatNetClient, NatNetConfig, NatNetError, NatNetMocap, ping
+from beambench.devices.natnet import (
+    MarkerSource,
+    NatNetClient,
+    NatNetConfig,
+    NatNetError,
+    NatNetMocap,
+    ping,
+)
 from beambench.emulators.motive import EmulatorClock, MotiveEmulator
-from beambench.streams import MOCAP
 
 MARKERS = ("stage", "tip", "foot")
 VERSIONS = ("3.0", "4.0", "4.1")
@@ -56,7 +63,7 @@ def collect(mocap: NatNetMocap, seconds: float) -> list:
 
 
 def concat(batches):  # type: ignore[no-untyped-def]
-    from beambench.hub import Batch
+    from beambench.acquisition.batch import Batch
 
     return Batch.concat(batches)
 
@@ -113,7 +120,15 @@ def test_garbage_packets_are_counted_and_never_stop_the_stream():
             port = client._cmd.getsockname()[1]  # unicast frames come to the command socket
             junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             good = nn.encode(nn.FrameOfData(1, timestamp=1.0), nn.V4_1)
-            garbage = [b"", b"\x07", b"\x07\x00\xff\xff", good[:-7], b"\x07\x00" + good[2:20], b"\xff\xff\x00\x00", b"\x05\x00\x04\x00\xff\xff\xff\x7f"]
+            garbage = [
+                b"",
+                b"\x07",
+                b"\x07\x00\xff\xff",
+                good[:-7],
+                b"\x07\x00" + good[2:20],
+                b"\xff\xff\x00\x00",
+                b"\x05\x00\x04\x00\xff\xff\xff\x7f",
+            ]
             before = client.stats.frames
             for g in garbage:
                 junk.sendto(g, ("127.0.0.1", port))
@@ -139,9 +154,8 @@ def test_bitstream_version_can_be_requested_from_a_4_x_server():
 
 
 def test_bitstream_change_is_refused_by_a_3_0_server():
-    with emulator("3.0", multicast=False) as emu:
-        with pytest.raises(NatNetError, match="cannot change"):
-            NatNetClient(config_for(emu, bitstream_version="4.1")).connect()
+    with emulator("3.0", multicast=False) as emu, pytest.raises(NatNetError, match="cannot change"):
+        NatNetClient(config_for(emu, bitstream_version="4.1")).connect()
 
 
 def test_echo_round_trips_give_a_clock_offset_by_minimum_rtt():
@@ -158,7 +172,7 @@ def test_echo_round_trips_give_a_clock_offset_by_minimum_rtt():
     assert len(echoes) >= 15 and len(table["server_ticks"]) == len(echoes)
     assert best.rtt_ns == min(e.rtt_ns for e in echoes) and best.rtt_ns < 20e6
     for e in echoes:  # the server stamped each echo between our send and our receive
-        server_host_s = (e.server_ticks / clock.frequency_hz - clock.offset_s)
+        server_host_s = e.server_ticks / clock.frequency_hz - clock.offset_s
         assert e.host_send_ns * 1e-9 - 1e-6 <= server_host_s <= e.host_recv_ns * 1e-9 + 1e-6
     # mid-exposure mapped to host time through the best echo lands just before the receive time
     lag = [(host_ns - client.server_ticks_to_host_ns(f.mid_exposure)) * 1e-9 for host_ns, f in frames]
@@ -228,7 +242,9 @@ def test_marker_sources_parse():
 def test_timestamp_device_time_and_empty_reads():
     mocap = NatNetMocap(MARKERS, device_time="timestamp")
     assert len(mocap.read()) == 0 and mocap.describe().columns["data"].shape == (3, 3)
-    f = nn.FrameOfData(720, timestamp=2.0, mid_exposure=5, labeled_markers=(nn.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.01, 2, 0.0),))
+    f = nn.FrameOfData(
+        720, timestamp=2.0, mid_exposure=5, labeled_markers=(nn.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.01, 2, 0.0),)
+    )
     b = mocap.to_batch([(123, f)], clock_frequency=10)
     assert b.device_time.tolist() == [2.0] and b.host_time_ns.tolist() == [123]
     assert b.columns["occluded"].tolist() == [[False, True, True]]
@@ -237,8 +253,13 @@ def test_timestamp_device_time_and_empty_reads():
 
 
 def test_from_rig_section():
-    section = {"server_address": "10.0.0.5", "command_port": 1510, "multicast": False,
-               "markers": {"stage": "1:1", "tip": "1:2", "foot": "rb:3"}, "rate_hz": 240.0}
+    section = {
+        "server_address": "10.0.0.5",
+        "command_port": 1510,
+        "multicast": False,
+        "markers": {"stage": "1:1", "tip": "1:2", "foot": "rb:3"},
+        "rate_hz": 240.0,
+    }
     mocap = NatNetMocap.from_rig(section)
     assert mocap.markers == ("stage", "tip", "foot") and mocap.config.server_address == "10.0.0.5"
     assert mocap.sources[2] == MarkerSource("rigid_body", 3) and mocap.describe().rate_hz == 240.0

@@ -28,12 +28,24 @@ def free_udp_port() -> int:
 
 @pytest.mark.parametrize("version", ["3.0", "4.0", "4.1"])
 def test_pypi_natnet_client_decodes_our_emulator_over_multicast(version):
-    emu = MotiveEmulator(version=version, command_port=0, data_port=free_udp_port(), multicast=True,
-                         rigid_bodies={4: [0, 1, 2]}, occlude={20: [1]}, keep_sent=2000)
+    emu = MotiveEmulator(
+        version=version,
+        command_port=0,
+        data_port=free_udp_port(),
+        multicast=True,
+        rigid_bodies={4: [0, 1, 2]},
+        occlude={20: [1]},
+        keep_sent=2000,
+    )
     received, descriptions = [], []
     with emu:
-        client = natnet.NatNetClient(server_ip_address="127.0.0.1", local_ip_address="127.0.0.1",
-                                     command_port=emu.command_address[1], data_port=emu.data_port, use_multicast=True)
+        client = natnet.NatNetClient(
+            server_ip_address="127.0.0.1",
+            local_ip_address="127.0.0.1",
+            command_port=emu.command_address[1],
+            data_port=emu.data_port,
+            use_multicast=True,
+        )
         client.on_data_frame_received_event.handlers.append(received.append)
         client.on_data_description_received_event.handlers.append(descriptions.append)
         try:
@@ -61,7 +73,10 @@ def test_pypi_natnet_client_decodes_our_emulator_over_multicast(version):
         assert [tuple(p) for p in theirs.marker_sets[0].marker_pos_list] == list(ours.marker_sets[0].positions)
         s = theirs.suffix
         assert (s.timestamp, s.stamp_camera_mid_exposure, s.stamp_data_received, s.stamp_transmit) == (
-            ours.timestamp, ours.mid_exposure, ours.data_received, ours.transmit
+            ours.timestamp,
+            ours.mid_exposure,
+            ours.data_received,
+            ours.transmit,
         )
         if version == "4.1":
             assert s.param == ours.precision_seconds & 0xFFFF  # their known 4.1 gap, see the module docstring

@@ -83,7 +83,14 @@ def test_mocap_frame_packet():
     assert rb.id == 2 and rb.tracking_valid
     assert rb.position == pytest.approx((0.174447, 1.447131, -0.734304), abs=1e-6)
     assert rb.orientation == pytest.approx((-0.054594, 0.509948, 0.043704, -0.857358), abs=1e-6)
-    assert [(m.model_id, m.marker_id) for m in f.labeled_markers] == [(2, 1), (2, 2), (2, 3), (2, 4), (2, 5), (0, 50007)]
+    assert [(m.model_id, m.marker_id) for m in f.labeled_markers] == [
+        (2, 1),
+        (2, 2),
+        (2, 3),
+        (2, 4),
+        (2, 5),
+        (0, 50007),
+    ]
     assert not any(m.occluded for m in f.labeled_markers)
     assert all(m.point_cloud_solved for m in f.labeled_markers)
     assert f.labeled_markers[-1].unlabeled
@@ -99,7 +106,10 @@ def test_mocap_frame_with_an_occluded_marker():
     assert f.frame_number == 269007
     assert [ms.name for ms in f.marker_sets] == ["FakeTree", "all"]
     assert [(m.model_id, m.marker_id, m.occluded) for m in f.labeled_markers] == [
-        (7, 2, True), (7, 3, False), (7, 4, False), (7, 5, False),
+        (7, 2, True),
+        (7, 3, False),
+        (7, 4, False),
+        (7, 5, False),
     ]
     assert f.labeled_markers[0].model_solved is False and f.labeled_markers[0].has_model
     assert f.rigid_bodies[0].id == 7 and f.rigid_bodies[0].tracking_valid
@@ -117,8 +127,14 @@ def test_frame_needs_a_version_and_wrong_version_is_a_parse_error():
 
 
 def test_every_truncation_of_the_real_packets_raises_the_parse_error_only():
-    for name in ("mocapframe_packet_v3.bin", "mocapframe_packet_occluded_v3.bin", "modeldef_packet_v3.bin",
-                 "serverinfo_packet_v3.bin", "echoresponse_packet_v3.bin", "connect_packet_v3.bin"):
+    for name in (
+        "mocapframe_packet_v3.bin",
+        "mocapframe_packet_occluded_v3.bin",
+        "modeldef_packet_v3.bin",
+        "serverinfo_packet_v3.bin",
+        "echoresponse_packet_v3.bin",
+        "connect_packet_v3.bin",
+    ):
         raw = fixture(name)
         for n in range(len(raw)):
             cut = raw[:n]
@@ -143,24 +159,34 @@ rigid_body = st.builds(nn.RigidBody, i32, vec3, quat, f32, i16)
 labeled = st.builds(nn.LabeledMarker, i32, vec3, f32, i16, f32)
 analog = st.builds(nn.AnalogData, i32, st.lists(st.lists(f32, max_size=3).map(tuple), max_size=3).map(tuple))
 asset = st.builds(
-    nn.AssetData, i32, st.lists(rigid_body, max_size=2).map(tuple),
+    nn.AssetData,
+    i32,
+    st.lists(rigid_body, max_size=2).map(tuple),
     st.lists(st.builds(nn.AssetMarker, i32, vec3, f32, i16, f32), max_size=2).map(tuple),
 )
 frames = st.builds(
     nn.FrameOfData,
     frame_number=i32,
-    marker_sets=st.lists(st.builds(nn.MarkerSetData, name, st.lists(vec3, max_size=3).map(tuple)), max_size=2).map(tuple),
+    marker_sets=st.lists(st.builds(nn.MarkerSetData, name, st.lists(vec3, max_size=3).map(tuple)), max_size=2).map(
+        tuple
+    ),
     other_markers=st.lists(vec3, max_size=3).map(tuple),
     rigid_bodies=st.lists(rigid_body, max_size=3).map(tuple),
-    skeletons=st.lists(st.builds(nn.SkeletonData, i32, st.lists(rigid_body, max_size=2).map(tuple)), max_size=2).map(tuple),
+    skeletons=st.lists(st.builds(nn.SkeletonData, i32, st.lists(rigid_body, max_size=2).map(tuple)), max_size=2).map(
+        tuple
+    ),
     assets=st.lists(asset, max_size=2).map(tuple),
     labeled_markers=st.lists(labeled, max_size=5).map(tuple),
     force_plates=st.lists(analog, max_size=2).map(tuple),
     devices=st.lists(analog, max_size=2).map(tuple),
-    timecode=u32, timecode_sub=u32,
+    timecode=u32,
+    timecode_sub=u32,
     timestamp=st.floats(allow_nan=False),
-    mid_exposure=u64, data_received=u64, transmit=u64,
-    precision_seconds=u32, precision_fraction=u32,
+    mid_exposure=u64,
+    data_received=u64,
+    transmit=u64,
+    precision_seconds=u32,
+    precision_fraction=u32,
     params=i16,
 )
 
@@ -188,7 +214,11 @@ def test_frames_round_trip_in_every_version(frame, v):
 
 
 rb_desc = st.builds(
-    nn.RigidBodyDescription, name, i32, i32, vec3,
+    nn.RigidBodyDescription,
+    name,
+    i32,
+    i32,
+    vec3,
     st.lists(st.builds(nn.RigidBodyMarker, vec3, i32, name), max_size=3).map(tuple),
 )
 descriptions = st.one_of(
@@ -196,14 +226,26 @@ descriptions = st.one_of(
     rb_desc,
     st.builds(nn.SkeletonDescription, name, i32, st.lists(rb_desc, max_size=2).map(tuple)),
     st.builds(
-        nn.ForcePlateDescription, i32, name, f32, f32, vec3,
+        nn.ForcePlateDescription,
+        i32,
+        name,
+        f32,
+        f32,
+        vec3,
         st.lists(st.lists(f32, min_size=12, max_size=12).map(tuple), min_size=12, max_size=12).map(tuple),
-        st.lists(vec3, min_size=4, max_size=4).map(tuple), i32, i32, st.lists(name, max_size=3).map(tuple),
+        st.lists(vec3, min_size=4, max_size=4).map(tuple),
+        i32,
+        i32,
+        st.lists(name, max_size=3).map(tuple),
     ),
     st.builds(nn.DeviceDescription, i32, name, name, i32, i32, st.lists(name, max_size=3).map(tuple)),
     st.builds(nn.CameraDescription, name, vec3, quat),
     st.builds(
-        nn.AssetDescription, name, i32, i32, st.lists(rb_desc, max_size=2).map(tuple),
+        nn.AssetDescription,
+        name,
+        i32,
+        i32,
+        st.lists(rb_desc, max_size=2).map(tuple),
         st.lists(st.builds(nn.MarkerDescription, name, i32, vec3, f32, i16), max_size=2).map(tuple),
     ),
 )
@@ -233,11 +275,25 @@ def test_modeldef_round_trips_in_every_version(datasets, v):
 def test_simple_messages_round_trip():
     sender = nn.Sender("beambench", nn.Version(0, 1), nn.Version(4, 1))
     for msg in [
-        nn.Connect(sender), nn.Connect(sender, False, nn.Version(4, 0)), nn.Discovery(sender),
-        nn.ServerInfo(nn.Sender("Motive", nn.Version(3, 1), nn.Version(4, 1)), 10_000_000, 1511, False, "239.255.42.99"),
-        nn.Request("FrameRate"), nn.Response.of_float(360.0), nn.Response.of_int(-1), nn.Response.of_text("Bitstream,4.1"),
-        nn.RequestModelDef(), nn.RequestFrameOfData(), nn.MessageString("hello"), nn.Disconnect(), nn.KeepAlive(),
-        nn.DisconnectByTimeout(), nn.EchoRequest(2**63 + 5), nn.EchoResponse(1, 2**40), nn.UnrecognizedRequest(b"x"),
+        nn.Connect(sender),
+        nn.Connect(sender, False, nn.Version(4, 0)),
+        nn.Discovery(sender),
+        nn.ServerInfo(
+            nn.Sender("Motive", nn.Version(3, 1), nn.Version(4, 1)), 10_000_000, 1511, False, "239.255.42.99"
+        ),
+        nn.Request("FrameRate"),
+        nn.Response.of_float(360.0),
+        nn.Response.of_int(-1),
+        nn.Response.of_text("Bitstream,4.1"),
+        nn.RequestModelDef(),
+        nn.RequestFrameOfData(),
+        nn.MessageString("hello"),
+        nn.Disconnect(),
+        nn.KeepAlive(),
+        nn.DisconnectByTimeout(),
+        nn.EchoRequest(2**63 + 5),
+        nn.EchoResponse(1, 2**40),
+        nn.UnrecognizedRequest(b"x"),
     ]:
         assert nn.decode(nn.encode(msg, V41), V41) == msg, msg
     assert nn.decode(nn.encode(nn.Response.of_float(360.0))).as_float() == 360.0
@@ -247,12 +303,16 @@ def test_simple_messages_round_trip():
 
 
 def test_4_1_sections_skip_newer_fields_but_reject_overruns():
-    frame = nn.FrameOfData(7, labeled_markers=(nn.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.015625, 2, 0.0),), timestamp=1.0)
+    frame = nn.FrameOfData(
+        7, labeled_markers=(nn.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.015625, 2, 0.0),), timestamp=1.0
+    )
     packet = bytearray(nn.encode(frame, V41))
     # labeled markers: header(4) + frame number(4) + 5 empty sections (count, size) before it
     at = 4 + 4 + 5 * 8
     assert struct.unpack_from("<ii", packet, at) == (1, 26)
-    grown = packet[: at + 4] + struct.pack("<i", 30) + packet[at + 8 : at + 8 + 26] + b"\xaa" * 4 + packet[at + 8 + 26 :]
+    grown = (
+        packet[: at + 4] + struct.pack("<i", 30) + packet[at + 8 : at + 8 + 26] + b"\xaa" * 4 + packet[at + 8 + 26 :]
+    )
     grown[2:4] = struct.pack("<H", len(grown) - 4)
     assert nn.decode(bytes(grown), V41).labeled_markers == frame.labeled_markers  # unknown trailing field skipped
     shrunk = bytearray(packet)

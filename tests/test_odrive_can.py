@@ -13,12 +13,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
+from beambench.acquisition.streams import motor_spec
 from beambench.devices import odrive_cansimple as cs
-from beambench.devices.base import DeviceFault, Motor, MotorLimits
 from beambench.devices.odrive_can import MAX_VEL_LIMIT, LimitError, OdriveCanMotor, ping
 from beambench.devices.odrive_cansimple import AxisError, AxisState
-from beambench.emulators.odrive_can import EmulatedOdrive, OdriveAxisModel, OdriveEmulatorConfig
-from beambench.streams import motor_spec
+from beambench.emulators.odrive_can import (
+    EmulatedOdrive,
+    OdriveAxisModel,
+    OdriveEmulatorConfig,
+)
 
 NODE = 3
 CAL_S = 0.25
@@ -82,8 +86,12 @@ def test_arm_calibrates_then_enters_closed_loop(motor, emu):
     assert emu.snapshot()["state"] == AxisState.CLOSED_LOOP_CONTROL
     assert elapsed >= CAL_S  # it really waited for the calibration
     states = [s for _, s in emu.model.transitions]
-    assert states == [AxisState.IDLE, AxisState.FULL_CALIBRATION_SEQUENCE, AxisState.IDLE,
-                      AxisState.CLOSED_LOOP_CONTROL]
+    assert states == [
+        AxisState.IDLE,
+        AxisState.FULL_CALIBRATION_SEQUENCE,
+        AxisState.IDLE,
+        AxisState.CLOSED_LOOP_CONTROL,
+    ]
     motor.check()
     assert motor.heartbeat.axis_state == AxisState.CLOSED_LOOP_CONTROL
 
@@ -92,8 +100,8 @@ def test_limits_and_mode_sent_before_calibration_and_closed_loop(motor, emu, tmp
     motor.arm(LIMITS)
     motor.close()
     frames = log_frames(tmp_path / "traffic.asc")
-    (i_lim, lim), = sent_to_node(frames, cs.Cmd.SET_LIMITS)
-    (i_mode, mode), = sent_to_node(frames, cs.Cmd.SET_CONTROLLER_MODE)
+    ((i_lim, lim),) = sent_to_node(frames, cs.Cmd.SET_LIMITS)
+    ((i_mode, mode),) = sent_to_node(frames, cs.Cmd.SET_CONTROLLER_MODE)
     states = sent_to_node(frames, cs.Cmd.SET_AXIS_STATE)
     i_cal = next(i for i, m in states if m.state == AxisState.FULL_CALIBRATION_SEQUENCE)
     i_cl = next(i for i, m in states if m.state == AxisState.CLOSED_LOOP_CONTROL)
@@ -225,11 +233,10 @@ def test_injected_motor_error_is_named(motor, emu):
 
 
 def test_idle_on_exit_from_context_manager_after_exception(channel, emu):
-    with pytest.raises(RuntimeError, match="boom"):
-        with OdriveCanMotor(channel, "virtual", NODE) as m:
-            m.arm(LIMITS)
-            m.set_frequency(5.0)
-            raise RuntimeError("boom")
+    with pytest.raises(RuntimeError, match="boom"), OdriveCanMotor(channel, "virtual", NODE) as m:
+        m.arm(LIMITS)
+        m.set_frequency(5.0)
+        raise RuntimeError("boom")
     wait_for(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="idle after exception")
     assert emu.snapshot()["axis_error"] == 0  # a commanded idle, not a watchdog trip
     assert emu.snapshot()["input_vel"] == 0.0
@@ -261,8 +268,10 @@ def test_can_log_has_the_traffic(numbered_channel, tmp_path, suffix):
     channel = numbered_channel
     path = tmp_path / f"run{suffix}"
     t_start = time.time()
-    with EmulatedOdrive(channel=channel, config=_emu_config()), OdriveCanMotor(channel, "virtual", NODE,
-                                                                               can_log=path) as m:
+    with (
+        EmulatedOdrive(channel=channel, config=_emu_config()),
+        OdriveCanMotor(channel, "virtual", NODE, can_log=path) as m,
+    ):
         m.arm(LIMITS)
         m.set_frequency(2.0)
         time.sleep(0.3)
@@ -270,13 +279,24 @@ def test_can_log_has_the_traffic(numbered_channel, tmp_path, suffix):
     frames = log_frames(path)
     parsed = [cs.parse_message(f) for f in frames]  # every logged frame is valid CAN Simple
     kinds = {type(msg) for _, msg in parsed}
-    assert {cs.Heartbeat, cs.EncoderEstimates, cs.SetLimits, cs.SetInputVel, cs.SetAxisState, cs.Iq,
-            cs.BusVoltageCurrent, cs.Request} <= kinds
+    assert {
+        cs.Heartbeat,
+        cs.EncoderEstimates,
+        cs.SetLimits,
+        cs.SetInputVel,
+        cs.SetAxisState,
+        cs.Iq,
+        cs.BusVoltageCurrent,
+        cs.Request,
+    } <= kinds
     rx = [f for f in frames if f.is_rx]
     tx = [f for f in frames if not f.is_rx]
     assert rx and tx
-    assert all(cs.split_id(f.arbitration_id)[1] in (cs.Cmd.HEARTBEAT, cs.Cmd.GET_ENCODER_ESTIMATES, cs.Cmd.GET_IQ,
-                                                    cs.Cmd.GET_BUS_VOLTAGE_CURRENT) for f in rx)
+    assert all(
+        cs.split_id(f.arbitration_id)[1]
+        in (cs.Cmd.HEARTBEAT, cs.Cmd.GET_ENCODER_ESTIMATES, cs.Cmd.GET_IQ, cs.Cmd.GET_BUS_VOLTAGE_CURRENT)
+        for f in rx
+    )
     assert any(f.is_remote_frame for f in tx)
     # timestamps span this run (rx: the sender's wall time on the virtual bus; tx: ours at send;
     # .asc stores them relative to the first frame, .blf absolute)

@@ -22,10 +22,17 @@ node = st.integers(0, 7)  # the DBC describes axes 0..7
 
 # our message class, the DBC message name suffix, {our field: DBC signal}
 MAPPING: dict[type, tuple[str, dict[str, str]]] = {
-    cs.Heartbeat: ("Heartbeat", {"axis_error": "Axis_Error", "axis_state": "Axis_State",
-                                 "motor_error_flag": "Motor_Error_Flag", "encoder_error_flag": "Encoder_Error_Flag",
-                                 "controller_error_flag": "Controller_Error_Flag",
-                                 "trajectory_done": "Trajectory_Done_Flag"}),
+    cs.Heartbeat: (
+        "Heartbeat",
+        {
+            "axis_error": "Axis_Error",
+            "axis_state": "Axis_State",
+            "motor_error_flag": "Motor_Error_Flag",
+            "encoder_error_flag": "Encoder_Error_Flag",
+            "controller_error_flag": "Controller_Error_Flag",
+            "trajectory_done": "Trajectory_Done_Flag",
+        },
+    ),
     cs.MotorError: ("Get_Motor_Error", {"error": "Motor_Error"}),
     cs.EncoderError: ("Get_Encoder_Error", {"error": "Encoder_Error"}),
     cs.ControllerErrorMsg: ("Get_Controller_Error", {"error": "Controller_Error"}),
@@ -68,8 +75,9 @@ def db():
 
 
 def _ours(msg) -> dict[str, float | int]:
-    return {sig: int(v) if isinstance(v, bool) else v for f, sig in MAPPING[type(msg)][1].items()
-            for v in [getattr(msg, f)]}
+    return {
+        sig: int(v) if isinstance(v, bool) else v for f, sig in MAPPING[type(msg)][1].items() for v in [getattr(msg, f)]
+    }
 
 
 @settings(max_examples=300, deadline=None)
@@ -126,8 +134,14 @@ def test_motor_error_keeps_64_bits_of_the_firmware():
 
 
 def test_rtr_and_dlc0_requests():
-    for cmd in (cs.Cmd.GET_IQ, cs.Cmd.GET_ENCODER_ESTIMATES, cs.Cmd.GET_BUS_VOLTAGE_CURRENT,
-                cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR):
+    for cmd in (
+        cs.Cmd.GET_IQ,
+        cs.Cmd.GET_ENCODER_ESTIMATES,
+        cs.Cmd.GET_BUS_VOLTAGE_CURRENT,
+        cs.Cmd.GET_MOTOR_ERROR,
+        cs.Cmd.GET_ENCODER_ERROR,
+        cs.Cmd.GET_CONTROLLER_ERROR,
+    ):
         rtr = cs.request(5, cmd)
         assert rtr.is_remote_frame and rtr.dlc == 8 and rtr.arbitration_id == 5 << 5 | cmd
         assert cs.parse_message(rtr) == (5, cs.Request(cmd))

@@ -11,8 +11,17 @@ import numpy as np
 import pytest
 
 from beambench.devices import odrive_cansimple as cs
-from beambench.devices.odrive_cansimple import AxisError, AxisState, ControlMode, InputMode
-from beambench.emulators.odrive_can import EmulatedOdrive, OdriveAxisModel, OdriveEmulatorConfig
+from beambench.devices.odrive_cansimple import (
+    AxisError,
+    AxisState,
+    ControlMode,
+    InputMode,
+)
+from beambench.emulators.odrive_can import (
+    EmulatedOdrive,
+    OdriveAxisModel,
+    OdriveEmulatorConfig,
+)
 
 S = AxisState
 
@@ -172,8 +181,10 @@ def test_reboot_restores_boot_config_and_node_id():
 
 def test_cyclic_messages_and_rtr_on_a_virtual_bus():
     channel = f"emu-{uuid.uuid4().hex}"
-    with EmulatedOdrive(channel=channel, config=OdriveEmulatorConfig(node_id=4)) as emu, \
-            can.Bus(interface="virtual", channel=channel) as sniffer:
+    with (
+        EmulatedOdrive(channel=channel, config=OdriveEmulatorConfig(node_id=4)) as emu,
+        can.Bus(interface="virtual", channel=channel) as sniffer,
+    ):
         frames = []
         end = None
         while end is None or frames[-1].timestamp < end:

@@ -13,11 +13,16 @@ import time
 import numpy as np
 import pytest
 
-from beambench.devices.base import DeviceFault, Motor, MotorLimits
+from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
+from beambench.acquisition.streams import motor_spec
 from beambench.devices.odrive_can import LimitError
-from beambench.devices.odrive_cansimple import AxisError, AxisState, ControlMode, InputMode
+from beambench.devices.odrive_cansimple import (
+    AxisError,
+    AxisState,
+    ControlMode,
+    InputMode,
+)
 from beambench.devices.odrive_usb import OdriveUsbMotor, ping
-from beambench.streams import motor_spec
 
 LIMITS = MotorLimits(max_frequency_hz=20.0, max_current_a=8.0, amplitude_mm=2.0)
 
@@ -41,16 +46,36 @@ class StandInAxis(Node):
 
     def __init__(self, path, log, cal_s=0.05):
         super().__init__(
-            path, log,
-            error=0, current_state=int(AxisState.IDLE), feeds=0, cal_s=cal_s, cal_end=None,
+            path,
+            log,
+            error=0,
+            current_state=int(AxisState.IDLE),
+            feeds=0,
+            cal_s=cal_s,
+            cal_end=None,
             config=Node(f"{path}.config", log, watchdog_timeout=0.0, enable_watchdog=False),
-            controller=Node(f"{path}.controller", log, input_vel=0.0, error=0,
-                            config=Node(f"{path}.controller.config", log, vel_limit=2.0,
-                                        control_mode=int(ControlMode.POSITION_CONTROL),
-                                        input_mode=int(InputMode.PASSTHROUGH), vel_ramp_rate=1.0)),
-            motor=Node(f"{path}.motor", log, error=0, is_calibrated=False,
-                       config=Node(f"{path}.motor.config", log, current_lim=10.0),
-                       current_control=Node(f"{path}.motor.current_control", log, Iq_measured=0.25)),
+            controller=Node(
+                f"{path}.controller",
+                log,
+                input_vel=0.0,
+                error=0,
+                config=Node(
+                    f"{path}.controller.config",
+                    log,
+                    vel_limit=2.0,
+                    control_mode=int(ControlMode.POSITION_CONTROL),
+                    input_mode=int(InputMode.PASSTHROUGH),
+                    vel_ramp_rate=1.0,
+                ),
+            ),
+            motor=Node(
+                f"{path}.motor",
+                log,
+                error=0,
+                is_calibrated=False,
+                config=Node(f"{path}.motor.config", log, current_lim=10.0),
+                current_control=Node(f"{path}.motor.current_control", log, Iq_measured=0.25),
+            ),
             encoder=Node(f"{path}.encoder", log, error=0, is_ready=False, pos_estimate=1.5, vel_estimate=0.0),
         )
 
@@ -86,9 +111,18 @@ class StandInAxis(Node):
 class StandInODrive(Node):
     def __init__(self):
         log: list = []
-        super().__init__("odrv", log, vbus_voltage=24.0, serial_number=0x3762364A3137, fw_version_major=0,
-                         fw_version_minor=5, fw_version_revision=6, hw_version_major=3, hw_version_minor=6,
-                         hw_version_variant=56)
+        super().__init__(
+            "odrv",
+            log,
+            vbus_voltage=24.0,
+            serial_number=0x3762364A3137,
+            fw_version_major=0,
+            fw_version_minor=5,
+            fw_version_revision=6,
+            hw_version_major=3,
+            hw_version_minor=6,
+            hw_version_variant=56,
+        )
         object.__setattr__(self, "axis0", StandInAxis("odrv.axis0", log))
         object.__setattr__(self, "axis1", StandInAxis("odrv.axis1", log))
 
@@ -133,8 +167,12 @@ def test_arm_maps_limits_before_calibration_and_closed_loop(motor, odrv):
     requests = [(i, v) for i, (p, v) in enumerate(odrv._log) if p == "odrv.axis0.requested_state"]
     assert [v for _, v in requests] == [AxisState.FULL_CALIBRATION_SEQUENCE, AxisState.CLOSED_LOOP_CONTROL]
     first_request = requests[0][0]
-    for prop in ("controller.config.vel_limit", "motor.config.current_lim", "controller.config.control_mode",
-                 "config.enable_watchdog"):
+    for prop in (
+        "controller.config.vel_limit",
+        "motor.config.current_lim",
+        "controller.config.control_mode",
+        "config.enable_watchdog",
+    ):
         assert odrv.writes(prop)[0] < first_request, prop
     assert odrv.writes("clear_errors()")[0] < odrv.writes("vel_limit")[0]
     assert odrv.writes("watchdog_feed()")[0] < odrv.writes("enable_watchdog")[0]  # fed before enabling
@@ -184,11 +222,10 @@ def test_watchdog_fed_while_armed_and_telemetry(motor, odrv):
 
 
 def test_idle_on_close_restores_watchdog_and_never_raises(odrv):
-    with pytest.raises(RuntimeError):
-        with OdriveUsbMotor(odrv=odrv, poll_period_s=0.005) as m:
-            m.arm(LIMITS)
-            m.set_frequency(5.0)
-            raise RuntimeError("boom")
+    with pytest.raises(RuntimeError), OdriveUsbMotor(odrv=odrv, poll_period_s=0.005) as m:
+        m.arm(LIMITS)
+        m.set_frequency(5.0)
+        raise RuntimeError("boom")
     ax = odrv.axis0
     assert ax.current_state == AxisState.IDLE and ax.controller.input_vel == 0.0
     assert ax.config.enable_watchdog is False  # as found

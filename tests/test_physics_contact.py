@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.sim.contact_sweep import contact_ratio, contact_sweep
+from beambench.sim.scenes.contact_sweep import contact_ratio, contact_sweep
 
 
 def test_contacts_per_cycle_fall_from_one_to_a_half_with_frequency():
@@ -66,11 +66,18 @@ def test_euler_equals_implicitfast_on_the_contact_rig():
 def test_table_marks_timesteps_that_soften_the_contact():
     """dt above half the 1 ms contact time constant: MuJoCo's refsafe softens the contact to 2·dt, so the
     peak plate force drops — the table marks such rows solref_clamped and selection never picks them."""
-    from beambench.sim import select
-    from beambench.sim.contact_sweep import measure_contact_table
+    from beambench.sim import selection as select
+    from beambench.sim.scenes.contact_sweep import measure_contact_table
 
-    t = measure_contact_table("prb3", frequencies=(20.0,), timesteps=(2.5e-4, 1e-3), integrators=("euler",),
-                              settle_s=0.3, record_s=0.3, timing_repeats=1)
+    t = measure_contact_table(
+        "prb3",
+        frequencies=(20.0,),
+        timesteps=(2.5e-4, 1e-3),
+        integrators=("euler",),
+        settle_s=0.3,
+        record_s=0.3,
+        timing_repeats=1,
+    )
     status = dict(zip(t.timestep, t.status))
     assert status[1e-3] == "solref_clamped" and status[2.5e-4] in ("ok", "wrong_contacts")
     stiff = contact_sweep("prb3", [20.0], 2.5e-4, settle_s=0.3, record_s=0.3, integrator="euler")

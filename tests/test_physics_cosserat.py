@@ -13,7 +13,7 @@ import pytest
 
 pytest.importorskip("elastica")
 
-from beambench.sim import cosserat
+from beambench.sim.models import cosserat
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,8 @@ def test_static_tip_deflection_matches_beam_theory_about_both_axes(params: cosse
     q = r.density * r.area * g / math.sqrt(2)
     weak = q * r.length**4 / (8 * r.ei_weak)
     strong = q * r.length**4 / (8 * r.ei_strong) + q * r.length**2 / (
-        2 * params.shear_coefficient * r.shear_modulus * r.area)
+        2 * params.shear_coefficient * r.shear_modulus * r.area
+    )
     assert -d[0] == pytest.approx(weak, rel=0.03)
     assert -d[2] == pytest.approx(strong, rel=0.03)
     assert abs(d[1]) < 0.01 * weak  # no spurious axial motion beyond the geometric shortening
@@ -59,11 +60,12 @@ def test_driven_twisted_rod_agrees_with_the_segmented_rod_off_resonance() -> Non
     """The cross-check proper: an independent formulation (Cosserat rod, PositionVerlet) and our MuJoCo rod10
     driven at 15 Hz with the 90° twist trace the same tip path to well under the mocap noise (0.1 mm), while
     the paper's PRB3 is a millimetre away (its model error, as the ladder measures)."""
-    from beambench.sim.free_beam import frequency_sweep
+    from beambench.sim.scenes.free_beam import frequency_sweep
 
     kw = dict(settle_s=0.5, record_s=0.2)
-    ref = cosserat.frequency_sweep([15.0], 90.0, cosserat.CosseratParams.from_beam(n_elements=20, timestep=1e-5),
-                                   sample_dt=1e-4, **kw)
+    ref = cosserat.frequency_sweep(
+        [15.0], 90.0, cosserat.CosseratParams.from_beam(n_elements=20, timestep=1e-5), sample_dt=1e-4, **kw
+    )
     rms = {}
     for name in ("rod10", "prb3"):
         ours = frequency_sweep(name, [15.0], 90.0, timestep=1e-4, **kw)

@@ -6,7 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from beambench.sim.free_beam import beam_model, build_free_beam_spec
+from beambench.sim.models.registry import beam_model
+from beambench.sim.scenes.free_beam import build_free_beam_spec
 
 
 @pytest.mark.parametrize("model", ["prb3", "rod10", "rod3g"])

@@ -9,9 +9,15 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from beambench.sim import select
-from beambench.sim.free_beam import frequency_sweep
-from beambench.sim.ladder import LadderConfig, place_labels, run_ladder, summarize, write_outputs
+from beambench.sim import selection as select
+from beambench.sim.scenes.free_beam import frequency_sweep
+from beambench.studies.ladder import (
+    LadderConfig,
+    place_labels,
+    run_ladder,
+    summarize,
+    write_outputs,
+)
 
 TINY = LadderConfig(
     models=("prb3", "rod3g"),
@@ -36,8 +42,16 @@ def tiny_table() -> pd.DataFrame:
 
 def test_ladder_classifies_stability_and_measures_error(tiny_table, tmp_path):
     t = tiny_table
-    assert set(t.columns) >= {"model", "integrator", "timestep", "frequency_hz", "status", "tip_err_mm",
-                              "wall_s_per_10s", "rel_dev_converged"}
+    assert set(t.columns) >= {
+        "model",
+        "integrator",
+        "timestep",
+        "frequency_hz",
+        "status",
+        "tip_err_mm",
+        "wall_s_per_10s",
+        "rel_dev_converged",
+    }
     # RK4 treats the joint damping explicitly: it blows up at these steps (PRB3 needs dt ≲ 3e-5)
     assert (t[t.integrator == "rk4"].status == "diverged").all()
     ok = t[(t.integrator == "implicitfast") & (t.timestep == 1e-4)]
@@ -81,7 +95,7 @@ def test_labels_do_not_overlap_each_other_or_the_points():
     boxes = [t.get_window_extent(r) for t in texts]
     pts = ax.transData.transform(np.column_stack([x, y]))
     for i, a in enumerate(boxes):
-        for b in boxes[i + 1:]:
+        for b in boxes[i + 1 :]:
             assert not a.overlaps(b)
         for p in pts:
             assert not a.contains(*p)
@@ -131,8 +145,8 @@ def test_bench_command_help_and_bad_output_folder(tmp_path):
 def test_auto_model_picks_the_timestep_each_frequency_needs():
     """``sim.model: auto`` on the contact rig: the plan from the shipped contact table is recorded in the
     scene's identity, and the timestep follows the frequency (not the worst case over the sweep)."""
-    from beambench.config import parse_protocol
-    from beambench.sim.rig import build_scene
+    from beambench.acquisition.config import parse_protocol
+    from beambench.rigs.sim import build_scene
 
     if not select.table_path("contact").exists():
         pytest.skip("no shipped contact table (benchmarks/bench_models.py --part contact --ship)")
@@ -156,8 +170,11 @@ def _table(rows):
 def test_selection_skips_a_coarse_step_that_passes_where_a_finer_one_fails():
     """A regular regime: 4e-4 s passes only by luck (2e-4 s fails), so 1e-4 s is chosen; an irregular
     regime (no pointwise convergence) judges each timestep alone."""
-    rows = [("m", "euler", 1e-4, 10.0, "ok", 0.01, 1.0), ("m", "euler", 2e-4, 10.0, "ok", 0.5, 0.5),
-            ("m", "euler", 4e-4, 10.0, "ok", 0.05, 0.25)]
+    rows = [
+        ("m", "euler", 1e-4, 10.0, "ok", 0.01, 1.0),
+        ("m", "euler", 2e-4, 10.0, "ok", 0.5, 0.5),
+        ("m", "euler", 4e-4, 10.0, "ok", 0.05, 0.25),
+    ]
     assert select.plan_sweep("contact", 0.1, [10.0], table=_table(rows)).timestep(10.0) == 1e-4
     irregular = [r[:4] + ("irregular",) + r[5:] for r in rows]
     assert select.plan_sweep("contact", 0.1, [10.0], table=_table(irregular)).timestep(10.0) == 4e-4
@@ -166,8 +183,8 @@ def test_selection_skips_a_coarse_step_that_passes_where_a_finer_one_fails():
 def test_fixed_model_gets_the_timestep_each_frequency_needs_unless_one_is_given():
     """``sim.model: prb3`` without ``sim.timestep``: the plan for that model and integrator from the contact
     table (recorded in the session); with ``sim.timestep`` that step is used throughout."""
-    from beambench.config import parse_protocol
-    from beambench.sim.rig import build_scene
+    from beambench.acquisition.config import parse_protocol
+    from beambench.rigs.sim import build_scene
 
     base = "rig: contact\nsweep: {frequencies: [2, 20, 40]}\nsim: {model: prb3, integrator: implicitfast%s}\n"
     planned = build_scene(parse_protocol(base % ""))

@@ -9,14 +9,19 @@ import mujoco
 import numpy as np
 import pytest
 
-from beambench.sim.free_beam import frequency_sweep
-from beambench.sim.rod import RodParams, add_rod, natural_frequencies
+from beambench.sim.models.rod import RodParams, add_rod, natural_frequencies
+from beambench.sim.scenes.free_beam import frequency_sweep
 
 ROD40 = RodParams(n_segments=40)
 
 
-def _rod_model(rod: RodParams, twist_deg: float = 0.0, gravity: bool = False,
-               integrator=mujoco.mjtIntegrator.mjINT_IMPLICITFAST, dt: float = 1e-4):
+def _rod_model(
+    rod: RodParams,
+    twist_deg: float = 0.0,
+    gravity: bool = False,
+    integrator=mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    dt: float = 1e-4,
+):
     spec = mujoco.MjSpec()
     spec.option.gravity = [0, 0, -9.81 if gravity else 0.0]
     spec.option.timestep = dt

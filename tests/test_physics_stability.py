@@ -6,8 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from beambench.config import parse_protocol
-from beambench.sim.free_beam import frequency_sweep
+from beambench.acquisition.config import parse_protocol
+from beambench.sim.scenes.free_beam import frequency_sweep
 
 FREQS = [1.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0]
 BAD = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQPOS)
@@ -29,7 +29,7 @@ def test_free_beam_defaults_stay_bounded(model):
 def test_rig_scenes_at_their_defaults_stay_bounded(rig):
     """The protocol-driven scenes (the sim backend's default model, integrator and timestep policy), swept
     through 1–80 Hz in one run: no MuJoCo instability warning, finite and bounded marker paths."""
-    from beambench.sim.rig import build_scene
+    from beambench.rigs.sim import build_scene
 
     scene = build_scene(parse_protocol(f"rig: {rig}\nsweep: {{frequencies: [1]}}\n"))
     t = scene.physics.time

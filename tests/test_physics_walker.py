@@ -8,9 +8,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from beambench.sim.beam import make_beam_model
-from beambench.sim.params import load_params
-from beambench.sim.walker import WalkerParams, WalkerSim, measure_speed
+from beambench.sim.models.params import load_params
+from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scenes.walker import WalkerParams, WalkerSim, measure_speed
 
 BEAM = make_beam_model("prb3", load_params())
 G = 9.81

@@ -18,9 +18,9 @@ from mujoco import rollout
 from typer.testing import CliRunner
 
 from beambench.cli import app
-from beambench.sim.beam import make_beam_model
-from beambench.sim.params import load_params
-from beambench.sim.release import (
+from beambench.sim.models.params import load_params
+from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scenes.release import (
     TIP_MARKERS,
     G,
     release_batch,
@@ -29,7 +29,7 @@ from beambench.sim.release import (
     simulate_release,
     static_equilibrium,
 )
-from beambench.store import read_session
+from beambench.sinks.hdf5 import read_session
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -59,8 +59,9 @@ def _slowest_rate(m: mujoco.MjModel, q0: np.ndarray) -> float:
     force(q0)
     M = np.zeros((nv, nv))
     mujoco.mj_fullM(m, d, M)
-    A = np.block([[np.zeros((nv, nv)), np.eye(nv)],
-                  [-np.linalg.solve(M, K), -np.linalg.solve(M, np.diag(m.dof_damping))]])
+    A = np.block(
+        [[np.zeros((nv, nv)), np.eye(nv)], [-np.linalg.solve(M, K), -np.linalg.solve(M, np.diag(m.dof_damping))]]
+    )
     return float(np.linalg.eigvals(A).real.max())
 
 
@@ -114,12 +115,12 @@ def test_energy_lost_equals_damper_dissipation(b):
     mujoco.mj_getState(m, d, st, spec)
     n = int(0.5 / dt)
     states, _ = rollout.rollout(m, d, st[None], None, nstep=n)
-    qvel = states[0, :, 1 + m.nq:1 + m.nq + m.nv]
+    qvel = states[0, :, 1 + m.nq : 1 + m.nq + m.nv]
     dissipated = float(np.sum(qvel**2 * m.dof_damping) * dt)
     assert drop > 5e-3  # J: the 200 g load stored real energy in the beam
     assert dissipated == pytest.approx(drop, rel=2e-3)
     # the late decay follows the slowest eigenvalue of the damped, linearised beam
-    qpos = states[0, :, 1:1 + m.nq]
+    qpos = states[0, :, 1 : 1 + m.nq]
     dev = np.linalg.norm(qpos - q_rest, axis=1)
     t = (np.arange(n) + 1) * dt
     sel = (dev < 1e-4 * dev[0]) & (dev > 1e-8 * dev[0])
@@ -129,6 +130,7 @@ def test_energy_lost_equals_damper_dissipation(b):
 
 def test_more_damping_slows_the_return():
     """Near-critically damped: doubling b makes the tip take longer to come within 10 % of rest."""
+
     def t10(b: float) -> float:
         p = replace(load_params("paper"), b=b, b_twist=b)
         r = simulate_release(p, duration_s=0.3)
@@ -151,8 +153,10 @@ def test_batch_equals_single_runs():
 @pytest.fixture(scope="module")
 def release_session(tmp_path_factory):
     out = tmp_path_factory.mktemp("release")
-    res = CliRunner().invoke(app, ["run", str(ROOT / "protocols" / "release_test.yaml"), "--rerun", "off",
-                                   "--out", str(out), "--name", "rel"])
+    res = CliRunner().invoke(
+        app,
+        ["run", str(ROOT / "protocols" / "release_test.yaml"), "--rerun", "off", "--out", str(out), "--name", "rel"],
+    )
     assert res.exit_code == 0, res.output
     return read_session(out / "rel.h5")
 
@@ -176,8 +180,9 @@ def test_session_markers_decay_to_rest(release_session):
     assert np.linalg.norm(ref.loaded[0] - ref.rest[0], axis=1).min() > 0.01  # it really moved > 10 mm
     # the recorded decay is the simulated one (to the mocap noise, 0.1 mm, and its 0.5 ms receive latency)
     moving = (t > 0) & (t < 0.06)
-    pred = np.stack([[np.interp(t[moving] - 5e-4, ref.t, ref.markers[0, :, j, c]) for c in range(3)]
-                     for j in range(3)]).transpose(2, 0, 1)
+    pred = np.stack(
+        [[np.interp(t[moving] - 5e-4, ref.t, ref.markers[0, :, j, c]) for c in range(3)] for j in range(3)]
+    ).transpose(2, 0, 1)
     err = np.sqrt(np.mean(np.sum((tips[moving] - pred) ** 2, axis=-1)))
     assert err < 3e-4
     # the stage marker sits still on the clamp; the motor idles (nothing is connected to it)

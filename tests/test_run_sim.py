@@ -16,7 +16,7 @@ import rerun.chunk as rc
 from typer.testing import CliRunner
 
 from beambench.cli import app
-from beambench.store import read_session
+from beambench.sinks.hdf5 import read_session
 
 SHORT = """
 name: short
@@ -109,7 +109,9 @@ def test_over_limit_refused_before_anything_moves(tmp_path):
     proto.write_text("sweep: {frequencies: [10, 90]}\nlimits: {max_frequency_hz: 40}\n")
     res = subprocess.run(
         [sys.executable, "-m", "beambench.cli", "run", str(proto), "--out", str(tmp_path), "--rerun", "off"],
-        capture_output=True, text=True, timeout=120,
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0 and "max_frequency_hz" in res.stderr
@@ -131,9 +133,23 @@ def _start_long_run(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     path = tmp_path / "k.h5"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "beambench.cli", "run", str(proto), "--out", str(tmp_path), "--name", "k",
-         "--rerun", "off", "--realtime"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
+        [
+            sys.executable,
+            "-m",
+            "beambench.cli",
+            "run",
+            str(proto),
+            "--out",
+            str(tmp_path),
+            "--name",
+            "k",
+            "--rerun",
+            "off",
+            "--realtime",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=env,
     )
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:  # wait until a few steps have been recorded

@@ -8,10 +8,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from beambench.sim.beam import add_beam, make_beam_model
-from beambench.sim.contact_rig import ContactRigSim
-from beambench.sim.devices import interp_rows
-from beambench.sim.params import ParamsError, available, load_params
+from beambench.rigs.sim_devices import interp_rows
+from beambench.sim.models.beam import add_beam
+from beambench.sim.models.params import ParamsError, available, load_params
+from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scenes.contact_rig import ContactRigSim
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +46,9 @@ def _free_beam(params, twist_deg: float) -> tuple[mujoco.MjModel, mujoco.MjData]
     spec.option.enableflags |= mujoco.mjtEnableBit.mjENBL_ENERGY
     spec.option.timestep = 1e-4
     sites = add_beam(spec.worldbody, make_beam_model("prb3", params), twist_deg)
-    spec.body(sites.tip_body).add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.003, 0, 0],
-                                       pos=[0, 0, -0.0635], mass=0.02)
+    spec.body(sites.tip_body).add_geom(
+        type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.003, 0, 0], pos=[0, 0, -0.0635], mass=0.02
+    )
     m = spec.compile()
     return m, mujoco.MjData(m)
 
@@ -117,8 +119,8 @@ def test_opposite_chirality_mirrors_the_tip_path(paper):
 def test_segmented_rod_runs_in_the_contact_rig_and_mirrors_with_chirality():
     """With the drive mirrored too (A → −A) the −φ rod's whole tip path, transients included, is the
     mirror image of the +φ one (this rod's response at 20 Hz is not periodic, so no half-period trick)."""
-    from beambench.config import parse_protocol
-    from beambench.sim.rig import build_scene
+    from beambench.acquisition.config import parse_protocol
+    from beambench.rigs.sim import build_scene
 
     scene = build_scene(parse_protocol("sweep: {frequencies: [1]}\nsim: {model: rod5}\n"))
     assert scene.physics.model.nv == 1 + 3 * 5 and scene.identity()["model"] == "rod5"

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.calibration import default_calibration
-from beambench.config import parse_protocol
-from beambench.devices.base import MotorLimits
-from beambench.hub import Batch
-from beambench.sim.rig import build_sim_rig
-from beambench.streams import WALKER_MARKERS
+from beambench.acquisition.batch import Batch
+from beambench.acquisition.calibration import default_calibration
+from beambench.acquisition.capabilities import MotorLimits
+from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.streams import WALKER_MARKERS
+from beambench.rigs.sim import build_sim_rig
 
 
 def sweep(text: str, steps: list[tuple[float, float, float]]) -> tuple[list[dict[str, Batch]], object]:
@@ -99,9 +99,9 @@ def test_walker_scene_runs_with_its_markers_and_tare_only_loadcells():
 def test_walker_reverses_direction_between_23_and_65_hz():
     """Like the paper (−35.7 mm/s at 23 Hz, +156.3 at 65 Hz), in sign if not in size: at the scene's
     (converged) defaults it walks backward at 23 Hz (≈ −17 mm/s) and forward at 65 Hz (≈ +11 mm/s)."""
-    from beambench.sim.beam import make_beam_model
-    from beambench.sim.params import load_params
-    from beambench.sim.walker import WalkerSim, measure_speed
+    from beambench.sim.models.params import load_params
+    from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scenes.walker import WalkerSim, measure_speed
 
     beam = make_beam_model("prb3", load_params())
     assert WalkerSim(beam, 90.0).physics.timestep == 5e-5  # the converged default (no protocol override)

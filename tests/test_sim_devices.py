@@ -5,11 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.config import parse_protocol
-from beambench.devices.base import DeviceFault, MotorLimits, Rig
-from beambench.hub import Batch
-from beambench.sim.rig import build_sim_rig
-from beambench.streams import CONTACT_MARKERS, loadcell_spec, mocap_spec, motor_spec
+from beambench.acquisition.batch import Batch
+from beambench.acquisition.capabilities import DeviceFault, MotorLimits, Rig
+from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.streams import (
+    CONTACT_MARKERS,
+    loadcell_spec,
+    mocap_spec,
+    motor_spec,
+)
+from beambench.rigs.sim import build_sim_rig
 
 BASE = "sweep: {frequencies: [10]}\nlimits: {max_frequency_hz: 40}\n"
 
@@ -67,8 +72,13 @@ def test_exact_sample_counts_and_contiguous_reads(two_seconds):
     assert np.all(np.diff(out["loadcell"].columns["seq"]) == 1)
     for b in out.values():
         assert np.all(np.diff(b.host_time_ns) > 0)
-        for name, spec in (mocap_spec(CONTACT_MARKERS) if b.stream == "mocap" else
-                           loadcell_spec() if b.stream == "loadcell" else motor_spec()).columns.items():
+        for name, spec in (
+            mocap_spec(CONTACT_MARKERS)
+            if b.stream == "mocap"
+            else loadcell_spec()
+            if b.stream == "loadcell"
+            else motor_spec()
+        ).columns.items():
             assert b.columns[name].dtype == np.dtype(spec.dtype)
             assert b.columns[name].shape[1:] == spec.shape
     # the load-cell MCU counted every mocap exposure
@@ -116,7 +126,9 @@ def test_device_clocks_obey_offset_drift_latency_and_jitter():
     assert np.allclose(np.diff(m.device_time), 1 / 360)  # samples on the device's own clock
     lc = out["loadcell"]
     fit = np.polyfit(lc.host_time_ns * 1e-9, lc.device_time, 1)
-    assert fit[0] == pytest.approx(1 - 40e-6, abs=2e-7) and fit[1] == pytest.approx(-0.3 - 0.0005 * (1 - 40e-6), abs=2e-6)
+    assert fit[0] == pytest.approx(1 - 40e-6, abs=2e-7) and fit[1] == pytest.approx(
+        -0.3 - 0.0005 * (1 - 40e-6), abs=2e-6
+    )
     # a drifting clock really produces a different number of samples per host second
     assert len(lc) == pytest.approx(1000 * 3 * (1 - 40e-6), abs=1)
 
@@ -222,6 +234,6 @@ def test_prefetching_the_next_chunk_changes_nothing():
 
 
 def default_force(batch: Batch) -> np.ndarray:
-    from beambench.calibration import default_calibration
+    from beambench.acquisition.calibration import default_calibration
 
     return default_calibration().force_from_counts(batch.columns["data"])

@@ -4,9 +4,15 @@ import h5py
 import numpy as np
 import pytest
 
-from beambench.hub import Batch, Hub
-from beambench.store import SessionWriter, StepRecord, read_processing, read_session, write_processing
-from beambench.streams import loadcell_spec, mocap_spec
+from beambench.acquisition.batch import Batch, StepRecord
+from beambench.acquisition.hub import Hub
+from beambench.acquisition.streams import loadcell_spec, mocap_spec
+from beambench.sinks.hdf5 import (
+    SessionWriter,
+    read_processing,
+    read_session,
+    write_processing,
+)
 
 
 def _batches(n0, n):
@@ -29,7 +35,7 @@ def _batches(n0, n):
 def test_layout_units_and_swmr_reader(tmp_path):
     path = tmp_path / "s.h5"
     w = SessionWriter(path, {"protocol": "name: x\n", "backend": "sim", "identity": {"model": "prb3", "dt": 1e-4}})
-    hub = Hub([w])
+    hub = Hub([w], critical=(w,))
     hub.open([mocap_spec(("stage", "tip", "foot")), loadcell_spec()])
     for k in range(3):
         for b in _batches(100 * k, 100):

@@ -14,22 +14,24 @@ import pytest
 from typer.testing import CliRunner
 
 from beambench.cli import app
-from beambench.executor import ExecutorError, make_executor
-from beambench.sweep import SweepSpec, load_sweep, run_sweep
+from beambench.studies.executor import ExecutorError, make_executor
+from beambench.studies.sweep import SweepSpec, load_sweep, run_sweep
 
 if os.environ.get("CI"):
     import distributed  # noqa: F401  (CI installs it: a missing Dask must fail, not skip)
 else:
     pytest.importorskip("distributed", reason="Dask is the optional 'cluster' extra: pip install 'dask[distributed]'")
 
-SPEC = SweepSpec.model_validate({
-    "name": "dask",
-    "scene": "free_beam",
-    "grid": {"twist_deg": [30, 90, 150], "chirality": [1, -1]},
-    "frequencies": [10, 25],
-    "settle_s": 0.2,
-    "record_s": 0.2,
-})
+SPEC = SweepSpec.model_validate(
+    {
+        "name": "dask",
+        "scene": "free_beam",
+        "grid": {"twist_deg": [30, 90, 150], "chirality": [1, -1]},
+        "frequencies": [10, 25],
+        "settle_s": 0.2,
+        "record_s": 0.2,
+    }
+)
 
 
 @pytest.fixture(scope="module")
@@ -53,8 +55,9 @@ def test_sweep_command_with_scheduler(tmp_path, cluster):
     f = tmp_path / "s.yaml"
     f.write_text("name: s\ngrid: {twist_deg: [45, 135]}\nfrequencies: [15]\nsettle_s: 0.2\nrecord_s: 0.2\n")
     out = tmp_path / "s.parquet"
-    res = CliRunner().invoke(app, ["sweep", str(f), "--out", str(out), "--scheduler", cluster.scheduler_address,
-                                   "--no-figure"])
+    res = CliRunner().invoke(
+        app, ["sweep", str(f), "--out", str(out), "--scheduler", cluster.scheduler_address, "--no-figure"]
+    )
     assert res.exit_code == 0, res.output
     assert "2 computed" in res.output
     local = run_sweep(load_sweep(f), tmp_path / "l.parquet", workers=1)
@@ -62,8 +65,10 @@ def test_sweep_command_with_scheduler(tmp_path, cluster):
 
 
 def test_unreachable_scheduler_is_one_clear_error():
-    with pytest.raises(ExecutorError, match="cannot connect"), make_executor(scheduler="tcp://127.0.0.1:9",
-                                                                             connect_timeout_s=1.0):
+    with (
+        pytest.raises(ExecutorError, match="cannot connect"),
+        make_executor(scheduler="tcp://127.0.0.1:9", connect_timeout_s=1.0),
+    ):
         pass
     with pytest.raises(ExecutorError, match="expected an address"), make_executor(scheduler="localhost:8786"):
         pass

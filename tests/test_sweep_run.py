@@ -12,8 +12,8 @@ import pytest
 from typer.testing import CliRunner
 
 from beambench.cli import app
-from beambench.executor import batch_size, chunks
-from beambench.sweep import (
+from beambench.studies.executor import batch_size, chunks
+from beambench.studies.sweep import (
     SweepError,
     SweepSpec,
     load_sweep,
@@ -26,15 +26,17 @@ from beambench.sweep import (
 
 ROOT = Path(__file__).resolve().parents[1]
 
-SMALL = SweepSpec.model_validate({
-    "name": "small",
-    "scene": "free_beam",
-    "base": {"model": "prb3", "twist_deg": 90},
-    "grid": {"chirality": [1, -1], "k": [0.34, 0.5]},
-    "frequencies": [15, 30],
-    "settle_s": 0.3,
-    "record_s": 0.2,
-})
+SMALL = SweepSpec.model_validate(
+    {
+        "name": "small",
+        "scene": "free_beam",
+        "base": {"model": "prb3", "twist_deg": 90},
+        "grid": {"chirality": [1, -1], "k": [0.34, 0.5]},
+        "frequencies": [15, 30],
+        "settle_s": 0.3,
+        "record_s": 0.2,
+    }
+)
 
 
 def test_shipped_sweep_files_plan_the_papers_studies():
@@ -92,8 +94,16 @@ def test_untwisted_beam_moves_in_a_line():
 
 
 def test_contact_points_report_contacts_per_cycle(tmp_path):
-    spec = SweepSpec.model_validate({"name": "c", "scene": "contact", "grid": {"gap_mm": [1.0, 5.5]},
-                                     "frequencies": [40], "settle_s": 0.4, "record_s": 0.4})
+    spec = SweepSpec.model_validate(
+        {
+            "name": "c",
+            "scene": "contact",
+            "grid": {"gap_mm": [1.0, 5.5]},
+            "frequencies": [40],
+            "settle_s": 0.4,
+            "record_s": 0.4,
+        }
+    )
     t = run_local(spec)
     near, far = t.iloc[0], t.iloc[1]
     assert near.contacts_per_cycle == pytest.approx(0.5, abs=0.1) and near.regime == "1/2"  # planning facts
@@ -123,8 +133,9 @@ def test_bad_sweep_files_fail_with_one_line(tmp_path):
 
 def test_sweep_command_writes_table_and_figure(tmp_path):
     f = tmp_path / "s.yaml"
-    f.write_text("name: s\nscene: free_beam\ngrid: {twist_deg: [0, 90, 180]}\nfrequencies: [15]\n"
-                 "settle_s: 0.3\nrecord_s: 0.2\n")
+    f.write_text(
+        "name: s\nscene: free_beam\ngrid: {twist_deg: [0, 90, 180]}\nfrequencies: [15]\nsettle_s: 0.3\nrecord_s: 0.2\n"
+    )
     out = tmp_path / "s.parquet"
     res = CliRunner().invoke(app, ["sweep", str(f), "--out", str(out), "--workers", "1"])
     assert res.exit_code == 0, res.output
@@ -164,11 +175,27 @@ def test_killed_sweep_resumes_from_task_files(tmp_path):
     import time as _time
 
     spec_file = tmp_path / "k.yaml"
-    spec_file.write_text("name: k\nscene: free_beam\ngrid: {twist_deg: [0, 30, 60, 90, 120, 150]}\n"
-                         "frequencies: [10, 20]\nsettle_s: 0.5\nrecord_s: 0.5\nbatch_size: 1\n")
+    spec_file.write_text(
+        "name: k\nscene: free_beam\ngrid: {twist_deg: [0, 30, 60, 90, 120, 150]}\n"
+        "frequencies: [10, 20]\nsettle_s: 0.5\nrecord_s: 0.5\nbatch_size: 1\n"
+    )
     out = tmp_path / "k.parquet"
-    proc = subprocess.Popen([sys.executable, "-m", "beambench.cli", "sweep", str(spec_file), "--out", str(out),
-                             "--workers", "1", "--no-figure"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "beambench.cli",
+            "sweep",
+            str(spec_file),
+            "--out",
+            str(out),
+            "--workers",
+            "1",
+            "--no-figure",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     parts = tmp_path / "k.parquet.parts"
     deadline = _time.monotonic() + 60
     while _time.monotonic() < deadline and len(list(parts.glob("*.parquet"))) < 3:
@@ -195,10 +222,17 @@ def test_killed_sweep_resumes_from_task_files(tmp_path):
 
 def test_integrator_and_model_axes_batch_separately():
     """Points that cannot share a batch (other integrator, other model) still land in one task correctly."""
-    spec = SweepSpec.model_validate({"name": "i", "scene": "free_beam",
-                                     "grid": {"integrator": ["implicitfast", "euler", "rk4"]},
-                                     "base": {"timestep": 2e-5}, "frequencies": [20], "settle_s": 0.3,
-                                     "record_s": 0.2})
+    spec = SweepSpec.model_validate(
+        {
+            "name": "i",
+            "scene": "free_beam",
+            "grid": {"integrator": ["implicitfast", "euler", "rk4"]},
+            "base": {"timestep": 2e-5},
+            "frequencies": [20],
+            "settle_s": 0.3,
+            "record_s": 0.2,
+        }
+    )
     t = run_local(spec)
     assert t["ok"].all()
     # converged integrators agree on the ellipse (rk4 needs its own stage drive: a wrong one would be far off)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.sync import (
+from beambench.analysis.sync import (
     NS,
     ClockFit,
     encoder_marker_delay,
@@ -160,8 +160,8 @@ def test_clockfit_inverse_and_offset():
 
 def test_sim_device_clocks_over_five_minutes_align_within_half_a_millisecond():
     """The sim backend's own clock model (offset, drift, exponential receive jitter, FIFO link)."""
-    from beambench.config import ClockModel
-    from beambench.sim.devices import DeviceClock
+    from beambench.acquisition.config import ClockModel
+    from beambench.rigs.sim_devices import DeviceClock
 
     rng = np.random.default_rng(9)
     mocap = DeviceClock(ClockModel(offset_s=0.005, drift_ppm=50.0, jitter_s=0.0004), 360.0, rng)
@@ -173,14 +173,16 @@ def test_sim_device_clocks_over_five_minutes_align_within_half_a_millisecond():
         t = np.asarray(clk.true_time(d), float)
         fits[name] = fit_clock(d, clk.host_ns(t), name)
     probe = np.linspace(0.5, 299.5, 3000)
-    err_ms = (fits["mocap"].to_host_ns(mocap.device_time(probe)) - fits["loadcell"].to_host_ns(cells.device_time(probe))) / 1e6
+    err_ms = (
+        fits["mocap"].to_host_ns(mocap.device_time(probe)) - fits["loadcell"].to_host_ns(cells.device_time(probe))
+    ) / 1e6
     assert np.max(np.abs(err_ms)) <= 0.5
     assert fits["mocap"].drift_ppm == pytest.approx(50.0, abs=0.5)
     assert fits["mocap"].offset_s == pytest.approx(0.005 - 0.0005, abs=2e-5)  # offset − latency
 
 
 def test_sync_edge_check_sees_a_misaligned_mocap_clock():
-    from beambench.sync import sync_edge_check
+    from beambench.analysis.sync import sync_edge_check
 
     t_l = np.arange(0, 20, 1e-3)  # load-cell samples (true s)
     t_m = np.arange(0.0004, 20, 1 / 360)  # mocap exposures
@@ -189,7 +191,7 @@ def test_sync_edge_check_sees_a_misaligned_mocap_clock():
     ns = lambda s: np.round(s * NS).astype(np.int64)
     good = sync_edge_check(ns(t_l), edges, ns(t_m), frames)
     assert good.frame_offset == 1 - 5000
-    assert 0.0 <= good.p05_s and good.p95_s < 1e-3 and good.n > 7000
+    assert good.p05_s >= 0.0 and good.p95_s < 1e-3 and good.n > 7000
     # mocap mapped 1 ms late (the check resolves errors below half a frame period; whole frames alias)
     late = sync_edge_check(ns(t_l), edges, ns(t_m + 0.001), frames)
     assert late.median_s == pytest.approx(good.median_s - 0.001, abs=1e-4)

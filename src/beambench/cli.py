@@ -10,7 +10,7 @@ from typing import NoReturn
 
 import typer
 
-from beambench.config import ConfigError
+from beambench.acquisition.config import ConfigError
 
 app = typer.Typer(
     name="beambench",
@@ -37,23 +37,33 @@ def has_display() -> bool:
 
 @app.command()
 def run(
-    protocol_file: Path = typer.Argument(..., metavar="PROTOCOL", help="Protocol YAML, e.g. protocols/contact_sweep.yaml."),
-    backend: str = typer.Option(None, "--backend", "-b", help="sim | emulated | hardware (default: the protocol's, else sim)."),
+    protocol_file: Path = typer.Argument(
+        ..., metavar="PROTOCOL", help="Protocol YAML, e.g. protocols/contact_sweep.yaml."
+    ),
+    backend: str = typer.Option(
+        None, "--backend", "-b", help="sim | emulated | hardware (default: the protocol's, else sim)."
+    ),
     out: Path = typer.Option(Path("data"), "--out", "-o", help="Folder for the session files."),
     name: str = typer.Option(None, "--name", "-n", help="Session name (default: the protocol's output.name template)."),
-    rerun: str = typer.Option(None, "--rerun", help="spawn | connect | save | off (default: spawn with a display, else save)."),
+    rerun: str = typer.Option(
+        None, "--rerun", help="spawn | connect | save | off (default: spawn with a display, else save)."
+    ),
     realtime: bool = typer.Option(False, "--realtime", help="Pace the simulation to the wall clock."),
     dry_run: bool = typer.Option(False, "--dry-run", help="Print the steps, duration and limits; move nothing."),
-    rig_file: Path = typer.Option(None, "--rig", help="Rig wiring YAML for emulated/hardware (default calibration/rig.yaml)."),
-    can_log: Path = typer.Option(None, "--can-log", help="Record all CAN traffic to this .asc or .blf file (ODrive over CAN)."),
+    rig_file: Path = typer.Option(
+        None, "--rig", help="Rig wiring YAML for emulated/hardware (default calibration/rig.yaml)."
+    ),
+    can_log: Path = typer.Option(
+        None, "--can-log", help="Record all CAN traffic to this .asc or .blf file (ODrive over CAN)."
+    ),
 ) -> None:
     """Run a frequency sweep: step the motor, record mocap, load cells and motor telemetry to an HDF5 session.
 
     Prints the path of the session file (<out>/<name>.h5); with --rerun save also writes <out>/<name>.rrd.
     Limits are checked before anything moves. Ctrl-C idles the motor and closes the file cleanly.
     """
-    from beambench.config import load_protocol
-    from beambench.protocol import check_limits, session_path, summary
+    from beambench.acquisition.config import load_protocol
+    from beambench.acquisition.plan import check_limits, session_path, summary
 
     try:
         protocol, text = load_protocol(protocol_file)
@@ -62,7 +72,9 @@ def run(
         if chosen not in ("sim", "emulated", "hardware"):
             raise ConfigError("<cli>", "--backend", chosen, "must be sim, emulated or hardware")
         if can_log is not None and chosen == "sim":
-            raise ConfigError("<cli>", "--can-log", str(can_log), "needs an ODrive on CAN (--backend emulated or hardware)")
+            raise ConfigError(
+                "<cli>", "--can-log", str(can_log), "needs an ODrive on CAN (--backend emulated or hardware)"
+            )
         mode = rerun or ("spawn" if has_display() else "save")
         if mode not in ("spawn", "connect", "save", "off"):
             raise ConfigError("<cli>", "--rerun", mode, "must be spawn, connect, save or off")
@@ -72,7 +84,7 @@ def run(
         path = session_path(protocol, chosen, out, name)
     except ConfigError as exc:
         fail(str(exc))
-    from beambench.session import run_session
+    from beambench.session.run import run_session
 
     try:
         result = run_session(
@@ -111,7 +123,9 @@ def _print_dry_run(s: dict) -> None:
 @app.command()
 def view(
     session: Path = typer.Argument(..., metavar="SESSION", help="A session file (.h5) written by `beambench run`."),
-    rerun: str = typer.Option(None, "--rerun", help="spawn | connect | save (default: spawn with a display, else save)."),
+    rerun: str = typer.Option(
+        None, "--rerun", help="spawn | connect | save (default: spawn with a display, else save)."
+    ),
     out: Path = typer.Option(None, "--out", help="With --rerun save: the .rrd to write (default: beside the session)."),
 ) -> None:
     """Replay a recorded session into the Rerun viewer (or into an .rrd file)."""
@@ -120,7 +134,7 @@ def view(
         fail(f"--rerun = {mode!r}: must be spawn, connect or save")
     if not session.is_file():
         fail(f"{session}: no such session file")
-    from beambench.session import replay_session
+    from beambench.session.replay import replay_session
 
     try:
         rrd = replay_session(session, mode, out)
@@ -132,14 +146,7 @@ def view(
 
 def _register_command_modules() -> None:
     for mod_name in COMMAND_MODULES:
-        full = f"beambench.commands.{mod_name}"
-        try:
-            mod = importlib.import_module(full)
-        except ModuleNotFoundError as exc:
-            if exc.name == full:
-                continue
-            raise
-        mod.register(app)
+        importlib.import_module(f"beambench.commands.{mod_name}").register(app)
 
 
 _register_command_modules()

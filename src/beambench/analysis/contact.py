@@ -173,7 +173,9 @@ class ContactSummary:
     in_contact_fraction: float
 
 
-def regime_label(ratio: float, in_contact_fraction: float, n_intervals: int, params: ContactParams = ContactParams()) -> str:
+def regime_label(
+    ratio: float, in_contact_fraction: float, n_intervals: int, params: ContactParams = ContactParams()
+) -> str:
     """Label a contact ratio: ``"none"``, ``"continuous"``, ``"1"``, ``"1/2"``… ``"2"``… or ``"irregular"``."""
     if n_intervals == 0:
         return "none"
@@ -194,7 +196,9 @@ def summarize_contacts(c: Contacts, drive_hz: float, params: ContactParams = Con
     """Contact frequency and ratio from the touchdowns of one window, and its regime label."""
     n = c.n_touchdowns
     if c.duration_s <= 0 or not drive_hz > 0:
-        return ContactSummary(n, float("nan"), float("nan"), "none" if len(c.start_s) == 0 else "irregular", c.in_contact_fraction)
+        return ContactSummary(
+            n, float("nan"), float("nan"), "none" if len(c.start_s) == 0 else "irregular", c.in_contact_fraction
+        )
     cf = n / c.duration_s
     ratio = cf / drive_hz
     if len(c.start_s) > 0 and n <= 1 and c.in_contact_fraction >= params.continuous_fraction:

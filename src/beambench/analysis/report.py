@@ -10,8 +10,9 @@ from __future__ import annotations
 
 import html
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -145,8 +146,14 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
     height = top + bottom + nrow * ph + (nrow - 1) * gapy
     # a fixed layout: a layout engine spends seconds measuring 40 panels' tick labels
     fig, axes = plt.subplots(nrow, ncol, figsize=(width, height), sharex=True, sharey=True, squeeze=False)
-    fig.subplots_adjust(left=left / width, right=1 - right / width, top=1 - top / height, bottom=bottom / height,
-                        wspace=gapx / pw, hspace=gapy / ph)
+    fig.subplots_adjust(
+        left=left / width,
+        right=1 - right / width,
+        top=1 - top / height,
+        bottom=bottom / height,
+        wspace=gapx / pw,
+        hspace=gapy / ph,
+    )
     single = len(analyses) == 1
     xh = yh = 0.0
     arrows: list[tuple[Any, float, float, float, str]] = []
@@ -176,7 +183,12 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
                 j = int(np.argmax(mp[:, 1]))  # sense of travel at the top of the path
                 j2 = min(j + 2, len(mp) - 1)
                 if j2 > j:
-                    ax.annotate("", xy=mp[j2], xytext=mp[j], arrowprops=dict(arrowstyle="-|>", color=color, lw=1.4, mutation_scale=12))
+                    ax.annotate(
+                        "",
+                        xy=mp[j2],
+                        xytext=mp[j],
+                        arrowprops=dict(arrowstyle="-|>", color=color, lw=1.4, mutation_scale=12),
+                    )
             if len(r.touchdown_xy) and np.isfinite(r.touchdown_v).any():
                 td = np.nanmedian(r.touchdown_xy, axis=0) - c
                 sgn = float(np.sign(np.nanmedian(r.touchdown_v)))
@@ -184,8 +196,17 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
                     arrows.append((ax, td[0], td[1], sgn, "#ff7f0e" if single else color))
             regime = str(r.row.get("regime", ""))
             if single and regime:
-                ax.text(0.97, 0.04, regime, transform=ax.transAxes, ha="right", va="bottom", fontsize=8,
-                        color=REGIME_COLORS.get(regime, "0.3"), fontweight="bold")
+                ax.text(
+                    0.97,
+                    0.04,
+                    regime,
+                    transform=ax.transAxes,
+                    ha="right",
+                    va="bottom",
+                    fontsize=8,
+                    color=REGIME_COLORS.get(regime, "0.3"),
+                    fontweight="bold",
+                )
         ax.set_title(f"{f:g} Hz", pad=2, y=1.0)  # a fixed y skips measuring tick labels (slow)
     xh, yh = (xh or 1.0) * 1.12, (yh or 1.0) * 1.12
     exaggeration = box * xh / yh
@@ -195,7 +216,9 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
         yh = box * xh
     exaggeration = max(1.0, box * xh / yh)
     for ax, x, y, sgn, color in arrows:
-        ax.annotate("", xy=(x + sgn * 0.4 * xh, y), xytext=(x, y), arrowprops=dict(arrowstyle="-|>", color=color, lw=1.8))
+        ax.annotate(
+            "", xy=(x + sgn * 0.4 * xh, y), xytext=(x, y), arrowprops=dict(arrowstyle="-|>", color=color, lw=1.8)
+        )
         ax.plot([x], [y], "o", ms=3.5, color=color)
     for k in range(len(freqs), nrow * ncol):
         axes[k // ncol][k % ncol].set_visible(False)
@@ -214,12 +237,30 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
     names = {marker[id(a)] for a in analyses}
     handles: list[Any] = []
     if single:
-        handles.append(Line2D([], [], color="#1f77b4", lw=0.6, alpha=0.5, label=f"{'/'.join(names)}: raw, last {PATH_CYCLES} cycles (≤ 1 s)"))
-        handles.append(Line2D([], [], color="#1f77b4", lw=1.8, label="mean path over the contact period (arrow: sense)"))
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color="#1f77b4",
+                lw=0.6,
+                alpha=0.5,
+                label=f"{'/'.join(names)}: raw, last {PATH_CYCLES} cycles (≤ 1 s)",
+            )
+        )
+        handles.append(
+            Line2D([], [], color="#1f77b4", lw=1.8, label="mean path over the contact period (arrow: sense)")
+        )
         if arrows:
-            handles.append(Line2D([], [], color="#ff7f0e", marker="o", ms=3.5, lw=1.8, label="touchdown: direction along the plate"))
+            handles.append(
+                Line2D(
+                    [], [], color="#ff7f0e", marker="o", ms=3.5, lw=1.8, label="touchdown: direction along the plate"
+                )
+            )
     else:
-        handles += [Line2D([], [], color=SESSION_COLORS[i % 4], lw=1.8, label=f"{a.label} ({marker[id(a)]})") for i, a in enumerate(analyses)]
+        handles += [
+            Line2D([], [], color=SESSION_COLORS[i % 4], lw=1.8, label=f"{a.label} ({marker[id(a)]})")
+            for i, a in enumerate(analyses)
+        ]
         if arrows:
             handles.append(Line2D([], [], color="0.4", marker="o", ms=3.5, lw=1.8, label="touchdown direction"))
     title = f"Paths relative to the {ref}, each centred, same scale"
@@ -249,22 +290,43 @@ def fig_contact_frequency(analyses: list[SessionAnalysis], path: Path) -> Path |
         y = t["contact_frequency_hz"].fillna(0.0)
         if not single:  # one colour and marker per session; later sessions hollow so both stay visible
             c = SESSION_COLORS[si % 4]
-            ax.plot(t["frequency_hz"], y, color=c, lw=0.8, alpha=0.7, marker=SESSION_MARKERS[si % 4], ms=6 if si else 5,
-                    mfc=c if si == 0 else "none", mec=c, label=a.label, zorder=3 - si * 0.1)
+            ax.plot(
+                t["frequency_hz"],
+                y,
+                color=c,
+                lw=0.8,
+                alpha=0.7,
+                marker=SESSION_MARKERS[si % 4],
+                ms=6 if si else 5,
+                mfc=c if si == 0 else "none",
+                mec=c,
+                label=a.label,
+                zorder=3 - si * 0.1,
+            )
             continue
         present = [r for r in REGIME_ORDER if r in set(t["regime"])] + sorted(set(t["regime"]) - set(REGIME_ORDER))
         for regime in present:
             sub = t[t["regime"] == regime]
             hollow = regime in ("none", "continuous", "")
             color = REGIME_COLORS.get(regime, "0.5")
-            ax.scatter(sub["frequency_hz"], sub["contact_frequency_hz"].fillna(0.0), s=36, marker="o",
-                       facecolors="none" if hollow else color, edgecolors=color, linewidths=1.2,
-                       label=REGIME_NAMES.get(regime, f"{regime} contacts / cycle"), zorder=3)
+            ax.scatter(
+                sub["frequency_hz"],
+                sub["contact_frequency_hz"].fillna(0.0),
+                s=36,
+                marker="o",
+                facecolors="none" if hollow else color,
+                edgecolors=color,
+                linewidths=1.2,
+                label=REGIME_NAMES.get(regime, f"{regime} contacts / cycle"),
+                zorder=3,
+            )
     ax.set_xlabel("input (drive) frequency (Hz)")
     ax.set_ylabel("contact frequency (Hz)")
     ax.set_xlim(0, fmax * 1.12)
     ax.set_ylim(bottom=-0.02 * fmax)
-    ax.set_title("Contact frequency vs input frequency" + ("" if single else " — " + " vs ".join(a.label for a, _ in tables)))
+    ax.set_title(
+        "Contact frequency vs input frequency" + ("" if single else " — " + " vs ".join(a.label for a, _ in tables))
+    )
     ax.legend(loc="upper left")
     fig.tight_layout()
     fig.savefig(path)
@@ -272,7 +334,9 @@ def fig_contact_frequency(analyses: list[SessionAnalysis], path: Path) -> Path |
     return path
 
 
-def choose_force_frequencies(analyses: list[SessionAnalysis], wanted: list[float] | None = None, n: int = 3) -> list[float]:
+def choose_force_frequencies(
+    analyses: list[SessionAnalysis], wanted: list[float] | None = None, n: int = 3
+) -> list[float]:
     """Frequencies for the force-trace figure: the ones asked for (nearest steps), else one per contact regime."""
     a = analyses[0]
     steps = [r for r in a.steps if r.contacts is not None]
@@ -294,7 +358,9 @@ def choose_force_frequencies(analyses: list[SessionAnalysis], wanted: list[float
     return sorted(out)
 
 
-def fig_forces(analyses: list[SessionAnalysis], path: Path, frequencies: list[float], cycles: float = 6.0) -> Path | None:
+def fig_forces(
+    analyses: list[SessionAnalysis], path: Path, frequencies: list[float], cycles: float = 6.0
+) -> Path | None:
     """Normal and tangential plate force over a few drive cycles at chosen frequencies (Fig. 4b)."""
     if not frequencies:
         return None
@@ -344,8 +410,13 @@ def fig_forces(analyses: list[SessionAnalysis], path: Path, frequencies: list[fl
         from matplotlib.lines import Line2D
         from matplotlib.patches import Patch
 
-        axes[0][-1].legend(handles=[Patch(color="#ff7f0e", alpha=0.25, label="contact"),
-                                    Line2D([], [], color="0.5", ls=":", label="on threshold")], loc="upper right")
+        axes[0][-1].legend(
+            handles=[
+                Patch(color="#ff7f0e", alpha=0.25, label="contact"),
+                Line2D([], [], color="0.5", ls=":", label="on threshold"),
+            ],
+            loc="upper right",
+        )
     fig.suptitle("Plate forces (calibrated)")
     fig.tight_layout()
     fig.savefig(path)
@@ -386,7 +457,9 @@ def fig_frequency(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     axes[0].set(xlabel="commanded frequency (Hz)", ylabel="measured frequency (Hz)", title="Drive frequency")
     axes[1].axhline(0, color="0.6", lw=1)
     axes[1].set(xlabel="commanded frequency (Hz)", ylabel="measured − commanded (Hz)", title="Frequency error")
-    axes[2].set(xlabel="commanded frequency (Hz)", ylabel="stage amplitude (mm)", title="Stage amplitude (A of x = A·sin 2πft)")
+    axes[2].set(
+        xlabel="commanded frequency (Hz)", ylabel="stage amplitude (mm)", title="Stage amplitude (A of x = A·sin 2πft)"
+    )
     for ax in axes:
         if ax.get_legend_handles_labels()[0]:
             ax.legend(loc="upper left" if ax is axes[0] else "best" if len(analyses) > 2 else "lower right")
@@ -400,15 +473,26 @@ def fig_frequency(analyses: list[SessionAnalysis], path: Path) -> Path | None:
 
 def fig_walking(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     """Walker body speed (signed, mm/s) against drive frequency, with the paper's two reported points."""
-    tabs = [(a, _table(a)) for a in analyses if "body_speed_mm_s" in a.table and a.table["body_speed_mm_s"].notna().any()]
+    tabs = [
+        (a, _table(a)) for a in analyses if "body_speed_mm_s" in a.table and a.table["body_speed_mm_s"].notna().any()
+    ]
     if not tabs:
         return None
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7.5, 4.6))
     for si, (a, t) in enumerate(tabs):
         err = t.get("body_speed_stderr_mm_s")
-        ax.errorbar(t["frequency_hz"], t["body_speed_mm_s"], yerr=None if err is None else err, fmt=SESSION_MARKERS[si % 4] + "-",
-                    color=SESSION_COLORS[si % 4], ms=4, lw=1, capsize=2, label=a.label)
+        ax.errorbar(
+            t["frequency_hz"],
+            t["body_speed_mm_s"],
+            yerr=None if err is None else err,
+            fmt=SESSION_MARKERS[si % 4] + "-",
+            color=SESSION_COLORS[si % 4],
+            ms=4,
+            lw=1,
+            capsize=2,
+            label=a.label,
+        )
     ax.axhline(0, color="0.3", lw=0.8)
     px, py = zip(*PAPER_WALKER)
     ax.plot(px, py, "*", ms=13, mfc="none", mec="k", label="paper (Sec. IV-B)")
@@ -438,8 +522,11 @@ def fig_ellipse(analyses: list[SessionAnalysis], path: Path) -> Path | None:
         axes[0].plot(f, t[f"{m}_minor_mm"], "--", color=c, lw=1.2, label=f"{m} minor axis{sfx}")
         sense = t[f"{m}_sense"].astype(str)
         names = {"ccw": "counter-clockwise", "cw": "clockwise", "": "line (no sense)"}
-        for s, style in (("ccw", dict(marker="o", facecolors=c, edgecolors=c)), ("cw", dict(marker="o", facecolors="none", edgecolors=c)),
-                         ("", dict(marker="x", c=c))):
+        for s, style in (
+            ("ccw", dict(marker="o", facecolors=c, edgecolors=c)),
+            ("cw", dict(marker="o", facecolors="none", edgecolors=c)),
+            ("", dict(marker="x", c=c)),
+        ):
             sel = sense == s
             if sel.any():
                 axes[1].scatter(f[sel], t[f"{m}_tilt_deg"][sel], s=28, label=f"{names[s]}{sfx}", **style)
@@ -447,7 +534,11 @@ def fig_ellipse(analyses: list[SessionAnalysis], path: Path) -> Path | None:
         plt.close(fig)
         return None
     axes[0].set(xlabel="drive frequency (Hz)", ylabel="axis length (mm)", title="First-harmonic ellipse: axes")
-    axes[1].set(xlabel="drive frequency (Hz)", ylabel="tilt of major axis from drive axis (deg)", title="Tilt and sense of travel")
+    axes[1].set(
+        xlabel="drive frequency (Hz)",
+        ylabel="tilt of major axis from drive axis (deg)",
+        title="Tilt and sense of travel",
+    )
     axes[1].axhline(0, color="0.6", lw=0.8)
     axes[0].legend(loc="upper right")
     axes[1].legend(loc="lower right")
@@ -459,7 +550,11 @@ def fig_ellipse(analyses: list[SessionAnalysis], path: Path) -> Path | None:
 
 def fig_contact_direction(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     """Foot velocity along the plate at touchdown and the mean tangential force, against frequency (Fig. 4)."""
-    tabs = [(a, _table(a)) for a in analyses if "mean_tangential_n" in a.table and a.table["mean_tangential_n"].notna().any()]
+    tabs = [
+        (a, _table(a))
+        for a in analyses
+        if "mean_tangential_n" in a.table and a.table["mean_tangential_n"].notna().any()
+    ]
     if not tabs:
         return None
     plt = _plt()
@@ -470,9 +565,20 @@ def fig_contact_direction(analyses: list[SessionAnalysis], path: Path) -> Path |
         colors = [REGIME_COLORS.get(str(r), "0.5") for r in t["regime"]] if single else SESSION_COLORS[si % 4]
         lbl = None if single else a.label
         if "touchdown_velocity_mm_s" in t:
-            axes[0].plot(f, t["touchdown_velocity_mm_s"], "-", color="0.75" if single else SESSION_COLORS[si % 4], lw=0.8, zorder=1)
-            axes[0].scatter(f, t["touchdown_velocity_mm_s"], c=colors, s=30, zorder=2, marker=SESSION_MARKERS[si % 4], label=lbl)
-        axes[1].plot(f, t["mean_tangential_n"], "-", color="0.75" if single else SESSION_COLORS[si % 4], lw=0.8, zorder=1)
+            axes[0].plot(
+                f,
+                t["touchdown_velocity_mm_s"],
+                "-",
+                color="0.75" if single else SESSION_COLORS[si % 4],
+                lw=0.8,
+                zorder=1,
+            )
+            axes[0].scatter(
+                f, t["touchdown_velocity_mm_s"], c=colors, s=30, zorder=2, marker=SESSION_MARKERS[si % 4], label=lbl
+            )
+        axes[1].plot(
+            f, t["mean_tangential_n"], "-", color="0.75" if single else SESSION_COLORS[si % 4], lw=0.8, zorder=1
+        )
         axes[1].scatter(f, t["mean_tangential_n"], c=colors, s=30, zorder=2, marker=SESSION_MARKERS[si % 4], label=lbl)
     for ax in axes:
         ax.axhline(0, color="0.3", lw=0.8)
@@ -483,7 +589,12 @@ def fig_contact_direction(analyses: list[SessionAnalysis], path: Path) -> Path |
         from matplotlib.lines import Line2D
 
         present = [r for r in REGIME_ORDER if r in set(tabs[0][1]["regime"])]
-        axes[1].legend(handles=[Line2D([], [], ls="", marker="o", color=REGIME_COLORS[r], label=REGIME_NAMES.get(r, r)) for r in present], loc="upper left")
+        axes[1].legend(
+            handles=[
+                Line2D([], [], ls="", marker="o", color=REGIME_COLORS[r], label=REGIME_NAMES.get(r, r)) for r in present
+            ],
+            loc="upper left",
+        )
     else:
         axes[1].legend(loc="upper left")
     fig.tight_layout()
@@ -508,8 +619,15 @@ def fig_sync(analyses: list[SessionAnalysis], path: Path, max_points: int = 2500
             if r is None or not len(r) or ts is None:
                 continue
             idx = np.linspace(0, len(r) - 1, min(max_points, len(r))).astype(int)
-            ax.plot(ts[idx], r[idx] / 1e3, ".", ms=1.5, color=SESSION_COLORS[si % 4], alpha=0.6,
-                    label=a.label if len(analyses) > 1 else None)
+            ax.plot(
+                ts[idx],
+                r[idx] / 1e3,
+                ".",
+                ms=1.5,
+                color=SESSION_COLORS[si % 4],
+                alpha=0.6,
+                label=a.label if len(analyses) > 1 else None,
+            )
             fit = a.fits.get(n)
             if fit is not None and si == 0:
                 ax.set_title(f"{n}: drift {fit.drift_ppm:+.1f} ppm, median delay {fit.residual_median_us / 1e3:.2f} ms")
@@ -540,13 +658,30 @@ def _prov_rows(a: SessionAnalysis) -> list[tuple[str, str]]:
         ("steps", str(len(a.steps))),
     ]
     if a.frame is not None:
-        rows.append(("stage frame (world)", f"drive {np.round(a.frame.drive, 3).tolist()}, up {np.round(a.frame.up, 3).tolist()}"))
+        rows.append(
+            (
+                "stage frame (world)",
+                f"drive {np.round(a.frame.drive, 3).tolist()}, up {np.round(a.frame.up, 3).tolist()}",
+            )
+        )
     if a.edge_check is not None:
         e = a.edge_check
-        rows.append(("load-cell sync edge − mocap frame", f"median {e.median_s * 1e3:.3f} ms (5–95 %: {e.p05_s * 1e3:.3f} … {e.p95_s * 1e3:.3f} ms, {e.n} edges)"))
+        rows.append(
+            (
+                "load-cell sync edge − mocap frame",
+                f"median {e.median_s * 1e3:.3f} ms (5–95 %: {e.p05_s * 1e3:.3f} … {e.p95_s * 1e3:.3f} ms, {e.n} edges)",
+            )
+        )
     if a.delay is not None:
         d = a.delay
-        rows.append(("encoder → stage marker delay", f"{d.delay_s * 1e3:.2f} ms (quality {d.quality:.2f})" if np.isfinite(d.delay_s) else "n/a (one frequency only)"))
+        rows.append(
+            (
+                "encoder → stage marker delay",
+                f"{d.delay_s * 1e3:.2f} ms (quality {d.quality:.2f})"
+                if np.isfinite(d.delay_s)
+                else "n/a (one frequency only)",
+            )
+        )
     if versions:
         rows.append(("versions", " · ".join(f"{k} {v}" for k, v in versions.items())))
     return rows
@@ -587,17 +722,35 @@ def write_html(analyses: list[SessionAnalysis], out: Path, figures: dict[str, Pa
         rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in _prov_rows(a))
         proto = html.escape(str(a.general.get("protocol", "")))
         ident = a.general.get("identity")
-        ident_text = html.escape(yaml.safe_dump(ident, sort_keys=False) if isinstance(ident, dict) else str(ident or ""))
-        parts.append(f"<div><h3>{html.escape(a.label)}</h3><table>{rows}</table>"
-                     f"<details><summary>protocol YAML</summary><pre>{proto}</pre></details>"
-                     f"<details><summary>devices and model (identity)</summary><pre>{ident_text}</pre></details></div>")
+        ident_text = html.escape(
+            yaml.safe_dump(ident, sort_keys=False) if isinstance(ident, dict) else str(ident or "")
+        )
+        parts.append(
+            f"<div><h3>{html.escape(a.label)}</h3><table>{rows}</table>"
+            f"<details><summary>protocol YAML</summary><pre>{proto}</pre></details>"
+            f"<details><summary>devices and model (identity)</summary><pre>{ident_text}</pre></details></div>"
+        )
     parts.append("</div><h2>Figures</h2>")
     for key, p in figures.items():
-        parts.append(f"<figure><img src='{p.name}' alt='{key}'><figcaption>{html.escape(CAPTIONS.get(key, key))}</figcaption></figure>")
+        parts.append(
+            f"<figure><img src='{p.name}' alt='{key}'><figcaption>{html.escape(CAPTIONS.get(key, key))}</figcaption></figure>"
+        )
     parts.append("<h2>Clock fits</h2>")
     for a in analyses:
-        cols = ["stream", "method", "drift_ppm", "offset_s", "n", "n_used", "n_rejected", "residual_median_us", "residual_p95_us",
-                "residual_max_us", "rtt_min_us", "bound_us"]
+        cols = [
+            "stream",
+            "method",
+            "drift_ppm",
+            "offset_s",
+            "n",
+            "n_used",
+            "n_rejected",
+            "residual_median_us",
+            "residual_p95_us",
+            "residual_max_us",
+            "rtt_min_us",
+            "bound_us",
+        ]
         st = a.sync_table
         parts.append(f"<h3>{html.escape(a.label)}</h3>" + _html_table(st[[c for c in cols if c in st]]))
     parts.append("<h2>Per-step results</h2>")

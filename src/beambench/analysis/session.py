@@ -7,14 +7,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pandas as pd
 import yaml
 
+from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
 from beambench.analysis.contact import (
     ContactParams,
     Contacts,
@@ -23,18 +25,7 @@ from beambench.analysis.contact import (
     touchdown_velocity,
 )
 from beambench.analysis.signals import NAN_SINE, fit_sinusoid, velocity
-from beambench.analysis.trajectory import (
-    Ellipse,
-    StageFrame,
-    area_per_cycle,
-    axis_vector,
-    fit_ellipse_harmonic,
-    relative_trajectory,
-    stage_frame,
-)
-from beambench.analysis.walking import body_speed
-from beambench.calibration import LoadCellCalibration, default_calibration
-from beambench.sync import (
+from beambench.analysis.sync import (
     NS,
     ClockFit,
     DelayEstimate,
@@ -47,6 +38,16 @@ from beambench.sync import (
     sync_edge_check,
     timeline,
 )
+from beambench.analysis.trajectory import (
+    Ellipse,
+    StageFrame,
+    area_per_cycle,
+    axis_vector,
+    fit_ellipse_harmonic,
+    relative_trajectory,
+    stage_frame,
+)
+from beambench.analysis.walking import body_speed
 
 
 @dataclass(frozen=True)
@@ -265,7 +266,12 @@ def analyze_session(
     def marker(label: str) -> np.ndarray | None:
         return pos[:, labels.index(label)] if label in labels else None
 
-    stage, foot, tip, body = (marker(options.stage_marker), marker(options.foot_marker), marker(options.tip_marker), marker(options.body_marker))
+    stage, foot, tip, body = (
+        marker(options.stage_marker),
+        marker(options.foot_marker),
+        marker(options.tip_marker),
+        marker(options.body_marker),
+    )
     up = options.up or _geometry_axis(general, "up_axis")
     forward = options.forward or _geometry_axis(general, "forward_axis") or "x"
     frame: StageFrame | None = None
@@ -301,8 +307,10 @@ def analyze_session(
     edge = None
     if lc is not None and mocap is not None and "sync_edges" in lc.columns and "frame" in mocap.columns and len(lc_t):
         edge = sync_edge_check(
-            stream_host_times(lc, fits.get("loadcell")), lc.columns["sync_edges"],
-            stream_host_times(mocap, fits.get("mocap")), mocap.columns["frame"],
+            stream_host_times(lc, fits.get("loadcell")),
+            lc.columns["sync_edges"],
+            stream_host_times(mocap, fits.get("mocap")),
+            mocap.columns["frame"],
         )
 
     delay = None
@@ -317,9 +325,23 @@ def analyze_session(
     last_ns = max([int(a[-1]) for a in (mt, lc_t, mot_t) if len(a)], default=0)
     for k, srow in enumerate(steps_df.itertuples(index=False)):
         res = _analyze_step(
-            srow, last_ns, amplitude_mm, rig, options, frame, forward,
-            mt, stage, tip, foot, body, {lbl: marker(lbl) for lbl in options.walker_feet},
-            mot_t, mot_vel, lc_t, force,
+            srow,
+            last_ns,
+            amplitude_mm,
+            rig,
+            options,
+            frame,
+            forward,
+            mt,
+            stage,
+            tip,
+            foot,
+            body,
+            {lbl: marker(lbl) for lbl in options.walker_feet},
+            mot_t,
+            mot_vel,
+            lc_t,
+            force,
         )
         results.append(res)
         if progress is not None:
@@ -327,7 +349,19 @@ def analyze_session(
     table = pd.DataFrame([r.row for r in results])
     return SessionAnalysis(
         Path(session.path) if getattr(session, "path", None) is not None else None,
-        rig, backend, name, general, fits, delay, frame, table, results, cal.source, residuals, residual_t, edge,
+        rig,
+        backend,
+        name,
+        general,
+        fits,
+        delay,
+        frame,
+        table,
+        results,
+        cal.source,
+        residuals,
+        residual_t,
+        edge,
     )
 
 
@@ -483,7 +517,14 @@ def contacts_table(analysis: SessionAnalysis) -> pd.DataFrame:
         for s, e, td in zip(c.start_s, c.end_s, c.touchdown):
             v = next(tdv) if (td and tdv is not None) else np.nan
             rows.append(
-                {"step": r.index, "frequency_hz": r.frequency_hz, "start_s": s, "end_s": e, "touchdown": bool(td), "touchdown_velocity_mm_s": v}
+                {
+                    "step": r.index,
+                    "frequency_hz": r.frequency_hz,
+                    "start_s": s,
+                    "end_s": e,
+                    "touchdown": bool(td),
+                    "touchdown_velocity_mm_s": v,
+                }
             )
     cols = ["step", "frequency_hz", "start_s", "end_s", "touchdown", "touchdown_velocity_mm_s"]
     return pd.DataFrame(rows, columns=cols)
@@ -491,7 +532,7 @@ def contacts_table(analysis: SessionAnalysis) -> pd.DataFrame:
 
 def write_results(analysis: SessionAnalysis, path: str | Path | None = None) -> None:
     """Store the per-step table, clock fits (+ residuals), contacts and the delay under ``/processing``."""
-    from beambench.store import write_processing
+    from beambench.sinks.hdf5 import write_processing
 
     target = Path(path) if path is not None else analysis.path
     if target is None:
@@ -508,7 +549,12 @@ def write_results(analysis: SessionAnalysis, path: str | Path | None = None) -> 
         write_processing(
             target,
             "encoder_marker_delay",
-            {"delay_s": np.array([d.delay_s]), "quality": np.array([d.quality]), "n": np.array([d.n]), "frequency_span_hz": np.array([d.frequency_span_hz])},
+            {
+                "delay_s": np.array([d.delay_s]),
+                "quality": np.array([d.quality]),
+                "n": np.array([d.n]),
+                "frequency_span_hz": np.array([d.frequency_span_hz]),
+            },
         )
 
 

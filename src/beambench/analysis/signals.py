@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beambench.sync import golden_min
+from beambench.analysis.sync import golden_min
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from beambench.calibration import LoadCellCalibration, default_calibration
-from beambench.hub import Batch
-from beambench.streams import (
+from beambench.acquisition.batch import Batch
+from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.streams import (
     CONTACT_MARKERS,
     WALKER_MARKERS,
     loadcell_spec,
@@ -162,7 +162,9 @@ def markers(cfg: SynthSession, t: np.ndarray, rng: np.random.Generator) -> np.nd
         body_x[sel] = x_acc + st.body_speed_mm_s * 1e-3 * (t[sel] - sched[i][0])
         x_acc += st.body_speed_mm_s * 1e-3 * (cfg.settle_s + cfg.record_s)
     if cfg.rig == "walker":
-        body = np.stack([body_x + 0.2e-3 * np.sin(2 * np.pi * turns), np.zeros(n), 0.03 + 0.3e-3 * np.cos(2 * np.pi * turns)], 1)
+        body = np.stack(
+            [body_x + 0.2e-3 * np.sin(2 * np.pi * turns), np.zeros(n), 0.03 + 0.3e-3 * np.cos(2 * np.pi * turns)], 1
+        )
         left = body + np.stack([ell[:, 0], np.full(n, 0.05), ell[:, 1] - 0.03], 1)
         right = body + np.stack([ell[:, 0], np.full(n, -0.05), ell[:, 1] - 0.03], 1)
         pos = np.stack([body, left, right], 1)
@@ -201,7 +203,8 @@ def _echo_exchanges(clock: SynthClock, t_end: float, rng: np.random.Generator, e
 
 def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
     """Write a session file with the truth of ``cfg``; returns its path."""
-    from beambench.store import SessionWriter, StepRecord
+    from beambench.acquisition.batch import StepRecord
+    from beambench.sinks.hdf5 import SessionWriter
 
     rng = np.random.default_rng(cfg.seed)
     sched = _schedule(cfg)
@@ -253,7 +256,12 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
         counts = np.round(cal.counts_from_force(forces)).astype(np.int32)
         dev, host = _device_stamps(tl, clocks["loadcell"], rng)
         batches.append(
-            Batch("loadcell", host, dev, {"data": counts, "seq": np.arange(len(tl)), "sync_edges": np.floor(tl * 360).astype(np.int64)})
+            Batch(
+                "loadcell",
+                host,
+                dev,
+                {"data": counts, "seq": np.arange(len(tl)), "sync_edges": np.floor(tl * 360).astype(np.int64)},
+            )
         )
 
     proto = {
@@ -277,7 +285,7 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
     if cfg.natnet_echo:
         general["sync"] = {"natnet_echo": _echo_exchanges(clocks["mocap"], t_end, rng)}
     path = Path(path)
-    writer = SessionWriter(path, general, max_steps=len(cfg.steps))
+    writer = SessionWriter(path, general)
     writer.open(specs)
     try:
         # interleave batches in host-time order, like a live run
@@ -286,10 +294,16 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
             for b in batches:
                 sel = (b.host_time_ns >= lo) & (b.host_time_ns < hi)
                 if sel.any():
-                    writer.write(Batch(b.stream, b.host_time_ns[sel], b.device_time[sel], {k: v[sel] for k, v in b.columns.items()}))
+                    writer.write(
+                        Batch(
+                            b.stream, b.host_time_ns[sel], b.device_time[sel], {k: v[sel] for k, v in b.columns.items()}
+                        )
+                    )
             for i, (s0, s1, s2) in enumerate(sched):
                 if lo <= s2 * NS < hi:
-                    writer.step(StepRecord(i, cfg.steps[i].frequency_hz, int(s0 * NS), int(s1 * NS), int(s2 * NS), "done"))
+                    writer.step(
+                        StepRecord(i, cfg.steps[i].frequency_hz, int(s0 * NS), int(s1 * NS), int(s2 * NS), "done")
+                    )
         writer.event(int(t_end * NS), "stop", "synthetic session complete")
     finally:
         writer.close()

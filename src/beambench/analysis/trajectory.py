@@ -229,7 +229,9 @@ def fit_ellipse_points(xy: np.ndarray) -> Ellipse:
     centre = c0 * sc + mu
     area = signed_area(p)
     cw = None if area == 0 else bool(area < 0)
-    return Ellipse((float(centre[0]), float(centre[1])), float(2 * semi[0] * sc), float(2 * semi[1] * sc), _tilt(major_dir), cw)
+    return Ellipse(
+        (float(centre[0]), float(centre[1])), float(2 * semi[0] * sc), float(2 * semi[1] * sc), _tilt(major_dir), cw
+    )
 
 
 def signed_area(xy: np.ndarray) -> float:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn, Optional
+from typing import TYPE_CHECKING, NoReturn
 
 import typer
 
@@ -16,7 +16,7 @@ def _fail(message: str) -> NoReturn:
     raise typer.Exit(2)
 
 
-def _frequencies(text: Optional[str]) -> list[float] | None:
+def _frequencies(text: str | None) -> list[float] | None:
     if not text:
         return None
     try:
@@ -28,7 +28,7 @@ def _frequencies(text: Optional[str]) -> list[float] | None:
     return vals
 
 
-def _options(up: Optional[str], forward: Optional[str]) -> AnalysisOptions:
+def _options(up: str | None, forward: str | None) -> AnalysisOptions:
     from beambench.analysis.session import AnalysisOptions
     from beambench.analysis.trajectory import axis_vector
 
@@ -44,7 +44,7 @@ def _options(up: Optional[str], forward: Optional[str]) -> AnalysisOptions:
 def _load(path: Path, options: AnalysisOptions, progress, write: bool) -> SessionAnalysis:
     """Read and analyse one session, with a progress task; errors become one line and exit code 2."""
     from beambench.analysis.session import analyze_session, write_results
-    from beambench.store import read_session
+    from beambench.sinks.hdf5 import read_session
 
     if not path.is_file():
         _fail(f"{path}: no such file")
@@ -71,7 +71,9 @@ def _report(analyses: list[SessionAnalysis], out: Path, force_at: list[float] | 
     from beambench.analysis.report import make_report
 
     task = progress.add_task("figures", total=8)
-    return make_report(analyses, out, force_at, lambda key: progress.update(task, advance=1, description=f"figure: {key}"))
+    return make_report(
+        analyses, out, force_at, lambda key: progress.update(task, advance=1, description=f"figure: {key}")
+    )
 
 
 def _progress(quiet: bool):
@@ -84,8 +86,12 @@ def _progress(quiet: bool):
     )
 
     return Progress(
-        TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-        disable=quiet, transient=True,
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        disable=quiet,
+        transient=True,
     )
 
 
@@ -95,11 +101,23 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def analyze(
         session: Path = typer.Argument(..., metavar="SESSION.h5", help="A session file written by beambench run."),
-        out: Optional[Path] = typer.Option(None, "--out", "-o", help="Report folder (default: <session stem>_report/ beside the session)."),
-        force_at: Optional[str] = typer.Option(None, "--force-at", help="Frequencies (Hz) for the force-trace figure, e.g. 26,40 (default: one per contact regime)."),
-        up: Optional[str] = typer.Option(None, "--up", help="World axis pointing up, e.g. z or -y (default: from the session or the rig geometry)."),
-        forward: Optional[str] = typer.Option(None, "--forward", help="Walker: world axis of forward travel (default: from the session, else x)."),
-        no_write: bool = typer.Option(False, "--no-write", help="Do not store the results in the session's /processing group."),
+        out: Path | None = typer.Option(
+            None, "--out", "-o", help="Report folder (default: <session stem>_report/ beside the session)."
+        ),
+        force_at: str | None = typer.Option(
+            None,
+            "--force-at",
+            help="Frequencies (Hz) for the force-trace figure, e.g. 26,40 (default: one per contact regime).",
+        ),
+        up: str | None = typer.Option(
+            None, "--up", help="World axis pointing up, e.g. z or -y (default: from the session or the rig geometry)."
+        ),
+        forward: str | None = typer.Option(
+            None, "--forward", help="Walker: world axis of forward travel (default: from the session, else x)."
+        ),
+        no_write: bool = typer.Option(
+            False, "--no-write", help="Do not store the results in the session's /processing group."
+        ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:
         """Analyse every step of a session and write a report folder.
@@ -124,11 +142,19 @@ def register(app: typer.Typer) -> None:
     def compare(
         a: Path = typer.Argument(..., metavar="A.h5", help="First session (e.g. sim)."),
         b: Path = typer.Argument(..., metavar="B.h5", help="Second session (e.g. rig)."),
-        out: Optional[Path] = typer.Option(None, "--out", "-o", help="Report folder (default: <A stem>_vs_<B stem>_report/ beside A)."),
-        force_at: Optional[str] = typer.Option(None, "--force-at", help="Frequencies (Hz) for the force-trace figure, e.g. 26,40."),
-        up: Optional[str] = typer.Option(None, "--up", help="World axis pointing up for both sessions (default: from each session)."),
-        forward: Optional[str] = typer.Option(None, "--forward", help="Walker: world axis of forward travel."),
-        no_write: bool = typer.Option(False, "--no-write", help="Do not store results in the sessions' /processing groups."),
+        out: Path | None = typer.Option(
+            None, "--out", "-o", help="Report folder (default: <A stem>_vs_<B stem>_report/ beside A)."
+        ),
+        force_at: str | None = typer.Option(
+            None, "--force-at", help="Frequencies (Hz) for the force-trace figure, e.g. 26,40."
+        ),
+        up: str | None = typer.Option(
+            None, "--up", help="World axis pointing up for both sessions (default: from each session)."
+        ),
+        forward: str | None = typer.Option(None, "--forward", help="Walker: world axis of forward travel."),
+        no_write: bool = typer.Option(
+            False, "--no-write", help="Do not store results in the sessions' /processing groups."
+        ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:
         """Overlay two sessions (sim vs rig, two models, two beams) on the same report figures.

@@ -12,8 +12,7 @@ from typing import NoReturn
 
 import typer
 
-bench_app = typer.Typer(help="Benchmarks of the simulation: beam models, integrators, timesteps.",
-                        no_args_is_help=True)
+bench_app = typer.Typer(help="Benchmarks of the simulation: beam models, integrators, timesteps.", no_args_is_help=True)
 
 DEFAULT_OUT = Path("bench_out") / "models"
 
@@ -33,8 +32,12 @@ _MODELS_HELP = (
 
 @bench_app.command("models", help=_MODELS_HELP)
 def models(
-    quick: bool = typer.Option(False, "--quick", help="A small ladder (3 models, 3 frequencies, short windows): "
-                               "under 2 minutes on 2 cores. Without it: the full ladder (tens of minutes)."),
+    quick: bool = typer.Option(
+        False,
+        "--quick",
+        help="A small ladder (3 models, 3 frequencies, short windows): "
+        "under 2 minutes on 2 cores. Without it: the full ladder (tens of minutes).",
+    ),
     out: Path = typer.Option(DEFAULT_OUT, "--out", "-o", help="Folder for the CSVs and the figures."),
     threads: int = typer.Option(0, "--threads", help="Threads for the batched sweeps (0: all cores)."),
 ) -> None:
@@ -51,15 +54,34 @@ def models(
     from dataclasses import replace
 
     from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
-    from beambench.sim.ladder import FULL, QUICK, run_ladder, summarize, write_outputs
+    from beambench.studies.ladder import (
+        FULL,
+        QUICK,
+        run_ladder,
+        summarize,
+        write_outputs,
+    )
 
     cfg = replace(QUICK if quick else FULL, nthread=threads or None)
     console = Console(stderr=True)
     t0 = time.perf_counter()
-    with Progress(TextColumn("[bold]{task.description:<40}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                  TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=False) as progress:
+    with Progress(
+        TextColumn("[bold]{task.description:<40}"),
+        BarColumn(),
+        TextColumn("{task.percentage:>3.0f}%"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+    ) as progress:
         task = progress.add_task("ladder", total=1.0)
 
         def on_progress(desc: str, frac: float) -> None:
@@ -78,14 +100,21 @@ def models(
 def _print_summary(summary, console) -> None:
     from rich.table import Table
 
-    from beambench.sim.ladder import pareto
+    from beambench.studies.ladder import pareto
 
     t = Table(title="Pareto front (stable over 5–45 Hz): fastest for each error level")
     for col in ("model", "integrator", "dt [s]", "nv", "mean err [mm]", "max err [mm]", "wall s / 10 s"):
         t.add_column(col, justify="right")
     for _, r in pareto(summary).iterrows():
-        t.add_row(r.model, r.integrator, f"{r.timestep:g}", f"{r.nv:.0f}", f"{r.err_mean_mm:.3g}",
-                  f"{r.err_max_mm:.3g}", f"{r.wall_s_per_10s:.3g}")
+        t.add_row(
+            r.model,
+            r.integrator,
+            f"{r.timestep:g}",
+            f"{r.nv:.0f}",
+            f"{r.err_mean_mm:.3g}",
+            f"{r.err_max_mm:.3g}",
+            f"{r.wall_s_per_10s:.3g}",
+        )
     console.print(t)
 
 

@@ -9,10 +9,11 @@ prompts on stdin, and with ``--emulate`` to an emulated MCU on a pty whose force
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, NoReturn, Optional
+from typing import TYPE_CHECKING, NoReturn
 
 import typer
 
@@ -20,8 +21,8 @@ if TYPE_CHECKING:
     import numpy as np
     from rich.console import Console
 
-    from beambench.calibration import LoadCellCalibration, MatrixFit
-    from beambench.devices.base import Stream
+    from beambench.acquisition.calibration import LoadCellCalibration, MatrixFit
+    from beambench.acquisition.capabilities import Stream
 
 DEFAULT_OUT = Path("calibration") / "loadcells.yaml"
 DEFAULT_RIG = Path("calibration") / "rig.yaml"
@@ -37,14 +38,14 @@ class CalibrationAborted(Exception):
 class Recording:
     """Samples recorded for one step: their per-channel mean and standard deviation."""
 
-    samples: "np.ndarray"
+    samples: np.ndarray
 
     @property
-    def mean(self) -> "np.ndarray":
+    def mean(self) -> np.ndarray:
         return self.samples.mean(axis=0)
 
     @property
-    def std(self) -> "np.ndarray":
+    def std(self) -> np.ndarray:
         return self.samples.std(axis=0)
 
 
@@ -63,16 +64,16 @@ def parse_loads(values: list[str]) -> list[tuple[float, float]]:
     return loads
 
 
-def _noise_floor(std: "np.ndarray") -> float:
+def _noise_floor(std: np.ndarray) -> float:
     """Noise level used to tell a load from no load: the largest channel std, at least one count."""
     return max(float(std.max()), 1.0)
 
 
-def record(stream: "Stream", settle_s: float, duration_s: float) -> Recording:
+def record(stream: Stream, settle_s: float, duration_s: float) -> Recording:
     """Wait ``settle_s``, drop what came meanwhile, then collect ``duration_s`` of samples."""
     import numpy as np
 
-    from beambench.hub import Batch
+    from beambench.acquisition.batch import Batch
 
     time.sleep(settle_s)
     stream.read()
@@ -88,23 +89,27 @@ def record(stream: "Stream", settle_s: float, duration_s: float) -> Recording:
 
 
 def walkthrough(
-    stream: "Stream",
+    stream: Stream,
     loads: list[tuple[float, float]] | None,
     ask: Callable[[str], str],
-    console: "Console",
+    console: Console,
     *,
     settle_s: float = 0.5,
     duration_s: float = 1.0,
-    gain: "np.ndarray | None" = None,
+    gain: np.ndarray | None = None,
     on_step: Callable[[tuple[float, float]], None] | None = None,
     source: str = "",
-) -> tuple["LoadCellCalibration", "MatrixFit"]:
+) -> tuple[LoadCellCalibration, MatrixFit]:
     """Tare then known loads, fitted. ``loads=None`` asks the user for each load until a blank answer."""
     import numpy as np
     from rich.table import Table
 
-    from beambench.calibration import LoadCellCalibration, fit_matrix, tare_counts
-    from beambench.streams import LOADCELL_CHANNELS
+    from beambench.acquisition.calibration import (
+        LoadCellCalibration,
+        fit_matrix,
+        tare_counts,
+    )
+    from beambench.acquisition.streams import LOADCELL_CHANNELS
 
     hook = on_step or (lambda load: None)
     hook((0.0, 0.0))
@@ -161,7 +166,7 @@ def walkthrough(
     return cal, fit
 
 
-def _show_fit(console: "Console", fit: "MatrixFit") -> None:
+def _show_fit(console: Console, fit: MatrixFit) -> None:
     from rich.table import Table
 
     t = Table(title="Known loads and the fit (N)")
@@ -188,7 +193,10 @@ def _emulated_plate():
     """A plate that differs from the shipped calibration (gains off by a few %, crosstalk, other offsets)."""
     import numpy as np
 
-    from beambench.calibration import LoadCellCalibration, default_calibration
+    from beambench.acquisition.calibration import (
+        LoadCellCalibration,
+        default_calibration,
+    )
 
     nominal = default_calibration()
     rng = np.random.default_rng(7)
@@ -198,10 +206,10 @@ def _emulated_plate():
 
 
 def loadcells(
-    port: Optional[str] = typer.Option(None, "--port", help="Serial port of the load-cell MCU (default: from --rig)."),
-    baudrate: Optional[int] = typer.Option(None, "--baud", help="Baud rate (default: from --rig, else 921600)."),
+    port: str | None = typer.Option(None, "--port", help="Serial port of the load-cell MCU (default: from --rig)."),
+    baudrate: int | None = typer.Option(None, "--baud", help="Baud rate (default: from --rig, else 921600)."),
     rig: Path = typer.Option(DEFAULT_RIG, "--rig", help="Rig wiring YAML read for the port when --port is not given."),
-    out: Optional[Path] = typer.Option(
+    out: Path | None = typer.Option(
         None,
         "--out",
         help=f"Where to save (default: the rig file's loadcell_calibration, else {DEFAULT_OUT}; "
@@ -221,7 +229,7 @@ def loadcells(
     from rich.console import Console
     from rich.prompt import Confirm, Prompt
 
-    from beambench.devices.base import DeviceFault
+    from beambench.acquisition.capabilities import DeviceFault
     from beambench.devices.loadcell import DEFAULT_BAUDRATE, SerialLoadCells
 
     try:
@@ -237,7 +245,7 @@ def loadcells(
     if not emulate and port is None:
         if not rig.exists():
             _fail(f"no --port given and no rig file at {rig}")
-        from beambench.config import ConfigError, load_rig_file
+        from beambench.acquisition.config import ConfigError, load_rig_file
 
         try:
             wiring = load_rig_file(rig)
@@ -275,7 +283,7 @@ def loadcells(
         if mcu is not None:
             mcu.start()
         source = (
-            f"beambench calibrate loadcells, {datetime.now(timezone.utc).isoformat(timespec='seconds')}, "
+            f"beambench calibrate loadcells, {datetime.now(UTC).isoformat(timespec='seconds')}, "
             f"port {'emulated' if emulate else port}"
         )
         cal, fit = walkthrough(

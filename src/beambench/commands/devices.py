@@ -20,7 +20,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.table import Table
 
-        from beambench.config import ConfigError, load_rig_file
+        from beambench.acquisition.config import ConfigError, load_rig_file
 
         try:
             rig = load_rig_file(rig_file) if not emulate else None
@@ -28,7 +28,7 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"beambench: error: {exc}", err=True)
             raise typer.Exit(2) from None
         if emulate:
-            from beambench.hardware_rig import emulated_peers
+            from beambench.rigs.emulated import emulated_peers
 
             with emulated_peers() as wiring:
                 results = ping_all(wiring)
@@ -58,7 +58,7 @@ def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
     nn = rig.natnet.model_dump(exclude={"markers"})
     try:
         out["mocap (NatNet)"] = {"found": True, **natnet.ping(natnet.NatNetConfig.from_mapping(nn))}
-    except Exception as exc:  # noqa: BLE001 - report, don't crash
+    except Exception as exc:
         out["mocap (NatNet)"] = {"found": False, "error": str(exc)}
     od = rig.odrive
     if od.transport == "can":
@@ -70,6 +70,6 @@ def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
     try:
         lc = loadcell.ping(rig.loadcell.port, rig.loadcell.baudrate)
         out["load cells (serial)"] = {"found": lc.ok, **{k: v for k, v in vars(lc).items() if k not in ("ok", "stats")}}
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:
         out["load cells (serial)"] = {"found": False, "error": str(exc)}
     return out

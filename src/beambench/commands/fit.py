@@ -16,27 +16,46 @@ def _fail(message: str) -> NoReturn:
 
 
 def fit(
-    session: Path = typer.Argument(..., metavar="SESSION", help="A release-test session (.h5), e.g. from "
-                                   "`beambench run protocols/release_test.yaml`."),
-    out: Path = typer.Option(None, "--out", "-o", help="Folder for the figure and the JSON report "
-                             "(default: <session>_fit beside the session)."),
-    model: str = typer.Option("prb3", "--model", "-m", help="prb3, rod (= rod10), rodN, or a comma list "
-                              "such as prb3,rod10 to fit several."),
-    free_l1: bool = typer.Option(False, "--free-l1", help="PRB3: fit l1 too (default l1 = 0, as the paper "
-                                 "settled on; l3 = 50 mm − l1 − l2)."),
-    name: str = typer.Option(None, "--name", "-n", help="Name of the parameter set written to sim_backend/ "
-                             "(<model>_<name>.yaml; select it with `sim.params: <name>`). Default: the session name."),
-    params_dir: Path = typer.Option(None, "--params-dir", help="Where to write the parameter set "
-                                    "(default: the package's sim_backend/)."),
+    session: Path = typer.Argument(
+        ...,
+        metavar="SESSION",
+        help="A release-test session (.h5), e.g. from `beambench run protocols/release_test.yaml`.",
+    ),
+    out: Path = typer.Option(
+        None,
+        "--out",
+        "-o",
+        help="Folder for the figure and the JSON report (default: <session>_fit beside the session).",
+    ),
+    model: str = typer.Option(
+        "prb3", "--model", "-m", help="prb3, rod (= rod10), rodN, or a comma list such as prb3,rod10 to fit several."
+    ),
+    free_l1: bool = typer.Option(
+        False, "--free-l1", help="PRB3: fit l1 too (default l1 = 0, as the paper settled on; l3 = 50 mm − l1 − l2)."
+    ),
+    name: str = typer.Option(
+        None,
+        "--name",
+        "-n",
+        help="Name of the parameter set written to sim_backend/ "
+        "(<model>_<name>.yaml; select it with `sim.params: <name>`). Default: the session name.",
+    ),
+    params_dir: Path = typer.Option(
+        None, "--params-dir", help="Where to write the parameter set (default: the package's sim_backend/)."
+    ),
     no_write: bool = typer.Option(False, "--no-write", help="Do not write a parameter set or /processing."),
     popsize: int = typer.Option(12, "--popsize", help="Differential-evolution population per variable."),
     maxiter: int = typer.Option(60, "--maxiter", help="Maximum generations."),
     seed: int = typer.Option(0, "--seed", help="Random seed of the optimizer."),
     threads: int = typer.Option(0, "--threads", help="Simulation threads (0: all cores)."),
     timestep: float = typer.Option(2e-4, "--timestep", help="Simulation timestep of the fit (s)."),
-    register: bool = typer.Option(None, "--register/--no-register", help="Map the mocap frame onto the model's "
-                                  "(clamp at the origin, beam along +y, z up) from the rest pose. Default: on for "
-                                  "sessions not made by the sim."),
+    register: bool = typer.Option(
+        None,
+        "--register/--no-register",
+        help="Map the mocap frame onto the model's "
+        "(clamp at the origin, beam along +y, z up) from the rest pose. Default: on for "
+        "sessions not made by the sim.",
+    ),
 ) -> None:
     """Fit the PRB3 model (k, b, l2; optionally l1) and/or the segmented rod (E, damping) to a release test.
 
@@ -53,8 +72,12 @@ def fit(
         _fail("--free-l1 applies to the prb3 model")
     if not session.is_file():
         _fail(f"{session}: no such session file")
-    for opt, value, ok in (("--popsize", popsize, popsize >= 4), ("--maxiter", maxiter, maxiter >= 1),
-                           ("--threads", threads, threads >= 0), ("--timestep", timestep, 0 < timestep <= 2e-3)):
+    for opt, value, ok in (
+        ("--popsize", popsize, popsize >= 4),
+        ("--maxiter", maxiter, maxiter >= 1),
+        ("--threads", threads, threads >= 0),
+        ("--timestep", timestep, 0 < timestep <= 2e-3),
+    ):
         if not ok:
             _fail(f"{opt} = {value}: out of range")
     name = name or re.sub(r"[^A-Za-z0-9_.-]", "_", session.stem)
@@ -67,14 +90,14 @@ def fit(
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from beambench.fit import (
+    from beambench.sim.models.params import SIM_BACKEND_DIR
+    from beambench.studies.fit import (
         FitError,
         fit_release,
         load_release_session,
         plot_fit,
         write_param_set,
     )
-    from beambench.sim.params import SIM_BACKEND_DIR
 
     console = Console(stderr=True)
     try:
@@ -83,17 +106,34 @@ def fit(
         _fail(str(exc))
     results = []
     for m in models:
-        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("gen {task.completed:.0f}"),
-                      TextColumn("{task.fields[err]}"), TimeElapsedColumn(), console=console, transient=True) as prog:
+        with Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            TextColumn("gen {task.completed:.0f}"),
+            TextColumn("{task.fields[err]}"),
+            TimeElapsedColumn(),
+            console=console,
+            transient=True,
+        ) as prog:
             task = prog.add_task(f"fitting {m}", total=maxiter, err="")
 
             def progress(gen: int, best: float, task=task, prog=prog) -> None:
                 prog.update(task, completed=gen, err=f"best RMS {best * 1e3:.3f} mm")
 
             try:
-                results.append(fit_release(data, m, free_l1=free_l1 and m == "prb3", popsize=popsize,
-                                           maxiter=maxiter, seed=seed, timestep=timestep, nthread=threads or None,
-                                           progress=progress))
+                results.append(
+                    fit_release(
+                        data,
+                        m,
+                        free_l1=free_l1 and m == "prb3",
+                        popsize=popsize,
+                        maxiter=maxiter,
+                        seed=seed,
+                        timestep=timestep,
+                        nthread=threads or None,
+                        progress=progress,
+                    )
+                )
             except FitError as exc:
                 _fail(str(exc))
     _print_results(results, data, Console())
@@ -122,15 +162,16 @@ def fit(
 def _print_results(results, data, console) -> None:
     from rich.table import Table
 
-    from beambench.fit import PAPER_MAE_MM
+    from beambench.studies.fit import PAPER_MAE_MM
 
-    t = Table(title=f"Release-test fit ({len(data.t)} samples × {len(data.names)} tip markers)",
-              caption=f"error: fitted vs the generating model (sim sessions); paper: {PAPER_MAE_MM} mm "
-                      "mean error against its rig")
+    t = Table(
+        title=f"Release-test fit ({len(data.t)} samples × {len(data.names)} tip markers)",
+        caption=f"error: fitted vs the generating model (sim sessions); paper: {PAPER_MAE_MM} mm "
+        "mean error against its rig",
+    )
     for col in ("model", "parameter", "fitted", "truth", "error"):
         t.add_column(col, justify="right")
-    units = {"k": "N·m/rad", "b": "N·m·s/rad", "l1": "mm", "l2": "mm", "l3": "mm", "youngs_modulus": "MPa",
-             "beta": "s"}
+    units = {"k": "N·m/rad", "b": "N·m·s/rad", "l1": "mm", "l2": "mm", "l3": "mm", "youngs_modulus": "MPa", "beta": "s"}
     scale = {"l1": 1e3, "l2": 1e3, "l3": 1e3, "youngs_modulus": 1e-6}
     for r in results:
         same = r.truth.get("model") == r.model
@@ -138,8 +179,13 @@ def _print_results(results, data, console) -> None:
             sc = scale.get(key, 1.0)
             tv = r.truth.get(key) if same else None
             err = f"{(v / tv - 1) * 100:+.2f} %" if tv else ""
-            t.add_row(r.model, f"{key} ({units.get(key, '')})", f"{v * sc:.5g}",
-                      f"{tv * sc:.5g}" if tv is not None else "", err)
+            t.add_row(
+                r.model,
+                f"{key} ({units.get(key, '')})",
+                f"{v * sc:.5g}",
+                f"{tv * sc:.5g}" if tv is not None else "",
+                err,
+            )
         t.add_row(r.model, "RMS error (mm)", f"{r.rms_mm:.3f}", "", "")
         t.add_row(r.model, "mean marker error (mm)", f"{r.mae_mm:.3f}", "", "")
         t.add_row(r.model, "evaluations", f"{r.nfev} ({r.generations} gen.)", "", "")
@@ -150,7 +196,7 @@ def _print_results(results, data, console) -> None:
 def _write_processing(session: Path, result, console) -> None:
     import numpy as np
 
-    from beambench.store import write_processing
+    from beambench.sinks.hdf5 import write_processing
 
     table = {"parameter": np.array(list(result.values)), "value": np.array(list(result.values.values()), float)}
     try:

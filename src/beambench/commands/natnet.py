@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import NoReturn, Optional
+from typing import NoReturn
 
 import typer
 
@@ -21,8 +21,8 @@ def _fail(message: str) -> NoReturn:
 @natnet_app.command("decode")
 def decode(
     capture: Path = typer.Argument(..., metavar="CAPTURE", help="A .pcapng or .pcap file with NatNet traffic."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="Write the frames to this CSV file (default: stdout)."),
-    natnet_version: Optional[str] = typer.Option(
+    out: Path | None = typer.Option(None, "--out", "-o", help="Write the frames to this CSV file (default: stdout)."),
+    natnet_version: str | None = typer.Option(
         None, "--natnet-version", help="NatNet version X.Y, used when the capture holds no SERVERINFO."
     ),
     ports: str = typer.Option("1510,1511", "--ports", help="UDP ports of the NatNet traffic, comma-separated."),
@@ -37,7 +37,7 @@ def decode(
     """
     from beambench.devices import natnet_protocol as nn
     from beambench.devices.natnet_capture import decode_capture, frames_table
-    from beambench.pcap import CaptureError
+    from beambench.devices.pcap import CaptureError
 
     if natnet_version is not None:
         try:

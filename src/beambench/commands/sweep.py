@@ -15,18 +15,34 @@ def _fail(message: str) -> NoReturn:
 
 def sweep(
     sweep_file: Path = typer.Argument(..., metavar="SWEEP", help="Sweep YAML, e.g. protocols/twist_sweep.yaml."),
-    out: Path = typer.Option(None, "--out", "-o", help="Results table (.parquet). Default: the file's "
-                             "`output`, else data/sweeps/<name>.parquet. An existing table is resumed."),
+    out: Path = typer.Option(
+        None,
+        "--out",
+        "-o",
+        help="Results table (.parquet). Default: the file's "
+        "`output`, else data/sweeps/<name>.parquet. An existing table is resumed.",
+    ),
     workers: int = typer.Option(0, "--workers", "-w", help="Local worker processes (0: all cores)."),
-    scheduler: str = typer.Option(None, "--scheduler", help="Run on a Dask cluster: its scheduler address, "
-                                  "tcp://HOST:PORT (needs the 'cluster' extra)."),
-    cluster: str = typer.Option(None, "--cluster", help="'slurm': start workers as SLURM jobs through "
-                                "dask-jobqueue (configure queue/account/cores/memory in ~/.config/dask/jobqueue.yaml; "
-                                "--workers = number of jobs)."),
-    batch_size: int = typer.Option(0, "--batch-size", help="Simulations per task (0: the file's batch_size, else "
-                                   "10–50 chosen from the sweep size)."),
-    figure: bool = typer.Option(True, "--figure/--no-figure", help="Also draw metrics vs the first swept "
-                                "parameter (<table>.png)."),
+    scheduler: str = typer.Option(
+        None,
+        "--scheduler",
+        help="Run on a Dask cluster: its scheduler address, tcp://HOST:PORT (needs the 'cluster' extra).",
+    ),
+    cluster: str = typer.Option(
+        None,
+        "--cluster",
+        help="'slurm': start workers as SLURM jobs through "
+        "dask-jobqueue (configure queue/account/cores/memory in ~/.config/dask/jobqueue.yaml; "
+        "--workers = number of jobs).",
+    ),
+    batch_size: int = typer.Option(
+        0,
+        "--batch-size",
+        help="Simulations per task (0: the file's batch_size, else 10–50 chosen from the sweep size).",
+    ),
+    figure: bool = typer.Option(
+        True, "--figure/--no-figure", help="Also draw metrics vs the first swept parameter (<table>.png)."
+    ),
     dry_run: bool = typer.Option(False, "--dry-run", help="Print the plan (points, done, to do) and exit."),
 ) -> None:
     """Sweep scene parameters (twist, chirality, gap, stiffness, model …) × frequencies on the simulator.
@@ -35,7 +51,7 @@ def sweep(
     contacts per cycle, regime) go to one Parquet table, saved as each task finishes. Rerunning the
     same command skips finished points, so an interrupted sweep resumes where it stopped.
     """
-    from beambench.sweep import SweepError, load_sweep, plan, read_table
+    from beambench.studies.sweep import SweepError, load_sweep, plan, read_table
 
     if workers < 0:
         _fail(f"--workers = {workers}: must be >= 0")
@@ -61,8 +77,8 @@ def sweep(
         TimeRemainingColumn,
     )
 
-    from beambench.executor import ExecutorError
-    from beambench.sweep import plot_sweep, run_sweep
+    from beambench.studies.executor import ExecutorError
+    from beambench.studies.sweep import plot_sweep, run_sweep
 
     console = Console(stderr=True)
     if dry_run:
@@ -73,16 +89,28 @@ def sweep(
             _fail(str(exc))
         done = set(old["point_id"]) if "point_id" in old.columns else set()
         todo = sum(j.id not in done for j in jobs)
-        typer.echo(f"{spec.name}: {spec.scene}, {len(jobs)} points ({len(jobs) - todo} done, {todo} to do), "
-                   f"axes: {', '.join(spec.axes()) or '(single point)'}; table: {out}")
+        typer.echo(
+            f"{spec.name}: {spec.scene}, {len(jobs)} points ({len(jobs) - todo} done, {todo} to do), "
+            f"axes: {', '.join(spec.axes()) or '(single point)'}; table: {out}"
+        )
         return
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  TimeRemainingColumn(), console=console, transient=False) as prog:
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+    ) as prog:
         task = prog.add_task(f"{spec.name}", total=None)
 
         def on_start(todo: int, skipped: int, tasks: int, label: str) -> None:
-            prog.update(task, total=todo, description=f"{spec.name}: {todo} points in {tasks} tasks "
-                        f"({skipped} done before) on {label}")
+            prog.update(
+                task,
+                total=todo,
+                description=f"{spec.name}: {todo} points in {tasks} tasks ({skipped} done before) on {label}",
+            )
 
         def progress(done: int, total: int) -> None:
             prog.update(task, completed=done)
@@ -96,8 +124,10 @@ def sweep(
     overhead = ""
     if run.computed and run.wall_s > 0:
         overhead = f", {run.task_compute_s:.1f} s of simulation in {run.wall_s:.1f} s wall"
-    typer.echo(f"{run.path}: {len(t)} points ({run.computed} computed, {run.skipped} already done"
-               f"{', ' + str(n_bad) + ' failed' if n_bad else ''}){overhead}")
+    typer.echo(
+        f"{run.path}: {len(t)} points ({run.computed} computed, {run.skipped} already done"
+        f"{', ' + str(n_bad) + ' failed' if n_bad else ''}){overhead}"
+    )
     if figure and len(t):
         fig = plot_sweep(t, spec, run.path.with_suffix(".png"))
         if fig is not None:

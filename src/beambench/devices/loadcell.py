@@ -19,10 +19,10 @@ from typing import Any
 import numpy as np
 import serial
 
-from beambench.devices.base import DeviceFault
+from beambench.acquisition.batch import Batch, StreamSpec
+from beambench.acquisition.capabilities import DeviceFault
+from beambench.acquisition.streams import LOADCELL, LOADCELL_RATE_HZ, loadcell_spec
 from beambench.devices.loadcell_protocol import CRC_NAME, VERSION, Frame, StreamDecoder
-from beambench.hub import Batch, StreamSpec
-from beambench.streams import LOADCELL, LOADCELL_RATE_HZ, loadcell_spec
 
 DEFAULT_BAUDRATE = 921_600
 _U32 = 1 << 32
@@ -164,7 +164,7 @@ class SerialLoadCells:
                 pass
             self._ser = None
 
-    def __enter__(self) -> "SerialLoadCells":
+    def __enter__(self) -> SerialLoadCells:
         self.start()
         return self
 

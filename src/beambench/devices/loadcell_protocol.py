@@ -43,8 +43,9 @@ from __future__ import annotations
 
 import binascii
 import struct
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 SYNC = b"\xa5\x5a"
 VERSION = 1

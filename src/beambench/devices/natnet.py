@@ -22,17 +22,18 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
+from beambench.acquisition.batch import Batch, Frame, StreamSpec
+from beambench.acquisition.capabilities import DeviceFault
+from beambench.acquisition.streams import MOCAP, MOCAP_RATE_HZ, mocap_spec
 from beambench.devices import natnet_protocol as nn
-from beambench.devices.base import DeviceFault
-from beambench.hub import Batch, StreamSpec
-from beambench.streams import MOCAP, MOCAP_RATE_HZ, mocap_spec
 
-__all__ = ["NatNetConfig", "NatNetClient", "NatNetError", "NatNetStats", "EchoSample", "NatNetMocap", "ping"]
+__all__ = ["EchoSample", "NatNetClient", "NatNetConfig", "NatNetError", "NatNetMocap", "NatNetStats", "ping"]
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +66,7 @@ class NatNetConfig:
     client_name: str = "beambench"
 
     @classmethod
-    def from_mapping(cls, d: Mapping[str, Any]) -> "NatNetConfig":
+    def from_mapping(cls, d: Mapping[str, Any]) -> NatNetConfig:
         """Build from a rig-file mapping; unknown keys are an error naming them."""
         known = set(cls.__dataclass_fields__)
         bad = sorted(set(d) - known)
@@ -109,7 +110,9 @@ class NatNetStats:
 class NatNetClient:
     """A NatNet client with one receive thread. Use as a context manager or ``connect()`` / ``close()``."""
 
-    def __init__(self, config: NatNetConfig | None = None, on_frame: Callable[[int, nn.FrameOfData], None] | None = None):
+    def __init__(
+        self, config: NatNetConfig | None = None, on_frame: Callable[[int, nn.FrameOfData], None] | None = None
+    ):
         self.config = config or NatNetConfig()
         self.on_frame = on_frame
         self.stats = NatNetStats()
@@ -141,7 +144,7 @@ class NatNetClient:
     def server_address(self) -> tuple[str, int]:
         return (self.config.server_address, self.config.command_port)
 
-    def connect(self) -> "NatNetClient":
+    def connect(self) -> NatNetClient:
         """Handshake (CONNECT/SERVERINFO), join the data stream, fetch MODELDEF and frame rate, sync clocks."""
         cfg = self.config
         try:
@@ -172,7 +175,9 @@ class NatNetClient:
             if self._serverinfo_evt.wait(cfg.timeout_s / 3):
                 break
         else:
-            raise NatNetError(f"NatNet: no SERVERINFO from {cfg.server_address}:{cfg.command_port} within {cfg.timeout_s} s")
+            raise NatNetError(
+                f"NatNet: no SERVERINFO from {cfg.server_address}:{cfg.command_port} within {cfg.timeout_s} s"
+            )
         info = self.server_info
         assert info is not None
         if info.natnet_version.major not in (3, 4):
@@ -239,7 +244,7 @@ class NatNetClient:
             self._sel.close()
             self._sel = None
 
-    def __enter__(self) -> "NatNetClient":
+    def __enter__(self) -> NatNetClient:
         return self.connect() if self._cmd is None else self
 
     def __exit__(self, *exc: object) -> None:
@@ -261,7 +266,9 @@ class NatNetClient:
             try:
                 reply = self._responses.get(timeout=timeout or self.config.timeout_s)
             except queue.Empty:
-                raise NatNetError(f"NatNet: no response to {command!r} within {timeout or self.config.timeout_s} s") from None
+                raise NatNetError(
+                    f"NatNet: no response to {command!r} within {timeout or self.config.timeout_s} s"
+                ) from None
         if isinstance(reply, nn.UnrecognizedRequest):
             raise NatNetError(f"NatNet: server does not recognise {command!r}")
         return reply
@@ -462,7 +469,7 @@ class MarkerSource:
     id: int
 
     @classmethod
-    def parse(cls, value: Any) -> "MarkerSource":
+    def parse(cls, value: Any) -> MarkerSource:
         """``1:3`` / (1, 3) → model 1 marker 3; ``rb:2`` → rigid body 2; an int → raw labeled-marker id."""
         if isinstance(value, MarkerSource):
             return value
@@ -502,6 +509,7 @@ class NatNetMocap:
         marker_map: Mapping[str, Any] | None = None,
         rate_hz: float | None = None,
         device_time: str = "mid_exposure",
+        frame: Frame | None = None,
     ) -> None:
         if device_time not in ("mid_exposure", "timestamp"):
             raise ValueError(f"device_time must be 'mid_exposure' or 'timestamp', not {device_time!r}")
@@ -516,10 +524,11 @@ class NatNetMocap:
         self.rate_hz = rate_hz
         self.device_time_mode = device_time
         self.client: NatNetClient | None = None
-        self._spec = mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ)
+        self.frame = frame or Frame(up_axis="y")  # Motive's default world frame
+        self._spec = mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ, self.frame)
 
     @classmethod
-    def from_rig(cls, section: Mapping[str, Any], markers: Sequence[str] | None = None, **kw: Any) -> "NatNetMocap":
+    def from_rig(cls, section: Mapping[str, Any], markers: Sequence[str] | None = None, **kw: Any) -> NatNetMocap:
         """From the rig file's ``natnet:`` block: NatNetConfig fields plus ``markers: {name: source}`` where a
         source is ``"model:marker"``, ``"rb:<id>"`` or a raw labeled-marker id (``model << 16 | marker``)."""
         d = dict(section)
@@ -534,7 +543,7 @@ class NatNetMocap:
 
     def describe(self) -> StreamSpec:
         if self.rate_hz is None and self.client is not None and self.client.frame_rate:
-            self._spec = mocap_spec(self.markers, float(self.client.frame_rate))
+            self._spec = mocap_spec(self.markers, float(self.client.frame_rate), self.frame)
         return self._spec
 
     def start(self) -> None:

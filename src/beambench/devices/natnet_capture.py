@@ -6,20 +6,32 @@ command), else from the caller. Used by ``beambench natnet decode`` and by the d
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
 
 from beambench.devices import natnet_protocol as nn
-from beambench.pcap import read_udp
+from beambench.devices.pcap import read_udp
 
 __all__ = ["CaptureDecode", "decode_capture", "frames_table"]
 
 NATNET_PORTS = (1510, 1511)
 BASE_COLUMNS = (
-    "capture_time_s", "frame", "timecode", "timestamp_s", "mid_exposure_ticks", "data_received_ticks",
-    "transmit_ticks", "precision_s", "precision_frac", "software_latency_ms", "system_latency_ms", "params",
-    "n_rigid_bodies", "n_labeled_markers", "n_other_markers",
+    "capture_time_s",
+    "frame",
+    "timecode",
+    "timestamp_s",
+    "mid_exposure_ticks",
+    "data_received_ticks",
+    "transmit_ticks",
+    "precision_s",
+    "precision_frac",
+    "software_latency_ms",
+    "system_latency_ms",
+    "params",
+    "n_rigid_bodies",
+    "n_labeled_markers",
+    "n_other_markers",
 )
 
 
@@ -179,10 +191,16 @@ def frames_table(decoded: CaptureDecode):  # type: ignore[no-untyped-def]
             row[k + "occluded"] = int(lm.occluded)
             row[k + "params"] = lm.params
         rows.append(row)
-    cols = list(BASE_COLUMNS) + [f"rb{i}_{c}" for i in sorted(rb_ids) for c in ("x", "y", "z", "qx", "qy", "qz", "qw", "error", "valid")]
+    cols = list(BASE_COLUMNS) + [
+        f"rb{i}_{c}" for i in sorted(rb_ids) for c in ("x", "y", "z", "qx", "qy", "qz", "qw", "error", "valid")
+    ]
     cols += [f"m{a}_{b}_{c}" for a, b in sorted(mk_ids) for c in ("x", "y", "z", "size", "occluded", "params")]
     df = pd.DataFrame(rows, columns=cols)
     for c in df.columns:  # integer columns with gaps stay integers
-        if c.endswith(("_valid", "_occluded", "_params")) or c.endswith("_ticks") or c in ("precision_s", "precision_frac"):
+        if (
+            c.endswith(("_valid", "_occluded", "_params"))
+            or c.endswith("_ticks")
+            or c in ("precision_s", "precision_frac")
+        ):
             df[c] = df[c].astype("Int64")
     return df

@@ -24,28 +24,28 @@ from enum import IntEnum
 from typing import ClassVar, NamedTuple, Union
 
 __all__ = [
-    "NatNetParseError",
-    "MessageId",
-    "Version",
-    "Sender",
     "Connect",
-    "Discovery",
-    "ServerInfo",
-    "Request",
-    "Response",
-    "RequestModelDef",
-    "RequestFrameOfData",
-    "MessageString",
     "Disconnect",
-    "KeepAlive",
     "DisconnectByTimeout",
+    "Discovery",
     "EchoRequest",
     "EchoResponse",
-    "UnrecognizedRequest",
-    "ModelDef",
     "FrameOfData",
+    "KeepAlive",
     "LabeledMarker",
+    "MessageId",
+    "MessageString",
+    "ModelDef",
+    "NatNetParseError",
+    "Request",
+    "RequestFrameOfData",
+    "RequestModelDef",
+    "Response",
     "RigidBody",
+    "Sender",
+    "ServerInfo",
+    "UnrecognizedRequest",
+    "Version",
     "decode",
     "encode",
     "peek_message_id",
@@ -87,7 +87,7 @@ class Version(NamedTuple):
     revision: int = 0
 
     @classmethod
-    def parse(cls, text: str) -> "Version":
+    def parse(cls, text: str) -> Version:
         """``"4.1"`` or ``"4.1.0.0"`` → Version; ValueError on anything else."""
         parts = [int(p) for p in str(text).strip().split(".")]
         if not 1 <= len(parts) <= 4 or any(not 0 <= p <= 255 for p in parts):
@@ -132,7 +132,7 @@ _SERVER_TAIL = struct.Struct("<QH?4B")  # clock frequency, data port, multicast,
 class _Reader:
     """Bounds-checked little-endian reader over one payload; every failure is a NatNetParseError."""
 
-    __slots__ = ("data", "pos", "end")
+    __slots__ = ("data", "end", "pos")
 
     def __init__(self, data: bytes, pos: int = 0, end: int | None = None) -> None:
         self.data = data
@@ -224,7 +224,7 @@ class Sender:
         return _fixed(self.name) + _U8x4.pack(*self.version) + _U8x4.pack(*self.natnet_version)
 
     @classmethod
-    def read(cls, r: _Reader) -> "Sender":
+    def read(cls, r: _Reader) -> Sender:
         name = r.fixed_string(MAX_NAME, "sender name")
         app = Version(*r.unpack(_U8x4, "sender version"))
         nn = Version(*r.unpack(_U8x4, "sender NatNet version"))
@@ -249,7 +249,7 @@ class Connect:
         return out
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "Connect":
+    def parse(cls, r: _Reader, version: Version | None) -> Connect:
         if r.remaining() < Sender.SIZE:  # some clients send just "Ping\0"; Motive accepts that
             raw = bytes(r.data[r.pos : r.end]).split(b"\0", 1)[0]
             r.pos = r.end
@@ -303,7 +303,7 @@ class ServerInfo:
         return out
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "ServerInfo":
+    def parse(cls, r: _Reader, version: Version | None) -> ServerInfo:
         sender = Sender.read(r)
         if r.remaining() < _SERVER_TAIL.size:  # pre-3.0 servers send the sender block only
             return cls(sender)
@@ -323,7 +323,7 @@ class Request:
         return _cstr(self.command)
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "Request":
+    def parse(cls, r: _Reader, version: Version | None) -> Request:
         i = r.data.find(b"\0", r.pos, r.end)  # Motive sends bytes after the NUL; tolerate a missing NUL too
         raw = bytes(r.data[r.pos : r.end if i < 0 else i])
         r.pos = r.end
@@ -342,19 +342,19 @@ class Response:
         return self.payload_bytes
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "Response":
+    def parse(cls, r: _Reader, version: Version | None) -> Response:
         return cls(r.rest())
 
     @classmethod
-    def of_int(cls, value: int) -> "Response":
+    def of_int(cls, value: int) -> Response:
         return cls(_I32.pack(value))
 
     @classmethod
-    def of_float(cls, value: float) -> "Response":
+    def of_float(cls, value: float) -> Response:
         return cls(_F32.pack(value))
 
     @classmethod
-    def of_text(cls, text: str) -> "Response":
+    def of_text(cls, text: str) -> Response:
         return cls(_cstr(text))
 
     def as_int(self) -> int:
@@ -381,7 +381,7 @@ class MessageString:
         return _cstr(self.text)
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "MessageString":
+    def parse(cls, r: _Reader, version: Version | None) -> MessageString:
         return cls(Response(r.rest()).as_text())
 
 
@@ -437,7 +437,7 @@ class UnrecognizedRequest:
         return self.payload_bytes
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "UnrecognizedRequest":
+    def parse(cls, r: _Reader, version: Version | None) -> UnrecognizedRequest:
         return cls(r.rest())
 
 
@@ -453,7 +453,7 @@ class EchoRequest:
         return _U64.pack(self.client_stamp)
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "EchoRequest":
+    def parse(cls, r: _Reader, version: Version | None) -> EchoRequest:
         return cls(r.unpack(_U64, "echo request stamp")[0])
 
 
@@ -470,7 +470,7 @@ class EchoResponse:
         return _U64.pack(self.client_stamp) + _U64.pack(self.server_stamp)
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "EchoResponse":
+    def parse(cls, r: _Reader, version: Version | None) -> EchoResponse:
         a = r.unpack(_U64, "echo response client stamp")[0]
         b = r.unpack(_U64, "echo response server stamp")[0]
         return cls(a, b)
@@ -490,7 +490,7 @@ class MarkerSetDescription:
         return _cstr(self.name) + _I32.pack(len(self.marker_names)) + b"".join(_cstr(n) for n in self.marker_names)
 
     @classmethod
-    def read(cls, r: _Reader, v: Version) -> "MarkerSetDescription":
+    def read(cls, r: _Reader, v: Version) -> MarkerSetDescription:
         name = r.cstring("marker set name")
         n = r.count("marker name count", 1)
         return cls(name, tuple(r.cstring("marker name") for _ in range(n)))
@@ -523,7 +523,7 @@ class RigidBodyDescription:
         return b"".join(out)
 
     @classmethod
-    def read(cls, r: _Reader, v: Version) -> "RigidBodyDescription":
+    def read(cls, r: _Reader, v: Version) -> RigidBodyDescription:
         name = r.cstring("rigid body name")
         rb_id = r.i32("rigid body id")
         parent = r.i32("rigid body parent id")
@@ -549,7 +549,7 @@ class SkeletonDescription:
         return head + b"".join(rb.pack(v) for rb in self.rigid_bodies)
 
     @classmethod
-    def read(cls, r: _Reader, v: Version) -> "SkeletonDescription":
+    def read(cls, r: _Reader, v: Version) -> SkeletonDescription:
         name = r.cstring("skeleton name")
         sk_id = r.i32("skeleton id")
         n = r.count("skeleton bone count", 25)
@@ -582,7 +582,7 @@ class ForcePlateDescription:
         return b"".join(out)
 
     @classmethod
-    def read(cls, r: _Reader, v: Version) -> "ForcePlateDescription":
+    def read(cls, r: _Reader, v: Version) -> ForcePlateDescription:
         fp_id = r.i32("force plate id")
         serial = r.cstring("force plate serial")
         width = r.unpack(_F32, "force plate width")[0]
@@ -617,7 +617,7 @@ class DeviceDescription:
         return b"".join(out)
 
     @classmethod
-    def read(cls, r: _Reader, v: Version) -> "DeviceDescription":
+    def read(cls, r: _Reader, v: Version) -> DeviceDescription:
         dev_id = r.i32("device id")
         name = r.cstring("device name")
         serial = r.cstring("device serial")
@@ -639,7 +639,7 @@ class CameraDescription:
         return _cstr(self.name) + _V3.pack(*self.position) + _V4.pack(*self.orientation)
 
     @classmethod
-    def read(cls, r: _Reader, v: Version) -> "CameraDescription":
+    def read(cls, r: _Reader, v: Version) -> CameraDescription:
         name = r.cstring("camera name")
         return cls(name, r.unpack(_V3, "camera position"), r.unpack(_V4, "camera orientation"))
 
@@ -658,7 +658,7 @@ class MarkerDescription:
         return _cstr(self.name) + self._ST.pack(self.id, *self.position, self.size, self.params)
 
     @classmethod
-    def read(cls, r: _Reader) -> "MarkerDescription":
+    def read(cls, r: _Reader) -> MarkerDescription:
         name = r.cstring("asset marker name")
         mk_id, x, y, z, size, params = r.unpack(cls._ST, "asset marker description")
         return cls(name, mk_id, (x, y, z), size, params)
@@ -681,7 +681,7 @@ class AssetDescription:
         return b"".join(out)
 
     @classmethod
-    def read(cls, r: _Reader, v: Version) -> "AssetDescription":
+    def read(cls, r: _Reader, v: Version) -> AssetDescription:
         name = r.cstring("asset name")
         a_type = r.i32("asset type")
         a_id = r.i32("asset id")
@@ -746,7 +746,7 @@ class ModelDef:
         return b"".join(out)
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "ModelDef":
+    def parse(cls, r: _Reader, version: Version | None) -> ModelDef:
         v = _check_version(version)
         n = r.count("dataset count", 4)
         out: list[Description] = []
@@ -764,7 +764,9 @@ class ModelDef:
             else:
                 kind = _DESCRIPTIONS.get(d_type)
                 if kind is None:
-                    raise NatNetParseError(f"unknown MODELDEF dataset type {d_type} (NatNet {v} has no sizes to skip it)")
+                    raise NatNetParseError(
+                        f"unknown MODELDEF dataset type {d_type} (NatNet {v} has no sizes to skip it)"
+                    )
                 out.append(kind.read(r, v))
         return cls(tuple(out))
 
@@ -865,7 +867,16 @@ class AnalogData(NamedTuple):
     channels: tuple[tuple[float, ...], ...]
 
 
-SECTIONS = ("marker_sets", "other_markers", "rigid_bodies", "skeletons", "assets", "labeled_markers", "force_plates", "devices")
+SECTIONS = (
+    "marker_sets",
+    "other_markers",
+    "rigid_bodies",
+    "skeletons",
+    "assets",
+    "labeled_markers",
+    "force_plates",
+    "devices",
+)
 
 
 def _rb_from(t: tuple) -> RigidBody:
@@ -945,7 +956,7 @@ class FrameOfData:
     # -- decode
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None) -> "FrameOfData":
+    def parse(cls, r: _Reader, version: Version | None) -> FrameOfData:
         v = _check_version(version)
         sizes = _has_sizes(v)
         got_sizes: list[int] = []
@@ -1037,8 +1048,25 @@ class FrameOfData:
         if r.remaining() == 4:  # Motive ends frames with a 4-byte end-of-data tag (0); tolerate its absence
             r.pos += 4
         return cls(
-            frame_number, tuple(msets), others, rbs, tuple(skels), tuple(assets), lms, plates, devices,  # type: ignore[arg-type]
-            tc, tc_sub, ts, mid, recv, tx, p_s, p_f, params, tuple(got_sizes) if sizes else None,
+            frame_number,
+            tuple(msets),
+            others,
+            rbs,
+            tuple(skels),
+            tuple(assets),
+            lms,
+            plates,
+            devices,  # type: ignore[arg-type]
+            tc,
+            tc_sub,
+            ts,
+            mid,
+            recv,
+            tx,
+            p_s,
+            p_f,
+            params,
+            tuple(got_sizes) if sizes else None,
         )
 
     # -- encode
@@ -1056,20 +1084,27 @@ class FrameOfData:
 
         put(
             len(self.marker_sets),
-            b"".join(_cstr(ms.name) + _I32.pack(len(ms.positions)) + b"".join(_V3.pack(*p) for p in ms.positions)
-                     for ms in self.marker_sets),
+            b"".join(
+                _cstr(ms.name) + _I32.pack(len(ms.positions)) + b"".join(_V3.pack(*p) for p in ms.positions)
+                for ms in self.marker_sets
+            ),
         )
         put(len(self.other_markers), b"".join(_V3.pack(*p) for p in self.other_markers))
         put(len(self.rigid_bodies), _pack_rbs(self.rigid_bodies))
         put(
             len(self.skeletons),
-            b"".join(_I32.pack(s.id) + _I32.pack(len(s.rigid_bodies)) + _pack_rbs(s.rigid_bodies) for s in self.skeletons),
+            b"".join(
+                _I32.pack(s.id) + _I32.pack(len(s.rigid_bodies)) + _pack_rbs(s.rigid_bodies) for s in self.skeletons
+            ),
         )
         if v >= V4_1:
             put(
                 len(self.assets),
                 b"".join(
-                    _I32.pack(a.id) + _I32.pack(len(a.rigid_bodies)) + _pack_rbs(a.rigid_bodies) + _I32.pack(len(a.markers))
+                    _I32.pack(a.id)
+                    + _I32.pack(len(a.rigid_bodies))
+                    + _pack_rbs(a.rigid_bodies)
+                    + _I32.pack(len(a.markers))
                     + b"".join(_ASSET_MK.pack(m.id, *m.position, m.size, m.params, m.residual) for m in a.markers)
                     for a in self.assets
                 ),
@@ -1081,7 +1116,9 @@ class FrameOfData:
         put(len(self.force_plates), b"".join(_pack_analog(a) for a in self.force_plates))
         put(len(self.devices), b"".join(_pack_analog(a) for a in self.devices))
         out.append(
-            _SUFFIX_TIMES.pack(self.timecode, self.timecode_sub, self.timestamp, self.mid_exposure, self.data_received, self.transmit)
+            _SUFFIX_TIMES.pack(
+                self.timecode, self.timecode_sub, self.timestamp, self.mid_exposure, self.data_received, self.transmit
+            )
         )
         if v >= V4_1:
             out.append(_PRECISION.pack(self.precision_seconds or 0, self.precision_fraction or 0))
@@ -1093,14 +1130,42 @@ class FrameOfData:
 # --------------------------------------------------------------------------------------------- dispatch
 
 Message = Union[
-    Connect, Discovery, ServerInfo, Request, Response, RequestModelDef, ModelDef, RequestFrameOfData, FrameOfData,
-    MessageString, Disconnect, KeepAlive, DisconnectByTimeout, EchoRequest, EchoResponse, UnrecognizedRequest,
+    Connect,
+    Discovery,
+    ServerInfo,
+    Request,
+    Response,
+    RequestModelDef,
+    ModelDef,
+    RequestFrameOfData,
+    FrameOfData,
+    MessageString,
+    Disconnect,
+    KeepAlive,
+    DisconnectByTimeout,
+    EchoRequest,
+    EchoResponse,
+    UnrecognizedRequest,
 ]
 _MESSAGES: dict[int, type] = {
     c.ID: c  # type: ignore[attr-defined]
     for c in (
-        Connect, Discovery, ServerInfo, Request, Response, RequestModelDef, ModelDef, RequestFrameOfData, FrameOfData,
-        MessageString, Disconnect, KeepAlive, DisconnectByTimeout, EchoRequest, EchoResponse, UnrecognizedRequest,
+        Connect,
+        Discovery,
+        ServerInfo,
+        Request,
+        Response,
+        RequestModelDef,
+        ModelDef,
+        RequestFrameOfData,
+        FrameOfData,
+        MessageString,
+        Disconnect,
+        KeepAlive,
+        DisconnectByTimeout,
+        EchoRequest,
+        EchoResponse,
+        UnrecognizedRequest,
     )
 }
 

@@ -46,11 +46,11 @@ from typing import Any
 import can
 import numpy as np
 
+from beambench.acquisition.batch import Batch, StreamSpec
+from beambench.acquisition.capabilities import DeviceFault, MotorLimits
+from beambench.acquisition.streams import MOTOR, motor_spec
 from beambench.devices import odrive_cansimple as cs
-from beambench.devices.base import DeviceFault, MotorLimits
 from beambench.devices.odrive_cansimple import AxisState, ControlMode, InputMode
-from beambench.hub import Batch, StreamSpec
-from beambench.streams import MOTOR, motor_spec
 
 VEL_HEADROOM = 1.1  # vel_limit = max_frequency_hz × this
 MAX_VEL_LIMIT = 250.0  # turn/s; never send more (the old script's 8000 disabled the limit)
@@ -160,7 +160,7 @@ class _Receiver(can.Listener):
     """The Notifier's listener: frames go to the driver; a receive error (e.g. the bus closing under a
     slow Notifier thread) is recorded instead of killing the thread with a traceback."""
 
-    def __init__(self, motor: "OdriveCanMotor") -> None:
+    def __init__(self, motor: OdriveCanMotor) -> None:
         self.motor = motor
 
     def on_message_received(self, msg: can.Message) -> None:
@@ -290,12 +290,12 @@ class OdriveCanMotor(TelemetryStream):
         if self._own_bus and self._bus is not None:
             try:
                 self._bus.shutdown()
-            except Exception:  # noqa: BLE001 - closing must not fail
+            except Exception:
                 pass
             self._bus = None
         self._closed = True
 
-    def __enter__(self) -> "OdriveCanMotor":
+    def __enter__(self) -> OdriveCanMotor:
         self.open()
         return self
 
@@ -349,8 +349,17 @@ class OdriveCanMotor(TelemetryStream):
                     dev_t = frame.timestamp if frame.timestamp else host_ns * 1e-9
                     hb = self._hb
                     self._rows.append(
-                        (host_ns, dev_t, msg.pos, msg.vel, self._setpoint, self._iq, self._vbus,
-                         hb.axis_state if hb else 0, hb.axis_error if hb else 0)
+                        (
+                            host_ns,
+                            dev_t,
+                            msg.pos,
+                            msg.vel,
+                            self._setpoint,
+                            self._iq,
+                            self._vbus,
+                            hb.axis_state if hb else 0,
+                            hb.axis_error if hb else 0,
+                        )
                     )
             elif isinstance(msg, cs.Iq):
                 self._iq = msg.measured
@@ -392,7 +401,7 @@ class OdriveCanMotor(TelemetryStream):
                 asked_errors = bool(flagged)
             except DeviceFault as exc:
                 self.send_errors.append(str(exc))
-            except Exception as exc:  # noqa: BLE001 - the bus went away while closing
+            except Exception as exc:
                 self.send_errors.append(f"{type(exc).__name__}: {exc}")
 
     def stop_feeding(self) -> None:
@@ -531,7 +540,7 @@ class OdriveCanMotor(TelemetryStream):
         for msg in (cs.SetAxisState(AxisState.IDLE), cs.SetInputVel(0.0, 0.0)):
             try:
                 self.send(msg)
-            except Exception as exc:  # noqa: BLE001 - idling must never raise
+            except Exception as exc:
                 self.send_errors.append(f"idle: {exc}")
 
     def estop(self) -> None:
@@ -569,8 +578,14 @@ class OdriveCanMotor(TelemetryStream):
     def latest(self) -> dict[str, float]:
         """Latest received values (NaN before the first)."""
         with self._cond:
-            return {"position": self._pos, "velocity": self._vel, "iq_measured": self._iq,
-                    "bus_voltage": self._vbus, "bus_current": self._ibus, "setpoint": self._setpoint}
+            return {
+                "position": self._pos,
+                "velocity": self._vel,
+                "iq_measured": self._iq,
+                "bus_voltage": self._vbus,
+                "bus_current": self._ibus,
+                "setpoint": self._setpoint,
+            }
 
     def identity(self) -> dict[str, Any]:
         return {
@@ -601,8 +616,12 @@ def ping(
     Returns ``found``, ``nodes`` (every node id heard), ``heartbeat_hz``, ``axis_state``, ``axis_error``,
     ``bus_voltage_v``, ``position_turn`` and errors; CAN Simple 0.5.x cannot report serial or firmware.
     """
-    info: dict[str, Any] = {"device": "ODrive v3.6 (CAN Simple, fw 0.5.x)", "interface": interface,
-                            "channel": channel, "found": False}
+    info: dict[str, Any] = {
+        "device": "ODrive v3.6 (CAN Simple, fw 0.5.x)",
+        "interface": interface,
+        "channel": channel,
+        "found": False,
+    }
     own = bus is None
     try:
         if bus is None:
@@ -610,7 +629,7 @@ def ping(
             if bitrate is not None:
                 kw["bitrate"] = bitrate
             bus = can.Bus(**kw)
-    except Exception as exc:  # noqa: BLE001 - report, don't crash `beambench devices`
+    except Exception as exc:
         info["error"] = f"cannot open bus: {exc}"
         return info
     try:
@@ -645,8 +664,13 @@ def ping(
         if target is None and beats:
             target = min(beats)
         if target is not None and target in beats:
-            for cmd in (cs.Cmd.GET_BUS_VOLTAGE_CURRENT, cs.Cmd.GET_ENCODER_ESTIMATES, cs.Cmd.GET_MOTOR_ERROR,
-                        cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR):
+            for cmd in (
+                cs.Cmd.GET_BUS_VOLTAGE_CURRENT,
+                cs.Cmd.GET_ENCODER_ESTIMATES,
+                cs.Cmd.GET_MOTOR_ERROR,
+                cs.Cmd.GET_ENCODER_ERROR,
+                cs.Cmd.GET_CONTROLLER_ERROR,
+            ):
                 bus.send(cs.request(target, cmd))
             listen(0.15)
         info["nodes"] = sorted(beats)
@@ -656,11 +680,15 @@ def ping(
             hbs = beats[target]
             last = hbs[-1][1]
             state = last.axis_state
-            info.update(found=True, axis_error=cs.error_names(last.axis_error), **replies,
-                        axis_state=AxisState(state).name if state in AxisState._value2member_map_ else state)
+            info.update(
+                found=True,
+                axis_error=cs.error_names(last.axis_error),
+                **replies,
+                axis_state=AxisState(state).name if state in AxisState._value2member_map_ else state,
+            )
             if len(hbs) > 1:
                 info["heartbeat_hz"] = round((len(hbs) - 1) / (hbs[-1][0] - hbs[0][0]), 1)
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:
         info["error"] = str(exc)
     finally:
         if own:

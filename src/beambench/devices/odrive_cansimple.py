@@ -203,7 +203,7 @@ class _Msg:
         return body.ljust(self.DLC, b"\0")
 
     @classmethod
-    def decode(cls, data: bytes) -> "_Msg":
+    def decode(cls, data: bytes) -> _Msg:
         layout = _STRUCTS.get(cls.FORMAT) or _STRUCTS.setdefault(cls.FORMAT, struct.Struct(cls.FORMAT))
         if len(data) < layout.size:
             raise CanParseError(f"{cls.__name__}: payload has {len(data)} bytes, needs {layout.size}")
@@ -232,7 +232,7 @@ class Heartbeat(_Msg):
         return head + bytes([int(bool(self.motor_error_flag)), int(bool(self.encoder_error_flag)), last])
 
     @classmethod
-    def decode(cls, data: bytes) -> "Heartbeat":
+    def decode(cls, data: bytes) -> Heartbeat:
         if len(data) < 5:
             raise CanParseError(f"Heartbeat: payload has {len(data)} bytes, needs 5")
         err, state = struct.unpack_from("<IB", data)
@@ -256,7 +256,7 @@ class MotorError(_Msg):
     error: int = 0
 
     @classmethod
-    def decode(cls, data: bytes) -> "MotorError":
+    def decode(cls, data: bytes) -> MotorError:
         if len(data) >= 8:
             return cls(struct.unpack_from("<Q", data)[0])
         if len(data) >= 4:  # the DBC declares only the low 32 bits
@@ -371,15 +371,41 @@ class Request:
 
 
 Message = Union[
-    Heartbeat, Estop, MotorError, EncoderError, ControllerErrorMsg, SetAxisNodeId, SetAxisState,
-    EncoderEstimates, SetControllerMode, SetInputVel, SetLimits, Iq, Reboot, BusVoltageCurrent, ClearErrors,
+    Heartbeat,
+    Estop,
+    MotorError,
+    EncoderError,
+    ControllerErrorMsg,
+    SetAxisNodeId,
+    SetAxisState,
+    EncoderEstimates,
+    SetControllerMode,
+    SetInputVel,
+    SetLimits,
+    Iq,
+    Reboot,
+    BusVoltageCurrent,
+    ClearErrors,
 ]
 
 MESSAGES: dict[Cmd, type[_Msg]] = {
     m.CMD: m
     for m in (
-        Heartbeat, Estop, MotorError, EncoderError, ControllerErrorMsg, SetAxisNodeId, SetAxisState,
-        EncoderEstimates, SetControllerMode, SetInputVel, SetLimits, Iq, Reboot, BusVoltageCurrent, ClearErrors,
+        Heartbeat,
+        Estop,
+        MotorError,
+        EncoderError,
+        ControllerErrorMsg,
+        SetAxisNodeId,
+        SetAxisState,
+        EncoderEstimates,
+        SetControllerMode,
+        SetInputVel,
+        SetLimits,
+        Iq,
+        Reboot,
+        BusVoltageCurrent,
+        ClearErrors,
     )
 }
 GET_CMDS = frozenset(c for c, m in MESSAGES.items() if m.IS_GET)
@@ -407,7 +433,7 @@ def parse_frame(
     if type(data) is not bytes:
         try:
             data = bytes(data)
-        except Exception as exc:  # noqa: BLE001 - anything not bytes-like is a bad frame
+        except Exception as exc:
             raise CanParseError(f"payload is not bytes: {exc}") from None
     node, cmd = split_id(arb_id, is_extended)
     if is_remote or (not data and cmd in _GET_IDS):
@@ -446,9 +472,36 @@ def request(node_id: int, cmd: Cmd | type[_Msg], extended: bool = False) -> can.
 
 
 __all__ = [
-    "AxisError", "AxisState", "BusVoltageCurrent", "CanParseError", "ClearErrors", "Cmd", "ControlMode",
-    "ControllerError", "ControllerErrorMsg", "EncoderError", "EncoderEstimates", "Estop", "Heartbeat",
-    "InputMode", "Iq", "Message", "MotorError", "Reboot", "Request", "SetAxisNodeId", "SetAxisState",
-    "SetControllerMode", "SetInputVel", "SetLimits", "arbitration_id", "decode", "error_names", "parse_frame",
-    "parse_message", "request", "split_id", "to_can",
+    "AxisError",
+    "AxisState",
+    "BusVoltageCurrent",
+    "CanParseError",
+    "ClearErrors",
+    "Cmd",
+    "ControlMode",
+    "ControllerError",
+    "ControllerErrorMsg",
+    "EncoderError",
+    "EncoderEstimates",
+    "Estop",
+    "Heartbeat",
+    "InputMode",
+    "Iq",
+    "Message",
+    "MotorError",
+    "Reboot",
+    "Request",
+    "SetAxisNodeId",
+    "SetAxisState",
+    "SetControllerMode",
+    "SetInputVel",
+    "SetLimits",
+    "arbitration_id",
+    "decode",
+    "error_names",
+    "parse_frame",
+    "parse_message",
+    "request",
+    "split_id",
+    "to_can",
 ]

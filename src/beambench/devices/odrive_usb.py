@@ -33,7 +33,8 @@ import time
 from collections import deque
 from typing import Any
 
-from beambench.devices.base import DeviceFault, MotorLimits
+from beambench.acquisition.capabilities import DeviceFault, MotorLimits
+from beambench.acquisition.streams import MOTOR
 from beambench.devices.odrive_can import (
     MAX_BUFFERED_ROWS,
     LimitError,
@@ -41,21 +42,26 @@ from beambench.devices.odrive_can import (
     current_limit_for,
     vel_limit_for,
 )
-from beambench.devices.odrive_cansimple import AxisError, AxisState, ControlMode, InputMode, error_names
-from beambench.streams import MOTOR
+from beambench.devices.odrive_cansimple import (
+    AxisError,
+    AxisState,
+    ControlMode,
+    InputMode,
+    error_names,
+)
 
 
 def find_odrive(serial_number: str | None = None, timeout_s: float = 10.0) -> Any:
     """The ``odrive`` package's device object (USB); DeviceFault if the extra is missing or none found."""
     try:
-        import odrive  # noqa: PLC0415 - optional extra, imported lazily
+        import odrive
     except ImportError as exc:
         raise DeviceFault("the `odrive` package is not installed: pip install 'beambench[hardware]'") from exc
     try:
         return odrive.find_any(serial_number=serial_number, timeout=timeout_s)
     except TimeoutError as exc:
         raise DeviceFault(f"no ODrive found on USB within {timeout_s:g} s") from exc
-    except Exception as exc:  # noqa: BLE001 - libusb errors vary by platform
+    except Exception as exc:
         raise DeviceFault(f"cannot reach an ODrive on USB: {exc}") from exc
 
 
@@ -138,11 +144,11 @@ class OdriveUsbMotor(TelemetryStream):
         if self._ax is not None and self._saved_watchdog is not None:
             try:
                 self._ax.config.enable_watchdog = self._saved_watchdog
-            except Exception as exc:  # noqa: BLE001
+            except Exception as exc:
                 self.idle_errors.append(f"restore enable_watchdog: {exc}")
         self._closed = True
 
-    def __enter__(self) -> "OdriveUsbMotor":
+    def __enter__(self) -> OdriveUsbMotor:
         self.open()
         return self
 
@@ -164,8 +170,11 @@ class OdriveUsbMotor(TelemetryStream):
         error = int(ax.error)
         sub = {}
         if error:
-            sub = {"motor": int(ax.motor.error), "encoder": int(ax.encoder.error),
-                   "controller": int(ax.controller.error)}
+            sub = {
+                "motor": int(ax.motor.error),
+                "encoder": int(ax.encoder.error),
+                "controller": int(ax.controller.error),
+            }
         now = time.monotonic_ns()
         with self._lock:
             self._last_ok_ns = now
@@ -178,7 +187,7 @@ class OdriveUsbMotor(TelemetryStream):
         while not self._stop.wait(self.poll_period_s):
             try:
                 self._poll_once()
-            except Exception as exc:  # noqa: BLE001 - a USB error: check() turns it into a fault
+            except Exception as exc:
                 with self._lock:
                     self._link_error = f"{type(exc).__name__}: {exc}"
 
@@ -210,19 +219,21 @@ class OdriveUsbMotor(TelemetryStream):
             if needs_cal:
                 ax.requested_state = int(AxisState.FULL_CALIBRATION_SEQUENCE)
                 self._wait_state(lambda s: s != AxisState.IDLE, 1.0, "start calibrating", feed=True, allow_fast=True)
-                self._wait_state(lambda s: s == AxisState.IDLE, self.calibration_timeout_s, "finish calibration",
-                                 feed=True)
+                self._wait_state(
+                    lambda s: s == AxisState.IDLE, self.calibration_timeout_s, "finish calibration", feed=True
+                )
                 self._raise_errors("calibration failed")
             with self._lock:
                 self._armed = True
             ax.watchdog_feed()
             ax.requested_state = int(AxisState.CLOSED_LOOP_CONTROL)
-            self._wait_state(lambda s: s == AxisState.CLOSED_LOOP_CONTROL, self.closed_loop_timeout_s,
-                             "enter closed loop", feed=True)
+            self._wait_state(
+                lambda s: s == AxisState.CLOSED_LOOP_CONTROL, self.closed_loop_timeout_s, "enter closed loop", feed=True
+            )
         except DeviceFault:
             self.idle()
             raise
-        except Exception as exc:  # noqa: BLE001 - USB errors become faults, after idling
+        except Exception as exc:
             self.idle()
             raise DeviceFault(f"ODrive USB arm failed: {type(exc).__name__}: {exc}") from exc
 
@@ -240,8 +251,7 @@ class OdriveUsbMotor(TelemetryStream):
             if time.monotonic() >= end:
                 if allow_fast and state == AxisState.IDLE:
                     return  # finished before we looked (instant on a pre-calibrated axis)
-                raise DeviceFault(f"ODrive axis{self.axis_index} did not {what} within {timeout_s:g} s "
-                                  f"(state {state})")
+                raise DeviceFault(f"ODrive axis{self.axis_index} did not {what} within {timeout_s:g} s (state {state})")
             time.sleep(min(0.01, self.poll_period_s))
 
     def _raise_errors(self, context: str) -> None:
@@ -278,7 +288,7 @@ class OdriveUsbMotor(TelemetryStream):
                     self._ax.requested_state = int(AxisState.IDLE)
                 else:
                     self._ax.controller.input_vel = 0.0
-            except Exception as exc:  # noqa: BLE001 - idling must never raise
+            except Exception as exc:
                 self.idle_errors.append(f"idle {step}: {exc}")
 
     def check(self) -> None:
@@ -288,18 +298,24 @@ class OdriveUsbMotor(TelemetryStream):
             age_s = (time.monotonic_ns() - self._last_ok_ns) * 1e-9
             if age_s > self.heartbeat_timeout_s:
                 why = f" ({self._link_error})" if self._link_error else ""
-                raise DeviceFault(f"ODrive USB link lost for {age_s * 1e3:.0f} ms (> "
-                                  f"{self.heartbeat_timeout_s * 1e3:.0f} ms){why}")
+                raise DeviceFault(
+                    f"ODrive USB link lost for {age_s * 1e3:.0f} ms (> {self.heartbeat_timeout_s * 1e3:.0f} ms){why}"
+                )
             if self._error:
                 sub = ", ".join(f"{k} error {v:#x}" for k, v in self._sub_errors.items() if v)
-                raise DeviceFault(f"ODrive axis{self.axis_index}: axis error {error_names(self._error)}"
-                                  + (f", {sub}" if sub else ""))
+                raise DeviceFault(
+                    f"ODrive axis{self.axis_index}: axis error {error_names(self._error)}" + (f", {sub}" if sub else "")
+                )
             if self._armed and self._state != AxisState.CLOSED_LOOP_CONTROL:
                 raise DeviceFault(f"ODrive axis{self.axis_index} left closed loop (state {self._state})")
 
     def identity(self) -> dict[str, Any]:
-        info: dict[str, Any] = {"driver": "beambench.devices.odrive_usb.OdriveUsbMotor", "axis": self.axis_index,
-                                "vel_limit_turn_s": self.vel_limit, "current_limit_a": self.current_limit}
+        info: dict[str, Any] = {
+            "driver": "beambench.devices.odrive_usb.OdriveUsbMotor",
+            "axis": self.axis_index,
+            "vel_limit_turn_s": self.vel_limit,
+            "current_limit_a": self.current_limit,
+        }
         if self._odrv is not None:
             info.update(_device_info(self._odrv))
         return info
@@ -312,7 +328,7 @@ def _device_info(odrv: Any) -> dict[str, Any]:
         out["firmware"] = f"{odrv.fw_version_major}.{odrv.fw_version_minor}.{odrv.fw_version_revision}"
         out["hardware"] = f"v{odrv.hw_version_major}.{odrv.hw_version_minor}-{odrv.hw_version_variant}V"
         out["bus_voltage_v"] = round(float(odrv.vbus_voltage), 3)
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:
         out["error"] = str(exc)
     return out
 
@@ -333,8 +349,10 @@ def ping(serial_number: str | None = None, timeout_s: float = 3.0, *, odrv: Any 
     for i in (0, 1):
         try:
             ax = getattr(dev, f"axis{i}")
-            info[f"axis{i}"] = {"state": AxisState(int(ax.current_state)).name,
-                                "error": error_names(int(ax.error), AxisError)}
-        except Exception:  # noqa: BLE001
+            info[f"axis{i}"] = {
+                "state": AxisState(int(ax.current_state)).name,
+                "error": error_names(int(ax.error), AxisError),
+            }
+        except Exception:
             pass
     return info

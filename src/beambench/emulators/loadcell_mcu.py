@@ -28,12 +28,12 @@ import random
 import threading
 import time
 import tty
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Callable
 
 import numpy as np
 
-from beambench.calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
 from beambench.devices.loadcell_protocol import FRAME_LEN, encode_frame
 
 ForceSource = Callable[[float], tuple[float, float]]
@@ -215,7 +215,7 @@ class EmulatedLoadCellMCU:
                     pass
         self._master = self._slave = None
 
-    def __enter__(self) -> "EmulatedLoadCellMCU":
+    def __enter__(self) -> EmulatedLoadCellMCU:
         self.open()
         return self
 

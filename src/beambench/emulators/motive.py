@@ -21,14 +21,14 @@ import math
 import socket
 import threading
 import time
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Collection, Iterable, Mapping, Sequence
 
 import numpy as np
 
 from beambench.devices import natnet_protocol as nn
 
-__all__ = ["MotiveEmulator", "EmulatorClock", "APP_VERSIONS"]
+__all__ = ["APP_VERSIONS", "EmulatorClock", "MotiveEmulator"]
 
 APP_VERSIONS = {nn.V3_0: nn.Version(2, 2, 0, 0), nn.V4_0: nn.Version(3, 0, 0, 0), nn.V4_1: nn.Version(3, 1, 0, 0)}
 
@@ -64,7 +64,7 @@ class EmulatorClock:
         return max(0, int(round(self.seconds(host_s) * self.frequency_hz)))
 
     @classmethod
-    def from_model(cls, model: object, frequency_hz: int = 10_000_000) -> "EmulatorClock":
+    def from_model(cls, model: object, frequency_hz: int = 10_000_000) -> EmulatorClock:
         """From a :class:`beambench.config.ClockModel` (or anything with the same attributes)."""
         return cls(
             float(getattr(model, "offset_s", 0.0)),
@@ -151,7 +151,7 @@ class MotiveEmulator:
         assert self._cmd is not None, "emulator not started"
         return self._cmd.getsockname()
 
-    def start(self) -> "MotiveEmulator":
+    def start(self) -> MotiveEmulator:
         self._cmd = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
         self._cmd.bind((self.host, self.command_port))
         self._cmd.settimeout(0.05)
@@ -183,7 +183,7 @@ class MotiveEmulator:
                 s.close()
         self._cmd = self._data = None
 
-    def __enter__(self) -> "MotiveEmulator":
+    def __enter__(self) -> MotiveEmulator:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
@@ -210,7 +210,8 @@ class MotiveEmulator:
         for rb_id, idx in self.rigid_bodies.items():
             centre = p0[list(idx)].mean(axis=0)
             markers = tuple(
-                nn.RigidBodyMarker(tuple(float(x) for x in p0[i] - centre), 0, names[i]) for i in idx  # type: ignore[arg-type]
+                nn.RigidBodyMarker(tuple(float(x) for x in p0[i] - centre), 0, names[i])
+                for i in idx  # type: ignore[arg-type]
             )
             sets.append(nn.RigidBodyDescription(f"rigid_body_{rb_id}", rb_id, -1, (0.0, 0.0, 0.0), markers))
         sets.append(nn.MarkerSetDescription("all", tuple(f"{self.asset_name}_{n}" for n in names)))
@@ -227,7 +228,7 @@ class MotiveEmulator:
                 return
             try:
                 data, addr = sock.recvfrom(65536)
-            except (socket.timeout, BlockingIOError):
+            except (TimeoutError, BlockingIOError):
                 continue
             except OSError:
                 return
@@ -335,7 +336,9 @@ class MotiveEmulator:
             seen = [i for i in idx if i not in hidden]
             valid = len(seen) >= max(1, len(idx) - 1)  # tracked while at most one of its markers is hidden
             c = pos[list(idx)].mean(axis=0)
-            rbs.append(nn.RigidBody(rb_id, tuple(c.tolist()), (0.0, 0.0, 0.0, 1.0), 1e-4 if valid else 0.0, 1 if valid else 0))  # type: ignore[arg-type]
+            rbs.append(
+                nn.RigidBody(rb_id, tuple(c.tolist()), (0.0, 0.0, 0.0, 1.0), 1e-4 if valid else 0.0, 1 if valid else 0)
+            )  # type: ignore[arg-type]
         clk = self.clock
         mid_ticks = clk.ticks(t_exposure)
         recv_ticks = clk.ticks(t_exposure + 0.6 * clk.latency_s)

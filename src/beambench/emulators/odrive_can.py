@@ -37,13 +37,19 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import can
 
 from beambench.devices import odrive_cansimple as cs
-from beambench.devices.odrive_cansimple import AxisError, AxisState, ControllerError, ControlMode, InputMode
+from beambench.devices.odrive_cansimple import (
+    AxisError,
+    AxisState,
+    ControllerError,
+    ControlMode,
+    InputMode,
+)
 
 CALIBRATION_STATES = (
     AxisState.FULL_CALIBRATION_SEQUENCE,
@@ -354,7 +360,7 @@ class EmulatedOdrive:
         self.error: BaseException | None = None
 
     # ------------------------------------------------------------------ lifecycle
-    def start(self) -> "EmulatedOdrive":
+    def start(self) -> EmulatedOdrive:
         if self._thread is not None:
             return self
         if self._bus is None:
@@ -376,7 +382,7 @@ class EmulatedOdrive:
             self._bus.shutdown()
             self._bus = None
 
-    def __enter__(self) -> "EmulatedOdrive":
+    def __enter__(self) -> EmulatedOdrive:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
@@ -413,12 +419,24 @@ class EmulatedOdrive:
             m = self.model
             m.advance(self._clock())
             return {
-                "t": m.t, "node_id": m.node_id, "state": int(m.state), "axis_error": int(m.axis_error),
-                "motor_error": int(m.motor_error), "encoder_error": int(m.encoder_error),
-                "controller_error": int(m.controller_error), "position": m.position, "velocity": m.velocity,
-                "input_vel": m.input_vel, "vel_setpoint": m.vel_setpoint, "vel_limit": m.vel_limit,
-                "current_lim": m.current_lim, "iq": m.iq_measured, "control_mode": int(m.control_mode),
-                "input_mode": int(m.input_mode), "received": m.received, "parse_errors": m.parse_errors,
+                "t": m.t,
+                "node_id": m.node_id,
+                "state": int(m.state),
+                "axis_error": int(m.axis_error),
+                "motor_error": int(m.motor_error),
+                "encoder_error": int(m.encoder_error),
+                "controller_error": int(m.controller_error),
+                "position": m.position,
+                "velocity": m.velocity,
+                "input_vel": m.input_vel,
+                "vel_setpoint": m.vel_setpoint,
+                "vel_limit": m.vel_limit,
+                "current_lim": m.current_lim,
+                "iq": m.iq_measured,
+                "control_mode": int(m.control_mode),
+                "input_mode": int(m.input_mode),
+                "received": m.received,
+                "parse_errors": m.parse_errors,
             }
 
     def inject_error(self, motor: int = 0, encoder: int = 0, controller: int = 0, axis: int = 0) -> None:
@@ -469,7 +487,7 @@ class EmulatedOdrive:
                         if hb_period > 0:
                             self._send(m.heartbeat())
                         next_hb = next_hb + hb_period if next_hb + hb_period > now else now + hb_period
-        except Exception as exc:  # noqa: BLE001 - the bus shut down under us, or a bug: kept for tests
+        except Exception as exc:
             if not (self._stop.is_set() and isinstance(exc, (can.CanError, OSError))):
                 self.error = exc
 

@@ -1,0 +1,117 @@
+"""The device seams: small structural Protocols, one per capability, that sim, emulated and hardware rigs satisfy.
+
+No base class is required (as in bluesky's ``protocols.py``): anything with these methods is a device.
+The runner and the sinks only ever see these Protocols, so they cannot tell the backends apart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
+
+from beambench.acquisition.batch import Batch, StreamSpec
+from beambench.common.errors import BeambenchError
+
+
+class DeviceFault(BeambenchError, RuntimeError):
+    """A device reported an error or went silent; the runner idles the motor and saves what it has."""
+
+
+@dataclass(frozen=True)
+class MotorLimits:
+    """Limits enforced before anything moves (from the protocol's ``limits`` block)."""
+
+    max_frequency_hz: float
+    max_current_a: float
+    amplitude_mm: float
+
+
+@runtime_checkable
+class Clock(Protocol):
+    """The rig's clock. On hardware it is wall time; on the sim backend waiting advances the physics."""
+
+    def now_ns(self) -> int:
+        """Host monotonic time in nanoseconds (simulated host time on the sim backend)."""
+        ...
+
+    def wait(self, seconds: float) -> None:
+        """Let ``seconds`` of rig time pass (sleep on hardware, step the physics in simulation)."""
+        ...
+
+
+@runtime_checkable
+class Stream(Protocol):
+    """A source of time-stamped samples, read as :class:`Batch` objects."""
+
+    name: str
+
+    def describe(self) -> StreamSpec: ...
+
+    def start(self) -> None: ...
+
+    def read(self) -> Batch:
+        """Everything received since the last call (possibly zero rows); never blocks for long."""
+        ...
+
+    def stop(self) -> None: ...
+
+
+@runtime_checkable
+class Motor(Stream, Protocol):
+    """The drive: crank speed f turn/s gives the stage x = A·sin(2πft). Also a telemetry stream."""
+
+    def arm(self, limits: MotorLimits) -> None:
+        """Apply limits (velocity, current), enter closed-loop velocity control at 0 turn/s."""
+        ...
+
+    def set_frequency(self, hz: float) -> None: ...
+
+    def idle(self) -> None:
+        """Command the motor to idle. Idempotent and safe from any state, including after a fault."""
+        ...
+
+    def check(self) -> None:
+        """Raise :class:`DeviceFault` if the motor reports an error or its heartbeat was lost."""
+        ...
+
+
+@runtime_checkable
+class Rig(Protocol):
+    """A set of devices built from a protocol and rig file: one motor, its streams and a clock."""
+
+    clock: Clock
+    motor: Motor
+    streams: list[Stream]  # every stream, the motor's telemetry included
+
+    def open(self) -> None: ...
+
+    def close(self) -> None:
+        """Release every device; idles the motor first. Idempotent."""
+        ...
+
+    def identity(self) -> dict[str, Any]:
+        """Device identities (serials, firmware, versions, model parameters) for ``/general``."""
+        ...
+
+
+@runtime_checkable
+class HasIdleTail(Protocol):
+    """A rig whose devices keep reporting after the idle command: record ``idle_tail_s`` more to see it stop."""
+
+    idle_tail_s: float
+
+
+@runtime_checkable
+class ReportsAfterRun(Protocol):
+    """A rig that learns things only during the run (the NatNet ECHO table) and adds them to ``/general``."""
+
+    def after_run(self) -> dict[str, Any]: ...
+
+
+@runtime_checkable
+class Connectable(Protocol):
+    """A device with a connection to open before use and close after (a CAN bus, a USB handle)."""
+
+    def open(self) -> None: ...
+
+    def close(self) -> None: ...

@@ -1,0 +1,82 @@
+"""Monitors: sinks that watch the batches going by and tell the runner when a step's recording must pause.
+
+A monitor is a hub sink (it sees every batch) with one more method, ``problem(now_ns)``: a
+:class:`Problem` (a short reason, and since when the data are unusable) or None. The runner asks after every poll of the
+record window; while there is a problem the window's clock stops (the step records longer), and a pause
+longer than the protocol's ``monitors.max_pause_s`` stops the run like a device fault (motor idle first,
+then everything recorded is saved).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, NamedTuple, Protocol
+
+import numpy as np
+
+from beambench.acquisition.batch import Batch, StreamSpec
+from beambench.acquisition.streams import MOCAP
+
+if TYPE_CHECKING:
+    from beambench.acquisition.config import Protocol as ProtocolConfig
+
+
+class Problem(NamedTuple):
+    reason: str
+    since_ns: int  # host time from which the data are unusable
+
+
+class Monitor(Protocol):
+    name: str
+
+    def problem(self, now_ns: int) -> Problem | None: ...
+
+
+class MocapLost:
+    """Mocap is lost when no *complete* frame (every marker seen) arrived for ``timeout_s`` of host time:
+    Motive stopped streaming, the network dropped out, or a marker is hidden."""
+
+    name = "mocap_lost"
+
+    def __init__(self, timeout_s: float, stream: str = MOCAP) -> None:
+        self.timeout_ns = int(timeout_s * 1e9)
+        self.stream = stream
+        self.last_complete_ns: int | None = None
+        self.last_any_ns: int | None = None
+        self._since_ns: int | None = None  # when watching started (the grace period before any frame)
+
+    def open(self, specs: list[StreamSpec]) -> None:
+        if not any(s.name == self.stream for s in specs):
+            raise ValueError(f"monitor {self.name}: no {self.stream!r} stream to watch")
+
+    def write(self, batch: Batch) -> None:
+        if batch.stream != self.stream or not len(batch):
+            return
+        self.last_any_ns = int(batch.host_time_ns[-1])
+        occluded = batch.columns.get("occluded")
+        n = len(batch)
+        complete = np.ones(n, bool) if occluded is None else ~np.asarray(occluded).reshape(n, -1).any(axis=1)
+        if complete.any():
+            self.last_complete_ns = int(batch.host_time_ns[np.flatnonzero(complete)[-1]])
+
+    def event(self, host_time_ns: int, kind: str, message: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def problem(self, now_ns: int) -> Problem | None:
+        if self._since_ns is None:
+            self._since_ns = now_ns
+        last = self.last_complete_ns if self.last_complete_ns is not None else self._since_ns
+        silent = now_ns - last
+        if silent <= self.timeout_ns:
+            return None
+        if self.last_any_ns is not None and now_ns - self.last_any_ns <= self.timeout_ns:
+            return Problem(f"mocap: a marker hidden for {silent * 1e-9:.2f} s", last)
+        return Problem(f"mocap lost: no frame for {silent * 1e-9:.2f} s", last)
+
+
+def build_monitors(protocol: ProtocolConfig, streams: list[str]) -> list[MocapLost]:
+    """The monitors a protocol asks for (``monitors:`` block), for the streams the rig has."""
+    timeout = protocol.monitors.mocap_lost_s
+    return [MocapLost(timeout)] if timeout is not None and MOCAP in streams else []

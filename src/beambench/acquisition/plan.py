@@ -1,0 +1,85 @@
+"""A protocol as a plan: the pure list of steps a run will execute, and its dry-run summary (no I/O)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+from beambench.acquisition.capabilities import MotorLimits
+from beambench.acquisition.config import ConfigError, Protocol
+
+
+@dataclass(frozen=True)
+class Step:
+    """Drive at ``frequency_hz``: wait ``settle_s`` for transients to decay, then record ``record_s``."""
+
+    index: int
+    frequency_hz: float
+    settle_s: float
+    record_s: float
+
+    @property
+    def duration_s(self) -> float:
+        return self.settle_s + self.record_s
+
+
+def plan(protocol: Protocol) -> list[Step]:
+    """The steps of a protocol, in order."""
+    return [Step(i, f, protocol.settle_s, protocol.record_s) for i, f in enumerate(protocol.sweep.values())]
+
+
+def motor_limits(protocol: Protocol) -> MotorLimits:
+    return MotorLimits(
+        max_frequency_hz=protocol.limits.max_frequency_hz,
+        max_current_a=protocol.limits.max_current_a,
+        amplitude_mm=protocol.amplitude_mm,
+    )
+
+
+def check_limits(protocol: Protocol, file: str = "<protocol>") -> None:
+    """Raise :class:`ConfigError` for the first commanded value over a limit; called before anything moves."""
+    for field, value, reason in protocol.limit_violations():
+        raise ConfigError(file, field, value, reason)
+
+
+def summary(protocol: Protocol, backend: str) -> dict[str, object]:
+    """What a dry run prints: steps, total duration, max frequency and limits."""
+    steps = plan(protocol)
+    freqs = [s.frequency_hz for s in steps]
+    return {
+        "protocol": protocol.name,
+        "rig": protocol.rig,
+        "backend": backend,
+        "steps": len(steps),
+        "frequencies_hz": freqs,
+        "settle_s": protocol.settle_s,
+        "record_s": protocol.record_s,
+        "total_duration_s": sum(s.duration_s for s in steps),
+        "max_frequency_hz": max(freqs),
+        "amplitude_mm": protocol.amplitude_mm,
+        "limits": protocol.limits.model_dump(),
+    }
+
+
+def session_path(
+    protocol: Protocol, backend: str, out_dir: Path, name: str | None = None, now: datetime | None = None
+) -> Path:
+    """``<out>/<name>.h5`` from ``--name`` or the protocol's template; never an existing file."""
+    now = now or datetime.now()
+    if name is None:
+        try:
+            name = protocol.output.name.format(
+                protocol=protocol.name, rig=protocol.rig, backend=backend, date=now.strftime("%Y%m%d-%H%M%S")
+            )
+        except (KeyError, IndexError, ValueError) as exc:
+            raise ConfigError("<protocol>", "output.name", protocol.output.name, f"bad template ({exc})") from None
+    name = name.removesuffix(".h5")
+    if not name or "/" in name or name in (".", ".."):
+        raise ConfigError("<cli>", "--name", name, "must be a plain file name")
+    path = out_dir / f"{name}.h5"
+    k = 1
+    while path.exists() or path.with_suffix(".rrd").exists():
+        path = out_dir / f"{name}_{k}.h5"
+        k += 1
+    return path

@@ -1,0 +1,239 @@
+"""The sim backend's :class:`~beambench.devices.base.Rig`: a MuJoCo scene plus simulated devices.
+
+``rig.clock.wait(s)`` advances the physics by ``s`` (paced to the wall clock with ``realtime``); after each
+chunk every device samples the new trajectory rows on its own clock.
+
+With ``prefetch`` the next chunk (same length, same command) is computed on a worker thread while the caller
+stores the last one (MuJoCo releases the GIL); a command or a different wait undoes it from a snapshot, so
+the data are identical with and without prefetch.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from beambench.acquisition.calibration import default_calibration
+from beambench.acquisition.capabilities import Stream
+from beambench.acquisition.config import ClockModel, Protocol
+from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
+from beambench.rigs.sim_devices import (
+    DeviceClock,
+    SimClock,
+    SimLoadCells,
+    SimMocap,
+    SimMotor,
+)
+from beambench.sim.engine.stepping import DrivenScene, Trajectory
+from beambench.sim.models.params import load_params
+from beambench.sim.models.registry import make_beam_model, model_family
+
+HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
+
+
+def build_scene(protocol: Protocol) -> DrivenScene:
+    """The MuJoCo scene for ``protocol.rig`` with the protocol's sim options."""
+    sim = protocol.sim
+    plan = _contact_plan(protocol)
+    model_name = plan.model if plan else ("prb3" if sim.model == "auto" else sim.model)
+    beam = make_beam_model(model_name, load_params(sim.params, model=model_family(model_name)))
+    if protocol.rig == "release":
+        from beambench.sim.scenes.release import ReleaseSim
+
+        return ReleaseSim.from_protocol(protocol, beam)
+    if protocol.rig == "walker":
+        from beambench.sim.scenes.walker import WalkerSim
+
+        return WalkerSim(beam, twist_deg=sim.twist_deg, integrator=sim.integrator, timestep=sim.timestep)
+    from beambench.sim.scenes.contact_rig import ContactRigSim
+
+    return ContactRigSim(
+        beam,
+        twist_deg=sim.twist_deg,
+        gap_m=sim.plate_gap_mm * 1e-3,
+        amplitude_m=protocol.amplitude_mm * 1e-3,
+        integrator=plan.integrator if plan else sim.integrator,
+        timestep=sim.timestep,
+        timestep_for=plan.timestep if plan else None,
+        selection=plan.describe() if plan else None,
+    )
+
+
+AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
+
+
+def _contact_plan(protocol: Protocol):
+    """The measured plan for the contact rig (:mod:`beambench.sim.select`), within ``sim.tolerance_mm``:
+
+    - ``sim.model: auto``: the cheapest (model, integrator, timestep per frequency); a tolerance nothing
+      meets is a ConfigError;
+    - a named model without ``sim.timestep``: the timestep each frequency needs for that model and
+      integrator, or None (the rig's fixed policy) when the table does not cover them.
+
+    None for rigs without a measured table and for a fixed ``sim.timestep``."""
+    from beambench.acquisition.config import ConfigError
+    from beambench.sim import selection as select
+
+    sim = protocol.sim
+    auto = sim.model == "auto"
+    if protocol.rig != "contact" or (not auto and sim.timestep is not None):
+        return None
+    tol = sim.tolerance_mm or AUTO_TOLERANCE_MM
+    only = {} if auto else {"models": [sim.model], "integrators": [sim.integrator]}
+    try:
+        return select.plan_sweep("contact", tol, protocol.sweep.values(), **only)
+    except select.SelectionError as exc:
+        if auto:
+            raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
+        return None
+
+
+class SimRig:
+    """Clock, motor and streams of a simulated rig (``Rig`` protocol)."""
+
+    def __init__(
+        self, protocol: Protocol, realtime: bool = False, scene: DrivenScene | None = None, prefetch: bool = True
+    ) -> None:
+        self.protocol = protocol
+        sim = protocol.sim
+        self.scene = scene or build_scene(protocol)
+        seeds = np.random.SeedSequence(sim.seed).spawn(3)
+        rng_mocap, rng_lc, rng_motor = (np.random.default_rng(s) for s in seeds)
+        self.clock = SimClock(self._advance, realtime=realtime)
+        mocap_clock = DeviceClock(sim.mocap_clock, MOCAP_RATE_HZ, rng_mocap)
+        self.mocap = SimMocap(self.scene.markers, mocap_clock, rng_mocap, noise_m=1e-4 if sim.noise else 0.0)
+        self.loadcells = SimLoadCells(
+            DeviceClock(sim.loadcell_clock, LOADCELL_RATE_HZ, rng_lc),
+            default_calibration(),
+            mocap_clock,
+            rng_lc,
+            noise_counts=15.0 if sim.noise else 0.0,
+        )
+        rig = self.scene.rig
+        self.motor = SimMotor(
+            DeviceClock(sim.motor_clock, MOTOR_RATE_HZ, rng_motor),
+            self.scene.ramp,
+            self.scene.motor_torque,
+            self._command,
+            rng_motor,
+            torque_constant=rig.torque_constant,
+            bus_voltage=rig.bus_voltage,
+            noise=sim.noise,
+            now=lambda: self.clock.now_ns() * 1e-9,
+        )
+        self.motor.amplitude_mm = protocol.amplitude_mm if protocol.rig == "contact" else None
+        self.streams: list[Stream] = [self.motor, self.mocap, self.loadcells]
+        self._devices = [self.motor, self.mocap, self.loadcells]
+        self._hist: Trajectory | None = None
+        self._state = "new"
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="sim-prefetch") if prefetch else None
+        self._ahead: tuple[int, Future, tuple] | None = None  # (target ns, job, snapshot to undo it)
+        self._last_ns = 0
+
+    def open(self) -> None:
+        if self._state != "new":
+            return
+        self.clock.reset()
+        self._hist = self.scene.advance_to(0.0)
+        for dev in self._devices:
+            dev.start()
+            dev.ingest(self._hist, 0.0)
+        self._state = "open"
+
+    def close(self) -> None:
+        if self._state == "closed":
+            return
+        try:
+            self.motor.idle()
+        finally:
+            self._undo_ahead()
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+            for dev in self._devices:
+                dev.stop()
+            self.scene.physics.close()
+            self._state = "closed"
+
+    # --- stepping -------------------------------------------------------------------------------------
+    def _command(self, hz: float) -> None:
+        """Motor → scene: a new crank-speed setpoint takes effect from the current time."""
+        self._undo_ahead()
+        self.scene.set_frequency(hz)
+
+    def _undo_ahead(self) -> None:
+        if self._ahead is not None:
+            _, job, snap = self._ahead
+            self._ahead = None
+            job.result()
+            self.scene.restore(snap)
+
+    def _advance(self, now_ns: int) -> None:
+        if self._state != "open":
+            raise RuntimeError("sim rig: clock.wait() before open() or after close()")
+        now = now_ns * 1e-9
+        if self._ahead is not None and self._ahead[0] == now_ns:
+            new = self._ahead[1].result()
+            self._ahead = None
+        else:
+            self._undo_ahead()
+            new = self.scene.advance_to(now)
+        if len(new):
+            old = self._hist
+            keep = old.t >= new.t[0] - HISTORY_S if old is not None else None
+            self._hist = (
+                new
+                if old is None
+                else Trajectory.concat([Trajectory(old.t[keep], {k: v[keep] for k, v in old.channels.items()}), new])
+            )
+        for dev in self._devices:
+            dev.ingest(self._hist, now)
+        step_ns, self._last_ns = now_ns - self._last_ns, now_ns
+        if self._pool is not None and step_ns > 0:
+            target = now_ns + step_ns
+            snap = self.scene.snapshot()
+            self._ahead = (target, self._pool.submit(self.scene.advance_to, target * 1e-9), snap)
+
+    def identity(self) -> dict[str, Any]:
+        sim = self.protocol.sim
+
+        def clock(c: ClockModel) -> dict[str, float]:
+            return c.model_dump()
+
+        return {
+            "backend": "sim",
+            "rig": self.protocol.rig,
+            "model": self.scene.identity(),
+            "mujoco_version": mujoco.__version__,
+            "seed": sim.seed,
+            "noise": sim.noise,
+            "devices": {
+                "motor": {
+                    "kind": "SimMotor (ODrive-like velocity ramp)",
+                    "rate_hz": MOTOR_RATE_HZ,
+                    "clock": clock(sim.motor_clock),
+                },
+                "mocap": {
+                    "kind": "SimMocap (Motive-like labeled markers)",
+                    "rate_hz": MOCAP_RATE_HZ,
+                    "markers": list(self.scene.markers),
+                    "noise_m": self.mocap.noise_m,
+                    "clock": clock(sim.mocap_clock),
+                },
+                "loadcell": {
+                    "kind": "SimLoadCells (4 raw channels, boxcar over the sample period)",
+                    "rate_hz": LOADCELL_RATE_HZ,
+                    "noise_counts": self.loadcells.noise,
+                    "calibration": self.loadcells.cal.source,
+                    "clock": clock(sim.loadcell_clock),
+                    "plate": self.protocol.rig == "contact",
+                },
+            },
+        }
+
+
+def build_sim_rig(protocol: Protocol, realtime: bool = False, prefetch: bool = True) -> SimRig:
+    """The sim backend's rig for ``protocol`` (contact rig or walker)."""
+    return SimRig(protocol, realtime=realtime, prefetch=prefetch)

@@ -1,0 +1,187 @@
+"""Chunked stepping of a MuJoCo model with precomputed per-step controls (``mujoco.rollout``).
+
+The scene knows its controls in advance for each chunk (the stage reference follows the motor's planned
+speed ramp), so a whole chunk runs in C with no Python per step. Each row of the returned trajectory is the
+sensor readout of the state *before* step k, at time ``t0 + k·h`` (mujoco.rollout evaluates sensors before it
+integrates; its state rows are one step later, so only sensors are used and the two are never mixed).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+INTEGRATORS = {
+    "euler": mujoco.mjtIntegrator.mjINT_EULER,
+    "implicitfast": mujoco.mjtIntegrator.mjINT_IMPLICITFAST,
+    "implicit": mujoco.mjtIntegrator.mjINT_IMPLICIT,
+    "rk4": mujoco.mjtIntegrator.mjINT_RK4,
+    "discrete": mujoco.mjtIntegrator.mjINT_DISCRETE,
+}
+
+
+def integrator_enum(name: str) -> mujoco.mjtIntegrator:
+    """MuJoCo's integrator for ``name`` (a key of :data:`INTEGRATORS`); a clear ValueError otherwise."""
+    if name not in INTEGRATORS:
+        raise ValueError(f"integrator = {name!r}: one of {', '.join(INTEGRATORS)}")
+    return INTEGRATORS[name]
+
+
+MAX_CHUNK_STEPS = 20_000  # rollout allocates nstep × nstate; bound the memory of one call
+
+
+@dataclass
+class Trajectory:
+    """Rows at times ``t`` (true simulated time, s) with named channels ``[n, ...]``."""
+
+    t: np.ndarray
+    channels: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @staticmethod
+    def concat(parts: list[Trajectory]) -> Trajectory:
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            raise ValueError("no rows")
+        keys = parts[0].channels.keys()
+        return Trajectory(
+            np.concatenate([p.t for p in parts]), {k: np.concatenate([p.channels[k] for p in parts]) for k in keys}
+        )
+
+    def tail(self, n: int) -> Trajectory:
+        return Trajectory(self.t[-n:], {k: v[-n:] for k, v in self.channels.items()})
+
+
+class Physics:
+    """A compiled model and its data, advanced in chunks through ``mujoco.rollout``."""
+
+    def __init__(self, model: mujoco.MjModel) -> None:
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self._spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        self._roll = rollout.Rollout(nthread=0)
+        self._state = np.empty(mujoco.mj_stateSize(model, self._spec))
+        self.sensor_slices = {
+            mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_SENSOR, i): slice(int(a), int(a + d))
+            for i, (a, d) in enumerate(zip(model.sensor_adr, model.sensor_dim))
+        }
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def timestep(self) -> float:
+        return float(self.model.opt.timestep)
+
+    def set_timestep(self, h: float) -> None:
+        self.model.opt.timestep = h
+
+    def snapshot(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Everything needed to redo the next chunk: full physics state, warm start, timestep."""
+        state = np.empty_like(self._state)
+        mujoco.mj_getState(self.model, self.data, state, self._spec)
+        return state, self.data.qacc_warmstart.copy(), self.timestep
+
+    def restore(self, snap: tuple[np.ndarray, np.ndarray, float]) -> None:
+        state, warm, h = snap
+        mujoco.mj_setState(self.model, self.data, state, self._spec)
+        self.data.qacc_warmstart[:] = warm
+        self.set_timestep(h)
+
+    def reset_to_equilibrium(self, seconds: float, ctrl: np.ndarray) -> None:
+        """Let the model settle under gravity with constant ``ctrl``, then set time to zero."""
+        n = int(round(seconds / self.timestep))
+        self.data.ctrl[:] = ctrl
+        if n:
+            self.step(np.tile(ctrl, (n, 1)))
+        self.data.time = 0.0
+        self.data.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, self.data)
+
+    def step(self, ctrl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Apply ``ctrl[k]`` during step k; returns (row times [n], sensordata [n, nsensordata])."""
+        n = len(ctrl)
+        m, d = self.model, self.data
+        t0, h = float(d.time), self.timestep
+        sens = np.empty((n, m.nsensordata))
+        for a in range(0, n, MAX_CHUNK_STEPS):
+            b = min(n, a + MAX_CHUNK_STEPS)
+            mujoco.mj_getState(m, d, self._state, self._spec)
+            warm = d.qacc_warmstart.copy()
+            _, s = self._roll.rollout(
+                m, d, self._state[None], ctrl[None, a:b], initial_warmstart=warm[None], nstep=b - a
+            )
+            sens[a:b] = s[0]
+            # rollout leaves ``d`` at the final state of the chunk: continue from there
+        times = t0 + h * np.arange(n)
+        return times, sens
+
+    def close(self) -> None:
+        self._roll.close()
+
+
+class DrivenScene:
+    """A scene whose controls for a chunk are planned in advance from the motor command.
+
+    The physics runs one step ahead of the clock: after ``advance_to(t)`` there are rows up to (at least)
+    ``t``, so a device can sample any time ≤ ``t`` by interpolation without waiting for the next chunk.
+    Subclasses implement :meth:`_plan` (controls + motor channels) and :meth:`_channels` (sensor → channels).
+    """
+
+    markers: tuple[str, ...] = ()
+
+    def __init__(self, physics: Physics) -> None:
+        self.physics = physics
+
+    def advance_to(self, t_target: float) -> Trajectory:
+        """Step until there is a row at time ≥ ``t_target``; returns the new rows."""
+        h = self.physics.timestep
+        n = int(np.ceil((t_target - self.physics.time) / h - 1e-9)) + 1
+        if n <= 0:
+            return Trajectory(np.zeros(0))
+        ctrl, motor = self._plan(n, h)
+        t, sens = self.physics.step(ctrl)
+        channels = self._channels(sens)
+        channels.update(motor)
+        return Trajectory(t, channels)
+
+    def snapshot(self) -> tuple:
+        """State to undo a chunk computed ahead of time (physics, motor ramp, servo)."""
+        extra = {name: dict(vars(getattr(self, name))) for name in ("ramp", "servo") if hasattr(self, name)}
+        return self.physics.snapshot(), extra
+
+    def restore(self, snap: tuple) -> None:
+        phys, extra = snap
+        self.physics.restore(phys)
+        for name, fields in extra.items():
+            vars(getattr(self, name)).update(fields)  # in place: devices hold references to these objects
+
+    def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        raise NotImplementedError
+
+    def _channels(self, sens: np.ndarray) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def sensor(self, sens: np.ndarray, name: str) -> np.ndarray:
+        return sens[:, self.physics.sensor_slices[name]]
+
+
+@contextlib.contextmanager
+def quiet_mujoco_warnings() -> Iterator[list[str]]:
+    """Collect MuJoCo's warnings (diverging configurations are expected here) instead of printing them and
+    appending them to MUJOCO_LOG.TXT in the working directory; yields the list of messages."""
+    messages: list[str] = []
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(messages.append)
+    try:
+        yield messages
+    finally:
+        mujoco.set_mju_user_warning(previous)

@@ -1,0 +1,33 @@
+"""The one place that maps a model name (``sim.model``) to its family, parameter file and builder."""
+
+from __future__ import annotations
+
+import re
+
+from beambench.sim.models.beam import PRB3, BeamModel
+from beambench.sim.models.params import BeamParams, load_params
+from beambench.sim.models.rod import ROD_NAME, make_rod_model
+
+FAMILIES = ("prb3", "rod")
+
+
+def model_family(name: str) -> str:
+    """The parameter-file prefix of a model name: ``rod10``, ``rod3g`` → ``rod``; ``prb3`` → ``prb3``."""
+    if name == "prb3":
+        return "prb3"
+    if re.fullmatch(ROD_NAME, name):
+        return "rod"
+    raise ValueError(f"sim.model = {name!r}: unknown beam model (known: prb3, rod<N>[g][s])")
+
+
+def make_beam_model(name: str, params: BeamParams) -> BeamModel:
+    """The model called ``name``: ``prb3``, or a segmented rod ``rod<N>[g][s]`` (:mod:`beambench.sim.models.rod`)."""
+    if model_family(name) == "rod":
+        return make_rod_model(name, params)
+    return PRB3(params)
+
+
+def beam_model(name: str = "prb3", params: str | BeamParams = "paper") -> BeamModel:
+    """A beam model by name with a named parameter set (or the parameters themselves)."""
+    family = model_family(name)
+    return make_beam_model(name, load_params(params, model=family) if isinstance(params, str) else params)

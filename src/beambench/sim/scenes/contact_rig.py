@@ -1,0 +1,264 @@
+"""The single-beam contact rig (paper Sec. IV-A, Fig. 2j): a crank-driven stage, the beam, a rigid foot and
+a plate below it. World frame: x = stage travel, y = along the beam (away from the stage), z = up; the
+stage (beam clamp) is at the origin.
+
+- Stage: a slider with a large armature driven by a servo whose feed-forward uses the *discrete*
+  acceleration of the reference x = A·sin θ, so it follows the crank to ~µm whatever the beam does.
+- Foot: rigid, ``foot_length`` below the beam tip in the natural shape, its mass at the sole (a sphere).
+- Plate: top at z = −(foot_length + gap); the gap is h' of the paper (5.5 mm) measured from the foot's
+  natural (gravity-free) position. Stiff contact: solref time constant ``contact_timeconst`` on the one
+  sole–plate contact pair.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from beambench.acquisition.streams import CONTACT_MARKERS
+from beambench.sim.engine.stepping import INTEGRATORS, DrivenScene, Physics
+from beambench.sim.models.beam import BeamModel, add_beam
+from beambench.sim.scenes.drive import KinematicServo, VelocityRamp
+
+
+@dataclass(frozen=True)
+class RigParams:
+    """Contact-rig constants (SI). A parameter set may override any of them in its ``rig:`` block."""
+
+    foot_length: float = 0.0665  # m, beam tip to sole bottom
+    foot_mass: float = 0.020  # kg, at the sole
+    sole_radius: float = 0.003  # m
+    plate_from_stage: float = 0.072  # m, informational: foot_length + the paper's 5.5 mm gap
+    friction: float = 0.5
+    contact_timeconst: float = 0.001  # s (≤ 2 ms needed; MuJoCo's default 20 ms hides the contact effects)
+    contact_dampratio: float = 1.0
+    stage_armature: float = 1000.0  # kg, makes the stage a near-kinematic drive
+    stage_mass: float = 0.15  # kg, the physical carriage (for the motor current estimate)
+    servo_hz: float = 30.0  # bandwidth of the stage's feedback (feed-forward does the tracking)
+    vel_ramp_rate: float = 50.0  # turn/s², ODrive controller.config.vel_ramp_rate
+    torque_constant: float = 8.27 / 150  # N·m/A (D6374 150 KV)
+    friction_torque: float = 0.02  # N·m, crank + bearings (Coulomb)
+    bus_voltage: float = 24.0  # V
+    preroll_s: float = 0.5  # settle to the static equilibrium before t = 0
+
+    @classmethod
+    def with_overrides(cls, overrides: dict[str, Any]) -> RigParams:
+        known = {f.name for f in fields(cls)}
+        bad = set(overrides) - known
+        if bad:
+            raise ValueError(f"rig.{sorted(bad)[0]}: unknown rig parameter")
+        return cls(**{k: float(v) for k, v in overrides.items()})
+
+
+TIMESTEP_POLICY = ((40.0, 2e-4), (80.0, 1e-4), (float("inf"), 5e-5))  # (up to Hz, dt)
+
+
+def default_timestep(frequency_hz: float) -> float:
+    """The timestep the contact rig needs at a drive frequency: foot path within 0.07 mm (below the mocap
+    noise) of a dt = 2.5e-5 reference at a 1 mm gap up to 40 Hz; 1e-4 up to 80 Hz (planning notes)."""
+    return next(dt for f, dt in TIMESTEP_POLICY if abs(frequency_hz) <= f)
+
+
+@dataclass(frozen=True)
+class SceneNames:
+    stage_joint: str = "stage"
+    actuator: str = "stage_servo"
+    sole: str = "sole"
+    plate: str = "plate"
+
+
+def build_contact_spec(
+    beam: BeamModel,
+    twist_deg: float,
+    gap_m: float,
+    rig: RigParams,
+    integrator: str = "implicitfast",
+    timestep: float = 1e-4,
+) -> mujoco.MjSpec:
+    """The contact-rig scene as an ``MjSpec`` (compile it with ``spec.compile()``)."""
+    names = SceneNames()
+    spec = mujoco.MjSpec()
+    spec.modelname = "beambench_contact_rig"
+    spec.option.timestep = timestep
+    spec.option.integrator = INTEGRATORS[integrator]
+    spec.option.gravity = [0, 0, -9.81]
+    solref = [rig.contact_timeconst, rig.contact_dampratio]
+
+    world = spec.worldbody
+    plate_top = -(rig.foot_length + gap_m)
+    # Only the sole can touch the plate: one explicit pair, so MuJoCo skips the broad phase (contype 0).
+    world.add_geom(
+        name=names.plate,
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.06, 0.06, 0.005],
+        pos=[0, 0.05, plate_top - 0.005],
+        contype=0,
+        conaffinity=0,
+        rgba=[0.6, 0.6, 0.6, 1],
+    )
+    world.add_site(name="plate_site", pos=[0, 0.05, plate_top], size=[0.002, 0, 0])
+
+    stage = world.add_body(name="stage")
+    stage.add_joint(
+        name=names.stage_joint, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0], armature=rig.stage_armature
+    )
+    stage.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.02, 0.01, 0.01],
+        pos=[0, -0.01, 0],
+        mass=rig.stage_mass,
+        contype=0,
+        conaffinity=0,
+        rgba=[0.3, 0.3, 0.3, 1],
+    )
+    stage.add_site(name="stage", size=[0.002, 0, 0])
+    clamp = stage.add_body(name="clamp")  # welded: a force sensor here reads the beam's pull on the stage
+    clamp.add_site(name="clamp", size=[0.001, 0, 0])
+    sites = add_beam(clamp, beam, twist_deg)
+
+    tip = spec.body(sites.tip_body)
+    r = rig.sole_radius
+    tip.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+        fromto=[0, 0, 0, 0, 0, -(rig.foot_length - 2 * r)],
+        size=[0.002, 0, 0],
+        mass=0.0,
+        contype=0,
+        conaffinity=0,
+        rgba=[0.9, 0.5, 0.1, 1],
+    )
+    tip.add_geom(
+        name=names.sole,
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[r, 0, 0],
+        pos=[0, 0, -(rig.foot_length - r)],
+        mass=rig.foot_mass,
+        contype=0,
+        conaffinity=0,
+        rgba=[0.9, 0.5, 0.1, 1],
+    )
+    tip.add_site(name="foot", pos=[0, 0, -rig.foot_length], size=[0.002, 0, 0])
+
+    spec.add_pair(
+        name="sole_plate",
+        geomname1=names.sole,
+        geomname2=names.plate,
+        condim=3,
+        solref=solref,
+        friction=[rig.friction, rig.friction, 0.005, 0.0001, 0.0001],
+    )
+
+    spec.add_actuator(
+        name=names.actuator,
+        target=names.stage_joint,
+        trntype=mujoco.mjtTrn.mjTRN_JOINT,
+        gaintype=mujoco.mjtGain.mjGAIN_FIXED,
+        biastype=mujoco.mjtBias.mjBIAS_AFFINE,
+    )
+
+    site = mujoco.mjtObj.mjOBJ_SITE
+    for marker, name in zip(CONTACT_MARKERS, ("stage", sites.tip_site, "foot")):
+        spec.add_sensor(name=marker, type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=site, objname=name)
+    spec.add_sensor(name="clamp_force", type=mujoco.mjtSensor.mjSENS_FORCE, objtype=site, objname="clamp")
+    # contact sensor: data = found + force (bits 0, 1), reduce = netforce (3), one slot; global frame
+    spec.add_sensor(
+        name="plate_force",
+        type=mujoco.mjtSensor.mjSENS_CONTACT,
+        objtype=mujoco.mjtObj.mjOBJ_GEOM,
+        objname=names.sole,
+        reftype=mujoco.mjtObj.mjOBJ_GEOM,
+        refname=names.plate,
+        intprm=[3, 3, 1],
+    )
+    return spec
+
+
+class ContactRigSim(DrivenScene):
+    """The contact rig advanced in chunks; channels: ``markers`` [n, 3, 3] (stage, tip, foot), ``force_nt``
+    [n, 2] (plate normal, tangential-x, N), and the motor's ``theta``/``omega``/``setpoint``/``torque``."""
+
+    markers = CONTACT_MARKERS
+
+    def __init__(
+        self,
+        beam: BeamModel,
+        twist_deg: float = 90.0,
+        gap_m: float = 0.0055,
+        amplitude_m: float = 0.002,
+        rig: RigParams | None = None,
+        integrator: str = "implicitfast",
+        timestep: float | None = None,
+        timestep_for: Callable[[float], float] | None = None,
+        selection: dict | None = None,
+    ) -> None:
+        self.beam, self.twist_deg, self.gap_m, self.amplitude = beam, twist_deg, gap_m, amplitude_m
+        self.rig = rig or RigParams.with_overrides(beam.params.rig)
+        self.integrator = integrator
+        self.fixed_timestep = timestep
+        # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.select (model: auto)
+        self.timestep_for = timestep_for or default_timestep
+        self.selection = selection
+        h0 = timestep or self.timestep_for(1.0)
+        self.spec = build_contact_spec(beam, twist_deg, gap_m, self.rig, integrator, h0)
+        model = self.spec.compile()
+        super().__init__(Physics(model))
+        self.ramp = VelocityRamp(self.rig.vel_ramp_rate)
+        stage_dof = model.jnt_dofadr[model.joint("stage").id]
+        # the slider's own inertia: armature + the stage body (the beam acts on it as an external load)
+        self._m_stage = float(model.dof_armature[stage_dof] + model.body("stage").mass[0])
+        self.servo = KinematicServo(model, "stage_servo", self._m_stage, self.rig.servo_hz, integrator, h0)
+        self.physics.reset_to_equilibrium(self.rig.preroll_s, np.zeros(1))
+
+    # --- commands -------------------------------------------------------------------------------------
+    def set_frequency(self, hz: float) -> None:
+        """New crank-speed setpoint (turn/s = Hz); also picks the timestep the frequency needs."""
+        self.ramp.setpoint = float(hz)
+        if self.fixed_timestep is None:
+            self.physics.set_timestep(self.timestep_for(max(abs(hz), abs(self.ramp.omega))))
+
+    # --- stepping -------------------------------------------------------------------------------------
+    def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        omega, theta = self.ramp.plan(n, h)
+        ref = self.amplitude * np.sin(theta)  # rows 0..n
+        ctrl, acc = self.servo.controls(ref, h)
+        motor = {"theta": theta[:-1], "omega": omega[:-1], "setpoint": np.full(n, self.ramp.setpoint), "stage_acc": acc}
+        return ctrl[:, None], motor
+
+    def _channels(self, sens: np.ndarray) -> dict[str, np.ndarray]:
+        n = len(sens)
+        markers = np.stack([self.sensor(sens, m) for m in CONTACT_MARKERS], axis=1)
+        plate = self.sensor(sens, "plate_force")  # found, fx, fy, fz: force of the foot on the plate
+        force_nt = np.column_stack([-plate[:, 3], plate[:, 1]])
+        pull_x = -self.sensor(sens, "clamp_force")[:, 0]  # beam on stage (sensor: stage on clamp+beam)
+        return {"markers": markers.reshape(n, len(CONTACT_MARKERS), 3), "force_nt": force_nt, "pull_x": pull_x}
+
+    def motor_torque(self, traj_channels: dict[str, np.ndarray]) -> np.ndarray:
+        """Crank torque (N·m) from the stage force by virtual work: τ = F·dx/dθ = F·A·cos θ, plus friction."""
+        ch = traj_channels
+        force = self.rig.stage_mass * ch["stage_acc"] - ch["pull_x"]
+        tau = force * self.amplitude * np.cos(ch["theta"])
+        return tau + self.rig.friction_torque * np.tanh(ch["omega"] / 0.05)
+
+    def identity(self) -> dict[str, Any]:
+        m = self.physics.model
+        return {
+            "scene": "contact_rig",
+            **self.beam.describe(),
+            "twist_deg": self.twist_deg,
+            "plate_gap_m": self.gap_m,
+            "amplitude_m": self.amplitude,
+            "rig_params": asdict(self.rig),
+            "integrator": self.integrator,
+            "timestep": self.fixed_timestep if self.fixed_timestep else "auto",
+            "timestep_policy": "fixed"
+            if self.fixed_timestep
+            else "auto: " + ", ".join(f"{dt:g} s up to {f:g} Hz" for f, dt in TIMESTEP_POLICY),
+            "nq": int(m.nq),
+            "nv": int(m.nv),
+            "mujoco_version": mujoco.__version__,
+            **({"selection": self.selection} if self.selection else {}),
+        }

@@ -1,0 +1,443 @@
+"""The contact-rig frequency sweep batched on all cores, with the timestep each frequency needs.
+
+The scene is :func:`beambench.sim.contact_rig.build_contact_spec` (stage, beam, foot, plate); only the drive
+differs from the interactive :class:`~beambench.sim.contact_rig.ContactRigSim`: each frequency is held from
+t = 0 (no speed ramp) and the stage actuator is a pure feed-forward force M·a with the discrete acceleration
+(as in :mod:`beambench.sim.free_beam`), so the clamp follows A·sin(2πft) exactly. Frequencies sharing a
+timestep run in one :class:`mujoco.batch.Batch`.
+
+:func:`measure_contact_table` writes the table :mod:`beambench.sim.select` reads for ``scene="contact"``:
+foot-path RMS error against the same model at a small timestep, contacts per cycle, wall time per 10 s.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pandas as pd
+
+from beambench.sim.engine.batch import rollout_batch, thread_count, window
+from beambench.sim.models.beam import BeamModel
+from beambench.sim.models.registry import beam_model
+from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
+from beambench.sim.scenes.free_beam import slider_inertia, stage_controls
+
+REFERENCE_DT = 2.5e-5
+IRREGULAR_MM = 0.05  # fine runs this far from the reference (foot path RMS) mark an irregular regime
+SAMPLE_DT = 1e-3  # common sample grid of every timestep in the table (2.5e-5 … 1e-3 divide it)
+
+
+@dataclass
+class ContactSweep:
+    """Per frequency: foot path [nf, n, 3] (m) and plate normal force [nf, n] (N) on the common sample grid
+    ``t`` [n] (s); ``contact`` holds each run's normal force and foot height at every step of the window
+    (for contact counting); ``ok`` False where a run diverged."""
+
+    frequencies: np.ndarray
+    timesteps: np.ndarray
+    t: np.ndarray
+    foot: np.ndarray
+    normal: np.ndarray
+    ok: np.ndarray
+    wall_s: float
+    contact: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (normal, foot_z) per run
+    info: dict = field(default_factory=dict)
+
+    def contacts_per_cycle(self) -> np.ndarray:
+        """Flights per drive cycle at each frequency, from the full-resolution window (see contact_ratio)."""
+        out = []
+        for i, f in enumerate(self.frequencies):
+            normal, z = self.contact[i]
+            t = self.t[0] + np.arange(len(normal)) * self.timesteps[i]
+            out.append(contact_ratio(t, normal, z, f) if self.ok[i] else float("nan"))
+        return np.array(out)
+
+
+def contact_ratio(t: np.ndarray, normal: np.ndarray, foot_z: np.ndarray, f: float) -> float:
+    """Flights per drive cycle: a flight is a stretch with zero normal force longer than 10 % of a period in
+    which the foot rises more than 20 µm above its lowest point (filters micro-chatter). With no flight the
+    foot stays down (0) — or never touches (NaN)."""
+    if not np.isfinite(normal).all():
+        return float("nan")
+    touching = normal > 1e-6
+    if not touching.any():
+        return float("nan")
+    period = 1.0 / f
+    dt = t[1] - t[0]
+    low = np.nanmin(foot_z)
+    flights = 0
+    k = 0
+    n = len(t)
+    while k < n:
+        if touching[k]:
+            k += 1
+            continue
+        j = k
+        while j < n and not touching[j]:
+            j += 1
+        if (j - k) * dt > 0.1 * period and foot_z[k:j].max() - low > 20e-6:
+            flights += 1
+        k = j
+    cycles = (t[-1] - t[0] + dt) / period
+    return flights / cycles
+
+
+def _models(
+    beam: BeamModel, twist_deg: float, gap_m: float, rig: RigParams, integrator: str, timesteps: Sequence[float]
+) -> dict[float, mujoco.MjModel]:
+    spec = build_contact_spec(beam, twist_deg, gap_m, rig, integrator, float(timesteps[0]))
+    spec.delete(spec.sensor("clamp_force"))  # unused here; a force sensor costs a post-constraint RNE per step
+    base = spec.compile()
+    act = base.actuator("stage_servo").id
+    base.actuator_gainprm[act, 0] = 1.0  # a pure force actuator: ctrl = M·a (feed-forward only)
+    base.actuator_biasprm[act, :] = 0.0
+    out = {}
+    for h in sorted(set(float(x) for x in timesteps)):
+        m = copy.copy(base)
+        m.opt.timestep = h
+        out[h] = m
+    return out
+
+
+def _rest(model: mujoco.MjModel, seconds: float = 0.5) -> np.ndarray:
+    """Joint positions at rest (foot on or above the plate) with the stage held at x = 0."""
+    m = copy.copy(model)
+    m.opt.timestep = 1e-4
+    m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    d = mujoco.MjData(m)
+    dof = m.jnt_dofadr[m.joint("stage").id]
+    for _ in range(int(seconds / 1e-4) // 100):
+        mujoco.mj_step(m, d, nstep=100)
+        d.qpos[dof] = d.qvel[dof] = 0.0
+    return d.qpos.copy()
+
+
+def contact_sweep(
+    beam: BeamModel | str = "prb3",
+    frequencies: Sequence[float] = tuple(range(1, 46)),
+    timesteps: Sequence[float] | float | None = None,
+    twist_deg: float = 90.0,
+    gap_m: float = 0.001,
+    amplitude: float = 0.002,
+    settle_s: float = 1.0,
+    record_s: float = 1.0,
+    integrator: str | None = None,
+    sample_dt: float = SAMPLE_DT,
+    rig: RigParams | None = None,
+    nthread: int | None = None,
+    timing: dict | None = None,
+) -> ContactSweep:
+    """Steady-state contact runs at each frequency, batched per timestep on all cores.
+
+    ``timesteps``: one per frequency, one for all, or None for the timestep the measured contact table
+    selects per frequency (``beambench.sim.select``, tolerance 0.1 mm) — falling back to the rig's policy.
+    ``integrator``: None for the table's choice with ``timesteps=None``, else implicitfast."""
+    bm = beam_model(beam) if isinstance(beam, str) else beam
+    freqs = np.asarray(frequencies, float)
+    if timesteps is None:
+        planned, timesteps = default_contact_plan(bm.name, freqs)
+        integrator = integrator or planned
+    integrator = integrator or "implicitfast"
+    dts = np.broadcast_to(np.asarray(timesteps, float), freqs.shape).copy()
+    rig = rig or RigParams.with_overrides(bm.params.rig)
+    models = _models(bm, twist_deg, gap_m, rig, integrator, dts)
+    q0 = _rest(next(iter(models.values())))
+    nt = int(round(record_s / sample_dt))
+    foot = np.full((len(freqs), nt, 3), np.nan)
+    normal = np.full((len(freqs), nt), np.nan)
+    ok = np.ones(len(freqs), bool)
+    contact: list = [None] * len(freqs)
+    walls: list[float] = []
+
+    def run_group(h: float, idx: np.ndarray, threads: int | None) -> None:
+        """Runs ``idx`` (all at timestep h) in one batch; fills their rows of the outputs."""
+        m = models[h]
+        every = max(1, int(round(sample_dt / h)))
+        n_total, keep = window(settle_s, record_s, h, every)
+        keep = keep[:nt]
+        mass = slider_inertia(m, q0)
+        dof = m.jnt_dofadr[m.joint("stage").id]
+        qvel0 = np.zeros((len(idx), m.nv))
+        for j, i in enumerate(idx):
+            qvel0[j, dof] = stage_controls(freqs[i], amplitude, h, 1, mass, integrator)[1]
+
+        def controls(k0: int, n: int) -> np.ndarray:
+            c = np.empty((len(idx), n, 1))
+            for j, i in enumerate(idx):
+                c[j, :, 0] = stage_controls(freqs[i], amplitude, h, n, mass, integrator, k0)[0]
+            return c
+
+        a_foot = int(m.sensor("foot").adr[0])
+        a_plate = int(m.sensor("plate_force").adr[0])
+        n_settle = int(keep[0])
+        full_n = np.zeros((len(idx), n_total - n_settle), np.float32)
+        full_z = np.zeros((len(idx), n_total - n_settle), np.float32)
+
+        def grab(k0: int, rows: np.ndarray) -> None:
+            a = max(k0, n_settle)
+            b = k0 + rows.shape[1]
+            if b > a:
+                full_n[:, a - n_settle : b - n_settle] = -rows[:, a - k0 : b - k0, a_plate + 3]
+                full_z[:, a - n_settle : b - n_settle] = rows[:, a - k0 : b - k0, a_foot + 2]
+
+        sd, okg, w = rollout_batch(
+            [m] * len(idx),
+            np.tile(q0, (len(idx), 1)),
+            qvel0,
+            controls,
+            n_total,
+            keep,
+            threads,
+            on_chunk=grab,
+            timing=timing,
+        )
+        for j, i in enumerate(idx):
+            contact[i] = (full_n[j], full_z[j])
+        walls.append(w)
+        foot[idx, : len(keep)] = sd[:, :, a_foot : a_foot + 3]
+        normal[idx, : len(keep)] = -sd[:, :, a_plate + 3]  # contact sensor: force of the foot on the plate
+        ok[idx] = okg & np.isfinite(sd[:, :, a_foot]).all(axis=1)
+
+    for h in models:
+        every = max(1, int(round(sample_dt / h)))
+        if abs(every * h - sample_dt) > 1e-12:
+            raise ValueError(f"timestep {h:g} does not divide the sample interval {sample_dt:g}")
+    workers = thread_count(nthread, len(freqs))
+    if workers == 1 or timing is not None:
+        for h in models:
+            run_group(h, np.nonzero(dts == h)[0], nthread)
+        wall = float(sum(walls))
+    else:  # balanced: each worker thread steps its share of the runs, one MuJoCo thread each
+        t0 = time.perf_counter()
+        with ThreadPoolExecutor(workers) as pool:
+            jobs = [
+                pool.submit(lambda share: [run_group(h, idx, 1) for h, idx in share], share)
+                for share in _balanced_shares(dts, settle_s + record_s, workers)
+            ]
+            for job in jobs:
+                job.result()
+        wall = time.perf_counter() - t0
+    t = settle_s + np.arange(nt) * sample_dt
+    return ContactSweep(
+        freqs,
+        dts,
+        t,
+        foot,
+        normal,
+        ok,
+        wall,
+        contact,
+        {"model": bm.name, "gap_m": gap_m, "integrator": integrator, "twist_deg": twist_deg},
+    )
+
+
+def _balanced_shares(dts: np.ndarray, seconds: float, workers: int) -> list[list[tuple[float, np.ndarray]]]:
+    """Split the runs over ``workers`` so each steps about the same number of steps (longest first onto the
+    least loaded), as (timestep, run indices) groups per worker."""
+    load = [0.0] * workers
+    picks: list[dict[float, list[int]]] = [{} for _ in range(workers)]
+    for i in sorted(range(len(dts)), key=lambda i: dts[i]):  # smallest step = most steps first
+        w = int(np.argmin(load))
+        load[w] += seconds / dts[i]
+        picks[w].setdefault(float(dts[i]), []).append(i)
+    return [[(h, np.array(ix)) for h, ix in p.items()] for p in picks if p]
+
+
+def default_contact_plan(model: str, frequencies: Sequence[float], tolerance_mm: float = 0.1) -> tuple[str, np.ndarray]:
+    """(integrator, timestep per frequency) the measured contact table picks for ``model``, else implicitfast
+    with the rig's default timestep policy."""
+    from beambench.sim import selection as select
+    from beambench.sim.scenes.contact_rig import default_timestep
+
+    try:
+        plan = select.plan_sweep("contact", tolerance_mm, frequencies, models=[model])
+        return plan.integrator, np.array([plan.timestep(f) for f in frequencies])
+    except select.SelectionError:
+        return "implicitfast", np.array([default_timestep(f) for f in frequencies])
+
+
+def time_contact(
+    beam: BeamModel | str,
+    frequency: float,
+    timestep: float,
+    seconds: float = 10.0,
+    repeats: int = 3,
+    gap_m: float = 0.001,
+    integrator: str = "implicitfast",
+) -> tuple[float, float]:
+    """(median wall s, median thread-CPU s) of stepping ``seconds`` simulated of one contact run on one thread."""
+    walls, cpus = [], []
+    for _ in range(repeats):
+        timing: dict = {}
+        contact_sweep(
+            beam,
+            [frequency],
+            [timestep],
+            gap_m=gap_m,
+            settle_s=0.0,
+            record_s=seconds,
+            integrator=integrator,
+            nthread=1,
+            timing=timing,
+        )
+        walls.append(timing["wall"])
+        cpus.append(timing["cpu"])
+    return float(np.median(walls)), float(np.median(cpus))
+
+
+TABLE_FREQUENCIES = (
+    1,
+    2,
+    3,
+    4,
+    5,
+    6,
+    8,
+    10,
+    12,
+    15,
+    17,
+    20,
+    22,
+    25,
+    27,
+    30,
+    32,
+    35,
+    37,
+    40,
+    42,
+    45,
+    50,
+    55,
+    60,
+    70,
+    80,
+)
+
+
+def measure_contact_table(
+    model: str = "prb3",
+    frequencies: Sequence[float] = TABLE_FREQUENCIES,
+    timesteps: Sequence[float] = (5e-5, 1e-4, 2e-4, 2.5e-4, 1e-3 / 3, 5e-4, 1e-3),
+    integrators: Sequence[str] = ("implicitfast", "euler"),
+    gap_m: float = 0.001,
+    settle_s: float = 1.0,
+    record_s: float = 1.0,
+    timing_repeats: int = 3,
+) -> pd.DataFrame:
+    """Foot-path error (mm) of each timestep against ``REFERENCE_DT``, contacts per cycle, and the wall time
+    per 10 s simulated (one thread, median of ``timing_repeats``), per frequency — the ``contact`` table.
+
+    A timestep above half the contact time constant is measured but marked ``solref_clamped`` (never
+    selected): MuJoCo's ``refsafe`` then raises the time constant to 2·dt, a softer contact than the rig's
+    model (the foot path may still agree; the peak force does not)."""
+    freqs = np.asarray(frequencies, float)
+    timeconst = RigParams.with_overrides(beam_model(model).params.rig).contact_timeconst
+    ref = contact_sweep(model, freqs, REFERENCE_DT, gap_m=gap_m, settle_s=settle_s, record_s=record_s)
+    ref_ratio = ref.contacts_per_cycle()
+    runs = {}
+    for integ in integrators:
+        for h in timesteps:
+            r = contact_sweep(model, freqs, h, gap_m=gap_m, settle_s=settle_s, record_s=record_s, integrator=integ)
+            err = np.sqrt(np.mean(np.sum((r.foot - ref.foot) ** 2, axis=2), axis=1)) * 1e3
+            wall, cpu = time_contact(model, 25.0, h, seconds=2.0, repeats=timing_repeats, gap_m=gap_m, integrator=integ)
+            runs[(integ, h)] = (r, err, r.contacts_per_cycle(), wall * 5.0, cpu * 5.0)
+    # Where even the finest timesteps (≤ 1e-4 s) disagree with the reference — in the path by more than
+    # IRREGULAR_MM or in the contact count — the regime is irregular (no timestep converges it pointwise).
+    # There a timestep is judged by its excess over that floor and by a contact count inside the band the
+    # fine runs span (± 0.1).
+    fine = [k for k in runs if k[1] <= 1e-4]
+    rows = []
+    for i, f in enumerate(freqs):
+        fine_err = max(runs[k][1][i] for k in fine) if fine else 0.0
+        fine_ratio = [ref_ratio[i]] + [runs[k][2][i] for k in fine]
+        lo, hi = np.nanmin(fine_ratio) - 0.1, np.nanmax(fine_ratio) + 0.1
+        regular = fine_err <= IRREGULAR_MM and all(
+            (math.isnan(q) and math.isnan(ref_ratio[i])) or abs(q - ref_ratio[i]) < 0.1 for q in fine_ratio
+        )
+        for (integ, h), (r, err, ratio, wall, cpu) in runs.items():
+            q = ratio[i]
+            if regular:
+                same = (math.isnan(q) and math.isnan(ref_ratio[i])) or abs(q - ref_ratio[i]) < 0.1
+                status, e = ("ok" if same else "wrong_contacts"), err[i]
+            else:
+                inside = (math.isnan(q) and math.isnan(ref_ratio[i])) or (lo <= q <= hi)
+                status, e = ("irregular" if inside else "wrong_contacts"), max(0.0, err[i] - fine_err)
+            if not r.ok[i]:
+                status = "diverged"
+            elif 2 * h > timeconst + 1e-12:
+                status = "solref_clamped"
+            rows.append(
+                dict(
+                    scene="contact",
+                    model=model,
+                    integrator=integ,
+                    timestep=h,
+                    frequency_hz=f,
+                    status=status,
+                    err_mm=e,
+                    path_err_mm=err[i],
+                    contacts_per_cycle=q,
+                    ref_contacts_per_cycle=ref_ratio[i],
+                    wall_s_per_10s=wall,
+                    cpu_s_per_10s=cpu,
+                    gap_m=gap_m,
+                    is_reference=False,
+                )
+            )
+    return pd.DataFrame(rows)
+
+
+def bench_contact(out: Path, model: str = "prb3", tolerance_mm: float = 0.1, repeats: int = 3) -> dict:
+    """The contact goals on a freshly measured table: 10 s at the default model, one run per frequency
+    (1–45 Hz, one thread, median of ``repeats``), and the 45-frequency × 10 s sweep batched on all cores."""
+    out = Path(out)
+    table = measure_contact_table(model)
+    table.to_csv(out / "contact_table.csv", index=False)
+    return time_contact_goals(table, model, tolerance_mm, repeats) | {"table": str(out / "contact_table.csv")}
+
+
+def time_contact_goals(table: pd.DataFrame, model: str = "prb3", tolerance_mm: float = 0.1, repeats: int = 3) -> dict:
+    """Timing half of :func:`bench_contact` on a given table (e.g. the shipped one)."""
+    from beambench.sim import selection as select
+
+    freqs = np.arange(1, 46, dtype=float)
+    plan = select.plan_sweep("contact", tolerance_mm, freqs, models=[model], table=table)
+    dts = np.array([plan.timestep(f) for f in freqs])
+    single = {}
+    for f, h in zip(freqs, dts):
+        w, c = time_contact(model, f, h, seconds=10.0, repeats=repeats, integrator=plan.integrator)
+        single[f"{f:g}"] = {"timestep": float(h), "wall_s": w, "cpu_s": c}
+    walls_1 = np.array([v["wall_s"] for v in single.values()])
+
+    def sweep_wall(timesteps) -> list[float]:
+        walls = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            r = contact_sweep(model, freqs, timesteps, settle_s=0.0, record_s=10.0, integrator=plan.integrator)
+            walls.append(time.perf_counter() - t0)
+            if not r.ok.all():
+                raise RuntimeError(f"contact runs diverged at {freqs[~r.ok].tolist()} Hz")
+        return walls
+
+    walls = sweep_wall(dts)
+    fixed = sweep_wall(1e-4)
+    return {
+        "plan": plan.describe(),
+        "single_run_10s": single,
+        "single_run_10s_wall_s_median_over_freqs": float(np.median(walls_1)),
+        "single_run_10s_wall_s_max_over_freqs": float(walls_1.max()),
+        "single_run_10s_worst_freq_hz": float(freqs[int(np.argmax(walls_1))]),
+        "sweep_45x10s_wall_s_median": float(np.median(walls)),
+        "sweep_45x10s_wall_s_all": walls,
+        "sweep_45x10s_fixed_dt_1e-4_wall_s_median": float(np.median(fixed)),
+    }

@@ -1,0 +1,331 @@
+"""The paper's walker (Sec. IV-B), after the structure the planning prototype ran.
+
+Body frame: x forward (away from the cart), y left, z up; the floor is z = 0. The body slides in x and z
+and rolls/pitches. The paper's slider holds the robot "along the x-axis and about the yaw axis" while
+"roll, pitch, z-axis and y-axis" are free; since the robot walks, the paper's y is the walking direction
+and its x the lateral one, so here lateral translation and yaw are locked (``lateral_free = 1`` frees the
+lateral slide for experiments). On the body: a 45 g carbon plate, a 110 g Maxon EC 45 flat (Ø42.9 mm)
+lying on its side with its axis along y at plate half-thickness + motor radius (23 mm) above the leg
+clamps, its rotor carrying a 40 g mass at 10 mm turning in the x–z plane (f Hz = f turn/s); two PRB3
+legs sticking out sideways, mirrored across the sagittal plane (left −φ, right +φ), each with a 66.5 mm
+rigid foot, 20 g at its sole (the paper's foot load, Sec. IV-A) and a 3 mm sphere sole; and a 100 g cart
+rigidly at the tail on two frictionless wheels (total length 295 mm).
+
+Numerics (``benchmarks/bench_walker.py``; speeds mm/s at 23 / 65 Hz): the contact time constant matters,
+the timestep much less. 2 ms: +4 / +10 (no reversal); 1 ms: −10 / +15; 0.5 ms: −14 / +15; 0.25 ms:
+−15.6 / +12.0 (dt 1.25e-5). The defaults, 0.25 ms at dt 5e-5, give −15.6 / +11.6 (within 3.3 % of the
+finest setting at a quarter of its cost; dt 1e-4 is 12 % off at 65 Hz). Stiffer still (0.125 ms):
+−16.2 / +9.4, so the 65 Hz speed carries a ±3 mm/s contact-model uncertainty. Over 1–80 Hz the defaults
+follow the finest setting within ~1.5 mm/s except at 20–32 Hz, where the speed changes sign within a few
+Hz and differs by up to 7 mm/s. The speed is a steady attractor: the same within 0.2 mm/s for ramp rates
+10–200 turn/s², a step start or a ramp down from 80 Hz. The mirror-symmetric gait is stable at 23 Hz but not at
+40 and 65 Hz (round-off grows into a few-mrad roll; with the lateral slide free, into a sideways drift).
+
+Result: backward at 12–18 and 21–27 Hz (−15.6 at 23 Hz, −30 at 24 Hz), forward above ~28 Hz (peak +30
+at 43 Hz, +11.6 at 65 Hz) vs the paper's −35.7 and +156.3: the sign pattern, not the size. The size is
+ill-conditioned in the unknowns the paper leaves open (one at a time, 23 / 65 Hz): leg rake ±5° → +71 / +65
+and −28 / −31; foot mass 10 g or 5 g at the sole → 0 / +44 and +14 / +100; 20 g spread along the foot bar
+→ −37 / +48; friction 0.3 / 0.8 → +23 / −63 at 23 Hz; reversed spin → −26 / −26; swapped chirality →
++48 / +52; offset radius 5 / 15 mm → −9 / +4 at 23 Hz. Plate/motor split, cart mass, clamp offset and the
+height of the offset plane move the speeds by ≤ 4 mm/s. The planning prototype's curve (−28 at 20 Hz,
++110 at 50, +88 at 65, strongly contact-dependent at 65 Hz) is reproduced by a light (5 g) foot: −11 at
+20, +104 at 50, +98 at 65, and 37 → 98 mm/s at 65 Hz for contact 2 → 0.25 ms, like theirs.
+
+There is no load-cell plate under the walker: ``force_nt`` is zero, so the load-cell stream carries
+tare + noise only.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from beambench.acquisition.streams import WALKER_MARKERS
+from beambench.sim.engine.stepping import INTEGRATORS, DrivenScene, Physics
+from beambench.sim.models.beam import BeamModel, add_beam, quat_y
+from beambench.sim.scenes.drive import KinematicServo, VelocityRamp
+
+
+@dataclass(frozen=True)
+class WalkerParams:
+    """Walker constants (SI); guessed where the paper is silent (the module docstring gives what each
+    guess does to the speed). Flags are floats (0/1) so that ``with_overrides`` can read them."""
+
+    plate_mass: float = 0.045
+    motor_mass: float = 0.110
+    eccentric_mass: float = 0.040
+    eccentric_radius: float = 0.010
+    rotor_inertia: float = 1.35e-5  # kg·m² (Maxon EC45 flat class)
+    cart_mass: float = 0.100
+    length: float = 0.295  # m, plate front to cart tail
+    leg_offset: float = 0.03  # m, clamp distance from the centre line
+    foot_length: float = 0.0665
+    foot_mass: float = 0.020  # kg, point mass at each sole
+    foot_bar_mass: float = 0.0  # kg, mass of each rigid foot bar (spread along it)
+    frame_mass: float = 0.0  # kg, the boom from the plate to the cart
+    sole_radius: float = 0.003
+    wheel_radius: float = 0.008
+    friction: float = 0.5
+    contact_timeconst: float = 0.00025  # s, solref time constant (converged; see the module docstring)
+    contact_dampratio: float = 1.0
+    servo_hz: float = 300.0  # rotor angle servo bandwidth
+    vel_ramp_rate: float = 50.0  # turn/s²
+    spin: float = (
+        -1.0
+    )  # rotor turns about -y (guess; with the legs below it walks backward at 23 Hz, forward above ~27 Hz)
+    left_chirality: float = -1.0  # left leg twisted -φ, right leg +φ (mirror images)
+    right_chirality: float = 1.0
+    motor_radius: float = 0.02145  # m, EC 45 flat: Ø42.9 mm (paper footnote)
+    rotor_height: float = 0.023  # m, motor axis above the leg clamps: plate half-thickness + motor radius
+    motor_flat: float = 0.0  # 1: motor axis vertical (offset mass turns in the x–y plane) instead of along y
+    leg_mount_deg: float = 0.0  # leg rake: legs + feet turned about the lateral axis; + = soles toward the cart
+    lateral_free: float = 0.0  # 1: let the body slide sideways (the paper's slider holds it; see above)
+    torque_constant: float = 0.0255  # N·m/A
+    bus_voltage: float = 24.0
+    preroll_s: float = 0.5
+    timestep: float = 5e-5  # s (converged with the contact time constant above)
+
+    @classmethod
+    def with_overrides(cls, overrides: dict[str, Any]) -> WalkerParams:
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: float(v) for k, v in overrides.items() if k in known})
+
+
+def build_walker_spec(
+    beam: BeamModel, twist_deg: float, wp: WalkerParams, integrator: str = "implicitfast", timestep: float = 1e-4
+) -> mujoco.MjSpec:
+    """The walker scene as an ``MjSpec``."""
+    spec = mujoco.MjSpec()
+    spec.modelname = "beambench_walker"
+    spec.option.timestep = timestep
+    spec.option.integrator = INTEGRATORS[integrator]
+    solref = [wp.contact_timeconst, wp.contact_dampratio]
+    friction = [wp.friction, 0.005, 0.0001]
+    spec.worldbody.add_geom(
+        name="floor",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[2, 2, 0.01],
+        solref=solref,
+        friction=friction,
+        rgba=[0.8, 0.8, 0.8, 1],
+    )
+
+    z0 = wp.foot_length + 0.002  # clamp height: feet just above the floor before settling
+    body = spec.worldbody.add_body(name="walker", pos=[0, 0, z0])
+    hinge, slide = mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE
+    dofs = [
+        ("x", slide, [1, 0, 0]),
+        ("y", slide, [0, 1, 0]),
+        ("z", slide, [0, 0, 1]),
+        ("roll", hinge, [1, 0, 0]),
+        ("pitch", hinge, [0, 1, 0]),
+    ]
+    for name, jtype, axis in dofs:
+        if name != "y" or wp.lateral_free:
+            body.add_joint(name=name, type=jtype, axis=axis)
+    front = 0.04
+    body.add_geom(
+        name="plate",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[front, 0.03, 0.0015],
+        mass=wp.plate_mass,
+        contype=0,
+        conaffinity=0,
+        rgba=[0.3, 0.3, 0.3, 1],
+    )
+    body.add_geom(
+        name="motor",
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[wp.motor_radius, 0.007, 0],
+        pos=[0, 0, wp.rotor_height],
+        quat=[1, 0, 0, 0] if wp.motor_flat else [math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0],
+        mass=wp.motor_mass,
+        contype=0,
+        conaffinity=0,
+        rgba=[0.2, 0.2, 0.2, 1],
+    )
+    body.add_site(name="body", pos=[0, 0, 0], size=[0.003, 0, 0])
+    rotor = body.add_body(name="rotor", pos=[0, 0, wp.rotor_height])
+    rotor.add_joint(name="rotor", type=hinge, axis=[0, 0, 1] if wp.motor_flat else [0, 1, 0], armature=wp.rotor_inertia)
+    rotor.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[0.006, 0, 0],
+        pos=[wp.eccentric_radius, 0, 0],
+        mass=wp.eccentric_mass,
+        contype=0,
+        conaffinity=0,
+        rgba=[0.8, 0.1, 0.1, 1],
+    )
+    # cart rigidly at the tail, on two frictionless wheels
+    tail = front - wp.length
+    cart_x = tail + 0.02
+    wheel_z = -(z0 - wp.wheel_radius)
+    body.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+        fromto=[-front, 0, 0, cart_x, 0, 0],
+        size=[0.003, 0, 0],
+        mass=wp.frame_mass,
+        contype=0,
+        conaffinity=0,
+    )
+    body.add_geom(
+        name="cart",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.02, 0.03, 0.01],
+        pos=[cart_x, 0, 0],
+        mass=wp.cart_mass,
+        contype=0,
+        conaffinity=0,
+        rgba=[0.5, 0.4, 0.3, 1],
+    )
+    for side in (1, -1):
+        body.add_geom(
+            name=f"wheel_{'l' if side > 0 else 'r'}",
+            type=mujoco.mjtGeom.mjGEOM_SPHERE,
+            size=[wp.wheel_radius, 0, 0],
+            pos=[cart_x, side * 0.03, wheel_z],
+            mass=0.0,
+            friction=[0, 0, 0],
+            condim=1,
+            priority=1,
+            solref=solref,
+        )
+    # legs: left along +y with +φ, right along −y (frame turned 180° about z) with −φ: mirror images
+    mount = quat_y(math.radians(wp.leg_mount_deg))
+    for side, name, chir in ((1, "left", wp.left_chirality), (-1, "right", wp.right_chirality)):
+        quat = mount.copy()
+        if side < 0:
+            mujoco.mju_mulQuat(quat, mount, np.array([0.0, 0, 0, 1]))
+        sites = add_beam(body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat, prefix=f"{name}_")
+        tip = spec.body(sites.tip_body)
+        r = wp.sole_radius
+        tip.add_geom(
+            type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+            fromto=[0, 0, 0, 0, 0, -(wp.foot_length - 2 * r)],
+            size=[0.002, 0, 0],
+            mass=wp.foot_bar_mass,
+            contype=0,
+            conaffinity=0,
+            rgba=[0.9, 0.5, 0.1, 1],
+        )
+        tip.add_geom(
+            name=f"sole_{name}",
+            type=mujoco.mjtGeom.mjGEOM_SPHERE,
+            size=[r, 0, 0],
+            pos=[0, 0, -(wp.foot_length - r)],
+            mass=wp.foot_mass,
+            priority=1,
+            solref=solref,
+            friction=friction,
+            condim=3,
+        )
+        tip.add_site(name=f"foot_{name}", pos=[0, 0, -wp.foot_length], size=[0.002, 0, 0])
+    spec.add_actuator(
+        name="rotor_servo",
+        target="rotor",
+        trntype=mujoco.mjtTrn.mjTRN_JOINT,
+        gaintype=mujoco.mjtGain.mjGAIN_FIXED,
+        biastype=mujoco.mjtBias.mjBIAS_AFFINE,
+    )
+    site = mujoco.mjtObj.mjOBJ_SITE
+    for marker in WALKER_MARKERS:
+        spec.add_sensor(name=marker, type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=site, objname=marker)
+    spec.add_sensor(
+        name="rotor_torque",
+        type=mujoco.mjtSensor.mjSENS_ACTUATORFRC,
+        objtype=mujoco.mjtObj.mjOBJ_ACTUATOR,
+        objname="rotor_servo",
+    )
+    return spec
+
+
+class WalkerSim(DrivenScene):
+    """The walker advanced in chunks; channels: ``markers`` [n, 3, 3] (body, foot_left, foot_right),
+    ``force_nt`` (zeros: no load-cell plate), the motor's ``theta``/``omega``/``setpoint`` and ``rotor_torque``."""
+
+    markers = WALKER_MARKERS
+
+    def __init__(
+        self,
+        beam: BeamModel,
+        twist_deg: float = 90.0,
+        params: WalkerParams | None = None,
+        integrator: str = "implicitfast",
+        timestep: float | None = None,
+    ) -> None:
+        self.beam, self.twist_deg = beam, twist_deg
+        self.rig = params or WalkerParams.with_overrides(beam.params.rig)
+        self.integrator = integrator
+        h = timestep or self.rig.timestep
+        self.spec = build_walker_spec(beam, twist_deg, self.rig, integrator, h)
+        model = self.spec.compile()
+        super().__init__(Physics(model))
+        self.ramp = VelocityRamp(self.rig.vel_ramp_rate)
+        inertia = self.rig.rotor_inertia + self.rig.eccentric_mass * self.rig.eccentric_radius**2
+        self.servo = KinematicServo(model, "rotor_servo", inertia, self.rig.servo_hz, integrator, h)
+        self.physics.reset_to_equilibrium(self.rig.preroll_s, np.zeros(1))
+
+    def set_frequency(self, hz: float) -> None:
+        self.ramp.setpoint = float(hz)
+
+    def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        omega, theta = self.ramp.plan(n, h)
+        ctrl, _ = self.servo.controls(self.rig.spin * theta, h)
+        motor = {"theta": theta[:-1], "omega": omega[:-1], "setpoint": np.full(n, self.ramp.setpoint)}
+        return ctrl[:, None], motor
+
+    def _channels(self, sens: np.ndarray) -> dict[str, np.ndarray]:
+        n = len(sens)
+        markers = np.stack([self.sensor(sens, m) for m in WALKER_MARKERS], axis=1)
+        return {
+            "markers": markers,
+            "force_nt": np.zeros((n, 2)),
+            "rotor_torque": self.sensor(sens, "rotor_torque")[:, 0],
+        }
+
+    def motor_torque(self, channels: dict[str, np.ndarray]) -> np.ndarray:
+        return self.rig.spin * channels["rotor_torque"]
+
+    def identity(self) -> dict[str, Any]:
+        m = self.physics.model
+        return {
+            "scene": "walker",
+            **self.beam.describe(),
+            "twist_deg": self.twist_deg,
+            "walker_params": asdict(self.rig),
+            "integrator": self.integrator,
+            "timestep": self.physics.timestep,
+            "timestep_policy": "fixed",
+            "nq": int(m.nq),
+            "nv": int(m.nv),
+            "mass_kg": float(m.body_subtreemass[m.body("walker").id]),
+            "mujoco_version": mujoco.__version__,
+        }
+
+
+def measure_speed(
+    beam: BeamModel,
+    frequency_hz: float,
+    params: WalkerParams | None = None,
+    twist_deg: float = 90.0,
+    settle_s: float = 1.0,
+    record_s: float = 1.5,
+    timestep: float | None = None,
+) -> tuple[float, float]:
+    """Body speed (forward, lateral; m/s) at ``frequency_hz``: the motor ramps up from rest, the walker settles
+    for ``settle_s`` after the ramp, then a least-squares slope of the body marker over ``record_s``."""
+    sim = WalkerSim(beam, twist_deg, params, timestep=timestep)
+    try:
+        sim.set_frequency(frequency_hz)
+        t_on = frequency_hz / sim.rig.vel_ramp_rate + settle_s
+        tr = sim.advance_to(t_on + record_s)
+    finally:
+        sim.physics.close()
+    sel = tr.t >= t_on
+    body = tr.channels["markers"][sel, 0]
+    vx, vy = (float(np.polyfit(tr.t[sel], body[:, k], 1)[0]) for k in (0, 1))
+    return vx, vy
