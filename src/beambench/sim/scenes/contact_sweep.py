@@ -264,6 +264,19 @@ def _balanced_shares(dts: np.ndarray, seconds: float, workers: int) -> list[list
     return [[(h, np.array(ix)) for h, ix in p.items()] for p in picks if p]
 
 
+def static_sag(beam: BeamModel, rig: RigParams | None = None, twist_deg: float = 90.0) -> float:
+    """How far (m) the sole sinks under gravity from its unloaded (natural) position with no plate — the sag
+    against which the gap h' acts: sag > gap means the foot rests on the plate with a preload."""
+    rig = rig or RigParams.with_overrides(beam.params.rig)
+    m = next(iter(_models(beam, twist_deg, 1.0, rig, "implicitfast", [1e-4]).values()))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    z0 = float(d.site("foot").xpos[2])
+    d.qpos[:] = _rest(m, 1.5)
+    mujoco.mj_forward(m, d)
+    return z0 - float(d.site("foot").xpos[2])
+
+
 REGIME_MAP_COLUMNS = (
     "frequency_hz",
     "contacts_per_cycle",
