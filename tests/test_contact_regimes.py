@@ -102,3 +102,34 @@ def test_default_set_is_continuous_at_low_frequency_and_halves_in_the_mid_twenti
     # the paper's own PRB values never reach the plate at its 5.5 mm gap (issue 11)
     paper = regime_map([5.0, 28.0], params="paper", settle_s=0.8, record_s=0.8)
     assert paper.regime.tolist() == ["none", "none"]
+
+
+# ------------------------------------------------------------------------------ gap, parameter sets, model: auto
+
+
+def test_the_gap_comes_from_the_parameter_set_unless_the_protocol_sets_it():
+    from beambench.acquisition.config import parse_protocol
+    from beambench.rigs.sim import build_scene
+
+    base = "rig: contact\nsweep: {frequencies: [5]}\nsim: {model: %s, params: %s%s}\n"
+    assert build_scene(parse_protocol(base % ("prb3", "contact_paper", ""))).identity()["plate_gap_m"] == 0.0074
+    assert build_scene(parse_protocol(base % ("prb3", "paper", ""))).identity()["plate_gap_m"] == 0.0055
+    over = build_scene(parse_protocol(base % ("prb3", "contact_paper", ", plate_gap_mm: 6.0")))
+    assert over.identity()["plate_gap_m"] == pytest.approx(0.006)
+
+
+def test_auto_considers_every_model_with_a_contact_table_and_the_parameter_set():
+    from beambench.acquisition.config import parse_protocol
+    from beambench.rigs.sim import build_scene
+    from beambench.sim import selection as select
+    from beambench.sim.models.params import has_params
+
+    models = select.table_models("contact")
+    assert "prb3" in models
+    assert has_params("contact_paper", "prb3") and not has_params("contact_paper", "rod")
+    assert has_params("paper", "rod")
+    scene = build_scene(
+        parse_protocol("rig: contact\nsweep: {frequencies: [5, 30]}\nsim: {model: auto, params: contact_paper}\n")
+    )
+    ident = scene.identity()
+    assert ident["selection"]["model"] in models and ident["plate_gap_m"] == 0.0074
