@@ -133,3 +133,38 @@ def test_auto_considers_every_model_with_a_contact_table_and_the_parameter_set()
     )
     ident = scene.identity()
     assert ident["selection"]["model"] in models and ident["plate_gap_m"] == 0.0074
+
+
+SESSION = """
+name: noise_check
+rig: contact
+backend: sim
+sweep: {frequencies: [8, 14, 22, 28, 38]}
+settle_s: 1.0
+record_s: 1.5
+amplitude_mm: 2.0
+limits: {max_frequency_hz: 40, max_current_a: 10, max_amplitude_mm: 3}
+sim: {model: prb3, params: contact_paper, twist_deg: 90, noise: %s, seed: 2}
+"""
+
+
+def test_analyze_gives_the_same_regimes_with_sim_noise_on_and_off(tmp_path):
+    """A real short session each way (``beambench run`` → ``beambench analyze``): load-cell and mocap noise
+    must not change ``steps.csv``'s regime column (the old foot-rise filter turned 'continuous' into '1'/'2')."""
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+
+    runner = CliRunner()
+    labels = {}
+    for noise in ("true", "false"):
+        proto = tmp_path / f"n_{noise}.yaml"
+        proto.write_text(SESSION % noise)
+        res = runner.invoke(app, ["run", str(proto), "--rerun", "off", "--out", str(tmp_path), "--name", noise])
+        assert res.exit_code == 0, res.output
+        res = runner.invoke(app, ["analyze", str(tmp_path / f"{noise}.h5"), "-q"])
+        assert res.exit_code == 0, res.output
+        labels[noise] = pd.read_csv(tmp_path / f"{noise}_report" / "steps.csv")["regime"].tolist()
+    assert labels["true"] == labels["false"]
+    assert labels["false"][0] == "continuous" and labels["false"][3] == "1/2"
