@@ -81,6 +81,7 @@ def test_regime_map_columns_and_contact():
 SWEEP = [3.0, 6.0, 16.0, 20.0, 22.0, 28.0, 30.0, 32.0, 38.0, 40.0]  # continuous, 2, 1, 1/2, 1/3 on the default
 
 
+@pytest.mark.slow
 def test_same_physics_same_labels_with_and_without_noise():
     """Load-cell noise (15 counts per channel) and mocap noise (0.1 mm) must not change a single label: the
     regime comes from the normal force with a noise-scaled threshold, and the foot height is not used."""
@@ -92,6 +93,7 @@ def test_same_physics_same_labels_with_and_without_noise():
     assert len(set(quiet.regime)) >= 4  # the sweep really spans several regimes
 
 
+@pytest.mark.slow
 def test_default_set_is_continuous_at_low_frequency_and_halves_in_the_mid_twenties():
     df = regime_map([3.0, 5.0, 22.0, 28.0, 30.0, 39.0], params="contact_paper", settle_s=1.5, record_s=1.5)
     lab = dict(zip(df.frequency_hz, df.regime))
@@ -148,6 +150,7 @@ sim: {model: prb3, params: contact_paper, twist_deg: 90, noise: %s, seed: 2}
 """
 
 
+@pytest.mark.slow
 def test_analyze_gives_the_same_regimes_with_sim_noise_on_and_off(tmp_path):
     """A real short session each way (``beambench run`` → ``beambench analyze``): load-cell and mocap noise
     must not change ``steps.csv``'s regime column (the old foot-rise filter turned 'continuous' into '1'/'2')."""
