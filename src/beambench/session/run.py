@@ -18,7 +18,7 @@ from beambench.acquisition.config import Protocol
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
-from beambench.acquisition.runner import Runner, RunResult
+from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
 from beambench.rigs.build import build_rig
 from beambench.session.provenance import provenance
 from beambench.sinks.hdf5 import SessionWriter, append_general
@@ -37,7 +37,29 @@ def run_session(
     can_log: Path | None = None,
     show_progress: bool = True,
 ) -> RunResult:
-    """Run ``protocol`` on ``backend`` and save the session at ``path`` (and ``.rrd`` beside it with save)."""
+    """Run ``protocol`` on ``backend`` and save the session at ``path`` (and ``.rrd`` beside it with save).
+
+    From the first line on, SIGINT and SIGTERM only request a stop (see :mod:`beambench.acquisition.runner`):
+    a signal while the rig opens still yields a session that ends ``interrupted`` with the motor idled.
+    """
+    with stop_on_signals() as stop:
+        return _run_session(
+            protocol, protocol_text, backend, path, rerun_mode, realtime, rig_file, can_log, show_progress, stop
+        )
+
+
+def _run_session(
+    protocol: Protocol,
+    protocol_text: str,
+    backend: str,
+    path: Path,
+    rerun_mode: RerunMode,
+    realtime: bool,
+    rig_file: Path | None,
+    can_log: Path | None,
+    show_progress: bool,
+    stop: StopSignal,
+) -> RunResult:
     rig = build_rig(protocol, backend, realtime=realtime, rig_file=rig_file, can_log=can_log)
     steps = plan(protocol)
     rig.open()
@@ -94,6 +116,7 @@ def run_session(
             on_progress=on_progress,
             monitors=monitors,
             max_pause_s=protocol.monitors.max_pause_s,
+            stop=stop,
         )
         result = runner.run()
     if isinstance(rig, ReportsAfterRun):
