@@ -147,6 +147,7 @@ def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3) ->
                 path, log = tmp_path / f"{name}.h5", tmp_path / f"{name}.log"
                 argv = ["run", str(proto), "--out", str(tmp_path), "--name", name, "--rerun", "off"]
                 pid = z.run(argv, log)
+                status_read = False
                 try:
                     _wait_for_file(path, lambda pid=pid: _pid_alive(pid))
                     time.sleep(delays[i])
@@ -158,6 +159,7 @@ def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3) ->
                         except ProcessLookupError:
                             pass
                     code = z.status()
+                    status_read = True
                     _check_interrupted(path, code, log.read_text())
                 except Exception as exc:  # collect every failure, so one report shows how many failed
                     failures.append(f"run {i} (delay {delays[i]:.2f} s, double={doubles[i]}): {exc}")
@@ -165,8 +167,9 @@ def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3) ->
                         os.kill(pid, signal.SIGKILL)
                     except ProcessLookupError:
                         pass
-                    else:
-                        z.status()
+                    if not status_read:
+                        code = z.status()
+                        failures[-1] += f" [exit {code}: {log.read_text()[-300:] if log.exists() else ''}]"
         finally:
             z.close()
 
