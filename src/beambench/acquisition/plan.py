@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -87,6 +88,11 @@ def session_path(
         raise ConfigError("<cli>" if field == "--name" else "<protocol>", field, name, str(exc)) from None
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError("<cli>", "--out", str(out_dir), "is a file, not a folder")
+    existing = next((p for p in (out_dir, *out_dir.absolute().parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ConfigError("<cli>", "--out", str(out_dir), f"{existing} is a file, not a folder")
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise ConfigError("<cli>", "--out", str(out_dir), f"cannot write in {existing} (permission denied)")
     path = out_dir / f"{name}.h5"
     k = 1
     while path.exists() or path.with_suffix(".rrd").exists():

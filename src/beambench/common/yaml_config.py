@@ -13,6 +13,7 @@ and beam parameter sets (:mod:`beambench.sim.models.params`). What it guarantees
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -26,7 +27,18 @@ MAX_DEPTH = 32  # nested mappings/lists
 MAX_NODES = 100_000  # values after alias expansion
 MAX_SHOWN = 80  # characters of a value shown in an error
 
-_Loader: type = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+_SafeLoader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class _Loader(_SafeLoader):  # type: ignore[misc, valid-type]
+    """Safe loading, plus YAML 1.2 floats: ``26.0e6`` and ``1e-4`` are numbers (YAML 1.1 needs ``1.0e-4``)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
 _Parse: Any = yaml.CParser if hasattr(yaml, "CParser") else yaml.SafeLoader  # event source for the caps pass
 
 M = TypeVar("M", bound=BaseModel)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from rich.progress import (
@@ -20,8 +21,9 @@ from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
 from beambench.rigs.build import build_rig
+from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
-from beambench.sinks.hdf5 import SessionWriter, append_general
+from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
 
 RerunMode = str  # spawn | connect | save | off (beambench.live is imported only when a viewer is wanted)
 
@@ -60,6 +62,9 @@ def _run_session(
     show_progress: bool,
     stop: StopSignal,
 ) -> RunResult:
+    check_protocol(protocol, "<protocol>", backend, can_log)
+    if rerun_mode == "save":
+        _reserve(path.with_suffix(".rrd"))
     rig = build_rig(protocol, backend, realtime=realtime, rig_file=rig_file, can_log=can_log)
     steps = plan(protocol)
     rig.open()
@@ -126,3 +131,14 @@ def _run_session(
     for err in hub.errors:
         progress.console.print(f"[yellow]warning: live view stopped: {err}")
     return result
+
+
+def _reserve(path: Path) -> None:
+    """Create ``path`` empty and exclusively (the recording fills it later): never overwrite a recording."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+    except FileExistsError:
+        raise SessionFileError(f"{path}: a recording of that name exists; it is never overwritten") from None
+    except OSError as exc:
+        raise SessionFileError(f"{path}: cannot create the recording ({exc.strerror or exc})") from None
