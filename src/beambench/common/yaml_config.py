@@ -184,15 +184,21 @@ def load_yaml_file(path: str | Path, error: type[ConfigError] = ConfigError) -> 
 
 
 # --- validating ------------------------------------------------------------------------------------------
+def _is_tag(part: Any) -> bool:
+    """A pydantic location entry that names a validator or a union branch (``list[float]``, ``Range``)."""
+    text = str(part)
+    return isinstance(part, str) and (text.startswith("function-") or "[" in text or text[:1].isupper())
+
+
 def field_path(loc: tuple[Any, ...]) -> str:
-    """``sweep.frequencies.0`` from a pydantic error location (validator-function entries dropped)."""
-    return ".".join(str(p) for p in loc if not str(p).startswith("function-")) or "(top level)"
+    """``sweep.frequencies.0`` from a pydantic error location (validator and union-branch entries dropped)."""
+    return ".".join(str(p) for p in loc if not _is_tag(p)) or "(top level)"
 
 
 def lookup(data: Any, loc: tuple[Any, ...]) -> Any:
     """The value at ``loc`` in ``data``, or :data:`MISSING`."""
     for key in loc:
-        if isinstance(key, str) and key.startswith("function-"):
+        if _is_tag(key):
             continue
         try:
             data = data[key]
@@ -228,7 +234,9 @@ def validate(
     try:
         return model.model_validate(data, context=context)
     except ValidationError as exc:
-        err = exc.errors()[0]
+        errors = exc.errors()
+        # in a union, a branch's "wrong type" hides the real problem of the branch the value was meant for
+        err = next((e for e in errors if not str(e["type"]).endswith("_type")), errors[0])
         loc = tuple(err["loc"])
         raise error(file, field_path(loc), lookup(data, loc), _reason(dict(err))) from None
     except RecursionError:

@@ -305,7 +305,6 @@ def _open_swmr(path: Path) -> h5py.File:
         return h5py.File(path, "r", libver="latest", swmr=True)
     fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
     fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
-    fapl.set_fclose_degree(h5py.h5f.CLOSE_STRONG)
     _set_read_attempts(fapl.id, SWMR_READ_ATTEMPTS)
     fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ, fapl=fapl)
     return h5py.File(fid)
