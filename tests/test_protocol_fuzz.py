@@ -31,9 +31,25 @@ scalars = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True),
     st.text(max_size=30),
 )
-values = st.recursive(scalars, lambda c: st.lists(c, max_size=5) | st.dictionaries(st.text(max_size=10), c, max_size=5), max_leaves=20)
-FIELDS = ["name", "rig", "backend", "sweep", "settle_s", "record_s", "amplitude_mm", "limits", "sim", "output",
-          "monitors", "release", "description", "rig_file"]
+values = st.recursive(
+    scalars, lambda c: st.lists(c, max_size=5) | st.dictionaries(st.text(max_size=10), c, max_size=5), max_leaves=20
+)
+FIELDS = [
+    "name",
+    "rig",
+    "backend",
+    "sweep",
+    "settle_s",
+    "record_s",
+    "amplitude_mm",
+    "limits",
+    "sim",
+    "output",
+    "monitors",
+    "release",
+    "description",
+    "rig_file",
+]
 SUBFIELDS = {
     "sweep": ["start", "stop", "step", "frequencies"],
     "sim": ["model", "params", "timestep", "seed", "twist_deg", "plate_gap_mm", "noise", "mocap_clock"],

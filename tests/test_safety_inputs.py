@@ -76,10 +76,10 @@ def test_a_rig_file_rejects_non_finite_numbers(tmp_path):
 
     rig = tmp_path / "rig.yaml"
     rig.write_text("odrive: {watchdog_timeout_s: .nan}\n")
-    with pytest.raises(ConfigError, match="odrive.watchdog_timeout_s"):
+    with pytest.raises(ConfigError, match=r"odrive\.watchdog_timeout_s"):
         load_rig_file(rig)
     rig.write_text("odrive: {node_id: true}\n")
-    with pytest.raises(ConfigError, match="odrive.node_id"):
+    with pytest.raises(ConfigError, match=r"odrive\.node_id"):
         load_rig_file(rig)
 
 

@@ -12,6 +12,7 @@ default SIGINT behaviour (``KeyboardInterrupt``), exactly what a fresh interpret
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import random
@@ -154,19 +155,15 @@ def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3) ->
                     os.kill(pid, sig)
                     if doubles[i]:
                         time.sleep(rng.uniform(0, 0.05))
-                        try:
+                        with contextlib.suppress(ProcessLookupError):
                             os.kill(pid, sig)
-                        except ProcessLookupError:
-                            pass
                     code = z.status()
                     status_read = True
                     _check_interrupted(path, code, log.read_text())
                 except Exception as exc:  # collect every failure, so one report shows how many failed
                     failures.append(f"run {i} (delay {delays[i]:.2f} s, double={doubles[i]}): {exc}")
-                    try:
+                    with contextlib.suppress(ProcessLookupError):
                         os.kill(pid, signal.SIGKILL)
-                    except ProcessLookupError:
-                        pass
                     if not status_read:
                         code = z.status()
                         failures[-1] += f" [exit {code}: {log.read_text()[-300:] if log.exists() else ''}]"

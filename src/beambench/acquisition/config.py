@@ -81,7 +81,7 @@ class Sweep(_Model):
     def values(self) -> list[float]:
         if self.frequencies is not None:
             return [float(f) for f in self.frequencies]
-        n = int(round((self.stop - self.start) / self.step))  # type: ignore[operator]
+        n = round((self.stop - self.start) / self.step)  # type: ignore[operator]
         if n + 1 > MAX_STEPS:
             raise ValueError(f"{n + 1} steps: more than {MAX_STEPS}")
         vals = [round(self.start + i * self.step, 9) for i in range(n + 1)]  # type: ignore[operator]
@@ -204,8 +204,11 @@ SWEEP_FILE_KEYS = frozenset({"scene", "base", "grid", "points", "sample_dt"})
 def _not_a_sweep_file(data: Any, file: str) -> None:
     if isinstance(data, dict) and "sweep" not in data and SWEEP_FILE_KEYS & set(data):
         raise ConfigError(
-            file, "(file)", _MISSING, f"this is a sweep file (it has {sorted(SWEEP_FILE_KEYS & set(data))[0]}): "
-            "run it with `beambench sweep`, not `beambench run`"
+            file,
+            "(file)",
+            _MISSING,
+            f"this is a sweep file (it has {sorted(SWEEP_FILE_KEYS & set(data))[0]}): "
+            "run it with `beambench sweep`, not `beambench run`",
         )
 
 
@@ -236,7 +239,9 @@ class NatNetWiring(_Model):
     multicast_address: str = "239.255.42.99"
     multicast: bool = True
     bitstream_version: str | None = None  # ask a NatNet 4.x server for "3.0", "4.0" or "4.1"; else as it sends
-    markers: dict[str, str | int] = Field(default_factory=lambda: {"stage": "1:1", "tip": "1:2", "foot": "1:3"})
+    markers: dict[str, str | int] = Field(
+        default_factory=lambda: dict[str, str | int](stage="1:1", tip="1:2", foot="1:3")
+    )
 
 
 class Geometry(_Model):

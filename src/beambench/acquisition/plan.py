@@ -77,7 +77,9 @@ def session_path(
     if name is None:
         field = "output.name"
         try:
-            name = format_name(protocol.output.name, protocol.name, protocol.rig, backend, now.strftime("%Y%m%d-%H%M%S"))
+            name = format_name(
+                protocol.output.name, protocol.name, protocol.rig, backend, now.strftime("%Y%m%d-%H%M%S")
+            )
         except ValueError as exc:
             raise ConfigError("<protocol>", field, protocol.output.name, str(exc)) from None
     name = name.removesuffix(".h5")

@@ -215,7 +215,7 @@ class Runner:
                 paused_at = now
                 remaining += max(0, began - since) * 1e-9  # earlier polls that counted bad data (the timeout)
                 self.hub.event(now, "pause", f"step {step.index}: {problem}")
-            elif problem and (now - paused_at) * 1e-9 > self.max_pause_s:
+            elif problem and paused_at is not None and (now - paused_at) * 1e-9 > self.max_pause_s:
                 raise DeviceFault(f"{problem} (paused longer than monitors.max_pause_s = {self.max_pause_s:g} s)")
             elif not problem and paused_at is not None:
                 self.hub.event(now, "resume", f"step {step.index}: after {(now - paused_at) * 1e-9:.2f} s")
@@ -275,4 +275,3 @@ class Runner:
                 self.rig.close()
             finally:
                 self.hub.close()
-

@@ -30,7 +30,7 @@ MAX_SHOWN = 80  # characters of a value shown in an error
 _SafeLoader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
-class _Loader(_SafeLoader):  # type: ignore[misc, valid-type]
+class _Loader(_SafeLoader):
     """Safe loading, plus YAML 1.2 floats: ``26.0e6`` and ``1e-4`` are numbers (YAML 1.1 needs ``1.0e-4``)."""
 
 
@@ -137,7 +137,7 @@ def parse_yaml(text: str, file: str, error: type[ConfigError] = ConfigError) -> 
         raise error(file, "(file)", MISSING, "not a text file (contains NUL bytes)")
     try:
         _check_shape(text, file, error)
-        return yaml.load(text, Loader=_Loader)  # noqa: S506 - a safe loader (CSafeLoader or SafeLoader)
+        return yaml.load(text, Loader=_Loader)  # a safe loader (CSafeLoader or SafeLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "(file)"
@@ -168,7 +168,7 @@ def _check_shape(text: str, file: str, error: type[ConfigError]) -> None:
                 anchored[anchor] = size
             stack[-1][1] += size
         elif isinstance(ev, (yaml.ScalarEvent, yaml.AliasEvent)):
-            size = 1 if isinstance(ev, yaml.ScalarEvent) else anchored.get(ev.anchor, 1)
+            size = 1 if isinstance(ev, yaml.ScalarEvent) else anchored.get(str(ev.anchor), 1)
             if isinstance(ev, yaml.ScalarEvent) and ev.anchor is not None:
                 anchored[ev.anchor] = 1
             stack[-1][1] += size
@@ -249,4 +249,3 @@ def load_model(
     """Read, cap, parse and validate a YAML file into ``model``; returns the model and the file's text."""
     data, text = load_yaml_file(path, error)
     return validate(model, data, str(path), error, what), text
-

@@ -40,7 +40,9 @@ def check_protocol(protocol: Protocol, file: str, backend: str | None = None, ca
         raise ConfigError(file, "sim.params", sim.params, _reason(exc)) from None
     if can_log is not None:
         if backend == "sim":
-            raise ConfigError("<cli>", "--can-log", str(can_log), "needs an ODrive on CAN (--backend emulated or hardware)")
+            raise ConfigError(
+                "<cli>", "--can-log", str(can_log), "needs an ODrive on CAN (--backend emulated or hardware)"
+            )
         if can_log.suffix.lower() not in LOG_SUFFIXES:
             raise ConfigError("<cli>", "--can-log", shorten(str(can_log)), f"use a {' or '.join(LOG_SUFFIXES)} file")
         if can_log.exists() and not can_log.is_file():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any, cast
 
 from rich.progress import (
     BarColumn,
@@ -15,7 +16,7 @@ from rich.progress import (
 
 from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import ReportsAfterRun
-from beambench.acquisition.config import Protocol
+from beambench.acquisition.config import Backend, Protocol
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
@@ -65,7 +66,7 @@ def _run_session(
     check_protocol(protocol, "<protocol>", backend, can_log)
     if rerun_mode == "save":
         _reserve(path.with_suffix(".rrd"))
-    rig = build_rig(protocol, backend, realtime=realtime, rig_file=rig_file, can_log=can_log)
+    rig = build_rig(protocol, cast(Backend, backend), realtime=realtime, rig_file=rig_file, can_log=can_log)
     steps = plan(protocol)
     rig.open()
     try:
@@ -89,7 +90,9 @@ def _run_session(
         if rerun_mode != "off":
             from beambench.sinks.rerun_view import RerunSink
 
-            sinks.append(RerunSink(rerun_mode, path.stem, path.with_suffix(".rrd"), t0_ns=rig.clock.now_ns()))
+            sinks.append(
+                RerunSink(cast(Any, rerun_mode), path.stem, path.with_suffix(".rrd"), t0_ns=rig.clock.now_ns())
+            )
         hub = Hub(sinks, critical=(writer,))
         hub.open(specs)
     except BaseException:
@@ -119,7 +122,7 @@ def _run_session(
             motor_limits(protocol),
             poll_s=poll_s,
             on_progress=on_progress,
-            monitors=monitors,
+            monitors=[*monitors],
             max_pause_s=protocol.monitors.max_pause_s,
             stop=stop,
         )

@@ -44,6 +44,7 @@ class SessionFileError(ConfigError, OSError):
     One line, naming the file. Also an :class:`OSError`, so callers that catch read errors catch it too.
     """
 
+
 SCHEMA_VERSION = "1.0"
 EVENT_TEXT = 240  # bytes of a fixed-length event message (SWMR datasets cannot hold variable-length strings)
 
@@ -292,7 +293,7 @@ def _find_set_read_attempts() -> Callable[[int, int], int] | None:
             except (OSError, AttributeError):
                 continue
             fn.argtypes, fn.restype = [ctypes.c_int64, ctypes.c_uint], ctypes.c_int
-            return fn  # type: ignore[no-any-return]
+            return fn
     return None
 
 
@@ -323,6 +324,7 @@ def _open_session(path: Path) -> h5py.File:
         f.close()
         raise SessionFileError(f"{path}: not a beambench session (no /{missing[0]} in the file)")
     return f
+
 
 @dataclass
 class StreamData:
@@ -411,7 +413,9 @@ def read_session(path: str | Path) -> Session:
             if isinstance(exc, SessionFileError):
                 raise
             why = str(exc).strip("'\"")[:120]
-            raise SessionFileError(f"{path}: damaged or not a beambench session ({type(exc).__name__}: {why})") from None
+            raise SessionFileError(
+                f"{path}: damaged or not a beambench session ({type(exc).__name__}: {why})"
+            ) from None
     return Session(path, streams, steps, events, general, attrs)
 
 

@@ -52,11 +52,10 @@ from pydantic import (
     model_validator,
 )
 
+from beambench.common.yaml_config import ConfigError, load_yaml_file, validate
+
 SCENES = ("free_beam", "contact")
 SCHEMA = "beambench.sweep/1"
-
-
-from beambench.common.yaml_config import ConfigError, load_yaml_file, validate
 
 MAX_JOBS = 100_000  # scene points x frequencies: beyond this a sweep file is a typo (a 1e-9 step)
 
@@ -194,8 +193,10 @@ def load_sweep(path: str | Path) -> SweepSpec:
     data, _ = load_yaml_file(path, SweepError)
     if isinstance(data, dict) and PROTOCOL_FILE_KEYS & set(data) and not {"scene", "grid", "points"} & set(data):
         raise SweepError(
-            str(path), "(file)", reason=f"this is a protocol file (it has {sorted(PROTOCOL_FILE_KEYS & set(data))[0]}): "
-            "run it with `beambench run`, not `beambench sweep`"
+            str(path),
+            "(file)",
+            reason=f"this is a protocol file (it has {sorted(PROTOCOL_FILE_KEYS & set(data))[0]}): "
+            "run it with `beambench run`, not `beambench sweep`",
         )
     spec = validate(SweepSpec, data, str(path), SweepError, what="sweep fields")
     try:
@@ -235,7 +236,7 @@ class Job:
 
 def plan(spec: SweepSpec) -> list[Job]:
     """Every (scene point × frequency) of the sweep, in table order."""
-    jobs = []
+    jobs: list[Job] = []
     for p in spec.scene_points():
         for f in spec.frequency_values():
             jobs.append(Job(len(jobs), point_id(spec.scene, p, f, spec), p.model_dump(), float(f)))
@@ -280,7 +281,7 @@ def _beam(point: dict[str, Any]):
     name = point["model"]
     params = load_params(point["params"], model=model_family(name))
     if name == "prb3":
-        over = {}
+        over: dict[str, Any] = {}
         if point.get("k") is not None:
             over.update(k=point["k"], k_twist=point["k"])
         if point.get("b") is not None:
@@ -489,7 +490,8 @@ def _read_done(out: Path) -> list[dict[str, Any]]:
     for f in frames:
         if "point_id" not in f.columns:
             raise SweepError(f"{out}: not a sweep table (no point_id column)")
-    return pd.concat(frames, ignore_index=True).to_dict("records") if frames else []
+    rows = pd.concat(frames, ignore_index=True).to_dict("records") if frames else []
+    return [{str(k): v for k, v in r.items()} for r in rows]
 
 
 @dataclass
@@ -630,7 +632,7 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
                 if series is None
                 else f"{series} = {val:g}"
                 if isinstance(val, (int, float))
-                else f"{series} = {val}",
+                else f"{series} = {val!s}",
             )
         ax.set(xlabel=x, ylabel=label)
         ax.grid(alpha=0.3)
