@@ -181,7 +181,7 @@ def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3) ->
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_every_signal_at_a_random_moment_stops_the_run_idles_and_saves(tmp_path, sig):
-    n = 22
+    n = 20
     failures = _signal_runs(tmp_path, sig, n, seed=int(sig) * 1000 + 13)
     assert not failures, f"{len(failures)} of {n} runs not stopped cleanly:\n" + "\n".join(failures)
 
@@ -216,3 +216,64 @@ def test_python_m_beambench_run_stops_on_a_signal(tmp_path, backend, sig):
             proc.kill()
             proc.wait()
     _check_interrupted(path, proc.returncode, out.decode(errors="replace"), motor_state_idle=backend == "emulated")
+
+
+# --- in-process: the flag, from any state, and a signal during the shutdown ---------------------------
+def _sim_runner(tmp_path: Path, stop=None, on_progress=None):
+    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.hub import Hub
+    from beambench.acquisition.plan import motor_limits, plan
+    from beambench.acquisition.runner import Runner
+    from beambench.rigs.sim import SimRig
+    from beambench.sinks.hdf5 import SessionWriter
+
+    protocol = parse_protocol(ENDLESS)
+    rig = SimRig(protocol)
+    rig.open()
+    writer = SessionWriter(tmp_path / "s.h5", {"protocol": ENDLESS})
+    hub = Hub([writer], critical=(writer,))
+    hub.open([s.describe() for s in rig.streams])
+    runner = Runner(rig, hub, plan(protocol), motor_limits(protocol), poll_s=0.1, stop=stop, on_progress=on_progress)
+    return rig, runner
+
+
+def test_a_stop_requested_before_the_run_starts_idles_and_saves(tmp_path):
+    from beambench.acquisition.runner import StopSignal
+
+    stop = StopSignal()
+    stop.request(signal.SIGTERM)
+    _, runner = _sim_runner(tmp_path, stop=stop)
+    result = runner.run()
+    assert result.status == "interrupted" and "SIGTERM" in result.message
+    assert result.steps_done == 0
+    s = read_session(tmp_path / "s.h5")
+    assert list(s.events["kind"])[-2:] == ["idle", "interrupted"]
+
+
+def test_a_real_sigint_mid_step_and_another_during_the_idle_still_idle_and_save(tmp_path):
+    """SIGINT from inside the run (mid settle), then a second SIGINT while the motor is being idled."""
+    calls = []
+
+    def progress(index, freq, waited):
+        calls.append(index)
+        if len(calls) == 7:
+            os.kill(os.getpid(), signal.SIGINT)
+
+    rig, runner = _sim_runner(tmp_path, on_progress=progress)
+    idle = rig.motor.idle
+
+    def idle_with_a_second_ctrl_c():
+        os.kill(os.getpid(), signal.SIGINT)  # delivered while we are inside the shutdown
+        time.sleep(0.01)
+        idle()
+
+    rig.motor.idle = idle_with_a_second_ctrl_c
+    result = runner.run()  # no KeyboardInterrupt may escape
+    assert result.status == "interrupted" and "SIGINT" in result.message
+    assert runner.stop.count >= 2  # (rig.close() idles again: one more)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers restored
+    s = read_session(tmp_path / "s.h5")
+    kinds = list(s.events["kind"])
+    assert kinds[-2:] == ["idle", "interrupted"]
+    assert s.streams["motor"].columns["velocity_setpoint"][-1] == 0.0
+    assert s.steps["status"].iloc[-1] == "aborted"
