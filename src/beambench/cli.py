@@ -63,18 +63,15 @@ def run(
     Limits are checked before anything moves. Ctrl-C idles the motor and closes the file cleanly.
     """
     from beambench.acquisition.config import load_protocol
-    from beambench.acquisition.plan import check_limits, session_path, summary
+    from beambench.acquisition.plan import session_path, summary
+    from beambench.session.checks import check_protocol
 
     try:
         protocol, text = load_protocol(protocol_file)
-        check_limits(protocol, str(protocol_file))
         chosen = backend or protocol.backend
         if chosen not in ("sim", "emulated", "hardware"):
             raise ConfigError("<cli>", "--backend", chosen, "must be sim, emulated or hardware")
-        if can_log is not None and chosen == "sim":
-            raise ConfigError(
-                "<cli>", "--can-log", str(can_log), "needs an ODrive on CAN (--backend emulated or hardware)"
-            )
+        check_protocol(protocol, str(protocol_file), chosen, can_log)  # every field, dry run included
         mode = rerun or ("spawn" if has_display() else "save")
         if mode not in ("spawn", "connect", "save", "off"):
             raise ConfigError("<cli>", "--rerun", mode, "must be spawn, connect, save or off")

@@ -1,14 +1,20 @@
-"""Pydantic models of the protocol YAML; every error names the file, the field, the value and the reason."""
+"""Pydantic models of the protocol YAML; every error names the file, the field, the value and the reason.
+
+Numbers are strict: finite (no ``.nan``/``.inf``), ``true``/``false`` are not numbers, strings are not numbers.
+Files are read through :mod:`beambench.common.yaml_config` (size, nesting and alias caps).
+"""
 
 from __future__ import annotations
 
+import math
+import unicodedata
 from pathlib import Path
 from typing import Any, Literal, get_args
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from beambench.common.errors import BeambenchError
+from beambench.common.yaml_config import MISSING as _MISSING
+from beambench.common.yaml_config import ConfigError, load_yaml_file, parse_yaml, validate
 
 Backend = Literal["sim", "emulated", "hardware"]
 RigKind = Literal["contact", "walker", "release"]
@@ -16,20 +22,29 @@ Integrator = Literal["euler", "implicitfast", "implicit", "rk4", "discrete"]
 BACKENDS: tuple[str, ...] = get_args(Backend)
 
 
-class ConfigError(BeambenchError, ValueError):
-    """A protocol or rig file is invalid. ``str()`` is one line: file, field, value, reason."""
+__all__ = ["BACKENDS", "ConfigError", "Protocol", "RigFile", "load_protocol", "load_rig_file", "parse_protocol"]
 
-    def __init__(self, file: str, field: str, value: Any, reason: str) -> None:
-        self.file, self.field, self.value, self.reason = file, field, value, reason
-        shown = "" if value is _MISSING else f" = {value!r}"
-        super().__init__(f"{file}: {field}{shown}: {reason}")
-
-
-_MISSING = object()
+MAX_STEPS = 10_000  # a sweep longer than this is a typo (1e-9 Hz steps), not a measurement
+MAX_NAME_BYTES = 200  # a session name (the file name without .h5)
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # strict: YAML already types its values, so "5" is not 5 and true is not 1; and every float is finite
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+def check_name(name: str, what: str) -> str:
+    """``name`` if it is a usable file name: no control characters, no path separators, <= 200 bytes, not ./.."""
+    if not name or name in (".", ".."):
+        raise ValueError(f"{what} must be a plain file name")
+    bad = next((c for c in name if unicodedata.category(c)[0] == "C"), None)
+    if bad is not None:
+        raise ValueError(f"{what} contains a control character ({bad!r})")
+    if "/" in name or "\\" in name:
+        raise ValueError(f"{what} must be a plain file name (no / or \\)")
+    if len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
+        raise ValueError(f"{what} is longer than {MAX_NAME_BYTES} bytes")
+    return name
 
 
 class Sweep(_Model):
@@ -38,7 +53,7 @@ class Sweep(_Model):
     start: float | None = Field(None, gt=0)
     stop: float | None = Field(None, gt=0)
     step: float | None = Field(None, gt=0)
-    frequencies: list[float] | None = None
+    frequencies: list[float] | None = Field(None, max_length=MAX_STEPS)
 
     @model_validator(mode="after")
     def _one_form(self) -> Sweep:
@@ -52,12 +67,23 @@ class Sweep(_Model):
             raise ValueError("needs start, stop and step (Hz), or a frequencies list")
         elif self.stop < self.start:  # type: ignore[operator]
             raise ValueError("stop must be >= start")
+        elif self.n_steps() > MAX_STEPS:
+            raise ValueError(f"{self.n_steps():.3g} steps (start/stop/step): more than {MAX_STEPS}")
         return self
+
+    def n_steps(self) -> float:
+        """How many steps, computed without building them (a float: may be astronomically large)."""
+        if self.frequencies is not None:
+            return len(self.frequencies)
+        n = (self.stop - self.start) / self.step  # type: ignore[operator]
+        return math.floor(n + 0.5) + 1 if math.isfinite(n) else math.inf
 
     def values(self) -> list[float]:
         if self.frequencies is not None:
             return [float(f) for f in self.frequencies]
         n = round((self.stop - self.start) / self.step)  # type: ignore[operator]
+        if n + 1 > MAX_STEPS:
+            raise ValueError(f"{n + 1} steps: more than {MAX_STEPS}")
         vals = [round(self.start + i * self.step, 9) for i in range(n + 1)]  # type: ignore[operator]
         return [v for v in vals if v <= self.stop + 1e-9]  # type: ignore[operator]
 
@@ -73,25 +99,25 @@ class Limits(_Model):
 class ClockModel(_Model):
     """A simulated device clock: offset, drift and receive jitter (for testing sync against a known truth)."""
 
-    offset_s: float = 0.0
-    drift_ppm: float = 0.0
-    jitter_s: float = Field(0.0, ge=0)
-    latency_s: float = Field(0.0005, ge=0)
+    offset_s: float = Field(0.0, ge=-1e6, le=1e6)
+    drift_ppm: float = Field(0.0, ge=-1e5, le=1e5)
+    jitter_s: float = Field(0.0, ge=0, le=10)
+    latency_s: float = Field(0.0005, ge=0, le=10)
 
 
 class SimOptions(_Model):
     """Options of the MuJoCo backend."""
 
-    model: str = "prb3"
-    params: str = "paper"
+    model: str = Field("prb3", min_length=1, max_length=40)  # checked against the registry by session.checks
+    params: str = Field("paper", min_length=1, max_length=400)
     timestep: float | None = Field(None, gt=0, le=0.01)
     integrator: Integrator = "implicitfast"
     tolerance_mm: float | None = Field(None, gt=0)
     # h' (mm) from the foot's unloaded position; None: the parameter set's rig.plate_gap (paper: 5.5 mm)
     plate_gap_mm: float | None = Field(None, ge=-2, le=50)
-    twist_deg: float = 90.0
+    twist_deg: float = Field(90.0, ge=-360, le=360)
     noise: bool = True
-    seed: int = 0
+    seed: int = Field(0, ge=0, le=2**32 - 1)
     mocap_clock: ClockModel = ClockModel()
     loadcell_clock: ClockModel = ClockModel()
     motor_clock: ClockModel = ClockModel()
@@ -114,26 +140,41 @@ class Monitors(_Model):
 class Output(_Model):
     """Session file naming; ``name`` is a template with ``{protocol}``, ``{rig}``, ``{backend}``, ``{date}``."""
 
-    name: str = "{protocol}_{backend}_{date}"
+    name: str = Field("{protocol}_{backend}_{date}", min_length=1, max_length=400)
+
+    @field_validator("name")
+    @classmethod
+    def _template_formats(cls, v: str) -> str:
+        check_name(format_name(v, "p", "contact", "sim", "20260101-000000"), "the name it makes")
+        return v
+
+
+def format_name(template: str, protocol: str, rig: str, backend: str, date: str) -> str:
+    """Fill an ``output.name`` template; any template problem is a ValueError with one short line."""
+    try:
+        return template.format(protocol=protocol, rig=rig, backend=backend, date=date)
+    except (KeyError, IndexError, ValueError, AttributeError, TypeError) as exc:
+        known = "{protocol}, {rig}, {backend}, {date}"
+        raise ValueError(f"bad template ({type(exc).__name__}: {str(exc)[:60]}); use {known}") from None
 
 
 class Protocol(_Model):
     """A measurement protocol: a frequency sweep on a rig."""
 
-    name: str = Field("protocol", min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
-    description: str = ""
+    name: str = Field("protocol", min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.-]+$")
+    description: str = Field("", max_length=20_000)
     rig: RigKind = "contact"
     backend: Backend = "sim"
     sweep: Sweep
     settle_s: float = Field(2.0, ge=0, le=600)
     record_s: float = Field(5.0, gt=0, le=3600)
-    amplitude_mm: float = Field(2.0, gt=0)
+    amplitude_mm: float = Field(2.0, gt=0, le=1000)
     limits: Limits = Limits()
     sim: SimOptions = SimOptions()
     release: Release = Release()
     monitors: Monitors = Monitors()
     output: Output = Output()
-    rig_file: str | None = None
+    rig_file: str | None = Field(None, max_length=4096)
 
     @model_validator(mode="after")
     def _driven_rigs_need_frequencies(self) -> Protocol:
@@ -158,49 +199,34 @@ class Protocol(_Model):
         return out
 
 
-def _field_path(loc: tuple[Any, ...]) -> str:
-    return ".".join(str(p) for p in loc if not str(p).startswith("function-")) or "(top level)"
+SWEEP_FILE_KEYS = frozenset({"scene", "base", "grid", "points", "sample_dt"})
 
 
-def _lookup(data: Any, loc: tuple[Any, ...]) -> Any:
-    for key in loc:
-        try:
-            data = data[key]
-        except (KeyError, IndexError, TypeError):
-            return _MISSING
-    return data
+def _not_a_sweep_file(data: Any, file: str) -> None:
+    if isinstance(data, dict) and "sweep" not in data and SWEEP_FILE_KEYS & set(data):
+        raise ConfigError(
+            file,
+            "(file)",
+            _MISSING,
+            f"this is a sweep file (it has {sorted(SWEEP_FILE_KEYS & set(data))[0]}): "
+            "run it with `beambench sweep`, not `beambench run`",
+        )
 
 
 def parse_protocol(text: str, file: str = "<protocol>") -> Protocol:
     """Parse and validate protocol YAML text; raise :class:`ConfigError` naming the first problem."""
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}" if mark is not None else "YAML"
-        raise ConfigError(file, where, _MISSING, f"not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    data = parse_yaml(text, file)
     if not isinstance(data, dict):
         raise ConfigError(file, "(top level)", _MISSING, "expected a mapping of protocol fields")
-    try:
-        return Protocol.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = tuple(err["loc"])
-        value = _lookup(data, loc)
-        msg = err["msg"].removeprefix("Value error, ")
-        if err["type"] == "extra_forbidden":
-            msg = "unknown field"
-        raise ConfigError(file, _field_path(loc), value, msg) from None
+    _not_a_sweep_file(data, file)
+    return validate(Protocol, data, file, what="protocol fields")
 
 
 def load_protocol(path: str | Path) -> tuple[Protocol, str]:
     """Read a protocol file; returns the validated model and its text (stored verbatim in the session)."""
-    p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as exc:
-        raise ConfigError(str(p), "(file)", _MISSING, exc.strerror or str(exc)) from None
-    return parse_protocol(text, str(p)), text
+    data, text = load_yaml_file(path)
+    _not_a_sweep_file(data, str(path))
+    return validate(Protocol, data, str(path), what="protocol fields"), text
 
 
 # --- rig wiring -----------------------------------------------------------------------------------------
@@ -214,7 +240,9 @@ class NatNetWiring(_Model):
     multicast_address: str = "239.255.42.99"
     multicast: bool = True
     bitstream_version: str | None = None  # ask a NatNet 4.x server for "3.0", "4.0" or "4.1"; else as it sends
-    markers: dict[str, str | int] = Field(default_factory=lambda: {"stage": "1:1", "tip": "1:2", "foot": "1:3"})
+    markers: dict[str, str | int] = Field(
+        default_factory=lambda: dict[str, str | int](stage="1:1", tip="1:2", foot="1:3")
+    )
 
 
 class Geometry(_Model):
@@ -255,18 +283,6 @@ class RigFile(_Model):
 
 
 def load_rig_file(path: str | Path) -> RigFile:
-    """Read and validate a rig file, with the same one-line errors as protocols."""
-    p = Path(path)
-    try:
-        data = yaml.safe_load(p.read_text()) or {}
-    except OSError as exc:
-        raise ConfigError(str(p), "(file)", _MISSING, exc.strerror or str(exc)) from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(str(p), "(file)", _MISSING, f"not valid YAML ({exc})") from None
-    try:
-        return RigFile.model_validate(data)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = tuple(err["loc"])
-        msg = "unknown field" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
-        raise ConfigError(str(p), _field_path(loc), _lookup(data, loc), msg) from None
+    """Read and validate a rig file, with the same one-line errors and caps as protocols."""
+    data, _ = load_yaml_file(path)
+    return validate(RigFile, data, str(path), what="rig wiring fields")

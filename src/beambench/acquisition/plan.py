@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
 from beambench.acquisition.capabilities import MotorLimits
-from beambench.acquisition.config import ConfigError, Protocol
+from beambench.acquisition.config import ConfigError, Protocol, check_name, format_name
 
 
 @dataclass(frozen=True)
@@ -65,21 +66,40 @@ def summary(protocol: Protocol, backend: str) -> dict[str, object]:
 def session_path(
     protocol: Protocol, backend: str, out_dir: Path, name: str | None = None, now: datetime | None = None
 ) -> Path:
-    """``<out>/<name>.h5`` from ``--name`` or the protocol's template; never an existing file."""
+    """``<out>/<name>.h5`` from ``--name`` or the protocol's template; never an existing file.
+
+    The name is checked (no control characters or NUL, no path separators, <= 200 bytes, not ``.``/``..``) and
+    ``out_dir`` must be a folder (or creatable). The file itself is created exclusively by the session writer,
+    so even a race cannot overwrite a session.
+    """
     now = now or datetime.now()
+    field = "--name"
     if name is None:
+        field = "output.name"
         try:
-            name = protocol.output.name.format(
-                protocol=protocol.name, rig=protocol.rig, backend=backend, date=now.strftime("%Y%m%d-%H%M%S")
+            name = format_name(
+                protocol.output.name, protocol.name, protocol.rig, backend, now.strftime("%Y%m%d-%H%M%S")
             )
-        except (KeyError, IndexError, ValueError) as exc:
-            raise ConfigError("<protocol>", "output.name", protocol.output.name, f"bad template ({exc})") from None
+        except ValueError as exc:
+            raise ConfigError("<protocol>", field, protocol.output.name, str(exc)) from None
     name = name.removesuffix(".h5")
-    if not name or "/" in name or name in (".", ".."):
-        raise ConfigError("<cli>", "--name", name, "must be a plain file name")
+    try:
+        check_name(name, "the session name")
+        check_name(name + "_99999.rrd", "the session name")  # room for the suffixes added below
+    except ValueError as exc:
+        raise ConfigError("<cli>" if field == "--name" else "<protocol>", field, name, str(exc)) from None
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ConfigError("<cli>", "--out", str(out_dir), "is a file, not a folder")
+    existing = next((p for p in (out_dir, *out_dir.absolute().parents) if p.exists()), None)
+    if existing is not None and not existing.is_dir():
+        raise ConfigError("<cli>", "--out", str(out_dir), f"{existing} is a file, not a folder")
+    if existing is not None and not os.access(existing, os.W_OK | os.X_OK):
+        raise ConfigError("<cli>", "--out", str(out_dir), f"cannot write in {existing} (permission denied)")
     path = out_dir / f"{name}.h5"
     k = 1
     while path.exists() or path.with_suffix(".rrd").exists():
         path = out_dir / f"{name}_{k}.h5"
         k += 1
+        if k > 99999:
+            raise ConfigError("<cli>", field, name, "too many sessions of that name in --out")
     return path

@@ -4,6 +4,12 @@ The runner never touches a wire or a file: devices give it batches, the hub hand
 Every exit path (normal end, exception, Ctrl-C, SIGTERM, device fault) commands the motor to idle first,
 then drains what the devices still hold, logs the final event and closes the sinks.
 
+Signals never raise: SIGINT and SIGTERM only set a :class:`StopSignal` flag, which the runner reads before and
+after every poll (settle, record, pause) and between steps, from any state and on every backend. An exception
+raised inside a signal handler lands in whatever code happens to run (a weakref callback, a C callback, a
+``finally``) and may be swallowed there; a flag cannot be. Further signals during shutdown are only counted,
+so a second Ctrl-C cannot skip the idle.
+
 Monitors (:mod:`beambench.monitors`) may pause a step's record window: while one reports a problem the
 window's clock stops (``pause``/``resume`` events mark the gap, the step records longer), and a pause
 longer than ``max_pause_s`` ends the run as a fault.
@@ -26,7 +32,11 @@ from beambench.acquisition.plan import Step
 
 
 class Terminated(BaseException):
-    """Raised in the main thread when SIGTERM arrives (a BaseException, like KeyboardInterrupt)."""
+    """Kept for callers that raise it themselves: treated like a SIGTERM (the run ends as interrupted)."""
+
+
+class _Stopped(BaseException):
+    """Raised by the runner itself (never by a signal handler) when a stop was requested."""
 
 
 @dataclass
@@ -39,21 +49,56 @@ class RunResult:
 ProgressCallback = Callable[[int, float, float], None]  # (step index, frequency, rig seconds just waited)
 
 
+class StopSignal:
+    """A stop request: set by the signal handlers (or by :meth:`request`), read by the runner at every poll."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self.count = 0  # signals received, the first included
+        self._event = threading.Event()
+
+    def request(self, signum: int = signal.SIGINT) -> None:
+        """Ask the run to stop (only sets attributes: safe in a signal handler)."""
+        self.count += 1
+        if self.signum is None:
+            self.signum = signum
+        self._event.set()
+
+    @property
+    def requested(self) -> bool:
+        return self._event.is_set()
+
+    @property
+    def reason(self) -> str:
+        if self.signum == signal.SIGINT:
+            return "interrupted by user (SIGINT)"
+        if self.signum == signal.SIGTERM:
+            return "terminated (SIGTERM)"
+        return "stopped" if self.signum is None else f"stopped by signal {self.signum}"
+
+    def wait(self, timeout: float) -> bool:
+        """Sleep up to ``timeout`` s, waking early on a stop request; True if one came."""
+        return self._event.wait(timeout)
+
+
 @contextmanager
-def sigterm_raises() -> Iterator[None]:
-    """Turn SIGTERM into :class:`Terminated` while running (main thread only)."""
+def stop_on_signals(stop: StopSignal | None = None) -> Iterator[StopSignal]:
+    """While inside, SIGINT and SIGTERM set ``stop`` instead of raising (main thread only; elsewhere a no-op)."""
+    stop = stop or StopSignal()
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield stop
         return
 
     def handler(signum: int, frame: object) -> None:
-        raise Terminated("SIGTERM")
+        stop.request(signum)
 
-    old = signal.signal(signal.SIGTERM, handler)
+    old_int = signal.signal(signal.SIGINT, handler)
+    old_term = signal.signal(signal.SIGTERM, handler)
     try:
-        yield
+        yield stop
     finally:
-        signal.signal(signal.SIGTERM, old)
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
 
 
 class Runner:
@@ -69,38 +114,53 @@ class Runner:
         on_progress: ProgressCallback | None = None,
         monitors: list[Monitor] | None = None,
         max_pause_s: float = 30.0,
+        stop: StopSignal | None = None,
     ) -> None:
         self.rig, self.hub, self.steps, self.limits = rig, hub, steps, limits
         self.poll_s = poll_s
         self.on_progress = on_progress
         self.monitors = list(monitors or [])
         self.max_pause_s = max_pause_s
+        self.stop = stop or StopSignal()
         self._current: StepRecord | None = None
         self.steps_done = 0
 
     def run(self) -> RunResult:
-        result = RunResult("error", 0, "")
-        try:
-            with sigterm_raises():
+        # The handlers stay installed through the shutdown: a signal there only sets the (already set) flag.
+        with stop_on_signals(self.stop):
+            result = RunResult("error", 0, "")
+            try:
+                self._check_stop()
                 self._check_steps()
                 self.hub.event(self.rig.clock.now_ns(), "start", f"{len(self.steps)} steps")
+                self._check_stop()
                 self.rig.motor.arm(self.limits)
                 self.hub.event(self.rig.clock.now_ns(), "armed", "")
                 for step in self.steps:
+                    self._check_stop()
                     self._run_step(step)
                 result = RunResult("completed", self.steps_done, "all steps done")
-        except KeyboardInterrupt:
-            result = RunResult("interrupted", self.steps_done, "interrupted by user (SIGINT)")
-        except Terminated:
-            result = RunResult("interrupted", self.steps_done, "terminated (SIGTERM)")
-        except DeviceFault as exc:
-            result = RunResult("fault", self.steps_done, f"device fault: {exc}")
-        except Exception as exc:
-            result = RunResult("error", self.steps_done, f"{type(exc).__name__}: {exc}")
-            raise
-        finally:
-            self._shutdown(result)
-        return result
+            except _Stopped:
+                result = RunResult("interrupted", self.steps_done, self.stop.reason)
+            except KeyboardInterrupt:  # raised by code outside our handlers (e.g. a caller's thread)
+                result = RunResult("interrupted", self.steps_done, "interrupted by user (SIGINT)")
+            except Terminated:
+                result = RunResult("interrupted", self.steps_done, "terminated (SIGTERM)")
+            except DeviceFault as exc:
+                if self.stop.requested:  # a fault raised while stopping (e.g. a device closed under us)
+                    result = RunResult("interrupted", self.steps_done, f"{self.stop.reason}; then {exc}")
+                else:
+                    result = RunResult("fault", self.steps_done, f"device fault: {exc}")
+            except Exception as exc:
+                result = RunResult("error", self.steps_done, f"{type(exc).__name__}: {exc}")
+                raise
+            finally:
+                self._shutdown(result)
+            return result
+
+    def _check_stop(self) -> None:
+        if self.stop.requested:
+            raise _Stopped(self.stop.reason)
 
     # --- steps ----------------------------------------------------------------------------------------
     def _check_steps(self) -> None:
@@ -130,6 +190,7 @@ class Runner:
             return
         n = max(1, math.ceil(seconds / self.poll_s - 1e-9))
         for _ in range(n):
+            self._check_stop()
             self._poll(seconds / n)
             if self.on_progress:
                 self.on_progress(step.index, step.frequency_hz, seconds / n)
@@ -144,6 +205,7 @@ class Runner:
         remaining = step.record_s
         paused_at: int | None = None
         while remaining > 1e-9:
+            self._check_stop()
             dt = min(self.poll_s, remaining)
             began = clock.now_ns()
             self._poll(dt)
@@ -153,7 +215,7 @@ class Runner:
                 paused_at = now
                 remaining += max(0, began - since) * 1e-9  # earlier polls that counted bad data (the timeout)
                 self.hub.event(now, "pause", f"step {step.index}: {problem}")
-            elif problem and (now - paused_at) * 1e-9 > self.max_pause_s:
+            elif problem and paused_at is not None and (now - paused_at) * 1e-9 > self.max_pause_s:
                 raise DeviceFault(f"{problem} (paused longer than monitors.max_pause_s = {self.max_pause_s:g} s)")
             elif not problem and paused_at is not None:
                 self.hub.event(now, "resume", f"step {step.index}: after {(now - paused_at) * 1e-9:.2f} s")
@@ -165,8 +227,10 @@ class Runner:
 
     def _poll(self, seconds: float) -> None:
         """Let ``seconds`` of rig time pass, hand the batches to the hub, check the motor."""
+        self._check_stop()
         self.rig.clock.wait(seconds)
         self._pump()
+        self._check_stop()  # before check(): a device closed by a stopping peer must not read as a fault
         self.rig.motor.check()
 
     def _problem(self) -> tuple[str | None, int]:
@@ -183,9 +247,7 @@ class Runner:
     # --- shutdown -------------------------------------------------------------------------------------
     def _shutdown(self, result: RunResult) -> None:
         """Idle first, then save: the order matters more than anything else here."""
-        # Signals during shutdown must not skip the idle or leave the file open.
-        old_int = _ignore(signal.SIGINT)
-        old_term = _ignore(signal.SIGTERM)
+        # Signals during shutdown only set the stop flag (see run()): they cannot skip the idle.
         try:
             try:
                 self.rig.motor.idle()
@@ -213,16 +275,3 @@ class Runner:
                 self.rig.close()
             finally:
                 self.hub.close()
-                _restore(signal.SIGINT, old_int)
-                _restore(signal.SIGTERM, old_term)
-
-
-def _ignore(sig: int) -> object:
-    if threading.current_thread() is not threading.main_thread():
-        return None
-    return signal.signal(sig, signal.SIG_IGN)
-
-
-def _restore(sig: int, old: object) -> None:
-    if old is not None and threading.current_thread() is threading.main_thread():
-        signal.signal(sig, old)  # type: ignore[arg-type]

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import Any, cast
 
 from rich.progress import (
     BarColumn,
@@ -14,14 +16,15 @@ from rich.progress import (
 
 from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import ReportsAfterRun
-from beambench.acquisition.config import Protocol
+from beambench.acquisition.config import Backend, Protocol
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
-from beambench.acquisition.runner import Runner, RunResult
+from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
 from beambench.rigs.build import build_rig
+from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
-from beambench.sinks.hdf5 import SessionWriter, append_general
+from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
 
 RerunMode = str  # spawn | connect | save | off (beambench.live is imported only when a viewer is wanted)
 
@@ -37,8 +40,33 @@ def run_session(
     can_log: Path | None = None,
     show_progress: bool = True,
 ) -> RunResult:
-    """Run ``protocol`` on ``backend`` and save the session at ``path`` (and ``.rrd`` beside it with save)."""
-    rig = build_rig(protocol, backend, realtime=realtime, rig_file=rig_file, can_log=can_log)
+    """Run ``protocol`` on ``backend`` and save the session at ``path`` (and ``.rrd`` beside it with save).
+
+    From the first line on, SIGINT and SIGTERM only request a stop (see :mod:`beambench.acquisition.runner`):
+    a signal while the rig opens still yields a session that ends ``interrupted`` with the motor idled.
+    """
+    with stop_on_signals() as stop:
+        return _run_session(
+            protocol, protocol_text, backend, path, rerun_mode, realtime, rig_file, can_log, show_progress, stop
+        )
+
+
+def _run_session(
+    protocol: Protocol,
+    protocol_text: str,
+    backend: str,
+    path: Path,
+    rerun_mode: RerunMode,
+    realtime: bool,
+    rig_file: Path | None,
+    can_log: Path | None,
+    show_progress: bool,
+    stop: StopSignal,
+) -> RunResult:
+    check_protocol(protocol, "<protocol>", backend, can_log)
+    if rerun_mode == "save":
+        _reserve(path.with_suffix(".rrd"))
+    rig = build_rig(protocol, cast(Backend, backend), realtime=realtime, rig_file=rig_file, can_log=can_log)
     steps = plan(protocol)
     rig.open()
     try:
@@ -62,7 +90,9 @@ def run_session(
         if rerun_mode != "off":
             from beambench.sinks.rerun_view import RerunSink
 
-            sinks.append(RerunSink(rerun_mode, path.stem, path.with_suffix(".rrd"), t0_ns=rig.clock.now_ns()))
+            sinks.append(
+                RerunSink(cast(Any, rerun_mode), path.stem, path.with_suffix(".rrd"), t0_ns=rig.clock.now_ns())
+            )
         hub = Hub(sinks, critical=(writer,))
         hub.open(specs)
     except BaseException:
@@ -92,8 +122,9 @@ def run_session(
             motor_limits(protocol),
             poll_s=poll_s,
             on_progress=on_progress,
-            monitors=monitors,
+            monitors=[*monitors],
             max_pause_s=protocol.monitors.max_pause_s,
+            stop=stop,
         )
         result = runner.run()
     if isinstance(rig, ReportsAfterRun):
@@ -103,3 +134,14 @@ def run_session(
     for err in hub.errors:
         progress.console.print(f"[yellow]warning: live view stopped: {err}")
     return result
+
+
+def _reserve(path: Path) -> None:
+    """Create ``path`` empty and exclusively (the recording fills it later): never overwrite a recording."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+    except FileExistsError:
+        raise SessionFileError(f"{path}: a recording of that name exists; it is never overwritten") from None
+    except OSError as exc:
+        raise SessionFileError(f"{path}: cannot create the recording ({exc.strerror or exc})") from None

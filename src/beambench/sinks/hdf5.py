@@ -17,7 +17,12 @@ Every dataset exists before SWMR mode starts (HDF5 allows no new objects after t
 
 from __future__ import annotations
 
+import ctypes
+import glob
 import json
+import os
+import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +32,18 @@ import numpy as np
 import pandas as pd
 
 from beambench.acquisition.batch import Batch, ColumnSpec, Frame, StepRecord, StreamSpec
+from beambench.common.yaml_config import ConfigError
+
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+SESSION_GROUPS = ("general", "acquisition", "steps", "events")
+
+
+class SessionFileError(ConfigError, OSError):
+    """A session file cannot be created or is not a readable session (truncated, not HDF5, wrong layout).
+
+    One line, naming the file. Also an :class:`OSError`, so callers that catch read errors catch it too.
+    """
+
 
 SCHEMA_VERSION = "1.0"
 EVENT_TEXT = 240  # bytes of a fixed-length event message (SWMR datasets cannot hold variable-length strings)
@@ -71,8 +88,7 @@ class SessionWriter:
 
     # --- Sink -------------------------------------------------------------------------------------------
     def open(self, specs: list[StreamSpec]) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        f = h5py.File(self.path, "w", libver="latest")
+        f = create_session_file(self.path)
         f.attrs["schema_version"] = SCHEMA_VERSION
         f.attrs["software"] = "beambench"
         _write_general(f.create_group("general"), self.general)
@@ -192,7 +208,124 @@ def _write_general(g: h5py.Group, general: dict[str, Any]) -> None:
             g[key].attrs["encoding"] = "json"
 
 
+def create_session_file(path: Path) -> h5py.File:
+    """A new, empty HDF5 file at ``path``, created exclusively: an existing file is never overwritten."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SessionFileError(f"{path.parent}: cannot create the output folder ({exc.strerror or exc})") from None
+    try:
+        return h5py.File(path, "x", libver="latest")  # "x": fail if it exists (O_EXCL)
+    except FileExistsError:
+        raise SessionFileError(f"{path}: a file of that name exists; sessions are never overwritten") from None
+    except OSError as exc:
+        if path.exists():  # h5py reports EEXIST in words on some builds
+            raise SessionFileError(f"{path}: a file of that name exists; sessions are never overwritten") from None
+        raise SessionFileError(f"{path}: cannot create the session file ({exc.strerror or exc})") from None
+
+
 # --- reading ---------------------------------------------------------------------------------------------
+def _stored_eof(path: Path, size: int) -> int | None:
+    """The end-of-file address a version 2/3 superblock records (HDF5 "libver latest"), or None."""
+    with path.open("rb") as fh:
+        offset = 0
+        while offset + 8 <= size:  # the signature sits at 0, 512, 1024, 2048 … (after a user block)
+            fh.seek(offset)
+            if fh.read(8) == HDF5_SIGNATURE:
+                head = fh.read(4)  # version, size of offsets, size of lengths, flags
+                if len(head) < 4 or head[0] not in (2, 3) or head[1] != 8:
+                    return None
+                addrs = fh.read(8 * 4)  # base, superblock extension, end of file, root object header
+                if len(addrs) < 32:
+                    return 0x7FFFFFFFFFFFFFFF  # a cut superblock: certainly truncated
+                base, _ext, eof, _root = struct.unpack("<4Q", addrs)
+                return base + eof
+            offset = 512 if offset == 0 else offset * 2
+    return None
+
+
+def check_session_file(path: str | Path) -> None:
+    """Fail fast, with one line, on anything that is not a complete HDF5 session file.
+
+    A SWMR reader retries metadata reads on a truncated file without end, so this runs before it: the size,
+    the HDF5 signature, then a plain (non-SWMR) open, which HDF5 refuses at once on a truncated file. A file
+    still open for writing (or left so by a killed run) refuses the plain open; then the superblock's
+    recorded end of file is compared with the size instead.
+    """
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as fh:
+            head = fh.read(8)
+    except OSError as exc:
+        raise SessionFileError(f"{path}: cannot read the session ({exc.strerror or exc})") from None
+    if size < 64 or (head != HDF5_SIGNATURE and _stored_eof(path, size) is None):
+        raise SessionFileError(f"{path}: not a session file (not HDF5{', empty' if size == 0 else ''})")
+    try:
+        with h5py.File(path, "r") as f:
+            missing = [g for g in SESSION_GROUPS if g not in f]
+    except OSError as exc:
+        text = str(exc)
+        if "truncated" in text:
+            raise SessionFileError(f"{path}: truncated ({size} bytes): an incomplete copy or a full disk?") from None
+        if "already open for write" not in text and "lock" not in text:
+            raise SessionFileError(f"{path}: not a readable HDF5 file ({text[:120]})") from None
+        eof = _stored_eof(path, size)
+        if eof is not None and size < eof:
+            raise SessionFileError(f"{path}: truncated ({size} of {eof} bytes): an incomplete copy?") from None
+        return  # being written, or killed mid-run: the SWMR reader handles it
+    if missing:
+        raise SessionFileError(f"{path}: not a beambench session (no /{missing[0]} in the file)")
+
+
+SWMR_READ_ATTEMPTS = 20  # HDF5's default (100, with growing waits) makes a cut file look like a hang
+
+
+def _find_set_read_attempts() -> Callable[[int, int], int] | None:
+    """``H5Pset_metadata_read_attempts`` from the HDF5 library h5py itself loaded (h5py does not wrap it)."""
+    here = os.path.dirname(h5py.__file__)
+    for pattern in ("../h5py.libs/libhdf5-*.so*", "../h5py/.dylibs/libhdf5*.dylib", ".dylibs/libhdf5*.dylib"):
+        for lib in sorted(glob.glob(os.path.join(here, pattern))):
+            if "_hl" in os.path.basename(lib):
+                continue
+            try:
+                fn = ctypes.CDLL(lib).H5Pset_metadata_read_attempts
+            except (OSError, AttributeError):
+                continue
+            fn.argtypes, fn.restype = [ctypes.c_int64, ctypes.c_uint], ctypes.c_int
+            return fn
+    return None
+
+
+_set_read_attempts = _find_set_read_attempts()
+
+
+def _open_swmr(path: Path) -> h5py.File:
+    """``h5py.File(path, "r", libver="latest", swmr=True)`` with a bounded number of metadata read retries."""
+    if _set_read_attempts is None:
+        return h5py.File(path, "r", libver="latest", swmr=True)
+    fapl = h5py.h5p.create(h5py.h5p.FILE_ACCESS)
+    fapl.set_libver_bounds(h5py.h5f.LIBVER_LATEST, h5py.h5f.LIBVER_LATEST)
+    _set_read_attempts(fapl.id, SWMR_READ_ATTEMPTS)
+    fid = h5py.h5f.open(os.fsencode(path), h5py.h5f.ACC_RDONLY | h5py.h5f.ACC_SWMR_READ, fapl=fapl)
+    return h5py.File(fid)
+
+
+def _open_session(path: Path) -> h5py.File:
+    check_session_file(path)
+    try:
+        f = _open_swmr(path)
+    except OSError as exc:
+        if "not already open for SWMR writing" in str(exc):
+            raise SessionFileError(f"{path}: the run was killed before it started recording (no data)") from None
+        raise SessionFileError(f"{path}: not a readable session ({str(exc)[:120]})") from None
+    missing = [g for g in SESSION_GROUPS if g not in f]
+    if missing:
+        f.close()
+        raise SessionFileError(f"{path}: not a beambench session (no /{missing[0]} in the file)")
+    return f
+
+
 @dataclass
 class StreamData:
     """One stream of a session: times and columns as numpy arrays, with its spec."""
@@ -263,18 +396,26 @@ def _read_stream(name: str, g: h5py.Group, geometry: dict[str, Any] | None = Non
 def read_session(path: str | Path) -> Session:
     """Read a session (opened with ``swmr=True``, so files being written or cut off by a kill also read)."""
     path = Path(path)
-    with h5py.File(path, "r", libver="latest", swmr=True) as f:
-        general = _read_general(f["general"])
-        geometry = general.get("geometry") if isinstance(general.get("geometry"), dict) else None
-        streams = {name: _read_stream(name, g, geometry) for name, g in f["acquisition"].items()}
-        steps = pd.DataFrame(f["steps"][()])
-        if len(steps):
-            steps["status"] = steps["status"].str.decode("utf-8")
-        events = pd.DataFrame(f["events"][()])
-        for c in ("kind", "message"):
-            if len(events):
-                events[c] = events[c].str.decode("utf-8")
-        attrs = dict(f.attrs)
+    with _open_session(path) as f:
+        try:
+            general = _read_general(f["general"])
+            geometry = general.get("geometry") if isinstance(general.get("geometry"), dict) else None
+            streams = {name: _read_stream(name, g, geometry) for name, g in f["acquisition"].items()}
+            steps = pd.DataFrame(f["steps"][()])
+            if len(steps):
+                steps["status"] = steps["status"].str.decode("utf-8")
+            events = pd.DataFrame(f["events"][()])
+            for c in ("kind", "message"):
+                if len(events):
+                    events[c] = events[c].str.decode("utf-8")
+            attrs = dict(f.attrs)
+        except (OSError, RuntimeError, KeyError, ValueError, TypeError, AttributeError) as exc:
+            if isinstance(exc, SessionFileError):
+                raise
+            why = str(exc).strip("'\"")[:120]
+            raise SessionFileError(
+                f"{path}: damaged or not a beambench session ({type(exc).__name__}: {why})"
+            ) from None
     return Session(path, streams, steps, events, general, attrs)
 
 
@@ -306,7 +447,7 @@ def write_processing(path: str | Path, name: str, table: pd.DataFrame | dict[str
 
 def read_processing(path: str | Path, name: str) -> pd.DataFrame:
     """Read ``/processing/<name>`` back as a DataFrame."""
-    with h5py.File(path, "r", libver="latest", swmr=True) as f:
+    with _open_session(Path(path)) as f:
         g = f["processing"][name]
         data = {}
         for key, ds in g.items():

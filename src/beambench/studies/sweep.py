@@ -39,11 +39,10 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import pandas as pd
-import yaml
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -53,16 +52,21 @@ from pydantic import (
     model_validator,
 )
 
+from beambench.common.yaml_config import ConfigError, load_yaml_file, validate
+
 SCENES = ("free_beam", "contact")
 SCHEMA = "beambench.sweep/1"
 
+MAX_JOBS = 100_000  # scene points x frequencies: beyond this a sweep file is a typo (a 1e-9 step)
 
-class SweepError(ValueError):
+
+class SweepError(ConfigError):
     """A sweep file or table problem (one line: file, field, reason)."""
 
 
 class _Model(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # strict: true is not a number, "5" is not 5; every float finite
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
 class Point(_Model):
@@ -83,9 +87,12 @@ class Point(_Model):
 
     @model_validator(mode="after")
     def _overrides_fit_model(self) -> Point:
-        rod = self.model.startswith("rod")
-        if not rod and self.model != "prb3":
-            raise ValueError(f"model = {self.model!r}: prb3 or a segmented rod rodN (rod10, rod5g …)")
+        from beambench.sim.models.registry import model_family
+
+        try:
+            rod = model_family(self.model) == "rod"
+        except ValueError as exc:
+            raise ValueError(str(exc).removeprefix("sim.")) from None
         if rod and (self.k is not None or self.b is not None):
             raise ValueError("k/b set the PRB3 joints; for rods sweep youngs_modulus/beta")
         if not rod and (self.youngs_modulus is not None or self.beta is not None):
@@ -103,6 +110,13 @@ class Range(_Model):
     stop: float
     step: float = Field(gt=0)
 
+    @model_validator(mode="after")
+    def _bounded(self) -> Range:
+        n = (self.stop - self.start) / self.step
+        if n > MAX_JOBS:
+            raise ValueError(f"{n:.3g} values (start/stop/step): more than {MAX_JOBS}")
+        return self
+
     def values(self) -> list[float]:
         n = math.floor((self.stop - self.start) / self.step + 1e-9)
         return [round(self.start + i * self.step, 10) for i in range(n + 1)]
@@ -116,8 +130,8 @@ class SweepSpec(_Model):
     scene: Literal["free_beam", "contact"] = "free_beam"
     base: dict[str, Any] = Field(default_factory=dict)
     grid: dict[str, list[Any] | Range] = Field(default_factory=dict)
-    points: list[dict[str, Any]] = Field(default_factory=list)
-    frequencies: list[float] | Range = Field(default_factory=lambda: [15.0])
+    points: list[dict[str, Any]] = Field(default_factory=list, max_length=MAX_JOBS)
+    frequencies: Annotated[list[float], Field(max_length=MAX_JOBS)] | Range = Field(default_factory=lambda: [15.0])
     settle_s: float = Field(1.0, ge=0, le=60)
     record_s: float = Field(0.5, gt=0, le=60)
     sample_dt: float = Field(1e-3, gt=0, le=0.01)
@@ -140,6 +154,11 @@ class SweepSpec(_Model):
             raise ValueError("give either grid (a cartesian product) or points (a list), not both")
         if any(f <= 0 for f in self.frequency_values()):
             raise ValueError("frequencies must be > 0 Hz")
+        n = len(self.frequency_values()) * (len(self.points) or 1)
+        for v in self.grid.values():
+            n *= max(1, len(v.values()) if isinstance(v, Range) else len(v))
+        if n > MAX_JOBS:
+            raise ValueError(f"{n:.3g} simulations (grid x frequencies): more than {MAX_JOBS}")
         return self
 
     def frequency_values(self) -> list[float]:
@@ -166,25 +185,27 @@ class SweepSpec(_Model):
         return names
 
 
+PROTOCOL_FILE_KEYS = frozenset({"sweep", "rig", "backend", "limits", "sim", "monitors"})
+
+
 def load_sweep(path: str | Path) -> SweepSpec:
     """Read and validate a sweep file; :class:`SweepError` names the file and the field."""
-    p = Path(path)
+    data, _ = load_yaml_file(path, SweepError)
+    if isinstance(data, dict) and PROTOCOL_FILE_KEYS & set(data) and not {"scene", "grid", "points"} & set(data):
+        raise SweepError(
+            str(path),
+            "(file)",
+            reason=f"this is a protocol file (it has {sorted(PROTOCOL_FILE_KEYS & set(data))[0]}): "
+            "run it with `beambench run`, not `beambench sweep`",
+        )
+    spec = validate(SweepSpec, data, str(path), SweepError, what="sweep fields")
     try:
-        data = yaml.safe_load(p.read_text())
-    except OSError as exc:
-        raise SweepError(f"{p}: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise SweepError(f"{p}: not valid YAML ({exc})") from None
-    if not isinstance(data, dict):
-        raise SweepError(f"{p}: expected a mapping of sweep fields")
-    try:
-        spec = SweepSpec.model_validate(data)
         spec.scene_points()
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = ".".join(str(x) for x in err["loc"] if not str(x).startswith("function-")) or "(top level)"
         msg = "unknown field" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
-        raise SweepError(f"{p}: {loc}: {msg}") from None
+        raise SweepError(f"{path}: {loc}: {msg}") from None
     return spec
 
 
@@ -215,7 +236,7 @@ class Job:
 
 def plan(spec: SweepSpec) -> list[Job]:
     """Every (scene point × frequency) of the sweep, in table order."""
-    jobs = []
+    jobs: list[Job] = []
     for p in spec.scene_points():
         for f in spec.frequency_values():
             jobs.append(Job(len(jobs), point_id(spec.scene, p, f, spec), p.model_dump(), float(f)))
@@ -260,7 +281,7 @@ def _beam(point: dict[str, Any]):
     name = point["model"]
     params = load_params(point["params"], model=model_family(name))
     if name == "prb3":
-        over = {}
+        over: dict[str, Any] = {}
         if point.get("k") is not None:
             over.update(k=point["k"], k_twist=point["k"])
         if point.get("b") is not None:
@@ -469,7 +490,8 @@ def _read_done(out: Path) -> list[dict[str, Any]]:
     for f in frames:
         if "point_id" not in f.columns:
             raise SweepError(f"{out}: not a sweep table (no point_id column)")
-    return pd.concat(frames, ignore_index=True).to_dict("records") if frames else []
+    rows = pd.concat(frames, ignore_index=True).to_dict("records") if frames else []
+    return [{str(k): v for k, v in r.items()} for r in rows]
 
 
 @dataclass
@@ -610,7 +632,7 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
                 if series is None
                 else f"{series} = {val:g}"
                 if isinstance(val, (int, float))
-                else f"{series} = {val}",
+                else f"{series} = {val!s}",
             )
         ax.set(xlabel=x, ylabel=label)
         ax.grid(alpha=0.3)

@@ -7,18 +7,18 @@ Drop a new ``sim_backend/prb3_<name>.yaml`` and select it with ``sim.params: <na
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from beambench.common.resources import shipped_dir
+from beambench.common.yaml_config import ConfigError, load_yaml_file, shorten
 
 SIM_BACKEND_DIR = shipped_dir("sim_backend")
 
 
-class ParamsError(ValueError):
+class ParamsError(ConfigError):
     """A parameter set is missing or malformed (one-line message naming the file and the field)."""
 
 
@@ -88,38 +88,56 @@ def has_params(name: str, model: str) -> bool:
 def load_params(name: str = "paper", model: str = "prb3") -> BeamParams:
     """Load the set ``name`` (``sim_backend/<model>_<name>.yaml``) or a YAML file path."""
     path = Path(name)
-    if path.suffix not in (".yaml", ".yml") or not path.exists():
+    if path.suffix not in (".yaml", ".yml") or not path.is_file():
+        if "/" in name or "\\" in name or "\x00" in name or len(name) > 200:
+            raise ParamsError(f"sim.params = {shorten(name)}: no such parameter file")
         path = SIM_BACKEND_DIR / f"{model}_{name}.yaml"
-    if not path.exists():
-        raise ParamsError(f"sim.params = {name!r}: no parameter set {path.name} (available: {available(model)})")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise ParamsError(f"{path}: not valid YAML ({exc})") from None
+    if not path.is_file():
+        raise ParamsError(f"sim.params = {shorten(name)}: no parameter set {path.name} (available: {available(model)})")
+    data, _ = load_yaml_file(path, ParamsError)
+    if not isinstance(data, dict):
+        raise ParamsError(f"{path}: expected a mapping with a beam block")
     return params_from_dict(data, str(path))
+
+
+def _number(value: Any, where: str, key: str) -> float:
+    """A finite number (not a bool, not a string), else :class:`ParamsError`."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParamsError(f"{where}: {key} = {shorten(value)}: must be a number")
+    if not math.isfinite(value):
+        raise ParamsError(f"{where}: {key} = {value}: must be a finite number")
+    return float(value)
 
 
 def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParams:
     """Build :class:`BeamParams` from a mapping with a ``beam`` block (and optional ``rig`` block)."""
-    beam = dict(data.get("beam") or {})
+    beam_block = data.get("beam") or {}
+    if not isinstance(beam_block, dict):
+        raise ParamsError(f"{where}: beam: expected a mapping of beam fields")
+    beam = dict(beam_block)
     known = {f.name for f in fields(BeamParams)}
     mat = beam.pop("material", None) or {}
-    unknown = set(beam) - known
+    if not isinstance(mat, dict):
+        raise ParamsError(f"{where}: beam.material: expected a mapping of material fields")
+    unknown = set(beam) - (known - {"name", "model", "source", "rig", "material"})
     if unknown:
-        raise ParamsError(f"{where}: beam.{sorted(unknown)[0]}: unknown field")
-    try:
-        material = Material(**{k: float(v) for k, v in mat.items()})
-        values = {k: float(v) for k, v in beam.items()}
-    except (TypeError, ValueError) as exc:
-        raise ParamsError(f"{where}: {exc}") from None
+        raise ParamsError(f"{where}: beam.{sorted(map(str, unknown))[0][:80]}: unknown field")
+    unknown_mat = set(mat) - {f.name for f in fields(Material)}
+    if unknown_mat:
+        raise ParamsError(f"{where}: beam.material.{sorted(map(str, unknown_mat))[0][:80]}: unknown field")
+    material = Material(**{k: _number(v, where, f"beam.material.{k}") for k, v in mat.items()})
+    values = {k: _number(v, where, f"beam.{k}") for k, v in beam.items()}
     for key in ("l2", "l3", "k", "b", "mass", "width", "thickness", "beta"):
         if key in values and values[key] <= 0:
             raise ParamsError(f"{where}: beam.{key} = {values[key]}: must be > 0")
+    rig = data.get("rig") or {}
+    if not isinstance(rig, dict):
+        raise ParamsError(f"{where}: rig: expected a mapping of rig overrides")
     return BeamParams(
         name=str(data.get("name", Path(where).stem)),
         model=str(data.get("model", "prb3")),
         source=str(data.get("source", "")),
         material=material,
-        rig=dict(data.get("rig") or {}),
+        rig=dict(rig),
         **values,
     )

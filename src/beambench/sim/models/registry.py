@@ -9,15 +9,19 @@ from beambench.sim.models.params import BeamParams, load_params
 from beambench.sim.models.rod import ROD_NAME, make_rod_model
 
 FAMILIES = ("prb3", "rod")
+MAX_SEGMENTS = 200  # a rod with more joints takes minutes per simulated second and GBs to build
 
 
 def model_family(name: str) -> str:
     """The parameter-file prefix of a model name: ``rod10``, ``rod3g`` → ``rod``; ``prb3`` → ``prb3``."""
     if name == "prb3":
         return "prb3"
-    if re.fullmatch(ROD_NAME, name):
+    m = re.fullmatch(ROD_NAME, name)
+    if m:
+        if not 1 <= int(m.group(1)) <= MAX_SEGMENTS:
+            raise ValueError(f"sim.model = {name[:40]!r}: a rod has 1 to {MAX_SEGMENTS} segments")
         return "rod"
-    raise ValueError(f"sim.model = {name!r}: unknown beam model (known: prb3, rod<N>[g][s])")
+    raise ValueError(f"sim.model = {name[:40]!r}: unknown beam model (known: prb3, rod<N>[g][s], N <= {MAX_SEGMENTS})")
 
 
 def make_beam_model(name: str, params: BeamParams) -> BeamModel:

@@ -1,0 +1,49 @@
+"""Everything about a run that can be checked before anything moves, dry run included (one-line errors).
+
+The protocol model (:mod:`beambench.acquisition.config`) checks each field on its own; here go the checks that
+need the rest of the package: the beam model name against the registry, that the parameter set exists and
+loads, the limits, and the run's options (``--can-log``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from beambench.acquisition.config import ConfigError, Protocol
+from beambench.acquisition.plan import check_limits
+from beambench.common.yaml_config import shorten
+from beambench.devices.odrive_can import LOG_SUFFIXES
+from beambench.sim.models.params import ParamsError, load_params
+from beambench.sim.models.registry import model_family
+
+
+def _reason(exc: Exception) -> str:
+    """The reason part of a ``"<field> = <value>: <reason>"`` message."""
+    text = str(exc)
+    head, sep, tail = text.partition(": ")
+    return tail if sep and " = " in head else text
+
+
+def check_protocol(protocol: Protocol, file: str, backend: str | None = None, can_log: Path | None = None) -> None:
+    """Raise :class:`ConfigError` for the first problem: limits, ``sim.model``, ``sim.params``, ``--can-log``."""
+    check_limits(protocol, file)
+    sim = protocol.sim
+    family = "prb3"
+    if sim.model != "auto":
+        try:
+            family = model_family(sim.model)
+        except ValueError as exc:
+            raise ConfigError(file, "sim.model", sim.model, _reason(exc)) from None
+    try:
+        load_params(sim.params, model=family)
+    except (ParamsError, OSError) as exc:
+        raise ConfigError(file, "sim.params", sim.params, _reason(exc)) from None
+    if can_log is not None:
+        if backend == "sim":
+            raise ConfigError(
+                "<cli>", "--can-log", str(can_log), "needs an ODrive on CAN (--backend emulated or hardware)"
+            )
+        if can_log.suffix.lower() not in LOG_SUFFIXES:
+            raise ConfigError("<cli>", "--can-log", shorten(str(can_log)), f"use a {' or '.join(LOG_SUFFIXES)} file")
+        if can_log.exists() and not can_log.is_file():
+            raise ConfigError("<cli>", "--can-log", str(can_log), "is a folder")
