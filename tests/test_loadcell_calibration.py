@@ -194,8 +194,9 @@ def test_cli_bad_input_is_one_line_and_exit_2(args, message):
         app(), ["calibrate", "loadcells", "--duration", "0.1", "--settle", "0", *args], input="\n" * 5
     )
     assert r.exit_code == 2
-    assert message in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    assert "Traceback" not in r.output
+    errors = [line for line in r.stderr.splitlines() if line.startswith("beambench: error:")]
+    assert len(errors) == 1 and message in errors[0] and r.stderr.strip().endswith(errors[0])  # one line, last
+    assert "Traceback" not in r.output and r.stdout == ""  # chatter on stderr; nothing saved, no result
 
 
 def test_cli_no_answer_on_stdin_is_a_clean_abort():

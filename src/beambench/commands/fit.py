@@ -5,14 +5,10 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import NoReturn
 
 import typer
 
-
-def _fail(message: str) -> NoReturn:
-    typer.echo(f"beambench: error: {message}", err=True)
-    raise typer.Exit(2)
+from beambench.commands import fail
 
 
 def fit(
@@ -67,11 +63,11 @@ def fit(
     models = [m.strip() for m in model.split(",") if m.strip()]
     for m in models:
         if m not in ("prb3", "rod") and not re.fullmatch(r"rod\d+g?s?", m):
-            _fail(f"--model = {m!r}: prb3, rod, or rodN (e.g. rod10, rod5g)")
+            fail(f"--model = {m!r}: prb3, rod, or rodN (e.g. rod10, rod5g)")
     if free_l1 and "prb3" not in models:
-        _fail("--free-l1 applies to the prb3 model")
+        fail("--free-l1 applies to the prb3 model")
     if not session.is_file():
-        _fail(f"{session}: no such session file")
+        fail(f"{session}: no such session file")
     for opt, value, ok in (
         ("--popsize", popsize, popsize >= 4),
         ("--maxiter", maxiter, maxiter >= 1),
@@ -79,13 +75,13 @@ def fit(
         ("--timestep", timestep, 0 < timestep <= 2e-3),
     ):
         if not ok:
-            _fail(f"{opt} = {value}: out of range")
+            fail(f"{opt} = {value}: out of range")
     name = name or re.sub(r"[^A-Za-z0-9_.-]", "_", session.stem)
     out = out or session.with_name(session.stem + "_fit")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        _fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
+        fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
 
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -103,7 +99,7 @@ def fit(
     try:
         data = load_release_session(session, register=register)
     except FitError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     results = []
     for m in models:
         with Progress(
@@ -135,7 +131,7 @@ def fit(
                     )
                 )
             except FitError as exc:
-                _fail(str(exc))
+                fail(str(exc))
     _print_results(results, data, Console())
 
     fig = plot_fit(results, out / f"fit_{session.stem}.png", title=f"Release test {session.name}: measured vs fitted")
@@ -147,7 +143,7 @@ def fit(
             try:
                 p = write_param_set(r, name, directory, source=f"beambench fit of {session.name} ({r.model})")
             except OSError as exc:
-                _fail(f"cannot write the parameter set to {directory} ({exc.strerror or exc})")
+                fail(f"cannot write the parameter set to {directory} ({exc.strerror or exc})")
             written.append(str(p))
             _write_processing(session, r, console)
     report["param_sets"] = written

@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from beambench.acquisition.batch import Batch
+from beambench.sinks import RerunMode
 from beambench.sinks.hdf5 import read_session
 from beambench.sinks.rerun_view import RerunSink
-
-RerunMode = str
 
 
 def replay_session(session_path: Path, mode: RerunMode, out: Path | None = None) -> Path | None:

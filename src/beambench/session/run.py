@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from rich.console import Console
 from rich.progress import (
     BarColumn,
     Progress,
@@ -21,9 +22,8 @@ from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner, RunResult
 from beambench.rigs.build import build_rig
 from beambench.session.provenance import provenance
+from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionWriter, append_general
-
-RerunMode = str  # spawn | connect | save | off (beambench.live is imported only when a viewer is wanted)
 
 
 def run_session(
@@ -75,6 +75,7 @@ def run_session(
         TextColumn("{task.completed:.0f}/{task.total:.0f} s rig time"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
+        console=Console(stderr=True),  # progress is chatter: stdout carries only the command's result
         disable=not show_progress,
         transient=False,
     ) as progress:

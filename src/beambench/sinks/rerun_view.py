@@ -9,15 +9,14 @@ from __future__ import annotations
 
 from collections import deque
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
 from beambench.acquisition.batch import Batch, StreamSpec
+from beambench.sinks import RerunMode
 
-RerunMode = Literal["spawn", "connect", "save", "off"]
 TIMELINE = "session_time"
 TRAIL_POINTS = 360  # one second of tip path at 360 Hz
 
