@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from beambench.commands import fail
+from beambench.commands import chatter, fail
 
 if TYPE_CHECKING:
     from beambench.analysis.session import AnalysisOptions, SessionAnalysis
@@ -87,6 +87,7 @@ def _progress(quiet: bool):
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
+        console=chatter(),
         disable=quiet,
         transient=True,
     )

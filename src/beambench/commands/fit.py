@@ -33,11 +33,16 @@ def fit(
         None,
         "--name",
         "-n",
-        help="Name of the parameter set written to sim_backend/ "
-        "(<model>_<name>.yaml; select it with `sim.params: <name>`). Default: the session name.",
+        metavar="NAME",
+        help="Name of the parameter set written (<model>_<name>.yaml; select it with `sim.params: <name>`). "
+        "Default: the session name.",
     ),
-    params_dir: Path = typer.Option(
-        None, "--params-dir", help="Where to write the parameter set (default: the package's sim_backend/)."
+    params_dir: Path | None = typer.Option(
+        None,
+        "--params-dir",
+        metavar="DIR",
+        help="Where to write the parameter set (default: sim_backend/ in the per-user folder, where `sim.params` "
+        "finds it; see README, 'Where files go').",
     ),
     no_write: bool = typer.Option(False, "--no-write", help="Do not write a parameter set or /processing."),
     popsize: int = typer.Option(12, "--popsize", help="Differential-evolution population per variable."),
@@ -58,7 +63,7 @@ def fit(
     Minimises the paper's objective — RMS distance between measured and simulated tip markers over all
     samples — by differential evolution, each generation one batched MuJoCo rollout. Prints the fitted
     values and the final error (mm), draws measured vs fitted tip paths, writes a JSON report, and saves each
-    fit as a parameter set in sim_backend/ that protocols select with `sim.params`.
+    fit as a named parameter set in the per-user folder that protocols select with `sim.params`.
     """
     models = [m.strip() for m in model.split(",") if m.strip()]
     for m in models:
@@ -86,7 +91,7 @@ def fit(
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from beambench.sim.models.params import SIM_BACKEND_DIR
+    from beambench.common.resources import user_dir
     from beambench.studies.fit import (
         FitError,
         fit_release,
@@ -138,7 +143,8 @@ def fit(
     report = {"session": str(session), "results": [r.summary() for r in results], "figure": str(fig)}
     written = []
     if not no_write:
-        directory = params_dir or SIM_BACKEND_DIR
+        named_dir = user_dir("sim_backend")
+        directory = params_dir or named_dir
         for r in results:
             try:
                 p = write_param_set(r, name, directory, source=f"beambench fit of {session.name} ({r.model})")
@@ -152,7 +158,8 @@ def fit(
     typer.echo(f"figure: {fig}")
     typer.echo(f"report: {rep}")
     for p in written:
-        typer.echo(f"parameter set: {p}  (select with sim.params: {name if Path(p).parent == SIM_BACKEND_DIR else p})")
+        found_by_name = params_dir is None or Path(p).parent.resolve() == user_dir("sim_backend").resolve()
+        typer.echo(f"parameter set: {p}  (select with sim.params: {name if found_by_name else p})")
 
 
 def _print_results(results, data, console) -> None:
