@@ -141,24 +141,23 @@ def fit(
 
     fig = plot_fit(results, out / f"fit_{session.stem}.png", title=f"Release test {session.name}: measured vs fitted")
     report = {"session": str(session), "results": [r.summary() for r in results], "figure": str(fig)}
-    written = []
+    written: list[Path] = []
     if not no_write:
-        named_dir = user_dir("sim_backend")
-        directory = params_dir or named_dir
+        directory = params_dir or user_dir("sim_backend")
         for r in results:
             try:
-                p = write_param_set(r, name, directory, source=f"beambench fit of {session.name} ({r.model})")
+                path = write_param_set(r, name, directory, source=f"beambench fit of {session.name} ({r.model})")
             except OSError as exc:
                 fail(f"cannot write the parameter set to {directory} ({exc.strerror or exc})")
-            written.append(str(p))
+            written.append(path)
             _write_processing(session, r, console)
-    report["param_sets"] = written
+    report["param_sets"] = [str(p) for p in written]
     rep = out / f"fit_{session.stem}.json"
     rep.write_text(json.dumps(report, indent=2, default=float))
     typer.echo(f"figure: {fig}")
     typer.echo(f"report: {rep}")
     for p in written:
-        found_by_name = params_dir is None or Path(p).parent.resolve() == user_dir("sim_backend").resolve()
+        found_by_name = p.parent.resolve() == user_dir("sim_backend").resolve()
         typer.echo(f"parameter set: {p}  (select with sim.params: {name if found_by_name else p})")
 
 
