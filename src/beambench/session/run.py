@@ -62,7 +62,15 @@ def run_session(
         if rerun_mode != "off":
             from beambench.sinks.rerun_view import RerunSink
 
-            sinks.append(RerunSink(rerun_mode, path.stem, path.with_suffix(".rrd"), t0_ns=rig.clock.now_ns()))
+            sinks.append(
+                RerunSink(
+                    rerun_mode,
+                    path.stem,
+                    path.with_suffix(".rrd"),
+                    t0_ns=rig.clock.now_ns(),
+                    calibration=default_calibration(),  # the one stored in /general: forces in N live
+                )
+            )
         hub = Hub(sinks, critical=(writer,))
         hub.open(specs)
     except BaseException:
