@@ -185,6 +185,8 @@ def test_cli_errors_are_one_line_and_exit_2(tmp_path):
         assert res.exit_code == 2, (args, res.output)
         assert res.exception is None or isinstance(res.exception, SystemExit)
         assert "beambench: error:" in res.output and "Traceback" not in res.output
+    res = runner.invoke(app, ["natnet", "decode", str(bad)])
+    assert f"beambench: error: {bad}: not a pcap" in res.stderr  # the message names the file
 
 
 # ------------------------------------------------------------------------- a pcap we write ourselves

@@ -51,7 +51,8 @@ def decode(
     try:
         decoded = decode_capture(capture, natnet_version, port_list)
     except CaptureError as exc:
-        fail(str(exc))
+        message = str(exc)
+        fail(message if str(capture) in message else f"{capture}: {message}")
     except ValueError as exc:
         fail(f"{capture}: {exc}")
     table = frames_table(decoded)
