@@ -1,5 +1,7 @@
 """Load-cell calibration: per-channel tare, least-squares matrix, and the `calibrate loadcells` walkthrough."""
 
+import io
+
 import numpy as np
 import pytest
 import typer
@@ -123,7 +125,7 @@ def test_walkthrough_over_a_pty_with_a_person_placing_weights():
         lc.start()
         mcu.start()
         loads = [(1.0, 0.0), (0.0, 1.0), (2.0, 0.5), (0.5, -0.5)]
-        console = Console(file=open("/dev/null", "w"))
+        console = Console(file=io.StringIO())
         cal, fit = walkthrough(lc, loads, ask, console, settle_s=0.1, duration_s=0.2)
     finally:
         lc.stop()

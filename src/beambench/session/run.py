@@ -15,7 +15,7 @@ from rich.progress import (
 
 from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import ReportsAfterRun
-from beambench.acquisition.config import Protocol
+from beambench.acquisition.config import Backend, Protocol
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
@@ -29,7 +29,7 @@ from beambench.sinks.hdf5 import SessionWriter, append_general
 def run_session(
     protocol: Protocol,
     protocol_text: str,
-    backend: str,
+    backend: Backend,
     path: Path,
     rerun_mode: RerunMode = "off",
     realtime: bool = False,
