@@ -19,7 +19,7 @@ def _beambench(*args: str) -> subprocess.CompletedProcess:
         (["run"], "Missing argument 'PROTOCOL'"),
         (["frobnicate"], "No such command 'frobnicate'"),
         (["bench", "models", "--quick", "--out"], "Option '--out' requires an argument"),
-        (["run", "protocols/contact_sweep.yaml", "--rerun", "bogus"], "--rerun = 'bogus'"),
+        (["run", "protocols/contact_sweep.yaml", "--rerun", "bogus"], "'bogus' is not one of 'spawn'"),
     ],
 )
 def test_usage_errors_are_one_line_and_exit_2(args, words):

@@ -1,5 +1,7 @@
 """Load-cell calibration: per-channel tare, least-squares matrix, and the `calibrate loadcells` walkthrough."""
 
+import io
+
 import numpy as np
 import pytest
 import typer
@@ -123,7 +125,7 @@ def test_walkthrough_over_a_pty_with_a_person_placing_weights():
         lc.start()
         mcu.start()
         loads = [(1.0, 0.0), (0.0, 1.0), (2.0, 0.5), (0.5, -0.5)]
-        console = Console(file=open("/dev/null", "w"))
+        console = Console(file=io.StringIO())
         cal, fit = walkthrough(lc, loads, ask, console, settle_s=0.1, duration_s=0.2)
     finally:
         lc.stop()
@@ -194,8 +196,9 @@ def test_cli_bad_input_is_one_line_and_exit_2(args, message):
         app(), ["calibrate", "loadcells", "--duration", "0.1", "--settle", "0", *args], input="\n" * 5
     )
     assert r.exit_code == 2
-    assert message in r.stderr and len(r.stderr.strip().splitlines()) == 1
-    assert "Traceback" not in r.output
+    errors = [line for line in r.stderr.splitlines() if line.startswith("beambench: error:")]
+    assert len(errors) == 1 and message in errors[0] and r.stderr.strip().endswith(errors[0])  # one line, last
+    assert "Traceback" not in r.output and r.stdout == ""  # chatter on stderr; nothing saved, no result
 
 
 def test_cli_no_answer_on_stdin_is_a_clean_abort():

@@ -21,17 +21,16 @@ from beambench.cli import app
 from beambench.devices import natnet_protocol as nn
 from beambench.devices.natnet_capture import decode_capture, frames_table
 from beambench.devices.pcap import CaptureError, read_udp
+from conftest import require_shared, shared_path
 
-FIXTURES = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "natnet"
+FIXTURES = shared_path("fixtures", "natnet")
 CAPTURE = FIXTURES / "traffic.pcapng"
 PRINTOUT = FIXTURES / "SampleClient_output.txt"
 
 
 @pytest.fixture(scope="module")
 def decoded():
-    if not CAPTURE.is_file():
-        pytest.skip(f"Motive capture {CAPTURE} not found (../shared is absent in this checkout)")
-    return decode_capture(CAPTURE)
+    return decode_capture(require_shared("fixtures", "natnet", CAPTURE.name))
 
 
 def parse_printout(text: str) -> dict[int, dict]:
@@ -83,7 +82,7 @@ def parse_printout(text: str) -> dict[int, dict]:
 def f2(x: float) -> str:
     """``printf("%.2f")`` as the MSVC-built sample client does it: the value is first rounded to 17 significant
     digits, then half away from zero (so 1356.175, stored as 1356.17499999999995…, prints as 1356.18)."""
-    return str(Decimal("%.16e" % x).quantize(Decimal("0.01"), rounding=ROUND_HALF_UP))
+    return str(Decimal(f"{x:.16e}").quantize(Decimal("0.01"), rounding=ROUND_HALF_UP))
 
 
 def test_all_518_frames_decode_in_order(decoded):
@@ -102,9 +101,7 @@ def test_all_518_frames_decode_in_order(decoded):
 
 
 def test_frames_match_the_sample_client_field_by_field(decoded):
-    if not PRINTOUT.is_file():
-        pytest.skip(f"{PRINTOUT} not found (../shared is absent in this checkout)")
-    printed = parse_printout(PRINTOUT.read_text())
+    printed = parse_printout(require_shared("fixtures", "natnet", PRINTOUT.name).read_text())
     assert len(printed) == 251
     freq = decoded.server_info.clock_frequency
     ours = {f.frame_number: f for _, f in decoded.frames}
@@ -145,9 +142,9 @@ def test_capture_holds_the_handshake(decoded):
     msgs = [nn.decode(g.payload, (3, 0)) for g in read_udp(CAPTURE, [1510, 1511])]
     kinds = [type(m).__name__ for m in msgs]
     assert kinds.count("FrameOfData") == 518 and kinds.count("EchoResponse") == 9
-    rate = [m for m in msgs if isinstance(m, nn.Response) and len(m.payload_bytes) == 4][0]
+    rate = next(m for m in msgs if isinstance(m, nn.Response) and len(m.payload_bytes) == 4)
     assert rate.as_float() == 120.0  # the "FrameRate" answer
-    md = [m for m in msgs if isinstance(m, nn.ModelDef)][0]
+    md = next(m for m in msgs if isinstance(m, nn.ModelDef))
     assert md.rigid_bodies()[0].name == "RaceQuad"
     first_frame = next(g.payload for g in read_udp(CAPTURE, [1511]) if nn.peek_message_id(g.payload) == 7)
     if (FIXTURES / "mocapframe_packet_v3.bin").is_file():
@@ -188,6 +185,8 @@ def test_cli_errors_are_one_line_and_exit_2(tmp_path):
         assert res.exit_code == 2, (args, res.output)
         assert res.exception is None or isinstance(res.exception, SystemExit)
         assert "beambench: error:" in res.output and "Traceback" not in res.output
+    res = runner.invoke(app, ["natnet", "decode", str(bad)])
+    assert f"beambench: error: {bad}: not a pcap" in res.stderr  # the message names the file
 
 
 # ------------------------------------------------------------------------- a pcap we write ourselves

@@ -2,25 +2,22 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import struct
-from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from beambench.devices import natnet_protocol as nn
+from conftest import require_shared
 
-FIXTURES = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "natnet"
 V30, V40, V41 = nn.V3_0, nn.V4_0, nn.V4_1
 
 
 def fixture(name: str) -> bytes:
-    path = FIXTURES / name
-    if not path.is_file():
-        pytest.skip(f"NatNet fixture {path} not found (../shared is absent in this checkout)")
-    return path.read_bytes()
+    return require_shared("fixtures", "natnet", name).read_bytes()
 
 
 # ------------------------------------------------------------------------------------------ real v3 packets
@@ -139,10 +136,8 @@ def test_every_truncation_of_the_real_packets_raises_the_parse_error_only():
         for n in range(len(raw)):
             cut = raw[:n]
             cut = cut[:2] + struct.pack("<H", max(0, n - 4)) + cut[4:] if n >= 4 else cut  # consistent header
-            try:
+            with contextlib.suppress(nn.NatNetParseError):
                 nn.decode(cut, V30)
-            except nn.NatNetParseError:
-                pass
 
 
 # ------------------------------------------------------------------------------------------ round trips
@@ -335,10 +330,8 @@ VERSIONS = st.sampled_from([None, V30, V40, V41, nn.Version(4, 2), nn.Version(2,
 
 
 def check_only_parse_error(packet: bytes, version) -> None:  # type: ignore[no-untyped-def]
-    try:
+    with contextlib.suppress(nn.NatNetParseError):
         nn.decode(packet, version)
-    except nn.NatNetParseError:
-        pass
 
 
 @settings(max_examples=1500, deadline=None)

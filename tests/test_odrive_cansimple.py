@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import struct
-from pathlib import Path
 
 import can
 import pytest
@@ -12,9 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from beambench.devices import odrive_cansimple as cs
-
-SHARED = Path(__file__).resolve().parents[1] / ".." / "shared"
-DBC = SHARED / "fixtures" / "odrive" / "odrive-cansimple.dbc"
+from conftest import require_shared
 
 f32 = st.floats(width=32, allow_nan=False, allow_infinity=False)
 u32 = st.integers(0, 2**32 - 1)
@@ -68,10 +65,9 @@ messages = st.one_of(
 
 @pytest.fixture(scope="module")
 def db():
-    if not DBC.exists():
-        pytest.skip(f"ODrive DBC oracle not found at {DBC} (../shared is absent in this checkout)")
+    dbc = require_shared("fixtures", "odrive", "odrive-cansimple.dbc")
     cantools = pytest.importorskip("cantools", reason="cantools (dev extra) is the DBC oracle")
-    return cantools.database.load_file(str(DBC))
+    return cantools.database.load_file(str(dbc))
 
 
 def _ours(msg) -> dict[str, float | int]:
@@ -94,7 +90,7 @@ def test_everything_we_encode_decodes_identically_in_the_dbc(db, msg, node_id):
 @settings(max_examples=300, deadline=None)
 @given(msg=messages, node_id=node)
 def test_everything_cantools_encodes_we_decode_back(db, msg, node_id):
-    name, sigs = MAPPING[type(msg)]
+    name, _sigs = MAPPING[type(msg)]
     dbc_msg = db.get_message_by_name(f"Axis{node_id}_{name}")
     data = dbc_msg.encode(_ours(msg), strict=False)
     got_node, got = cs.parse_frame(dbc_msg.frame_id, data)

@@ -37,13 +37,12 @@ def short_run(tmp_path_factory):
     proto.write_text(SHORT)
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(out), "--name", "s", "--rerun", "save"])
     assert res.exit_code == 0, res.output
-    return out, res.output
+    return out, res.stdout
 
 
-def test_prints_session_and_rrd_paths(short_run):
-    out, output = short_run
-    lines = [ln for ln in output.splitlines() if ln.endswith((".h5", ".rrd"))]
-    assert lines[-2:] == [str(out / "s.h5"), str(out / "s.rrd")]
+def test_stdout_is_only_the_paths_with_the_session_last(short_run):
+    out, stdout = short_run  # the progress bar and notes go to stderr, so S=$(beambench run … | tail -n1) works
+    assert stdout.splitlines() == [str(out / "s.rrd"), str(out / "s.h5")]
 
 
 def test_session_sample_counts_steps_and_general(short_run):
@@ -56,7 +55,7 @@ def test_session_sample_counts_steps_and_general(short_run):
     assert list(s.steps["status"]) == ["done"] * 3
     assert s.general["protocol"] == SHORT
     assert s.general["backend"] == "sim"
-    assert list(s.events["kind"])[0] == "start" and list(s.events["kind"])[-1] == "stop"
+    assert s.events["kind"].iloc[0] == "start" and s.events["kind"].iloc[-1] == "stop"
     for st in s.streams.values():  # every sample has both clocks
         assert np.all(np.diff(st.host_time_ns) > 0)
         assert np.all(np.isfinite(st.device_time))
@@ -74,6 +73,42 @@ def test_rrd_holds_the_same_sample_counts(short_run):
     for marker in ("stage", "tip", "foot"):
         assert rows[f"/mocap/{marker}"] == len(s.streams["mocap"])
     assert rows["/motor/velocity"] == len(s.streams["motor"])
+
+
+def test_rrd_is_written_in_few_large_chunks_with_forces_in_newtons(short_run):
+    """Columns are gathered per entity (~2 MiB a chunk), not one chunk per batch: this short run fits in one
+    chunk per entity (it came out as one per ~0.5 s batch, 6+ each, before); plate forces are there in N."""
+    from beambench.analysis.session import session_calibration
+
+    out, _ = short_run
+    s = read_session(out / "s.h5")
+    chunks: dict[str, list] = {}
+    for chunk in rc.RrdReader(out / "s.rrd").stream():
+        if not chunk.is_static:
+            chunks.setdefault(chunk.entity_path, []).append(chunk)
+    assert all(len(c) == 1 for c in chunks.values()), {k: len(c) for k, c in chunks.items()}
+    force = session_calibration(s.general).force_from_counts(s.streams["loadcell"].columns["data"])
+    for j, name in enumerate(("normal", "tangential")):
+        batch = chunks[f"/force/{name}"][0].to_record_batch()
+        values = np.concatenate([np.asarray(v) for v in batch.column("Scalars:scalars").to_pylist()])
+        assert len(values) == len(force)
+        np.testing.assert_allclose(values, force[:, j], atol=1e-9)
+    counts = s.streams["loadcell"].columns["data"]
+    assert np.abs(counts).max() > 100 and np.abs(force).max() < 1  # newtons beside the raw counts
+
+
+def test_view_never_overwrites_the_rrd_that_run_saved(short_run, tmp_path):
+    out, _ = short_run
+    before = (out / "s.rrd").read_bytes()
+    runner = CliRunner()
+    first = runner.invoke(app, ["view", str(out / "s.h5"), "--rerun", "save"])
+    second = runner.invoke(app, ["view", str(out / "s.h5"), "--rerun", "save"])
+    assert first.exit_code == 0 and second.exit_code == 0, first.output + second.output
+    assert first.stdout.strip() == str(out / "s_view.rrd") and second.stdout.strip() == str(out / "s_view_1.rrd")
+    assert (out / "s.rrd").read_bytes() == before
+    refused = runner.invoke(app, ["view", str(out / "s.h5"), "--rerun", "save", "--out", str(out / "s.rrd")])
+    assert refused.exit_code == 2 and "never overwrites" in refused.stderr
+    assert (out / "s.rrd").read_bytes() == before
 
 
 def test_stage_frequency_and_amplitude_match_command(short_run):
@@ -97,7 +132,7 @@ def _sine_fit(t, x, f0):
     best = (np.inf, f0, 0.0)
     for f in np.linspace(f0 - 0.5, f0 + 0.5, 401):
         a = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
-        coef, res, *_ = np.linalg.lstsq(a, x, rcond=None)
+        coef = np.linalg.lstsq(a, x, rcond=None)[0]
         r = float(np.sum((a @ coef - x) ** 2))
         if r < best[0]:
             best = (r, f, float(np.hypot(coef[0], coef[1])))

@@ -12,7 +12,7 @@ import html
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import numpy as np
 import pandas as pd
@@ -21,6 +21,9 @@ import yaml
 from beambench.analysis.contact import REGIME_ORDER
 from beambench.analysis.session import SessionAnalysis, StepResult
 from beambench.analysis.trajectory import mean_path
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 REGIME_COLORS = {
     "1": "#1f77b4",
@@ -51,26 +54,70 @@ PATH_CYCLES = 6
 PAPER_WALKER = [(23.0, -35.7), (65.0, 156.3)]  # Sec. IV-B, mm/s
 
 
-def _plt():
-    import matplotlib
+STYLE: dict[str, Any] = {
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "font.size": 10,
+    "axes.titlesize": 10,
+    "legend.fontsize": 9,
+    "legend.frameon": False,
+}
+R2_SENSE_MIN = 0.5  # below this share of the path explained by the first-harmonic ellipse, its sense is uncertain
+UNCERTAIN = "0.55"  # colour of an uncertain sense
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    plt.rcParams.update(
-        {
-            "figure.dpi": 110,
-            "axes.grid": True,
-            "grid.alpha": 0.3,
-            "axes.spines.top": False,
-            "axes.spines.right": False,
-            "font.size": 10,
-            "axes.titlesize": 10,
-            "legend.fontsize": 9,
-            "legend.frameon": False,
-        }
-    )
-    return plt
+def _styled(fn: Callable[..., Path | None]) -> Callable[..., Path | None]:
+    """Build the figure under the report's style without touching the global rcParams or pyplot's backend."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Path | None:
+        import matplotlib
+
+        with matplotlib.rc_context(cast(Any, STYLE)):
+            return fn(*args, **kwargs)
+
+    return wrapper
+
+
+def _figure(figsize: tuple[float, float], layout: Literal["constrained"] | None = "constrained") -> Figure:
+    """A figure of its own (not pyplot's): constrained layout keeps titles and labels inside the canvas."""
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=figsize, dpi=110, layout=layout)
+
+
+def _legend_below(fig: Figure, axes: Any, ncol: int = 4, handles: list[Any] | None = None) -> None:
+    """One legend for the figure, outside every panel (a legend inside hides traces), duplicates merged."""
+    if handles is None:
+        seen: dict[str, Any] = {}
+        for ax in np.ravel(axes):
+            for h, label in zip(*ax.get_legend_handles_labels()):
+                seen.setdefault(label, h)
+        handles_, labels = list(seen.values()), list(seen)
+    else:
+        handles_, labels = handles, [h.get_label() for h in handles]
+    if handles_:
+        fig.legend(handles_, labels, loc="outside lower center", ncol=min(ncol, len(handles_)))
+
+
+def _session_style(si: int) -> dict[str, Any]:
+    """Line style of session ``si`` in an overlay: the first broad and translucent, later ones thin and dashed
+    on top, so identical traces (equal seeds) still show both."""
+    color = SESSION_COLORS[si % len(SESSION_COLORS)]
+    if si == 0:
+        return dict(color=color, lw=2.6, alpha=0.45, ls="-", zorder=2)
+    return dict(color=color, lw=1.1, alpha=1.0, ls=(0, (4, 2)) if si == 1 else (0, (1, 1.5)), zorder=3 + si)
+
+
+def no_contact_anywhere(a: SessionAnalysis) -> bool:
+    """The session has load-cell data and the foot touched the plate in none of its steps."""
+    t = a.table
+    if "n_contacts" not in t or not len(t):
+        return False
+    return bool((t["n_contacts"].fillna(0) == 0).all())
 
 
 def primary_marker(a: SessionAnalysis) -> str | None:
@@ -118,17 +165,20 @@ def _contact_period_cycles(r: StepResult) -> int:
     return 1
 
 
+@_styled
 def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: int = 48) -> Path | None:
     """A grid of paths in the stage frame, one panel per commanded frequency, all at the same scale.
 
-    Thin: the raw path over the last cycles; bold: the phase-averaged path over the contact period (k
-    cycles in a 1/k regime) with an arrow for its sense of travel; orange: the foot's direction of motion
+    Each step is drawn about its own mean position (the mean path's centre). Thin: the raw path over the last
+    cycles; bold: the phase-averaged path over the contact period (k cycles in a 1/k regime) with an arrow for
+    its sense of travel, grey with a "?" where the first-harmonic ellipse explains less than half the path
+    (R² < 0.5); brown: the plate, at the foot's height at touchdown; orange: the foot's direction of motion
     along the plate at touchdown.
     """
-    plt = _plt()
     from matplotlib.lines import Line2D
+    from matplotlib.ticker import MaxNLocator
 
-    marker = {id(a): primary_marker(a) for a in analyses}
+    marker = {id(a): primary_marker(a) or "" for a in analyses}
     freqs = sorted({r.frequency_hz for a in analyses for r in a.steps if marker[id(a)] in r.paths})
     if not freqs:
         return None
@@ -139,13 +189,24 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
     nrow = math.ceil(n / ncol)
     walker = all(a.rig == "walker" for a in analyses)
     ref, xname = ("body", "forward") if walker else ("stage", "drive")
+    # the plate's height in the stage frame: the foot's median height at touchdown over the whole session
+    plate_up: dict[int, float] = {}
+    for a in analyses:
+        heights = [r.touchdown_xy[:, 1] for r in a.steps if len(r.touchdown_xy)]
+        if heights and not walker:
+            plate_up[id(a)] = float(np.nanmedian(np.concatenate(heights)))
     box = 0.8
     pw, ph = 1.9, 1.9 * box  # panel size (in)
-    left, right, top, bottom, gapx, gapy = 0.75, 0.2, 0.55, 0.95, 0.18, 0.42
-    width = left + right + ncol * pw + (ncol - 1) * gapx
+    left, right, top, gapx, gapy = 0.75, 0.2, 0.62, 0.18, 0.42
+    width = max(left + right + ncol * pw + (ncol - 1) * gapx, 7.5)  # room for the legend below
+    pw = (width - left - right - (ncol - 1) * gapx) / ncol
+    ph = pw * box
+    legend_cols = max(1, int(width // 3.6))
+    bottom = 0.75 + 0.22 * math.ceil(6 / legend_cols)  # x labels, then up to six legend entries
     height = top + bottom + nrow * ph + (nrow - 1) * gapy
     # a fixed layout: a layout engine spends seconds measuring 40 panels' tick labels
-    fig, axes = plt.subplots(nrow, ncol, figsize=(width, height), sharex=True, sharey=True, squeeze=False)
+    fig = _figure((width, height), layout=None)
+    axes = fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False)
     fig.subplots_adjust(
         left=left / width,
         right=1 - right / width,
@@ -157,6 +218,8 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
     single = len(analyses) == 1
     xh = yh = 0.0
     arrows: list[tuple[Any, float, float, float, str]] = []
+    plates: list[tuple[Any, float, str]] = []
+    uncertain_any = False
     for k, f in enumerate(freqs):
         ax = axes[k // ncol][k % ncol]
         for si, a in enumerate(analyses):
@@ -165,21 +228,27 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
             if r is None:
                 continue
             fa = _freq(r)
-            t, xy = _last_cycles(r.t_mocap, r.paths[m], fa)
+            xy = _last_cycles(r.t_mocap, r.paths[m], fa)[1]
             ok = np.all(np.isfinite(xy), axis=1)
             if ok.sum() < 3:
                 continue
-            c = np.nanmean(xy[ok], axis=0)
-            color = "#1f77b4" if single else SESSION_COLORS[si % len(SESSION_COLORS)]
+            kk = _contact_period_cycles(r)
+            mp = mean_path(r.t_mocap, r.paths[m], kk / fa)
+            # the centre every line of this step is drawn about: the mean path's (steady), else the raw path's
+            c = np.nanmean(mp, axis=0) if len(mp) > 3 else np.nanmean(xy[ok], axis=0)
+            style: dict[str, Any] = dict(color="#1f77b4", lw=1.8) if single else _session_style(si)
+            color = str(style["color"])
             if single:
                 ax.plot(xy[ok, 0] - c[0], xy[ok, 1] - c[1], lw=0.5, color=color, alpha=0.3)
                 lo, hi = np.percentile(xy[ok] - c, [0.5, 99.5], axis=0)
                 xh, yh = max(xh, abs(lo[0]), abs(hi[0])), max(yh, abs(lo[1]), abs(hi[1]))
-            kk = _contact_period_cycles(r)
-            mp = mean_path(r.t_mocap, r.paths[m], kk / fa) - c
             if len(mp) > 3:
-                ax.plot(mp[:, 0], mp[:, 1], lw=1.8, color=color)
+                mp = mp - c
+                ax.plot(mp[:, 0], mp[:, 1], **style)
                 xh, yh = max(xh, float(np.max(np.abs(mp[:, 0])))), max(yh, float(np.max(np.abs(mp[:, 1]))))
+                r2 = float(r.row.get(f"{m}_ellipse_r2", np.nan))
+                sure = bool(np.isfinite(r2) and r2 >= R2_SENSE_MIN)
+                uncertain_any |= not sure
                 j = int(np.argmax(mp[:, 1]))  # sense of travel at the top of the path
                 j2 = min(j + 2, len(mp) - 1)
                 if j2 > j:
@@ -187,8 +256,23 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
                         "",
                         xy=mp[j2],
                         xytext=mp[j],
-                        arrowprops=dict(arrowstyle="-|>", color=color, lw=1.4, mutation_scale=12),
+                        arrowprops=dict(
+                            arrowstyle="-|>", color=color if sure else UNCERTAIN, lw=1.4, mutation_scale=12
+                        ),
+                        zorder=5,
                     )
+                    if not sure:
+                        ax.annotate(
+                            "?",
+                            xy=mp[j2],
+                            xytext=(4, 3),
+                            textcoords="offset points",
+                            color=UNCERTAIN,
+                            fontsize=10,
+                            fontweight="bold",
+                        )
+            if id(a) in plate_up:
+                plates.append((ax, plate_up[id(a)] - float(c[1]), "#8c564b" if single else color))
             if len(r.touchdown_xy) and np.isfinite(r.touchdown_v).any():
                 td = np.nanmedian(r.touchdown_xy, axis=0) - c
                 sgn = float(np.sign(np.nanmedian(r.touchdown_v)))
@@ -208,6 +292,9 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
                     fontweight="bold",
                 )
         ax.set_title(f"{f:g} Hz", pad=2, y=1.0)  # a fixed y skips measuring tick labels (slow)
+    for _, y, _ in plates:  # keep a plate the foot touches in view (it sits just below the path)
+        if abs(y) < 1.6 * max(yh, 1e-9):
+            yh = max(yh, abs(y))
     xh, yh = (xh or 1.0) * 1.12, (yh or 1.0) * 1.12
     exaggeration = box * xh / yh
     if exaggeration < 1.0:
@@ -220,10 +307,14 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
             "", xy=(x + sgn * 0.4 * xh, y), xytext=(x, y), arrowprops=dict(arrowstyle="-|>", color=color, lw=1.8)
         )
         ax.plot([x], [y], "o", ms=3.5, color=color)
+    below = 0
+    for ax, y, color in plates:
+        if abs(y) <= yh:
+            ax.axhline(y, color=color, lw=1.6, alpha=0.6, zorder=1)
+        else:
+            below += 1
     for k in range(len(freqs), nrow * ncol):
         axes[k // ncol][k % ncol].set_visible(False)
-    from matplotlib.ticker import MaxNLocator
-
     axes[0][0].set_xlim(-xh, xh)
     axes[0][0].set_ylim(-yh, yh)
     axes[0][0].xaxis.set_major_locator(MaxNLocator(4, symmetric=True))  # shared by every panel
@@ -256,30 +347,48 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
                     [], [], color="#ff7f0e", marker="o", ms=3.5, lw=1.8, label="touchdown: direction along the plate"
                 )
             )
+        if plates:
+            handles.append(Line2D([], [], color="#8c564b", lw=2.2, label="plate (foot height at touchdown)"))
     else:
         handles += [
-            Line2D([], [], color=SESSION_COLORS[i % 4], lw=1.8, label=f"{a.label} ({marker[id(a)]})")
+            Line2D([], [], **{**_session_style(i), "zorder": None}, label=f"{a.label} ({marker[id(a)]})")
             for i, a in enumerate(analyses)
         ]
         if arrows:
             handles.append(Line2D([], [], color="0.4", marker="o", ms=3.5, lw=1.8, label="touchdown direction"))
-    title = f"Paths relative to the {ref}, each centred, same scale"
+        if plates:
+            handles.append(Line2D([], [], color="0.4", lw=2.2, alpha=0.8, label="plate (foot height at touchdown)"))
+    if uncertain_any:
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=UNCERTAIN,
+                marker="$?$",
+                ms=7,
+                lw=1.4,
+                label=f"sense uncertain (ellipse R² < {R2_SENSE_MIN:g})",
+            )
+        )
+    title = f"{'/'.join(sorted(names)).capitalize()} paths relative to the {ref}; each step drawn about its own mean position, same scale"
     if exaggeration >= 1.5:
         title += f" (vertical ×{exaggeration:.0f})"
-    fig.suptitle(title, y=1 - 0.12 / height, va="top")
-    fig.legend(handles=handles, loc="lower center", ncol=len(handles), bbox_to_anchor=(0.5, 0.02 / height * 0 + 0.0))
+    if below and plate_up:
+        title += "\nno contact in panels without a plate line: the plate is further below"
+    fig.suptitle(title, y=1 - 0.1 / height, va="top")
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), legend_cols), bbox_to_anchor=(0.5, 0.0))
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
+@_styled
 def fig_contact_frequency(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     """Contact frequency against input frequency, coloured by regime, with f, f/2, f/3 guides (Fig. 1b)."""
     tables = [(a, _table(a)) for a in analyses if "contact_frequency_hz" in a.table]
     if not tables:
         return None
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(7.5, 5.0))
+    fig = _figure((7.5, 5.0))
+    ax = fig.subplots()
     fmax = max(float(t["frequency_hz"].max()) for _, t in tables)
     xs = np.linspace(0, fmax * 1.05, 50)
     for k, ls in ((1, "-"), (2, "--"), (3, ":")):
@@ -288,20 +397,22 @@ def fig_contact_frequency(analyses: list[SessionAnalysis], path: Path) -> Path |
     single = len(tables) == 1
     for si, (a, t) in enumerate(tables):
         y = t["contact_frequency_hz"].fillna(0.0)
-        if not single:  # one colour and marker per session; later sessions hollow so both stay visible
-            c = SESSION_COLORS[si % 4]
+        if not single:  # one colour and marker per session; later sessions hollow and dashed on top
+            st = _session_style(si)
+            c = st["color"]
             ax.plot(
                 t["frequency_hz"],
                 y,
                 color=c,
-                lw=0.8,
-                alpha=0.7,
+                lw=st["lw"],
+                ls=st["ls"],
+                alpha=0.8,
                 marker=SESSION_MARKERS[si % 4],
-                ms=6 if si else 5,
+                ms=9 if si == 0 else 5,
                 mfc=c if si == 0 else "none",
                 mec=c,
                 label=a.label,
-                zorder=3 - si * 0.1,
+                zorder=st["zorder"],
             )
             continue
         present = [r for r in REGIME_ORDER if r in set(t["regime"])] + sorted(set(t["regime"]) - set(REGIME_ORDER))
@@ -327,10 +438,8 @@ def fig_contact_frequency(analyses: list[SessionAnalysis], path: Path) -> Path |
     ax.set_title(
         "Contact frequency vs input frequency" + ("" if single else " — " + " vs ".join(a.label for a, _ in tables))
     )
-    ax.legend(loc="upper left")
-    fig.tight_layout()
+    _legend_below(fig, ax)
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
@@ -358,15 +467,17 @@ def choose_force_frequencies(
     return sorted(out)
 
 
+@_styled
 def fig_forces(
     analyses: list[SessionAnalysis], path: Path, frequencies: list[float], cycles: float = 6.0
 ) -> Path | None:
     """Normal and tangential plate force over a few drive cycles at chosen frequencies (Fig. 4b)."""
     if not frequencies:
         return None
-    plt = _plt()
     ncol = len(frequencies)
-    fig, axes = plt.subplots(2, ncol, figsize=(4.2 * ncol + 0.6, 5.6), sharex="col", squeeze=False)
+    fig = _figure((4.2 * ncol + 0.6, 6.0))
+    axes = fig.subplots(2, ncol, sharex="col", squeeze=False)
+    regimes: dict[int, list[str]] = {}
     for j, f in enumerate(frequencies):
         for si, a in enumerate(analyses):
             r = next((r for r in a.steps if r.frequency_hz == f and r.contacts is not None), None)
@@ -379,11 +490,12 @@ def fig_forces(
                 t0 = max(r.t_force[0], float(c.touchdown_s[0]) - 0.5 / fa)
             sel = (r.t_force >= t0) & (r.t_force <= t0 + cycles / fa)
             tt = (r.t_force[sel] - t0) * 1e3
-            color = SESSION_COLORS[si % 4]
+            style = dict(color=SESSION_COLORS[0], lw=0.9) if len(analyses) == 1 else _session_style(si)
             reg, ratio = r.row.get("regime", ""), r.row.get("contacts_per_cycle", np.nan)
-            lbl = f"{a.label}: {reg} ({ratio:.2f}/cycle)" if len(analyses) > 1 else None
-            axes[0][j].plot(tt, r.force[sel, 0], lw=0.9, color=color, label=lbl)
-            axes[1][j].plot(tt, r.force[sel, 1], lw=0.9, color=color, label=lbl)
+            regimes.setdefault(j, []).append(f"{a.label}: {reg or 'none'} ({ratio:.2f}/cycle)")
+            lbl = a.label if len(analyses) > 1 else None
+            axes[0][j].plot(tt, r.force[sel, 0], label=lbl, **style)
+            axes[1][j].plot(tt, r.force[sel, 1], label=lbl, **style)
             if len(analyses) == 1 and c is not None:
                 for s, e in zip(c.start_s, c.end_s):
                     if e >= t0 and s <= t0 + cycles / fa:
@@ -398,36 +510,35 @@ def fig_forces(
             if len(analyses) == 1:
                 axes[0][j].set_title(f"{f:g} Hz: {REGIME_NAMES.get(reg, reg)} ({ratio:.2f} per cycle)")
             else:
-                axes[0][j].set_title(f"{f:g} Hz")
+                axes[0][j].set_title(f"{f:g} Hz\n" + "\n".join(regimes.get(j, [])), fontsize=9)
         axes[1][j].set_xlabel("time (ms); grey lines = drive periods")
         axes[1][j].axhline(0, color="0.3", lw=0.6)
     axes[0][0].set_ylabel("normal force (N)")
     axes[1][0].set_ylabel("tangential force (N)")
     if len(analyses) > 1:
-        for j in range(ncol):
-            axes[0][j].legend(loc="upper right", fontsize=8)
+        _legend_below(fig, axes)
     else:
         from matplotlib.lines import Line2D
         from matplotlib.patches import Patch
 
-        axes[0][-1].legend(
+        _legend_below(
+            fig,
+            axes,
             handles=[
                 Patch(color="#ff7f0e", alpha=0.25, label="contact"),
-                Line2D([], [], color="0.5", ls=":", label="on threshold"),
+                Line2D([], [], color="0.5", ls=":", label="contact threshold (normal force)"),
             ],
-            loc="upper right",
         )
     fig.suptitle("Plate forces (calibrated)")
-    fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
+@_styled
 def fig_frequency(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     """Commanded vs measured drive frequency (stage marker and motor encoder) and the stage amplitude."""
-    plt = _plt()
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.3))
+    fig = _figure((14, 4.3))
+    axes = fig.subplots(1, 3)
     anything = False
     for si, a in enumerate(analyses):
         t = _table(a)
@@ -450,7 +561,6 @@ def fig_frequency(analyses: list[SessionAnalysis], path: Path) -> Path | None:
             if cmd is not None and cmd.notna().any():
                 axes[2].axhline(float(cmd.dropna().iloc[0]), color=c, ls="--", lw=1, label="commanded" + suffix)
     if not anything:
-        plt.close(fig)
         return None
     lim = [0, max(float(a.table["frequency_hz"].max()) for a in analyses) * 1.05]
     axes[0].plot(lim, lim, color="0.6", lw=1, label="measured = commanded")
@@ -461,16 +571,14 @@ def fig_frequency(analyses: list[SessionAnalysis], path: Path) -> Path | None:
         xlabel="commanded frequency (Hz)", ylabel="stage amplitude (mm)", title="Stage amplitude (A of x = A·sin 2πft)"
     )
     for ax in axes:
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(loc="upper left" if ax is axes[0] else "best" if len(analyses) > 2 else "lower right")
-        else:  # e.g. the walker has no stage marker
+        if not ax.get_legend_handles_labels()[0]:  # e.g. the walker has no stage marker
             ax.text(0.5, 0.5, "no data in this session", transform=ax.transAxes, ha="center", color="0.5")
-    fig.tight_layout()
+    _legend_below(fig, axes, ncol=6)
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
+@_styled
 def fig_walking(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     """Walker body speed (signed, mm/s) against drive frequency, with the paper's two reported points."""
     tabs = [
@@ -478,8 +586,8 @@ def fig_walking(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     ]
     if not tabs:
         return None
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(7.5, 4.6))
+    fig = _figure((7.5, 4.6))
+    ax = fig.subplots()
     for si, (a, t) in enumerate(tabs):
         err = t.get("body_speed_stderr_mm_s")
         ax.errorbar(
@@ -497,17 +605,16 @@ def fig_walking(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     px, py = zip(*PAPER_WALKER)
     ax.plot(px, py, "*", ms=13, mfc="none", mec="k", label="paper (Sec. IV-B)")
     ax.set(xlabel="drive frequency (Hz)", ylabel="body speed (mm/s, + forward)", title="Walking speed vs frequency")
-    ax.legend(loc="upper left")
-    fig.tight_layout()
+    _legend_below(fig, ax)
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
+@_styled
 def fig_ellipse(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     """Ellipse of the tip path (major, minor axes and tilt) against frequency; filled = counter-clockwise."""
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.3))
+    fig = _figure((12, 4.3))
+    axes = fig.subplots(1, 2)
     anything = False
     for si, a in enumerate(analyses):
         t = _table(a)
@@ -518,20 +625,34 @@ def fig_ellipse(analyses: list[SessionAnalysis], path: Path) -> Path | None:
         c = SESSION_COLORS[si % 4]
         sfx = f" ({a.label})" if len(analyses) > 1 else ""
         f = t["frequency_hz"]
-        axes[0].plot(f, t[f"{m}_major_mm"], "-", color=c, lw=1.2, label=f"{m} major axis{sfx}")
-        axes[0].plot(f, t[f"{m}_minor_mm"], "--", color=c, lw=1.2, label=f"{m} minor axis{sfx}")
+        lw = 2.4 if len(analyses) > 1 and si == 0 else 1.2
+        alpha = 0.5 if len(analyses) > 1 and si == 0 else 1.0
+        axes[0].plot(f, t[f"{m}_major_mm"], "-", color=c, lw=lw, alpha=alpha, label=f"{m} major axis{sfx}")
+        axes[0].plot(f, t[f"{m}_minor_mm"], "--", color=c, lw=lw, alpha=alpha, label=f"{m} minor axis{sfx}")
         sense = t[f"{m}_sense"].astype(str)
+        r2 = t.get(f"{m}_ellipse_r2", pd.Series(np.nan, index=t.index)).astype(float)
+        sure = r2 >= R2_SENSE_MIN
         names = {"ccw": "counter-clockwise", "cw": "clockwise", "": "line (no sense)"}
+        size = 60 if len(analyses) > 1 and si == 0 else 28
         for s, style in (
             ("ccw", dict(marker="o", facecolors=c, edgecolors=c)),
             ("cw", dict(marker="o", facecolors="none", edgecolors=c)),
             ("", dict(marker="x", c=c)),
         ):
-            sel = sense == s
+            sel = (sense == s) & (sure | (s == ""))
             if sel.any():
-                axes[1].scatter(f[sel], t[f"{m}_tilt_deg"][sel], s=28, label=f"{names[s]}{sfx}", **style)
+                axes[1].scatter(f[sel], t[f"{m}_tilt_deg"][sel], s=size, label=f"{names[s]}{sfx}", **style)
+        unsure = (sense != "") & ~sure
+        if unsure.any():
+            axes[1].scatter(
+                f[unsure],
+                t[f"{m}_tilt_deg"][unsure],
+                s=size * 1.6,
+                marker="$?$",
+                c=UNCERTAIN,
+                label=f"sense uncertain (ellipse R² < {R2_SENSE_MIN:g}){sfx}",
+            )
     if not anything:
-        plt.close(fig)
         return None
     axes[0].set(xlabel="drive frequency (Hz)", ylabel="axis length (mm)", title="First-harmonic ellipse: axes")
     axes[1].set(
@@ -540,14 +661,12 @@ def fig_ellipse(analyses: list[SessionAnalysis], path: Path) -> Path | None:
         title="Tilt and sense of travel",
     )
     axes[1].axhline(0, color="0.6", lw=0.8)
-    axes[0].legend(loc="upper right")
-    axes[1].legend(loc="lower right")
-    fig.tight_layout()
+    _legend_below(fig, axes, ncol=4)
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
+@_styled
 def fig_contact_direction(analyses: list[SessionAnalysis], path: Path) -> Path | None:
     """Foot velocity along the plate at touchdown and the mean tangential force, against frequency (Fig. 4)."""
     tabs = [
@@ -557,8 +676,8 @@ def fig_contact_direction(analyses: list[SessionAnalysis], path: Path) -> Path |
     ]
     if not tabs:
         return None
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.3), sharex=True)
+    fig = _figure((12, 4.3))
+    axes = fig.subplots(1, 2, sharex=True)
     single = len(tabs) == 1
     for si, (a, t) in enumerate(tabs):
         f = t["frequency_hz"]
@@ -589,28 +708,29 @@ def fig_contact_direction(analyses: list[SessionAnalysis], path: Path) -> Path |
         from matplotlib.lines import Line2D
 
         present = [r for r in REGIME_ORDER if r in set(tabs[0][1]["regime"])]
-        axes[1].legend(
+        _legend_below(
+            fig,
+            axes,
+            ncol=6,
             handles=[
                 Line2D([], [], ls="", marker="o", color=REGIME_COLORS[r], label=REGIME_NAMES.get(r, r)) for r in present
             ],
-            loc="upper left",
         )
     else:
-        axes[1].legend(loc="upper left")
-    fig.tight_layout()
+        _legend_below(fig, axes)
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
+@_styled
 def fig_sync(analyses: list[SessionAnalysis], path: Path, max_points: int = 2500) -> Path | None:
     """Receive delay over the fitted clock (µs) against session time, per stream: a flat floor = a good fit."""
     rows = [(a, n, r) for a in analyses for n, r in a.residuals_us.items() if len(r)]
     if not rows:
         return None
-    plt = _plt()
     names = sorted({n for _, n, _ in rows})
-    fig, axes = plt.subplots(1, len(names), figsize=(4.6 * len(names), 3.8), squeeze=False)
+    fig = _figure((4.6 * len(names), 3.8))
+    axes = fig.subplots(1, len(names), squeeze=False)
     for j, n in enumerate(names):
         ax = axes[0][j]
         for si, a in enumerate(analyses):
@@ -632,11 +752,9 @@ def fig_sync(analyses: list[SessionAnalysis], path: Path, max_points: int = 2500
             if fit is not None and si == 0:
                 ax.set_title(f"{n}: drift {fit.drift_ppm:+.1f} ppm, median delay {fit.residual_median_us / 1e3:.2f} ms")
         ax.set(xlabel="session time (s)", ylabel="receive delay above fit (ms)")
-        if len(analyses) > 1:
-            ax.legend(loc="upper right", markerscale=6)
-    fig.tight_layout()
+    if len(analyses) > 1:
+        fig.legend(loc="outside lower center", ncol=len(analyses), markerscale=6)
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
@@ -688,7 +806,7 @@ def _prov_rows(a: SessionAnalysis) -> list[tuple[str, str]]:
 
 
 CAPTIONS = {
-    "trajectories": "Paths relative to the stage in the (drive, up) plane, last cycles of each record window; dashed: first-harmonic ellipse with its sense of travel; orange: the foot's direction of motion along the plate at touchdown.",
+    "trajectories": "Paths relative to the stage in the (drive, up) plane, each step drawn about its own mean position: thin, the last cycles of the record window; bold, the mean path over the contact period with an arrow for its sense of travel (grey with '?' where the first-harmonic ellipse explains less than half of the path, R² < 0.5, so the sense is uncertain); brown, the plate (the foot's height at touchdown); orange, the foot's direction of motion along the plate at touchdown.",
     "contact_frequency": "Touchdowns per second against the drive frequency (paper Fig. 1b). Guides at f, f/2, f/3. Hollow points at 0: continuous contact or none.",
     "forces": "Calibrated normal and tangential plate force over a few drive cycles (paper Fig. 4b). Shaded: detected contacts.",
     "contact_direction": "Foot velocity along the plate just before touchdown and the mean tangential force while in contact (paper Fig. 4).",
@@ -703,6 +821,55 @@ def _html_table(df: pd.DataFrame) -> str:
     return df.to_html(index=False, float_format=lambda v: f"{v:.4g}", na_rep="", border=0, classes="data")
 
 
+# The per-step columns shown in the report (the CSV has them all), with their headers and units.
+SUMMARY_COLUMNS = {
+    "frequency_hz": "drive (Hz)",
+    "measured_frequency_hz": "measured (Hz)",
+    "stage_amplitude_mm": "stage amplitude (mm)",
+    "regime": "contact regime",
+    "contacts_per_cycle": "contacts per cycle",
+    "contact_frequency_hz": "contact frequency (Hz)",
+    "peak_normal_n": "peak normal force (N)",
+    "mean_tangential_n": "mean tangential force (N)",
+    "touchdown_velocity_mm_s": "foot speed at touchdown (mm/s)",
+    "tip_major_mm": "tip ellipse major (mm)",
+    "tip_minor_mm": "tip ellipse minor (mm)",
+    "tip_sense": "tip sense",
+    "tip_ellipse_r2": "tip ellipse R²",
+    "body_speed_mm_s": "body speed (mm/s)",
+}
+
+
+def summary_table(table: pd.DataFrame) -> pd.DataFrame:
+    """The readable subset of the per-step table: a dozen columns with units in the headers, sense marked
+    uncertain where the ellipse fit is poor."""
+    cols = [c for c in SUMMARY_COLUMNS if c in table]
+    out = _sorted(table)[cols].copy()
+    if "tip_sense" in out and "tip_ellipse_r2" in out:
+        poor = ~(out["tip_ellipse_r2"].astype(float) >= R2_SENSE_MIN) & (out["tip_sense"].astype(str) != "")
+        out.loc[poor, "tip_sense"] = out.loc[poor, "tip_sense"].astype(str) + " (uncertain)"
+    return out.rename(columns=SUMMARY_COLUMNS)
+
+
+def _sorted(t: pd.DataFrame) -> pd.DataFrame:
+    return t.sort_values("frequency_hz", kind="stable") if "frequency_hz" in t else t
+
+
+def _no_contact_notes(analyses: list[SessionAnalysis]) -> list[str]:
+    """A note at the top for each session whose foot never touched the plate (contact figures are then empty)."""
+    notes = []
+    for a in analyses:
+        if no_contact_anywhere(a):
+            who = "" if len(analyses) == 1 else f" in {html.escape(a.label)}"
+            notes.append(
+                "<p class='note'><strong>No contact anywhere" + who + ":</strong> the foot never touched the plate "
+                "in any step (the normal force stayed below the contact threshold), so there are no contact "
+                "regimes, touchdowns or contact forces to show. Lower <code>sim.plate_gap_mm</code> or raise "
+                "<code>amplitude_mm</code> to bring the foot onto the plate.</p>"
+            )
+    return notes
+
+
 def write_html(analyses: list[SessionAnalysis], out: Path, figures: dict[str, Path], csv_name: str) -> Path:
     """``index.html`` with the figures, provenance, clock fits and the per-step table."""
     title = "beambench report — " + " vs ".join(html.escape(a.label) for a in analyses)
@@ -712,9 +879,12 @@ def write_html(analyses: list[SessionAnalysis], out: Path, figures: dict[str, Pa
         "<style>body{font-family:system-ui,sans-serif;margin:2em;max-width:1500px}"
         "img{max-width:100%;border:1px solid #ddd}figure{margin:1.5em 0}figcaption{color:#444;font-size:0.9em}"
         "table{border-collapse:collapse;font-size:0.85em}td,th{padding:2px 8px;border-bottom:1px solid #eee;text-align:left}"
-        "pre{background:#f6f6f6;padding:0.8em;overflow:auto}.cols{display:flex;gap:2em;flex-wrap:wrap}</style></head><body>",
+        "pre{background:#f6f6f6;padding:0.8em;overflow:auto}.cols{display:flex;gap:2em;flex-wrap:wrap}"
+        ".note{background:#fff4e0;border-left:4px solid #ff7f0e;padding:0.6em 1em}</style></head><body>",
         f"<h1>{title}</h1>",
-        f"<p>Per-step results: <a href='{csv_name}'>{csv_name}</a>. Record windows only (t_settled → t_end of each step), "
+        *_no_contact_notes(analyses),
+        f"<p>Per-step results: the main columns are at the end of this page; all of them are in "
+        f"<a href='{csv_name}'>{csv_name}</a>. Record windows only (t_settled → t_end of each step), "
         "all streams on the host clock through the fitted device clocks.</p>",
         "<h2>Provenance</h2><div class='cols'>",
     ]
@@ -753,9 +923,16 @@ def write_html(analyses: list[SessionAnalysis], out: Path, figures: dict[str, Pa
         ]
         st = a.sync_table
         parts.append(f"<h3>{html.escape(a.label)}</h3>" + _html_table(st[[c for c in cols if c in st]]))
-    parts.append("<h2>Per-step results</h2>")
+    parts.append(
+        f"<h2>Per-step results</h2><p>The main columns; every column ({max(len(a.table.columns) for a in analyses)}) "
+        f"is in <a href='{csv_name}'>{csv_name}</a>.</p>"
+    )
     for a in analyses:
-        parts.append(f"<h3>{html.escape(a.label)}</h3><div style='overflow-x:auto'>" + _html_table(a.table) + "</div>")
+        parts.append(
+            f"<h3>{html.escape(a.label)}</h3><div style='overflow-x:auto'>"
+            + _html_table(summary_table(a.table))
+            + "</div>"
+        )
     parts.append("</body></html>")
     path = out / "index.html"
     path.write_text("\n".join(parts))

@@ -3,17 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING
 
 import typer
 
+from beambench.commands import chatter, fail
+
 if TYPE_CHECKING:
     from beambench.analysis.session import AnalysisOptions, SessionAnalysis
-
-
-def _fail(message: str) -> NoReturn:
-    typer.echo(f"beambench: error: {message}", err=True)
-    raise typer.Exit(2)
 
 
 def _frequencies(text: str | None) -> list[float] | None:
@@ -22,9 +19,9 @@ def _frequencies(text: str | None) -> list[float] | None:
     try:
         vals = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        _fail(f"--force-at {text!r}: expected frequencies in Hz separated by commas, e.g. 26,40")
+        fail(f"--force-at {text!r}: expected frequencies in Hz separated by commas, e.g. 26,40")
     if not vals or any(v <= 0 for v in vals):
-        _fail(f"--force-at {text!r}: expected positive frequencies in Hz")
+        fail(f"--force-at {text!r}: expected positive frequencies in Hz")
     return vals
 
 
@@ -37,7 +34,7 @@ def _options(up: str | None, forward: str | None) -> AnalysisOptions:
             try:
                 axis_vector(value)
             except ValueError:
-                _fail(f"{name} {value!r}: expected x, y or z with an optional sign, e.g. z or -y")
+                fail(f"{name} {value!r}: expected x, y or z with an optional sign, e.g. z or -y")
     return AnalysisOptions(up=up, forward=forward)
 
 
@@ -47,18 +44,18 @@ def _load(path: Path, options: AnalysisOptions, progress, write: bool) -> Sessio
     from beambench.sinks.hdf5 import read_session
 
     if not path.is_file():
-        _fail(f"{path}: no such file")
+        fail(f"{path}: no such file")
     try:
         session = read_session(path)
     except (OSError, KeyError) as exc:
-        _fail(f"{path}: not a beambench session file ({exc})")
+        fail(f"{path}: not a beambench session file ({exc})")
     if len(session.steps) == 0:
-        _fail(f"{path}: the session has no steps to analyse")
+        fail(f"{path}: the session has no steps to analyse")
     task = progress.add_task(f"analysing {path.name}", total=len(session.steps))
     try:
         analysis = analyze_session(session, options, lambda k, n: progress.update(task, completed=k))
     except (ValueError, KeyError, IndexError) as exc:  # a malformed session: say what, no traceback
-        _fail(f"{path}: cannot analyse this session ({type(exc).__name__}: {exc})")
+        fail(f"{path}: cannot analyse this session ({type(exc).__name__}: {exc})")
     if write:
         try:
             write_results(analysis)
@@ -90,6 +87,7 @@ def _progress(quiet: bool):
         BarColumn(),
         MofNCompleteColumn(),
         TimeElapsedColumn(),
+        console=chatter(),
         disable=quiet,
         transient=True,
     )

@@ -8,18 +8,14 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import NoReturn
 
 import typer
 
-bench_app = typer.Typer(help="Benchmarks of the simulation: beam models, integrators, timesteps.", no_args_is_help=True)
+from beambench.commands import fail, sub_app
+
+bench_app = sub_app("Benchmarks of the simulation: beam models, integrators, timesteps.")
 
 DEFAULT_OUT = Path("bench_out") / "models"
-
-
-def _fail(message: str) -> NoReturn:
-    typer.echo(f"beambench: error: {message}", err=True)
-    raise typer.Exit(2)
 
 
 _MODELS_HELP = (
@@ -43,13 +39,13 @@ def models(
 ) -> None:
     """The fidelity ladder (see ``_MODELS_HELP``)."""
     if out.exists() and not out.is_dir():
-        _fail(f"--out = {str(out)!r}: exists and is not a folder")
+        fail(f"--out = {str(out)!r}: exists and is not a folder")
     if threads < 0:
-        _fail(f"--threads = {threads}: must be >= 0")
+        fail(f"--threads = {threads}: must be >= 0")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        _fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
+        fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
 
     from dataclasses import replace
 

@@ -13,9 +13,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING
 
 import typer
+
+from beambench.commands import fail, sub_app
 
 if TYPE_CHECKING:
     import numpy as np
@@ -24,9 +26,8 @@ if TYPE_CHECKING:
     from beambench.acquisition.calibration import LoadCellCalibration, MatrixFit
     from beambench.acquisition.capabilities import Stream
 
-DEFAULT_OUT = Path("calibration") / "loadcells.yaml"
-DEFAULT_RIG = Path("calibration") / "rig.yaml"
-EMULATE_OUT = Path("calibration") / "loadcells-emulated.yaml"
+OUT_NAME = "loadcells.yaml"  # in the per-user folder's calibration/ (beambench.common.resources.user_dir)
+EMULATE_OUT_NAME = "loadcells-emulated.yaml"
 EMULATE_LOADS = [(1.0, 0.0), (2.0, 0.0), (0.0, 0.5), (0.0, 1.0), (1.5, 0.5), (1.0, -0.5)]
 
 
@@ -184,11 +185,6 @@ def _show_fit(console: Console, fit: MatrixFit) -> None:
     console.print(f"RMS residual: Fn {fit.rms[0]:.4f} N, Ft {fit.rms[1]:.4f} N")
 
 
-def _fail(message: str) -> NoReturn:
-    typer.echo(f"beambench: error: {message}", err=True)
-    raise typer.Exit(2)
-
-
 def _emulated_plate():
     """A plate that differs from the shipped calibration (gains off by a few %, crosstalk, other offsets)."""
     import numpy as np
@@ -205,27 +201,55 @@ def _emulated_plate():
     return LoadCellCalibration(tare=tare, sensitivity=sens, source="emulated plate")
 
 
+def default_out(emulate: bool, calibration_name: str = OUT_NAME) -> Path:
+    """Where a calibration is saved without ``--out``: the per-user folder, never the checkout or the package."""
+    from beambench.common.resources import user_dir
+
+    return user_dir("calibration") / (EMULATE_OUT_NAME if emulate else Path(calibration_name).name)
+
+
 def loadcells(
-    port: str | None = typer.Option(None, "--port", help="Serial port of the load-cell MCU (default: from --rig)."),
+    port: str | None = typer.Option(
+        None, "--port", metavar="DEVICE", help="Serial port of the load-cell MCU (default: from --rig)."
+    ),
     baudrate: int | None = typer.Option(None, "--baud", help="Baud rate (default: from --rig, else 921600)."),
-    rig: Path = typer.Option(DEFAULT_RIG, "--rig", help="Rig wiring YAML read for the port when --port is not given."),
+    rig: Path | None = typer.Option(
+        None,
+        "--rig",
+        metavar="RIG.yaml",
+        help="Rig wiring YAML read for the port when --port is not given (default: the shipped rig.yaml).",
+    ),
     out: Path | None = typer.Option(
         None,
         "--out",
-        help=f"Where to save (default: the rig file's loadcell_calibration, else {DEFAULT_OUT}; "
-        f"{EMULATE_OUT} with --emulate).",
+        metavar="FILE.yaml",
+        help=f"Where to save (default: calibration/{OUT_NAME} in the per-user folder, "
+        f"calibration/{EMULATE_OUT_NAME} with --emulate; see README, 'Where files go').",
     ),
     loads: list[str] = typer.Option(
-        [], "--loads", "-l", help="Known load FN,FT in N; repeat or space-separate. Asked interactively if omitted."
+        [],
+        "--loads",
+        "-l",
+        metavar="FN,FT",
+        help="Known load FN,FT in N; repeat or space-separate. Asked interactively if omitted.",
     ),
     duration: float = typer.Option(1.0, "--duration", help="Seconds recorded per step (at least 0.05)."),
     settle: float = typer.Option(0.5, "--settle", help="Seconds waited after Enter before recording."),
     emulate: bool = typer.Option(
         False, "--emulate", help="Demo against an emulated MCU on a pty (loads applied for you)."
     ),
-    yes: bool = typer.Option(False, "--yes", "-y", help="Save without asking."),
+    yes: bool = typer.Option(
+        False,
+        "--yes",
+        "-y",
+        help="No questions: save without asking and, with --loads (or --emulate), record each step after --settle "
+        "seconds instead of waiting for Enter. Reads nothing from standard input.",
+    ),
 ) -> None:
-    """Walk through a load-cell calibration: tare (per channel), known loads, least-squares 2×4 matrix, save."""
+    """Walk through a load-cell calibration: tare (per channel), known loads, least-squares 2×4 matrix, save.
+
+    The result goes to --out or to the per-user folder; the package's shipped calibration is never changed.
+    """
     from rich.console import Console
     from rich.prompt import Confirm, Prompt
 
@@ -235,28 +259,36 @@ def loadcells(
     try:
         load_list = parse_loads(loads) or None
     except ValueError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     if not duration >= 0.05 or not settle >= 0:
-        _fail(f"--duration must be >= 0.05 s and --settle >= 0 s (got {duration:g}, {settle:g})")
+        fail(f"--duration must be >= 0.05 s and --settle >= 0 s (got {duration:g}, {settle:g})")
     if emulate and port:
-        _fail("--emulate and --port exclude each other")
+        fail("--emulate and --port exclude each other")
     if emulate and load_list is None:
         load_list = list(EMULATE_LOADS)
     if not emulate and port is None:
+        if rig is None:
+            from beambench.rigs.hardware import DEFAULT_RIG_FILE
+
+            rig = DEFAULT_RIG_FILE
         if not rig.exists():
-            _fail(f"no --port given and no rig file at {rig}")
+            fail(f"no --port given and no rig file at {rig}")
         from beambench.acquisition.config import ConfigError, load_rig_file
 
         try:
             wiring = load_rig_file(rig)
         except ConfigError as exc:
-            _fail(str(exc))
+            fail(str(exc))
         port, baudrate = wiring.loadcell.port, baudrate or wiring.loadcell.baudrate
-        out = out or rig.parent / wiring.loadcell_calibration
-    out = out or (EMULATE_OUT if emulate else DEFAULT_OUT)
-    console = Console()
+        out = out or default_out(False, wiring.loadcell_calibration)
+    out = out or default_out(emulate)
+    console = Console(stderr=True)
+    unattended = yes and load_list is not None
 
     def ask(text: str) -> str:
+        if unattended:  # --yes with known loads: say what happens, then go on without reading stdin
+            console.print(f"[dim]{text.split(', then press Enter')[0]}[/dim]", soft_wrap=True)
+            return ""
         try:
             return Prompt.ask(text, console=console, default="", show_default=False)
         except (EOFError, KeyboardInterrupt):
@@ -272,7 +304,8 @@ def loadcells(
         console.print(f"[dim]emulated load-cell MCU on {port}; loads are applied for you[/dim]")
 
         def apply_load(load: tuple[float, float]) -> None:
-            mcu.set_force(lambda t, f=load: f)
+            force = (float(load[0]), float(load[1]))
+            mcu.set_force(lambda t: force)
 
         on_step = apply_load
 
@@ -306,10 +339,11 @@ def loadcells(
             out.parent.mkdir(parents=True, exist_ok=True)
             cal.save(out)
         except OSError as exc:
-            _fail(f"{out}: cannot save calibration ({exc.strerror or exc})")
+            fail(f"{out}: cannot save calibration ({exc.strerror or exc})")
         console.print(f"saved {out}", soft_wrap=True)
+        typer.echo(str(out))
     except (CalibrationAborted, DeviceFault) as exc:
-        _fail(str(exc))
+        fail(str(exc))
     finally:
         stream.stop()
         if mcu is not None:
@@ -318,6 +352,6 @@ def loadcells(
 
 def register(app: typer.Typer) -> None:
     """Add ``beambench calibrate loadcells``."""
-    sub = typer.Typer(help="Calibrate rig sensors.", no_args_is_help=True)
+    sub = sub_app("Calibrate rig sensors.")
     sub.command("loadcells")(loadcells)
     app.add_typer(sub, name="calibrate")

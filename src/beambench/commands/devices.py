@@ -7,13 +7,18 @@ from typing import Any
 
 import typer
 
-DEFAULT_RIG = Path("calibration/rig.yaml")
+from beambench.commands import fail
 
 
 def register(app: typer.Typer) -> None:
     @app.command()
     def devices(
-        rig_file: Path = typer.Option(DEFAULT_RIG, "--rig", help="Rig wiring YAML (addresses, CAN channel, port)."),
+        rig_file: Path | None = typer.Option(
+            None,
+            "--rig",
+            metavar="RIG.yaml",
+            help="Rig wiring YAML: addresses, CAN channel, port (default: the shipped rig.yaml).",
+        ),
         emulate: bool = typer.Option(False, "--emulate", help="Start the emulated rig on loopback and ping it."),
     ) -> None:
         """Ping the mocap server, the ODrive and the load-cell MCU; print version, serial and rate. Moves nothing."""
@@ -21,12 +26,12 @@ def register(app: typer.Typer) -> None:
         from rich.table import Table
 
         from beambench.acquisition.config import ConfigError, load_rig_file
+        from beambench.rigs.hardware import DEFAULT_RIG_FILE
 
         try:
-            rig = load_rig_file(rig_file) if not emulate else None
+            rig = load_rig_file(rig_file or DEFAULT_RIG_FILE) if not emulate else None
         except ConfigError as exc:
-            typer.echo(f"beambench: error: {exc}", err=True)
-            raise typer.Exit(2) from None
+            fail(str(exc))
         if emulate:
             from beambench.rigs.emulated import emulated_peers
 

@@ -5,14 +5,10 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import NoReturn
 
 import typer
 
-
-def _fail(message: str) -> NoReturn:
-    typer.echo(f"beambench: error: {message}", err=True)
-    raise typer.Exit(2)
+from beambench.commands import fail
 
 
 def fit(
@@ -37,11 +33,16 @@ def fit(
         None,
         "--name",
         "-n",
-        help="Name of the parameter set written to sim_backend/ "
-        "(<model>_<name>.yaml; select it with `sim.params: <name>`). Default: the session name.",
+        metavar="NAME",
+        help="Name of the parameter set written (<model>_<name>.yaml; select it with `sim.params: <name>`). "
+        "Default: the session name.",
     ),
-    params_dir: Path = typer.Option(
-        None, "--params-dir", help="Where to write the parameter set (default: the package's sim_backend/)."
+    params_dir: Path | None = typer.Option(
+        None,
+        "--params-dir",
+        metavar="DIR",
+        help="Where to write the parameter set (default: sim_backend/ in the per-user folder, where `sim.params` "
+        "finds it; see README, 'Where files go').",
     ),
     no_write: bool = typer.Option(False, "--no-write", help="Do not write a parameter set or /processing."),
     popsize: int = typer.Option(12, "--popsize", help="Differential-evolution population per variable."),
@@ -62,16 +63,16 @@ def fit(
     Minimises the paper's objective — RMS distance between measured and simulated tip markers over all
     samples — by differential evolution, each generation one batched MuJoCo rollout. Prints the fitted
     values and the final error (mm), draws measured vs fitted tip paths, writes a JSON report, and saves each
-    fit as a parameter set in sim_backend/ that protocols select with `sim.params`.
+    fit as a named parameter set in the per-user folder that protocols select with `sim.params`.
     """
     models = [m.strip() for m in model.split(",") if m.strip()]
     for m in models:
         if m not in ("prb3", "rod") and not re.fullmatch(r"rod\d+g?s?", m):
-            _fail(f"--model = {m!r}: prb3, rod, or rodN (e.g. rod10, rod5g)")
+            fail(f"--model = {m!r}: prb3, rod, or rodN (e.g. rod10, rod5g)")
     if free_l1 and "prb3" not in models:
-        _fail("--free-l1 applies to the prb3 model")
+        fail("--free-l1 applies to the prb3 model")
     if not session.is_file():
-        _fail(f"{session}: no such session file")
+        fail(f"{session}: no such session file")
     for opt, value, ok in (
         ("--popsize", popsize, popsize >= 4),
         ("--maxiter", maxiter, maxiter >= 1),
@@ -79,18 +80,18 @@ def fit(
         ("--timestep", timestep, 0 < timestep <= 2e-3),
     ):
         if not ok:
-            _fail(f"{opt} = {value}: out of range")
+            fail(f"{opt} = {value}: out of range")
     name = name or re.sub(r"[^A-Za-z0-9_.-]", "_", session.stem)
     out = out or session.with_name(session.stem + "_fit")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        _fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
+        fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
 
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from beambench.sim.models.params import SIM_BACKEND_DIR
+    from beambench.common.resources import user_dir
     from beambench.studies.fit import (
         FitError,
         fit_release,
@@ -103,7 +104,7 @@ def fit(
     try:
         data = load_release_session(session, register=register)
     except FitError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     results = []
     for m in models:
         with Progress(
@@ -135,28 +136,29 @@ def fit(
                     )
                 )
             except FitError as exc:
-                _fail(str(exc))
+                fail(str(exc))
     _print_results(results, data, Console())
 
     fig = plot_fit(results, out / f"fit_{session.stem}.png", title=f"Release test {session.name}: measured vs fitted")
     report = {"session": str(session), "results": [r.summary() for r in results], "figure": str(fig)}
-    written = []
+    written: list[Path] = []
     if not no_write:
-        directory = params_dir or SIM_BACKEND_DIR
+        directory = params_dir or user_dir("sim_backend")
         for r in results:
             try:
-                p = write_param_set(r, name, directory, source=f"beambench fit of {session.name} ({r.model})")
+                path = write_param_set(r, name, directory, source=f"beambench fit of {session.name} ({r.model})")
             except OSError as exc:
-                _fail(f"cannot write the parameter set to {directory} ({exc.strerror or exc})")
-            written.append(str(p))
+                fail(f"cannot write the parameter set to {directory} ({exc.strerror or exc})")
+            written.append(path)
             _write_processing(session, r, console)
-    report["param_sets"] = written
+    report["param_sets"] = [str(p) for p in written]
     rep = out / f"fit_{session.stem}.json"
     rep.write_text(json.dumps(report, indent=2, default=float))
     typer.echo(f"figure: {fig}")
     typer.echo(f"report: {rep}")
     for p in written:
-        typer.echo(f"parameter set: {p}  (select with sim.params: {name if Path(p).parent == SIM_BACKEND_DIR else p})")
+        found_by_name = p.parent.resolve() == user_dir("sim_backend").resolve()
+        typer.echo(f"parameter set: {p}  (select with sim.params: {name if found_by_name else p})")
 
 
 def _print_results(results, data, console) -> None:

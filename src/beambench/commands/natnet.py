@@ -4,18 +4,12 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import NoReturn
 
 import typer
 
-natnet_app = typer.Typer(
-    help="OptiTrack Motive (NatNet 3.0/4.0/4.1) tools.", no_args_is_help=True, add_completion=False
-)
+from beambench.commands import fail, sub_app
 
-
-def _fail(message: str) -> NoReturn:
-    typer.echo(f"beambench: error: {message}", err=True)
-    raise typer.Exit(2)
+natnet_app = sub_app("OptiTrack Motive (NatNet 3.0/4.0/4.1) tools.")
 
 
 @natnet_app.command("decode")
@@ -43,30 +37,31 @@ def decode(
         try:
             v = nn.Version.parse(natnet_version)
         except ValueError:
-            _fail(f"--natnet-version {natnet_version!r}: expected X.Y, e.g. 3.0, 4.0 or 4.1")
+            fail(f"--natnet-version {natnet_version!r}: expected X.Y, e.g. 3.0, 4.0 or 4.1")
         if (v.major, v.minor) not in [(s.major, s.minor) for s in nn.SUPPORTED_VERSIONS]:
-            _fail(f"--natnet-version {natnet_version}: supported are 3.0, 4.0 and 4.1")
+            fail(f"--natnet-version {natnet_version}: supported are 3.0, 4.0 and 4.1")
     try:
         port_list = [int(p) for p in ports.split(",") if p.strip()]
         if not port_list or any(not 0 < p < 65536 for p in port_list):
             raise ValueError
     except ValueError:
-        _fail(f"--ports {ports!r}: expected port numbers separated by commas, e.g. 1510,1511")
+        fail(f"--ports {ports!r}: expected port numbers separated by commas, e.g. 1510,1511")
     if not capture.is_file():
-        _fail(f"{capture}: no such file")
+        fail(f"{capture}: no such file")
     try:
         decoded = decode_capture(capture, natnet_version, port_list)
     except CaptureError as exc:
-        _fail(str(exc))
+        message = str(exc)
+        fail(message if str(capture) in message else f"{capture}: {message}")
     except ValueError as exc:
-        _fail(f"{capture}: {exc}")
+        fail(f"{capture}: {exc}")
     table = frames_table(decoded)
     summary = decoded.summary(capture.name)
     if out is not None:
         try:
             table.to_csv(out, index=False)
         except OSError as exc:
-            _fail(f"{out}: cannot write ({exc.strerror})")
+            fail(f"{out}: cannot write ({exc.strerror})")
         typer.echo(summary)
         typer.echo(f"wrote {len(table)} rows to {out}")
     else:

@@ -3,14 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import NoReturn
 
 import typer
 
-
-def _fail(message: str) -> NoReturn:
-    typer.echo(f"beambench: error: {message}", err=True)
-    raise typer.Exit(2)
+from beambench.commands import fail
 
 
 def sweep(
@@ -54,17 +50,17 @@ def sweep(
     from beambench.studies.sweep import SweepError, load_sweep, plan, read_table
 
     if workers < 0:
-        _fail(f"--workers = {workers}: must be >= 0")
+        fail(f"--workers = {workers}: must be >= 0")
     if batch_size < 0:
-        _fail(f"--batch-size = {batch_size}: must be >= 0")
+        fail(f"--batch-size = {batch_size}: must be >= 0")
     if scheduler and cluster:
-        _fail("give either --scheduler or --cluster, not both")
+        fail("give either --scheduler or --cluster, not both")
     if cluster and cluster != "slurm":
-        _fail(f"--cluster = {cluster!r}: only 'slurm' is supported")
+        fail(f"--cluster = {cluster!r}: only 'slurm' is supported")
     try:
         spec = load_sweep(sweep_file)
     except SweepError as exc:
-        _fail(str(exc))
+        fail(str(exc))
     out = out or Path(spec.output or Path("data") / "sweeps" / f"{spec.name}.parquet")
 
     from rich.console import Console
@@ -86,7 +82,7 @@ def sweep(
             jobs = plan(spec)
             old = read_table(out)
         except SweepError as exc:
-            _fail(str(exc))
+            fail(str(exc))
         done = set(old["point_id"]) if "point_id" in old.columns else set()
         todo = sum(j.id not in done for j in jobs)
         typer.echo(
@@ -118,7 +114,7 @@ def sweep(
         try:
             run = run_sweep(spec, out, workers or None, scheduler, cluster, batch_size or None, progress, on_start)
         except (SweepError, ExecutorError) as exc:
-            _fail(str(exc))
+            fail(str(exc))
     t = run.table
     n_bad = int((~t["ok"]).sum()) if "ok" in t.columns else 0
     overhead = ""

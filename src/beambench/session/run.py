@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, cast
+from typing import cast
 
+from rich.console import Console
 from rich.progress import (
     BarColumn,
     Progress,
@@ -24,15 +25,14 @@ from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_
 from beambench.rigs.build import build_rig
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
+from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
-
-RerunMode = str  # spawn | connect | save | off (beambench.live is imported only when a viewer is wanted)
 
 
 def run_session(
     protocol: Protocol,
     protocol_text: str,
-    backend: str,
+    backend: Backend,
     path: Path,
     rerun_mode: RerunMode = "off",
     realtime: bool = False,
@@ -91,7 +91,13 @@ def _run_session(
             from beambench.sinks.rerun_view import RerunSink
 
             sinks.append(
-                RerunSink(cast(Any, rerun_mode), path.stem, path.with_suffix(".rrd"), t0_ns=rig.clock.now_ns())
+                RerunSink(
+                    rerun_mode,
+                    path.stem,
+                    path.with_suffix(".rrd"),
+                    t0_ns=rig.clock.now_ns(),
+                    calibration=default_calibration(),  # the one stored in /general: forces in N live
+                )
             )
         hub = Hub(sinks, critical=(writer,))
         hub.open(specs)
@@ -105,6 +111,7 @@ def _run_session(
         TextColumn("{task.completed:.0f}/{task.total:.0f} s rig time"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
+        console=Console(stderr=True),  # progress is chatter: stdout carries only the command's result
         disable=not show_progress,
         transient=False,
     ) as progress:

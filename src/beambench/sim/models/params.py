@@ -1,8 +1,10 @@
-"""Named beam parameter sets, loaded from ``sim_backend/<model>_<name>.yaml`` (SI units throughout).
+"""Named beam parameter sets, loaded from ``<model>_<name>.yaml`` files (SI units throughout).
 
 A parameter set describes one beam model (``prb3`` today; ``rod`` or fitted sets later): its geometry,
 stiffness, damping and mass, plus optional rig overrides (foot, contact) that a fit may have changed.
-Drop a new ``sim_backend/prb3_<name>.yaml`` and select it with ``sim.params: <name>`` in a protocol.
+Named sets are searched in the per-user folder (where ``beambench fit`` writes) and then in the package's
+``sim_backend/`` (:func:`beambench.common.resources.search_path`). Drop a new ``prb3_<name>.yaml`` in either and
+select it with ``sim.params: <name>`` in a protocol.
 """
 
 from __future__ import annotations
@@ -12,10 +14,12 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from beambench.common.resources import shipped_dir
+import yaml
+
+from beambench.common.resources import search_path, shipped_dir
 from beambench.common.yaml_config import ConfigError, load_yaml_file, shorten
 
-SIM_BACKEND_DIR = shipped_dir("sim_backend")
+SIM_BACKEND_DIR = shipped_dir("sim_backend")  # the shipped sets and measured tables (read-only)
 
 
 class ParamsError(ConfigError):
@@ -69,8 +73,18 @@ class BeamParams:
 
 
 def available(model: str = "prb3") -> list[str]:
-    """Names of the parameter sets shipped for ``model``."""
-    return sorted(p.stem.removeprefix(f"{model}_") for p in SIM_BACKEND_DIR.glob(f"{model}_*.yaml"))
+    """Names of the parameter sets for ``model``: the user's (fitted) and the shipped ones."""
+    return sorted(
+        {p.stem.removeprefix(f"{model}_") for d in search_path("sim_backend") for p in d.glob(f"{model}_*.yaml")}
+    )
+
+
+def find_params(name: str, model: str = "prb3") -> Path | None:
+    """The file of the named set ``name`` for ``model``: the user's folder first, then the package's."""
+    for folder in search_path("sim_backend"):
+        if (folder / f"{model}_{name}.yaml").is_file():
+            return folder / f"{model}_{name}.yaml"
+    return None
 
 
 def has_params(name: str, model: str) -> bool:
@@ -86,14 +100,18 @@ def has_params(name: str, model: str) -> bool:
 
 
 def load_params(name: str = "paper", model: str = "prb3") -> BeamParams:
-    """Load the set ``name`` (``sim_backend/<model>_<name>.yaml``) or a YAML file path."""
-    path = Path(name)
-    if path.suffix not in (".yaml", ".yml") or not path.is_file():
+    """Load the named set ``name`` (``<model>_<name>.yaml`` in :func:`find_params`' folders) or a YAML file path."""
+    given = Path(name)
+    if given.suffix in (".yaml", ".yml") and given.is_file():
+        path: Path | None = given
+    else:
         if "/" in name or "\\" in name or "\x00" in name or len(name) > 200:
             raise ParamsError(f"sim.params = {shorten(name)}: no such parameter file")
-        path = SIM_BACKEND_DIR / f"{model}_{name}.yaml"
-    if not path.is_file():
-        raise ParamsError(f"sim.params = {shorten(name)}: no parameter set {path.name} (available: {available(model)})")
+        path = find_params(name, model)
+    if path is None:
+        raise ParamsError(
+            f"sim.params = {shorten(name)}: no parameter set {model}_{name}.yaml (available: {available(model)})"
+        )
     data, _ = load_yaml_file(path, ParamsError)
     if not isinstance(data, dict):
         raise ParamsError(f"{path}: expected a mapping with a beam block")

@@ -1,0 +1,51 @@
+# Two commands on a fresh clone (needs Python ≥ 3.11 and GNU make):
+#   make run    create .venv on first use (reused after), install beambench, run the contact sweep on the sim
+#   make test   the same venv with the dev extra; lint, format, type and import-layer checks, then the tests
+# Variables: PYTHON (python3), VENV (.venv), OUT (data), RUN_ARGS (extra `beambench run` flags),
+# PYTEST_ARGS (e.g. tests/test_run_sim.py). `make clean-venv` removes the venv.
+
+PYTHON ?= python3
+VENV ?= .venv
+OUT ?= data
+RUN_ARGS ?=
+PYTEST_ARGS ?=
+BIN := $(VENV)/bin
+RUN_STAMP := $(VENV)/.beambench-run
+DEV_STAMP := $(VENV)/.beambench-dev
+
+.PHONY: run test lint clean-venv
+
+run: $(RUN_STAMP)
+	$(BIN)/beambench run protocols/contact_sweep.yaml --out $(OUT) $(RUN_ARGS)
+
+test: $(DEV_STAMP)
+	@status=0; \
+	for check in "ruff check src tests benchmarks" "ruff format --check src tests benchmarks" "mypy" "lint-imports"; do \
+	  echo "== $$check"; $(BIN)/$$check || status=1; \
+	done; \
+	echo "== pytest"; $(BIN)/python -m pytest -q $(PYTEST_ARGS); rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "pytest collected no tests — that is a failure for this project" >&2; rc=1; fi; \
+	if [ $$status -ne 0 ]; then echo "lint, format, type or import checks failed (see above)" >&2; fi; \
+	[ $$rc -eq 0 ] && [ $$status -eq 0 ]
+
+lint: $(DEV_STAMP)
+	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff format --check src tests benchmarks
+	$(BIN)/mypy
+	$(BIN)/lint-imports
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+# Reinstalled when pyproject.toml changes; editable, so source edits need no reinstall.
+$(RUN_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(DEV_STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	touch $@ $(RUN_STAMP)
+
+clean-venv:
+	rm -rf $(VENV)

@@ -1,0 +1,217 @@
+"""``beambench run PROTOCOL`` and ``beambench view SESSION``: record a session, replay it into Rerun."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import typer
+
+from beambench.acquisition.config import BACKENDS, Backend, ConfigError
+from beambench.commands import fail
+from beambench.sinks import RerunMode
+
+if TYPE_CHECKING:
+    from beambench.acquisition.config import Protocol
+
+
+def has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")) or sys.platform in ("darwin", "win32")
+
+
+def default_rerun_mode() -> RerunMode:
+    return "spawn" if has_display() else "save"
+
+
+def resolve_protocol(given: Path) -> Path:
+    """``given`` if it is a file; else the shipped protocol of that name (``contact_sweep`` or
+    ``protocols/contact_sweep.yaml`` from any folder); else ``given`` (whose read then fails with one line)."""
+    if given.is_file():
+        return given
+    from beambench.common.resources import shipped_protocols
+
+    shipped = shipped_protocols()
+    name = given.name.removesuffix(".yaml").removesuffix(".yml")
+    if given.suffix in ("", ".yaml", ".yml") and name in shipped and len(given.parts) <= 2:
+        return shipped[name]
+    return given
+
+
+def run(
+    protocol_file: Path = typer.Argument(
+        ...,
+        metavar="PROTOCOL",
+        help="Protocol YAML, or the name of a shipped protocol: contact_sweep, twist_sweep, release_test, …",
+    ),
+    backend: Backend | None = typer.Option(
+        None, "--backend", "-b", help="Where to run (default: the protocol's backend, else sim)."
+    ),
+    out: Path = typer.Option(Path("data"), "--out", "-o", metavar="DIR", help="Folder for the session files."),
+    name: str | None = typer.Option(
+        None, "--name", "-n", metavar="NAME", help="Session name (default: the protocol's output.name template)."
+    ),
+    rerun: RerunMode | None = typer.Option(
+        None,
+        "--rerun",
+        help="Live view: spawn a viewer, connect to one, save an .rrd, or off (default: spawn "
+        "with a display, else save).",
+    ),
+    realtime: bool = typer.Option(False, "--realtime", help="Pace the simulation to the wall clock."),
+    dry_run: bool = typer.Option(
+        False, "--dry-run", help="Print the steps, duration, expected run time and limits; move nothing."
+    ),
+    rig_file: Path | None = typer.Option(
+        None,
+        "--rig",
+        metavar="RIG.yaml",
+        help="Rig wiring YAML for emulated/hardware (default: the shipped calibration/rig.yaml).",
+    ),
+    can_log: Path | None = typer.Option(
+        None, "--can-log", metavar="FILE", help="Record all CAN traffic to this .asc or .blf file (ODrive over CAN)."
+    ),
+) -> None:
+    """Run a frequency sweep: step the motor, record mocap, load cells and motor telemetry to an HDF5 session.
+
+    Progress goes to stderr. Standard output carries only the result: with --rerun save the .rrd path, then the
+    session path (<out>/<name>.h5) last, so S=$(beambench run … | tail -n1) captures the session. Limits are
+    checked before anything moves. Ctrl-C idles the motor and closes the file cleanly.
+    """
+    from beambench.acquisition.config import load_protocol
+    from beambench.acquisition.plan import session_path, summary
+    from beambench.session.checks import check_protocol
+
+    protocol_file = resolve_protocol(protocol_file)
+    try:
+        protocol, text = load_protocol(protocol_file)
+        chosen: Backend = backend or protocol.backend
+        if chosen not in BACKENDS:  # typer checks the flag; this guards a bad protocol value
+            raise ConfigError("<cli>", "--backend", chosen, f"must be one of {', '.join(BACKENDS)}")
+        check_protocol(protocol, str(protocol_file), chosen, can_log)  # every field, dry run included
+        mode: RerunMode = rerun or default_rerun_mode()
+        if dry_run:
+            print_dry_run(summary(protocol, chosen), expected_run_time(protocol, chosen, realtime))
+            return
+        path = session_path(protocol, chosen, out, name)
+    except ConfigError as exc:
+        fail(str(exc))
+    from beambench.session.run import run_session
+
+    try:
+        result = run_session(
+            protocol, text, chosen, path, rerun_mode=mode, realtime=realtime, rig_file=rig_file, can_log=can_log
+        )
+    except ConfigError as exc:
+        fail(str(exc))
+    if mode == "save":
+        typer.echo(str(path.with_suffix(".rrd")))
+    typer.echo(str(path))
+    if result.status != "completed":
+        typer.echo(f"beambench: run {result.status}: {result.message} (session saved)", err=True)
+        raise typer.Exit(130 if result.status == "interrupted" else 1)
+
+
+def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) -> str:
+    """How long the run will take here, in words: real time on emulated and hardware (and the sim with
+    --realtime); on the sim, the stepping time from the measured timing table where the rig has one."""
+    from beambench.acquisition.plan import plan
+
+    steps = plan(protocol)
+    total = sum(s.duration_s for s in steps)
+    if backend != "sim" or realtime:
+        return f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
+    from beambench.rigs.sim import _contact_plan
+
+    try:
+        sim_plan = _contact_plan(protocol)
+    except ConfigError:
+        sim_plan = None
+    if sim_plan is None:
+        return (
+            f"not estimated: no timing table for the {protocol.rig} rig with these sim settings "
+            "(the sim runs as fast as it can)"
+        )
+    wall = sum(s.duration_s / 10.0 * sim_plan.wall_s_per_10s[s.frequency_hz] for s in steps)
+    return (
+        f"about {_duration(wall)} of stepping ({sim_plan.model}, {sim_plan.integrator}; from the measured timing "
+        f"table {sim_plan.table}, on the machine that measured it), plus recording overhead"
+    )
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.1f} min"
+
+
+def print_dry_run(s: dict, expected: str) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"Dry run: {s['protocol']} on the {s['rig']} rig ({s['backend']} backend) — nothing moves")
+    t.add_column("step", justify="right")
+    t.add_column("frequency (Hz)", justify="right")
+    t.add_column("settle + record (s)", justify="right")
+    for i, f in enumerate(s["frequencies_hz"]):
+        t.add_row(str(i), f"{f:g}", f"{s['settle_s']:g} + {s['record_s']:g}")
+    con = Console(soft_wrap=True)  # the dry run's table is its result: stdout
+    con.print(t)
+    lim = s["limits"]
+    con.print(
+        f"steps: {s['steps']}   total duration: {s['total_duration_s']:g} s of rig time   "
+        f"max frequency: {s['max_frequency_hz']:g} Hz   amplitude: {s['amplitude_mm']:g} mm\n"
+        f"expected run time here: {expected}\n"
+        f"limits: max_frequency_hz={lim['max_frequency_hz']:g}  max_current_a={lim['max_current_a']:g}  "
+        f"max_amplitude_mm={lim['max_amplitude_mm']:g}"
+    )
+
+
+def view(
+    session: Path = typer.Argument(..., metavar="SESSION.h5", help="A session file written by `beambench run`."),
+    rerun: RerunMode | None = typer.Option(
+        None,
+        "--rerun",
+        help="spawn a viewer, connect to one, or save an .rrd (default: spawn with a display, else save).",
+    ),
+    out: Path | None = typer.Option(
+        None,
+        "--out",
+        metavar="FILE.rrd",
+        help="With --rerun save: the .rrd to write (default: <session>_view.rrd beside the session, numbered "
+        "if taken). An existing file is never overwritten.",
+    ),
+) -> None:
+    """Replay a recorded session into the Rerun viewer (or into an .rrd file, whose path is printed)."""
+    mode = rerun or default_rerun_mode()
+    if mode == "off":
+        fail("--rerun = 'off': view needs spawn, connect or save")
+    if not session.is_file():
+        fail(f"{session}: no such session file")
+    rrd = None
+    if mode == "save":
+        rrd = out or free_path(session.with_name(f"{session.stem}_view.rrd"))
+        if rrd.exists():
+            fail(f"{rrd}: exists; give another --out (view never overwrites a recording)")
+    from beambench.session.replay import replay_session
+
+    try:
+        written = replay_session(session, mode, rrd)
+    except OSError as exc:
+        fail(f"{session}: cannot read session ({exc})")
+    if written is not None:
+        typer.echo(str(written))
+
+
+def free_path(path: Path) -> Path:
+    """``path``, or ``<stem>_1<suffix>``, ``_2`` … whichever does not exist yet."""
+    k, candidate = 1, path
+    while candidate.exists():
+        candidate = path.with_name(f"{path.stem}_{k}{path.suffix}")
+        k += 1
+    return candidate
+
+
+def register(app: typer.Typer) -> None:
+    app.command("run")(run)
+    app.command("view")(view)

@@ -1,0 +1,53 @@
+"""Shared test helpers.
+
+- :func:`shared_path` / :func:`require_shared`: the shared fixtures (independent NatNet packets and captures, the
+  ODrive DBC) live outside the repository, in ``$BEAMBENCH_SHARED`` if set, else ``../shared`` beside the checkout.
+  Every test that reads them goes through here and skips with the reason when they are absent.
+- Every test runs with ``$BEAMBENCH_USER_DIR`` pointing at a temporary folder, so nothing a test runs (calibrate,
+  fit, …) writes into the real per-user folder.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from beambench.common.resources import USER_DIR_ENV
+
+SHARED_ENV = "BEAMBENCH_SHARED"
+REPO = Path(__file__).resolve().parents[1]
+
+
+def shared_root() -> Path:
+    """The shared folder: ``$BEAMBENCH_SHARED``, else ``../shared`` beside the checkout."""
+    env = os.environ.get(SHARED_ENV)
+    return Path(env).expanduser() if env else REPO.parent / "shared"
+
+
+def shared_path(*parts: str) -> Path:
+    """A path inside the shared folder (may not exist; see :func:`require_shared`)."""
+    return shared_root().joinpath(*parts)
+
+
+def require_shared(*parts: str) -> Path:
+    """The existing shared file or folder ``parts``, or skip the test saying where it was looked for."""
+    path = shared_path(*parts)
+    if not path.exists():
+        pytest.skip(f"shared fixture {path} not found (set ${SHARED_ENV} or put the shared folder at ../shared)")
+    return path
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _private_user_dir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """Point the per-user folder at a temporary one for the whole run (subprocesses inherit it)."""
+    old = os.environ.get(USER_DIR_ENV)
+    path = tmp_path_factory.mktemp("beambench-user")
+    os.environ[USER_DIR_ENV] = str(path)
+    yield path
+    if old is None:
+        os.environ.pop(USER_DIR_ENV, None)
+    else:
+        os.environ[USER_DIR_ENV] = old
