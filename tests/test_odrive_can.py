@@ -358,3 +358,21 @@ def test_axis_idled_by_someone_else_is_a_fault(channel, motor, emu):
 def test_bad_log_suffix_is_refused_up_front(tmp_path):
     with pytest.raises(ValueError, match="unknown log format"):
         OdriveCanMotor("x", "virtual", NODE, can_log=tmp_path / "traffic.pcap")
+
+
+@pytest.mark.parametrize(("kind", "code"), [("motor", 0x1), ("encoder", 0x4)])
+def test_the_first_fault_report_reads_the_error_register_first(motor, emu, kind, code):
+    """Issue 13.10: the heartbeat only flags MOTOR_FAILED; the report must carry the register's value, read
+    on the spot (was ``motor error 0x0``: the value before the RTR answer arrived)."""
+    motor.arm(LIMITS)
+    emu.inject_error(**{kind: code})
+    end = time.monotonic() + 3.0
+    first = None
+    while first is None and time.monotonic() < end:
+        try:
+            motor.check()
+        except DeviceFault as exc:
+            first = str(exc)
+        time.sleep(0.001)
+    assert first is not None, "no fault reported"
+    assert f"{kind} error {code:#x}" in first, first

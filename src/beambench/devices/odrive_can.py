@@ -49,6 +49,7 @@ import numpy as np
 from beambench.acquisition.batch import Batch, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits
 from beambench.acquisition.streams import MOTOR, motor_spec
+from beambench.common.errors import BeambenchError
 from beambench.devices import odrive_cansimple as cs
 from beambench.devices.odrive_cansimple import AxisState, ControlMode, InputMode
 
@@ -59,7 +60,10 @@ MAX_BUFFERED_ROWS = 200_000  # ~33 min of telemetry if nobody reads
 LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc", ".csv")  # python-can writers that keep direction or ids
 
 
-class LimitError(ValueError):
+_ERROR_REGISTERS = (cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR)
+
+
+class LimitError(BeambenchError, ValueError):
     """A command or a limit outside what the protocol's limits allow; nothing was sent."""
 
 
@@ -229,6 +233,8 @@ class OdriveCanMotor(TelemetryStream):
         self.motor_error = 0
         self.encoder_error = 0
         self.controller_error = 0
+        self.error_read_timeout_s = 0.25  # how long a fault report waits for the error registers' answers
+        self._error_replies = dict.fromkeys(_ERROR_REGISTERS, 0)  # answers received, per register
         self._setpoint = 0.0
         self._limits: MotorLimits | None = None
         self.vel_limit: float | None = None
@@ -367,10 +373,16 @@ class OdriveCanMotor(TelemetryStream):
                 self._vbus, self._ibus = msg.voltage, msg.current
             elif isinstance(msg, cs.MotorError):
                 self.motor_error = msg.error
+                self._error_replies[cs.Cmd.GET_MOTOR_ERROR] += 1
+                self._cond.notify_all()
             elif isinstance(msg, cs.EncoderError):
                 self.encoder_error = msg.error
+                self._error_replies[cs.Cmd.GET_ENCODER_ERROR] += 1
+                self._cond.notify_all()
             elif isinstance(msg, cs.ControllerErrorMsg):
                 self.controller_error = msg.error
+                self._error_replies[cs.Cmd.GET_CONTROLLER_ERROR] += 1
+                self._cond.notify_all()
 
     # ------------------------------------------------------------------ feeder thread
     def _feed_loop(self) -> None:
@@ -442,6 +454,38 @@ class OdriveCanMotor(TelemetryStream):
                     return None
                 self._cond.wait(left)
 
+    def read_error_registers(self, hb: cs.Heartbeat | None = None) -> None:
+        """Ask for the motor/encoder/controller error registers the heartbeat flags and wait (at most
+        ``error_read_timeout_s``) for the answers, so a fault report names the error the ODrive latched rather
+        than the last value read (0 before the first fault). Never raises; call without holding the lock."""
+        hb = hb or self.heartbeat
+        if hb is None or self._bus is None or self._closed:
+            return
+        flags = (hb.motor_error_flag, hb.encoder_error_flag, hb.controller_error_flag)
+        wanted = [cmd for cmd, flag in zip(_ERROR_REGISTERS, flags) if flag]
+        if not wanted:
+            return
+        with self._cond:
+            before = {cmd: self._error_replies[cmd] for cmd in wanted}
+        try:
+            for cmd in wanted:
+                self.request(cmd)
+        except Exception as exc:
+            self.send_errors.append(f"error registers: {exc}")
+            return
+        deadline = time.monotonic() + self.error_read_timeout_s
+        with self._cond:
+            while any(self._error_replies[c] == before[c] for c in wanted):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                self._cond.wait(left)
+
+    def _describe_fault(self, hb: cs.Heartbeat) -> str:
+        """The fault text after reading the error registers it needs (not under the lock)."""
+        self.read_error_registers(hb)
+        return self._fault_text(hb)
+
     def _fault_text(self, hb: cs.Heartbeat) -> str:
         parts = [f"axis error {cs.error_names(hb.axis_error)}"]
         if hb.motor_error_flag or self.motor_error:
@@ -473,7 +517,7 @@ class OdriveCanMotor(TelemetryStream):
             hb = self._wait_heartbeat(lambda h: h.axis_error == 0, max(0.5, 3 * self.heartbeat_timeout_s), cleared)
             if hb is None:
                 last = self.heartbeat
-                raise DeviceFault("errors persist after Clear_Errors: " + (self._fault_text(last) if last else "?"))
+                raise DeviceFault("errors persist after Clear_Errors: " + (self._describe_fault(last) if last else "?"))
             self.send(cs.SetLimits(vel_limit, current))
             self.send(cs.SetControllerMode(ControlMode.VELOCITY_CONTROL, InputMode.VEL_RAMP))
             self.send(cs.SetInputVel(0.0, 0.0))
@@ -493,7 +537,7 @@ class OdriveCanMotor(TelemetryStream):
                     f"ODrive node {self.node_id} did not enter closed loop within {self.closed_loop_timeout_s:g} s"
                 )
             if hb.axis_error:
-                raise DeviceFault("entering closed loop failed: " + self._fault_text(hb))
+                raise DeviceFault("entering closed loop failed: " + self._describe_fault(hb))
         except BaseException:
             self.idle()
             raise
@@ -515,7 +559,7 @@ class OdriveCanMotor(TelemetryStream):
                     f"ODrive node {self.node_id} calibration did not finish in {self.calibration_timeout_s:g} s"
                 )
         if hb.axis_error:
-            raise DeviceFault("calibration failed: " + self._fault_text(hb))
+            raise DeviceFault("calibration failed: " + self._describe_fault(hb))
 
     def set_frequency(self, hz: float) -> None:
         """Crank at ``hz`` turn/s; LimitError above ``max_frequency_hz`` (nothing is sent)."""
@@ -562,12 +606,12 @@ class OdriveCanMotor(TelemetryStream):
             if lost is not None:
                 raise DeviceFault(lost)
             hb, armed = self._hb, self._armed
-            if hb is None:
-                return
-            if hb.axis_error or hb.motor_error_flag or hb.encoder_error_flag or hb.controller_error_flag:
-                raise DeviceFault(self._fault_text(hb))
-            if armed and hb.axis_state != AxisState.CLOSED_LOOP_CONTROL:
-                raise DeviceFault(f"ODrive node {self.node_id} left closed loop (state {hb.axis_state})")
+        if hb is None:
+            return
+        if hb.axis_error or hb.motor_error_flag or hb.encoder_error_flag or hb.controller_error_flag:
+            raise DeviceFault(self._describe_fault(hb))  # the registers are read first, then reported
+        if armed and hb.axis_state != AxisState.CLOSED_LOOP_CONTROL:
+            raise DeviceFault(f"ODrive node {self.node_id} left closed loop (state {hb.axis_state})")
 
     # ------------------------------------------------------------------ info
     @property
