@@ -254,3 +254,69 @@ def test_not_a_capture_is_a_capture_error(tmp_path):
     p.write_bytes(struct.pack("<I", 0xDEADBEEF) + b"\0" * 40)
     with pytest.raises(CaptureError):
         list(read_udp(p))
+
+
+def _decode_within(path: Path, seconds: float = 20.0, **kw):
+    """decode_capture in a thread, bounded: a hang is a failure, not a stuck test run."""
+    import threading
+
+    box: dict = {}
+
+    def work() -> None:
+        try:
+            box["out"] = decode_capture(path, **kw)
+        except BaseException as exc:  # noqa: BLE001 - handed to the test thread
+            box["exc"] = exc
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    t.join(seconds)
+    assert not t.is_alive(), f"decode_capture did not return within {seconds} s"
+    if "exc" in box:
+        raise box["exc"]
+    return box["out"]
+
+
+def _ip_fragment(ident: int, offset: int, more: bool, data: bytes) -> bytes:
+    import dpkt
+
+    ip = dpkt.ip.IP(
+        src=socket.inet_aton("10.0.0.1"),
+        dst=socket.inet_aton("239.255.42.99"),
+        p=17,
+        id=ident,
+        mf=int(more),
+        offset=offset,
+        data=data,
+    )
+    ip.len = 20 + len(data)
+    return bytes(dpkt.ethernet.Ethernet(src=b"\x00" * 6, dst=b"\x01\x00\x5e\x7f\x2a\x63", type=0x0800, data=ip))
+
+
+def test_an_empty_first_fragment_does_not_hang_the_decoder(tmp_path):
+    """Issue 13.8: an empty fragment at offset 0 (more fragments set) followed by the last fragment made the
+    reassembly loop spin forever; now it is dropped and the good frames around it still decode."""
+    import dpkt
+
+    good = nn.encode(nn.FrameOfData(5, timestamp=5 / 360, mid_exposure=1, data_received=2, transmit=3), (4, 1))
+    udp = bytes(dpkt.udp.UDP(sport=1511, dport=50000, data=good, ulen=8 + len(good)))
+    path = tmp_path / "empty_fragment.pcap"
+    with path.open("wb") as fh:
+        w = dpkt.pcap.Writer(fh, linktype=dpkt.pcap.DLT_EN10MB)
+        w.writepkt(_ip_fragment(7, 0, True, b""), ts=1.0)  # the empty first fragment
+        w.writepkt(_ip_fragment(7, 8, False, udp[8:]), ts=1.1)  # its last fragment
+        w.writepkt(_ip_fragment(8, 0, False, udp), ts=1.2)  # an ordinary datagram after them
+    d = _decode_within(path, version="4.1")
+    assert [f.frame_number for _, f in d.frames] == [5]
+
+
+def test_ticks_above_2_63_fit_the_frame_table(tmp_path):
+    """Issue 13.8: QPC tick fields are uint64 on the wire; a value above 2**63 raised TypeError in the table."""
+    big = 2**63 + 12345
+    frame = nn.FrameOfData(3, timestamp=0.01, mid_exposure=big, data_received=big + 1, transmit=2**64 - 1)
+    path = tmp_path / "ticks.pcap"
+    write_pcap(path, [(1.0, nn.encode(frame, (4, 1)), 1511, 50000)])
+    d = _decode_within(path, version="4.1")
+    df = frames_table(d)
+    assert int(df["mid_exposure_ticks"].iloc[0]) == big
+    assert int(df["transmit_ticks"].iloc[0]) == 2**64 - 1

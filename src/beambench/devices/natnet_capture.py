@@ -196,11 +196,9 @@ def frames_table(decoded: CaptureDecode):  # type: ignore[no-untyped-def]
     ]
     cols += [f"m{a}_{b}_{c}" for a, b in sorted(mk_ids) for c in ("x", "y", "z", "size", "occluded", "params")]
     df = pd.DataFrame(rows, columns=cols)
-    for c in df.columns:  # integer columns with gaps stay integers
-        if (
-            c.endswith(("_valid", "_occluded", "_params"))
-            or c.endswith("_ticks")
-            or c in ("precision_s", "precision_frac")
-        ):
+    for c in df.columns:  # integer columns with gaps stay integers; QPC ticks are unsigned 64-bit on the wire
+        if c.endswith("_ticks"):
+            df[c] = df[c].astype("UInt64")
+        elif c.endswith(("_valid", "_occluded", "_params")) or c in ("precision_s", "precision_frac"):
             df[c] = df[c].astype("Int64")
     return df
