@@ -4,8 +4,6 @@ run as a fault, motor idle first, everything recorded saved."""
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from beambench.acquisition.batch import Batch
@@ -54,19 +52,6 @@ def test_protocol_can_switch_the_monitor_off():
     assert build_monitors(off, ["motor", "mocap"]) == []
 
 
-class Outage:
-    """A Motive frame filter: once started, every frame is dropped for ``seconds`` (a real UDP silence)."""
-
-    def __init__(self, seconds: float) -> None:
-        self.seconds, self.t0 = seconds, None
-
-    def start(self) -> None:
-        self.t0 = time.monotonic()
-
-    def __call__(self, frame_number: int) -> bool:
-        return self.t0 is not None and time.monotonic() - self.t0 < self.seconds
-
-
 PROTOCOL = (
     "name: mon\nsweep: {frequencies: [10]}\nsettle_s: 0.3\nrecord_s: 1.0\nsim: {seed: 2}\n"
     "monitors: {mocap_lost_s: 0.1, max_pause_s: %g}\n"
@@ -75,20 +60,20 @@ PROTOCOL = (
 
 def _run(tmp_path, outage_s: float, max_pause_s: float):
     protocol = parse_protocol(PROTOCOL % max_pause_s)
-    outage = Outage(outage_s)
-    rig = build_emulated_rig(protocol, inject={"mocap_drop": outage})
+    rig = build_emulated_rig(protocol)
     rig.open()
     path = tmp_path / "mon.h5"
     monitors = build_monitors(protocol, [s.describe().name for s in rig.streams])
     writer = SessionWriter(path, {"protocol": "x", "backend": "emulated"})
     hub = Hub([writer, *monitors], critical=(writer,))
     hub.open([s.describe() for s in rig.streams])
-    waited = {"s": 0.0}
+    waited = {"s": 0.0, "started": False}
 
     def on_progress(index: int, freq: float, seconds: float) -> None:
         waited["s"] += seconds
-        if outage.t0 is None and waited["s"] >= protocol.settle_s + 0.3:  # 0.3 s into the record window
-            outage.start()
+        if not waited["started"] and waited["s"] >= protocol.settle_s + 0.3:  # 0.3 s into the record window
+            waited["started"] = True
+            rig.peers[0].mocap_outage(outage_s)  # the emulated Motive (own process) sends nothing this long
 
     runner = Runner(
         rig,

@@ -64,6 +64,7 @@ class StreamDriver:
         self._started = False
         self._started_ns: int | None = None
         self._fault: str | None = None
+        self._fault_reported = False
         self.last_receive_ns: int | None = None
 
     # -- to implement --------------------------------------------------------------------------------------
@@ -136,7 +137,12 @@ class StreamDriver:
             rows, self._rows = self._rows, []
         if rows:
             return self._to_batch(rows)
-        self.check()
+        if not self._fault_reported:
+            try:
+                self.check()
+            except DeviceFault:
+                self._fault_reported = True  # once: the final drain after the idle must not fail again
+                raise
         return self._spec.empty_batch()
 
     # -- health --------------------------------------------------------------------------------------------
@@ -172,6 +178,7 @@ class StreamDriver:
         with self._lock:
             self._rows = []
         self._fault = None
+        self._fault_reported = False
         self.last_receive_ns = None
         self.counters = Counters()
 

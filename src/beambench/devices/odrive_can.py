@@ -19,7 +19,7 @@ Safety, in the order :meth:`OdriveCanMotor.arm` does it:
 :meth:`~OdriveCanMotor.set_frequency` refuses anything above ``max_frequency_hz`` before a frame is sent.
 :meth:`~OdriveCanMotor.idle` is idempotent and never raises; ``close()``/the context manager always idle.
 :meth:`~OdriveCanMotor.check` raises :class:`DeviceFault` on axis error bits (named), on leaving closed loop
-while armed, or when no heartbeat came for more than ``heartbeat_timeout_s`` (300 ms). The feeder stops
+while armed, or when no heartbeat came for more than ``heartbeat_timeout_s`` (500 ms: five periods). The feeder stops
 feeding when the heartbeat is lost, so a half-broken link lets the ODrive's own watchdog idle the motor.
 
 Telemetry (:func:`beambench.streams.motor_spec`): one row per Encoder_Estimates frame (100 Hz), with the
@@ -53,6 +53,12 @@ from beambench.common.errors import BeambenchError
 from beambench.devices import odrive_cansimple as cs
 from beambench.devices.odrive_cansimple import AxisState, ControlMode, InputMode
 
+# The ODrive sends its heartbeat every axis.config.can.heartbeat_rate_ms, 100 ms by default, and
+# Encoder_Estimates every encoder_rate_ms, 10 ms by default (firmware 0.5.x: CANConfig_t in
+# Firmware/MotorControl/axis.hpp; CAN protocol docs, https://docs.odriverobotics.com/v/0.5.6/can-protocol.html,
+# "cyclic messages"). A timeout of five heartbeat periods tolerates a late frame or two on a busy host without
+# letting a dead link go unnoticed for long; the rig file sets it (odrive.heartbeat_timeout_s).
+HEARTBEAT_TIMEOUT_S = 0.5
 VEL_HEADROOM = 1.1  # vel_limit = max_frequency_hz × this
 MAX_VEL_LIMIT = 250.0  # turn/s; never send more (the old script's 8000 disabled the limit)
 MAX_CURRENT_LIMIT = 60.0  # A, the ODrive v3.6 hardware maximum
@@ -109,6 +115,7 @@ class TelemetryStream:
     _guard: Any  # the driver's lock (or condition) that guards _rows and _streaming
     _rows: deque[tuple]
     _streaming: bool
+    _streaming_ns: int | None
     open: Any  # the driver's own: connects if needed
 
     def describe(self) -> StreamSpec:
@@ -118,6 +125,7 @@ class TelemetryStream:
         self.open()
         with self._guard:
             self._streaming = True
+            self._streaming_ns = time.monotonic_ns()
 
     def stop(self) -> None:
         with self._guard:
@@ -192,11 +200,13 @@ class OdriveCanMotor(TelemetryStream):
         *,
         bitrate: int | None = None,
         bus: can.BusABC | None = None,
+        own_bus: bool | None = None,
         can_log: str | Path | None = None,
         calibrate: bool = True,
         calibration_timeout_s: float = 30.0,
         closed_loop_timeout_s: float = 2.0,
-        heartbeat_timeout_s: float = 0.3,
+        heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S,
+        telemetry_timeout_s: float | None = 0.5,
         feed_period_s: float = 0.05,
         poll_period_s: float = 0.05,
         extended_id: bool = False,
@@ -214,8 +224,9 @@ class OdriveCanMotor(TelemetryStream):
         self.feed_period_s = feed_period_s
         self.poll_period_s = poll_period_s
 
+        self.telemetry_timeout_s = telemetry_timeout_s
         self._bus = bus
-        self._own_bus = bus is None
+        self._own_bus = bus is None if own_bus is None else own_bus
         self._notifier: can.Notifier | None = None
         self._log: _TrafficLog | None = None
         self._tx_lock = threading.Lock()
@@ -244,6 +255,9 @@ class OdriveCanMotor(TelemetryStream):
         self._rows: deque[tuple] = deque(maxlen=MAX_BUFFERED_ROWS)
         self._fault: str | None = None
         self.rx_count = 0
+        self.rows_received = 0
+        self._telemetry_ns: int | None = None  # host time of the newest Encoder_Estimates
+        self._streaming_ns: int | None = None  # when the telemetry stream started
         self.tx_count = 0
         self.parse_errors = 0
         self.send_errors: deque[str] = deque(maxlen=100)
@@ -351,7 +365,9 @@ class OdriveCanMotor(TelemetryStream):
                 self._cond.notify_all()
             elif isinstance(msg, cs.EncoderEstimates):
                 self._pos, self._vel = msg.pos, msg.vel
+                self._telemetry_ns = host_ns
                 if self._streaming:
+                    self.rows_received += 1
                     dev_t = frame.timestamp if frame.timestamp else host_ns * 1e-9
                     hb = self._hb
                     self._rows.append(
@@ -437,6 +453,32 @@ class OdriveCanMotor(TelemetryStream):
             limit_ms = self.heartbeat_timeout_s * 1e3
             return f"ODrive node {self.node_id} heartbeat lost for {age / 1e6:.0f} ms (> {limit_ms:.0f} ms)"
         return None
+
+    def _telemetry_silent_locked(self, now_ns: int) -> str | None:
+        """Encoder_Estimates (cyclic, 10 ms by default) stopped while streaming, though heartbeats may still come."""
+        timeout = self.telemetry_timeout_s
+        if timeout is None or not self._streaming or self._streaming_ns is None:
+            return None
+        last = max(self._telemetry_ns or 0, self._streaming_ns)
+        if now_ns - last > timeout * 1e9:
+            return (
+                f"ODrive node {self.node_id}: no encoder estimates for {(now_ns - last) * 1e-9:.2f} s (> {timeout:g} s)"
+            )
+        return None
+
+    def health(self) -> dict[str, Any]:
+        """Counters for the session: telemetry rows received, CAN frames that failed to parse, send errors."""
+        with self._cond:
+            return {
+                "received": self.rows_received,
+                "dropped": 0,  # CAN Simple frames carry no sequence number: losses cannot be counted
+                "garbled": self.parse_errors,
+                "forged": 0,
+                "frames_received": self.rx_count,
+                "frames_sent": self.tx_count,
+                "send_errors": len(self.send_errors),
+                "fault": self._fault or "",
+            }
 
     def _wait_heartbeat(self, pred, timeout_s: float, after_ns: int) -> cs.Heartbeat | None:
         """First heartbeat received after ``after_ns`` satisfying ``pred`` (or None on timeout)."""
@@ -606,6 +648,9 @@ class OdriveCanMotor(TelemetryStream):
             if lost is not None:
                 raise DeviceFault(lost)
             hb, armed = self._hb, self._armed
+            silent = self._telemetry_silent_locked(time.monotonic_ns())
+        if silent is not None:
+            raise DeviceFault(silent)
         if hb is None:
             return
         if hb.axis_error or hb.motor_error_flag or hb.encoder_error_flag or hb.controller_error_flag:

@@ -201,7 +201,9 @@ class MotiveEmulator:
 
     def server_info(self) -> nn.ServerInfo:
         sender = nn.Sender(self.app_name, APP_VERSIONS[self.server_version], nn.Version(*self.server_version))
-        return nn.ServerInfo(sender, self.clock.frequency_hz, self.data_port, self.multicast, self.multicast_address)
+        # multicast: the group's port; unicast: the port frames are sent from (clients accept data only from it)
+        port = self.data_port if self.multicast or self._data is None else self._data.getsockname()[1]
+        return nn.ServerInfo(sender, self.clock.frequency_hz, port, self.multicast, self.multicast_address)
 
     def model_def(self) -> nn.ModelDef:
         names = tuple(self.marker_names)

@@ -131,6 +131,10 @@ class SampledStream:
     def stop(self) -> None:
         self.running = False
 
+    def check(self) -> None:
+        """A simulated device samples whenever the clock advances: it cannot fall silent or fail (the motor's
+        overcurrent is the one simulated fault, see :meth:`SimMotor.check`)."""
+
     def read(self) -> Batch:
         if not self._pending:
             return self.spec.empty_batch()
