@@ -93,7 +93,7 @@ def test_a_silent_load_cell_board_is_a_fault_that_idles_and_saves(tmp_path):
 
 
 def test_every_driver_reports_its_counters_into_the_session(tmp_path):
-    result, rig, s = _run(tmp_path, "counters.h5", inject={"mocap_drop": {300, 301, 302}})
+    result, _rig, s = _run(tmp_path, "counters.h5", inject={"mocap_drop": {300, 301, 302}})
     assert result.status == "completed", result.message
     devices = s.general["devices"]
     assert set(devices) >= {"motor", "mocap", "loadcell"}
@@ -102,3 +102,22 @@ def test_every_driver_reports_its_counters_into_the_session(tmp_path):
         assert {"received", "dropped", "garbled", "forged"} <= set(counts)
         assert int(counts["received"]) >= len(s.streams[stream]) > 0
     assert int(devices["mocap"]["dropped"]) == 3
+
+
+def test_the_emulated_peers_run_in_their_own_process_and_the_heartbeat_timeout_is_a_rig_setting():
+    """Issue 13.11: the emulators and their physics are another process (their scheduling is not ours), and
+    the ODrive heartbeat timeout comes from the rig file (default 1 s: ten 100 ms heartbeat periods)."""
+    import os
+
+    from beambench.acquisition.config import OdriveWiring, RigFile, load_rig_file
+    from beambench.rigs.hardware import DEFAULT_RIG_FILE
+
+    assert RigFile().odrive.heartbeat_timeout_s == load_rig_file(DEFAULT_RIG_FILE).odrive.heartbeat_timeout_s == 1.0
+    rig = build_emulated_rig(parse_protocol(PROTOCOL), wiring=RigFile(odrive=OdriveWiring(heartbeat_timeout_s=0.8)))
+    peers = rig.peers[0]
+    try:
+        assert peers.pid != os.getpid() and os.path.exists(f"/proc/{peers.pid}")
+        assert rig.motor.heartbeat_timeout_s == 0.8
+    finally:
+        rig.close()
+    assert peers.report is not None and peers._proc.poll() is not None  # stopped, and said what it injected

@@ -9,7 +9,7 @@ import numpy as np
 from beambench.acquisition.batch import Batch
 from beambench.acquisition.config import parse_protocol
 from beambench.acquisition.hub import Hub
-from beambench.acquisition.monitors import MocapLost, build_monitors
+from beambench.acquisition.monitors import MocapLost, StreamSilent, build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
 from beambench.devices.odrive_cansimple import AxisState
@@ -43,6 +43,19 @@ def test_mocap_lost_needs_a_complete_frame_within_the_timeout():
     assert m.problem(701 * MS) is None
     m.write(Batch("loadcell", np.array([2000 * MS]), np.zeros(1), {}))  # other streams do not count
     assert "no frame" in m.problem(2000 * MS).reason
+
+
+def test_stream_silent_watches_one_stream_with_its_own_timeout():
+    m = StreamSilent("loadcell", 0.5)
+    assert m.problem(0) is None  # grace period from the first look
+    m.write(Batch("loadcell", np.array([100 * MS]), np.zeros(1), {}))
+    assert m.problem(550 * MS) is None
+    m.write(_mocap([900]))  # another stream does not count
+    p = m.problem(700 * MS)
+    assert p is not None and p.reason == "loadcell: no sample for 0.60 s" and p.since_ns == 100 * MS
+    on = parse_protocol("sweep: {frequencies: [5]}\n")
+    built = build_monitors(on, ["motor", "mocap", "loadcell"], silence_s={"loadcell": 0.5, "absent": 1.0})
+    assert [type(b).__name__ for b in built] == ["MocapLost", "StreamSilent"]
 
 
 def test_protocol_can_switch_the_monitor_off():

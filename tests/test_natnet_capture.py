@@ -10,6 +10,7 @@ from __future__ import annotations
 import re
 import socket
 import struct
+from datetime import timedelta
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
@@ -83,7 +84,7 @@ def parse_printout(text: str) -> dict[int, dict]:
 def f2(x: float) -> str:
     """``printf("%.2f")`` as the MSVC-built sample client does it: the value is first rounded to 17 significant
     digits, then half away from zero (so 1356.175, stored as 1356.17499999999995…, prints as 1356.18)."""
-    return str(Decimal("%.16e" % x).quantize(Decimal("0.01"), rounding=ROUND_HALF_UP))
+    return str(Decimal(f"{x:.16e}").quantize(Decimal("0.01"), rounding=ROUND_HALF_UP))
 
 
 def test_all_518_frames_decode_in_order(decoded):
@@ -145,9 +146,9 @@ def test_capture_holds_the_handshake(decoded):
     msgs = [nn.decode(g.payload, (3, 0)) for g in read_udp(CAPTURE, [1510, 1511])]
     kinds = [type(m).__name__ for m in msgs]
     assert kinds.count("FrameOfData") == 518 and kinds.count("EchoResponse") == 9
-    rate = [m for m in msgs if isinstance(m, nn.Response) and len(m.payload_bytes) == 4][0]
+    rate = next(m for m in msgs if isinstance(m, nn.Response) and len(m.payload_bytes) == 4)
     assert rate.as_float() == 120.0  # the "FrameRate" answer
-    md = [m for m in msgs if isinstance(m, nn.ModelDef)][0]
+    md = next(m for m in msgs if isinstance(m, nn.ModelDef))
     assert md.rigid_bodies()[0].name == "RaceQuad"
     first_frame = next(g.payload for g in read_udp(CAPTURE, [1511]) if nn.peek_message_id(g.payload) == 7)
     if (FIXTURES / "mocapframe_packet_v3.bin").is_file():
@@ -265,7 +266,7 @@ def _decode_within(path: Path, seconds: float = 20.0, **kw):
     def work() -> None:
         try:
             box["out"] = decode_capture(path, **kw)
-        except BaseException as exc:  # noqa: BLE001 - handed to the test thread
+        except BaseException as exc:
             box["exc"] = exc
 
     t = threading.Thread(target=work, daemon=True)
@@ -320,3 +321,51 @@ def test_ticks_above_2_63_fit_the_frame_table(tmp_path):
     df = frames_table(d)
     assert int(df["mid_exposure_ticks"].iloc[0]) == big
     assert int(df["transmit_ticks"].iloc[0]) == 2**64 - 1
+
+
+# ------------------------------------------------------------------------- fuzz: the documented error, bounded
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+PCAP_FUZZ = settings(  # a time bound per example (a loop that never ends fails it); generous, not a speed test
+    max_examples=150, deadline=timedelta(seconds=5), suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+
+
+@PCAP_FUZZ
+@given(st.binary(max_size=3000))
+def test_fuzz_any_file_reads_or_raises_capture_error(tmp_path, blob):
+    """read_udp's contract: datagrams, or CaptureError (a BeambenchError) for what is not a capture."""
+    p = tmp_path / "fuzz.pcap"
+    p.write_bytes(blob)
+    try:
+        grams = list(read_udp(p))
+    except CaptureError:
+        return
+    assert all(isinstance(g.payload, bytes) for g in grams)
+
+
+fragment = st.tuples(
+    st.integers(0, 5),  # ip id: several datagrams interleaved
+    st.integers(0, 64).map(lambda k: 8 * k),  # fragment offset, bytes
+    st.booleans(),  # more fragments
+    st.binary(max_size=64),
+)
+
+
+@PCAP_FUZZ
+@given(st.lists(fragment, max_size=40), st.binary(max_size=200))
+def test_fuzz_arbitrary_ipv4_fragments_terminate(tmp_path, frags, tail):
+    """Any mix of fragments (empty, overlapping, duplicated, missing) ends; a valid packet after them is read."""
+    import dpkt
+
+    path = tmp_path / "frags.pcap"
+    good = bytes(dpkt.udp.UDP(sport=1511, dport=50000, data=tail, ulen=8 + len(tail)))
+    with path.open("wb") as fh:
+        w = dpkt.pcap.Writer(fh, linktype=dpkt.pcap.DLT_EN10MB)
+        for i, (ident, off, more, data) in enumerate(frags):
+            w.writepkt(_ip_fragment(100 + ident, off, more, data), ts=1.0 + i * 1e-3)
+        w.writepkt(_ip_fragment(999, 0, False, good), ts=2.0)
+    grams = list(read_udp(path))
+    assert grams and grams[-1].payload == tail

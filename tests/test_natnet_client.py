@@ -272,12 +272,14 @@ def test_a_failing_position_source_stops_the_emulator_visibly():
     def broken(t: float) -> np.ndarray:
         return np.zeros((2, 3))  # wrong shape for three markers
 
-    with emulator("4.0", multicast=False, positions=lambda t: moving(t)) as emu:
-        with NatNetClient(config_for(emu)) as client:
-            emu.set_positions(broken)
-            time.sleep(0.2)
-            with pytest.raises(RuntimeError, match="shape"):
-                emu.check()
-            n = client.stats.frames
-            time.sleep(0.1)
-            assert client.stats.frames == n  # nothing more arrives
+    with (
+        emulator("4.0", multicast=False, positions=lambda t: moving(t)) as emu,
+        NatNetClient(config_for(emu)) as client,
+    ):
+        emu.set_positions(broken)
+        time.sleep(0.2)
+        with pytest.raises(RuntimeError, match="shape"):
+            emu.check()
+        n = client.stats.frames
+        time.sleep(0.1)
+        assert client.stats.frames == n  # nothing more arrives

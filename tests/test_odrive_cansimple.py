@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import struct
+from datetime import timedelta
 from pathlib import Path
 
 import can
@@ -94,7 +95,7 @@ def test_everything_we_encode_decodes_identically_in_the_dbc(db, msg, node_id):
 @settings(max_examples=300, deadline=None)
 @given(msg=messages, node_id=node)
 def test_everything_cantools_encodes_we_decode_back(db, msg, node_id):
-    name, sigs = MAPPING[type(msg)]
+    name, _sigs = MAPPING[type(msg)]
     dbc_msg = db.get_message_by_name(f"Axis{node_id}_{name}")
     data = dbc_msg.encode(_ours(msg), strict=False)
     got_node, got = cs.parse_frame(dbc_msg.frame_id, data)
@@ -193,3 +194,23 @@ def test_fuzz_decoder_raises_only_can_parse_error(arb_id, data, is_remote, is_ex
     assert 0 <= node_id <= cs.MAX_NODE_ID_EXTENDED
     if not isinstance(msg, cs.Request):  # decoding is deterministic (repr: NaN payloads compare equal)
         assert repr(type(msg).decode(data)) == repr(msg)
+
+
+@settings(max_examples=2000, deadline=timedelta(seconds=5))  # a time bound per frame (generous: not a speed test)
+@given(
+    arb_id=st.integers(0, 0x1FFFFFFF),
+    data=st.binary(max_size=8),
+    remote=st.booleans(),
+    extended=st.booleans(),
+)
+def test_fuzz_any_frame_decodes_or_raises_only_can_parse_error(arb_id, data, remote, extended):
+    """The documented contract of parse_frame: a message, or CanParseError (a BeambenchError) — nothing else."""
+    from beambench.common.errors import BeambenchError
+
+    try:
+        node, msg = cs.parse_frame(arb_id, data, remote, extended)
+    except cs.CanParseError as exc:
+        assert isinstance(exc, BeambenchError)
+        return
+    assert 0 <= node <= (0xFFFFFF if extended else 0x3F)
+    assert isinstance(msg, (cs.Request, *cs.MESSAGES.values()))

@@ -236,8 +236,8 @@ class OdriveWiring(_Model):
     axis: int = Field(0, ge=0, le=1)
     serial_number: str | None = None
     watchdog_timeout_s: float = Field(0.5, gt=0, le=5)
-    # heartbeats come every 100 ms by default (axis.config.can.heartbeat_rate_ms): five periods
-    heartbeat_timeout_s: float = Field(0.5, gt=0, le=10)
+    # heartbeats come every 100 ms by default (axis.config.can.heartbeat_rate_ms): ten periods
+    heartbeat_timeout_s: float = Field(1.0, gt=0, le=10)
     telemetry_timeout_s: float | None = Field(0.5, gt=0, le=10)  # Encoder_Estimates (every 10 ms by default)
 
 

@@ -15,6 +15,7 @@ configurable map from marker names to labeled-marker ids or rigid-body ids.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import queue
 import selectors
@@ -235,20 +236,16 @@ class NatNetClient:
     def close(self) -> None:
         """Stop the thread and close the sockets (tells a unicast server we left). Idempotent."""
         if self._cmd is not None and not self.config.multicast and self.server_info is not None:
-            try:
+            with contextlib.suppress(OSError):
                 self.send(nn.Disconnect())
-            except OSError:
-                pass
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
         self._thread = None
         for s in (self._data, self._cmd):
             if s is not None:
-                try:
+                with contextlib.suppress(OSError):
                     s.close()
-                except OSError:
-                    pass
         self._data = self._cmd = None
         if self._sel is not None:
             self._sel.close()

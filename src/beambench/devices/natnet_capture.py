@@ -6,6 +6,7 @@ command), else from the caller. Used by ``beambench natnet decode`` and by the d
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,7 +55,7 @@ class CaptureDecode:
     def frame_rate_hz(self) -> float | None:
         """From the median spacing of Motive's frame timestamps."""
         ts = sorted(f.timestamp for _, f in self.frames)
-        d = sorted(b - a for a, b in zip(ts, ts[1:]) if b > a)
+        d = sorted(b - a for a, b in itertools.pairwise(ts) if b > a)
         return 1.0 / d[len(d) // 2] if d else None
 
     def summary(self, name: str = "capture") -> str:

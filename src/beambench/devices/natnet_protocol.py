@@ -21,7 +21,9 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import ClassVar, NamedTuple, Union
+from typing import ClassVar, NamedTuple
+
+from beambench.common.errors import BeambenchError
 
 __all__ = [
     "Connect",
@@ -55,7 +57,7 @@ MAX_NAME = 256
 MAX_PAYLOAD = 65535
 
 
-class NatNetParseError(ValueError):
+class NatNetParseError(BeambenchError, ValueError):
     """A packet is malformed, truncated or of an unsupported version."""
 
 
@@ -99,6 +101,9 @@ class Version(NamedTuple):
 
     def __str__(self) -> str:
         return ".".join(str(p) for p in self)
+
+
+_V0 = Version(0)
 
 
 V3_0, V4_0, V4_1 = Version(3, 0), Version(4, 0), Version(4, 1)
@@ -215,8 +220,8 @@ class Sender:
     """The 264-byte sender block: application name, application version, NatNet version."""
 
     name: str
-    version: Version = Version(0)
-    natnet_version: Version = Version(0)
+    version: Version = _V0
+    natnet_version: Version = _V0
 
     SIZE: ClassVar[int] = MAX_NAME + 8
 
@@ -702,16 +707,16 @@ class UnknownDescription:
         return self.raw
 
 
-Description = Union[
-    MarkerSetDescription,
-    RigidBodyDescription,
-    SkeletonDescription,
-    ForcePlateDescription,
-    DeviceDescription,
-    CameraDescription,
-    AssetDescription,
-    UnknownDescription,
-]
+Description = (
+    MarkerSetDescription
+    | RigidBodyDescription
+    | SkeletonDescription
+    | ForcePlateDescription
+    | DeviceDescription
+    | CameraDescription
+    | AssetDescription
+    | UnknownDescription
+)
 _DESCRIPTIONS = {
     c.TYPE: c
     for c in (
@@ -1129,24 +1134,24 @@ class FrameOfData:
 
 # --------------------------------------------------------------------------------------------- dispatch
 
-Message = Union[
-    Connect,
-    Discovery,
-    ServerInfo,
-    Request,
-    Response,
-    RequestModelDef,
-    ModelDef,
-    RequestFrameOfData,
-    FrameOfData,
-    MessageString,
-    Disconnect,
-    KeepAlive,
-    DisconnectByTimeout,
-    EchoRequest,
-    EchoResponse,
-    UnrecognizedRequest,
-]
+Message = (
+    Connect
+    | Discovery
+    | ServerInfo
+    | Request
+    | Response
+    | RequestModelDef
+    | ModelDef
+    | RequestFrameOfData
+    | FrameOfData
+    | MessageString
+    | Disconnect
+    | KeepAlive
+    | DisconnectByTimeout
+    | EchoRequest
+    | EchoResponse
+    | UnrecognizedRequest
+)
 _MESSAGES: dict[int, type] = {
     c.ID: c  # type: ignore[attr-defined]
     for c in (

@@ -19,7 +19,7 @@ Safety, in the order :meth:`OdriveCanMotor.arm` does it:
 :meth:`~OdriveCanMotor.set_frequency` refuses anything above ``max_frequency_hz`` before a frame is sent.
 :meth:`~OdriveCanMotor.idle` is idempotent and never raises; ``close()``/the context manager always idle.
 :meth:`~OdriveCanMotor.check` raises :class:`DeviceFault` on axis error bits (named), on leaving closed loop
-while armed, or when no heartbeat came for more than ``heartbeat_timeout_s`` (500 ms: five periods). The feeder stops
+while armed, or when no heartbeat came for more than ``heartbeat_timeout_s`` (1 s: ten periods). The feeder stops
 feeding when the heartbeat is lost, so a half-broken link lets the ODrive's own watchdog idle the motor.
 
 Telemetry (:func:`beambench.streams.motor_spec`): one row per Encoder_Estimates frame (100 Hz), with the
@@ -35,6 +35,7 @@ other python-can formats work too) fed by the ``can.Notifier`` that receives for
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import threading
@@ -56,9 +57,11 @@ from beambench.devices.odrive_cansimple import AxisState, ControlMode, InputMode
 # The ODrive sends its heartbeat every axis.config.can.heartbeat_rate_ms, 100 ms by default, and
 # Encoder_Estimates every encoder_rate_ms, 10 ms by default (firmware 0.5.x: CANConfig_t in
 # Firmware/MotorControl/axis.hpp; CAN protocol docs, https://docs.odriverobotics.com/v/0.5.6/can-protocol.html,
-# "cyclic messages"). A timeout of five heartbeat periods tolerates a late frame or two on a busy host without
-# letting a dead link go unnoticed for long; the rig file sets it (odrive.heartbeat_timeout_s).
-HEARTBEAT_TIMEOUT_S = 0.5
+# "cyclic messages"). A timeout of ten heartbeat periods outlasts a busy host's scheduling hiccups (a 573 ms gap
+# was seen on a loaded 2-core machine) while a dead link is still noticed within a second; the ODrive's own
+# watchdog (armed over USB, watchdog_timeout_s) is what idles the motor when the host stops. The rig file sets
+# it (odrive.heartbeat_timeout_s).
+HEARTBEAT_TIMEOUT_S = 1.0
 VEL_HEADROOM = 1.1  # vel_limit = max_frequency_hz × this
 MAX_VEL_LIMIT = 250.0  # turn/s; never send more (the old script's 8000 disabled the limit)
 MAX_CURRENT_LIMIT = 60.0  # A, the ODrive v3.6 hardware maximum
@@ -308,10 +311,8 @@ class OdriveCanMotor(TelemetryStream):
         elif self._log is not None:
             self._log.stop()
         if self._own_bus and self._bus is not None:
-            try:
+            with contextlib.suppress(Exception):
                 self._bus.shutdown()
-            except Exception:
-                pass
             self._bus = None
         self._closed = True
 

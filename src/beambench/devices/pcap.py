@@ -12,10 +12,12 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from beambench.common.errors import BeambenchError
+
 __all__ = ["CaptureError", "UdpDatagram", "read_udp"]
 
 
-class CaptureError(ValueError):
+class CaptureError(BeambenchError, ValueError):
     """The file is not a readable pcap/pcapng capture, or its link type is not supported."""
 
 

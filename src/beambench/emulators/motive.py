@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from beambench.acquisition.clocks import DriftingClock
 from beambench.devices import natnet_protocol as nn
 
 __all__ = ["APP_VERSIONS", "EmulatorClock", "MotiveEmulator"]
@@ -49,7 +50,8 @@ def motive_frame(source: PositionSource) -> PositionSource:
 
 @dataclass
 class EmulatorClock:
-    """Motive's QPC clock as a function of host monotonic time; ``jitter_s``/``latency_s`` delay sending."""
+    """Motive's QPC clock as a function of host monotonic time (the :class:`DriftingClock` model, counted at
+    ``frequency_hz``); ``jitter_s``/``latency_s`` delay sending."""
 
     offset_s: float = 0.0
     drift_ppm: float = 0.0
@@ -58,10 +60,10 @@ class EmulatorClock:
     frequency_hz: int = 10_000_000
 
     def seconds(self, host_s: float) -> float:
-        return self.offset_s + (1.0 + self.drift_ppm * 1e-6) * host_s
+        return DriftingClock(self.offset_s, self.drift_ppm).device_time(host_s)
 
     def ticks(self, host_s: float) -> int:
-        return max(0, int(round(self.seconds(host_s) * self.frequency_hz)))
+        return max(0, round(self.seconds(host_s) * self.frequency_hz))
 
     @classmethod
     def from_model(cls, model: object, frequency_hz: int = 10_000_000) -> EmulatorClock:
@@ -346,13 +348,13 @@ class MotiveEmulator:
         recv_ticks = clk.ticks(t_exposure + 0.6 * clk.latency_s)
         tx_ticks = clk.ticks(t_send)
         dev_s = clk.seconds(t_exposure)
-        secs = max(0, int(math.floor(dev_s)))
+        secs = max(0, math.floor(dev_s))
         frac = int((dev_s - math.floor(dev_s)) * 2**32) & 0xFFFFFFFF
         elapsed = k / self.rate_hz
         hh, mm, ss = int(elapsed // 3600) % 24, int(elapsed // 60) % 60, int(elapsed) % 60
         ff = int((elapsed % 1.0) * 30)
         timecode = (hh << 24) | (mm << 16) | (ss << 8) | ff
-        sub = int(round(elapsed * self.rate_hz)) % max(1, int(round(self.rate_hz / 30)))
+        sub = round(elapsed * self.rate_hz) % max(1, round(self.rate_hz / 30))
         return nn.FrameOfData(
             frame_number=number,
             marker_sets=(
@@ -389,9 +391,8 @@ class MotiveEmulator:
             delay = clk.latency_s + (abs(float(self.rng.normal(0.0, clk.jitter_s))) if clk.jitter_s > 0 else 0.0)
             t_send = t_exp + delay
             wait = t_send - time.monotonic()
-            if wait > 0:
-                if self._stop.wait(wait):
-                    break
+            if wait > 0 and self._stop.wait(wait):
+                break
             number = self.first_frame + k
             m = len(self.marker_names)
             if self._is_dropped(number):

@@ -494,7 +494,7 @@ class EmulatedOdrive:
     def _on_frame(self, frame: can.Message) -> None:
         m = self.model
         try:
-            node, cmd = cs.split_id(frame.arbitration_id, frame.is_extended_id)
+            node, _cmd = cs.split_id(frame.arbitration_id, frame.is_extended_id)
         except cs.CanParseError:
             return
         if node != m.node_id:

@@ -177,6 +177,19 @@ class _Outage:
         return number in self.base
 
 
+DEVICE_THREADS = ("motive-", "loadcell-mcu", "odrive-emulator")
+
+
+def _favour_device_threads() -> None:
+    """Real devices have CPUs of their own: give the emulators' threads (light: they format and send frames) a
+    higher scheduling priority than the physics beside them, where the OS allows it (root or CAP_SYS_NICE);
+    without the privilege they keep the default."""
+    for t in threading.enumerate():
+        if t.native_id is not None and t.name.startswith(DEVICE_THREADS):
+            with contextlib.suppress(OSError):
+                os.setpriority(os.PRIO_PROCESS, t.native_id, -10)
+
+
 def _peer_entry(fd: int) -> None:
     """Entry point of the peers' process: the first message on the socket ``fd`` is the spec."""
     conn = Connection(fd)
@@ -254,6 +267,7 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
                 physics.odrive = odrive
                 physics.start()
                 mcu.start()
+                _favour_device_threads()
                 if inject.get("loadcell_stop_s") is not None:
                     stop_mcu = threading.Timer(float(inject["loadcell_stop_s"]), mcu.stop)
                     stop_mcu.daemon = True

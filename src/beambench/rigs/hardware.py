@@ -113,6 +113,15 @@ class DeviceRig:
         for s in (self.mocap, self.loadcells):
             s.check()
 
+    def silence_timeouts(self) -> dict[str, float]:
+        """Each stream's silence timeout (s), for :func:`beambench.acquisition.monitors.build_monitors`."""
+        out: dict[str, float] = {}
+        for s in (self.mocap, self.loadcells):
+            timeout = getattr(s, "silence_timeout_s", None)
+            if timeout is not None:
+                out[s.name] = float(timeout)
+        return out
+
     def device_health(self) -> dict[str, dict[str, Any]]:
         """Every driver's counters (received, dropped, garbled, forged, ...), by stream name."""
         out: dict[str, dict[str, Any]] = {}
