@@ -10,13 +10,11 @@ with ``drift = drift_ppm·1e-6``. A device that samples every ``1/rate`` of *its
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, overload
 
 import numpy as np
 
 __all__ = ["DriftingClock"]
-
-T = TypeVar("T", float, np.ndarray)
 
 
 @dataclass(frozen=True)
@@ -31,10 +29,22 @@ class DriftingClock:
         """Device seconds per true second."""
         return 1.0 + self.drift_ppm * 1e-6
 
-    def device_time(self, true_s: T) -> T:
+    @overload
+    def device_time(self, true_s: float) -> float: ...
+    @overload
+    def device_time(self, true_s: np.ndarray) -> np.ndarray: ...
+    @overload
+    def device_time(self, true_s: float | np.ndarray) -> float | np.ndarray: ...
+    def device_time(self, true_s: float | np.ndarray) -> float | np.ndarray:
         return self.offset_s + self.scale * true_s
 
-    def true_time(self, device_s: T) -> T:
+    @overload
+    def true_time(self, device_s: float) -> float: ...
+    @overload
+    def true_time(self, device_s: np.ndarray) -> np.ndarray: ...
+    @overload
+    def true_time(self, device_s: float | np.ndarray) -> float | np.ndarray: ...
+    def true_time(self, device_s: float | np.ndarray) -> float | np.ndarray:
         return (device_s - self.offset_s) / self.scale
 
     def rate_on_host(self, nominal_hz: float) -> float:

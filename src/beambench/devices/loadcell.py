@@ -167,7 +167,7 @@ class SerialLoadCells(StreamDriver):
     def stats(self) -> dict[str, Any]:
         """Decoder counters (CRC errors, gaps, lost frames, bytes discarded, ...) and samples delivered."""
         with self._lock:
-            d = self.decoder.stats.as_dict()
+            d: dict[str, Any] = dict(self.decoder.stats.as_dict())
             queued = len(self._rows)
         d.update(samples_delivered=self.samples_delivered, samples_queued=queued, fault=self._fault)
         return d

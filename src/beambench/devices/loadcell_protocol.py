@@ -150,7 +150,9 @@ class StreamDecoder:
         return self._last_seq is not None
 
     def reset(self) -> None:
-        self.__init__()
+        self.stats = DecoderStats()
+        self._buf = bytearray()
+        self._last_seq = None
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Append ``data`` and return every frame completed by it, in order. Never raises, never waits."""

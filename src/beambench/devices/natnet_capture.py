@@ -147,7 +147,7 @@ def decode_capture(
     return out
 
 
-def frames_table(decoded: CaptureDecode):  # type: ignore[no-untyped-def]
+def frames_table(decoded: CaptureDecode):
     """One row per frame: frame number, timestamp suffix, rigid bodies and labeled markers (wide, by id).
 
     Rigid-body columns are ``rb<id>_{x,y,z,qx,qy,qz,qw,error,valid}``; labeled-marker columns

@@ -99,7 +99,7 @@ def rows_to_batch(rows: list[tuple]) -> Batch:
     if not rows:
         return motor_spec().empty_batch()
     host, dev, pos, vel, sp, iq, vbus, state, err = zip(*rows)
-    cols = {
+    cols: dict[str, np.ndarray] = {
         "position": np.asarray(pos, np.float64),
         "velocity": np.asarray(vel, np.float64),
         "velocity_setpoint": np.asarray(sp, np.float64),

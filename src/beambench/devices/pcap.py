@@ -11,6 +11,7 @@ import socket
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from beambench.common.errors import BeambenchError
 
@@ -37,7 +38,7 @@ class UdpDatagram:
 _ETHERNET, _NULL, _RAW, _RAW_OPENBSD, _LOOP, _SLL, _IPV4, _SLL2 = 1, 0, 101, 12, 108, 113, 228, 276
 
 
-def _reader(f):  # type: ignore[no-untyped-def]
+def _reader(f):
     import dpkt
 
     head = f.read(4)
@@ -50,7 +51,7 @@ def _reader(f):  # type: ignore[no-untyped-def]
         raise CaptureError(f"not a pcap or pcapng capture ({exc})") from None
 
 
-def _ip_of(linktype: int, buf: bytes):  # type: ignore[no-untyped-def]
+def _ip_of(linktype: int, buf: bytes):
     """The IPv4 packet inside one link-layer frame, or None."""
     import dpkt
 
@@ -73,7 +74,7 @@ MAX_PENDING = 1024  # datagrams being reassembled at once; the oldest is dropped
 MAX_DATAGRAM = 65_535  # an IPv4 datagram cannot be larger
 
 
-def _datagrams(packets: Iterable[tuple[float, bytes]], linktype: int) -> Iterator[tuple[float, object, bytes]]:
+def _datagrams(packets: Iterable[tuple[float, bytes]], linktype: int) -> Iterator[tuple[float, Any, bytes]]:
     """(time, ip, UDP bytes) with IPv4 fragments reassembled; malformed frames are skipped.
 
     A fragment that cannot be part of a valid datagram is dropped: an empty one (which advanced nothing and

@@ -214,8 +214,10 @@ class MotiveEmulator:
         for rb_id, idx in self.rigid_bodies.items():
             centre = p0[list(idx)].mean(axis=0)
             markers = tuple(
-                nn.RigidBodyMarker(tuple(float(x) for x in p0[i] - centre), 0, names[i])
-                for i in idx  # type: ignore[arg-type]
+                nn.RigidBodyMarker(
+                    (float(p0[i][0] - centre[0]), float(p0[i][1] - centre[1]), float(p0[i][2] - centre[2])), 0, names[i]
+                )
+                for i in idx
             )
             sets.append(nn.RigidBodyDescription(f"rigid_body_{rb_id}", rb_id, -1, (0.0, 0.0, 0.0), markers))
         sets.append(nn.MarkerSetDescription("all", tuple(f"{self.asset_name}_{n}" for n in names)))
@@ -309,7 +311,7 @@ class MotiveEmulator:
             return bool(d(number))
         if isinstance(d, float):
             return bool(self.rng.random() < d)
-        return number in d  # type: ignore[operator]
+        return number in d
 
     def _occluded(self, number: int, m: int) -> set[int]:
         o = self.occlude
@@ -320,7 +322,7 @@ class MotiveEmulator:
         elif isinstance(o, float):
             hidden = set(np.flatnonzero(self.rng.random(m) < o).tolist())
         else:
-            hidden = set(o.get(number, ()))  # type: ignore[union-attr]
+            hidden = set(o.get(number, ()))
         return {i for i in hidden if 0 <= i < m}
 
     def make_frame(self, k: int, t_exposure: float, t_send: float, hidden: set[int]) -> nn.FrameOfData:
@@ -334,7 +336,7 @@ class MotiveEmulator:
         for i, mid in enumerate(self.marker_ids):  # type: ignore[arg-type]
             occl = i in hidden
             params = (0x01 | 0x04 | 0x08) if occl else (0x02 | 0x08)  # occluded+model-solved | point-cloud-solved
-            lms.append(nn.LabeledMarker(mid, tuple(pos[i].tolist()), 0.014, params, 0.0 if occl else 1e-4))  # type: ignore[arg-type]
+            lms.append(nn.LabeledMarker(mid, tuple(pos[i].tolist()), 0.014, params, 0.0 if occl else 1e-4))
         rbs = []
         for rb_id, idx in self.rigid_bodies.items():
             seen = [i for i in idx if i not in hidden]
@@ -342,7 +344,7 @@ class MotiveEmulator:
             c = pos[list(idx)].mean(axis=0)
             rbs.append(
                 nn.RigidBody(rb_id, tuple(c.tolist()), (0.0, 0.0, 0.0, 1.0), 1e-4 if valid else 0.0, 1 if valid else 0)
-            )  # type: ignore[arg-type]
+            )
         clk = self.clock
         mid_ticks = clk.ticks(t_exposure)
         recv_ticks = clk.ticks(t_exposure + 0.6 * clk.latency_s)
@@ -358,8 +360,8 @@ class MotiveEmulator:
         return nn.FrameOfData(
             frame_number=number,
             marker_sets=(
-                nn.MarkerSetData(self.asset_name, tuple(tuple(p) for p in pos.tolist())),  # type: ignore[misc]
-                nn.MarkerSetData("all", tuple(tuple(p) for p in pos.tolist())),  # type: ignore[misc]
+                nn.MarkerSetData(self.asset_name, tuple(tuple(p) for p in pos.tolist())),
+                nn.MarkerSetData("all", tuple(tuple(p) for p in pos.tolist())),
             ),
             rigid_bodies=tuple(rbs),
             labeled_markers=tuple(lms),

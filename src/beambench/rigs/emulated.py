@@ -132,14 +132,16 @@ def emulated_peers(protocol: Protocol | None = None, physics: bool = False) -> I
             mcu.start()
             try:
                 yield RigFile(
-                    natnet=NatNetWiring(
-                        server_address="127.0.0.1",
-                        local_address="127.0.0.1",
-                        command_port=motive.command_address[1],
-                        multicast=False,
+                    natnet=NatNetWiring.model_validate(
+                        {
+                            "server_address": "127.0.0.1",
+                            "local_address": "127.0.0.1",
+                            "command_port": motive.command_address[1],
+                            "multicast": False,
+                        }
                     ),
-                    odrive=OdriveWiring(interface="virtual", channel=channel),
-                    loadcell=LoadCellWiring(port=port),
+                    odrive=OdriveWiring.model_validate({"interface": "virtual", "channel": channel}),
+                    loadcell=LoadCellWiring.model_validate({"port": port}),
                 )
             finally:
                 mcu.close()
@@ -253,7 +255,7 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
                     "command_port": motive.command_address[1],
                     "loadcell_port": lc_port,
                     "markers": tuple(physics.scene.markers),
-                    "scene": physics.scene.identity(),
+                    "scene": getattr(physics.scene, "identity", dict)(),
                 },
             )
         )

@@ -161,7 +161,7 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
     if od.transport == "usb":
         from beambench.devices.odrive_usb import OdriveUsbMotor
 
-        return OdriveUsbMotor(serial_number=od.serial_number, axis=od.axis)  # type: ignore[return-value]
+        return OdriveUsbMotor(serial_number=od.serial_number, axis=od.axis)
     from beambench.devices.odrive_can import OdriveCanMotor
 
     return OdriveCanMotor(
