@@ -184,8 +184,9 @@ DEVICE_THREADS = ("motive-", "loadcell-mcu", "odrive-emulator")
 
 def _favour_device_threads() -> None:
     """Real devices have CPUs of their own: give the emulators' threads (light: they format and send frames) a
-    higher scheduling priority than the physics beside them, where the OS allows it (root or CAP_SYS_NICE);
-    without the privilege they keep the default."""
+    higher scheduling priority, where the OS allows it (root or CAP_SYS_NICE; without the privilege they keep the
+    default). The physics (heavy) is not raised: on a 2-core machine it would starve the acquisition process,
+    whose ODrive watchdog feed must keep to 0.5 s."""
     for t in threading.enumerate():
         if t.native_id is not None and t.name.startswith(DEVICE_THREADS):
             with contextlib.suppress(OSError):
