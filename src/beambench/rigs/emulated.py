@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -194,7 +195,10 @@ def _favour_device_threads() -> None:
 
 
 def _peer_entry(fd: int) -> None:
-    """Entry point of the peers' process: the first message on the socket ``fd`` is the spec."""
+    """Entry point of the peers' process: the first message on the socket ``fd`` is the spec. Signals are the
+    acquisition process's business (it stops the peers when it is done); a parent that dies closes the socket,
+    which ends this process."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     conn = Connection(fd)
     try:
         spec = conn.recv()
@@ -347,6 +351,7 @@ class PeerProcess:
             pass_fds=(child.fileno(),),
             env=env,
             stdin=subprocess.DEVNULL,
+            start_new_session=True,  # a terminal's Ctrl-C goes to the acquisition process, not to the "devices"
         )
         child.close()
         self._conn = Connection(parent.detach())
