@@ -22,7 +22,7 @@ PROTOCOL = """
 name: safety
 sweep: {frequencies: [6]}
 settle_s: 0.4
-record_s: 1.6
+record_s: 2.5
 sim: {seed: 3}
 monitors: {mocap_lost_s: null}
 """

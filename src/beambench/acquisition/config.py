@@ -238,7 +238,7 @@ class OdriveWiring(_Model):
     watchdog_timeout_s: float = Field(0.5, gt=0, le=5)
     # heartbeats come every 100 ms by default (axis.config.can.heartbeat_rate_ms): ten periods
     heartbeat_timeout_s: float = Field(1.0, gt=0, le=10)
-    telemetry_timeout_s: float | None = Field(0.5, gt=0, le=10)  # Encoder_Estimates (every 10 ms by default)
+    telemetry_timeout_s: float | None = Field(1.0, gt=0, le=10)  # Encoder_Estimates (every 10 ms by default)
 
 
 class LoadCellWiring(_Model):
@@ -246,7 +246,7 @@ class LoadCellWiring(_Model):
 
     port: str = "/dev/ttyACM0"
     baudrate: int = 921600
-    silence_timeout_s: float | None = Field(0.5, gt=0, le=60)  # no frame for this long (1 kHz board): fault
+    silence_timeout_s: float | None = Field(1.0, gt=0, le=60)  # no frame for this long (1 kHz board): fault
 
 
 class RigFile(_Model):

@@ -88,7 +88,7 @@ class SerialLoadCells(StreamDriver):
         rate_hz: float = LOADCELL_RATE_HZ,
         read_timeout_s: float = 0.05,
         exclusive: bool = True,
-        silence_timeout_s: float | None = 0.5,
+        silence_timeout_s: float | None = 1.0,
     ) -> None:
         super().__init__(name, loadcell_spec(rate_hz), silence_timeout_s)
         self.port = port

@@ -209,7 +209,7 @@ class OdriveCanMotor(TelemetryStream):
         calibration_timeout_s: float = 30.0,
         closed_loop_timeout_s: float = 2.0,
         heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S,
-        telemetry_timeout_s: float | None = 0.5,
+        telemetry_timeout_s: float | None = 1.0,
         feed_period_s: float = 0.05,
         poll_period_s: float = 0.05,
         extended_id: bool = False,
