@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import os
 import sys
 import tempfile
@@ -157,6 +158,16 @@ def main() -> None:
             state["last_print"] = time.monotonic()
             print(f"  {state['done'] / 60:.1f} min, RSS {rss[-1]:.0f} MB", flush=True)
 
+    gc_pauses: dict[int, list[float]] = {0: [], 1: [], 2: []}
+    gc_t0 = [0.0]
+
+    def on_gc(phase: str, info: dict) -> None:  # type: ignore[type-arg]
+        if phase == "start":
+            gc_t0[0] = time.perf_counter()
+        else:
+            gc_pauses[info["generation"]].append((time.perf_counter() - gc_t0[0]) * 1e3)
+
+    gc.callbacks.append(on_gc)
     rss_start = rss_mb()
     cpu0, wall0 = time.process_time(), time.monotonic()
     peers_cpu0 = cpu_s(peers_pid)
@@ -199,6 +210,11 @@ def main() -> None:
     print(f"RSS: start {rss_start:.0f} MB, end {rss_end:.0f} MB, max {max(rss, default=rss_end):.0f} MB")
     print(f"batch-to-disk:  {pct(disk.latency_ms)}")
     print(f"batch-to-Rerun: {pct(view.latency_ms)}")
+    for gen, pauses in gc_pauses.items():
+        if pauses:
+            print(
+                f"GC generation {gen}: {len(pauses)} collections, max {max(pauses):.1f} ms, total {sum(pauses):.0f} ms"
+            )
     print(f"files: {path.name} {path.stat().st_size / 1e6:.1f} MB, {rrd.name} {rrd.stat().st_size / 1e6:.1f} MB")
     if tmp is not None:
         tmp.cleanup()
