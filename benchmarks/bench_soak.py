@@ -106,6 +106,7 @@ def main() -> None:
         help="change this process's nice value first (negative needs root; the peers' process inherits it): "
         "an acquisition PC does not share its cores with other users' jobs, a shared test machine does",
     )
+    ap.add_argument("--no-rerun", action="store_true", help="HDF5 only (to tell the sinks' memory apart)")
     args = ap.parse_args()
     if args.nice:
         os.nice(args.nice)
@@ -144,7 +145,7 @@ def main() -> None:
     disk = Timed(writer, at_flush=True)
     view = Timed(RerunSink("save", "soak", rrd, t0_ns=rig.clock.now_ns()), at_flush=False)
     monitors = build_monitors(protocol, [s.describe().name for s in rig.streams])
-    hub = Hub([disk, view, *monitors], critical=(disk,))
+    hub = Hub([disk, *([] if args.no_rerun else [view]), *monitors], critical=(disk,))
     hub.open([s.describe() for s in rig.streams])
     rss: list[float] = []
     state = {"last_print": time.monotonic(), "done": 0.0, "peers_cpu": float("nan")}
@@ -215,7 +216,8 @@ def main() -> None:
             print(
                 f"GC generation {gen}: {len(pauses)} collections, max {max(pauses):.1f} ms, total {sum(pauses):.0f} ms"
             )
-    print(f"files: {path.name} {path.stat().st_size / 1e6:.1f} MB, {rrd.name} {rrd.stat().st_size / 1e6:.1f} MB")
+    rrd_mb = rrd.stat().st_size / 1e6 if rrd.exists() else 0.0
+    print(f"files: {path.name} {path.stat().st_size / 1e6:.1f} MB, {rrd.name} {rrd_mb:.1f} MB")
     if tmp is not None:
         tmp.cleanup()
 
