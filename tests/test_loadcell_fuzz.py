@@ -1,5 +1,7 @@
 """Fuzzing the load-cell serial decoder: arbitrary bytes, garbage around valid frames, corrupted frames."""
 
+from datetime import timedelta
+
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -12,7 +14,8 @@ from beambench.devices.loadcell_protocol import (
     encode_frame,
 )
 
-FUZZ = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+# deadline: a time bound per example (a decoder that loops fails it); generous, speed is in benchmarks/
+FUZZ = settings(max_examples=200, deadline=timedelta(seconds=5), suppress_health_check=[HealthCheck.too_slow])
 u32 = st.integers(0, 2**32 - 1)
 i32 = st.integers(-(2**31), 2**31 - 1)
 frame_fields = st.tuples(u32, u32, st.tuples(i32, i32, i32, i32), u32)
@@ -28,7 +31,7 @@ def frame_runs(draw, max_frames=12):
 
 def feed_in_chunks(dec: StreamDecoder, data: bytes, cuts: list[int]) -> list[Frame]:
     out, prev = [], 0
-    for c in sorted(set(x % (len(data) + 1) for x in cuts)) + [len(data)]:
+    for c in [*sorted(set(x % (len(data) + 1) for x in cuts)), len(data)]:
         out += dec.feed(data[prev:c])
         prev = c
     return out

@@ -4,14 +4,12 @@ run as a fault, motor idle first, everything recorded saved."""
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 
 from beambench.acquisition.batch import Batch
 from beambench.acquisition.config import parse_protocol
 from beambench.acquisition.hub import Hub
-from beambench.acquisition.monitors import MocapLost, build_monitors
+from beambench.acquisition.monitors import MocapLost, StreamSilent, build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
 from beambench.devices.odrive_cansimple import AxisState
@@ -47,24 +45,24 @@ def test_mocap_lost_needs_a_complete_frame_within_the_timeout():
     assert "no frame" in m.problem(2000 * MS).reason
 
 
+def test_stream_silent_watches_one_stream_with_its_own_timeout():
+    m = StreamSilent("loadcell", 0.5)
+    assert m.problem(0) is None  # grace period from the first look
+    m.write(Batch("loadcell", np.array([100 * MS]), np.zeros(1), {}))
+    assert m.problem(550 * MS) is None
+    m.write(_mocap([900]))  # another stream does not count
+    p = m.problem(700 * MS)
+    assert p is not None and p.reason == "loadcell: no sample for 0.60 s" and p.since_ns == 100 * MS
+    on = parse_protocol("sweep: {frequencies: [5]}\n")
+    built = build_monitors(on, ["motor", "mocap", "loadcell"], silence_s={"loadcell": 0.5, "absent": 1.0})
+    assert [type(b).__name__ for b in built] == ["MocapLost", "StreamSilent"]
+
+
 def test_protocol_can_switch_the_monitor_off():
     on = parse_protocol("sweep: {frequencies: [5]}\n")
     off = parse_protocol("sweep: {frequencies: [5]}\nmonitors: {mocap_lost_s: null}\n")
     assert len(build_monitors(on, ["motor", "mocap"])) == 1
     assert build_monitors(off, ["motor", "mocap"]) == []
-
-
-class Outage:
-    """A Motive frame filter: once started, every frame is dropped for ``seconds`` (a real UDP silence)."""
-
-    def __init__(self, seconds: float) -> None:
-        self.seconds, self.t0 = seconds, None
-
-    def start(self) -> None:
-        self.t0 = time.monotonic()
-
-    def __call__(self, frame_number: int) -> bool:
-        return self.t0 is not None and time.monotonic() - self.t0 < self.seconds
 
 
 PROTOCOL = (
@@ -75,20 +73,20 @@ PROTOCOL = (
 
 def _run(tmp_path, outage_s: float, max_pause_s: float):
     protocol = parse_protocol(PROTOCOL % max_pause_s)
-    outage = Outage(outage_s)
-    rig = build_emulated_rig(protocol, inject={"mocap_drop": outage})
+    rig = build_emulated_rig(protocol)
     rig.open()
     path = tmp_path / "mon.h5"
     monitors = build_monitors(protocol, [s.describe().name for s in rig.streams])
     writer = SessionWriter(path, {"protocol": "x", "backend": "emulated"})
     hub = Hub([writer, *monitors], critical=(writer,))
     hub.open([s.describe() for s in rig.streams])
-    waited = {"s": 0.0}
+    waited = {"s": 0.0, "started": False}
 
     def on_progress(index: int, freq: float, seconds: float) -> None:
         waited["s"] += seconds
-        if outage.t0 is None and waited["s"] >= protocol.settle_s + 0.3:  # 0.3 s into the record window
-            outage.start()
+        if not waited["started"] and waited["s"] >= protocol.settle_s + 0.3:  # 0.3 s into the record window
+            waited["started"] = True
+            rig.peers[0].mocap_outage(outage_s)  # the emulated Motive (own process) sends nothing this long
 
     runner = Runner(
         rig,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import re
 import socket
 import struct
+from datetime import timedelta
 from decimal import ROUND_HALF_UP, Decimal
 from pathlib import Path
 
@@ -253,3 +254,117 @@ def test_not_a_capture_is_a_capture_error(tmp_path):
     p.write_bytes(struct.pack("<I", 0xDEADBEEF) + b"\0" * 40)
     with pytest.raises(CaptureError):
         list(read_udp(p))
+
+
+def _decode_within(path: Path, seconds: float = 20.0, **kw):
+    """decode_capture in a thread, bounded: a hang is a failure, not a stuck test run."""
+    import threading
+
+    box: dict = {}
+
+    def work() -> None:
+        try:
+            box["out"] = decode_capture(path, **kw)
+        except BaseException as exc:
+            box["exc"] = exc
+
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    t.join(seconds)
+    assert not t.is_alive(), f"decode_capture did not return within {seconds} s"
+    if "exc" in box:
+        raise box["exc"]
+    return box["out"]
+
+
+def _ip_fragment(ident: int, offset: int, more: bool, data: bytes) -> bytes:
+    import dpkt
+
+    ip = dpkt.ip.IP(
+        src=socket.inet_aton("10.0.0.1"),
+        dst=socket.inet_aton("239.255.42.99"),
+        p=17,
+        id=ident,
+        mf=int(more),
+        offset=offset,
+        data=data,
+    )
+    ip.len = 20 + len(data)
+    return bytes(dpkt.ethernet.Ethernet(src=b"\x00" * 6, dst=b"\x01\x00\x5e\x7f\x2a\x63", type=0x0800, data=ip))
+
+
+def test_an_empty_first_fragment_does_not_hang_the_decoder(tmp_path):
+    """Issue 13.8: an empty fragment at offset 0 (more fragments set) followed by the last fragment made the
+    reassembly loop spin forever; now it is dropped and the good frames around it still decode."""
+    import dpkt
+
+    good = nn.encode(nn.FrameOfData(5, timestamp=5 / 360, mid_exposure=1, data_received=2, transmit=3), (4, 1))
+    udp = bytes(dpkt.udp.UDP(sport=1511, dport=50000, data=good, ulen=8 + len(good)))
+    path = tmp_path / "empty_fragment.pcap"
+    with path.open("wb") as fh:
+        w = dpkt.pcap.Writer(fh, linktype=dpkt.pcap.DLT_EN10MB)
+        w.writepkt(_ip_fragment(7, 0, True, b""), ts=1.0)  # the empty first fragment
+        w.writepkt(_ip_fragment(7, 8, False, udp[8:]), ts=1.1)  # its last fragment
+        w.writepkt(_ip_fragment(8, 0, False, udp), ts=1.2)  # an ordinary datagram after them
+    d = _decode_within(path, version="4.1")
+    assert [f.frame_number for _, f in d.frames] == [5]
+
+
+def test_ticks_above_2_63_fit_the_frame_table(tmp_path):
+    """Issue 13.8: QPC tick fields are uint64 on the wire; a value above 2**63 raised TypeError in the table."""
+    big = 2**63 + 12345
+    frame = nn.FrameOfData(3, timestamp=0.01, mid_exposure=big, data_received=big + 1, transmit=2**64 - 1)
+    path = tmp_path / "ticks.pcap"
+    write_pcap(path, [(1.0, nn.encode(frame, (4, 1)), 1511, 50000)])
+    d = _decode_within(path, version="4.1")
+    df = frames_table(d)
+    assert int(df["mid_exposure_ticks"].iloc[0]) == big
+    assert int(df["transmit_ticks"].iloc[0]) == 2**64 - 1
+
+
+# ------------------------------------------------------------------------- fuzz: the documented error, bounded
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+PCAP_FUZZ = settings(  # a time bound per example (a loop that never ends fails it); generous, not a speed test
+    max_examples=150, deadline=timedelta(seconds=5), suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+
+
+@PCAP_FUZZ
+@given(st.binary(max_size=3000))
+def test_fuzz_any_file_reads_or_raises_capture_error(tmp_path, blob):
+    """read_udp's contract: datagrams, or CaptureError (a BeambenchError) for what is not a capture."""
+    p = tmp_path / "fuzz.pcap"
+    p.write_bytes(blob)
+    try:
+        grams = list(read_udp(p))
+    except CaptureError:
+        return
+    assert all(isinstance(g.payload, bytes) for g in grams)
+
+
+fragment = st.tuples(
+    st.integers(0, 5),  # ip id: several datagrams interleaved
+    st.integers(0, 64).map(lambda k: 8 * k),  # fragment offset, bytes
+    st.booleans(),  # more fragments
+    st.binary(max_size=64),
+)
+
+
+@PCAP_FUZZ
+@given(st.lists(fragment, max_size=40), st.binary(max_size=200))
+def test_fuzz_arbitrary_ipv4_fragments_terminate(tmp_path, frags, tail):
+    """Any mix of fragments (empty, overlapping, duplicated, missing) ends; a valid packet after them is read."""
+    import dpkt
+
+    path = tmp_path / "frags.pcap"
+    good = bytes(dpkt.udp.UDP(sport=1511, dport=50000, data=tail, ulen=8 + len(tail)))
+    with path.open("wb") as fh:
+        w = dpkt.pcap.Writer(fh, linktype=dpkt.pcap.DLT_EN10MB)
+        for i, (ident, off, more, data) in enumerate(frags):
+            w.writepkt(_ip_fragment(100 + ident, off, more, data), ts=1.0 + i * 1e-3)
+        w.writepkt(_ip_fragment(999, 0, False, good), ts=2.0)
+    grams = list(read_udp(path))
+    assert grams and grams[-1].payload == tail

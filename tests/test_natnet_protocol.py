@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import math
 import struct
+from datetime import timedelta
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -326,6 +327,9 @@ def test_version_parse():
 
 # ------------------------------------------------------------------------------------------ fuzz
 
+# a time bound per example: a decoder that loops or blows up on a bad length fails it (a generous one: this is
+# not a speed test, speed is in benchmarks/)
+BOUND = timedelta(seconds=5)
 VERSIONS = st.sampled_from([None, V30, V40, V41, nn.Version(4, 2), nn.Version(2, 9), nn.Version(5, 0)])
 
 
@@ -334,19 +338,19 @@ def check_only_parse_error(packet: bytes, version) -> None:  # type: ignore[no-u
         nn.decode(packet, version)
 
 
-@settings(max_examples=1500, deadline=None)
+@settings(max_examples=1500, deadline=BOUND)
 @given(st.binary(max_size=600), VERSIONS)
 def test_fuzz_random_bytes(packet, version):
     check_only_parse_error(packet, version)
 
 
-@settings(max_examples=1500, deadline=None)
+@settings(max_examples=1500, deadline=BOUND)
 @given(st.sampled_from(list(nn._MESSAGES)), st.binary(max_size=400), VERSIONS)
 def test_fuzz_every_message_id_with_random_payload(msg_id, payload, version):
     check_only_parse_error(struct.pack("<HH", msg_id, len(payload)) + payload, version)
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=BOUND, suppress_health_check=[HealthCheck.too_slow])
 @given(frames, st.sampled_from([V30, V40, V41]), st.data())
 def test_fuzz_mutated_valid_frames(frame, v, data):
     packet = bytearray(nn.encode(frame, v))
@@ -358,7 +362,7 @@ def test_fuzz_mutated_valid_frames(frame, v, data):
     check_only_parse_error(bytes(packet), v)
 
 
-@settings(max_examples=120, deadline=None)
+@settings(max_examples=120, deadline=BOUND)
 @given(st.lists(descriptions, max_size=3), st.sampled_from([V30, V40, V41]), st.data())
 def test_fuzz_mutated_modeldefs(datasets, v, data):
     packet = bytearray(nn.encode(nn.ModelDef(tuple(datasets)), v))

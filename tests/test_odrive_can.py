@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 import uuid
@@ -199,8 +200,8 @@ def test_heartbeat_lost_raises_device_fault(motor, emu):
     t_stop = time.monotonic()
     with pytest.raises(DeviceFault, match="heartbeat lost") as err:
         wait_for_fault(motor)
-    assert time.monotonic() - t_stop > 0.3 - 0.1  # the last heartbeat may predate the stop by one period
-    assert "> 300 ms" in str(err.value)
+    assert time.monotonic() - t_stop > 1.0 - 0.1  # the last heartbeat may predate the stop by one period
+    assert "> 1000 ms" in str(err.value)  # the default: ten 100 ms heartbeat periods
 
 
 def test_estop(motor, emu):
@@ -329,10 +330,8 @@ def test_fuzz_frames_never_crash_driver_or_emulator(arb_id, data, rtr):
     frame = can.Message(arbitration_id=arb_id, data=data, is_remote_frame=rtr, dlc=8 if rtr else len(data))
     driver = OdriveCanMotor("unused", "virtual", NODE)  # never opened: only its receive path runs
     driver._on_rx(frame)
-    try:
+    with contextlib.suppress(DeviceFault):
         driver.check()  # a fuzzed heartbeat may carry error bits: then a DeviceFault, nothing else
-    except DeviceFault:
-        pass
     model = OdriveAxisModel(OdriveEmulatorConfig(node_id=NODE, calibrated=True, watchdog_timeout_s=0))
     model.handle(cs.SetControllerMode(cs.ControlMode.VELOCITY_CONTROL, cs.InputMode.VEL_RAMP))
     model.handle(cs.SetAxisState(AxisState.CLOSED_LOOP_CONTROL))
@@ -358,3 +357,21 @@ def test_axis_idled_by_someone_else_is_a_fault(channel, motor, emu):
 def test_bad_log_suffix_is_refused_up_front(tmp_path):
     with pytest.raises(ValueError, match="unknown log format"):
         OdriveCanMotor("x", "virtual", NODE, can_log=tmp_path / "traffic.pcap")
+
+
+@pytest.mark.parametrize(("kind", "code"), [("motor", 0x1), ("encoder", 0x4)])
+def test_the_first_fault_report_reads_the_error_register_first(motor, emu, kind, code):
+    """Issue 13.10: the heartbeat only flags MOTOR_FAILED; the report must carry the register's value, read
+    on the spot (was ``motor error 0x0``: the value before the RTR answer arrived)."""
+    motor.arm(LIMITS)
+    emu.inject_error(**{kind: code})
+    end = time.monotonic() + 3.0
+    first = None
+    while first is None and time.monotonic() < end:
+        try:
+            motor.check()
+        except DeviceFault as exc:
+            first = str(exc)
+        time.sleep(0.001)
+    assert first is not None, "no fault reported"
+    assert f"{kind} error {code:#x}" in first, first

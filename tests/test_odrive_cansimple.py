@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import struct
+from datetime import timedelta
 
 import can
 import pytest
@@ -189,3 +190,23 @@ def test_fuzz_decoder_raises_only_can_parse_error(arb_id, data, is_remote, is_ex
     assert 0 <= node_id <= cs.MAX_NODE_ID_EXTENDED
     if not isinstance(msg, cs.Request):  # decoding is deterministic (repr: NaN payloads compare equal)
         assert repr(type(msg).decode(data)) == repr(msg)
+
+
+@settings(max_examples=2000, deadline=timedelta(seconds=5))  # a time bound per frame (generous: not a speed test)
+@given(
+    arb_id=st.integers(0, 0x1FFFFFFF),
+    data=st.binary(max_size=8),
+    remote=st.booleans(),
+    extended=st.booleans(),
+)
+def test_fuzz_any_frame_decodes_or_raises_only_can_parse_error(arb_id, data, remote, extended):
+    """The documented contract of parse_frame: a message, or CanParseError (a BeambenchError) — nothing else."""
+    from beambench.common.errors import BeambenchError
+
+    try:
+        node, msg = cs.parse_frame(arb_id, data, remote, extended)
+    except cs.CanParseError as exc:
+        assert isinstance(exc, BeambenchError)
+        return
+    assert 0 <= node <= (0xFFFFFF if extended else 0x3F)
+    assert isinstance(msg, (cs.Request, *cs.MESSAGES.values()))

@@ -50,10 +50,23 @@ class Stream(Protocol):
     def start(self) -> None: ...
 
     def read(self) -> Batch:
-        """Everything received since the last call (possibly zero rows); never blocks for long."""
+        """Everything received since the last call (possibly zero rows); never blocks for long. With nothing
+        to hand out, raises :class:`DeviceFault` if the device failed or is silent (as :meth:`check`)."""
         ...
 
     def stop(self) -> None: ...
+
+    def check(self) -> None:
+        """Raise :class:`DeviceFault` if the device failed or sent nothing for longer than its timeout."""
+        ...
+
+
+@runtime_checkable
+class ReportsHealth(Protocol):
+    """A driver that counts what its wire did: ``received``, ``dropped``, ``garbled``, ``forged`` (and more),
+    stored in the session under ``/general/devices/<stream>``."""
+
+    def health(self) -> dict[str, Any]: ...
 
 
 @runtime_checkable
@@ -95,6 +108,14 @@ class Rig(Protocol):
 
 
 @runtime_checkable
+class ChecksDevices(Protocol):
+    """A rig that checks every device at once: the motor, then each stream (liveness, faults). The runner
+    calls it after each poll, where it calls ``motor.check()`` today."""
+
+    def check(self) -> None: ...
+
+
+@runtime_checkable
 class HasIdleTail(Protocol):
     """A rig whose devices keep reporting after the idle command: record ``idle_tail_s`` more to see it stop."""
 
@@ -103,7 +124,8 @@ class HasIdleTail(Protocol):
 
 @runtime_checkable
 class ReportsAfterRun(Protocol):
-    """A rig that learns things only during the run (the NatNet ECHO table) and adds them to ``/general``."""
+    """A rig that learns things only during the run (the NatNet ECHO table, every driver's counters:
+    ``devices: {stream: {received, dropped, garbled, forged, ...}}``) and adds them to ``/general``."""
 
     def after_run(self) -> dict[str, Any]: ...
 

@@ -240,6 +240,8 @@ class NatNetWiring(_Model):
     multicast_address: str = "239.255.42.99"
     multicast: bool = True
     bitstream_version: str | None = None  # ask a NatNet 4.x server for "3.0", "4.0" or "4.1"; else as it sends
+    # no frame for this long is a device fault (shorter outages: the protocol's mocap_lost_s monitor pauses)
+    silence_timeout_s: float | None = Field(5.0, gt=0, le=600)
     markers: dict[str, str | int] = Field(
         default_factory=lambda: dict[str, str | int](stage="1:1", tip="1:2", foot="1:3")
     )
@@ -263,6 +265,9 @@ class OdriveWiring(_Model):
     axis: int = Field(0, ge=0, le=1)
     serial_number: str | None = None
     watchdog_timeout_s: float = Field(0.5, gt=0, le=5)
+    # heartbeats come every 100 ms by default (axis.config.can.heartbeat_rate_ms): ten periods
+    heartbeat_timeout_s: float = Field(1.0, gt=0, le=10)
+    telemetry_timeout_s: float | None = Field(1.0, gt=0, le=10)  # Encoder_Estimates (every 10 ms by default)
 
 
 class LoadCellWiring(_Model):
@@ -270,6 +275,7 @@ class LoadCellWiring(_Model):
 
     port: str = "/dev/ttyACM0"
     baudrate: int = 921600
+    silence_timeout_s: float | None = Field(1.0, gt=0, le=60)  # no frame for this long (1 kHz board): fault
 
 
 class RigFile(_Model):

@@ -9,6 +9,7 @@ then everything recorded is saved).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, NamedTuple, Protocol
 
 import numpy as np
@@ -76,7 +77,50 @@ class MocapLost:
         return Problem(f"mocap lost: no frame for {silent * 1e-9:.2f} s", last)
 
 
-def build_monitors(protocol: ProtocolConfig, streams: list[str]) -> list[MocapLost]:
-    """The monitors a protocol asks for (``monitors:`` block), for the streams the rig has."""
+class StreamSilent:
+    """A stream is silent when none of its samples arrived for ``timeout_s`` of host time (a board stopped, a
+    cable is out). The monitor pauses the record window; the driver's own ``check()`` (same kind of timeout,
+    see :mod:`beambench.devices.base`) turns a long silence into a device fault."""
+
+    def __init__(self, stream: str, timeout_s: float) -> None:
+        self.stream = stream
+        self.name = f"{stream}_silent"
+        self.timeout_ns = int(timeout_s * 1e9)
+        self.last_ns: int | None = None
+        self._since_ns: int | None = None
+
+    def open(self, specs: list[StreamSpec]) -> None:
+        if not any(s.name == self.stream for s in specs):
+            raise ValueError(f"monitor {self.name}: no {self.stream!r} stream to watch")
+
+    def write(self, batch: Batch) -> None:
+        if batch.stream == self.stream and len(batch):
+            self.last_ns = int(batch.host_time_ns[-1])
+
+    def event(self, host_time_ns: int, kind: str, message: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def problem(self, now_ns: int) -> Problem | None:
+        if self._since_ns is None:
+            self._since_ns = now_ns
+        last = self.last_ns if self.last_ns is not None else self._since_ns
+        silent = now_ns - last
+        if silent <= self.timeout_ns:
+            return None
+        return Problem(f"{self.stream}: no sample for {silent * 1e-9:.2f} s", last)
+
+
+def build_monitors(
+    protocol: ProtocolConfig, streams: list[str], silence_s: Mapping[str, float] | None = None
+) -> list[MocapLost | StreamSilent]:
+    """The monitors a protocol asks for (``monitors:`` block), for the streams the rig has; with ``silence_s``
+    (stream name → timeout, e.g. the rig file's ``silence_timeout_s``), a :class:`StreamSilent` per stream."""
     timeout = protocol.monitors.mocap_lost_s
-    return [MocapLost(timeout)] if timeout is not None and MOCAP in streams else []
+    out: list[MocapLost | StreamSilent] = [MocapLost(timeout)] if timeout is not None and MOCAP in streams else []
+    for name, seconds in (silence_s or {}).items():
+        if name in streams and seconds is not None:
+            out.append(StreamSilent(name, seconds))
+    return out

@@ -11,7 +11,7 @@ received before the failure are handed out, or from :meth:`check`).
 
 from __future__ import annotations
 
-import threading
+import contextlib
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -19,9 +19,10 @@ from typing import Any
 import numpy as np
 import serial
 
-from beambench.acquisition.batch import Batch, StreamSpec
+from beambench.acquisition.batch import Batch
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import LOADCELL, LOADCELL_RATE_HZ, loadcell_spec
+from beambench.devices.base import StreamDriver
 from beambench.devices.loadcell_protocol import CRC_NAME, VERSION, Frame, StreamDecoder
 
 DEFAULT_BAUDRATE = 921_600
@@ -71,8 +72,12 @@ class LoadCellPing:
         )
 
 
-class SerialLoadCells:
-    """The load-cell plate on a serial port (a device path or any pyserial URL, e.g. ``socket://host:port``)."""
+class SerialLoadCells(StreamDriver):
+    """The load-cell plate on a serial port (a device path or any pyserial URL, e.g. ``socket://host:port``).
+
+    ``silence_timeout_s``: :meth:`check` (and :meth:`read` with nothing to hand out) raise :class:`DeviceFault`
+    once no frame arrived for this long (the board stopped, the cable is out); ``None`` switches it off.
+    """
 
     def __init__(
         self,
@@ -83,93 +88,76 @@ class SerialLoadCells:
         rate_hz: float = LOADCELL_RATE_HZ,
         read_timeout_s: float = 0.05,
         exclusive: bool = True,
+        silence_timeout_s: float | None = 1.0,
     ) -> None:
-        self.name = name
+        super().__init__(name, loadcell_spec(rate_hz), silence_timeout_s)
         self.port = port
         self.baudrate = baudrate
         self.rate_hz = rate_hz
         self._timeout = read_timeout_s
         self._exclusive = exclusive
-        self._spec = loadcell_spec(rate_hz)
         self._ser: serial.SerialBase | None = None
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._lock = threading.Lock()
-        self._reset_state()
+        self._reset()
 
-    def _reset_state(self) -> None:
+    def _reset(self) -> None:
+        super()._reset()
         self.decoder = StreamDecoder()
-        self._frames: list[Frame] = []
-        self._hosts: list[tuple[int, int]] = []  # (receive time ns, frames received at it)
-        self._fault: str | None = None
         self._t = Unwrap32()
         self._seq = Unwrap32()
         self._edges = Unwrap32()
         self.samples_delivered = 0
-        self.last_frame_ns: int | None = None
 
-    # -- Stream ------------------------------------------------------------------------------------------
-    def describe(self) -> StreamSpec:
-        return self._spec
+    @property
+    def last_frame_ns(self) -> int | None:
+        return self.last_receive_ns
 
-    def start(self) -> None:
-        """Open the port and start the reader thread. Raises :class:`DeviceFault` if the port cannot open."""
-        if self._thread is not None:
-            return
-        self._reset_state()
+    # -- StreamDriver ------------------------------------------------------------------------------------
+    def _open(self) -> None:
+        """Open the port. Raises :class:`DeviceFault` if it cannot open."""
         try:
             self._ser = serial.serial_for_url(
                 self.port, baudrate=self.baudrate, timeout=self._timeout, exclusive=self._exclusive
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceFault(f"{self.name}: cannot open serial port {self.port}: {exc}") from exc
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._reader, name=f"{self.name}-reader", daemon=True)
-        self._thread.start()
 
-    def read(self) -> Batch:
-        """Every sample received since the last call; raises :class:`DeviceFault` once the port has failed."""
-        with self._lock:
-            frames, self._frames = self._frames, []
-            hosts, self._hosts = self._hosts, []
-            fault = self._fault
-        if not frames:
-            if fault is not None:
-                raise DeviceFault(f"{self.name}: serial port {self.port} failed: {fault}")
-            return self._spec.empty_batch()
-        host = np.repeat(np.array([h for h, _ in hosts], np.int64), [k for _, k in hosts])
-        t_us = self._t(np.fromiter((f.t_us for f in frames), np.int64, len(frames)))
-        seq = self._seq(np.fromiter((f.seq for f in frames), np.int64, len(frames)))
-        edges = self._edges(np.fromiter((f.sync_edges for f in frames), np.int64, len(frames)))
-        counts = np.array([f.counts for f in frames], dtype=np.int32).reshape(-1, 4)
-        self.samples_delivered += len(frames)
-        return Batch(self.name, host, t_us * 1e-6, {"data": counts, "seq": seq, "sync_edges": edges})
-
-    def stop(self) -> None:
-        """Stop the reader and close the port. Idempotent."""
-        self._stop.set()
+    def _interrupt(self) -> None:
         ser = self._ser
         if ser is not None and hasattr(ser, "cancel_read"):
-            try:
-                ser.cancel_read()
-            except Exception:
-                pass
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+            ser.cancel_read()
+
+    def _close(self) -> None:
+        ser, self._ser = self._ser, None
         if ser is not None:
-            try:
+            with contextlib.suppress(Exception):
                 ser.close()
-            except Exception:
-                pass
-            self._ser = None
 
-    def __enter__(self) -> SerialLoadCells:
-        self.start()
-        return self
+    def _receive(self) -> None:
+        ser = self._ser
+        assert ser is not None
+        data = ser.read(max(1, ser.in_waiting))
+        if not data:
+            return
+        now = time.monotonic_ns()
+        with self._lock:
+            frames = self.decoder.feed(data)
+            st = self.decoder.stats
+            self.counters.dropped = st.lost_frames
+            self.counters.garbled = st.crc_errors + st.truncated
+        self._push([(now, f) for f in frames], now)
 
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
+    def _failure(self, exc: Exception) -> str:
+        return f"serial port {self.port} failed: {type(exc).__name__}: {exc}"
+
+    def _to_batch(self, rows: list[tuple[int, Frame]]) -> Batch:
+        n = len(rows)
+        host = np.fromiter((h for h, _ in rows), np.int64, n)
+        t_us = self._t(np.fromiter((f.t_us for _, f in rows), np.int64, n))
+        seq = self._seq(np.fromiter((f.seq for _, f in rows), np.int64, n))
+        edges = self._edges(np.fromiter((f.sync_edges for _, f in rows), np.int64, n))
+        counts = np.array([f.counts for _, f in rows], dtype=np.int32).reshape(-1, 4)
+        self.samples_delivered += n
+        return Batch(self.name, host, t_us * 1e-6, {"data": counts, "seq": seq, "sync_edges": edges})
 
     # -- health and identity -----------------------------------------------------------------------------
     @property
@@ -179,18 +167,22 @@ class SerialLoadCells:
     def stats(self) -> dict[str, Any]:
         """Decoder counters (CRC errors, gaps, lost frames, bytes discarded, ...) and samples delivered."""
         with self._lock:
-            d = self.decoder.stats.as_dict()
-            queued = len(self._frames)
+            d: dict[str, Any] = dict(self.decoder.stats.as_dict())
+            queued = len(self._rows)
         d.update(samples_delivered=self.samples_delivered, samples_queued=queued, fault=self._fault)
         return d
 
-    def check(self, silence_s: float = 0.5) -> None:
-        """Raise :class:`DeviceFault` if the port failed or no frame arrived for ``silence_s`` while running."""
-        if self._fault is not None:
-            raise DeviceFault(f"{self.name}: serial port {self.port} failed: {self._fault}")
-        last = self.last_frame_ns
-        if self.running and last is not None and time.monotonic_ns() - last > silence_s * 1e9:
-            raise DeviceFault(f"{self.name}: no frame from {self.port} for more than {silence_s:g} s")
+    def check(self, silence_s: float | None = None) -> None:
+        """Raise :class:`DeviceFault` if the port failed or no frame arrived for ``silence_s`` (default: the
+        driver's ``silence_timeout_s``) while running."""
+        if silence_s is None:
+            super().check()
+            return
+        keep, self.silence_timeout_s = self.silence_timeout_s, silence_s
+        try:
+            super().check()
+        finally:
+            self.silence_timeout_s = keep
 
     def identity(self) -> dict[str, Any]:
         return {
@@ -238,28 +230,6 @@ class SerialLoadCells:
             hspan = (b.host_time_ns[-1] - b.host_time_ns[0]) * 1e-9
             host_rate = (len(b) - 1) / hspan if hspan > 0 else None
         return LoadCellPing(self.port, True, len(b), stats["last_version"], rate, host_rate, stats)
-
-    # -- reader thread -----------------------------------------------------------------------------------
-    def _reader(self) -> None:
-        ser = self._ser
-        assert ser is not None
-        dec = self.decoder
-        try:
-            while not self._stop.is_set():
-                data = ser.read(max(1, ser.in_waiting))
-                if not data:
-                    continue
-                now = time.monotonic_ns()
-                with self._lock:
-                    frames = dec.feed(data)
-                    if frames:
-                        self._frames.extend(frames)
-                        self._hosts.append((now, len(frames)))
-                        self.last_frame_ns = now
-        except Exception as exc:  # port unplugged, pty closed, ...: reported by read()/check()
-            if not self._stop.is_set():
-                with self._lock:
-                    self._fault = f"{type(exc).__name__}: {exc}"
 
 
 def ping(port: str, baudrate: int = DEFAULT_BAUDRATE, duration_s: float = 0.3) -> LoadCellPing:

@@ -47,6 +47,8 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import NamedTuple
 
+from beambench.common.errors import BeambenchError
+
 SYNC = b"\xa5\x5a"
 VERSION = 1
 PAYLOAD_LEN = 29  # version .. sync_edges
@@ -62,7 +64,7 @@ _U32 = 1 << 32
 _SYNC0 = SYNC[0]
 
 
-class LoadCellParseError(ValueError):
+class LoadCellParseError(BeambenchError, ValueError):
     """A byte string is not exactly one valid load-cell frame (raised only by :func:`decode_frame`)."""
 
 
@@ -148,7 +150,9 @@ class StreamDecoder:
         return self._last_seq is not None
 
     def reset(self) -> None:
-        self.__init__()
+        self.stats = DecoderStats()
+        self._buf = bytearray()
+        self._last_seq = None
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Append ``data`` and return every frame completed by it, in order. Never raises, never waits."""

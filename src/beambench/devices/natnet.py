@@ -15,6 +15,7 @@ configurable map from marker names to labeled-marker ids or rigid-body ids.
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import queue
 import selectors
@@ -32,6 +33,7 @@ from beambench.acquisition.batch import Batch, Frame, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import MOCAP, MOCAP_RATE_HZ, mocap_spec
 from beambench.devices import natnet_protocol as nn
+from beambench.devices.base import StreamDriver
 
 __all__ = ["EchoSample", "NatNetClient", "NatNetConfig", "NatNetError", "NatNetMocap", "NatNetStats", "ping"]
 
@@ -40,6 +42,7 @@ log = logging.getLogger(__name__)
 DEFAULT_MULTICAST = "239.255.42.99"
 DEFAULT_DATA_PORT = 1511
 CLIENT_VERSION = nn.Version(0, 1, 0, 0)
+STREAM_SETTINGS = frozenset({"silence_timeout_s"})  # rig-file keys of the mocap stream, not of the client
 
 
 class NatNetError(DeviceFault):
@@ -68,6 +71,7 @@ class NatNetConfig:
     @classmethod
     def from_mapping(cls, d: Mapping[str, Any]) -> NatNetConfig:
         """Build from a rig-file mapping; unknown keys are an error naming them."""
+        d = {k: v for k, v in d.items() if k not in STREAM_SETTINGS}
         known = set(cls.__dataclass_fields__)
         bad = sorted(set(d) - known)
         if bad:
@@ -102,6 +106,8 @@ class NatNetStats:
     ignored: int = 0  # packets that could not be used (e.g. frames before SERVERINFO)
     echoes: int = 0
     overflowed: int = 0  # frames pushed out of the receive buffer because nobody read them in time
+    forged: int = 0  # datagrams from a sender that is not the server the handshake found (dropped)
+    last_frame_ns: int | None = None  # host monotonic time of the newest frame
     first_frame_number: int | None = None
     last_frame_number: int | None = None
     last_error: str = ""
@@ -137,6 +143,7 @@ class NatNetClient:
         self._last_echo = 0.0
         self._thread_error: BaseException | None = None
         self._lock = threading.Lock()
+        self._server_ip: str | None = None  # the server's address, resolved at connect
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -147,6 +154,10 @@ class NatNetClient:
     def connect(self) -> NatNetClient:
         """Handshake (CONNECT/SERVERINFO), join the data stream, fetch MODELDEF and frame rate, sync clocks."""
         cfg = self.config
+        try:
+            self._server_ip = socket.gethostbyname(cfg.server_address)
+        except OSError as exc:
+            raise NatNetError(f"NatNet: cannot resolve the server address {cfg.server_address!r}: {exc}") from None
         try:
             self._cmd = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
             self._cmd.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, cfg.recv_buffer_bytes)
@@ -225,20 +236,16 @@ class NatNetClient:
     def close(self) -> None:
         """Stop the thread and close the sockets (tells a unicast server we left). Idempotent."""
         if self._cmd is not None and not self.config.multicast and self.server_info is not None:
-            try:
+            with contextlib.suppress(OSError):
                 self.send(nn.Disconnect())
-            except OSError:
-                pass
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
         self._thread = None
         for s in (self._data, self._cmd):
             if s is not None:
-                try:
+                with contextlib.suppress(OSError):
                     s.close()
-                except OSError:
-                    pass
         self._data = self._cmd = None
         if self._sel is not None:
             self._sel.close()
@@ -352,12 +359,38 @@ class NatNetClient:
     def _drain(self, sock: socket.socket) -> None:
         for _ in range(256):
             try:
-                data, _addr = sock.recvfrom(65536)
+                data, addr = sock.recvfrom(65536)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:
                 return
+            if not self._from_server(sock, addr):
+                self._forged(addr)
+                continue
             self._handle(data, time.monotonic_ns())
+
+    def _from_server(self, sock: socket.socket, addr: tuple[str, int]) -> bool:
+        """Is this datagram from the server the handshake found? Multicast data: its address (the group is
+        open to any sender on the network). Command socket (replies, and unicast data): its address and one of
+        its ports, the command port or the data port its SERVERINFO announced."""
+        if addr[0] != self._server_ip:
+            return False
+        if sock is self._data:
+            return True
+        info = self.server_info
+        return addr[1] == self.config.command_port or (info is not None and addr[1] == info.data_port)
+
+    def _forged(self, addr: tuple[str, int]) -> None:
+        st = self.stats
+        st.forged += 1
+        if st.forged == 1 or st.forged % 1000 == 0:
+            log.warning(
+                "NatNet: dropped %d datagram(s) not from the server %s (latest from %s:%d)",
+                st.forged,
+                self._server_ip,
+                addr[0],
+                addr[1],
+            )
 
     def _timers(self) -> None:
         if self.server_info is None or self._cmd is None:
@@ -421,6 +454,7 @@ class NatNetClient:
             elif n <= last:
                 st.out_of_order += 1
         st.last_frame_number = n
+        st.last_frame_ns = host_ns
         st.frames += 1
         if self.keep_frames:
             if len(self.frames) == self.frames.maxlen:
@@ -493,14 +527,20 @@ def default_marker_map(markers: Sequence[str], model_id: int = 1) -> dict[str, M
     return {m: MarkerSource("marker", (model_id << 16) | (i + 1)) for i, m in enumerate(markers)}
 
 
-class NatNetMocap:
+class NatNetMocap(StreamDriver):
     """The ``mocap`` stream from Motive: each :meth:`read` returns every frame received since the last one.
 
     ``device_time`` is the camera mid-exposure time on Motive's QPC clock (ticks / clock frequency, s) when the
     server sends it (``device_time="mid_exposure"``), else Motive's frame timestamp; ``host_time_ns`` is
     ``time.monotonic_ns()`` when the packet arrived. A marker missing from a frame, flagged occluded, or a
     rigid body not tracked, is ``occluded`` with NaN position.
+
+    Liveness: :meth:`check` (and :meth:`read` with nothing to hand out) raise :class:`DeviceFault` once no frame
+    arrived for ``silence_timeout_s`` (longer than the mocap monitor's pause, which handles short outages).
+    Frames from any sender but the server are dropped and counted (``counters.forged``).
     """
+
+    reader_thread = False  # the NatNet client receives in its own thread
 
     def __init__(
         self,
@@ -510,10 +550,10 @@ class NatNetMocap:
         rate_hz: float | None = None,
         device_time: str = "mid_exposure",
         frame: Frame | None = None,
+        silence_timeout_s: float | None = 5.0,
     ) -> None:
         if device_time not in ("mid_exposure", "timestamp"):
             raise ValueError(f"device_time must be 'mid_exposure' or 'timestamp', not {device_time!r}")
-        self.name = MOCAP
         self.markers = tuple(markers)
         raw = marker_map if marker_map is not None else default_marker_map(self.markers)
         missing = [m for m in self.markers if m not in raw]
@@ -525,7 +565,8 @@ class NatNetMocap:
         self.device_time_mode = device_time
         self.client: NatNetClient | None = None
         self.frame = frame or Frame(up_axis="y")  # Motive's default world frame
-        self._spec = mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ, self.frame)
+        super().__init__(MOCAP, mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ, self.frame), silence_timeout_s)
+        self._last_stats = NatNetStats()
 
     @classmethod
     def from_rig(cls, section: Mapping[str, Any], markers: Sequence[str] | None = None, **kw: Any) -> NatNetMocap:
@@ -546,20 +587,33 @@ class NatNetMocap:
             self._spec = mocap_spec(self.markers, float(self.client.frame_rate), self.frame)
         return self._spec
 
-    def start(self) -> None:
+    def _open(self) -> None:
         if self.client is None:
             self.client = NatNetClient(self.config).connect()
         self.client.frames.clear()
         self.client.keep_frames = True
 
-    def stop(self) -> None:
+    def _close(self) -> None:
         if self.client is not None:
+            self._sync_counters()
+            self._last_stats = self.client.stats
             self.client.close()
             self.client = None
 
+    def _sync_counters(self) -> None:
+        c = self.client
+        if c is None:
+            return
+        st = c.stats
+        self.counters.dropped = st.dropped_frames
+        self.counters.garbled = st.parse_errors
+        self.counters.forged = st.forged
+        if st.last_frame_ns is not None:
+            self.last_receive_ns = st.last_frame_ns
+
     @property
     def stats(self) -> NatNetStats:
-        return self.client.stats if self.client is not None else NatNetStats()
+        return self.client.stats if self.client is not None else self._last_stats
 
     @property
     def dropped_frames(self) -> int:
@@ -572,6 +626,13 @@ class NatNetMocap:
     def identity(self) -> dict[str, Any]:
         return self.client.info() if self.client is not None else {}
 
+    def check(self) -> None:
+        c = self.client
+        if c is not None:
+            c.check()
+            self._sync_counters()
+        super().check()
+
     def read(self) -> Batch:
         c = self.client
         if c is None:
@@ -583,6 +644,16 @@ class NatNetMocap:
                 items.append(c.frames.popleft())
             except IndexError:
                 break
+        self._sync_counters()
+        if not items:
+            if not self._fault_reported:
+                try:
+                    self.check()
+                except DeviceFault:
+                    self._fault_reported = True
+                    raise
+            return self._spec.empty_batch()
+        self.counters.received += len(items)
         return self.to_batch(items, c.clock_frequency)
 
     def to_batch(self, items: list[tuple[int, nn.FrameOfData]], clock_frequency: int | None) -> Batch:

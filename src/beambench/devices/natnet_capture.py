@@ -6,6 +6,7 @@ command), else from the caller. Used by ``beambench natnet decode`` and by the d
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,7 +55,7 @@ class CaptureDecode:
     def frame_rate_hz(self) -> float | None:
         """From the median spacing of Motive's frame timestamps."""
         ts = sorted(f.timestamp for _, f in self.frames)
-        d = sorted(b - a for a, b in zip(ts, ts[1:]) if b > a)
+        d = sorted(b - a for a, b in itertools.pairwise(ts) if b > a)
         return 1.0 / d[len(d) // 2] if d else None
 
     def summary(self, name: str = "capture") -> str:
@@ -146,7 +147,7 @@ def decode_capture(
     return out
 
 
-def frames_table(decoded: CaptureDecode):  # type: ignore[no-untyped-def]
+def frames_table(decoded: CaptureDecode):
     """One row per frame: frame number, timestamp suffix, rigid bodies and labeled markers (wide, by id).
 
     Rigid-body columns are ``rb<id>_{x,y,z,qx,qy,qz,qw,error,valid}``; labeled-marker columns
@@ -196,11 +197,9 @@ def frames_table(decoded: CaptureDecode):  # type: ignore[no-untyped-def]
     ]
     cols += [f"m{a}_{b}_{c}" for a, b in sorted(mk_ids) for c in ("x", "y", "z", "size", "occluded", "params")]
     df = pd.DataFrame(rows, columns=cols)
-    for c in df.columns:  # integer columns with gaps stay integers
-        if (
-            c.endswith(("_valid", "_occluded", "_params"))
-            or c.endswith("_ticks")
-            or c in ("precision_s", "precision_frac")
-        ):
+    for c in df.columns:  # integer columns with gaps stay integers; QPC ticks are unsigned 64-bit on the wire
+        if c.endswith("_ticks"):
+            df[c] = df[c].astype("UInt64")
+        elif c.endswith(("_valid", "_occluded", "_params")) or c in ("precision_s", "precision_frac"):
             df[c] = df[c].astype("Int64")
     return df

@@ -21,7 +21,9 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import ClassVar, NamedTuple, Union
+from typing import Any, ClassVar, NamedTuple
+
+from beambench.common.errors import BeambenchError
 
 __all__ = [
     "Connect",
@@ -55,7 +57,7 @@ MAX_NAME = 256
 MAX_PAYLOAD = 65535
 
 
-class NatNetParseError(ValueError):
+class NatNetParseError(BeambenchError, ValueError):
     """A packet is malformed, truncated or of an unsupported version."""
 
 
@@ -99,6 +101,9 @@ class Version(NamedTuple):
 
     def __str__(self) -> str:
         return ".".join(str(p) for p in self)
+
+
+_V0 = Version(0)
 
 
 V3_0, V4_0, V4_1 = Version(3, 0), Version(4, 0), Version(4, 1)
@@ -215,8 +220,8 @@ class Sender:
     """The 264-byte sender block: application name, application version, NatNet version."""
 
     name: str
-    version: Version = Version(0)
-    natnet_version: Version = Version(0)
+    version: Version = _V0
+    natnet_version: Version = _V0
 
     SIZE: ClassVar[int] = MAX_NAME + 8
 
@@ -259,8 +264,8 @@ class Connect:
         if r.remaining() >= 5:
             sub = r.data[r.pos] != 0
             r.pos += 1
-            raw = Version(*r.unpack(_U8x4, "bitstream version"))
-            bv = raw if raw != Version(0) else None
+            got = Version(*r.unpack(_U8x4, "bitstream version"))
+            bv = got if got != _V0 else None
         return cls(sender, sub, bv)
 
 
@@ -393,7 +398,7 @@ class _Empty:
         return b""
 
     @classmethod
-    def parse(cls, r: _Reader, version: Version | None):  # type: ignore[no-untyped-def]
+    def parse(cls, r: _Reader, version: Version | None):
         r.pos = r.end
         return cls()
 
@@ -596,7 +601,7 @@ class ForcePlateDescription:
         names = tuple(r.cstring("force plate channel name") for _ in range(n))
         cal_m = tuple(tuple(cal[i * 12 : i * 12 + 12]) for i in range(12))
         corner_t = tuple(tuple(corners[i * 3 : i * 3 + 3]) for i in range(4))
-        return cls(fp_id, serial, width, length, origin, cal_m, corner_t, plate_type, data_type, names)  # type: ignore[arg-type]
+        return cls(fp_id, serial, width, length, origin, cal_m, corner_t, plate_type, data_type, names)
 
 
 @dataclass(frozen=True)
@@ -702,16 +707,16 @@ class UnknownDescription:
         return self.raw
 
 
-Description = Union[
-    MarkerSetDescription,
-    RigidBodyDescription,
-    SkeletonDescription,
-    ForcePlateDescription,
-    DeviceDescription,
-    CameraDescription,
-    AssetDescription,
-    UnknownDescription,
-]
+Description = (
+    MarkerSetDescription
+    | RigidBodyDescription
+    | SkeletonDescription
+    | ForcePlateDescription
+    | DeviceDescription
+    | CameraDescription
+    | AssetDescription
+    | UnknownDescription
+)
 _DESCRIPTIONS = {
     c.TYPE: c
     for c in (
@@ -962,7 +967,7 @@ class FrameOfData:
         got_sizes: list[int] = []
         frame_number = r.i32("frame number")
 
-        def section(what: str, min_item: int):  # type: ignore[no-untyped-def]
+        def section(what: str, min_item: int):
             n = r.count(f"{what} count", min_item)
             if not sizes:
                 return n, None
@@ -985,7 +990,7 @@ class FrameOfData:
             r.need(12 * m, "marker set positions")
             pos = tuple(_V3.iter_unpack(r.data[r.pos : r.pos + 12 * m]))
             r.pos += 12 * m
-            msets.append(MarkerSetData(name, pos))  # type: ignore[arg-type]
+            msets.append(MarkerSetData(name, pos))
         close("marker sets", end)
 
         n, end = section("other marker", 12)
@@ -1056,7 +1061,7 @@ class FrameOfData:
             tuple(assets),
             lms,
             plates,
-            devices,  # type: ignore[arg-type]
+            devices,
             tc,
             tc_sub,
             ts,
@@ -1129,26 +1134,26 @@ class FrameOfData:
 
 # --------------------------------------------------------------------------------------------- dispatch
 
-Message = Union[
-    Connect,
-    Discovery,
-    ServerInfo,
-    Request,
-    Response,
-    RequestModelDef,
-    ModelDef,
-    RequestFrameOfData,
-    FrameOfData,
-    MessageString,
-    Disconnect,
-    KeepAlive,
-    DisconnectByTimeout,
-    EchoRequest,
-    EchoResponse,
-    UnrecognizedRequest,
-]
-_MESSAGES: dict[int, type] = {
-    c.ID: c  # type: ignore[attr-defined]
+Message = (
+    Connect
+    | Discovery
+    | ServerInfo
+    | Request
+    | Response
+    | RequestModelDef
+    | ModelDef
+    | RequestFrameOfData
+    | FrameOfData
+    | MessageString
+    | Disconnect
+    | KeepAlive
+    | DisconnectByTimeout
+    | EchoRequest
+    | EchoResponse
+    | UnrecognizedRequest
+)
+_MESSAGES: dict[int, Any] = {
+    c.ID: c
     for c in (
         Connect,
         Discovery,
@@ -1196,7 +1201,7 @@ def decode(packet: bytes, version: Version | tuple | None = None) -> Message:
         raise NatNetParseError(f"unknown message id {msg_id}")
     v = Version(*version) if version is not None else None
     r = _Reader(packet, 4, 4 + size)
-    msg = kind.parse(r, v)
+    msg: Message = kind.parse(r, v)  # every message class has parse(reader, version)
     if kind is FrameOfData and r.pos != r.end and v is not None and v <= V4_1:  # newer versions may append
         raise NatNetParseError(f"frame of data has {r.end - r.pos} unparsed bytes (wrong NatNet version?)")
     return msg
@@ -1208,4 +1213,4 @@ def encode(message: Message, version: Version | tuple | None = None) -> bytes:
     payload = message.payload(v)
     if len(payload) > MAX_PAYLOAD:
         raise ValueError(f"{type(message).__name__} payload of {len(payload)} bytes exceeds {MAX_PAYLOAD}")
-    return _HEADER.pack(message.ID, len(payload)) + payload  # type: ignore[union-attr]
+    return _HEADER.pack(message.ID, len(payload)) + payload

@@ -19,7 +19,7 @@ Safety, in the order :meth:`OdriveCanMotor.arm` does it:
 :meth:`~OdriveCanMotor.set_frequency` refuses anything above ``max_frequency_hz`` before a frame is sent.
 :meth:`~OdriveCanMotor.idle` is idempotent and never raises; ``close()``/the context manager always idle.
 :meth:`~OdriveCanMotor.check` raises :class:`DeviceFault` on axis error bits (named), on leaving closed loop
-while armed, or when no heartbeat came for more than ``heartbeat_timeout_s`` (300 ms). The feeder stops
+while armed, or when no heartbeat came for more than ``heartbeat_timeout_s`` (1 s: ten periods). The feeder stops
 feeding when the heartbeat is lost, so a half-broken link lets the ODrive's own watchdog idle the motor.
 
 Telemetry (:func:`beambench.streams.motor_spec`): one row per Encoder_Estimates frame (100 Hz), with the
@@ -35,6 +35,7 @@ other python-can formats work too) fed by the ``can.Notifier`` that receives for
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import threading
@@ -49,9 +50,18 @@ import numpy as np
 from beambench.acquisition.batch import Batch, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits
 from beambench.acquisition.streams import MOTOR, motor_spec
+from beambench.common.errors import BeambenchError
 from beambench.devices import odrive_cansimple as cs
 from beambench.devices.odrive_cansimple import AxisState, ControlMode, InputMode
 
+# The ODrive sends its heartbeat every axis.config.can.heartbeat_rate_ms, 100 ms by default, and
+# Encoder_Estimates every encoder_rate_ms, 10 ms by default (firmware 0.5.x: CANConfig_t in
+# Firmware/MotorControl/axis.hpp; CAN protocol docs, https://docs.odriverobotics.com/v/0.5.6/can-protocol.html,
+# "cyclic messages"). A timeout of ten heartbeat periods outlasts a busy host's scheduling hiccups (a 573 ms gap
+# was seen on a loaded 2-core machine) while a dead link is still noticed within a second; the ODrive's own
+# watchdog (armed over USB, watchdog_timeout_s) is what idles the motor when the host stops. The rig file sets
+# it (odrive.heartbeat_timeout_s).
+HEARTBEAT_TIMEOUT_S = 1.0
 VEL_HEADROOM = 1.1  # vel_limit = max_frequency_hz × this
 MAX_VEL_LIMIT = 250.0  # turn/s; never send more (the old script's 8000 disabled the limit)
 MAX_CURRENT_LIMIT = 60.0  # A, the ODrive v3.6 hardware maximum
@@ -59,7 +69,10 @@ MAX_BUFFERED_ROWS = 200_000  # ~33 min of telemetry if nobody reads
 LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc", ".csv")  # python-can writers that keep direction or ids
 
 
-class LimitError(ValueError):
+_ERROR_REGISTERS = (cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR)
+
+
+class LimitError(BeambenchError, ValueError):
     """A command or a limit outside what the protocol's limits allow; nothing was sent."""
 
 
@@ -86,7 +99,7 @@ def rows_to_batch(rows: list[tuple]) -> Batch:
     if not rows:
         return motor_spec().empty_batch()
     host, dev, pos, vel, sp, iq, vbus, state, err = zip(*rows)
-    cols = {
+    cols: dict[str, np.ndarray] = {
         "position": np.asarray(pos, np.float64),
         "velocity": np.asarray(vel, np.float64),
         "velocity_setpoint": np.asarray(sp, np.float64),
@@ -105,6 +118,7 @@ class TelemetryStream:
     _guard: Any  # the driver's lock (or condition) that guards _rows and _streaming
     _rows: deque[tuple]
     _streaming: bool
+    _streaming_ns: int | None
     open: Any  # the driver's own: connects if needed
 
     def describe(self) -> StreamSpec:
@@ -114,6 +128,7 @@ class TelemetryStream:
         self.open()
         with self._guard:
             self._streaming = True
+            self._streaming_ns = time.monotonic_ns()
 
     def stop(self) -> None:
         with self._guard:
@@ -188,11 +203,13 @@ class OdriveCanMotor(TelemetryStream):
         *,
         bitrate: int | None = None,
         bus: can.BusABC | None = None,
+        own_bus: bool | None = None,
         can_log: str | Path | None = None,
         calibrate: bool = True,
         calibration_timeout_s: float = 30.0,
         closed_loop_timeout_s: float = 2.0,
-        heartbeat_timeout_s: float = 0.3,
+        heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S,
+        telemetry_timeout_s: float | None = 1.0,
         feed_period_s: float = 0.05,
         poll_period_s: float = 0.05,
         extended_id: bool = False,
@@ -210,8 +227,9 @@ class OdriveCanMotor(TelemetryStream):
         self.feed_period_s = feed_period_s
         self.poll_period_s = poll_period_s
 
+        self.telemetry_timeout_s = telemetry_timeout_s
         self._bus = bus
-        self._own_bus = bus is None
+        self._own_bus = bus is None if own_bus is None else own_bus
         self._notifier: can.Notifier | None = None
         self._log: _TrafficLog | None = None
         self._tx_lock = threading.Lock()
@@ -229,6 +247,8 @@ class OdriveCanMotor(TelemetryStream):
         self.motor_error = 0
         self.encoder_error = 0
         self.controller_error = 0
+        self.error_read_timeout_s = 0.25  # how long a fault report waits for the error registers' answers
+        self._error_replies = dict.fromkeys(_ERROR_REGISTERS, 0)  # answers received, per register
         self._setpoint = 0.0
         self._limits: MotorLimits | None = None
         self.vel_limit: float | None = None
@@ -238,6 +258,9 @@ class OdriveCanMotor(TelemetryStream):
         self._rows: deque[tuple] = deque(maxlen=MAX_BUFFERED_ROWS)
         self._fault: str | None = None
         self.rx_count = 0
+        self.rows_received = 0
+        self._telemetry_ns: int | None = None  # host time of the newest Encoder_Estimates
+        self._streaming_ns: int | None = None  # when the telemetry stream started
         self.tx_count = 0
         self.parse_errors = 0
         self.send_errors: deque[str] = deque(maxlen=100)
@@ -288,10 +311,8 @@ class OdriveCanMotor(TelemetryStream):
         elif self._log is not None:
             self._log.stop()
         if self._own_bus and self._bus is not None:
-            try:
+            with contextlib.suppress(Exception):
                 self._bus.shutdown()
-            except Exception:
-                pass
             self._bus = None
         self._closed = True
 
@@ -345,7 +366,9 @@ class OdriveCanMotor(TelemetryStream):
                 self._cond.notify_all()
             elif isinstance(msg, cs.EncoderEstimates):
                 self._pos, self._vel = msg.pos, msg.vel
+                self._telemetry_ns = host_ns
                 if self._streaming:
+                    self.rows_received += 1
                     dev_t = frame.timestamp if frame.timestamp else host_ns * 1e-9
                     hb = self._hb
                     self._rows.append(
@@ -367,10 +390,16 @@ class OdriveCanMotor(TelemetryStream):
                 self._vbus, self._ibus = msg.voltage, msg.current
             elif isinstance(msg, cs.MotorError):
                 self.motor_error = msg.error
+                self._error_replies[cs.Cmd.GET_MOTOR_ERROR] += 1
+                self._cond.notify_all()
             elif isinstance(msg, cs.EncoderError):
                 self.encoder_error = msg.error
+                self._error_replies[cs.Cmd.GET_ENCODER_ERROR] += 1
+                self._cond.notify_all()
             elif isinstance(msg, cs.ControllerErrorMsg):
                 self.controller_error = msg.error
+                self._error_replies[cs.Cmd.GET_CONTROLLER_ERROR] += 1
+                self._cond.notify_all()
 
     # ------------------------------------------------------------------ feeder thread
     def _feed_loop(self) -> None:
@@ -426,6 +455,32 @@ class OdriveCanMotor(TelemetryStream):
             return f"ODrive node {self.node_id} heartbeat lost for {age / 1e6:.0f} ms (> {limit_ms:.0f} ms)"
         return None
 
+    def _telemetry_silent_locked(self, now_ns: int) -> str | None:
+        """Encoder_Estimates (cyclic, 10 ms by default) stopped while streaming, though heartbeats may still come."""
+        timeout = self.telemetry_timeout_s
+        if timeout is None or not self._streaming or self._streaming_ns is None:
+            return None
+        last = max(self._telemetry_ns or 0, self._streaming_ns)
+        if now_ns - last > timeout * 1e9:
+            return (
+                f"ODrive node {self.node_id}: no encoder estimates for {(now_ns - last) * 1e-9:.2f} s (> {timeout:g} s)"
+            )
+        return None
+
+    def health(self) -> dict[str, Any]:
+        """Counters for the session: telemetry rows received, CAN frames that failed to parse, send errors."""
+        with self._cond:
+            return {
+                "received": self.rows_received,
+                "dropped": 0,  # CAN Simple frames carry no sequence number: losses cannot be counted
+                "garbled": self.parse_errors,
+                "forged": 0,
+                "frames_received": self.rx_count,
+                "frames_sent": self.tx_count,
+                "send_errors": len(self.send_errors),
+                "fault": self._fault or "",
+            }
+
     def _wait_heartbeat(self, pred, timeout_s: float, after_ns: int) -> cs.Heartbeat | None:
         """First heartbeat received after ``after_ns`` satisfying ``pred`` (or None on timeout)."""
         deadline = time.monotonic() + timeout_s
@@ -441,6 +496,38 @@ class OdriveCanMotor(TelemetryStream):
                 if left <= 0:
                     return None
                 self._cond.wait(left)
+
+    def read_error_registers(self, hb: cs.Heartbeat | None = None) -> None:
+        """Ask for the motor/encoder/controller error registers the heartbeat flags and wait (at most
+        ``error_read_timeout_s``) for the answers, so a fault report names the error the ODrive latched rather
+        than the last value read (0 before the first fault). Never raises; call without holding the lock."""
+        hb = hb or self.heartbeat
+        if hb is None or self._bus is None or self._closed:
+            return
+        flags = (hb.motor_error_flag, hb.encoder_error_flag, hb.controller_error_flag)
+        wanted = [cmd for cmd, flag in zip(_ERROR_REGISTERS, flags) if flag]
+        if not wanted:
+            return
+        with self._cond:
+            before = {cmd: self._error_replies[cmd] for cmd in wanted}
+        try:
+            for cmd in wanted:
+                self.request(cmd)
+        except Exception as exc:
+            self.send_errors.append(f"error registers: {exc}")
+            return
+        deadline = time.monotonic() + self.error_read_timeout_s
+        with self._cond:
+            while any(self._error_replies[c] == before[c] for c in wanted):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                self._cond.wait(left)
+
+    def _describe_fault(self, hb: cs.Heartbeat) -> str:
+        """The fault text after reading the error registers it needs (not under the lock)."""
+        self.read_error_registers(hb)
+        return self._fault_text(hb)
 
     def _fault_text(self, hb: cs.Heartbeat) -> str:
         parts = [f"axis error {cs.error_names(hb.axis_error)}"]
@@ -473,7 +560,7 @@ class OdriveCanMotor(TelemetryStream):
             hb = self._wait_heartbeat(lambda h: h.axis_error == 0, max(0.5, 3 * self.heartbeat_timeout_s), cleared)
             if hb is None:
                 last = self.heartbeat
-                raise DeviceFault("errors persist after Clear_Errors: " + (self._fault_text(last) if last else "?"))
+                raise DeviceFault("errors persist after Clear_Errors: " + (self._describe_fault(last) if last else "?"))
             self.send(cs.SetLimits(vel_limit, current))
             self.send(cs.SetControllerMode(ControlMode.VELOCITY_CONTROL, InputMode.VEL_RAMP))
             self.send(cs.SetInputVel(0.0, 0.0))
@@ -493,7 +580,7 @@ class OdriveCanMotor(TelemetryStream):
                     f"ODrive node {self.node_id} did not enter closed loop within {self.closed_loop_timeout_s:g} s"
                 )
             if hb.axis_error:
-                raise DeviceFault("entering closed loop failed: " + self._fault_text(hb))
+                raise DeviceFault("entering closed loop failed: " + self._describe_fault(hb))
         except BaseException:
             self.idle()
             raise
@@ -515,7 +602,7 @@ class OdriveCanMotor(TelemetryStream):
                     f"ODrive node {self.node_id} calibration did not finish in {self.calibration_timeout_s:g} s"
                 )
         if hb.axis_error:
-            raise DeviceFault("calibration failed: " + self._fault_text(hb))
+            raise DeviceFault("calibration failed: " + self._describe_fault(hb))
 
     def set_frequency(self, hz: float) -> None:
         """Crank at ``hz`` turn/s; LimitError above ``max_frequency_hz`` (nothing is sent)."""
@@ -562,12 +649,15 @@ class OdriveCanMotor(TelemetryStream):
             if lost is not None:
                 raise DeviceFault(lost)
             hb, armed = self._hb, self._armed
-            if hb is None:
-                return
-            if hb.axis_error or hb.motor_error_flag or hb.encoder_error_flag or hb.controller_error_flag:
-                raise DeviceFault(self._fault_text(hb))
-            if armed and hb.axis_state != AxisState.CLOSED_LOOP_CONTROL:
-                raise DeviceFault(f"ODrive node {self.node_id} left closed loop (state {hb.axis_state})")
+            silent = self._telemetry_silent_locked(time.monotonic_ns())
+        if silent is not None:
+            raise DeviceFault(silent)
+        if hb is None:
+            return
+        if hb.axis_error or hb.motor_error_flag or hb.encoder_error_flag or hb.controller_error_flag:
+            raise DeviceFault(self._describe_fault(hb))  # the registers are read first, then reported
+        if armed and hb.axis_state != AxisState.CLOSED_LOOP_CONTROL:
+            raise DeviceFault(f"ODrive node {self.node_id} left closed loop (state {hb.axis_state})")
 
     # ------------------------------------------------------------------ info
     @property

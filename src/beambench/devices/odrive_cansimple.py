@@ -26,9 +26,11 @@ import math
 import struct
 from dataclasses import dataclass, fields
 from enum import IntEnum, IntFlag
-from typing import ClassVar, Union
+from typing import ClassVar
 
 import can
+
+from beambench.common.errors import BeambenchError
 
 CMD_BITS = 5
 CMD_MASK = (1 << CMD_BITS) - 1
@@ -36,7 +38,7 @@ MAX_NODE_ID = 0x3F
 MAX_NODE_ID_EXTENDED = 0xFFFFFF
 
 
-class CanParseError(ValueError):
+class CanParseError(BeambenchError, ValueError):
     """A CAN frame is not a well-formed CAN Simple message this codec knows."""
 
 
@@ -370,23 +372,23 @@ class Request:
     cmd: Cmd
 
 
-Message = Union[
-    Heartbeat,
-    Estop,
-    MotorError,
-    EncoderError,
-    ControllerErrorMsg,
-    SetAxisNodeId,
-    SetAxisState,
-    EncoderEstimates,
-    SetControllerMode,
-    SetInputVel,
-    SetLimits,
-    Iq,
-    Reboot,
-    BusVoltageCurrent,
-    ClearErrors,
-]
+Message = (
+    Heartbeat
+    | Estop
+    | MotorError
+    | EncoderError
+    | ControllerErrorMsg
+    | SetAxisNodeId
+    | SetAxisState
+    | EncoderEstimates
+    | SetControllerMode
+    | SetInputVel
+    | SetLimits
+    | Iq
+    | Reboot
+    | BusVoltageCurrent
+    | ClearErrors
+)
 
 MESSAGES: dict[Cmd, type[_Msg]] = {
     m.CMD: m

@@ -11,11 +11,14 @@ import socket
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
+
+from beambench.common.errors import BeambenchError
 
 __all__ = ["CaptureError", "UdpDatagram", "read_udp"]
 
 
-class CaptureError(ValueError):
+class CaptureError(BeambenchError, ValueError):
     """The file is not a readable pcap/pcapng capture, or its link type is not supported."""
 
 
@@ -35,7 +38,7 @@ class UdpDatagram:
 _ETHERNET, _NULL, _RAW, _RAW_OPENBSD, _LOOP, _SLL, _IPV4, _SLL2 = 1, 0, 101, 12, 108, 113, 228, 276
 
 
-def _reader(f):  # type: ignore[no-untyped-def]
+def _reader(f):
     import dpkt
 
     head = f.read(4)
@@ -48,7 +51,7 @@ def _reader(f):  # type: ignore[no-untyped-def]
         raise CaptureError(f"not a pcap or pcapng capture ({exc})") from None
 
 
-def _ip_of(linktype: int, buf: bytes):  # type: ignore[no-untyped-def]
+def _ip_of(linktype: int, buf: bytes):
     """The IPv4 packet inside one link-layer frame, or None."""
     import dpkt
 
@@ -67,8 +70,17 @@ def _ip_of(linktype: int, buf: bytes):  # type: ignore[no-untyped-def]
     return pkt if isinstance(pkt, dpkt.ip.IP) else None
 
 
-def _datagrams(packets: Iterable[tuple[float, bytes]], linktype: int) -> Iterator[tuple[float, object, bytes]]:
-    """(time, ip, UDP bytes) with IPv4 fragments reassembled; malformed frames are skipped."""
+MAX_PENDING = 1024  # datagrams being reassembled at once; the oldest is dropped beyond this
+MAX_DATAGRAM = 65_535  # an IPv4 datagram cannot be larger
+
+
+def _datagrams(packets: Iterable[tuple[float, bytes]], linktype: int) -> Iterator[tuple[float, Any, bytes]]:
+    """(time, ip, UDP bytes) with IPv4 fragments reassembled; malformed frames are skipped.
+
+    A fragment that cannot be part of a valid datagram is dropped: an empty one (which advanced nothing and
+    hung the joining loop), one past 64 KiB; a datagram whose fragments do not join end to end is never yielded.
+    At most :data:`MAX_PENDING` datagrams wait for their missing fragments.
+    """
     import dpkt
 
     frags: dict[tuple, dict[int, bytes]] = {}
@@ -85,17 +97,33 @@ def _datagrams(packets: Iterable[tuple[float, bytes]], linktype: int) -> Iterato
         if not ip.mf and offset == 0:
             yield ts, ip, body
             continue
+        if not body or offset + len(body) > MAX_DATAGRAM:
+            continue
         key = (ip.src, ip.dst, ip.id, ip.p)
+        if key not in frags and len(frags) >= MAX_PENDING:
+            oldest = next(iter(frags))
+            del frags[oldest]
+            last.pop(oldest, None)
         frags.setdefault(key, {})[offset] = body
         if not ip.mf:
             last[key] = offset + len(body)
         if key in last:
-            parts, total, joined = frags[key], last[key], b""
-            while len(joined) < total and len(joined) in parts:
-                joined += parts[len(joined)]
-            if len(joined) >= total:
+            joined = _join(frags[key], last[key])
+            if joined is not None:
                 del frags[key], last[key]
                 yield ts, ip, joined
+
+
+def _join(parts: dict[int, bytes], total: int) -> bytes | None:
+    """The fragments joined from offset 0 to ``total``, or None while one is missing. Every part is non-empty,
+    so each turn of the loop advances."""
+    out = bytearray()
+    while len(out) < total:
+        part = parts.get(len(out))
+        if not part:
+            return None
+        out += part
+    return bytes(out[:total])
 
 
 def read_udp(path: str | Path, ports: Iterable[int] | None = None) -> Iterator[UdpDatagram]:

@@ -22,6 +22,7 @@ path (:attr:`EmulatedLoadCellMCU.port`) with pyserial, exactly as it opens ``/de
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import random
@@ -34,6 +35,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.clocks import DriftingClock
 from beambench.devices.loadcell_protocol import FRAME_LEN, encode_frame
 
 ForceSource = Callable[[float], tuple[float, float]]
@@ -118,7 +120,7 @@ class EmulatedLoadCellMCU:
     @property
     def true_rate_hz(self) -> float:
         """Frames per second of host (true) time: the nominal rate on a clock running ``drift_ppm`` fast."""
-        return self.rate_hz * (1.0 + self.drift_ppm * 1e-6)
+        return DriftingClock(drift_ppm=self.drift_ppm).rate_on_host(self.rate_hz)
 
     def set_force(self, force: ForceSource) -> None:
         self.force = force
@@ -209,10 +211,8 @@ class EmulatedLoadCellMCU:
         self.stop()
         for fd in (self._master, self._slave):
             if fd is not None:
-                try:
+                with contextlib.suppress(OSError):
                     os.close(fd)
-                except OSError:
-                    pass
         self._master = self._slave = None
 
     def __enter__(self) -> EmulatedLoadCellMCU:

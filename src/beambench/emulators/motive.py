@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from beambench.acquisition.clocks import DriftingClock
 from beambench.devices import natnet_protocol as nn
 
 __all__ = ["APP_VERSIONS", "EmulatorClock", "MotiveEmulator"]
@@ -49,7 +50,8 @@ def motive_frame(source: PositionSource) -> PositionSource:
 
 @dataclass
 class EmulatorClock:
-    """Motive's QPC clock as a function of host monotonic time; ``jitter_s``/``latency_s`` delay sending."""
+    """Motive's QPC clock as a function of host monotonic time (the :class:`DriftingClock` model, counted at
+    ``frequency_hz``); ``jitter_s``/``latency_s`` delay sending."""
 
     offset_s: float = 0.0
     drift_ppm: float = 0.0
@@ -58,10 +60,10 @@ class EmulatorClock:
     frequency_hz: int = 10_000_000
 
     def seconds(self, host_s: float) -> float:
-        return self.offset_s + (1.0 + self.drift_ppm * 1e-6) * host_s
+        return DriftingClock(self.offset_s, self.drift_ppm).device_time(host_s)
 
     def ticks(self, host_s: float) -> int:
-        return max(0, int(round(self.seconds(host_s) * self.frequency_hz)))
+        return max(0, round(self.seconds(host_s) * self.frequency_hz))
 
     @classmethod
     def from_model(cls, model: object, frequency_hz: int = 10_000_000) -> EmulatorClock:
@@ -201,7 +203,9 @@ class MotiveEmulator:
 
     def server_info(self) -> nn.ServerInfo:
         sender = nn.Sender(self.app_name, APP_VERSIONS[self.server_version], nn.Version(*self.server_version))
-        return nn.ServerInfo(sender, self.clock.frequency_hz, self.data_port, self.multicast, self.multicast_address)
+        # multicast: the group's port; unicast: the port frames are sent from (clients accept data only from it)
+        port = self.data_port if self.multicast or self._data is None else self._data.getsockname()[1]
+        return nn.ServerInfo(sender, self.clock.frequency_hz, port, self.multicast, self.multicast_address)
 
     def model_def(self) -> nn.ModelDef:
         names = tuple(self.marker_names)
@@ -210,8 +214,10 @@ class MotiveEmulator:
         for rb_id, idx in self.rigid_bodies.items():
             centre = p0[list(idx)].mean(axis=0)
             markers = tuple(
-                nn.RigidBodyMarker(tuple(float(x) for x in p0[i] - centre), 0, names[i])
-                for i in idx  # type: ignore[arg-type]
+                nn.RigidBodyMarker(
+                    (float(p0[i][0] - centre[0]), float(p0[i][1] - centre[1]), float(p0[i][2] - centre[2])), 0, names[i]
+                )
+                for i in idx
             )
             sets.append(nn.RigidBodyDescription(f"rigid_body_{rb_id}", rb_id, -1, (0.0, 0.0, 0.0), markers))
         sets.append(nn.MarkerSetDescription("all", tuple(f"{self.asset_name}_{n}" for n in names)))
@@ -305,7 +311,7 @@ class MotiveEmulator:
             return bool(d(number))
         if isinstance(d, float):
             return bool(self.rng.random() < d)
-        return number in d  # type: ignore[operator]
+        return number in d
 
     def _occluded(self, number: int, m: int) -> set[int]:
         o = self.occlude
@@ -316,7 +322,7 @@ class MotiveEmulator:
         elif isinstance(o, float):
             hidden = set(np.flatnonzero(self.rng.random(m) < o).tolist())
         else:
-            hidden = set(o.get(number, ()))  # type: ignore[union-attr]
+            hidden = set(o.get(number, ()))
         return {i for i in hidden if 0 <= i < m}
 
     def make_frame(self, k: int, t_exposure: float, t_send: float, hidden: set[int]) -> nn.FrameOfData:
@@ -330,7 +336,7 @@ class MotiveEmulator:
         for i, mid in enumerate(self.marker_ids):  # type: ignore[arg-type]
             occl = i in hidden
             params = (0x01 | 0x04 | 0x08) if occl else (0x02 | 0x08)  # occluded+model-solved | point-cloud-solved
-            lms.append(nn.LabeledMarker(mid, tuple(pos[i].tolist()), 0.014, params, 0.0 if occl else 1e-4))  # type: ignore[arg-type]
+            lms.append(nn.LabeledMarker(mid, tuple(pos[i].tolist()), 0.014, params, 0.0 if occl else 1e-4))
         rbs = []
         for rb_id, idx in self.rigid_bodies.items():
             seen = [i for i in idx if i not in hidden]
@@ -338,24 +344,24 @@ class MotiveEmulator:
             c = pos[list(idx)].mean(axis=0)
             rbs.append(
                 nn.RigidBody(rb_id, tuple(c.tolist()), (0.0, 0.0, 0.0, 1.0), 1e-4 if valid else 0.0, 1 if valid else 0)
-            )  # type: ignore[arg-type]
+            )
         clk = self.clock
         mid_ticks = clk.ticks(t_exposure)
         recv_ticks = clk.ticks(t_exposure + 0.6 * clk.latency_s)
         tx_ticks = clk.ticks(t_send)
         dev_s = clk.seconds(t_exposure)
-        secs = max(0, int(math.floor(dev_s)))
+        secs = max(0, math.floor(dev_s))
         frac = int((dev_s - math.floor(dev_s)) * 2**32) & 0xFFFFFFFF
         elapsed = k / self.rate_hz
         hh, mm, ss = int(elapsed // 3600) % 24, int(elapsed // 60) % 60, int(elapsed) % 60
         ff = int((elapsed % 1.0) * 30)
         timecode = (hh << 24) | (mm << 16) | (ss << 8) | ff
-        sub = int(round(elapsed * self.rate_hz)) % max(1, int(round(self.rate_hz / 30)))
+        sub = round(elapsed * self.rate_hz) % max(1, round(self.rate_hz / 30))
         return nn.FrameOfData(
             frame_number=number,
             marker_sets=(
-                nn.MarkerSetData(self.asset_name, tuple(tuple(p) for p in pos.tolist())),  # type: ignore[misc]
-                nn.MarkerSetData("all", tuple(tuple(p) for p in pos.tolist())),  # type: ignore[misc]
+                nn.MarkerSetData(self.asset_name, tuple(tuple(p) for p in pos.tolist())),
+                nn.MarkerSetData("all", tuple(tuple(p) for p in pos.tolist())),
             ),
             rigid_bodies=tuple(rbs),
             labeled_markers=tuple(lms),
@@ -387,9 +393,8 @@ class MotiveEmulator:
             delay = clk.latency_s + (abs(float(self.rng.normal(0.0, clk.jitter_s))) if clk.jitter_s > 0 else 0.0)
             t_send = t_exp + delay
             wait = t_send - time.monotonic()
-            if wait > 0:
-                if self._stop.wait(wait):
-                    break
+            if wait > 0 and self._stop.wait(wait):
+                break
             number = self.first_frame + k
             m = len(self.marker_names)
             if self._is_dropped(number):

@@ -110,8 +110,8 @@ class OdriveAxisModel:
         self.controller_error = 0
         self.motor_calibrated = c.calibrated
         self.encoder_ready = c.calibrated
-        self.control_mode = ControlMode.POSITION_CONTROL  # firmware boot default
-        self.input_mode = InputMode.PASSTHROUGH
+        self.control_mode: int = ControlMode.POSITION_CONTROL  # firmware boot default (any int off the wire)
+        self.input_mode: int = InputMode.PASSTHROUGH
         self.vel_limit = c.vel_limit
         self.current_lim = c.current_lim
         self.input_vel = 0.0
@@ -494,7 +494,7 @@ class EmulatedOdrive:
     def _on_frame(self, frame: can.Message) -> None:
         m = self.model
         try:
-            node, cmd = cs.split_id(frame.arbitration_id, frame.is_extended_id)
+            node, _cmd = cs.split_id(frame.arbitration_id, frame.is_extended_id)
         except cs.CanParseError:
             return
         if node != m.node_id:

@@ -6,11 +6,18 @@ time by the MuJoCo physics of the sim scene.
 from __future__ import annotations
 
 import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
 import threading
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Collection, Iterator
+from multiprocessing.connection import Connection
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -126,14 +133,16 @@ def emulated_peers(protocol: Protocol | None = None, physics: bool = False) -> I
             mcu.start()
             try:
                 yield RigFile(
-                    natnet=NatNetWiring(
-                        server_address="127.0.0.1",
-                        local_address="127.0.0.1",
-                        command_port=motive.command_address[1],
-                        multicast=False,
+                    natnet=NatNetWiring.model_validate(
+                        {
+                            "server_address": "127.0.0.1",
+                            "local_address": "127.0.0.1",
+                            "command_port": motive.command_address[1],
+                            "multicast": False,
+                        }
                     ),
-                    odrive=OdriveWiring(interface="virtual", channel=channel),
-                    loadcell=LoadCellWiring(port=port),
+                    odrive=OdriveWiring.model_validate({"interface": "virtual", "channel": channel}),
+                    loadcell=LoadCellWiring.model_validate({"port": port}),
                 )
             finally:
                 mcu.close()
@@ -143,28 +152,279 @@ def emulated_peers(protocol: Protocol | None = None, physics: bool = False) -> I
         odrive.stop()
 
 
-class _EmulatedPeers:
-    """Starts and stops the emulators and the physics thread in the order the rig needs them."""
+INJECTIONS = (
+    "mocap_drop",  # a probability per frame, or the frame numbers to drop
+    "mocap_occlude",  # a probability per marker and frame, or {frame number: marker indices}
+    "loadcell_crc",
+    "loadcell_drop",
+    "loadcell_garbage",
+    "loadcell_stop_s",  # the load-cell board stops sending this many seconds after the rig opened
+)
 
-    def __init__(self, physics: RealtimePhysics, odrive: Any, motive: Any, mcu: Any) -> None:
-        self.physics, self.odrive, self.motive, self.mcu = physics, odrive, motive, mcu
 
-    def start(self) -> None:
-        self.odrive.start()
-        self.physics.odrive = self.odrive
-        self.physics.start()
-        self.motive.start()
-        self.mcu.start()
+class _Outage:
+    """Motive frame filter: every frame is dropped from ``start()`` for ``seconds`` (a real UDP silence), and the
+    frames numbered in ``base`` (the injected drops) always."""
 
-    def stop(self) -> None:
-        for peer in (self.mcu, self.motive, self.physics, self.odrive):
+    def __init__(self, base: Collection[int] | None) -> None:
+        self.base = frozenset(base or ())
+        self.t0: float | None = None
+        self.seconds = 0.0
+
+    def start(self, seconds: float) -> None:
+        self.seconds, self.t0 = seconds, time.monotonic()
+
+    def __call__(self, number: int) -> bool:
+        if self.t0 is not None and time.monotonic() - self.t0 < self.seconds:
+            return True
+        return number in self.base
+
+
+DEVICE_THREADS = ("motive-", "loadcell-mcu", "odrive-emulator")
+
+
+def _favour_device_threads() -> None:
+    """Real devices have CPUs of their own: give the emulators' threads (light: they format and send frames) a
+    higher scheduling priority, where the OS allows it (root or CAP_SYS_NICE; without the privilege they keep the
+    default). The physics (heavy) is not raised: on a 2-core machine it would starve the acquisition process,
+    whose ODrive watchdog feed must keep to 0.5 s."""
+    for t in threading.enumerate():
+        if t.native_id is not None and t.name.startswith(DEVICE_THREADS):
+            with contextlib.suppress(OSError):
+                os.setpriority(os.PRIO_PROCESS, t.native_id, -10)
+
+
+def _peer_entry(fd: int) -> None:
+    """Entry point of the peers' process: the first message on the socket ``fd`` is the spec. Signals are the
+    acquisition process's business (it stops the peers when it is done); a parent that dies closes the socket,
+    which ends this process."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    conn = Connection(fd)
+    try:
+        spec = conn.recv()
+    except EOFError:
+        return
+    _peer_main(conn, spec)
+
+
+def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
+    """The emulated peers' process: Motive, the ODrive, the load-cell MCU and the realtime physics driving them.
+
+    Tells the parent where to find them (``ready``), starts on ``start``, answers ``snapshot`` and ``outage``
+    while running, and on ``stop`` stops everything and sends back what it injected (a report).
+    """
+    from beambench.emulators.canbus import LoopbackCanBus
+    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+    from beambench.emulators.motive import EmulatorClock, MotiveEmulator, motive_frame
+    from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
+
+    protocol: Protocol = spec["protocol"]
+    inject: dict[str, Any] = spec["inject"]
+    sim = protocol.sim
+    group, port = spec["can"]
+    odrive_bus = LoopbackCanBus(group, port)
+    odrive = EmulatedOdrive(channel=f"{group}:{port}", config=OdriveEmulatorConfig(calibration_s=0.2), bus=odrive_bus)
+    physics = RealtimePhysics(protocol, None)
+    drop = inject.get("mocap_drop")
+    outage = _Outage(None if isinstance(drop, float) else drop)
+    motive = MotiveEmulator(
+        marker_names=tuple(physics.scene.markers),
+        positions=motive_frame(physics.positions),
+        command_port=0,
+        multicast=False,
+        clock=EmulatorClock.from_model(sim.mocap_clock),
+        seed=sim.seed,
+        drop=drop if isinstance(drop, float) else outage,
+        occlude=inject.get("mocap_occlude"),
+    )
+    mcu = EmulatedLoadCellMCU(
+        force=physics.force,
+        calibration=spec["calibration"],
+        drift_ppm=sim.loadcell_clock.drift_ppm,
+        noise_counts=50.0 if sim.noise else 0.0,
+        seed=sim.seed,
+        crc_error_prob=inject.get("loadcell_crc", 0.0),
+        drop_prob=inject.get("loadcell_drop", 0.0),
+        garbage_prob=inject.get("loadcell_garbage", 0.0),
+        tx_buffer=1 << 22,  # frames the emulator sends late when its own process was starved are not lost
+    )
+    stop_mcu: threading.Timer | None = None
+    started = False
+    try:
+        motive.start()  # binds its ports; streams once the client connects
+        lc_port = mcu.open()
+        conn.send(
+            (
+                "ready",
+                {
+                    "command_port": motive.command_address[1],
+                    "loadcell_port": lc_port,
+                    "markers": tuple(physics.scene.markers),
+                    "scene": getattr(physics.scene, "identity", dict)(),
+                },
+            )
+        )
+        while True:
+            if not conn.poll(0.2):
+                continue
+            cmd, arg = conn.recv()
+            if cmd == "start" and not started:
+                started = True
+                odrive.start()
+                physics.odrive = odrive
+                physics.start()
+                mcu.start()
+                _favour_device_threads()
+                if inject.get("loadcell_stop_s") is not None:
+                    stop_mcu = threading.Timer(float(inject["loadcell_stop_s"]), mcu.stop)
+                    stop_mcu.daemon = True
+                    stop_mcu.start()
+                conn.send(("started", None))
+            elif cmd == "snapshot":
+                conn.send(("snapshot", odrive.snapshot()))
+            elif cmd == "outage":
+                outage.start(float(arg))
+                conn.send(("outage", None))
+            elif cmd == "stop":
+                break
+    except (EOFError, OSError, KeyboardInterrupt):  # the parent went away: stop quietly
+        pass
+    finally:
+        if stop_mcu is not None:
+            stop_mcu.cancel()
+        for peer in (mcu, motive, physics, odrive):
             with contextlib.suppress(Exception):
                 peer.stop()
         with contextlib.suppress(Exception):
-            self.mcu.close()
+            odrive_bus.shutdown()
+        report = {
+            "motive": {
+                "dropped_frames": list(motive.dropped_frames),
+                "occlusions": list(motive.occlusions),
+                "frames_sent": motive.frames_sent,
+                "error": repr(motive.error) if motive.error else "",
+            },
+            "mcu": {
+                "injected": mcu.injected.as_dict(),
+                "broken_seqs": list(mcu.broken_seqs),
+                "overflowed_seqs": list(mcu.overflowed_seqs),
+                "error": mcu.error or "",
+            },
+            "odrive": odrive.snapshot(),
+            "physics_error": repr(physics.error) if physics.error else "",
+        }
+        with contextlib.suppress(Exception):
+            mcu.close()
+        with contextlib.suppress(Exception):
+            conn.send(("report", report))
+        with contextlib.suppress(Exception):
+            conn.close()
 
 
-INJECTIONS = ("mocap_drop", "mocap_occlude", "loadcell_crc", "loadcell_drop", "loadcell_garbage")
+class _Snapshot:
+    """The emulated ODrive as the parent sees it: live snapshots while the peers run, the last one after."""
+
+    def __init__(self, peers: PeerProcess) -> None:
+        self._peers = peers
+
+    def snapshot(self) -> dict[str, Any]:
+        return self._peers.odrive_snapshot()
+
+
+class PeerProcess:
+    """The emulated peers in a process of their own (spawned), as real devices are: the acquisition process's
+    scheduling cannot make them late, and theirs cannot make it late.
+
+    After :meth:`stop`, what they injected is here: ``motive.dropped_frames``, ``mcu.injected``,
+    ``mcu.broken_seqs``, ``mcu.overflowed_seqs``, ``odrive.snapshot()`` (as when they stopped).
+    """
+
+    def __init__(self, spec: dict[str, Any], ready_timeout_s: float = 60.0) -> None:
+        # a fresh interpreter (like multiprocessing's spawn, without re-importing the caller's __main__, so a
+        # script or notebook needs no ``if __name__ == "__main__"`` guard), talking over a socket pair
+        parent, child = socket.socketpair()
+        env = dict(os.environ)
+        src = str(Path(__file__).resolve().parents[2])  # this beambench, whichever checkout it is
+        env["PYTHONPATH"] = os.pathsep.join([src, *filter(None, [env.get("PYTHONPATH")])])
+        self._proc = subprocess.Popen(
+            [sys.executable, "-c", f"from beambench.rigs.emulated import _peer_entry; _peer_entry({child.fileno()})"],
+            pass_fds=(child.fileno(),),
+            env=env,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,  # a terminal's Ctrl-C goes to the acquisition process, not to the "devices"
+        )
+        child.close()
+        self._conn = Connection(parent.detach())
+        self._lock = threading.Lock()
+        self.report: dict[str, Any] | None = None
+        self.odrive = _Snapshot(self)
+        self.motive: Any = None
+        self.mcu: Any = None
+        try:
+            self._conn.send(spec)
+            self.ready = self._expect("ready", ready_timeout_s)
+        except BaseException:
+            self.stop()
+            raise
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def _alive(self) -> bool:
+        return self._proc.poll() is None
+
+    def _expect(self, what: str, timeout_s: float) -> Any:
+        if not self._conn.poll(timeout_s):
+            raise RuntimeError(f"emulated peers: no {what!r} within {timeout_s:g} s")
+        kind, value = self._conn.recv()
+        if kind != what:
+            raise RuntimeError(f"emulated peers: expected {what!r}, got {kind!r}")
+        return value
+
+    def _ask(self, cmd: str, arg: Any = None, timeout_s: float = 10.0) -> Any:
+        with self._lock:
+            if self.report is not None or not self._alive():
+                raise RuntimeError("emulated peers are not running")
+            self._conn.send((cmd, arg))
+            return self._expect(cmd if cmd != "start" else "started", timeout_s)
+
+    def start(self) -> None:
+        self._ask("start")
+
+    def mocap_outage(self, seconds: float) -> None:
+        """Motive sends nothing for ``seconds`` from now (a real UDP silence)."""
+        self._ask("outage", seconds)
+
+    def odrive_snapshot(self) -> dict[str, Any]:
+        if self.report is not None:
+            return dict(self.report["odrive"])
+        return dict(self._ask("snapshot"))
+
+    def stop(self) -> None:
+        """Stop the peers and keep their report. Idempotent."""
+        with self._lock:
+            if self.report is None and self._alive():
+                with contextlib.suppress(Exception):
+                    self._conn.send(("stop", None))
+                    deadline = time.monotonic() + 10.0
+                    while self.report is None and self._conn.poll(max(0.0, deadline - time.monotonic())):
+                        kind, value = self._conn.recv()
+                        if kind == "report":
+                            self.report = value
+            try:
+                self._proc.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait(timeout=2.0)
+            with contextlib.suppress(Exception):
+                self._conn.close()
+            if self.report is not None:
+                from beambench.emulators.loadcell_mcu import Injected
+
+                m, c = self.report["motive"], self.report["mcu"]
+                self.motive = SimpleNamespace(**m)
+                self.mcu = SimpleNamespace(**{**c, "injected": Injected(**c["injected"])})
 
 
 def build_emulated_rig(
@@ -172,11 +432,14 @@ def build_emulated_rig(
     can_log: Path | None = None,
     calibration: LoadCellCalibration | None = None,
     inject: dict[str, Any] | None = None,
+    wiring: RigFile | None = None,
 ) -> DeviceRig:
-    """Real drivers against emulated Motive, ODrive and load-cell MCU, all driven by the MuJoCo physics.
+    """Real drivers against emulated Motive, ODrive and load-cell MCU, all driven by the MuJoCo physics, which
+    run in a process of their own (started here; they start sending when the rig opens).
 
-    ``inject`` sets fault probabilities per frame (keys in :data:`INJECTIONS`); the emulators record exactly
-    what they injected (``rig.peers[0].motive.dropped_frames``, ``.mcu.injected``).
+    ``inject`` sets faults (keys in :data:`INJECTIONS`); the peers report exactly what they injected when they
+    stop (``rig.peers[0].motive.dropped_frames``, ``.mcu.injected``). ``wiring`` gives the drivers' settings
+    (heartbeat and silence timeouts) as in a rig file; addresses and ports are the emulators'.
     """
     inject = dict(inject or {})
     unknown = sorted(set(inject) - set(INJECTIONS))
@@ -185,62 +448,53 @@ def build_emulated_rig(
     from beambench.devices.loadcell import SerialLoadCells
     from beambench.devices.natnet import NatNetConfig, NatNetMocap
     from beambench.devices.odrive_can import OdriveCanMotor
-    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
-    from beambench.emulators.motive import (
-        MOTIVE_GEOMETRY,
-        EmulatorClock,
-        MotiveEmulator,
-        motive_frame,
-    )
-    from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
+    from beambench.emulators.canbus import LoopbackCanBus, new_channel
+    from beambench.emulators.motive import MOTIVE_GEOMETRY
 
-    sim = protocol.sim
-    channel = f"beambench-{uuid.uuid4().hex[:8]}"
-    odrive = EmulatedOdrive(channel=channel, config=OdriveEmulatorConfig(calibration_s=0.2))
-    physics = RealtimePhysics(protocol, None)
-    markers = tuple(physics.scene.markers)  # the scene's own markers (release test: stage, tip1..tip3)
-    motive = MotiveEmulator(
-        marker_names=markers,
-        positions=motive_frame(physics.positions),
-        command_port=0,
-        multicast=False,
-        clock=EmulatorClock.from_model(sim.mocap_clock),
-        seed=sim.seed,
-        drop=inject.get("mocap_drop"),
-        occlude=inject.get("mocap_occlude"),
+    wiring = wiring or RigFile()
+    group, port = new_channel()
+    peers = PeerProcess(
+        {
+            "protocol": protocol,
+            "inject": inject,
+            "calibration": calibration or default_calibration(),
+            "can": (group, port),
+        }
     )
-    mcu = EmulatedLoadCellMCU(
-        force=physics.force,
-        calibration=calibration or default_calibration(),
-        drift_ppm=sim.loadcell_clock.drift_ppm,
-        noise_counts=50.0 if sim.noise else 0.0,
-        seed=sim.seed,
-        crc_error_prob=inject.get("loadcell_crc", 0.0),
-        drop_prob=inject.get("loadcell_drop", 0.0),
-        garbage_prob=inject.get("loadcell_garbage", 0.0),
-    )
-    port = mcu.open()
-    peers = _EmulatedPeers(physics, odrive, motive, mcu)
-
-    class _LateMocap(NatNetMocap):
-        """The Motive emulator picks its port on start; point the client at it then."""
-
-        def start(self) -> None:
-            self.config.command_port = motive.command_address[1]
-            super().start()
-
-    mocap = _LateMocap(
-        markers,
-        NatNetConfig(server_address="127.0.0.1", local_address="127.0.0.1", command_port=0, multicast=False),
-        frame=Frame(**MOTIVE_GEOMETRY),
-    )
-    motor = OdriveCanMotor(channel, "virtual", 0, can_log=can_log)
-    loadcells = SerialLoadCells(port)
+    try:
+        ready = peers.ready
+        markers = tuple(ready["markers"])  # the scene's own markers (release test: stage, tip1..tip3)
+        mocap = NatNetMocap(
+            markers,
+            NatNetConfig(
+                server_address="127.0.0.1",
+                local_address="127.0.0.1",
+                command_port=int(ready["command_port"]),
+                multicast=False,
+            ),
+            frame=Frame(**MOTIVE_GEOMETRY),
+            silence_timeout_s=wiring.natnet.silence_timeout_s,
+        )
+        channel = f"{group}:{port}"
+        motor = OdriveCanMotor(
+            channel,
+            "udp_multicast",
+            0,
+            bus=LoopbackCanBus(group, port),
+            own_bus=True,
+            can_log=can_log,
+            heartbeat_timeout_s=wiring.odrive.heartbeat_timeout_s,
+            telemetry_timeout_s=wiring.odrive.telemetry_timeout_s,
+        )
+        loadcells = SerialLoadCells(ready["loadcell_port"], silence_timeout_s=wiring.loadcell.silence_timeout_s)
+    except BaseException:
+        peers.stop()
+        raise
     return DeviceRig(
         motor,
         mocap,
         loadcells,
         "emulated",
         peers=[peers],
-        extra_identity={"emulated": {"scene": physics.scene.identity(), "can_channel": channel}},
+        extra_identity={"emulated": {"scene": ready["scene"], "can_channel": channel, "peers": "own process (spawn)"}},
     )

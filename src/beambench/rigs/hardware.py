@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from beambench.acquisition.batch import Frame
-from beambench.acquisition.capabilities import Connectable, Motor, Stream
+from beambench.acquisition.capabilities import Connectable, Motor, ReportsHealth, Stream
 from beambench.acquisition.config import (
     ConfigError,
     LoadCellWiring,
@@ -75,14 +75,16 @@ class DeviceRig:
 
     def open(self) -> None:
         try:
-            for peer in self.peers:
-                peer.start()
-                self._opened.append(peer)
             if isinstance(self.motor, Connectable):
                 self.motor.open()
             self._opened.append(self.motor)
             for s in self.streams:
                 s.start()
+            # emulated peers start sending once every driver listens (their servers answer from the start):
+            # a real board's first second is not buffered in a port nobody has opened yet either
+            for peer in self.peers:
+                peer.start()
+                self._opened.append(peer)
         except BaseException:
             self.close()
             raise
@@ -97,12 +99,37 @@ class DeviceRig:
         for s in (self.mocap, self.loadcells):
             with contextlib.suppress(Exception):
                 s.stop()
+        self._after_run["devices"] = self.device_health()
         if isinstance(self.motor, Connectable):
             with contextlib.suppress(Exception):
                 self.motor.close()
         for peer in reversed(self.peers):
             with contextlib.suppress(Exception):
                 peer.stop()
+
+    def check(self) -> None:
+        """Raise :class:`DeviceFault` if any device failed or went silent: the motor first, then each stream."""
+        self.motor.check()
+        for s in (self.mocap, self.loadcells):
+            s.check()
+
+    def silence_timeouts(self) -> dict[str, float]:
+        """Each stream's silence timeout (s), for :func:`beambench.acquisition.monitors.build_monitors`."""
+        out: dict[str, float] = {}
+        for s in (self.mocap, self.loadcells):
+            timeout = getattr(s, "silence_timeout_s", None)
+            if timeout is not None:
+                out[s.name] = float(timeout)
+        return out
+
+    def device_health(self) -> dict[str, dict[str, Any]]:
+        """Every driver's counters (received, dropped, garbled, forged, ...), by stream name."""
+        out: dict[str, dict[str, Any]] = {}
+        for s in self.streams:
+            if isinstance(s, ReportsHealth):
+                with contextlib.suppress(Exception):
+                    out[s.name] = s.health()
+        return out
 
     def _keep_echoes(self) -> None:
         client = getattr(self.mocap, "client", None)
@@ -113,7 +140,8 @@ class DeviceRig:
             self._after_run = {"sync": {"natnet_echo": {**table, "clock_frequency": int(client.clock_frequency)}}}
 
     def after_run(self) -> dict[str, Any]:
-        """The NatNet ECHO table (for the clock fit), known once the mocap client has stopped."""
+        """The NatNet ECHO table (for the clock fit) and every driver's counters (``devices``), known once the
+        devices have stopped."""
         return dict(self._after_run)
 
     def identity(self) -> dict[str, Any]:
@@ -133,26 +161,36 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
     if od.transport == "usb":
         from beambench.devices.odrive_usb import OdriveUsbMotor
 
-        return OdriveUsbMotor(serial_number=od.serial_number, axis=od.axis)  # type: ignore[return-value]
+        return OdriveUsbMotor(serial_number=od.serial_number, axis=od.axis)
     from beambench.devices.odrive_can import OdriveCanMotor
 
-    return OdriveCanMotor(od.channel, od.interface, od.node_id, bitrate=od.bitrate, can_log=can_log, **can_kw)
+    return OdriveCanMotor(
+        od.channel,
+        od.interface,
+        od.node_id,
+        bitrate=od.bitrate,
+        can_log=can_log,
+        heartbeat_timeout_s=od.heartbeat_timeout_s,
+        telemetry_timeout_s=od.telemetry_timeout_s,
+        **can_kw,
+    )
 
 
 def _make_mocap(nn: NatNetWiring, markers: tuple[str, ...], frame: Frame) -> Stream:
     from beambench.devices.natnet import NatNetMocap
 
     section = nn.model_dump()
+    silence = section.pop("silence_timeout_s", None)
     missing = [m for m in markers if m not in section["markers"]]
     if missing:
         raise ConfigError("<rig file>", "natnet.markers", sorted(section["markers"]), f"no source for {missing}")
-    return NatNetMocap.from_rig(section, markers=markers, frame=frame)
+    return NatNetMocap.from_rig(section, markers=markers, frame=frame, silence_timeout_s=silence)
 
 
 def _make_loadcells(lc: LoadCellWiring) -> Stream:
     from beambench.devices.loadcell import SerialLoadCells
 
-    return SerialLoadCells(lc.port, lc.baudrate)
+    return SerialLoadCells(lc.port, lc.baudrate, silence_timeout_s=lc.silence_timeout_s)
 
 
 def build_device_rig(protocol: Protocol, rig_file: Path | None = None, can_log: Path | None = None) -> DeviceRig:

@@ -1,6 +1,7 @@
 """Simulated devices with the same streams as the real ones, sampled from the physics trajectory.
 
-Every device samples on its own clock: device time D(t) = offset + (1 + drift)·t, samples at D = k/rate.
+Every device samples on its own clock (:class:`~beambench.acquisition.clocks.DriftingClock`: device time
+D(t) = offset + (1 + drift)·t), samples at D = k/rate.
 A sample measured at true time t reaches the host at t + latency + jitter (one-sided, exponential with mean
 ``jitter_s``; first in, first out, so host times strictly increase). Host time is the simulated time since
 ``open()``. A device delivers every sample measured at or before the clock's "now"; a sample's host time may
@@ -18,6 +19,7 @@ import numpy as np
 from beambench.acquisition.batch import Batch, StreamSpec
 from beambench.acquisition.calibration import LoadCellCalibration
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits
+from beambench.acquisition.clocks import DriftingClock
 from beambench.acquisition.config import ClockModel
 from beambench.acquisition.streams import loadcell_spec, mocap_spec, motor_spec
 from beambench.sim.engine.stepping import Trajectory
@@ -42,7 +44,7 @@ def interp_rows(t: np.ndarray, y: np.ndarray, tq: np.ndarray) -> np.ndarray:
 def box_average(t: np.ndarray, y: np.ndarray, tq: np.ndarray, width: float) -> np.ndarray:
     """Mean of ``y`` over ``[tq - width, tq]`` (trapezoidal integral; what an ADC with a 1-sample boxcar reads)."""
     seg = 0.5 * (y[1:] + y[:-1]) * np.diff(t).reshape(-1, *([1] * (y.ndim - 1)))
-    cum = np.concatenate([np.zeros((1,) + y.shape[1:]), np.cumsum(seg, axis=0)])
+    cum = np.concatenate([np.zeros((1, *y.shape[1:])), np.cumsum(seg, axis=0)])
     return (interp_rows(t, cum, tq) - interp_rows(t, cum, tq - width)) / width
 
 
@@ -52,15 +54,16 @@ class DeviceClock:
 
     def __init__(self, model: ClockModel, rate_hz: float, rng: np.random.Generator) -> None:
         self.model, self.rate, self.rng = model, rate_hz, rng
-        self.scale = 1.0 + model.drift_ppm * 1e-6
+        self.drift = DriftingClock.from_model(model)
+        self.scale = self.drift.scale
         self.k0 = math.ceil(self.device_time(0.0) * rate_hz - 1e-9)  # first sample after open()
         self._last_host_ns = -1
 
     def device_time(self, t: float | np.ndarray) -> float | np.ndarray:
-        return self.model.offset_s + self.scale * t
+        return self.drift.device_time(t)
 
     def true_time(self, d: float | np.ndarray) -> float | np.ndarray:
-        return (d - self.model.offset_s) / self.scale
+        return self.drift.true_time(d)
 
     def last_index(self, t: float) -> int:
         """Index of the last sample measured at or before true time ``t``."""
@@ -99,7 +102,7 @@ class SimClock:
     def wait(self, seconds: float) -> None:
         if seconds <= 0:
             return
-        target = self._now_ns + int(round(seconds * 1e9))
+        target = self._now_ns + round(seconds * 1e9)
         step = int(self.max_chunk_s * 1e9)
         while self._now_ns < target:
             self._now_ns = min(target, self._now_ns + step)
@@ -130,6 +133,10 @@ class SampledStream:
 
     def stop(self) -> None:
         self.running = False
+
+    def check(self) -> None:
+        """A simulated device samples whenever the clock advances: it cannot fall silent or fail (the motor's
+        overcurrent is the one simulated fault, see :meth:`SimMotor.check`)."""
 
     def read(self) -> Batch:
         if not self._pending:

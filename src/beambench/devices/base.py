@@ -1,0 +1,208 @@
+"""What every stream driver rewrites, written once: lifecycle, reader thread, row buffer, counters, liveness.
+
+In the spirit of python-can's ``BusABC`` (a small base that owns the lifecycle — idempotent shutdown, a context
+manager — and leaves the wire to subclasses), :class:`StreamDriver` gives a driver:
+
+- ``start()`` / ``stop()``: idempotent; ``stop()`` is safe from any state, also after a failed ``start()``;
+  ``with driver:`` starts and always stops;
+- an optional reader thread that calls the subclass's :meth:`~StreamDriver._receive` until stopped; an
+  exception there is kept as the driver's fault (reported by :meth:`check` and :meth:`read`), never lost;
+- a row buffer: the reader appends rows with :meth:`~StreamDriver._push` (which stamps the last-receive time),
+  :meth:`read` takes them all and hands them to the subclass's :meth:`~StreamDriver._to_batch`;
+- :class:`Counters`: received, dropped (the device sent it, it never arrived), garbled (arrived, failed to
+  decode), forged (arrived from a sender that is not the device);
+- liveness: :meth:`check` raises :class:`DeviceFault` on a fault, or when nothing arrived for longer than
+  ``silence_timeout_s`` while running. :meth:`read` returns what arrived; only when nothing did and the
+  device is faulty or silent does it raise, so samples received before a failure are never lost.
+
+Subclasses implement ``_open``, ``_close``, ``_receive`` (one bounded wait for data), ``_to_batch`` and, if a
+blocking receive must be woken to stop, ``_interrupt``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from beambench.acquisition.batch import Batch, StreamSpec
+from beambench.acquisition.capabilities import DeviceFault
+
+__all__ = ["Counters", "StreamDriver"]
+
+
+@dataclass
+class Counters:
+    """What a driver saw on its wire, for ``/general/devices/<stream>`` and the event log."""
+
+    received: int = 0  # samples (frames, rows) delivered
+    dropped: int = 0  # samples the device sent that never arrived (gaps in its sequence or frame numbers)
+    garbled: int = 0  # frames or datagrams that arrived but failed to decode (CRC, parse errors)
+    forged: int = 0  # datagrams from a sender that is not the device the handshake found
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+
+class StreamDriver:
+    """Base of the stream drivers; see the module docstring. ``name`` and ``describe()`` make it a Stream."""
+
+    name: str
+    reader_thread = True  # False: the subclass receives some other way (a client's own thread)
+
+    def __init__(self, name: str, spec: StreamSpec, silence_timeout_s: float | None = 0.5) -> None:
+        self.name = name
+        self._spec = spec
+        self.silence_timeout_s = silence_timeout_s
+        self.counters = Counters()
+        self._lock = threading.Lock()
+        self._rows: list[Any] = []
+        self._stop_evt = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._started = False
+        self._started_ns: int | None = None
+        self._fault: str | None = None
+        self._fault_reported = False
+        self.last_receive_ns: int | None = None
+
+    # -- to implement --------------------------------------------------------------------------------------
+    def _open(self) -> None:
+        """Connect (open the port, the socket). Raise :class:`DeviceFault` if the device cannot be reached."""
+
+    def _close(self) -> None:
+        """Release what ``_open`` took. Never raises."""
+
+    def _interrupt(self) -> None:
+        """Wake a ``_receive`` blocked on the wire (called by ``stop`` before joining the thread)."""
+
+    def _receive(self) -> None:
+        """Wait a short, bounded time for data and ``_push`` what arrived (reader thread only)."""
+        raise NotImplementedError
+
+    def _to_batch(self, rows: list[Any]) -> Batch:
+        """The rows taken from the buffer, as one Batch of this stream (never called with no rows)."""
+        raise NotImplementedError
+
+    # -- Stream --------------------------------------------------------------------------------------------
+    def describe(self) -> StreamSpec:
+        return self._spec
+
+    def start(self) -> None:
+        """Open and start receiving. Idempotent; on failure everything opened is closed again."""
+        if self._started:
+            return
+        self._reset()
+        self._stop_evt.clear()
+        try:
+            self._open()
+        except BaseException:
+            self._close()
+            raise
+        self._started = True
+        self._started_ns = time.monotonic_ns()
+        if self.reader_thread:
+            self._thread = threading.Thread(target=self._reader, name=f"{self.name}-reader", daemon=True)
+            self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the reader and close. Idempotent, never raises; what was received stays readable."""
+        self._stop_evt.set()
+        was = self._started
+        self._started = False
+        with contextlib.suppress(Exception):
+            self._interrupt()
+        if self._thread is not None and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2.0)
+        self._thread = None
+        if was:
+            with contextlib.suppress(Exception):
+                self._close()
+
+    def close(self) -> None:
+        self.stop()
+
+    def __enter__(self) -> StreamDriver:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def read(self) -> Batch:
+        """Everything received since the last call. With nothing received, raise :class:`DeviceFault` if the
+        device failed or has been silent longer than ``silence_timeout_s``; else an empty batch."""
+        with self._lock:
+            rows, self._rows = self._rows, []
+        if rows:
+            return self._to_batch(rows)
+        if not self._fault_reported:
+            try:
+                self.check()
+            except DeviceFault:
+                self._fault_reported = True  # once: the final drain after the idle must not fail again
+                raise
+        return self._spec.empty_batch()
+
+    # -- health --------------------------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        return self._started and (not self.reader_thread or (self._thread is not None and self._thread.is_alive()))
+
+    def check(self) -> None:
+        """Raise :class:`DeviceFault` if the device failed, or sent nothing for ``silence_timeout_s``."""
+        if self._fault is not None:
+            raise DeviceFault(f"{self.name}: {self._fault}")
+        timeout = self.silence_timeout_s
+        if timeout is None or not self._started or self._started_ns is None:
+            return
+        last = self.last_receive_ns if self.last_receive_ns is not None else self._started_ns
+        silent = time.monotonic_ns() - last
+        if silent > timeout * 1e9:
+            what = "nothing received" if self.last_receive_ns is None else "silent"
+            raise DeviceFault(f"{self.name}: {what} for {silent * 1e-9:.2f} s (> {timeout:g} s)")
+
+    def health(self) -> dict[str, Any]:
+        """The counters, the fault if any, and the age of the last sample (s), for the session."""
+        last = self.last_receive_ns
+        return {
+            **self.counters.as_dict(),
+            "fault": self._fault or "",
+            "silence_timeout_s": self.silence_timeout_s if self.silence_timeout_s is not None else float("nan"),
+        } | ({"last_receive_age_s": (time.monotonic_ns() - last) * 1e-9} if last is not None else {})
+
+    # -- for subclasses ------------------------------------------------------------------------------------
+    def _reset(self) -> None:
+        """Forget the previous run (buffer, fault, last receive); counters start again from zero."""
+        with self._lock:
+            self._rows = []
+        self._fault = None
+        self._fault_reported = False
+        self.last_receive_ns = None
+        self.counters = Counters()
+
+    def _push(self, rows: list[Any], host_ns: int) -> None:
+        """Rows that arrived at ``host_ns`` (monotonic ns): buffered, counted, and the stream is alive."""
+        if not rows:
+            return
+        with self._lock:
+            self._rows.extend(rows)
+            self.counters.received += len(rows)
+            self.last_receive_ns = host_ns
+
+    def _set_fault(self, message: str) -> None:
+        if self._fault is None:
+            self._fault = message
+
+    def _reader(self) -> None:
+        try:
+            while not self._stop_evt.is_set():
+                self._receive()
+        except Exception as exc:  # the wire failed: kept, reported by check()/read(), never swallowed
+            if not self._stop_evt.is_set():
+                self._set_fault(self._failure(exc))
+
+    def _failure(self, exc: Exception) -> str:
+        """The fault text for an exception of the reader thread."""
+        return f"{type(exc).__name__}: {exc}"
