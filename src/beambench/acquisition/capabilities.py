@@ -116,6 +116,20 @@ class ChecksDevices(Protocol):
 
 
 @runtime_checkable
+class HasSilenceTimeouts(Protocol):
+    """A rig whose streams each have a silence timeout (s) from the rig file, watched by a monitor per stream."""
+
+    def silence_timeouts(self) -> dict[str, float]: ...
+
+
+@runtime_checkable
+class ReportsDeviceHealth(Protocol):
+    """A rig whose drivers count what they received, dropped, garbled or refused as forged, by stream name."""
+
+    def device_health(self) -> dict[str, dict[str, Any]]: ...
+
+
+@runtime_checkable
 class HasIdleTail(Protocol):
     """A rig whose devices keep reporting after the idle command: record ``idle_tail_s`` more to see it stop."""
 

@@ -25,7 +25,14 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 
 from beambench.acquisition.batch import StepRecord
-from beambench.acquisition.capabilities import DeviceFault, HasIdleTail, MotorLimits, Rig
+from beambench.acquisition.capabilities import (
+    ChecksDevices,
+    DeviceFault,
+    HasIdleTail,
+    MotorLimits,
+    ReportsDeviceHealth,
+    Rig,
+)
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.monitors import Monitor
 from beambench.acquisition.plan import Step
@@ -231,7 +238,10 @@ class Runner:
         self.rig.clock.wait(seconds)
         self._pump()
         self._check_stop()  # before check(): a device closed by a stopping peer must not read as a fault
-        self.rig.motor.check()
+        if isinstance(self.rig, ChecksDevices):
+            self.rig.check()  # the motor, then every stream's liveness
+        else:
+            self.rig.motor.check()
 
     def _problem(self) -> tuple[str | None, int]:
         """(the monitors' reasons joined, or None; the earliest time the data went bad)."""
@@ -268,6 +278,14 @@ class Runner:
                 self.hub.step(self._current)
             if result.status == "error":
                 result.message = result.message or "error"
+            if isinstance(self.rig, ReportsDeviceHealth):
+                try:
+                    health = self.rig.device_health()
+                except Exception as exc:
+                    health = {"error": {"message": str(exc)}}
+                for stream, counts in sorted(health.items()):
+                    listed = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+                    self.hub.event(now, "devices", f"{stream}: {listed}")
             kind = {"completed": "stop"}.get(result.status, result.status)
             self.hub.event(now, kind, result.message)
         finally:

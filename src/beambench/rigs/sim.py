@@ -200,6 +200,11 @@ class SimRig:
             snap = self.scene.snapshot()
             self._ahead = (target, self._pool.submit(self.scene.advance_to, target * 1e-9), snap)
 
+    def check(self) -> None:
+        """The motor, then every stream (the simulated devices never go silent; the same call as on a rig)."""
+        for device in self.streams:
+            device.check()
+
     def identity(self) -> dict[str, Any]:
         sim = self.protocol.sim
 

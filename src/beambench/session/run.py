@@ -16,7 +16,7 @@ from rich.progress import (
 )
 
 from beambench.acquisition.calibration import default_calibration
-from beambench.acquisition.capabilities import ReportsAfterRun
+from beambench.acquisition.capabilities import HasSilenceTimeouts, ReportsAfterRun
 from beambench.acquisition.config import Backend, Protocol
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
@@ -85,7 +85,8 @@ def _run_session(
             general["geometry"] = frames[0].as_dict()
         writer = SessionWriter(path, general)
         sinks: list[Sink] = [writer]
-        monitors = build_monitors(protocol, [s.describe().name for s in rig.streams])
+        silence = rig.silence_timeouts() if isinstance(rig, HasSilenceTimeouts) else None
+        monitors = build_monitors(protocol, [s.name for s in specs], silence)
         sinks += monitors
         if rerun_mode != "off":
             from beambench.sinks.rerun_view import RerunSink
