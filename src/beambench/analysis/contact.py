@@ -184,11 +184,11 @@ def regime_label(
     if not np.isfinite(ratio) or ratio <= 0:
         return "irregular"
     if ratio <= 1.0 + params.regime_tolerance:
-        k = max(1, int(round(1.0 / ratio)))
+        k = max(1, round(1.0 / float(ratio)))
         if k <= params.max_subharmonic and abs(ratio * k - 1.0) <= params.regime_tolerance:
             return str(Fraction(1, k))
         return "irregular"
-    k = int(round(ratio))
+    k = round(float(ratio))
     return str(k) if abs(ratio / k - 1.0) <= params.regime_tolerance else "irregular"
 
 

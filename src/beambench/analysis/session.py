@@ -56,7 +56,7 @@ class AnalysisOptions:
 
     up: str | None = None
     forward: str | None = None
-    contact: ContactParams = ContactParams()
+    contact: ContactParams = field(default_factory=ContactParams)
     stage_marker: str = "stage"
     tip_marker: str = "tip"
     foot_marker: str = "foot"

@@ -14,6 +14,7 @@ All functions are pure (numpy in, numpy/dataclasses out); nothing here reads fil
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -97,7 +98,7 @@ def _lower_hull(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     else:
         nb = 2048
         edges = np.linspace(0, n, nb + 1).astype(int)
-        mins = [lo + int(np.argmin(y[lo:hi])) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo]
+        mins = [lo + int(np.argmin(y[lo:hi])) for lo, hi in itertools.pairwise(edges) if hi > lo]
         cand = np.unique(np.concatenate([np.asarray(mins), [0, n - 1]]))
         # Any point below the piecewise-linear chain through the bin minima could still be a hull vertex.
         chain = np.interp(x, x[cand], y[cand])
@@ -125,7 +126,7 @@ def _robust_prefit(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     edges = np.searchsorted(x, np.linspace(x[0], x[-1], nb + 1)[1:-1])
     bounds = np.concatenate([[0], edges, [len(x)]])
     xs, ys = [], []
-    for lo, hi in zip(bounds[:-1], bounds[1:]):
+    for lo, hi in itertools.pairwise(bounds):
         if hi > lo:
             j = lo + int(np.argmin(y[lo:hi]))
             xs.append(x[j])
@@ -196,7 +197,7 @@ def fit_clock(
         stream,
         "hull",
         t0,
-        h0 + int(round(intercept * NS)),
+        h0 + round(float(intercept) * NS),
         1.0 + slope,
         n,
         int(keep.sum()),
@@ -257,7 +258,7 @@ def fit_echo(
         stream,
         "echo",
         t0,
-        h0 + int(round(intercept * NS)),
+        h0 + round(float(intercept) * NS),
         float(slope),
         len(s),
         len(use),
@@ -341,29 +342,6 @@ def resample(
     return out.reshape(out_shape)
 
 
-def golden_min(fun, lo: float, hi: float, tol: float = 1e-9, max_iter: int = 200) -> tuple[float, float]:
-    """Minimum of a unimodal ``fun`` on [lo, hi] by golden-section search: (x, fun(x)).
-
-    (Hand-written so the analysis needs no ``scipy.optimize``, whose import costs about a second.)
-    """
-    g = (np.sqrt(5.0) - 1.0) / 2.0
-    a, b = float(lo), float(hi)
-    c, d = b - g * (b - a), a + g * (b - a)
-    fc, fd = fun(c), fun(d)
-    for _ in range(max_iter):
-        if abs(b - a) <= tol:
-            break
-        if fc < fd:
-            b, d, fd = d, c, fc
-            c = b - g * (b - a)
-            fc = fun(c)
-        else:
-            a, c, fc = c, d, fd
-            d = a + g * (b - a)
-            fd = fun(d)
-    return (c, fc) if fc < fd else (d, fd)
-
-
 # ---------------------------------------------------------------------------------- encoder ↔ marker delay
 
 
@@ -432,8 +410,10 @@ def encoder_marker_delay(
     vals = np.array([corr(t, sub) for t in grid])
     k = int(np.argmax(vals))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-    x, fx = golden_min(lambda t: -corr(t), lo, hi, tol=1e-6)
-    return DelayEstimate(float(x), float(-fx), len(s), fspan)
+    from scipy.optimize import minimize_scalar
+
+    best = minimize_scalar(lambda t: -corr(t), bounds=(lo, hi), method="bounded", options={"xatol": 1e-6})
+    return DelayEstimate(float(best.x), float(-best.fun), len(s), fspan)
 
 
 # ------------------------------------------------------------------------- hardware sync-edge cross-check

@@ -28,8 +28,7 @@ from beambench.rigs.sim_devices import (
     SimMotor,
 )
 from beambench.sim.engine.stepping import DrivenScene, Trajectory
-from beambench.sim.models.params import load_params
-from beambench.sim.models.registry import make_beam_model, model_family
+from beambench.sim.models.registry import beam_model
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
@@ -39,7 +38,7 @@ def build_scene(protocol: Protocol) -> DrivenScene:
     sim = protocol.sim
     plan = _contact_plan(protocol)
     model_name = plan.model if plan else ("prb3" if sim.model == "auto" else sim.model)
-    beam = make_beam_model(model_name, load_params(sim.params, model=model_family(model_name)))
+    beam = beam_model(model_name, sim.params)
     if protocol.rig == "release":
         from beambench.sim.scenes.release import ReleaseSim
 

@@ -207,9 +207,3 @@ def plan_sweep(
             f"at {wanted[0]:g}–{wanted[-1]:g} Hz"
         )
     return best[1]
-
-
-def choose(scene: str, tolerance_mm: float, frequency_hz: float, **kw) -> tuple[str, str, float]:
-    """(model, integrator, timestep) for one frequency."""
-    p = plan_sweep(scene, tolerance_mm, [frequency_hz], **kw)
-    return p.model, p.integrator, p.timestep(frequency_hz)

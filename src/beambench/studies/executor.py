@@ -33,9 +33,6 @@ from typing import Any, TypeVar
 T = TypeVar("T")
 R = TypeVar("R")
 
-BACKENDS = ("local", "dask", "slurm")
-
-
 class ExecutorError(RuntimeError):
     """The requested executor cannot be set up (missing extra, unreachable scheduler …): one-line message."""
 

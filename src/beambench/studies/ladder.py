@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -97,7 +97,7 @@ class _Run:
 
 
 def _steps(seconds: float, h: float) -> int:
-    return int(round(seconds / h))
+    return round(float(seconds / h))
 
 
 def _check_grid(cfg: LadderConfig) -> None:
@@ -676,10 +676,6 @@ def write_outputs(table: pd.DataFrame, out_dir: Path, cfg: LadderConfig) -> dict
     plot_speed_accuracy(summary, paths["speed_accuracy_cpu"], time_col="cpu_s_per_10s")
     plot_stability_map(table, paths["stability_map"])
     return paths
-
-
-def config_dict(cfg: LadderConfig) -> dict:
-    return asdict(cfg)
 
 
 __all__ = [

@@ -53,7 +53,6 @@ from pydantic import (
     model_validator,
 )
 
-SCENES = ("free_beam", "contact")
 SCHEMA = "beambench.sweep/1"
 
 
@@ -83,9 +82,10 @@ class Point(_Model):
 
     @model_validator(mode="after")
     def _overrides_fit_model(self) -> Point:
-        rod = self.model.startswith("rod")
-        if not rod and self.model != "prb3":
-            raise ValueError(f"model = {self.model!r}: prb3 or a segmented rod rodN (rod10, rod5g …)")
+        from beambench.sim.models.registry import is_rod, model_family
+
+        model_family(self.model)  # unknown names: ValueError, reported by pydantic
+        rod = is_rod(self.model)
         if rod and (self.k is not None or self.b is not None):
             raise ValueError("k/b set the PRB3 joints; for rods sweep youngs_modulus/beta")
         if not rod and (self.youngs_modulus is not None or self.beta is not None):
@@ -254,12 +254,11 @@ def _beam(point: dict[str, Any]):
     """The beam model of a point, with its stiffness/damping overrides applied."""
     from dataclasses import replace
 
-    from beambench.sim.models.params import load_params
-    from beambench.sim.models.registry import make_beam_model, model_family
+    from beambench.sim.models.registry import default_params, is_rod, make_beam_model
 
     name = point["model"]
-    params = load_params(point["params"], model=model_family(name))
-    if name == "prb3":
+    params = default_params(name, point["params"])
+    if not is_rod(name):
         over = {}
         if point.get("k") is not None:
             over.update(k=point["k"], k_twist=point["k"])

@@ -17,7 +17,7 @@ CHUNK_ROWS = 500_000  # sensor rows (nsim × nstep) per Batch.rollout call, boun
 def thread_count(nthread: int | None, nrun: int) -> int:
     """Threads for ``nrun`` runs: ``nthread`` if given, else every core, never more than the runs."""
     cores = os.cpu_count() or 1
-    return max(1, min(nrun, cores if not nthread else nthread))
+    return max(1, min(nrun, nthread if nthread else cores))
 
 
 def rollout_batch(
@@ -73,6 +73,6 @@ def rollout_batch(
 def window(settle_s: float, record_s: float, h: float, sample_every: int = 1) -> tuple[int, np.ndarray]:
     """Steps to run and the recorded step indices: every ``sample_every``-th step time in
     [settle_s, settle_s + record_s), whatever h divides."""
-    n_settle = int(math.ceil(settle_s / h - 1e-9))
-    n_total = max(n_settle + 1, int(math.ceil((settle_s + record_s) / h - 1e-9)))
+    n_settle = math.ceil(settle_s / h - 1e-9)
+    n_total = max(n_settle + 1, math.ceil((settle_s + record_s) / h - 1e-9))
     return n_total, np.arange(n_settle, n_total, sample_every)

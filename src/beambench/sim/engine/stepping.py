@@ -98,7 +98,7 @@ class Physics:
 
     def reset_to_equilibrium(self, seconds: float, ctrl: np.ndarray) -> None:
         """Let the model settle under gravity with constant ``ctrl``, then set time to zero."""
-        n = int(round(seconds / self.timestep))
+        n = round(float(seconds / self.timestep))
         self.data.ctrl[:] = ctrl
         if n:
             self.step(np.tile(ctrl, (n, 1)))

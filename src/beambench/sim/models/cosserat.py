@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -85,8 +85,6 @@ class CosseratParams:
         f = self.damping_hz if self.damping_hz is not None else self.rod.first_frequency("weak")
         return self.rod.beta * (2 * math.pi * f) ** 2
 
-    def with_(self, **kw: Any) -> CosseratParams:
-        return replace(self, **kw)
 
 
 @dataclass

@@ -136,8 +136,6 @@ class RodParams:
             return (x + 1) * L / 2, w * L / 2
         raise ValueError(f"nodes = {self.nodes!r}: 'midpoint' or 'gauss'")
 
-    def with_segments(self, n: int) -> RodParams:
-        return replace(self, n_segments=int(n))
 
 
 # the rod is built along its own +x (width y, thickness z); this maps it onto the beam convention of
@@ -296,20 +294,6 @@ def make_rod_model(name: str, params: BeamParams) -> RodModel:
         nodes="gauss" if m.group(2) else "midpoint",
         dofs="twist,weak" if m.group(3) else "twist,weak,strong",
     )
-
-
-def rod_static_deflection(rod: RodParams, load: float, axis: str = "weak") -> float:
-    """Euler–Bernoulli tip deflection PL³/3EI of the untwisted cantilever under a tip load (m)."""
-    ei = rod.ei_weak if axis == "weak" else rod.ei_strong
-    return load * rod.length**3 / (3 * ei)
-
-
-def spring_energy(model: mujoco.MjModel, data: mujoco.MjData) -> float:
-    """Elastic energy ½ Σ k (q − q_spring)² of all hinge springs (J)."""
-    k = model.jnt_stiffness[:, 0] if model.jnt_stiffness.ndim == 2 else model.jnt_stiffness
-    adr = model.jnt_qposadr
-    dq = data.qpos[adr] - model.qpos_spring[adr]
-    return float(0.5 * np.sum(k * dq**2))
 
 
 def natural_frequencies(

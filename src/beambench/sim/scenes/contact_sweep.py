@@ -150,7 +150,7 @@ def contact_sweep(
     rig = rig or RigParams.with_overrides(bm.params.rig)
     models = _models(bm, twist_deg, gap_m, rig, integrator, dts)
     q0 = _rest(next(iter(models.values())))
-    nt = int(round(record_s / sample_dt))
+    nt = round(float(record_s / sample_dt))
     foot = np.full((len(freqs), nt, 3), np.nan)
     normal = np.full((len(freqs), nt), np.nan)
     ok = np.ones(len(freqs), bool)
@@ -160,7 +160,7 @@ def contact_sweep(
     def run_group(h: float, idx: np.ndarray, threads: int | None) -> None:
         """Runs ``idx`` (all at timestep h) in one batch; fills their rows of the outputs."""
         m = models[h]
-        every = max(1, int(round(sample_dt / h)))
+        every = max(1, round(float(sample_dt / h)))
         n_total, keep = window(settle_s, record_s, h, every)
         keep = keep[:nt]
         mass = slider_inertia(m, q0)
@@ -207,7 +207,7 @@ def contact_sweep(
         ok[idx] = okg & np.isfinite(sd[:, :, a_foot]).all(axis=1)
 
     for h in models:
-        every = max(1, int(round(sample_dt / h)))
+        every = max(1, round(float(sample_dt / h)))
         if abs(every * h - sample_dt) > 1e-12:
             raise ValueError(f"timestep {h:g} does not divide the sample interval {sample_dt:g}")
     workers = thread_count(nthread, len(freqs))

@@ -196,7 +196,7 @@ def frequency_sweep(
     bm = beam_model(beam) if isinstance(beam, str) else beam
     freqs = np.asarray(frequencies, float)
     model = build_free_beam_spec(bm, twist_deg, integrator, timestep, gravity).compile()
-    every = 1 if sample_dt is None else max(1, int(round(sample_dt / timestep)))
+    every = 1 if sample_dt is None else max(1, round(float(sample_dt / timestep)))
     t, tip, stage, ok, wall = run_batch(
         [model] * len(freqs), freqs, amplitude, settle_s, record_s, every, integrator, nthread
     )
@@ -234,7 +234,7 @@ def twist_sweep(
     bm = beam_model(beam) if isinstance(beam, str) else beam
     tw = np.asarray(twists, float)
     models = [build_free_beam_spec(bm, float(p), integrator, timestep, gravity).compile() for p in tw]
-    every = 1 if sample_dt is None else max(1, int(round(sample_dt / timestep)))
+    every = 1 if sample_dt is None else max(1, round(float(sample_dt / timestep)))
     groups: dict[tuple[int, int], list[int]] = {}
     for i, m in enumerate(models):
         groups.setdefault((m.nq, m.nv), []).append(i)

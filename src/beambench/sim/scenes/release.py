@@ -30,14 +30,14 @@ from mujoco import rollout
 
 from beambench.sim.engine.stepping import DrivenScene, Physics, integrator_enum
 from beambench.sim.models.beam import BeamModel, add_beam
-from beambench.sim.models.params import BeamParams, load_params
-from beambench.sim.models.registry import make_beam_model, model_family
+from beambench.sim.models.params import BeamParams
+from beambench.sim.models.registry import default_params, make_beam_model
 from beambench.sim.scenes.contact_rig import RigParams
 from beambench.sim.scenes.drive import VelocityRamp
 
 G = 9.81
 TIP_MARKERS = ("tip1", "tip2", "tip3")
-RELEASE_MARKERS = ("stage",) + TIP_MARKERS
+RELEASE_MARKERS = ("stage", *TIP_MARKERS)
 MARKER_HALF_SPAN = 0.008  # m, tip1/tip2 from the section centre along the width
 MARKER_STANDOFF = 0.006  # m, tip3 from the section centre along the thickness normal
 DEFAULT_TIMESTEP = 1e-4
@@ -84,7 +84,7 @@ def build_release_spec(
     spec.add_actuator(
         name="load", target=sites.tip_site, trntype=mujoco.mjtTrn.mjTRN_SITE, refsite="world", gear=[0, 0, -1, 0, 0, 0]
     )
-    for name in ("stage",) + names:
+    for name in ("stage", *names):
         spec.add_sensor(
             name=name, type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=name
         )
@@ -245,7 +245,7 @@ def simulate_release(
 ) -> ReleaseBatch:
     """One release test from a parameter set (name or :class:`BeamParams`): tip marker paths, rest and
     loaded positions (a batch of one)."""
-    p = load_params(params, model=model_family(model)) if isinstance(params, str) else params
+    p = default_params(model, params) if isinstance(params, str) else params
     m = release_models([make_beam_model(model, p)], twist_deg, integrator, timestep)
     return release_batch(m, load_g * 1e-3 * G, duration_s, nthread=1, with_rest=True)
 
