@@ -580,13 +580,12 @@ def write_param_set(result: FitResult, name: str, directory: str | Path = SIM_BA
 def plot_fit(results: Sequence[FitResult], path: str | Path, title: str = "") -> Path:
     """Measured vs fitted tip-marker paths: x and z against time, and the x–z path (mm)."""
     import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     r0 = results[0]
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), constrained_layout=True)
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig = Figure(figsize=(14, 4.2), layout="constrained")
+    axes = fig.subplots(1, 3)
+    colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     t_ms = r0.t * 1e3
     styles = ["-", "--", ":"]
     for m, name in enumerate(r0.names):
@@ -610,7 +609,6 @@ def plot_fit(results: Sequence[FitResult], path: str | Path, title: str = "") ->
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 

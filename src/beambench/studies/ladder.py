@@ -508,13 +508,12 @@ def plot_speed_accuracy(summary: pd.DataFrame, path: Path, title: str = "", time
     """Log-log chart: wall s per 10 s simulated vs mean tip error over 5–45 Hz; each model's Pareto front
     (over integrators and timesteps) labelled; the paper's PRB (1.2 s) and FEA (82.5 s) marked.
     ``time_col="cpu_s_per_10s"`` plots thread-CPU time instead (steadier on a shared machine)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
 
     summary = summary.assign(wall_s_per_10s=summary[time_col])
-    fig, ax = plt.subplots(figsize=(11, 7), dpi=110)
+    fig = Figure(figsize=(11, 7), dpi=110)
+    ax = fig.subplots()
     stable = summary[summary.status_band.isin(["ok", "inaccurate"]) & ~summary.is_reference]
     stable = stable.dropna(subset=["err_mean_mm", "wall_s_per_10s"])
     ax.scatter(
@@ -566,7 +565,6 @@ def plot_speed_accuracy(summary: pd.DataFrame, path: Path, title: str = "", time
         else "thread-CPU s per 10 s simulated (1 thread, median of 3)"
     )
     ax.set_ylabel("mean tip RMS error vs 40-segment rod reference, 5–45 Hz [mm]")
-    from matplotlib.lines import Line2D
 
     handles = [Line2D([], [], color=_MODEL_COLORS.get(m, "k"), lw=2, label=m) for m in summary.model.unique()]
     handles += [Line2D([], [], color="k", marker=mk, ls="", label=i) for i, mk in _INTEGRATOR_MARKERS.items()]
@@ -585,7 +583,6 @@ def plot_speed_accuracy(summary: pd.DataFrame, path: Path, title: str = "", time
         )
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
@@ -601,24 +598,14 @@ _STATUS_COLORS = {
 def plot_stability_map(table: pd.DataFrame, path: Path, models: Sequence[str] | None = None) -> Path:
     """Grid of panels (rows: integrators, columns: models); each panel is timestep × frequency coloured by
     status: ok, inaccurate (> 1 % from converged), growing, diverged, skipped (too costly to run)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap
+    from matplotlib.figure import Figure
     from matplotlib.patches import Patch
 
     models = list(models or table.model.unique())
     integs = list(table.integrator.unique())
-    fig, axes = plt.subplots(
-        len(integs),
-        len(models),
-        figsize=(2.6 * len(models) + 1, 1.9 * len(integs) + 1),
-        squeeze=False,
-        sharex=True,
-        sharey=True,
-        dpi=100,
-    )
+    fig = Figure(figsize=(2.6 * len(models) + 1, 1.9 * len(integs) + 1), dpi=100)
+    axes = fig.subplots(len(integs), len(models), squeeze=False, sharex=True, sharey=True)
     cmap = ListedColormap([_STATUS_COLORS[s] for s in STATUSES])
     freqs = sorted(table.frequency_hz.unique())
     dts = sorted(table.timestep.unique())
@@ -655,7 +642,6 @@ def plot_stability_map(table: pd.DataFrame, path: Path, models: Sequence[str] | 
     )
     fig.tight_layout(rect=(0, 0, 1, 0.94))
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 

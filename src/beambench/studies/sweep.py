@@ -580,10 +580,7 @@ def run_local(spec: SweepSpec) -> pd.DataFrame:
 def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | None:
     """Metrics against the first swept parameter (free beam: tip major/minor axes, as the paper's Fig. 2e;
     contact: contacts per cycle and foot axes)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     axes = [a for a in spec.axes() if a in df.columns]
     if not axes or df.empty:
@@ -595,7 +592,8 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
         metrics.append(("contacts_per_cycle", "contacts per drive cycle"))
     else:
         metrics.append((f"{prefix}_tilt_deg", "tilt of the major axis (deg)"))
-    fig, axs = plt.subplots(1, len(metrics), figsize=(5 * len(metrics), 4), constrained_layout=True)
+    fig = Figure(figsize=(5 * len(metrics), 4), layout="constrained")
+    axs = fig.subplots(1, len(metrics), squeeze=False)[0]
     groups = [(None, df)] if series is None else list(df.groupby(series, sort=True))
     for ax, (col, label) in zip(axs, metrics):
         for val, g in groups[:12]:
@@ -618,5 +616,4 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
     fig.suptitle(f"{spec.name} ({spec.scene})")
     path = Path(path)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
