@@ -131,6 +131,18 @@ def test_bad_sweep_files_fail_with_one_line(tmp_path):
         read_table(tmp_path / "junk.parquet")
 
 
+def test_options_the_scene_does_not_build_are_refused(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text("name: s\nscene: free_beam\ngrid: {gap_mm: [1, 5]}\n")
+    with pytest.raises(SweepError, match=r"s.yaml: .*gap_mm applies to scene: contact only"):
+        load_sweep(f)
+    f.write_text("name: s\nscene: contact\ngrid: {gap_mm: [1, 5]}\n")
+    assert len(load_sweep(f).scene_points()) == 2
+    f.write_text("name: s\nbase: {model: beam7}\n")
+    with pytest.raises(SweepError, match=r"s.yaml: .*model = 'beam7': unknown beam model"):
+        load_sweep(f)
+
+
 def test_sweep_command_writes_table_and_figure(tmp_path):
     f = tmp_path / "s.yaml"
     f.write_text(

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from beambench.common.errors import BeambenchError
 from beambench.sim.models.params import SIM_BACKEND_DIR
 
 TABLES = {"free_beam": "ladder_table.csv", "contact": "contact_table.csv"}
@@ -36,7 +37,7 @@ TABLES = {"free_beam": "ladder_table.csv", "contact": "contact_table.csv"}
 STABLE = ("ok", "inaccurate", "irregular")
 
 
-class SelectionError(ValueError):
+class SelectionError(BeambenchError, ValueError):
     """No configuration in the table meets the request (one line, names the scene and tolerance)."""
 
 

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from beambench.common.errors import BeambenchError
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.params import SIM_BACKEND_DIR, BeamParams
 from beambench.sim.models.registry import (
@@ -55,7 +56,7 @@ RELEASE_SEARCH_SIM_S = 0.003  # sim sessions: the release is known on the sim cl
 RELEASE_SEARCH_DETECTED_S = 0.006  # release found in the data: about a frame either way, and some margin
 
 
-class FitError(ValueError):
+class FitError(BeambenchError, ValueError):
     """The input cannot be fitted (one-line message)."""
 
 

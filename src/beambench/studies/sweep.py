@@ -53,10 +53,12 @@ from pydantic import (
     model_validator,
 )
 
+from beambench.common.errors import BeambenchError
+
 SCHEMA = "beambench.sweep/1"
 
 
-class SweepError(ValueError):
+class SweepError(BeambenchError, ValueError):
     """A sweep file or table problem (one line: file, field, reason)."""
 
 
@@ -94,6 +96,7 @@ class Point(_Model):
 
 
 PARAMETERS = tuple(Point.model_fields)
+CONTACT_ONLY = ("gap_mm",)  # scene parameters only the contact rig builds
 
 
 class Range(_Model):
@@ -138,6 +141,9 @@ class SweepSpec(_Model):
     def _one_form(self) -> SweepSpec:
         if self.grid and self.points:
             raise ValueError("give either grid (a cartesian product) or points (a list), not both")
+        contact_only = [k for k in CONTACT_ONLY if k in self.base or k in self.grid or any(k in p for p in self.points)]
+        if self.scene != "contact" and contact_only:
+            raise ValueError(f"{contact_only[0]} applies to scene: contact only (the {self.scene} scene has no plate)")
         if any(f <= 0 for f in self.frequency_values()):
             raise ValueError("frequencies must be > 0 Hz")
         return self

@@ -86,7 +86,6 @@ class CosseratParams:
         return self.rod.beta * (2 * math.pi * f) ** 2
 
 
-
 @dataclass
 class CosseratSweep:
     """Tip paths over frequencies, shaped like :class:`beambench.sim.free_beam.SweepResult`: ``tip`` [nf, n, 3]

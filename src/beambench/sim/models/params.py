@@ -13,12 +13,13 @@ from typing import Any
 
 import yaml
 
+from beambench.common.errors import BeambenchError
 from beambench.common.resources import shipped_dir
 
 SIM_BACKEND_DIR = shipped_dir("sim_backend")
 
 
-class ParamsError(ValueError):
+class ParamsError(BeambenchError, ValueError):
     """A parameter set is missing or malformed (one-line message naming the file and the field)."""
 
 

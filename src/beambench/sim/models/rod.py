@@ -137,7 +137,6 @@ class RodParams:
         raise ValueError(f"nodes = {self.nodes!r}: 'midpoint' or 'gauss'")
 
 
-
 # the rod is built along its own +x (width y, thickness z); this maps it onto the beam convention of
 # beam.py: axis +y, width z, thickness x (a rotation of 120° about (1, 1, 1): x→y, y→z, z→x)
 _ROD_TO_CLAMP = (0.5, 0.5, 0.5, 0.5)
