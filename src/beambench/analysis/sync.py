@@ -15,7 +15,9 @@ All functions are pure (numpy in, numpy/dataclasses out); nothing here reads fil
 from __future__ import annotations
 
 import itertools
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -240,7 +242,7 @@ def fit_echo(
     if len(s) >= bins * keep_per_bin and bins > 1:
         edges = np.linspace(srv.min(), srv.max(), bins + 1)
         idx = np.clip(np.searchsorted(edges, srv, side="right") - 1, 0, bins - 1)
-        chosen = []
+        chosen: list[int] = []
         for b in range(bins):
             sel = np.flatnonzero(idx == b)
             chosen.extend(sel[np.argsort(rtt[sel])[:keep_per_bin]])
@@ -280,11 +282,10 @@ def fits_table(fits: dict[str, ClockFit] | list[ClockFit]) -> pd.DataFrame:
     return pd.DataFrame([f.as_row() for f in items])
 
 
-def fit_from_row(row: dict[str, object]) -> ClockFit:
+def fit_from_row(row: Mapping[str, Any]) -> ClockFit:
     """Rebuild a :class:`ClockFit` from a :func:`fits_table` row (as stored in ``/processing``)."""
-    base = {k: row[k] for k in ("stream", "method", "t0", "host0_ns", "rate") if k in row}
-    base["host0_ns"] = int(base["host0_ns"])  # type: ignore[arg-type]
-    return ClockFit(**base)  # type: ignore[arg-type]
+    base = {k: row[k] for k in ("stream", "method", "t0", "rate") if k in row}
+    return ClockFit(**base, host0_ns=int(row["host0_ns"]))
 
 
 # ---------------------------------------------------------------------------------------------- resampling

@@ -27,8 +27,9 @@ from beambench.rigs.sim_devices import (
     SimMocap,
     SimMotor,
 )
-from beambench.sim.engine.stepping import DrivenScene, Trajectory
+from beambench.sim.engine.stepping import Trajectory
 from beambench.sim.models.registry import beam_model
+from beambench.sim.scenes.drive import DrivenScene
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
@@ -81,9 +82,9 @@ def _contact_plan(protocol: Protocol):
     if protocol.rig != "contact" or (not auto and sim.timestep is not None):
         return None
     tol = sim.tolerance_mm or AUTO_TOLERANCE_MM
-    only = {} if auto else {"models": [sim.model], "integrators": [sim.integrator]}
+    models, integrators = (None, None) if auto else ([sim.model], [sim.integrator])
     try:
-        return select.plan_sweep("contact", tol, protocol.sweep.values(), **only)
+        return select.plan_sweep("contact", tol, protocol.sweep.values(), models=models, integrators=integrators)
     except select.SelectionError as exc:
         if auto:
             raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
@@ -187,6 +188,7 @@ class SimRig:
                 if old is None
                 else Trajectory.concat([Trajectory(old.t[keep], {k: v[keep] for k, v in old.channels.items()}), new])
             )
+        assert self._hist is not None  # open() made the first rows
         for dev in self._devices:
             dev.ingest(self._hist, now)
         step_ns, self._last_ns = now_ns - self._last_ns, now_ns

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from beambench.common.errors import BeambenchError
+from beambench.common.types import Floats
 from beambench.sim.models.params import SIM_BACKEND_DIR
 
 TABLES = {"free_beam": "ladder_table.csv", "contact": "contact_table.csv"}
@@ -141,7 +142,7 @@ def _converged_rows(g: pd.DataFrame, tolerance_mm: float) -> dict[tuple[float, f
 def plan_sweep(
     scene: str,
     tolerance_mm: float,
-    frequencies: Sequence[float],
+    frequencies: Floats,
     models: Sequence[str] | None = None,
     integrators: Sequence[str] | None = None,
     table: pd.DataFrame | None = None,
@@ -177,8 +178,9 @@ def plan_sweep(
         for f in wanted:
             br = _bracket(freqs, f)
             for dt in dts:
-                rows = [ok.get((dt, fb)) for fb in br]
-                if all(r is not None for r in rows):
+                found = [ok.get((dt, fb)) for fb in br]
+                rows = [r for r in found if r is not None]
+                if len(rows) == len(found):
                     steps[f] = float(dt)
                     errs[f] = float(max(r.err_mm for r in rows))
                     walls[f] = float(max(r.wall_s_per_10s for r in rows))

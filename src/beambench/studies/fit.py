@@ -530,6 +530,7 @@ def fit_release(
 def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
     """The YAML document of a fitted parameter set (same layout as ``sim_backend/prb3_paper.yaml``)."""
     p = result.params
+    beam: dict[str, Any]
     if not is_rod(result.model):
         beam = {"l1": p.l1, "l2": p.l2, "l3": p.l3, "k": p.k, "b": p.b, "k_twist": p.k_twist, "b_twist": p.b_twist}
     else:
@@ -651,4 +652,4 @@ def synthetic_release(
         "beta": params.beta,
         "noise_m": noise_m,
     }
-    return ReleaseData(t, noisy, rb.names, twist_deg, load_g, params.length, "synthetic", 0.0, truth)
+    return ReleaseData(t, noisy, rb.names, twist_deg, load_g, params.length, source="synthetic", truth=truth)

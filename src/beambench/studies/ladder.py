@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 from mujoco.batch import Batch
 
+from beambench.common.types import Floats
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.registry import beam_model
 from beambench.sim.scenes.free_beam import (
@@ -204,7 +205,7 @@ def _compare(run: _Run, ref: _Run) -> tuple[np.ndarray, np.ndarray]:
     return rms, rms / exc
 
 
-def _growing(tip: np.ndarray, t_index: np.ndarray, h_ref: float, freqs: Sequence[float]) -> np.ndarray:
+def _growing(tip: np.ndarray, t_index: np.ndarray, h_ref: float, freqs: Floats) -> np.ndarray:
     """Response amplitude (RMS excursion) over the last drive period of the window exceeds that over the first
     by more than ``GROWTH_RATIO`` (needs two whole periods in the window; else False)."""
     out = np.zeros(len(freqs), bool)
@@ -438,11 +439,11 @@ def _config_label(r: pd.Series) -> str:
 
 def place_labels(
     ax,
-    xs: Sequence[float],
-    ys: Sequence[float],
+    xs: Floats,
+    ys: Floats,
     labels: Sequence[str],
     fontsize: float = 7.0,
-    avoid_x: Sequence[float] = (),
+    avoid_x: Floats = (),
 ) -> list:
     """Label points so that no two labels overlap each other or any point (greedy, in display space).
 

@@ -221,7 +221,7 @@ class Job:
 
 def plan(spec: SweepSpec) -> list[Job]:
     """Every (scene point × frequency) of the sweep, in table order."""
-    jobs = []
+    jobs: list[Job] = []
     for p in spec.scene_points():
         for f in spec.frequency_values():
             jobs.append(Job(len(jobs), point_id(spec.scene, p, f, spec), p.model_dump(), float(f)))
@@ -265,12 +265,10 @@ def _beam(point: dict[str, Any]):
     name = point["model"]
     params = default_params(name, point["params"])
     if not is_rod(name):
-        over = {}
         if point.get("k") is not None:
-            over.update(k=point["k"], k_twist=point["k"])
+            params = replace(params, k=point["k"], k_twist=point["k"])
         if point.get("b") is not None:
-            over.update(b=point["b"], b_twist=point["b"])
-        params = replace(params, **over)
+            params = replace(params, b=point["b"], b_twist=point["b"])
     else:
         if point.get("youngs_modulus") is not None:
             params = replace(params, material=replace(params.material, youngs_modulus=point["youngs_modulus"]))
@@ -474,7 +472,9 @@ def _read_done(out: Path) -> list[dict[str, Any]]:
     for f in frames:
         if "point_id" not in f.columns:
             raise SweepError(f"{out}: not a sweep table (no point_id column)")
-    return pd.concat(frames, ignore_index=True).to_dict("records") if frames else []
+    if not frames:
+        return []
+    return [{str(k): v for k, v in r.items()} for r in pd.concat(frames, ignore_index=True).to_dict("records")]
 
 
 @dataclass
@@ -583,6 +583,10 @@ def run_local(spec: SweepSpec) -> pd.DataFrame:
     return _ordered(rows, jobs)
 
 
+def _value_label(val: Any) -> str:
+    return f"{val:g}" if isinstance(val, (int, float)) else str(val)
+
+
 def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | None:
     """Metrics against the first swept parameter (free beam: tip major/minor axes, as the paper's Fig. 2e;
     contact: contacts per cycle and foot axes)."""
@@ -609,11 +613,7 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
                 g[col],
                 "o-",
                 ms=3,
-                label=None
-                if series is None
-                else f"{series} = {val:g}"
-                if isinstance(val, (int, float))
-                else f"{series} = {val}",
+                label=None if series is None else f"{series} = {_value_label(val)}",
             )
         ax.set(xlabel=x, ylabel=label)
         ax.grid(alpha=0.3)

@@ -128,52 +128,6 @@ class Physics:
         self._roll.close()
 
 
-class DrivenScene:
-    """A scene whose controls for a chunk are planned in advance from the motor command.
-
-    The physics runs one step ahead of the clock: after ``advance_to(t)`` there are rows up to (at least)
-    ``t``, so a device can sample any time ≤ ``t`` by interpolation without waiting for the next chunk.
-    Subclasses implement :meth:`_plan` (controls + motor channels) and :meth:`_channels` (sensor → channels).
-    """
-
-    markers: tuple[str, ...] = ()
-
-    def __init__(self, physics: Physics) -> None:
-        self.physics = physics
-
-    def advance_to(self, t_target: float) -> Trajectory:
-        """Step until there is a row at time ≥ ``t_target``; returns the new rows."""
-        h = self.physics.timestep
-        n = int(np.ceil((t_target - self.physics.time) / h - 1e-9)) + 1
-        if n <= 0:
-            return Trajectory(np.zeros(0))
-        ctrl, motor = self._plan(n, h)
-        t, sens = self.physics.step(ctrl)
-        channels = self._channels(sens)
-        channels.update(motor)
-        return Trajectory(t, channels)
-
-    def snapshot(self) -> tuple:
-        """State to undo a chunk computed ahead of time (physics, motor ramp, servo)."""
-        extra = {name: dict(vars(getattr(self, name))) for name in ("ramp", "servo") if hasattr(self, name)}
-        return self.physics.snapshot(), extra
-
-    def restore(self, snap: tuple) -> None:
-        phys, extra = snap
-        self.physics.restore(phys)
-        for name, fields in extra.items():
-            vars(getattr(self, name)).update(fields)  # in place: devices hold references to these objects
-
-    def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        raise NotImplementedError
-
-    def _channels(self, sens: np.ndarray) -> dict[str, np.ndarray]:
-        raise NotImplementedError
-
-    def sensor(self, sens: np.ndarray, name: str) -> np.ndarray:
-        return sens[:, self.physics.sensor_slices[name]]
-
-
 @contextlib.contextmanager
 def quiet_mujoco_warnings() -> Iterator[list[str]]:
     """Collect MuJoCo's warnings (diverging configurations are expected here) instead of printing them and

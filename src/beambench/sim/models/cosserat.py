@@ -38,12 +38,12 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from beambench.common.types import Floats
 from beambench.sim.models.params import BeamParams, load_params
 from beambench.sim.models.rod import RodParams
 
@@ -155,7 +155,7 @@ class CosseratBeam:
         self,
         params: CosseratParams,
         twist_deg: float = 90.0,
-        gravity: Sequence[float] = (0.0, 0.0, -GRAVITY),
+        gravity: Floats = (0.0, 0.0, -GRAVITY),
         damping: bool = True,
     ) -> None:
         import elastica as ea
@@ -261,7 +261,7 @@ class CosseratBeam:
 
 
 def frequency_sweep(
-    frequencies: Sequence[float],
+    frequencies: Floats,
     twist_deg: float = 90.0,
     params: CosseratParams | None = None,
     amplitude: float = 0.002,
@@ -334,7 +334,7 @@ def frequency_sweep(
 def static_tip(
     params: CosseratParams,
     twist_deg: float = 0.0,
-    gravity: Sequence[float] = (0.0, 0.0, -GRAVITY),
+    gravity: Floats = (0.0, 0.0, -GRAVITY),
     seconds: float = 0.15,
 ) -> np.ndarray:
     """Tip displacement (m, stage frame) at rest under ``gravity`` (heavily damped run; drive off)."""

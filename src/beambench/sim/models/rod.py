@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import mujoco
 import numpy as np
 
+from beambench.common.types import Floats
 from beambench.sim.models.beam import BeamModel, BeamSites
 from beambench.sim.models.params import BeamParams, Material
 
@@ -146,13 +146,13 @@ def _quat_x(angle: float) -> np.ndarray:
     return np.array([math.cos(angle / 2), math.sin(angle / 2), 0.0, 0.0])
 
 
-def _qmul(a: Sequence[float], b: Sequence[float]) -> np.ndarray:
+def _qmul(a: Floats, b: Floats) -> np.ndarray:
     out = np.empty(4)
     mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
     return out
 
 
-def _qinv(a: Sequence[float]) -> np.ndarray:
+def _qinv(a: Floats) -> np.ndarray:
     out = np.empty(4)
     mujoco.mju_negQuat(out, np.asarray(a, float))
     return out
@@ -162,10 +162,10 @@ def add_rod(
     parent: mujoco.MjsBody,
     rod: RodParams,
     twist_deg: float = 90.0,
-    pos: Sequence[float] = (0.0, 0.0, 0.0),
-    quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0),
+    pos: Floats = (0.0, 0.0, 0.0),
+    quat: Floats = (1.0, 0.0, 0.0, 0.0),
     prefix: str = "beam_",
-    rgba: Sequence[float] = (0.9, 0.55, 0.1, 1.0),
+    rgba: Floats = (0.9, 0.55, 0.1, 1.0),
 ) -> BeamSites:
     """Attach a pre-twisted segmented rod to ``parent`` with its clamp at ``pos``/``quat`` (parent frame).
 
@@ -261,8 +261,8 @@ class RodModel(BeamModel):
         self,
         parent: mujoco.MjsBody,
         twist_deg: float,
-        pos: Sequence[float] = (0, 0, 0),
-        quat: Sequence[float] = (1, 0, 0, 0),
+        pos: Floats = (0, 0, 0),
+        quat: Floats = (1, 0, 0, 0),
         prefix: str = "beam_",
     ) -> BeamSites:
         return add_rod(parent, self.rod, twist_deg, pos, quat, prefix)

@@ -20,9 +20,9 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.streams import CONTACT_MARKERS
-from beambench.sim.engine.stepping import INTEGRATORS, DrivenScene, Physics
+from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam
-from beambench.sim.scenes.drive import KinematicServo, VelocityRamp
+from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 
 
 @dataclass(frozen=True)
@@ -180,6 +180,8 @@ def build_contact_spec(
 class ContactRigSim(DrivenScene):
     """The contact rig advanced in chunks; channels: ``markers`` [n, 3, 3] (stage, tip, foot), ``force_nt``
     [n, 2] (plate normal, tangential-x, N), and the motor's ``theta``/``omega``/``setpoint``/``torque``."""
+
+    rig: RigParams
 
     markers = CONTACT_MARKERS
 

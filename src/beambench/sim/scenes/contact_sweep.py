@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 import pandas as pd
 
+from beambench.common.types import Floats
 from beambench.sim.engine.batch import rollout_batch, thread_count, window
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.registry import beam_model
@@ -91,7 +92,7 @@ def contact_ratio(t: np.ndarray, normal: np.ndarray, foot_z: np.ndarray, f: floa
 
 
 def _models(
-    beam: BeamModel, twist_deg: float, gap_m: float, rig: RigParams, integrator: str, timesteps: Sequence[float]
+    beam: BeamModel, twist_deg: float, gap_m: float, rig: RigParams, integrator: str, timesteps: Floats
 ) -> dict[float, mujoco.MjModel]:
     spec = build_contact_spec(beam, twist_deg, gap_m, rig, integrator, float(timesteps[0]))
     spec.delete(spec.sensor("clamp_force"))  # unused here; a force sensor costs a post-constraint RNE per step
@@ -122,8 +123,8 @@ def _rest(model: mujoco.MjModel, seconds: float = 0.5) -> np.ndarray:
 
 def contact_sweep(
     beam: BeamModel | str = "prb3",
-    frequencies: Sequence[float] = tuple(range(1, 46)),
-    timesteps: Sequence[float] | float | None = None,
+    frequencies: Floats = tuple(range(1, 46)),
+    timesteps: Floats | float | None = None,
     twist_deg: float = 90.0,
     gap_m: float = 0.001,
     amplitude: float = 0.002,
@@ -217,11 +218,13 @@ def contact_sweep(
         wall = float(sum(walls))
     else:  # balanced: each worker thread steps its share of the runs, one MuJoCo thread each
         t0 = time.perf_counter()
+
+        def run_share(share: list[tuple[float, np.ndarray]]) -> None:
+            for h, idx in share:
+                run_group(h, idx, 1)
+
         with ThreadPoolExecutor(workers) as pool:
-            jobs = [
-                pool.submit(lambda share: [run_group(h, idx, 1) for h, idx in share], share)
-                for share in _balanced_shares(dts, settle_s + record_s, workers)
-            ]
+            jobs = [pool.submit(run_share, share) for share in _balanced_shares(dts, settle_s + record_s, workers)]
             for job in jobs:
                 job.result()
         wall = time.perf_counter() - t0
@@ -251,7 +254,7 @@ def _balanced_shares(dts: np.ndarray, seconds: float, workers: int) -> list[list
     return [[(h, np.array(ix)) for h, ix in p.items()] for p in picks if p]
 
 
-def default_contact_plan(model: str, frequencies: Sequence[float], tolerance_mm: float = 0.1) -> tuple[str, np.ndarray]:
+def default_contact_plan(model: str, frequencies: Floats, tolerance_mm: float = 0.1) -> tuple[str, np.ndarray]:
     """(integrator, timestep per frequency) the measured contact table picks for ``model``, else implicitfast
     with the rig's default timestep policy."""
     from beambench.sim import selection as select
@@ -326,8 +329,8 @@ TABLE_FREQUENCIES = (
 
 def measure_contact_table(
     model: str = "prb3",
-    frequencies: Sequence[float] = TABLE_FREQUENCIES,
-    timesteps: Sequence[float] = (5e-5, 1e-4, 2e-4, 2.5e-4, 1e-3 / 3, 5e-4, 1e-3),
+    frequencies: Floats = TABLE_FREQUENCIES,
+    timesteps: Floats = (5e-5, 1e-4, 2e-4, 2.5e-4, 1e-3 / 3, 5e-4, 1e-3),
     integrators: Sequence[str] = ("implicitfast", "euler"),
     gap_m: float = 0.001,
     settle_s: float = 1.0,

@@ -28,12 +28,12 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from beambench.sim.engine.stepping import DrivenScene, Physics, integrator_enum
+from beambench.sim.engine.stepping import Physics, integrator_enum
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.models.params import BeamParams
 from beambench.sim.models.registry import default_params, make_beam_model
 from beambench.sim.scenes.contact_rig import RigParams
-from beambench.sim.scenes.drive import VelocityRamp
+from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
 
 G = 9.81
 TIP_MARKERS = ("tip1", "tip2", "tip3")
@@ -202,7 +202,7 @@ def release_batch(
         loaded[i] = d.sensordata[idx].reshape(-1, 3)
         mujoco.mj_getState(m, d, state[i], spec)
     own = roller is None
-    if own:
+    if roller is None:
         threads = max(1, min(nrun, nthread or os.cpu_count() or 1))
         roller = rollout.Rollout(nthread=threads if threads > 1 else 0)
     threads = max(1, roller.nthread)
@@ -215,7 +215,7 @@ def release_batch(
         a = 0
         while a < n and len(active):
             b = min(n, a + chunk)
-            st, sd = roller.rollout([models[i] for i in active], datas, state[active], None, nstep=b - a)
+            st, sd = roller.rollout([models[int(i)] for i in active], datas, state[active], None, nstep=b - a)
             rows = sd[:, :, idx].reshape(len(active), b - a, len(names), 3)
             out[active, a:b] = rows
             state[active] = st[:, -1]
@@ -259,6 +259,8 @@ def release_time(settle_s: float, record_s: float) -> float:
 class ReleaseSim(DrivenScene):
     """The ``rig: release`` scene: channels ``markers`` [n, 1 + k, 3] (stage, tip1 … tipk), ``force_nt``
     (zeros: no plate) and the motor's ``theta``/``omega``/``setpoint`` (the motor drives nothing here)."""
+
+    rig: RigParams
 
     def __init__(
         self,

@@ -45,9 +45,9 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.streams import WALKER_MARKERS
-from beambench.sim.engine.stepping import INTEGRATORS, DrivenScene, Physics
+from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, quat_y
-from beambench.sim.scenes.drive import KinematicServo, VelocityRamp
+from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 
 
 @dataclass(frozen=True)
@@ -246,6 +246,8 @@ def build_walker_spec(
 class WalkerSim(DrivenScene):
     """The walker advanced in chunks; channels: ``markers`` [n, 3, 3] (body, foot_left, foot_right),
     ``force_nt`` (zeros: no load-cell plate), the motor's ``theta``/``omega``/``setpoint`` and ``rotor_torque``."""
+
+    rig: WalkerParams
 
     markers = WALKER_MARKERS
 
