@@ -4,7 +4,7 @@ The runner never touches a wire or a file: devices give it batches, the hub hand
 Every exit path (normal end, exception, Ctrl-C, SIGTERM, device fault) commands the motor to idle first,
 then drains what the devices still hold, logs the final event and closes the sinks.
 
-Monitors (:mod:`beambench.monitors`) may pause a step's record window: while one reports a problem the
+Monitors (:mod:`beambench.acquisition.monitors`) may pause a step's record window: while one reports a problem the
 window's clock stops (``pause``/``resume`` events mark the gap, the step records longer), and a pause
 longer than ``max_pause_s`` ends the run as a fault.
 """

@@ -1,4 +1,4 @@
-"""The sim backend's :class:`~beambench.devices.base.Rig`: a MuJoCo scene plus simulated devices.
+"""The sim backend's :class:`~beambench.acquisition.capabilities.Rig`: a MuJoCo scene plus simulated devices.
 
 ``rig.clock.wait(s)`` advances the physics by ``s`` (paced to the wall clock with ``realtime``); after each
 chunk every device samples the new trajectory rows on its own clock.
@@ -66,7 +66,7 @@ AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the m
 
 
 def _contact_plan(protocol: Protocol):
-    """The measured plan for the contact rig (:mod:`beambench.sim.select`), within ``sim.tolerance_mm``:
+    """The measured plan for the contact rig (:mod:`beambench.sim.selection`), within ``sim.tolerance_mm``:
 
     - ``sim.model: auto``: the cheapest (model, integrator, timestep per frequency); a tolerance nothing
       meets is a ConfigError;

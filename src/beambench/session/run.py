@@ -23,7 +23,7 @@ from beambench.rigs.build import build_rig
 from beambench.session.provenance import provenance
 from beambench.sinks.hdf5 import SessionWriter, append_general
 
-RerunMode = str  # spawn | connect | save | off (beambench.live is imported only when a viewer is wanted)
+RerunMode = str  # spawn | connect | save | off (beambench.sinks.rerun_view is imported only when a viewer is wanted)
 
 
 def run_session(

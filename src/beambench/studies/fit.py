@@ -6,7 +6,7 @@ the PRB3 variables by differential evolution, minimising the RMS marker error ov
     min sqrt( Σ_j Σ_i |M_i(j) − M̂_i(j)|² / (3n) )        (i: the three tip markers, j: the n samples)
 
 Here the same objective is minimised with :func:`scipy.optimize.differential_evolution` (``vectorized=True``):
-each generation's population is one batch of release simulations (:func:`beambench.sim.release.release_batch`,
+each generation's population is one batch of release simulations (:func:`beambench.sim.scenes.release.release_batch`,
 one compiled model per member, stepped together by ``mujoco.rollout`` on all cores), never one Python loop per
 member. Fitted variables (:class:`ParamSpace`):
 

@@ -21,7 +21,7 @@ ellipse of the tip path relative to the stage (major, minor, tilt, sense — pap
 foot ellipse and the contacts per drive cycle with their regime (:func:`~beambench.analysis.detect_contacts`).
 
 Points run in tasks of ``batch_size`` simulations (one batched MuJoCo call per model shape) through the
-executor seam (:mod:`beambench.executor`: local processes, or Dask). Every finished task's rows are saved
+executor seam (:mod:`beambench.studies.executor`: local processes, or Dask). Every finished task's rows are saved
 at once (``<table>.parts/``) and merged into the table (Parquet, written atomically) every few seconds and at
 the end. Rows are keyed by a hash of each point's parameters, so a rerun skips what is done and an interrupted
 sweep resumes; they do not depend on how points were batched or where they ran.

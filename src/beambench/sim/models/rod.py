@@ -17,7 +17,7 @@ chirality (φ > 0: right-handed). Damping is stiffness proportional, b = β·k p
 mass and rotary inertia of its piece of the strip (``RodParams.segment_inertia``); by default the parameter
 set's weighed mass (5.17 g) is spread along the length, as the paper's PRB3 does.
 
-Frame: as every model of :mod:`beambench.sim.beam`: the rod leaves the clamp along +y, with the width along z
+Frame: as every model of :mod:`beambench.sim.models.beam`: the rod leaves the clamp along +y, with the width along z
 and the thickness along x at the root (weak bending toward x, the stage's direction of travel).
 """
 
@@ -169,7 +169,7 @@ def add_rod(
 ) -> BeamSites:
     """Attach a pre-twisted segmented rod to ``parent`` with its clamp at ``pos``/``quat`` (parent frame).
 
-    Same convention as :func:`beambench.sim.beam.add_beam`: the rod leaves the clamp along +y, with the width
+    Same convention as :func:`beambench.sim.models.beam.add_beam`: the rod leaves the clamp along +y, with the width
     along z and the thickness along x at the root; ``twist_deg`` is the total twist φ, its sign the chirality.
     The tip body is aligned with the clamp frame in the natural shape; the root site sits at the clamp point on
     the first moving segment.
@@ -242,7 +242,7 @@ def add_rod(
 
 
 class RodModel(BeamModel):
-    """The segmented rod as a :class:`~beambench.sim.beam.BeamModel` (``sim.model: rod10``, ``rod3g`` …).
+    """The segmented rod as a :class:`~beambench.sim.models.beam.BeamModel` (``sim.model: rod10``, ``rod3g`` …).
 
     Geometry and material come from the parameter set (``params.material``); the joint springs from the
     section, not from ``k``/``b`` (those belong to PRB3).

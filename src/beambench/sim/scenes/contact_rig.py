@@ -201,7 +201,7 @@ class ContactRigSim(DrivenScene):
         self.rig = rig or RigParams.with_overrides(beam.params.rig)
         self.integrator = integrator
         self.fixed_timestep = timestep
-        # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.select (model: auto)
+        # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.selection (model: auto)
         self.timestep_for = timestep_for or default_timestep
         self.selection = selection
         h0 = timestep or self.timestep_for(1.0)

@@ -1,12 +1,12 @@
 """The contact-rig frequency sweep batched on all cores, with the timestep each frequency needs.
 
-The scene is :func:`beambench.sim.contact_rig.build_contact_spec` (stage, beam, foot, plate); only the drive
-differs from the interactive :class:`~beambench.sim.contact_rig.ContactRigSim`: each frequency is held from
+The scene is :func:`beambench.sim.scenes.contact_rig.build_contact_spec` (stage, beam, foot, plate); only the drive
+differs from the interactive :class:`~beambench.sim.scenes.contact_rig.ContactRigSim`: each frequency is held from
 t = 0 (no speed ramp) and the stage actuator is a pure feed-forward force M·a with the discrete acceleration
-(as in :mod:`beambench.sim.free_beam`), so the clamp follows A·sin(2πft) exactly. Frequencies sharing a
+(as in :mod:`beambench.sim.scenes.free_beam`), so the clamp follows A·sin(2πft) exactly. Frequencies sharing a
 timestep run in one :class:`mujoco.batch.Batch`.
 
-:func:`measure_contact_table` writes the table :mod:`beambench.sim.select` reads for ``scene="contact"``:
+:func:`measure_contact_table` writes the table :mod:`beambench.sim.selection` reads for ``scene="contact"``:
 foot-path RMS error against the same model at a small timestep, contacts per cycle, wall time per 10 s.
 """
 
@@ -139,7 +139,7 @@ def contact_sweep(
     """Steady-state contact runs at each frequency, batched per timestep on all cores.
 
     ``timesteps``: one per frequency, one for all, or None for the timestep the measured contact table
-    selects per frequency (``beambench.sim.select``, tolerance 0.1 mm) — falling back to the rig's policy.
+    selects per frequency (``beambench.sim.selection``, tolerance 0.1 mm) — falling back to the rig's policy.
     ``integrator``: None for the table's choice with ``timesteps=None``, else implicitfast."""
     bm = beam_model(beam) if isinstance(beam, str) else beam
     freqs = np.asarray(frequencies, float)
