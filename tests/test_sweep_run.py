@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 from pathlib import Path
@@ -113,7 +114,7 @@ def test_contact_points_report_contacts_per_cycle(tmp_path):
 def test_bad_sweep_files_fail_with_one_line(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: b\nscene: free_beam\ngrid: {twist: [0, 90]}\n")
-    with pytest.raises(SweepError, match="bad.yaml: grid.*'twist' is not a scene parameter"):
+    with pytest.raises(SweepError, match=r"bad\.yaml: grid.*'twist' is not a scene parameter"):
         load_sweep(bad)
     res = CliRunner().invoke(app, ["sweep", str(bad)])
     assert res.exit_code == 2 and "twist" in res.output and "Traceback" not in res.output
@@ -166,10 +167,8 @@ def _children(pid: int) -> list[int]:
     """Child PIDs of ``pid`` (Linux /proc; empty elsewhere)."""
     out: list[int] = []
     for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
+        with contextlib.suppress(OSError):
             out += [int(x) for x in (task / "children").read_text().split()]
-        except OSError:
-            pass
     return out
 
 

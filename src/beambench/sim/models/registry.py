@@ -28,7 +28,8 @@ def model_family(name: str) -> Family:
     """The parameter-file prefix of a model name: ``rod10``, ``rod3g`` → ``rod``; ``prb3`` → ``prb3``."""
     if name == "prb3":
         return "prb3"
-    if ROD_NAME.fullmatch(name):
+    m = ROD_NAME.fullmatch(name)
+    if m and int(m.group(1)) >= 1:
         return "rod"
     raise UnknownModelError(f"model = {name!r}: unknown beam model (known: prb3, rod<N>[g][s], e.g. rod10, rod5g)")
 
