@@ -119,6 +119,21 @@ def test_over_limit_refused_before_anything_moves(tmp_path):
     assert not list(tmp_path.glob("*.h5"))
 
 
+@pytest.mark.parametrize(
+    ("sim", "reason"),
+    [
+        ("rig: walker\nsim: {model: auto}", "sim.model = 'auto': auto chooses from the measured contact-rig table"),
+        ("sim: {model: rod0}", "sim.model = 'rod0': unknown beam model"),
+    ],
+)
+def test_sim_options_the_rig_cannot_build_are_one_line(tmp_path, sim, reason):
+    proto = tmp_path / "p.yaml"
+    proto.write_text(f"sweep: {{frequencies: [5]}}\n{sim}\n")
+    res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
+    assert res.exit_code == 2 and reason in res.output and "Traceback" not in res.output
+    assert not list(tmp_path.glob("*.h5"))
+
+
 LONG = """
 name: long
 sweep: {start: 2, stop: 40, step: 2}

@@ -18,7 +18,7 @@ import numpy as np
 
 from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import Stream
-from beambench.acquisition.config import ClockModel, Protocol
+from beambench.acquisition.config import ClockModel, ConfigError, Protocol
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
 from beambench.rigs.sim_devices import (
     DeviceClock,
@@ -28,7 +28,7 @@ from beambench.rigs.sim_devices import (
     SimMotor,
 )
 from beambench.sim.engine.stepping import Trajectory
-from beambench.sim.models.registry import beam_model
+from beambench.sim.models.registry import UnknownModelError, beam_model
 from beambench.sim.scenes.drive import DrivenScene
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
@@ -37,9 +37,15 @@ HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the loa
 def build_scene(protocol: Protocol) -> DrivenScene:
     """The MuJoCo scene for ``protocol.rig`` with the protocol's sim options."""
     sim = protocol.sim
+    if sim.model == "auto" and protocol.rig != "contact":
+        reason = "auto chooses from the measured contact-rig table (rig: contact); name a model (prb3, rod10 …)"
+        raise ConfigError("<protocol>", "sim.model", sim.model, reason)
     plan = _contact_plan(protocol)
-    model_name = plan.model if plan else ("prb3" if sim.model == "auto" else sim.model)
-    beam = beam_model(model_name, sim.params)
+    model_name = plan.model if plan else sim.model
+    try:
+        beam = beam_model(model_name, sim.params)
+    except UnknownModelError as exc:
+        raise ConfigError("<protocol>", "sim.model", sim.model, str(exc).split(": ", 1)[-1]) from None
     if protocol.rig == "release":
         from beambench.sim.scenes.release import ReleaseSim
 
@@ -74,7 +80,6 @@ def _contact_plan(protocol: Protocol):
       integrator, or None (the rig's fixed policy) when the table does not cover them.
 
     None for rigs without a measured table and for a fixed ``sim.timestep``."""
-    from beambench.acquisition.config import ConfigError
     from beambench.sim import selection as select
 
     sim = protocol.sim
