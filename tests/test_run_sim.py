@@ -56,7 +56,7 @@ def test_session_sample_counts_steps_and_general(short_run):
     assert list(s.steps["status"]) == ["done"] * 3
     assert s.general["protocol"] == SHORT
     assert s.general["backend"] == "sim"
-    assert list(s.events["kind"])[0] == "start" and list(s.events["kind"])[-1] == "stop"
+    assert next(iter(s.events["kind"])) == "start" and list(s.events["kind"])[-1] == "stop"
     for st in s.streams.values():  # every sample has both clocks
         assert np.all(np.diff(st.host_time_ns) > 0)
         assert np.all(np.isfinite(st.device_time))
@@ -97,7 +97,7 @@ def _sine_fit(t, x, f0):
     best = (np.inf, f0, 0.0)
     for f in np.linspace(f0 - 0.5, f0 + 0.5, 401):
         a = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
-        coef, res, *_ = np.linalg.lstsq(a, x, rcond=None)
+        coef, _res, *_ = np.linalg.lstsq(a, x, rcond=None)
         r = float(np.sum((a @ coef - x) ** 2))
         if r < best[0]:
             best = (r, f, float(np.hypot(coef[0], coef[1])))
