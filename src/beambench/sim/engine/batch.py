@@ -11,6 +11,8 @@ import mujoco
 import numpy as np
 from mujoco.batch import Batch
 
+from beambench.sim.engine.stepping import quiet_mujoco_warnings
+
 CHUNK_ROWS = 500_000  # sensor rows (nsim × nstep) per Batch.rollout call, bounds memory
 
 
@@ -54,7 +56,8 @@ def rollout_batch(
         n = min(chunk, n_total - k0)
         ctrl = controls(k0, n)
         t0, c0 = time.perf_counter(), time.thread_time()
-        sd = batch.rollout(n, control=ctrl, record=("sensordata",))["sensordata"]
+        with quiet_mujoco_warnings():  # a diverging run is reported in ``ok``, not printed and logged to a file
+            sd = batch.rollout(n, control=ctrl, record=("sensordata",))["sensordata"]
         wall += time.perf_counter() - t0
         if timing is not None:
             timing["wall"] = timing.get("wall", 0.0) + time.perf_counter() - t0

@@ -9,8 +9,10 @@ integrates; its state rows are one step later, so only sensors are used and the 
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -128,14 +130,35 @@ class Physics:
         self._roll.close()
 
 
+_quiet_lock = threading.Lock()
+_quiet_sinks: list[list[str]] = []  # the message lists of the open quiet_mujoco_warnings() contexts
+_quiet_previous: Any = None
+
+
+def _collect_warning(message: str) -> None:
+    for sink in list(_quiet_sinks):
+        sink.append(message)
+
+
 @contextlib.contextmanager
 def quiet_mujoco_warnings() -> Iterator[list[str]]:
     """Collect MuJoCo's warnings (diverging configurations are expected here) instead of printing them and
-    appending them to MUJOCO_LOG.TXT in the working directory; yields the list of messages."""
+    appending them to MUJOCO_LOG.TXT in the working directory; yields the list of messages.
+
+    MuJoCo's warning handler is process-wide: nested and concurrent contexts (threads) share one handler,
+    installed by the first to enter and restored by the last to leave; each context sees every message."""
+    global _quiet_previous
     messages: list[str] = []
-    previous = mujoco.get_mju_user_warning()
-    mujoco.set_mju_user_warning(messages.append)
+    with _quiet_lock:
+        if not _quiet_sinks:
+            _quiet_previous = mujoco.get_mju_user_warning()
+            mujoco.set_mju_user_warning(_collect_warning)
+        _quiet_sinks.append(messages)
     try:
         yield messages
     finally:
-        mujoco.set_mju_user_warning(previous)
+        with _quiet_lock:
+            del _quiet_sinks[next(i for i, m in enumerate(_quiet_sinks) if m is messages)]
+            if not _quiet_sinks:
+                mujoco.set_mju_user_warning(_quiet_previous)
+                _quiet_previous = None

@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from beambench.sim.engine.stepping import Physics, integrator_enum
+from beambench.sim.engine.stepping import Physics, integrator_enum, quiet_mujoco_warnings
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.models.params import BeamParams
 from beambench.sim.models.registry import default_params, make_beam_model
@@ -212,21 +212,22 @@ def release_batch(
     active = np.arange(nrun)
     chunk = max(2, round(CHECK_S / h)) if rest_tol_m is not None else MAX_CHUNK_STEPS
     try:
-        a = 0
-        while a < n and len(active):
-            b = min(n, a + chunk)
-            st, sd = roller.rollout([models[int(i)] for i in active], datas, state[active], None, nstep=b - a)
-            rows = sd[:, :, idx].reshape(len(active), b - a, len(names), 3)
-            out[active, a:b] = rows
-            state[active] = st[:, -1]
-            # rollout stops a run that warns (diverges) and repeats its last state: its clock falls behind
-            ok[active] &= np.abs(st[:, -1, 0] - b * h) < 0.5 * h
-            if rest_tol_m is not None and b < n:
-                still = np.abs(rows - rows[:, -1:]).max(axis=(1, 2, 3)) < rest_tol_m
-                done = active[still | ~ok[active]]
-                out[done, b:] = out[done, b - 1 : b]
-                active = active[~(still | ~ok[active])]
-            a = b
+        with quiet_mujoco_warnings():  # a diverging run is reported in ``ok``, not printed and logged to a file
+            a = 0
+            while a < n and len(active):
+                b = min(n, a + chunk)
+                st, sd = roller.rollout([models[int(i)] for i in active], datas, state[active], None, nstep=b - a)
+                rows = sd[:, :, idx].reshape(len(active), b - a, len(names), 3)
+                out[active, a:b] = rows
+                state[active] = st[:, -1]
+                # rollout stops a run that warns (diverges) and repeats its last state: its clock falls behind
+                ok[active] &= np.abs(st[:, -1, 0] - b * h) < 0.5 * h
+                if rest_tol_m is not None and b < n:
+                    still = np.abs(rows - rows[:, -1:]).max(axis=(1, 2, 3)) < rest_tol_m
+                    done = active[still | ~ok[active]]
+                    out[done, b:] = out[done, b - 1 : b]
+                    active = active[~(still | ~ok[active])]
+                a = b
     finally:
         if own:
             roller.close()
