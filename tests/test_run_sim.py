@@ -124,6 +124,8 @@ def test_over_limit_refused_before_anything_moves(tmp_path):
     [
         ("rig: walker\nsim: {model: auto}", "sim.model = 'auto': auto chooses from the measured contact-rig table"),
         ("sim: {model: rod0}", "sim.model = 'rod0': unknown beam model"),
+        ("rig: walker\nsim: {plate_gap_mm: 2}", "sim.plate_gap_mm = 2.0: applies to rig: contact only"),
+        ("rig: release\nsim: {tolerance_mm: 0.1}", "sim.tolerance_mm = 0.1: applies to rig: contact only"),
     ],
 )
 def test_sim_options_the_rig_cannot_build_are_one_line(tmp_path, sim, reason):

@@ -31,15 +31,20 @@ from beambench.sim.engine.stepping import Trajectory
 from beambench.sim.models.registry import UnknownModelError, beam_model
 from beambench.sim.scenes.drive import DrivenScene
 
+CONTACT_ONLY = {"plate_gap_mm", "tolerance_mm"}  # sim options only the contact rig builds
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
 
 def build_scene(protocol: Protocol) -> DrivenScene:
     """The MuJoCo scene for ``protocol.rig`` with the protocol's sim options."""
     sim = protocol.sim
-    if sim.model == "auto" and protocol.rig != "contact":
-        reason = "auto chooses from the measured contact-rig table (rig: contact); name a model (prb3, rod10 …)"
-        raise ConfigError("<protocol>", "sim.model", sim.model, reason)
+    if protocol.rig != "contact":
+        if sim.model == "auto":
+            reason = "auto chooses from the measured contact-rig table (rig: contact); name a model (prb3, rod10 …)"
+            raise ConfigError("<protocol>", "sim.model", sim.model, reason)
+        for option in sorted(CONTACT_ONLY & sim.model_fields_set):
+            reason = f"applies to rig: contact only (the {protocol.rig} scene has no plate and no measured table)"
+            raise ConfigError("<protocol>", f"sim.{option}", getattr(sim, option), reason)
     plan = _contact_plan(protocol)
     model_name = plan.model if plan else sim.model
     try:
