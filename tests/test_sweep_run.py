@@ -249,3 +249,36 @@ def test_integrator_and_model_axes_batch_separately():
     # converged integrators agree on the ellipse (rk4 needs its own stage drive: a wrong one would be far off)
     assert np.ptp(t.tip_major_mm) < 0.01 * t.tip_major_mm.mean()
     assert np.ptp(t.tip_rel_major_mm) < 0.02 * t.tip_rel_major_mm.mean()
+
+
+FIGURES = """
+import sys
+import matplotlib
+matplotlib.use("svg")  # a user's own choice (a notebook's inline backend, say) must survive
+import numpy as np, pandas as pd
+from beambench.studies import fit, ladder, sweep
+out = sys.argv[1]
+spec = sweep.SweepSpec.model_validate({"grid": {"twist_deg": [0, 90]}, "frequencies": [10, 15]})
+df = pd.DataFrame({"twist_deg": [0, 0, 90, 90], "frequency_hz": [10, 15, 10, 15], "tip_major_mm": [1, 2, 3, 4],
+                   "tip_minor_mm": [1, 1, 1, 1], "tip_tilt_deg": [3, 4, 5, 6]})
+sweep.plot_sweep(df, spec, f"{out}/sweep.png")
+t, m = np.linspace(0, 0.1, 20), np.random.default_rng(0).random((20, 3, 3))
+r = fit.FitResult("prb3", {}, fit.default_base("prb3"), 1, 1, 1, 0, 1, 1, 1, 1, True, "", t, m, m, ("a", "b", "c"))
+fit.plot_fit([r], f"{out}/fit.png")
+table = pd.DataFrame({"model": ["prb3", "rod10"], "integrator": ["implicitfast", "euler"], "timestep": [1e-4, 1e-4],
+                      "frequency_hz": [5, 5], "status": ["ok", "diverged"]})
+ladder.plot_stability_map(table, f"{out}/map.png")
+print(matplotlib.get_backend(), "matplotlib.pyplot" in sys.modules)
+"""
+
+
+def test_figures_leave_the_users_matplotlib_backend_alone(tmp_path):
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-c", FIGURES, str(tmp_path)], capture_output=True, text=True, timeout=300, check=True
+    )
+    assert res.stdout.split() == ["svg", "False"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fit.png", "map.png", "sweep.png"]
+    assert all(p.stat().st_size > 10_000 for p in tmp_path.iterdir())

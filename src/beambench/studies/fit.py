@@ -38,6 +38,7 @@ import numpy as np
 import yaml
 
 from beambench.common.errors import BeambenchError
+from beambench.common.figures import new_figure
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.params import SIM_BACKEND_DIR, BeamParams
 from beambench.sim.models.registry import (
@@ -582,10 +583,9 @@ def write_param_set(result: FitResult, name: str, directory: str | Path = SIM_BA
 def plot_fit(results: Sequence[FitResult], path: str | Path, title: str = "") -> Path:
     """Measured vs fitted tip-marker paths: x and z against time, and the x–z path (mm)."""
     import matplotlib
-    from matplotlib.figure import Figure
 
     r0 = results[0]
-    fig = Figure(figsize=(14, 4.2), layout="constrained")
+    fig = new_figure(figsize=(14, 4.2), layout="constrained")
     axes = fig.subplots(1, 3)
     colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     t_ms = r0.t * 1e3

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 from mujoco.batch import Batch
 
+from beambench.common.figures import new_figure
 from beambench.common.types import Floats
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.registry import beam_model
@@ -509,11 +510,10 @@ def plot_speed_accuracy(summary: pd.DataFrame, path: Path, title: str = "", time
     """Log-log chart: wall s per 10 s simulated vs mean tip error over 5–45 Hz; each model's Pareto front
     (over integrators and timesteps) labelled; the paper's PRB (1.2 s) and FEA (82.5 s) marked.
     ``time_col="cpu_s_per_10s"`` plots thread-CPU time instead (steadier on a shared machine)."""
-    from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
 
     summary = summary.assign(wall_s_per_10s=summary[time_col])
-    fig = Figure(figsize=(11, 7), dpi=110)
+    fig = new_figure(figsize=(11, 7), dpi=110)
     ax = fig.subplots()
     stable = summary[summary.status_band.isin(["ok", "inaccurate"]) & ~summary.is_reference]
     stable = stable.dropna(subset=["err_mean_mm", "wall_s_per_10s"])
@@ -600,12 +600,11 @@ def plot_stability_map(table: pd.DataFrame, path: Path, models: Sequence[str] | 
     """Grid of panels (rows: integrators, columns: models); each panel is timestep × frequency coloured by
     status: ok, inaccurate (> 1 % from converged), growing, diverged, skipped (too costly to run)."""
     from matplotlib.colors import ListedColormap
-    from matplotlib.figure import Figure
     from matplotlib.patches import Patch
 
     models = list(models or table.model.unique())
     integs = list(table.integrator.unique())
-    fig = Figure(figsize=(2.6 * len(models) + 1, 1.9 * len(integs) + 1), dpi=100)
+    fig = new_figure(figsize=(2.6 * len(models) + 1, 1.9 * len(integs) + 1), dpi=100)
     axes = fig.subplots(len(integs), len(models), squeeze=False, sharex=True, sharey=True)
     cmap = ListedColormap([_STATUS_COLORS[s] for s in STATUSES])
     freqs = sorted(table.frequency_hz.unique())

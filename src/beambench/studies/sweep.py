@@ -54,6 +54,7 @@ from pydantic import (
 )
 
 from beambench.common.errors import BeambenchError
+from beambench.common.figures import new_figure
 
 SCHEMA = "beambench.sweep/1"
 
@@ -590,7 +591,6 @@ def _value_label(val: Any) -> str:
 def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | None:
     """Metrics against the first swept parameter (free beam: tip major/minor axes, as the paper's Fig. 2e;
     contact: contacts per cycle and foot axes)."""
-    from matplotlib.figure import Figure
 
     axes = [a for a in spec.axes() if a in df.columns]
     if not axes or df.empty:
@@ -602,7 +602,7 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
         metrics.append(("contacts_per_cycle", "contacts per drive cycle"))
     else:
         metrics.append((f"{prefix}_tilt_deg", "tilt of the major axis (deg)"))
-    fig = Figure(figsize=(5 * len(metrics), 4), layout="constrained")
+    fig = new_figure(figsize=(5 * len(metrics), 4), layout="constrained")
     axs = fig.subplots(1, len(metrics), squeeze=False)[0]
     groups = [(None, df)] if series is None else list(df.groupby(series, sort=True))
     for ax, (col, label) in zip(axs, metrics):
