@@ -221,7 +221,7 @@ def build_walker_spec(
             priority=1,
             solref=solref,
             friction=friction,
-            condim=3,
+            condim=3 if wp.friction > 0 else 1,  # frictionless: a normal-only contact (μ = 0 in a cone diverges)
         )
         tip.add_site(name=f"foot_{name}", pos=[0, 0, -wp.foot_length], size=[0.002, 0, 0])
     spec.add_actuator(
