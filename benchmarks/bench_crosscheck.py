@@ -188,7 +188,7 @@ def main() -> None:
         import elastica  # noqa: F401
     except ImportError:
         print("bench_crosscheck: PyElastica is not installed (pip install pyelastica)", file=sys.stderr)
-        raise SystemExit(2)
+        raise SystemExit(2) from None
     if args.quick:
         freqs, settle, record, f0 = [5.0, 25.0, 45.0], 0.5, 0.25, 15.0
         cos_cfg, rod40_dt = [(20, 1e-5)], 5e-5
@@ -240,7 +240,7 @@ def main() -> None:
     tab.add_column("tip motion rms (mm)", justify="right")
     for r in runs90[1:]:
         tab.add_column(r["label"], justify="right")
-    for twist, flist, runs in ((90.0, freqs, runs90), (0.0, [f0], runs0)):
+    for twist, flist in ((90.0, freqs), (0.0, [f0])):
         for f in flist:
             mot = [x for x in rows if x["twist_deg"] == twist and x["frequency_hz"] == f]
             cells = [f"{mot[0]['cosserat_tip_rms_motion_mm']:.2f}"]
@@ -255,7 +255,7 @@ def main() -> None:
     print("wall s per simulated s (1 core): " + ", ".join(f"{r['label']}: {r['wall_per_sim_s']:.3f}" for r in runs90))
     t2 = Table(title="rod10 / PRB3 vs rod40 (mm)")
     t2.add_column("φ, f (Hz)")
-    for m in ("rod10", "prb3") + tuple(r["model"] for r in runs90 if r["model"].startswith("cosserat")):
+    for m in ("rod10", "prb3", *(r["model"] for r in runs90 if r["model"].startswith("cosserat"))):
         t2.add_column(m, justify="right")
     for twist, flist in ((90.0, freqs), (0.0, [f0])):
         for f in flist:

@@ -2,9 +2,9 @@
 
     python benchmarks/bench_models.py [--out bench_out/models_full] [--part all|ladder|contact|contact-timing] [--ship]
 
-- ladder: every model × integrator × timestep on the free beam (see ``beambench.sim.ladder``): CSVs, the
+- ladder: every model × integrator × timestep on the free beam (see ``beambench.studies.ladder``): CSVs, the
   speed-vs-accuracy chart and the stability map in ``--out``; ``--ship`` copies the table to
-  ``sim_backend/ladder_table.csv`` (what ``beambench.sim.select`` reads).
+  ``sim_backend/ladder_table.csv`` (what ``beambench.sim.selection`` reads).
 - contact: the contact table (PRB3, 1 mm gap: foot-path error vs a 2.5e-5 s run, contacts per cycle, wall
   per 10 s; ``--ship`` → ``sim_backend/contact_table.csv``), then the contact rig at its default model:
   10 s simulated (one thread, median of 3) at the timestep the selection picks per frequency (0.1 mm), and

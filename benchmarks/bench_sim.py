@@ -51,7 +51,7 @@ def rig_run(freq: float, gap_mm: float, seconds: float = 10.0, poll: float = 0.5
     rig.open()
     rig.motor.arm(MotorLimits(80.0, 10.0, 2.0))
     rig.motor.set_frequency(freq)
-    for _ in range(int(round(seconds / poll))):
+    for _ in range(round(float(seconds / poll))):
         rig.clock.wait(poll)
         for s in rig.streams:
             s.read()
@@ -61,7 +61,7 @@ def rig_run(freq: float, gap_mm: float, seconds: float = 10.0, poll: float = 0.5
 def physics_run(freq: float, gap_mm: float, seconds: float = 10.0) -> None:
     sim = ContactRigSim(make_beam_model("prb3", load_params()), 90.0, gap_mm * 1e-3)
     sim.set_frequency(freq)
-    for k in range(1, int(round(seconds / 0.1)) + 1):
+    for k in range(1, round(float(seconds / 0.1)) + 1):
         sim.advance_to(0.1 * k)
 
 
@@ -75,7 +75,7 @@ def lab_sweep(prefetch: bool = True, poll: float = 0.5) -> dict[str, float]:
     rig.motor.arm(motor_limits(protocol))
     for step in plan(protocol):
         rig.motor.set_frequency(step.frequency_hz)
-        for _ in range(int(round(step.duration_s / poll))):
+        for _ in range(round(float(step.duration_s / poll))):
             rig.clock.wait(poll)
             for s in rig.streams:
                 rows += len(s.read())
@@ -137,10 +137,10 @@ def main() -> None:
     ap.add_argument("--e2e", action="store_true", help="also time `beambench run` of the lab sweep (with HDF5)")
     args = ap.parse_args()
     results: dict[str, object] = {"per_10s": []}
-    print("wall (median of %d) per 10 s simulated, contact rig, PRB3 paper, implicitfast, auto dt:" % args.repeats)
+    print(f"wall (median of {args.repeats}) per 10 s simulated, contact rig, PRB3 paper, implicitfast, auto dt:")
     for freq, gap in ((20.0, 5.5), (40.0, 5.5), (40.0, 1.0), (60.0, 1.0)):
-        phys = timed(lambda: physics_run(freq, gap), args.repeats)
-        full = timed(lambda: rig_run(freq, gap), args.repeats)
+        phys = timed(lambda freq=freq, gap=gap: physics_run(freq, gap), args.repeats)
+        full = timed(lambda freq=freq, gap=gap: rig_run(freq, gap), args.repeats)
         row = {
             "frequency_hz": freq,
             "gap_mm": gap,

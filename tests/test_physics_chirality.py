@@ -26,7 +26,7 @@ def test_opposite_chirality_mirrors_the_orbit_and_reverses_its_sense(model):
     """Same drive for both: in steady state the −φ orbit is the +φ orbit mirrored x → −x (half a period
     later, since the mirrored drive is the drive shifted by T/2), and it is travelled the other way round."""
     f = 20.0
-    half = int(round(0.5 / f / 1e-4))  # T/2 in steps
+    half = round(0.5 / f / 1e-4)  # T/2 in steps
     r = twist_sweep(model, twists=[90.0, -90.0], frequency=f, settle_s=1.5, record_s=0.1 + 0.5 / f, timestep=1e-4)
     plus, minus = r.tip[0], r.tip[1]
     n = len(plus) - half
@@ -34,7 +34,7 @@ def test_opposite_chirality_mirrors_the_orbit_and_reverses_its_sense(model):
     assert size > 2e-3
     # equal to what is left of the start-up transient (half a period apart: ~1e-4 of the orbit)
     assert np.abs(plus[half : half + n] * MIRROR - minus[:n]).max() < 1e-3 * size
-    period = int(round(1 / f / 1e-4))
+    period = round(1 / f / 1e-4)
     *_, a_plus = orbit_axes(plus[:period])
     *_, a_minus = orbit_axes(minus[:period])
     assert abs(a_plus) > 1e-8  # an open orbit, not a line

@@ -1,4 +1,4 @@
-"""The PyElastica Cosserat cross-check rod (beambench.sim.cosserat) against beam theory.
+"""The PyElastica Cosserat cross-check rod (beambench.sim.models.cosserat) against beam theory.
 
 Skipped without PyElastica (an optional dependency). The first run in a fresh environment compiles PyElastica's
 numba kernels (~20–40 s on 2 cores, cached on disk afterwards).

@@ -53,3 +53,14 @@ def test_recorded_rows_are_aligned_with_simulated_time(integrator):
     assert r.ok.all()
     expected = 0.002 * np.sin(2 * np.pi * r.frequencies[:, None] * r.t[None, :])
     assert np.abs(r.stage - expected).max() < 1e-8
+
+
+def test_a_diverging_batch_is_reported_not_logged_into_the_working_directory(tmp_path, monkeypatch):
+    """MuJoCo's default warning handler prints and appends to MUJOCO_LOG.TXT in the working directory; the
+    batch engine reports a diverged run in ``ok`` instead, and puts the user's handler back."""
+    monkeypatch.chdir(tmp_path)
+    before = mujoco.get_mju_user_warning()
+    r = frequency_sweep("rod10", [40.0], integrator="euler", timestep=2e-3, settle_s=0.2, record_s=0.1)
+    assert not r.ok[0]
+    assert not list(tmp_path.iterdir())
+    assert mujoco.get_mju_user_warning() is before

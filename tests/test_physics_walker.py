@@ -8,6 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.scenes.walker import WalkerParams, WalkerSim, measure_speed
@@ -72,10 +73,12 @@ def test_without_friction_the_walker_cannot_walk():
     and the body only oscillates about a fixed place; with the default friction it walks."""
     slip = replace(WalkerParams(), friction=0.0, timestep=1e-4)
     grip = replace(WalkerParams(), timestep=1e-4)
-    v_slip, _ = measure_speed(BEAM, 40.0, slip, settle_s=0.5, record_s=1.0)
-    v_grip, _ = measure_speed(BEAM, 40.0, grip, settle_s=0.5, record_s=1.0)
-    assert abs(v_slip) < 1e-3
+    with quiet_mujoco_warnings() as warned:  # a diverging run is reset by MuJoCo and would look like standing still
+        v_slip, _ = measure_speed(BEAM, 40.0, slip, settle_s=0.5, record_s=1.0)
+        v_grip, _ = measure_speed(BEAM, 40.0, grip, settle_s=0.5, record_s=1.0)
+    assert not warned
     assert abs(v_grip) > 10e-3
+    assert abs(v_slip) < 0.1 * abs(v_grip)  # ~1 mm/s of integrator drift against ~24 mm/s walking
 
 
 @pytest.mark.parametrize("f", [23.0, 65.0])

@@ -55,7 +55,7 @@ def test_session_sample_counts_steps_and_general(short_run):
     assert list(s.steps["status"]) == ["done"] * 3
     assert s.general["protocol"] == SHORT
     assert s.general["backend"] == "sim"
-    assert s.events["kind"].iloc[0] == "start" and s.events["kind"].iloc[-1] == "stop"
+    assert next(iter(s.events["kind"])) == "start" and list(s.events["kind"])[-1] == "stop"
     for st in s.streams.values():  # every sample has both clocks
         assert np.all(np.diff(st.host_time_ns) > 0)
         assert np.all(np.isfinite(st.device_time))
@@ -132,7 +132,7 @@ def _sine_fit(t, x, f0):
     best = (np.inf, f0, 0.0)
     for f in np.linspace(f0 - 0.5, f0 + 0.5, 401):
         a = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t), np.ones_like(t)])
-        coef = np.linalg.lstsq(a, x, rcond=None)[0]
+        coef, _res, *_ = np.linalg.lstsq(a, x, rcond=None)
         r = float(np.sum((a @ coef - x) ** 2))
         if r < best[0]:
             best = (r, f, float(np.hypot(coef[0], coef[1])))
@@ -151,6 +151,23 @@ def test_over_limit_refused_before_anything_moves(tmp_path):
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0 and "max_frequency_hz" in res.stderr
     assert "Traceback" not in res.stderr
+    assert not list(tmp_path.glob("*.h5"))
+
+
+@pytest.mark.parametrize(
+    ("sim", "reason"),
+    [
+        ("rig: walker\nsim: {model: auto}", "sim.model = 'auto': auto chooses from the measured contact-rig table"),
+        ("sim: {model: rod0}", "sim.model = 'rod0': unknown beam model"),
+        ("rig: walker\nsim: {plate_gap_mm: 2}", "sim.plate_gap_mm = 2.0: applies to rig: contact only"),
+        ("rig: release\nsim: {tolerance_mm: 0.1}", "sim.tolerance_mm = 0.1: applies to rig: contact only"),
+    ],
+)
+def test_sim_options_the_rig_cannot_build_are_one_line(tmp_path, sim, reason):
+    proto = tmp_path / "p.yaml"
+    proto.write_text(f"sweep: {{frequencies: [5]}}\n{sim}\n")
+    res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
+    assert res.exit_code == 2 and reason in res.output and "Traceback" not in res.output
     assert not list(tmp_path.glob("*.h5"))
 
 

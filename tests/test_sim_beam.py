@@ -8,10 +8,18 @@ import mujoco
 import numpy as np
 import pytest
 
+from beambench.common.errors import BeambenchError
 from beambench.rigs.sim_devices import interp_rows
 from beambench.sim.models.beam import add_beam
 from beambench.sim.models.params import ParamsError, available, load_params
-from beambench.sim.models.registry import make_beam_model
+from beambench.sim.models.registry import (
+    UnknownModelError,
+    beam_model,
+    canonical_model,
+    is_rod,
+    make_beam_model,
+    model_family,
+)
 from beambench.sim.scenes.contact_rig import ContactRigSim
 
 
@@ -33,12 +41,23 @@ def test_unknown_or_malformed_parameter_sets_are_refused(tmp_path):
         load_params("no_such_set")
     bad = tmp_path / "prb3_bad.yaml"
     bad.write_text("beam: {k: -1}\n")
-    with pytest.raises(ParamsError, match="beam.k"):
+    with pytest.raises(ParamsError, match=r"beam\.k"):
         load_params(str(bad))
     fitted = tmp_path / "prb3_fit.yaml"
     fitted.write_text("name: fit\nbeam: {k: 0.0285, b: 0.006}\nrig: {foot_mass: 0.021}\n")
     p = load_params(str(fitted))
     assert (p.k, p.b, p.l2, p.rig["foot_mass"]) == (0.0285, 0.006, 0.02366, 0.021)
+
+
+def test_one_registry_names_every_model():
+    assert [model_family(n) for n in ("prb3", "rod10", "rod3g", "rod3gs")] == ["prb3", "rod", "rod", "rod"]
+    assert canonical_model("rod") == "rod10" and canonical_model("prb3") == "prb3"
+    assert is_rod("rod") and is_rod("rod5g") and not is_rod("prb3")
+    assert beam_model("rod3g").name == "rod3g" and beam_model("prb3").name == "prb3"
+    for bad in ("prb", "rod0", "rodx", "beam7", ""):
+        with pytest.raises(UnknownModelError, match="unknown beam model") as err:
+            model_family(bad)
+        assert isinstance(err.value, BeambenchError) and isinstance(err.value, ValueError)
 
 
 def _free_beam(params, twist_deg: float) -> tuple[mujoco.MjModel, mujoco.MjData]:

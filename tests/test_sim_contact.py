@@ -25,7 +25,7 @@ def sweep(text: str, steps: list[tuple[float, float, float]]) -> tuple[list[dict
         for s in rig.streams:
             s.read()
         got: dict[str, list[Batch]] = {s.name: [] for s in rig.streams}
-        for _ in range(int(round(record / 0.1))):
+        for _ in range(round(record / 0.1)):
             rig.clock.wait(0.1)
             for s in rig.streams:
                 got[s.name].append(s.read())

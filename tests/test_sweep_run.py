@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 from pathlib import Path
@@ -113,7 +114,7 @@ def test_contact_points_report_contacts_per_cycle(tmp_path):
 def test_bad_sweep_files_fail_with_one_line(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: b\nscene: free_beam\ngrid: {twist: [0, 90]}\n")
-    with pytest.raises(SweepError, match="bad.yaml: grid.*'twist' is not a scene parameter"):
+    with pytest.raises(SweepError, match=r"bad\.yaml: grid.*'twist' is not a scene parameter"):
         load_sweep(bad)
     res = CliRunner().invoke(app, ["sweep", str(bad)])
     assert res.exit_code == 2 and "twist" in res.output and "Traceback" not in res.output
@@ -129,6 +130,18 @@ def test_bad_sweep_files_fail_with_one_line(tmp_path):
     (tmp_path / "junk.parquet").write_text("not parquet")
     with pytest.raises(SweepError, match="not a readable sweep table"):
         read_table(tmp_path / "junk.parquet")
+
+
+def test_options_the_scene_does_not_build_are_refused(tmp_path):
+    f = tmp_path / "s.yaml"
+    f.write_text("name: s\nscene: free_beam\ngrid: {gap_mm: [1, 5]}\n")
+    with pytest.raises(SweepError, match=r"s.yaml: .*gap_mm applies to scene: contact only"):
+        load_sweep(f)
+    f.write_text("name: s\nscene: contact\ngrid: {gap_mm: [1, 5]}\n")
+    assert len(load_sweep(f).scene_points()) == 2
+    f.write_text("name: s\nbase: {model: beam7}\n")
+    with pytest.raises(SweepError, match=r"s.yaml: .*model = 'beam7': unknown beam model"):
+        load_sweep(f)
 
 
 def test_sweep_command_writes_table_and_figure(tmp_path):
@@ -154,10 +167,8 @@ def _children(pid: int) -> list[int]:
     """Child PIDs of ``pid`` (Linux /proc; empty elsewhere)."""
     out: list[int] = []
     for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
+        with contextlib.suppress(OSError):
             out += [int(x) for x in (task / "children").read_text().split()]
-        except OSError:
-            pass
     return out
 
 
@@ -238,3 +249,36 @@ def test_integrator_and_model_axes_batch_separately():
     # converged integrators agree on the ellipse (rk4 needs its own stage drive: a wrong one would be far off)
     assert np.ptp(t.tip_major_mm) < 0.01 * t.tip_major_mm.mean()
     assert np.ptp(t.tip_rel_major_mm) < 0.02 * t.tip_rel_major_mm.mean()
+
+
+FIGURES = """
+import sys
+import matplotlib
+matplotlib.use("svg")  # a user's own choice (a notebook's inline backend, say) must survive
+import numpy as np, pandas as pd
+from beambench.studies import fit, ladder, sweep
+out = sys.argv[1]
+spec = sweep.SweepSpec.model_validate({"grid": {"twist_deg": [0, 90]}, "frequencies": [10, 15]})
+df = pd.DataFrame({"twist_deg": [0, 0, 90, 90], "frequency_hz": [10, 15, 10, 15], "tip_major_mm": [1, 2, 3, 4],
+                   "tip_minor_mm": [1, 1, 1, 1], "tip_tilt_deg": [3, 4, 5, 6]})
+sweep.plot_sweep(df, spec, f"{out}/sweep.png")
+t, m = np.linspace(0, 0.1, 20), np.random.default_rng(0).random((20, 3, 3))
+r = fit.FitResult("prb3", {}, fit.default_base("prb3"), 1, 1, 1, 0, 1, 1, 1, 1, True, "", t, m, m, ("a", "b", "c"))
+fit.plot_fit([r], f"{out}/fit.png")
+table = pd.DataFrame({"model": ["prb3", "rod10"], "integrator": ["implicitfast", "euler"], "timestep": [1e-4, 1e-4],
+                      "frequency_hz": [5, 5], "status": ["ok", "diverged"]})
+ladder.plot_stability_map(table, f"{out}/map.png")
+print(matplotlib.get_backend(), "matplotlib.pyplot" in sys.modules)
+"""
+
+
+def test_figures_leave_the_users_matplotlib_backend_alone(tmp_path):
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-c", FIGURES, str(tmp_path)], capture_output=True, text=True, timeout=300, check=True
+    )
+    assert res.stdout.split() == ["svg", "False"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fit.png", "map.png", "sweep.png"]
+    assert all(p.stat().st_size > 10_000 for p in tmp_path.iterdir())

@@ -188,7 +188,10 @@ def test_sync_edge_check_sees_a_misaligned_mocap_clock():
     t_m = np.arange(0.0004, 20, 1 / 360)  # mocap exposures
     frames = np.arange(len(t_m)) + 5000  # Motive's frame numbers start anywhere
     edges = np.searchsorted(t_m, t_l, side="right")  # exposures seen so far, counted by the MCU from 0
-    ns = lambda s: np.round(s * NS).astype(np.int64)
+
+    def ns(s):
+        return np.round(s * NS).astype(np.int64)
+
     good = sync_edge_check(ns(t_l), edges, ns(t_m), frames)
     assert good.frame_offset == 1 - 5000
     assert good.p05_s >= 0.0 and good.p95_s < 1e-3 and good.n > 7000

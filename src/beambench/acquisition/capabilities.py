@@ -92,9 +92,17 @@ class Motor(Stream, Protocol):
 class Rig(Protocol):
     """A set of devices built from a protocol and rig file: one motor, its streams and a clock."""
 
-    clock: Clock
-    motor: Motor
-    streams: list[Stream]  # every stream, the motor's telemetry included
+    # read-only members (properties), so a rig may hold a more specific clock or motor (SimClock, SimMotor)
+    @property
+    def clock(self) -> Clock: ...
+
+    @property
+    def motor(self) -> Motor: ...
+
+    @property
+    def streams(self) -> list[Stream]:
+        """Every stream, the motor's telemetry included."""
+        ...
 
     def open(self) -> None: ...
 

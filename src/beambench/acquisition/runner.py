@@ -10,7 +10,7 @@ raised inside a signal handler lands in whatever code happens to run (a weakref 
 ``finally``) and may be swallowed there; a flag cannot be. Further signals during shutdown are only counted,
 so a second Ctrl-C cannot skip the idle.
 
-Monitors (:mod:`beambench.monitors`) may pause a step's record window: while one reports a problem the
+Monitors (:mod:`beambench.acquisition.monitors`) may pause a step's record window: while one reports a problem the
 window's clock stops (``pause``/``resume`` events mark the gap, the step records longer), and a pause
 longer than ``max_pause_s`` ends the run as a fault.
 """

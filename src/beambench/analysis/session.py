@@ -236,7 +236,7 @@ def analyze_session(
     options: AnalysisOptions = AnalysisOptions(),
     progress: Callable[[int, int], None] | None = None,
 ) -> SessionAnalysis:
-    """Analyse every step of a session (as returned by :func:`beambench.store.read_session`)."""
+    """Analyse every step of a session (as returned by :func:`beambench.sinks.hdf5.read_session`)."""
     general = dict(session.general)
     proto = _protocol_dict(general)
     rig = _text(general.get("rig")) or str(proto.get("rig", "contact"))

@@ -7,7 +7,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from beambench.acquisition.contact_events import runs as runs  # re-exported (moved there)
-from beambench.analysis.sync import golden_min
 
 
 @dataclass(frozen=True)
@@ -77,7 +76,15 @@ def fit_sinusoid(t_s: np.ndarray, x: np.ndarray, f_guess: float | None = None, *
             f0 += 0.5 * (y0 - y2) / den * (freqs[1] - freqs[0])
     # nonlinear least squares with the linear parameters profiled out: minimise RSS(f) near the peak
     df = float(freqs[1] - freqs[0])
-    f, rss = golden_min(lambda fr: _linear_sine(tt, x, fr)[1], f0 - df, f0 + df, tol=1e-7 * max(f0, 1.0))
+    from scipy.optimize import minimize_scalar
+
+    best = minimize_scalar(
+        lambda fr: _linear_sine(tt, x, fr)[1],
+        bounds=(f0 - df, f0 + df),
+        method="bounded",
+        options={"xatol": 1e-7 * max(f0, 1.0)},
+    )
+    f, rss = float(best.x), float(best.fun)
     (c, s, off), _ = _linear_sine(tt, x, f)
     amp = float(np.hypot(c, s))
     # c·cos + s·sin = amp·sin(w + phase) with sin(phase) = c/amp, cos(phase) = s/amp; shift to t = 0.
@@ -95,7 +102,7 @@ def velocity(t_s: np.ndarray, x: np.ndarray, smooth_s: float = 0.0) -> np.ndarra
     v = np.asarray(x, np.float64)
     if smooth_s > 0 and len(t) > 2:
         dt = float(np.median(np.diff(t)))
-        k = max(1, round(smooth_s / dt))
+        k = max(1, round(float(smooth_s / dt)))
         if k > 1:
             from scipy.ndimage import uniform_filter1d
 

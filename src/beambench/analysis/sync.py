@@ -14,7 +14,10 @@ All functions are pure (numpy in, numpy/dataclasses out); nothing here reads fil
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -97,7 +100,7 @@ def _lower_hull(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     else:
         nb = 2048
         edges = np.linspace(0, n, nb + 1).astype(int)
-        mins = [lo + int(np.argmin(y[lo:hi])) for lo, hi in zip(edges[:-1], edges[1:]) if hi > lo]
+        mins = [lo + int(np.argmin(y[lo:hi])) for lo, hi in itertools.pairwise(edges) if hi > lo]
         cand = np.unique(np.concatenate([np.asarray(mins), [0, n - 1]]))
         # Any point below the piecewise-linear chain through the bin minima could still be a hull vertex.
         chain = np.interp(x, x[cand], y[cand])
@@ -125,7 +128,7 @@ def _robust_prefit(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     edges = np.searchsorted(x, np.linspace(x[0], x[-1], nb + 1)[1:-1])
     bounds = np.concatenate([[0], edges, [len(x)]])
     xs, ys = [], []
-    for lo, hi in zip(bounds[:-1], bounds[1:]):
+    for lo, hi in itertools.pairwise(bounds):
         if hi > lo:
             j = lo + int(np.argmin(y[lo:hi]))
             xs.append(x[j])
@@ -196,7 +199,7 @@ def fit_clock(
         stream,
         "hull",
         t0,
-        h0 + int(round(intercept * NS)),
+        h0 + round(float(intercept) * NS),
         1.0 + slope,
         n,
         int(keep.sum()),
@@ -239,7 +242,7 @@ def fit_echo(
     if len(s) >= bins * keep_per_bin and bins > 1:
         edges = np.linspace(srv.min(), srv.max(), bins + 1)
         idx = np.clip(np.searchsorted(edges, srv, side="right") - 1, 0, bins - 1)
-        chosen = []
+        chosen: list[int] = []
         for b in range(bins):
             sel = np.flatnonzero(idx == b)
             chosen.extend(sel[np.argsort(rtt[sel])[:keep_per_bin]])
@@ -257,7 +260,7 @@ def fit_echo(
         stream,
         "echo",
         t0,
-        h0 + int(round(intercept * NS)),
+        h0 + round(float(intercept) * NS),
         float(slope),
         len(s),
         len(use),
@@ -279,11 +282,10 @@ def fits_table(fits: dict[str, ClockFit] | list[ClockFit]) -> pd.DataFrame:
     return pd.DataFrame([f.as_row() for f in items])
 
 
-def fit_from_row(row: dict[str, object]) -> ClockFit:
+def fit_from_row(row: Mapping[str, Any]) -> ClockFit:
     """Rebuild a :class:`ClockFit` from a :func:`fits_table` row (as stored in ``/processing``)."""
-    base = {k: row[k] for k in ("stream", "method", "t0", "host0_ns", "rate") if k in row}
-    base["host0_ns"] = int(base["host0_ns"])  # type: ignore[arg-type]
-    return ClockFit(**base)  # type: ignore[arg-type]
+    base = {k: row[k] for k in ("stream", "method", "t0", "rate") if k in row}
+    return ClockFit(**base, host0_ns=int(row["host0_ns"]))
 
 
 # ---------------------------------------------------------------------------------------------- resampling
@@ -339,29 +341,6 @@ def resample(
         res[(span > gap) & ~exact] = np.nan
         out[:, c] = res
     return out.reshape(out_shape)
-
-
-def golden_min(fun, lo: float, hi: float, tol: float = 1e-9, max_iter: int = 200) -> tuple[float, float]:
-    """Minimum of a unimodal ``fun`` on [lo, hi] by golden-section search: (x, fun(x)).
-
-    (Hand-written so the analysis needs no ``scipy.optimize``, whose import costs about a second.)
-    """
-    g = (np.sqrt(5.0) - 1.0) / 2.0
-    a, b = float(lo), float(hi)
-    c, d = b - g * (b - a), a + g * (b - a)
-    fc, fd = fun(c), fun(d)
-    for _ in range(max_iter):
-        if abs(b - a) <= tol:
-            break
-        if fc < fd:
-            b, d, fd = d, c, fc
-            c = b - g * (b - a)
-            fc = fun(c)
-        else:
-            a, c, fc = c, d, fd
-            d = a + g * (b - a)
-            fd = fun(d)
-    return (c, fc) if fc < fd else (d, fd)
 
 
 # ---------------------------------------------------------------------------------- encoder ↔ marker delay
@@ -432,8 +411,10 @@ def encoder_marker_delay(
     vals = np.array([corr(t, sub) for t in grid])
     k = int(np.argmax(vals))
     lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-    x, fx = golden_min(lambda t: -corr(t), lo, hi, tol=1e-6)
-    return DelayEstimate(float(x), float(-fx), len(s), fspan)
+    from scipy.optimize import minimize_scalar
+
+    best = minimize_scalar(lambda t: -corr(t), bounds=(lo, hi), method="bounded", options={"xatol": 1e-6})
+    return DelayEstimate(float(best.x), float(-best.fun), len(s), fspan)
 
 
 # ------------------------------------------------------------------------- hardware sync-edge cross-check

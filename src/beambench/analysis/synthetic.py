@@ -1,4 +1,4 @@
-"""Synthetic sessions with a known truth, written through the real :class:`~beambench.store.SessionWriter`.
+"""Synthetic sessions with a known truth, written through the real :class:`~beambench.sinks.hdf5.SessionWriter`.
 
 Used by the analysis tests and benchmark (and handy in notebooks): every number the analysis should recover
 — drive frequency and amplitude, the tip ellipse (axes, tilt, sense), contacts every k-th cycle, the direction
@@ -44,7 +44,7 @@ class SynthStep:
 
 @dataclass(frozen=True)
 class SynthClock:
-    """As ``beambench.config.ClockModel``: device = offset + (1 + drift)·t; receive = t + latency + |N(0, jitter)|."""
+    """As ``beambench.acquisition.config.ClockModel``: device = offset + (1 + drift)·t; receive = t + latency + |N(0, jitter)|."""
 
     offset_s: float = 0.0
     drift_ppm: float = 0.0
@@ -54,7 +54,7 @@ class SynthClock:
 
 @dataclass
 class SynthSession:
-    """Settings of a synthetic session (rates follow ``beambench.streams``)."""
+    """Settings of a synthetic session (rates follow ``beambench.acquisition.streams``)."""
 
     steps: list[SynthStep]
     rig: str = "contact"

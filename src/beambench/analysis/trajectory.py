@@ -280,8 +280,11 @@ def mean_path(t_s: np.ndarray, xy: np.ndarray, period_s: float, bins: int | None
     cnt = np.bincount(b, minlength=bins).astype(float)
     sx = np.bincount(b, p[:, 0], minlength=bins)
     sy = np.bincount(b, p[:, 1], minlength=bins)
+
     # circular [1, 2, 1] smoothing of the sums (weights follow the sample counts)
-    kern = lambda v: np.roll(v, 1) + 2 * v + np.roll(v, -1)
+    def kern(v):
+        return np.roll(v, 1) + 2 * v + np.roll(v, -1)
+
     have = cnt > 0
     cnt, sx, sy = kern(cnt), kern(sx), kern(sy)
     out = np.column_stack([sx[have] / cnt[have], sy[have] / cnt[have]])

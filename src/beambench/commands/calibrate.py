@@ -1,7 +1,7 @@
 """``beambench calibrate loadcells``: tare, known loads, least-squares fit, residuals, save.
 
 The walkthrough (:func:`walkthrough`) is independent of the terminal: it takes a running load-cell
-:class:`~beambench.devices.base.Stream`, the loads, an ``ask`` callable (a prompt that returns the answer)
+:class:`~beambench.acquisition.capabilities.Stream`, the loads, an ``ask`` callable (a prompt that returns the answer)
 and an optional ``on_step`` hook called when a load should be on the plate; the command wires it to rich
 prompts on stdin, and with ``--emulate`` to an emulated MCU on a pty whose force follows the steps.
 """

@@ -56,7 +56,7 @@ def register(app: typer.Typer) -> None:
 
 
 def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
-    """Ping each device of a :class:`beambench.config.RigFile`; never raises for a device that is absent."""
+    """Ping each device of a :class:`beambench.acquisition.config.RigFile`; never raises for a device that is absent."""
     from beambench.devices import loadcell, natnet, odrive_can
 
     out: dict[str, dict[str, Any]] = {}

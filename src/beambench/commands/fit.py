@@ -1,4 +1,4 @@
-"""``beambench fit SESSION.h5``: identify the beam model from a release-test session (:mod:`beambench.fit`)."""
+"""``beambench fit SESSION.h5``: identify the beam model from a release-test session (:mod:`beambench.studies.fit`)."""
 
 from __future__ import annotations
 

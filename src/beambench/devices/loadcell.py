@@ -2,10 +2,10 @@
 
 A reader thread reads the port with pyserial, feeds a :class:`StreamDecoder` and queues the frames, stamped
 with ``time.monotonic_ns()`` when their bytes arrived (every frame of one read shares that receive time).
-:meth:`SerialLoadCells.read` hands out everything queued as one :class:`~beambench.hub.Batch` of
-:func:`beambench.streams.loadcell_spec`: ``device_time`` is the MCU microsecond clock in seconds, and ``seq`` and
+:meth:`SerialLoadCells.read` hands out everything queued as one :class:`~beambench.acquisition.batch.Batch` of
+:func:`beambench.acquisition.streams.loadcell_spec`: ``device_time`` is the MCU microsecond clock in seconds, and ``seq`` and
 ``sync_edges`` are unwrapped from 32 bits, across batches. Bad bytes are counted, never raised; only a port
-that fails or disappears raises :class:`~beambench.devices.base.DeviceFault` (from ``read`` once the samples
+that fails or disappears raises :class:`~beambench.acquisition.capabilities.DeviceFault` (from ``read`` once the samples
 received before the failure are handed out, or from :meth:`check`).
 """
 

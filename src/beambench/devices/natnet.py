@@ -7,8 +7,8 @@ is kept alive with KEEPALIVE messages. Every address and port is configurable. O
 everything; a malformed packet is counted (``stats.parse_errors``) and skipped, a gap in frame numbers adds
 to ``stats.dropped_frames``; nothing received can stop the thread.
 
-:class:`NatNetMocap` adapts the client to the :class:`beambench.devices.base.Stream` seam: batches of
-:func:`beambench.streams.mocap_spec` (metres, Motive frame number, per-marker occlusion), with a
+:class:`NatNetMocap` adapts the client to the :class:`beambench.acquisition.capabilities.Stream` seam: batches of
+:func:`beambench.acquisition.streams.mocap_spec` (metres, Motive frame number, per-marker occlusion), with a
 configurable map from marker names to labeled-marker ids or rigid-body ids.
 """
 

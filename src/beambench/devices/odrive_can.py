@@ -1,4 +1,4 @@
-"""ODrive v3.6 (firmware 0.5.x) over CAN Simple with python-can, behind :class:`beambench.devices.base.Motor`.
+"""ODrive v3.6 (firmware 0.5.x) over CAN Simple with python-can, behind :class:`beambench.acquisition.capabilities.Motor`.
 
 The crank turns once per stage cycle, so a step at frequency f Hz is a velocity of f turn/s.
 
@@ -22,7 +22,7 @@ Safety, in the order :meth:`OdriveCanMotor.arm` does it:
 while armed, or when no heartbeat came for more than ``heartbeat_timeout_s`` (1 s: ten periods). The feeder stops
 feeding when the heartbeat is lost, so a half-broken link lets the ODrive's own watchdog idle the motor.
 
-Telemetry (:func:`beambench.streams.motor_spec`): one row per Encoder_Estimates frame (100 Hz), with the
+Telemetry (:func:`beambench.acquisition.streams.motor_spec`): one row per Encoder_Estimates frame (100 Hz), with the
 latest Iq and bus voltage (polled by RTR every ``poll_period_s``), the heartbeat's state and error, and the
 commanded velocity. CAN Simple frames carry no device timestamp: ``device_time`` is python-can's message
 timestamp (the interface's receive time — the kernel's for socketcan, the sender's for the virtual bus; host

@@ -1,4 +1,4 @@
-"""The sim backend's :class:`~beambench.devices.base.Rig`: a MuJoCo scene plus simulated devices.
+"""The sim backend's :class:`~beambench.acquisition.capabilities.Rig`: a MuJoCo scene plus simulated devices.
 
 ``rig.clock.wait(s)`` advances the physics by ``s`` (paced to the wall clock with ``realtime``); after each
 chunk every device samples the new trajectory rows on its own clock.
@@ -18,7 +18,7 @@ import numpy as np
 
 from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import Stream
-from beambench.acquisition.config import ClockModel, Protocol
+from beambench.acquisition.config import ClockModel, ConfigError, Protocol
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
 from beambench.rigs.sim_devices import (
     DeviceClock,
@@ -27,19 +27,31 @@ from beambench.rigs.sim_devices import (
     SimMocap,
     SimMotor,
 )
-from beambench.sim.engine.stepping import DrivenScene, Trajectory
-from beambench.sim.models.params import has_params, load_params
-from beambench.sim.models.registry import make_beam_model, model_family
+from beambench.sim.engine.stepping import Trajectory
+from beambench.sim.models.params import has_params
+from beambench.sim.models.registry import UnknownModelError, beam_model, model_family
+from beambench.sim.scenes.drive import DrivenScene
 
+CONTACT_ONLY = {"plate_gap_mm", "tolerance_mm"}  # sim options only the contact rig builds
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
 
 def build_scene(protocol: Protocol) -> DrivenScene:
     """The MuJoCo scene for ``protocol.rig`` with the protocol's sim options."""
     sim = protocol.sim
+    if protocol.rig != "contact":
+        if sim.model == "auto":
+            reason = "auto chooses from the measured contact-rig table (rig: contact); name a model (prb3, rod10 …)"
+            raise ConfigError("<protocol>", "sim.model", sim.model, reason)
+        for option in sorted(CONTACT_ONLY & sim.model_fields_set):
+            reason = f"applies to rig: contact only (the {protocol.rig} scene has no plate and no measured table)"
+            raise ConfigError("<protocol>", f"sim.{option}", getattr(sim, option), reason)
     plan = _contact_plan(protocol)
-    model_name = plan.model if plan else ("prb3" if sim.model == "auto" else sim.model)
-    beam = make_beam_model(model_name, load_params(sim.params, model=model_family(model_name)))
+    model_name = plan.model if plan else sim.model
+    try:
+        beam = beam_model(model_name, sim.params)
+    except UnknownModelError as exc:
+        raise ConfigError("<protocol>", "sim.model", sim.model, str(exc).split(": ", 1)[-1]) from None
     if protocol.rig == "release":
         from beambench.sim.scenes.release import ReleaseSim
 
@@ -66,7 +78,7 @@ AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the m
 
 
 def _contact_plan(protocol: Protocol):
-    """The measured plan for the contact rig (:mod:`beambench.sim.select`), within ``sim.tolerance_mm``:
+    """The measured plan for the contact rig (:mod:`beambench.sim.selection`), within ``sim.tolerance_mm``:
 
     - ``sim.model: auto``: the cheapest (model, integrator, timestep per frequency); a tolerance nothing
       meets is a ConfigError;
@@ -74,7 +86,6 @@ def _contact_plan(protocol: Protocol):
       integrator, or None (the rig's fixed policy) when the table does not cover them.
 
     None for rigs without a measured table and for a fixed ``sim.timestep``."""
-    from beambench.acquisition.config import ConfigError
     from beambench.sim import selection as select
 
     sim = protocol.sim
@@ -83,12 +94,12 @@ def _contact_plan(protocol: Protocol):
         return None
     tol = sim.tolerance_mm or AUTO_TOLERANCE_MM
     if auto:  # every model with a contact table whose family has the protocol's parameter set
-        models = [m for m in select.table_models("contact") if has_params(sim.params, model_family(m))]
-        only: dict = {"models": models or None}
+        found = [m for m in select.table_models("contact") if has_params(sim.params, model_family(m))]
+        models, integrators = (found or None), None
     else:
-        only = {"models": [sim.model], "integrators": [sim.integrator]}
+        models, integrators = [sim.model], [sim.integrator]
     try:
-        return select.plan_sweep("contact", tol, protocol.sweep.values(), **only)
+        return select.plan_sweep("contact", tol, protocol.sweep.values(), models=models, integrators=integrators)
     except select.SelectionError as exc:
         if auto:
             raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
@@ -192,6 +203,7 @@ class SimRig:
                 if old is None
                 else Trajectory.concat([Trajectory(old.t[keep], {k: v[keep] for k, v in old.channels.items()}), new])
             )
+        assert self._hist is not None  # open() made the first rows
         for dev in self._devices:
             dev.ingest(self._hist, now)
         step_ns, self._last_ns = now_ns - self._last_ns, now_ns

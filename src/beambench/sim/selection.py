@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from beambench.common.errors import BeambenchError
+from beambench.common.types import Floats
 from beambench.sim.models.params import SIM_BACKEND_DIR
 
 TABLES = {"free_beam": "ladder_table.csv", "contact": "contact_table.csv"}
@@ -36,7 +38,7 @@ TABLES = {"free_beam": "ladder_table.csv", "contact": "contact_table.csv"}
 STABLE = ("ok", "inaccurate", "irregular")
 
 
-class SelectionError(ValueError):
+class SelectionError(BeambenchError, ValueError):
     """No configuration in the table meets the request (one line, names the scene and tolerance)."""
 
 
@@ -161,7 +163,7 @@ def _converged_rows(g: pd.DataFrame, tolerance_mm: float) -> dict[tuple[float, f
 def plan_sweep(
     scene: str,
     tolerance_mm: float,
-    frequencies: Sequence[float] | np.ndarray,
+    frequencies: Floats,
     models: Sequence[str] | None = None,
     integrators: Sequence[str] | None = None,
     table: pd.DataFrame | None = None,
@@ -229,9 +231,3 @@ def plan_sweep(
             f"at {wanted[0]:g}–{wanted[-1]:g} Hz"
         )
     return best[1]
-
-
-def choose(scene: str, tolerance_mm: float, frequency_hz: float, **kw) -> tuple[str, str, float]:
-    """(model, integrator, timestep) for one frequency."""
-    p = plan_sweep(scene, tolerance_mm, [frequency_hz], **kw)
-    return p.model, p.integrator, p.timestep(frequency_hz)

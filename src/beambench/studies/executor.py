@@ -30,13 +30,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
+from beambench.common.errors import BeambenchError
+
 T = TypeVar("T")
 R = TypeVar("R")
 
-BACKENDS = ("local", "dask", "slurm")
 
-
-class ExecutorError(RuntimeError):
+class ExecutorError(BeambenchError, RuntimeError):
     """The requested executor cannot be set up (missing extra, unreachable scheduler …): one-line message."""
 
 

@@ -6,7 +6,7 @@ the PRB3 variables by differential evolution, minimising the RMS marker error ov
     min sqrt( Σ_j Σ_i |M_i(j) − M̂_i(j)|² / (3n) )        (i: the three tip markers, j: the n samples)
 
 Here the same objective is minimised with :func:`scipy.optimize.differential_evolution` (``vectorized=True``):
-each generation's population is one batch of release simulations (:func:`beambench.sim.release.release_batch`,
+each generation's population is one batch of release simulations (:func:`beambench.sim.scenes.release.release_batch`,
 one compiled model per member, stepped together by ``mujoco.rollout`` on all cores), never one Python loop per
 member. Fitted variables (:class:`ParamSpace`):
 
@@ -37,8 +37,19 @@ from typing import Any
 import numpy as np
 import yaml
 
+from beambench.common.errors import BeambenchError
+from beambench.common.figures import new_figure
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
-from beambench.sim.models.params import SIM_BACKEND_DIR, BeamParams, load_params
+from beambench.sim.models.params import SIM_BACKEND_DIR, BeamParams
+from beambench.sim.models.registry import (
+    UnknownModelError,
+    canonical_model,
+    default_params,
+    is_rod,
+    make_beam_model,
+    model_family,
+)
+from beambench.sim.scenes.release import G, release_batch, release_models
 
 NS = 1_000_000_000
 PAPER_MAE_MM = 3.49  # the paper's final error against its rig
@@ -46,7 +57,7 @@ RELEASE_SEARCH_SIM_S = 0.003  # sim sessions: the release is known on the sim cl
 RELEASE_SEARCH_DETECTED_S = 0.006  # release found in the data: about a frame either way, and some margin
 
 
-class FitError(ValueError):
+class FitError(BeambenchError, ValueError):
     """The input cannot be fitted (one-line message)."""
 
 
@@ -96,9 +107,8 @@ def register_to_model(
     clamp (origin) onto the rest pose of the nominal model. Returns the data and (R, p) with x_model = R·x + p.
     For rigs whose mocap frame is not the model's (Motive's default is y-up); the nominal model's self-weight
     sag (~0.1 mm) is absorbed in the transform."""
-    from beambench.sim.models.registry import make_beam_model
-    from beambench.sim.scenes.release import G, release_batch, release_models
 
+    model = canonical_model(model)
     base = base or default_base(model)
     m = release_models([make_beam_model(model, base)], data.twist_deg, "implicitfast", 2e-4, len(data.names))
     ref = release_batch(m, data.load_g * 1e-3 * G, 0.0, data.names, nthread=1, with_rest=True).rest[0]
@@ -311,8 +321,6 @@ class ReleaseObjective:
 
     def evaluate(self, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """RMS error (m) [S], best shift (s) [S] and the predicted markers at the data times [S, n, M, 3]."""
-        from beambench.sim.models.registry import make_beam_model
-        from beambench.sim.scenes.release import G, release_batch, release_models
 
         xs = np.atleast_2d(xs)
         S = len(xs)
@@ -417,13 +425,13 @@ class FitResult:
 
 def default_base(model: str) -> BeamParams:
     """The parameter set a fit starts from (geometry, mass, material): the paper's."""
-    return load_params("paper", model="rod" if model.startswith("rod") else "prb3")
+    return default_params(model)
 
 
 def default_integrator(model: str) -> str:
     """PRB3: the scene's implicitfast. Rods: ``discrete`` (implicit in the springs), which stays stable over
     the whole search box at dt = 2e-4 — implicitfast diverges there for stiff, lightly damped candidates."""
-    return "implicitfast" if model == "prb3" else "discrete"
+    return "discrete" if is_rod(model) else "implicitfast"
 
 
 def fit_release(
@@ -445,16 +453,17 @@ def fit_release(
     evolution; every generation is one batched simulation of the whole population."""
     from scipy.optimize import differential_evolution
 
-    if model == "rod":
-        model = "rod10"
-    if model != "prb3" and not model.startswith("rod"):
-        raise FitError(f"--model = {model!r}: prb3 or rod (rod10, rod5, rod3g …)")
-    if model.startswith("rod") and free_l1:
+    try:
+        model = canonical_model(model)
+    except UnknownModelError:
+        raise FitError(f"--model = {model!r}: prb3 or rod (rod10, rod5, rod3g …)") from None
+    rod = is_rod(model)
+    if rod and free_l1:
         raise FitError("--free-l1 applies to prb3 only")
     base = base or default_base(model)
     if abs(base.length - data.length) > 1e-6:
-        base = replace(base, l2=data.length / 2, l3=data.length / 2) if model.startswith("rod") else base
-    space = ParamSpace.prb3(base, free_l1) if model == "prb3" else ParamSpace.rod(base, model)
+        base = replace(base, l2=data.length / 2, l3=data.length / 2) if rod else base
+    space = ParamSpace.rod(base, model) if rod else ParamSpace.prb3(base, free_l1)
     if shift_window_s is None:
         shift_window_s = data.release_uncertainty_s
     integrator = integrator or default_integrator(model)
@@ -522,7 +531,8 @@ def fit_release(
 def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
     """The YAML document of a fitted parameter set (same layout as ``sim_backend/prb3_paper.yaml``)."""
     p = result.params
-    if result.model == "prb3":
+    beam: dict[str, Any]
+    if not is_rod(result.model):
         beam = {"l1": p.l1, "l2": p.l2, "l3": p.l3, "k": p.k, "b": p.b, "k_twist": p.k_twist, "b_twist": p.b_twist}
     else:
         beam = {"l1": p.l1, "l2": p.l2, "l3": p.l3, "beta": p.beta}
@@ -539,7 +549,7 @@ def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
     )
     return {
         "name": name,
-        "model": "prb3" if result.model == "prb3" else "rod",
+        "model": model_family(result.model),
         "source": source,
         "beam": {
             k: (float(v) if not isinstance(v, dict) else {kk: float(vv) for kk, vv in v.items()})
@@ -558,7 +568,7 @@ def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
 
 def write_param_set(result: FitResult, name: str, directory: str | Path = SIM_BACKEND_DIR, source: str = "") -> Path:
     """Save the fit as ``<directory>/<family>_<name>.yaml``; it loads back with ``load_params(name)``."""
-    family = "prb3" if result.model == "prb3" else "rod"
+    family = model_family(result.model)
     path = Path(directory) / f"{family}_{name}.yaml"
     doc = param_set_dict(result, name, source or f"beambench fit ({result.model}): RMS {result.rms_mm:.3f} mm")
     header = (
@@ -574,12 +584,10 @@ def plot_fit(results: Sequence[FitResult], path: str | Path, title: str = "") ->
     """Measured vs fitted tip-marker paths: x and z against time, and the x–z path (mm)."""
     import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     r0 = results[0]
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), constrained_layout=True)
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig = new_figure(figsize=(14, 4.2), layout="constrained")
+    axes = fig.subplots(1, 3)
+    colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     t_ms = r0.t * 1e3
     styles = ["-", "--", ":"]
     for m, name in enumerate(r0.names):
@@ -603,7 +611,6 @@ def plot_fit(results: Sequence[FitResult], path: str | Path, title: str = "") ->
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path
 
 
@@ -622,8 +629,6 @@ def synthetic_release(
 ) -> ReleaseData:
     """A release test made by the sim from known parameters: the tip markers sampled at ``rate_hz`` with a
     random phase to the release, plus Gaussian noise ``noise_m`` per coordinate."""
-    from beambench.sim.models.registry import make_beam_model
-    from beambench.sim.scenes.release import G, release_batch, release_models
 
     rng = np.random.default_rng(seed)
     m = release_models([make_beam_model(model, params)], twist_deg, "implicitfast", timestep)
@@ -647,4 +652,4 @@ def synthetic_release(
         "beta": params.beta,
         "noise_m": noise_m,
     }
-    return ReleaseData(t, noisy, rb.names, twist_deg, load_g, params.length, "synthetic", 0.0, truth)
+    return ReleaseData(t, noisy, rb.names, twist_deg, load_g, params.length, source="synthetic", truth=truth)

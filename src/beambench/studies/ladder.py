@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -29,6 +29,8 @@ import numpy as np
 import pandas as pd
 from mujoco.batch import Batch
 
+from beambench.common.figures import new_figure
+from beambench.common.types import Floats
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.registry import beam_model
 from beambench.sim.scenes.free_beam import (
@@ -97,7 +99,7 @@ class _Run:
 
 
 def _steps(seconds: float, h: float) -> int:
-    return int(round(seconds / h))
+    return round(float(seconds / h))
 
 
 def _check_grid(cfg: LadderConfig) -> None:
@@ -204,7 +206,7 @@ def _compare(run: _Run, ref: _Run) -> tuple[np.ndarray, np.ndarray]:
     return rms, rms / exc
 
 
-def _growing(tip: np.ndarray, t_index: np.ndarray, h_ref: float, freqs: Sequence[float]) -> np.ndarray:
+def _growing(tip: np.ndarray, t_index: np.ndarray, h_ref: float, freqs: Floats) -> np.ndarray:
     """Response amplitude (RMS excursion) over the last drive period of the window exceeds that over the first
     by more than ``GROWTH_RATIO`` (needs two whole periods in the window; else False)."""
     out = np.zeros(len(freqs), bool)
@@ -438,11 +440,11 @@ def _config_label(r: pd.Series) -> str:
 
 def place_labels(
     ax,
-    xs: Sequence[float],
-    ys: Sequence[float],
+    xs: Floats,
+    ys: Floats,
     labels: Sequence[str],
     fontsize: float = 7.0,
-    avoid_x: Sequence[float] = (),
+    avoid_x: Floats = (),
 ) -> list:
     """Label points so that no two labels overlap each other or any point (greedy, in display space).
 
@@ -508,13 +510,11 @@ def plot_speed_accuracy(summary: pd.DataFrame, path: Path, title: str = "", time
     """Log-log chart: wall s per 10 s simulated vs mean tip error over 5–45 Hz; each model's Pareto front
     (over integrators and timesteps) labelled; the paper's PRB (1.2 s) and FEA (82.5 s) marked.
     ``time_col="cpu_s_per_10s"`` plots thread-CPU time instead (steadier on a shared machine)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     summary = summary.assign(wall_s_per_10s=summary[time_col])
-    fig, ax = plt.subplots(figsize=(11, 7), dpi=110)
+    fig = new_figure(figsize=(11, 7), dpi=110)
+    ax = fig.subplots()
     stable = summary[summary.status_band.isin(["ok", "inaccurate"]) & ~summary.is_reference]
     stable = stable.dropna(subset=["err_mean_mm", "wall_s_per_10s"])
     ax.scatter(
@@ -566,7 +566,6 @@ def plot_speed_accuracy(summary: pd.DataFrame, path: Path, title: str = "", time
         else "thread-CPU s per 10 s simulated (1 thread, median of 3)"
     )
     ax.set_ylabel("mean tip RMS error vs 40-segment rod reference, 5–45 Hz [mm]")
-    from matplotlib.lines import Line2D
 
     handles = [Line2D([], [], color=_MODEL_COLORS.get(m, "k"), lw=2, label=m) for m in summary.model.unique()]
     handles += [Line2D([], [], color="k", marker=mk, ls="", label=i) for i, mk in _INTEGRATOR_MARKERS.items()]
@@ -585,7 +584,6 @@ def plot_speed_accuracy(summary: pd.DataFrame, path: Path, title: str = "", time
         )
     fig.tight_layout()
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
@@ -601,24 +599,13 @@ _STATUS_COLORS = {
 def plot_stability_map(table: pd.DataFrame, path: Path, models: Sequence[str] | None = None) -> Path:
     """Grid of panels (rows: integrators, columns: models); each panel is timestep × frequency coloured by
     status: ok, inaccurate (> 1 % from converged), growing, diverged, skipped (too costly to run)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap
     from matplotlib.patches import Patch
 
     models = list(models or table.model.unique())
     integs = list(table.integrator.unique())
-    fig, axes = plt.subplots(
-        len(integs),
-        len(models),
-        figsize=(2.6 * len(models) + 1, 1.9 * len(integs) + 1),
-        squeeze=False,
-        sharex=True,
-        sharey=True,
-        dpi=100,
-    )
+    fig = new_figure(figsize=(2.6 * len(models) + 1, 1.9 * len(integs) + 1), dpi=100)
+    axes = fig.subplots(len(integs), len(models), squeeze=False, sharex=True, sharey=True)
     cmap = ListedColormap([_STATUS_COLORS[s] for s in STATUSES])
     freqs = sorted(table.frequency_hz.unique())
     dts = sorted(table.timestep.unique())
@@ -655,7 +642,6 @@ def plot_stability_map(table: pd.DataFrame, path: Path, models: Sequence[str] | 
     )
     fig.tight_layout(rect=(0, 0, 1, 0.94))
     fig.savefig(path)
-    plt.close(fig)
     return path
 
 
@@ -676,10 +662,6 @@ def write_outputs(table: pd.DataFrame, out_dir: Path, cfg: LadderConfig) -> dict
     plot_speed_accuracy(summary, paths["speed_accuracy_cpu"], time_col="cpu_s_per_10s")
     plot_stability_map(table, paths["stability_map"])
     return paths
-
-
-def config_dict(cfg: LadderConfig) -> dict:
-    return asdict(cfg)
 
 
 __all__ = [

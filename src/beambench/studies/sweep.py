@@ -21,7 +21,7 @@ ellipse of the tip path relative to the stage (major, minor, tilt, sense — pap
 foot ellipse and the contacts per drive cycle with their regime (:func:`~beambench.analysis.detect_contacts`).
 
 Points run in tasks of ``batch_size`` simulations (one batched MuJoCo call per model shape) through the
-executor seam (:mod:`beambench.executor`: local processes, or Dask). Every finished task's rows are saved
+executor seam (:mod:`beambench.studies.executor`: local processes, or Dask). Every finished task's rows are saved
 at once (``<table>.parts/``) and merged into the table (Parquet, written atomically) every few seconds and at
 the end. Rows are keyed by a hash of each point's parameters, so a rerun skips what is done and an interrupted
 sweep resumes; they do not depend on how points were batched or where they ran.
@@ -52,9 +52,9 @@ from pydantic import (
     model_validator,
 )
 
+from beambench.common.figures import new_figure
 from beambench.common.yaml_config import ConfigError, load_yaml_file, validate
 
-SCENES = ("free_beam", "contact")
 SCHEMA = "beambench.sweep/1"
 
 MAX_JOBS = 100_000  # scene points x frequencies: beyond this a sweep file is a typo (a 1e-9 step)
@@ -87,12 +87,13 @@ class Point(_Model):
 
     @model_validator(mode="after")
     def _overrides_fit_model(self) -> Point:
-        from beambench.sim.models.registry import model_family
+        from beambench.sim.models.registry import is_rod, model_family
 
         try:
-            rod = model_family(self.model) == "rod"
-        except ValueError as exc:
+            model_family(self.model)
+        except ValueError as exc:  # unknown names: reported by pydantic as the field's error
             raise ValueError(str(exc).removeprefix("sim.")) from None
+        rod = is_rod(self.model)
         if rod and (self.k is not None or self.b is not None):
             raise ValueError("k/b set the PRB3 joints; for rods sweep youngs_modulus/beta")
         if not rod and (self.youngs_modulus is not None or self.beta is not None):
@@ -101,6 +102,7 @@ class Point(_Model):
 
 
 PARAMETERS = tuple(Point.model_fields)
+CONTACT_ONLY = ("gap_mm",)  # scene parameters only the contact rig builds
 
 
 class Range(_Model):
@@ -152,6 +154,9 @@ class SweepSpec(_Model):
     def _one_form(self) -> SweepSpec:
         if self.grid and self.points:
             raise ValueError("give either grid (a cartesian product) or points (a list), not both")
+        contact_only = [k for k in CONTACT_ONLY if k in self.base or k in self.grid or any(k in p for p in self.points)]
+        if self.scene != "contact" and contact_only:
+            raise ValueError(f"{contact_only[0]} applies to scene: contact only (the {self.scene} scene has no plate)")
         if any(f <= 0 for f in self.frequency_values()):
             raise ValueError("frequencies must be > 0 Hz")
         n = len(self.frequency_values()) * (len(self.points) or 1)
@@ -275,18 +280,15 @@ def _beam(point: dict[str, Any]):
     """The beam model of a point, with its stiffness/damping overrides applied."""
     from dataclasses import replace
 
-    from beambench.sim.models.params import load_params
-    from beambench.sim.models.registry import make_beam_model, model_family
+    from beambench.sim.models.registry import default_params, is_rod, make_beam_model
 
     name = point["model"]
-    params = load_params(point["params"], model=model_family(name))
-    if name == "prb3":
-        over: dict[str, Any] = {}
+    params = default_params(name, point["params"])
+    if not is_rod(name):
         if point.get("k") is not None:
-            over.update(k=point["k"], k_twist=point["k"])
+            params = replace(params, k=point["k"], k_twist=point["k"])
         if point.get("b") is not None:
-            over.update(b=point["b"], b_twist=point["b"])
-        params = replace(params, **over)
+            params = replace(params, b=point["b"], b_twist=point["b"])
     else:
         if point.get("youngs_modulus") is not None:
             params = replace(params, material=replace(params.material, youngs_modulus=point["youngs_modulus"]))
@@ -490,8 +492,9 @@ def _read_done(out: Path) -> list[dict[str, Any]]:
     for f in frames:
         if "point_id" not in f.columns:
             raise SweepError(f"{out}: not a sweep table (no point_id column)")
-    rows = pd.concat(frames, ignore_index=True).to_dict("records") if frames else []
-    return [{str(k): v for k, v in r.items()} for r in rows]
+    if not frames:
+        return []
+    return [{str(k): v for k, v in r.items()} for r in pd.concat(frames, ignore_index=True).to_dict("records")]
 
 
 @dataclass
@@ -600,13 +603,13 @@ def run_local(spec: SweepSpec) -> pd.DataFrame:
     return _ordered(rows, jobs)
 
 
+def _value_label(val: Any) -> str:
+    return f"{val:g}" if isinstance(val, (int, float)) else str(val)
+
+
 def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | None:
     """Metrics against the first swept parameter (free beam: tip major/minor axes, as the paper's Fig. 2e;
     contact: contacts per cycle and foot axes)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     axes = [a for a in spec.axes() if a in df.columns]
     if not axes or df.empty:
@@ -618,7 +621,8 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
         metrics.append(("contacts_per_cycle", "contacts per drive cycle"))
     else:
         metrics.append((f"{prefix}_tilt_deg", "tilt of the major axis (deg)"))
-    fig, axs = plt.subplots(1, len(metrics), figsize=(5 * len(metrics), 4), constrained_layout=True)
+    fig = new_figure(figsize=(5 * len(metrics), 4), layout="constrained")
+    axs = fig.subplots(1, len(metrics), squeeze=False)[0]
     groups = [(None, df)] if series is None else list(df.groupby(series, sort=True))
     for ax, (col, label) in zip(axs, metrics):
         for val, g in groups[:12]:
@@ -628,11 +632,7 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
                 g[col],
                 "o-",
                 ms=3,
-                label=None
-                if series is None
-                else f"{series} = {val:g}"
-                if isinstance(val, (int, float))
-                else f"{series} = {val!s}",
+                label=None if series is None else f"{series} = {_value_label(val)}",
             )
         ax.set(xlabel=x, ylabel=label)
         ax.grid(alpha=0.3)
@@ -641,5 +641,4 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
     fig.suptitle(f"{spec.name} ({spec.scene})")
     path = Path(path)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
     return path

@@ -11,13 +11,15 @@ import mujoco
 import numpy as np
 from mujoco.batch import Batch
 
+from beambench.sim.engine.stepping import quiet_mujoco_warnings
+
 CHUNK_ROWS = 500_000  # sensor rows (nsim × nstep) per Batch.rollout call, bounds memory
 
 
 def thread_count(nthread: int | None, nrun: int) -> int:
     """Threads for ``nrun`` runs: ``nthread`` if given, else every core, never more than the runs."""
     cores = os.cpu_count() or 1
-    return max(1, min(nrun, cores if not nthread else nthread))
+    return max(1, min(nrun, nthread if nthread else cores))
 
 
 def rollout_batch(
@@ -54,7 +56,8 @@ def rollout_batch(
         n = min(chunk, n_total - k0)
         ctrl = controls(k0, n)
         t0, c0 = time.perf_counter(), time.thread_time()
-        sd = batch.rollout(n, control=ctrl, record=("sensordata",))["sensordata"]
+        with quiet_mujoco_warnings():  # a diverging run is reported in ``ok``, not printed and logged to a file
+            sd = batch.rollout(n, control=ctrl, record=("sensordata",))["sensordata"]
         wall += time.perf_counter() - t0
         if timing is not None:
             timing["wall"] = timing.get("wall", 0.0) + time.perf_counter() - t0
@@ -73,6 +76,6 @@ def rollout_batch(
 def window(settle_s: float, record_s: float, h: float, sample_every: int = 1) -> tuple[int, np.ndarray]:
     """Steps to run and the recorded step indices: every ``sample_every``-th step time in
     [settle_s, settle_s + record_s), whatever h divides."""
-    n_settle = int(math.ceil(settle_s / h - 1e-9))
-    n_total = max(n_settle + 1, int(math.ceil((settle_s + record_s) / h - 1e-9)))
+    n_settle = math.ceil(settle_s / h - 1e-9)
+    n_total = max(n_settle + 1, math.ceil((settle_s + record_s) / h - 1e-9))
     return n_total, np.arange(n_settle, n_total, sample_every)

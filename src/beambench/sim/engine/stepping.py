@@ -9,8 +9,10 @@ integrates; its state rows are one step later, so only sensors are used and the 
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -98,7 +100,7 @@ class Physics:
 
     def reset_to_equilibrium(self, seconds: float, ctrl: np.ndarray) -> None:
         """Let the model settle under gravity with constant ``ctrl``, then set time to zero."""
-        n = int(round(seconds / self.timestep))
+        n = round(float(seconds / self.timestep))
         self.data.ctrl[:] = ctrl
         if n:
             self.step(np.tile(ctrl, (n, 1)))
@@ -128,60 +130,35 @@ class Physics:
         self._roll.close()
 
 
-class DrivenScene:
-    """A scene whose controls for a chunk are planned in advance from the motor command.
+_quiet_lock = threading.Lock()
+_quiet_sinks: list[list[str]] = []  # the message lists of the open quiet_mujoco_warnings() contexts
+_quiet_previous: Any = None
 
-    The physics runs one step ahead of the clock: after ``advance_to(t)`` there are rows up to (at least)
-    ``t``, so a device can sample any time ≤ ``t`` by interpolation without waiting for the next chunk.
-    Subclasses implement :meth:`_plan` (controls + motor channels) and :meth:`_channels` (sensor → channels).
-    """
 
-    markers: tuple[str, ...] = ()
-
-    def __init__(self, physics: Physics) -> None:
-        self.physics = physics
-
-    def advance_to(self, t_target: float) -> Trajectory:
-        """Step until there is a row at time ≥ ``t_target``; returns the new rows."""
-        h = self.physics.timestep
-        n = int(np.ceil((t_target - self.physics.time) / h - 1e-9)) + 1
-        if n <= 0:
-            return Trajectory(np.zeros(0))
-        ctrl, motor = self._plan(n, h)
-        t, sens = self.physics.step(ctrl)
-        channels = self._channels(sens)
-        channels.update(motor)
-        return Trajectory(t, channels)
-
-    def snapshot(self) -> tuple:
-        """State to undo a chunk computed ahead of time (physics, motor ramp, servo)."""
-        extra = {name: dict(vars(getattr(self, name))) for name in ("ramp", "servo") if hasattr(self, name)}
-        return self.physics.snapshot(), extra
-
-    def restore(self, snap: tuple) -> None:
-        phys, extra = snap
-        self.physics.restore(phys)
-        for name, fields in extra.items():
-            vars(getattr(self, name)).update(fields)  # in place: devices hold references to these objects
-
-    def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        raise NotImplementedError
-
-    def _channels(self, sens: np.ndarray) -> dict[str, np.ndarray]:
-        raise NotImplementedError
-
-    def sensor(self, sens: np.ndarray, name: str) -> np.ndarray:
-        return sens[:, self.physics.sensor_slices[name]]
+def _collect_warning(message: str) -> None:
+    for sink in list(_quiet_sinks):
+        sink.append(message)
 
 
 @contextlib.contextmanager
 def quiet_mujoco_warnings() -> Iterator[list[str]]:
     """Collect MuJoCo's warnings (diverging configurations are expected here) instead of printing them and
-    appending them to MUJOCO_LOG.TXT in the working directory; yields the list of messages."""
+    appending them to MUJOCO_LOG.TXT in the working directory; yields the list of messages.
+
+    MuJoCo's warning handler is process-wide: nested and concurrent contexts (threads) share one handler,
+    installed by the first to enter and restored by the last to leave; each context sees every message."""
+    global _quiet_previous
     messages: list[str] = []
-    previous = mujoco.get_mju_user_warning()
-    mujoco.set_mju_user_warning(messages.append)
+    with _quiet_lock:
+        if not _quiet_sinks:
+            _quiet_previous = mujoco.get_mju_user_warning()
+            mujoco.set_mju_user_warning(_collect_warning)
+        _quiet_sinks.append(messages)
     try:
         yield messages
     finally:
-        mujoco.set_mju_user_warning(previous)
+        with _quiet_lock:
+            del _quiet_sinks[next(i for i, m in enumerate(_quiet_sinks) if m is messages)]
+            if not _quiet_sinks:
+                mujoco.set_mju_user_warning(_quiet_previous)
+                _quiet_previous = None

@@ -13,17 +13,17 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import mujoco
 import numpy as np
 
+from beambench.common.types import Floats
 from beambench.sim.models.params import BeamParams
 
-Vec3 = Sequence[float]
-Quat = Sequence[float]
+Vec3 = Floats
+Quat = Floats
 
 
 @dataclass(frozen=True)

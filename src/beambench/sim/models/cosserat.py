@@ -1,6 +1,6 @@
 """PyElastica Cosserat rod of the twisted beam: an independent cross-check of the segmented rod (:mod:`.rod`).
 
-Same beam as :class:`beambench.sim.rod.RodParams` (E, G = E/2(1 + ν), the rectangular w × t section, length,
+Same beam as :class:`beambench.sim.models.rod.RodParams` (E, G = E/2(1 + ν), the rectangular w × t section, length,
 the *same total mass* — by default the weighed 5.17 g spread along the length, as our rods and PRB3 do) but a
 different discretisation and integrator: a shearable, extensible Cosserat rod of ``n_elements`` elements stepped
 explicitly (PositionVerlet), against MuJoCo's rigid segments joined by hinge springs.
@@ -13,7 +13,7 @@ Mapping onto PyElastica (a round section by default, so the section is set by ha
   large value makes the rod Euler–Bernoulli-like), and the mass second moment of inertia by
   ρ·Δs·diag(w t³/12, t w³/12, (w t³ + t w³)/12).
 - Directors: d1 = width axis, d2 = thickness axis, d3 = tangent, so bending about d1 is the weak bending. The
-  clamp frame of :mod:`beambench.sim.beam` is kept (rod along +y, width along z and thickness along x at the root);
+  clamp frame of :mod:`beambench.sim.models.beam` is kept (rod along +y, width along z and thickness along x at the root);
   element i is turned about +y by θ = φ·s_i/L (φ > 0 right-handed, as the segmented rod) and the rest curvature
   and strain are set to those of this twisted shape, so the natural shape is straight and pre-twisted.
 - Drive: the rod is simulated in the stage frame. The clamp (node 0 and element 0) is fixed, and every node gets
@@ -26,7 +26,7 @@ Mapping onto PyElastica (a round section by default, so the section is set by ha
   gives the first mode exactly the same damping force as β·k at every drive frequency (ζ₁ = β·ω₁/2 ≈ 0.045);
   higher modes get less damping than with β·k (ζ ∝ 1/ω instead of ∝ ω), which matters only near their
   resonances (above the 45 Hz of the sweep).
-- Start: like :func:`beambench.sim.free_beam.run_batch` — the beam at rest under gravity relative to a stage at
+- Start: like :func:`beambench.sim.scenes.free_beam.run_batch` — the beam at rest under gravity relative to a stage at
   x = 0 moving at v = A·ω. The gravity sag is found once by a heavily damped pre-run (α = 2ω₁ for ``presettle_s``)
   and every frequency starts from that state.
 
@@ -38,12 +38,12 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from beambench.common.types import Floats
 from beambench.sim.models.params import BeamParams, load_params
 from beambench.sim.models.rod import RodParams
 
@@ -85,13 +85,10 @@ class CosseratParams:
         f = self.damping_hz if self.damping_hz is not None else self.rod.first_frequency("weak")
         return self.rod.beta * (2 * math.pi * f) ** 2
 
-    def with_(self, **kw: Any) -> CosseratParams:
-        return replace(self, **kw)
-
 
 @dataclass
 class CosseratSweep:
-    """Tip paths over frequencies, shaped like :class:`beambench.sim.free_beam.SweepResult`: ``tip`` [nf, n, 3]
+    """Tip paths over frequencies, shaped like :class:`beambench.sim.scenes.free_beam.SweepResult`: ``tip`` [nf, n, 3]
     (m, world frame of the free-beam scene), ``stage`` [nf, n] (m) at ``t`` [n] (s); ``ok`` False where a run
     went non-finite; ``wall_s`` the seconds spent stepping (excluding the shared pre-settle and compilation)."""
 
@@ -158,7 +155,7 @@ class CosseratBeam:
         self,
         params: CosseratParams,
         twist_deg: float = 90.0,
-        gravity: Sequence[float] = (0.0, 0.0, -GRAVITY),
+        gravity: Floats = (0.0, 0.0, -GRAVITY),
         damping: bool = True,
     ) -> None:
         import elastica as ea
@@ -264,7 +261,7 @@ class CosseratBeam:
 
 
 def frequency_sweep(
-    frequencies: Sequence[float],
+    frequencies: Floats,
     twist_deg: float = 90.0,
     params: CosseratParams | None = None,
     amplitude: float = 0.002,
@@ -274,7 +271,7 @@ def frequency_sweep(
     gravity: bool = True,
     presettle_s: float = 0.1,
 ) -> CosseratSweep:
-    """Steady-state tip paths at each frequency, sampled as :func:`beambench.sim.free_beam.frequency_sweep`
+    """Steady-state tip paths at each frequency, sampled as :func:`beambench.sim.scenes.free_beam.frequency_sweep`
     with ``timestep = sample_dt``: the same window (every step time k·sample_dt in [settle_s, settle_s +
     record_s)) and the world frame of the free-beam scene (stage travel x, beam along y, z up)."""
     from beambench.sim.engine.batch import window
@@ -337,7 +334,7 @@ def frequency_sweep(
 def static_tip(
     params: CosseratParams,
     twist_deg: float = 0.0,
-    gravity: Sequence[float] = (0.0, 0.0, -GRAVITY),
+    gravity: Floats = (0.0, 0.0, -GRAVITY),
     seconds: float = 0.15,
 ) -> np.ndarray:
     """Tip displacement (m, stage frame) at rest under ``gravity`` (heavily damped run; drive off)."""

@@ -17,7 +17,7 @@ chirality (φ > 0: right-handed). Damping is stiffness proportional, b = β·k p
 mass and rotary inertia of its piece of the strip (``RodParams.segment_inertia``); by default the parameter
 set's weighed mass (5.17 g) is spread along the length, as the paper's PRB3 does.
 
-Frame: as every model of :mod:`beambench.sim.beam`: the rod leaves the clamp along +y, with the width along z
+Frame: as every model of :mod:`beambench.sim.models.beam`: the rod leaves the clamp along +y, with the width along z
 and the thickness along x at the root (weak bending toward x, the stage's direction of travel).
 """
 
@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import mujoco
 import numpy as np
 
+from beambench.common.types import Floats
 from beambench.sim.models.beam import BeamModel, BeamSites
 from beambench.sim.models.params import BeamParams, Material
 
@@ -136,9 +136,6 @@ class RodParams:
             return (x + 1) * L / 2, w * L / 2
         raise ValueError(f"nodes = {self.nodes!r}: 'midpoint' or 'gauss'")
 
-    def with_segments(self, n: int) -> RodParams:
-        return replace(self, n_segments=int(n))
-
 
 # the rod is built along its own +x (width y, thickness z); this maps it onto the beam convention of
 # beam.py: axis +y, width z, thickness x (a rotation of 120° about (1, 1, 1): x→y, y→z, z→x)
@@ -149,13 +146,13 @@ def _quat_x(angle: float) -> np.ndarray:
     return np.array([math.cos(angle / 2), math.sin(angle / 2), 0.0, 0.0])
 
 
-def _qmul(a: Sequence[float], b: Sequence[float]) -> np.ndarray:
+def _qmul(a: Floats, b: Floats) -> np.ndarray:
     out = np.empty(4)
     mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
     return out
 
 
-def _qinv(a: Sequence[float]) -> np.ndarray:
+def _qinv(a: Floats) -> np.ndarray:
     out = np.empty(4)
     mujoco.mju_negQuat(out, np.asarray(a, float))
     return out
@@ -165,14 +162,14 @@ def add_rod(
     parent: mujoco.MjsBody,
     rod: RodParams,
     twist_deg: float = 90.0,
-    pos: Sequence[float] = (0.0, 0.0, 0.0),
-    quat: Sequence[float] = (1.0, 0.0, 0.0, 0.0),
+    pos: Floats = (0.0, 0.0, 0.0),
+    quat: Floats = (1.0, 0.0, 0.0, 0.0),
     prefix: str = "beam_",
-    rgba: Sequence[float] = (0.9, 0.55, 0.1, 1.0),
+    rgba: Floats = (0.9, 0.55, 0.1, 1.0),
 ) -> BeamSites:
     """Attach a pre-twisted segmented rod to ``parent`` with its clamp at ``pos``/``quat`` (parent frame).
 
-    Same convention as :func:`beambench.sim.beam.add_beam`: the rod leaves the clamp along +y, with the width
+    Same convention as :func:`beambench.sim.models.beam.add_beam`: the rod leaves the clamp along +y, with the width
     along z and the thickness along x at the root; ``twist_deg`` is the total twist φ, its sign the chirality.
     The tip body is aligned with the clamp frame in the natural shape; the root site sits at the clamp point on
     the first moving segment.
@@ -245,7 +242,7 @@ def add_rod(
 
 
 class RodModel(BeamModel):
-    """The segmented rod as a :class:`~beambench.sim.beam.BeamModel` (``sim.model: rod10``, ``rod3g`` …).
+    """The segmented rod as a :class:`~beambench.sim.models.beam.BeamModel` (``sim.model: rod10``, ``rod3g`` …).
 
     Geometry and material come from the parameter set (``params.material``); the joint springs from the
     section, not from ``k``/``b`` (those belong to PRB3).
@@ -264,8 +261,8 @@ class RodModel(BeamModel):
         self,
         parent: mujoco.MjsBody,
         twist_deg: float,
-        pos: Sequence[float] = (0, 0, 0),
-        quat: Sequence[float] = (1, 0, 0, 0),
+        pos: Floats = (0, 0, 0),
+        quat: Floats = (1, 0, 0, 0),
         prefix: str = "beam_",
     ) -> BeamSites:
         return add_rod(parent, self.rod, twist_deg, pos, quat, prefix)
@@ -296,20 +293,6 @@ def make_rod_model(name: str, params: BeamParams) -> RodModel:
         nodes="gauss" if m.group(2) else "midpoint",
         dofs="twist,weak" if m.group(3) else "twist,weak,strong",
     )
-
-
-def rod_static_deflection(rod: RodParams, load: float, axis: str = "weak") -> float:
-    """Euler–Bernoulli tip deflection PL³/3EI of the untwisted cantilever under a tip load (m)."""
-    ei = rod.ei_weak if axis == "weak" else rod.ei_strong
-    return load * rod.length**3 / (3 * ei)
-
-
-def spring_energy(model: mujoco.MjModel, data: mujoco.MjData) -> float:
-    """Elastic energy ½ Σ k (q − q_spring)² of all hinge springs (J)."""
-    k = model.jnt_stiffness[:, 0] if model.jnt_stiffness.ndim == 2 else model.jnt_stiffness
-    adr = model.jnt_qposadr
-    dq = data.qpos[adr] - model.qpos_spring[adr]
-    return float(0.5 * np.sum(k * dq**2))
 
 
 def natural_frequencies(

@@ -23,9 +23,9 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.streams import CONTACT_MARKERS
-from beambench.sim.engine.stepping import INTEGRATORS, DrivenScene, Physics
+from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam
-from beambench.sim.scenes.drive import KinematicServo, VelocityRamp
+from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 
 
 @dataclass(frozen=True)
@@ -213,6 +213,8 @@ class ContactRigSim(DrivenScene):
     """The contact rig advanced in chunks; channels: ``markers`` [n, 3, 3] (stage, tip, foot), ``force_nt``
     [n, 2] (plate normal, tangential-x, N), and the motor's ``theta``/``omega``/``setpoint``/``torque``."""
 
+    rig: RigParams
+
     markers = CONTACT_MARKERS
 
     def __init__(
@@ -232,7 +234,7 @@ class ContactRigSim(DrivenScene):
         self.beam, self.twist_deg, self.gap_m, self.amplitude = beam, twist_deg, gap, amplitude_m
         self.integrator = integrator
         self.fixed_timestep = timestep
-        # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.select (model: auto)
+        # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.selection (model: auto)
         self.timestep_for = timestep_for or default_timestep
         self.selection = selection
         h0 = timestep or self.timestep_for(1.0)

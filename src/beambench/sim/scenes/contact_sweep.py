@@ -1,12 +1,12 @@
 """The contact-rig frequency sweep batched on all cores, with the timestep each frequency needs.
 
-The scene is :func:`beambench.sim.contact_rig.build_contact_spec` (stage, beam, foot, plate); only the drive
-differs from the interactive :class:`~beambench.sim.contact_rig.ContactRigSim`: each frequency is held from
+The scene is :func:`beambench.sim.scenes.contact_rig.build_contact_spec` (stage, beam, foot, plate); only the drive
+differs from the interactive :class:`~beambench.sim.scenes.contact_rig.ContactRigSim`: each frequency is held from
 t = 0 (no speed ramp) and the stage actuator is a pure feed-forward force M·a with the discrete acceleration
-(as in :mod:`beambench.sim.free_beam`), so the clamp follows A·sin(2πft) exactly. Frequencies sharing a
+(as in :mod:`beambench.sim.scenes.free_beam`), so the clamp follows A·sin(2πft) exactly. Frequencies sharing a
 timestep run in one :class:`mujoco.batch.Batch`.
 
-:func:`measure_contact_table` writes the table :mod:`beambench.sim.select` reads for ``scene="contact"``:
+:func:`measure_contact_table` writes the table :mod:`beambench.sim.selection` reads for ``scene="contact"``:
 foot-path RMS error against the same model at a small timestep, contacts per cycle, wall time per 10 s.
 """
 
@@ -27,6 +27,7 @@ import pandas as pd
 from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.contact_events import ContactParams, force_contacts
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ
+from beambench.common.types import Floats
 from beambench.sim.engine.batch import rollout_batch, thread_count, window
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.params import BeamParams, load_params
@@ -145,7 +146,7 @@ def contact_sweep(
     """Steady-state contact runs at each frequency, batched per timestep on all cores.
 
     ``timesteps``: one per frequency, one for all, or None for the timestep the measured contact table
-    selects per frequency (``beambench.sim.select``, tolerance 0.1 mm) — falling back to the rig's policy.
+    selects per frequency (``beambench.sim.selection``, tolerance 0.1 mm) — falling back to the rig's policy.
     ``integrator``: None for the table's choice with ``timesteps=None``, else implicitfast."""
     bm = beam_model(beam) if isinstance(beam, str) else beam
     freqs = np.asarray(frequencies, float)
@@ -159,7 +160,7 @@ def contact_sweep(
     rig = rig or RigParams.with_overrides(bm.params.rig)
     models = _models(bm, twist_deg, gap_m, rig, integrator, dts)
     q0 = _rest(next(iter(models.values())))
-    nt = round(record_s / sample_dt)
+    nt = round(float(record_s / sample_dt))
     foot = np.full((len(freqs), nt, 3), np.nan)
     normal = np.full((len(freqs), nt), np.nan)
     ok = np.ones(len(freqs), bool)
@@ -170,7 +171,7 @@ def contact_sweep(
     def run_group(h: float, idx: np.ndarray, threads: int | None) -> None:
         """Runs ``idx`` (all at timestep h) in one batch; fills their rows of the outputs."""
         m = models[h]
-        every = max(1, round(sample_dt / h))
+        every = max(1, round(float(sample_dt / h)))
         n_total, keep = window(settle_s, record_s, h, every)
         keep = keep[:nt]
         mass = slider_inertia(m, q0)
@@ -222,7 +223,7 @@ def contact_sweep(
         ok[idx] = okg & np.isfinite(sd[:, :, a_foot]).all(axis=1)
 
     for h in models:
-        every = max(1, round(sample_dt / h))
+        every = max(1, round(float(sample_dt / h)))
         if abs(every * h - sample_dt) > 1e-12:
             raise ValueError(f"timestep {h:g} does not divide the sample interval {sample_dt:g}")
     workers = thread_count(nthread, len(freqs))
@@ -516,7 +517,7 @@ TABLE_FREQUENCIES = (
 def measure_contact_table(
     model: str = "prb3",
     frequencies: Floats = TABLE_FREQUENCIES,
-    timesteps: Sequence[float] = (5e-5, 1e-4, 2e-4, 2.5e-4, 1e-3 / 3, 5e-4, 1e-3),
+    timesteps: Floats = (5e-5, 1e-4, 2e-4, 2.5e-4, 1e-3 / 3, 5e-4, 1e-3),
     integrators: Sequence[str] = ("implicitfast", "euler"),
     gap_m: float = 0.001,
     settle_s: float = 1.0,

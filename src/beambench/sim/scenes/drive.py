@@ -1,4 +1,7 @@
-"""The motor as the ODrive runs it in velocity-ramp mode: the speed moves toward the setpoint at a fixed
+"""The drive of every scene: :class:`DrivenScene` (a scene whose controls are planned from the motor
+command), the motor's :class:`VelocityRamp` and the :class:`KinematicServo` that makes the stage follow it.
+
+The motor as the ODrive runs it in velocity-ramp mode: the speed moves toward the setpoint at a fixed
 ramp rate (``controller.config.vel_ramp_rate``, turn/s²) and the crank angle integrates the speed.
 
 f Hz of drive means f turn/s of crank. ``plan`` returns the speed and angle at the next ``n + 1`` physics
@@ -8,8 +11,21 @@ row times (the current one included), so a scene can precompute a whole chunk of
 from __future__ import annotations
 
 import math
+from typing import Any, Protocol
 
 import numpy as np
+
+from beambench.sim.engine.stepping import Physics, Trajectory
+
+
+class MotorConstants(Protocol):
+    """The electrics a simulated motor reports telemetry with (a scene's ``rig`` constants)."""
+
+    @property
+    def torque_constant(self) -> float: ...  # N·m/A
+
+    @property
+    def bus_voltage(self) -> float: ...  # V
 
 
 class VelocityRamp:
@@ -66,3 +82,63 @@ class KinematicServo:
         ctrl = ref[:-1] + (self.m * acc + self.kv * (w if self.implicit else v)) / self.kp
         self.r_prev, self.h_prev = float(ref[-2]), h
         return ctrl, acc
+
+
+class DrivenScene:
+    """A scene whose controls for a chunk are planned in advance from the motor command.
+
+    The physics runs one step ahead of the clock: after ``advance_to(t)`` there are rows up to (at least)
+    ``t``, so a device can sample any time ≤ ``t`` by interpolation without waiting for the next chunk.
+    Subclasses implement :meth:`_plan` (controls + motor channels) and :meth:`_channels` (sensor → channels).
+    """
+
+    markers: tuple[str, ...] = ()  # the mocap markers' sensor names, in stream order
+    rig: MotorConstants  # the scene's constants (RigParams, WalkerParams): the sim motor reads its electrics
+    ramp: VelocityRamp  # the crank speed the motor command drives
+
+    def __init__(self, physics: Physics) -> None:
+        self.physics = physics
+
+    def advance_to(self, t_target: float) -> Trajectory:
+        """Step until there is a row at time ≥ ``t_target``; returns the new rows."""
+        h = self.physics.timestep
+        n = int(np.ceil((t_target - self.physics.time) / h - 1e-9)) + 1
+        if n <= 0:
+            return Trajectory(np.zeros(0))
+        ctrl, motor = self._plan(n, h)
+        t, sens = self.physics.step(ctrl)
+        channels = self._channels(sens)
+        channels.update(motor)
+        return Trajectory(t, channels)
+
+    def snapshot(self) -> tuple:
+        """State to undo a chunk computed ahead of time (physics, motor ramp, servo)."""
+        extra = {name: dict(vars(getattr(self, name))) for name in ("ramp", "servo") if hasattr(self, name)}
+        return self.physics.snapshot(), extra
+
+    def restore(self, snap: tuple) -> None:
+        phys, extra = snap
+        self.physics.restore(phys)
+        for name, fields in extra.items():
+            vars(getattr(self, name)).update(fields)  # in place: devices hold references to these objects
+
+    def set_frequency(self, hz: float) -> None:
+        """A new crank-speed setpoint (turn/s), effective from the scene's current time."""
+        raise NotImplementedError
+
+    def motor_torque(self, channels: dict[str, np.ndarray]) -> np.ndarray:
+        """The motor shaft torque (N·m) at each row of ``channels`` (the reaction of the drive)."""
+        raise NotImplementedError
+
+    def identity(self) -> dict[str, Any]:
+        """What the scene is (model, parameters, timestep …) for the session's ``/general``."""
+        raise NotImplementedError
+
+    def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        raise NotImplementedError
+
+    def _channels(self, sens: np.ndarray) -> dict[str, np.ndarray]:
+        raise NotImplementedError
+
+    def sensor(self, sens: np.ndarray, name: str) -> np.ndarray:
+        return sens[:, self.physics.sensor_slices[name]]

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from beambench.common.types import Floats
 from beambench.sim.engine.batch import rollout_batch, window
 from beambench.sim.engine.stepping import integrator_enum
 from beambench.sim.models.beam import BeamModel, add_beam
@@ -128,7 +129,7 @@ def slider_inertia(model: mujoco.MjModel, qpos: np.ndarray, joint: str = "stage"
 
 def run_batch(
     models: Sequence[mujoco.MjModel],
-    frequencies: Sequence[float],
+    frequencies: Floats,
     amplitude: float = 0.002,
     settle_s: float = 1.0,
     record_s: float = 0.5,
@@ -181,7 +182,7 @@ def run_batch(
 
 def frequency_sweep(
     beam: BeamModel | str = "prb3",
-    frequencies: Sequence[float] = tuple(range(1, 46)),
+    frequencies: Floats = tuple(range(1, 46)),
     twist_deg: float = 90.0,
     amplitude: float = 0.002,
     settle_s: float = 1.0,
@@ -196,7 +197,7 @@ def frequency_sweep(
     bm = beam_model(beam) if isinstance(beam, str) else beam
     freqs = np.asarray(frequencies, float)
     model = build_free_beam_spec(bm, twist_deg, integrator, timestep, gravity).compile()
-    every = 1 if sample_dt is None else max(1, int(round(sample_dt / timestep)))
+    every = 1 if sample_dt is None else max(1, round(float(sample_dt / timestep)))
     t, tip, stage, ok, wall = run_batch(
         [model] * len(freqs), freqs, amplitude, settle_s, record_s, every, integrator, nthread
     )
@@ -217,7 +218,7 @@ def frequency_sweep(
 
 def twist_sweep(
     beam: BeamModel | str = "prb3",
-    twists: Sequence[float] = tuple(range(0, 181, 5)),
+    twists: Floats = tuple(range(0, 181, 5)),
     frequency: float = 15.0,
     amplitude: float = 0.002,
     settle_s: float = 1.0,
@@ -234,11 +235,12 @@ def twist_sweep(
     bm = beam_model(beam) if isinstance(beam, str) else beam
     tw = np.asarray(twists, float)
     models = [build_free_beam_spec(bm, float(p), integrator, timestep, gravity).compile() for p in tw]
-    every = 1 if sample_dt is None else max(1, int(round(sample_dt / timestep)))
+    every = 1 if sample_dt is None else max(1, round(float(sample_dt / timestep)))
     groups: dict[tuple[int, int], list[int]] = {}
     for i, m in enumerate(models):
         groups.setdefault((m.nq, m.nv), []).append(i)
-    tip = stage = None
+    tip: np.ndarray | None = None
+    stage: np.ndarray | None = None
     ok = np.ones(len(tw), bool)
     wall = 0.0
     t = np.zeros(0)
@@ -246,11 +248,12 @@ def twist_sweep(
         t, tp, st, okg, w = run_batch(
             [models[i] for i in idx], [frequency] * len(idx), amplitude, settle_s, record_s, every, integrator, nthread
         )
-        if tip is None:
+        if tip is None or stage is None:  # every group records the same window
             tip = np.full((len(tw), len(t), 3), np.nan)
             stage = np.full((len(tw), len(t)), np.nan)
         tip[idx], stage[idx], ok[idx] = tp, st, okg
         wall += w
+    assert tip is not None and stage is not None  # there is at least one twist
     return SweepResult(
         t,
         tip,

@@ -10,7 +10,7 @@ Two ways in:
 
 - **Python, fast** — :func:`release_batch` releases many beams at once (one compiled model per parameter set,
   started from its loaded static equilibrium, stepped with ``mujoco.rollout`` on all cores) and returns the
-  marker paths; :func:`simulate_release` is the one-beam convenience. The fit (:mod:`beambench.fit`) uses these.
+  marker paths; :func:`simulate_release` is the one-beam convenience. The fit (:mod:`beambench.studies.fit`) uses these.
 - **Sessions** — :class:`ReleaseSim` is the ``rig: release`` scene of the sim backend
   (``beambench run protocols/release_test.yaml``): the load hangs through the settle time and a short part
   of the record window, then is released (:func:`release_time`); motor idle, load cells read nothing.
@@ -28,16 +28,16 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from beambench.sim.engine.stepping import DrivenScene, Physics, integrator_enum
+from beambench.sim.engine.stepping import Physics, integrator_enum, quiet_mujoco_warnings
 from beambench.sim.models.beam import BeamModel, add_beam
-from beambench.sim.models.params import BeamParams, load_params
-from beambench.sim.models.registry import make_beam_model, model_family
+from beambench.sim.models.params import BeamParams
+from beambench.sim.models.registry import default_params, make_beam_model
 from beambench.sim.scenes.contact_rig import RigParams
-from beambench.sim.scenes.drive import VelocityRamp
+from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
 
 G = 9.81
 TIP_MARKERS = ("tip1", "tip2", "tip3")
-RELEASE_MARKERS = ("stage",) + TIP_MARKERS
+RELEASE_MARKERS = ("stage", *TIP_MARKERS)
 MARKER_HALF_SPAN = 0.008  # m, tip1/tip2 from the section centre along the width
 MARKER_STANDOFF = 0.006  # m, tip3 from the section centre along the thickness normal
 DEFAULT_TIMESTEP = 1e-4
@@ -84,7 +84,7 @@ def build_release_spec(
     spec.add_actuator(
         name="load", target=sites.tip_site, trntype=mujoco.mjtTrn.mjTRN_SITE, refsite="world", gear=[0, 0, -1, 0, 0, 0]
     )
-    for name in ("stage",) + names:
+    for name in ("stage", *names):
         spec.add_sensor(
             name=name, type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=name
         )
@@ -202,7 +202,7 @@ def release_batch(
         loaded[i] = d.sensordata[idx].reshape(-1, 3)
         mujoco.mj_getState(m, d, state[i], spec)
     own = roller is None
-    if own:
+    if roller is None:
         threads = max(1, min(nrun, nthread or os.cpu_count() or 1))
         roller = rollout.Rollout(nthread=threads if threads > 1 else 0)
     threads = max(1, roller.nthread)
@@ -212,21 +212,22 @@ def release_batch(
     active = np.arange(nrun)
     chunk = max(2, round(CHECK_S / h)) if rest_tol_m is not None else MAX_CHUNK_STEPS
     try:
-        a = 0
-        while a < n and len(active):
-            b = min(n, a + chunk)
-            st, sd = roller.rollout([models[i] for i in active], datas, state[active], None, nstep=b - a)
-            rows = sd[:, :, idx].reshape(len(active), b - a, len(names), 3)
-            out[active, a:b] = rows
-            state[active] = st[:, -1]
-            # rollout stops a run that warns (diverges) and repeats its last state: its clock falls behind
-            ok[active] &= np.abs(st[:, -1, 0] - b * h) < 0.5 * h
-            if rest_tol_m is not None and b < n:
-                still = np.abs(rows - rows[:, -1:]).max(axis=(1, 2, 3)) < rest_tol_m
-                done = active[still | ~ok[active]]
-                out[done, b:] = out[done, b - 1 : b]
-                active = active[~(still | ~ok[active])]
-            a = b
+        with quiet_mujoco_warnings():  # a diverging run is reported in ``ok``, not printed and logged to a file
+            a = 0
+            while a < n and len(active):
+                b = min(n, a + chunk)
+                st, sd = roller.rollout([models[int(i)] for i in active], datas, state[active], None, nstep=b - a)
+                rows = sd[:, :, idx].reshape(len(active), b - a, len(names), 3)
+                out[active, a:b] = rows
+                state[active] = st[:, -1]
+                # rollout stops a run that warns (diverges) and repeats its last state: its clock falls behind
+                ok[active] &= np.abs(st[:, -1, 0] - b * h) < 0.5 * h
+                if rest_tol_m is not None and b < n:
+                    still = np.abs(rows - rows[:, -1:]).max(axis=(1, 2, 3)) < rest_tol_m
+                    done = active[still | ~ok[active]]
+                    out[done, b:] = out[done, b - 1 : b]
+                    active = active[~(still | ~ok[active])]
+                a = b
     finally:
         if own:
             roller.close()
@@ -245,7 +246,7 @@ def simulate_release(
 ) -> ReleaseBatch:
     """One release test from a parameter set (name or :class:`BeamParams`): tip marker paths, rest and
     loaded positions (a batch of one)."""
-    p = load_params(params, model=model_family(model)) if isinstance(params, str) else params
+    p = default_params(model, params) if isinstance(params, str) else params
     m = release_models([make_beam_model(model, p)], twist_deg, integrator, timestep)
     return release_batch(m, load_g * 1e-3 * G, duration_s, nthread=1, with_rest=True)
 
@@ -259,6 +260,8 @@ def release_time(settle_s: float, record_s: float) -> float:
 class ReleaseSim(DrivenScene):
     """The ``rig: release`` scene: channels ``markers`` [n, 1 + k, 3] (stage, tip1 … tipk), ``force_nt``
     (zeros: no plate) and the motor's ``theta``/``omega``/``setpoint`` (the motor drives nothing here)."""
+
+    rig: RigParams
 
     def __init__(
         self,

@@ -45,9 +45,9 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.streams import WALKER_MARKERS
-from beambench.sim.engine.stepping import INTEGRATORS, DrivenScene, Physics
+from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, quat_y
-from beambench.sim.scenes.drive import KinematicServo, VelocityRamp
+from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 
 
 @dataclass(frozen=True)
@@ -221,7 +221,7 @@ def build_walker_spec(
             priority=1,
             solref=solref,
             friction=friction,
-            condim=3,
+            condim=3 if wp.friction > 0 else 1,  # frictionless: a normal-only contact (μ = 0 in a cone diverges)
         )
         tip.add_site(name=f"foot_{name}", pos=[0, 0, -wp.foot_length], size=[0.002, 0, 0])
     spec.add_actuator(
@@ -246,6 +246,8 @@ def build_walker_spec(
 class WalkerSim(DrivenScene):
     """The walker advanced in chunks; channels: ``markers`` [n, 3, 3] (body, foot_left, foot_right),
     ``force_nt`` (zeros: no load-cell plate), the motor's ``theta``/``omega``/``setpoint`` and ``rotor_torque``."""
+
+    rig: WalkerParams
 
     markers = WALKER_MARKERS
 
