@@ -188,7 +188,7 @@ def test_frames_nobody_reads_overflow_the_boards_buffer_and_show_up_as_lost():
     """Like a real board: with no reader the pty fills, then the board's own transmit buffer, then frames are
     dropped whole (sequence numbers still advance), and the driver sees exactly those as lost."""
     mcu = EmulatedLoadCellMCU(force, PLATE, tx_buffer=34 * 20, seed=8)
-    b, lc = acquire(mcu, 1.0, driver_first=False, head_start_s=0.8)
+    _b, lc = acquire(mcu, 1.0, driver_first=False, head_start_s=0.8)
     st = lc.stats()
     assert mcu.injected.frames_overflowed > 100
     assert st["lost_frames"] == mcu.injected.frames_overflowed and st["seq_gaps"] >= 1

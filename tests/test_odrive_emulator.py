@@ -197,7 +197,7 @@ def test_cyclic_messages_and_rtr_on_a_virtual_bus():
         while answer is None:
             f = sniffer.recv(timeout=1.0)
             assert f is not None
-            node, msg = cs.parse_message(f)
+            _node, msg = cs.parse_message(f)
             if isinstance(msg, cs.BusVoltageCurrent):
                 answer = msg
         assert answer.voltage == pytest.approx(24.0)

@@ -248,7 +248,7 @@ def test_check_reports_axis_errors_and_lost_link(motor, odrv):
 
     object.__setattr__(odrv.axis0, "encoder", Unplugged())
     time.sleep(0.4)
-    with pytest.raises(DeviceFault, match="link lost.*disconnected"):
+    with pytest.raises(DeviceFault, match=r"link lost.*disconnected"):
         motor.check()
 
 

@@ -37,7 +37,6 @@ from beambench.sim.scenes.free_beam import slider_inertia, stage_controls
 
 REFERENCE_DT = 2.5e-5
 IRREGULAR_MM = 0.05  # fine runs this far from the reference (foot path RMS) mark an irregular regime
-Floats = Sequence[float] | np.ndarray  # frequencies or timesteps: a list or an array
 SAMPLE_DT = 1e-3  # common sample grid of every timestep in the table (2.5e-5 … 1e-3 divide it)
 
 
