@@ -65,10 +65,14 @@ def fit(
     values and the final error (mm), draws measured vs fitted tip paths, writes a JSON report, and saves each
     fit as a named parameter set in the per-user folder that protocols select with `sim.params`.
     """
+    from beambench.sim.models.registry import UnknownModelError, canonical_model
+
     models = [m.strip() for m in model.split(",") if m.strip()]
     for m in models:
-        if m not in ("prb3", "rod") and not re.fullmatch(r"rod\d+g?s?", m):
-            fail(f"--model = {m!r}: prb3, rod, or rodN (e.g. rod10, rod5g)")
+        try:
+            canonical_model(m)
+        except UnknownModelError:
+            fail(f"--model = {m[:40]!r}: prb3, rod, or rodN (e.g. rod10, rod5g)")
     if free_l1 and "prb3" not in models:
         fail("--free-l1 applies to the prb3 model")
     if not session.is_file():
