@@ -113,7 +113,11 @@ def test_motor_telemetry_and_idle(clean):
     assert motor.columns["velocity"].max() == pytest.approx(16.0, rel=0.05)
     assert motor.columns["velocity_setpoint"][-1] == 0.0
     kinds = list(s.events["kind"])
-    assert kinds[-2:] == ["idle", "stop"]
+    assert [k for k in kinds if k != "devices"][-2:] == ["idle", "stop"]
+    # after the idle, each driver's counters go to the event log, one event per stream
+    counters = s.events[s.events["kind"] == "devices"]["message"].tolist()
+    assert {m.split(":")[0] for m in counters} >= {"mocap", "loadcell"}
+    assert all("dropped 0" in m for m in counters if m.startswith("loadcell"))
 
 
 def test_injected_mocap_drops_are_counted_exactly(tmp_path):

@@ -32,7 +32,9 @@ def model_family(name: str) -> Family:
     m = ROD_NAME.fullmatch(name)
     if m:
         if not 1 <= int(m.group(1)) <= MAX_SEGMENTS:
-            raise UnknownModelError(f"sim.model = {name[:40]!r}: a rod has 1 to {MAX_SEGMENTS} segments")
+            raise UnknownModelError(
+                f"sim.model = {name[:40]!r}: unknown beam model (a rod has 1 to {MAX_SEGMENTS} segments)"
+            )
         return "rod"
     raise UnknownModelError(
         f"sim.model = {name[:40]!r}: unknown beam model (known: prb3, rod<N>[g][s] with N <= {MAX_SEGMENTS}, e.g. rod10)"
