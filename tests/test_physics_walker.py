@@ -10,15 +10,17 @@ import pytest
 
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
-from beambench.sim.scenes.walker import WalkerParams, WalkerSim, measure_speed
+from beambench.sim.scenes.walker import WalkerLegError, WalkerParams, WalkerSim, measure_speed
 
 BEAM = make_beam_model("prb3", load_params())
 G = 9.81
 
 
 def test_standing_walker_rests_on_feet_and_wheels_with_its_weight():
-    """Motor off: the contact normal forces carry the whole weight; the cart's share is on the wheels
-    (cart straight above them), the rest on the feet."""
+    """Motor off, after the preroll (quenched, then free): the contact normal forces carry the whole weight
+    within 1 %; the cart's share is on the wheels (cart straight above them), the rest on the feet; and it
+    stands: the body moves < 1 mm in the next 0.2 s. (It does not stand still: the soles creep outward through
+    MuJoCo's soft friction and the body sinks ~2 mm/s, slowing to ~1 mm/s after 2 s.)"""
     sim = WalkerSim(BEAM, 90.0)
     m, d = sim.physics.model, sim.physics.data
     mujoco.mj_forward(m, d)
@@ -32,7 +34,21 @@ def test_standing_walker_rests_on_feet_and_wheels_with_its_weight():
         normal[name.split("_")[0]] += f6[0]  # contact frame x = normal (floor z)
     assert normal["sole"] + normal["wheel"] == pytest.approx(total * G, rel=0.01)
     assert normal["wheel"] == pytest.approx(sim.rig.cart_mass * G, rel=0.05)
-    assert np.all(np.abs(d.qvel) < 1e-3)  # settled
+    body = sim.advance_to(0.2).channels["markers"][:, 0]
+    assert np.abs(body - body[0]).max() < 1e-3
+
+
+def test_walker_refuses_rod_legs_with_a_clear_error():
+    with pytest.raises(WalkerLegError, match="refused for the walker"):
+        WalkerSim(make_beam_model("rod3g", load_params(model="rod")), 90.0)
+
+
+def test_named_parameter_sets():
+    assert WalkerParams.named("calibrated") == WalkerParams()
+    guesses = WalkerParams.named("paper_guesses")
+    assert guesses.foot_mass == pytest.approx(0.020) and guesses.rotor_inertia == pytest.approx(1.35e-5)
+    with pytest.raises(ValueError, match="paper_guesses"):
+        WalkerParams.named("nope")
 
 
 def _run(wp: WalkerParams, f: float, t_end: float):

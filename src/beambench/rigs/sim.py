@@ -39,6 +39,8 @@ def build_scene(protocol: Protocol) -> DrivenScene:
     sim = protocol.sim
     plan = _contact_plan(protocol)
     model_name = plan.model if plan else ("prb3" if sim.model == "auto" else sim.model)
+    if protocol.rig == "walker":
+        _check_walker_legs(model_name)
     beam = make_beam_model(model_name, load_params(sim.params, model=model_family(model_name)))
     if protocol.rig == "release":
         from beambench.sim.scenes.release import ReleaseSim
@@ -60,6 +62,17 @@ def build_scene(protocol: Protocol) -> DrivenScene:
         timestep_for=plan.timestep if plan else None,
         selection=plan.describe() if plan else None,
     )
+
+
+def _check_walker_legs(model_name: str) -> None:
+    """A leg model the walker cannot stand on is a ConfigError (one line) before anything is built."""
+    from beambench.acquisition.config import ConfigError
+    from beambench.sim.scenes.walker import WalkerLegError, check_leg_model
+
+    try:
+        check_leg_model(model_name)
+    except WalkerLegError as exc:
+        raise ConfigError("<protocol>", "sim.model", model_name, exc.reason) from None
 
 
 AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
