@@ -167,9 +167,38 @@ class _EmulatedPeers:
 INJECTIONS = ("mocap_drop", "mocap_occlude", "loadcell_crc", "loadcell_drop", "loadcell_garbage")
 
 
+def odrive_config(protocol: Protocol, rig_file: Path | None, config_type: Any) -> Any:
+    """The emulated ODrive's boot configuration: for the walker, the motor of the rig file's ``walker:`` section
+    (default: the shipped ``calibration/rig.yaml``; pole pairs, Hall feedback, torque constant, rotor + offset-mass
+    inertia); the emulator's default motor for the other rigs. ``vel_limit``/``current_lim`` come from the
+    protocol's limits through Set_Limits, as on the bench."""
+    if protocol.rig != "walker":
+        return config_type(calibration_s=0.2)
+    from beambench.acquisition.config import load_rig_file
+    from beambench.rigs.hardware import DEFAULT_RIG_FILE
+
+    drive = load_rig_file(rig_file or DEFAULT_RIG_FILE).walker
+    return config_type(
+        calibration_s=0.2,
+        pole_pairs=drive.pole_pairs,
+        feedback=drive.feedback,
+        torque_constant=drive.torque_constant_nm_a,
+        # the offset mass's inertia arrives with the scene's rotor torque (fed back as the load torque); that torque
+        # also carries the rotor's own inertia, so the ramp sees it twice (≈ 3 mN·m at 50 turn/s², ≈ 0.1 A)
+        inertia=drive.rotor_inertia_kg_m2,
+        vel_gain=0.01,
+        vel_integrator_gain=0.1,
+        viscous_friction=0.0,
+        # no-load current × torque constant (datasheet lines 3, 12: 144 mA × 25.5 mN·m/A); it also holds the idle
+        # rotor against the offset mass's weight (3.9 mN·m), which the kinematic scene would otherwise spin up
+        coulomb_friction=drive.torque_constant_nm_a * 0.144,
+    )
+
+
 def build_emulated_rig(
     protocol: Protocol,
     can_log: Path | None = None,
+    rig_file: Path | None = None,
     calibration: LoadCellCalibration | None = None,
     inject: dict[str, Any] | None = None,
 ) -> DeviceRig:
@@ -196,7 +225,7 @@ def build_emulated_rig(
 
     sim = protocol.sim
     channel = f"beambench-{uuid.uuid4().hex[:8]}"
-    odrive = EmulatedOdrive(channel=channel, config=OdriveEmulatorConfig(calibration_s=0.2))
+    odrive = EmulatedOdrive(channel=channel, config=odrive_config(protocol, rig_file, OdriveEmulatorConfig))
     physics = RealtimePhysics(protocol, None)
     markers = tuple(physics.scene.markers)  # the scene's own markers (release test: stage, tip1..tip3)
     motive = MotiveEmulator(
