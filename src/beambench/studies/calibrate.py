@@ -134,6 +134,7 @@ class SearchSettings:
     good_enough: float = 0.01  # objective at which the coarse stage stops
     refine_top: int = 4
     bracket_rounds: int = 3
+    prior_rounds: int = 3  # rounds of the 1-D bracket along the prior's line before the evolution
     seed: int = 1
     free: tuple[str, ...] | None = None  # fit only these unknowns (others at their ``fixed`` value)
     fixed: dict[str, float] = field(default_factory=dict)
@@ -153,6 +154,7 @@ class SearchSettings:
             stall_generations=4,
             refine_top=2,
             bracket_rounds=2,
+            prior_rounds=2,
         )
         base.update(kw)
         return cls(**base)
@@ -434,14 +436,32 @@ def calibrate(
                 or stall["since"] >= settings.stall_generations
             )
 
-        dim = len(free)
-        popsize = max(1, math.ceil(settings.popsize / max(1, dim)))
+        # --- 0. the prior's line: a 1-D bracket of the monotone unknown (e.g. the preload) at the prior's
+        # other values; its best point joins the initial population
+        init = initial_population(free, settings)
+        br = next((u for u in free if u.name == rig.bracket), None)
+        if br is not None and settings.prior_rounds > 0:
+            centre = {u.name: (1.0 if u.log and u.lo <= 1.0 <= u.hi else _default(u)) for u in free}
+            start = {**fixed, **centre}
+            best_line = bracket(
+                ev,
+                start,
+                br,
+                br.bounds,
+                coarse,
+                "coarse",
+                settings.prior_rounds,
+                max(4, 2 * pool.workers),
+                history,
+                elapsed,
+                "prior line",
+            )
+            init[-1] = [u.coord(best_line.values[u.name]) for u in free]
         differential_evolution(
             lambda x: 0.0,  # never called: the mapper evaluates
             [u.bounds for u in free],
-            popsize=popsize,
             maxiter=settings.max_generations,
-            init="sobol",
+            init=init,
             rng=settings.seed,
             updating="deferred",
             workers=mapper,
@@ -463,20 +483,27 @@ def calibrate(
         finals = ev.batch(picks, fine, "fine") if elapsed() < 0.85 * settings.budget_s else []
         history.append(_gen(ev, "fine", finals, elapsed()))
         winner = min(finals, key=lambda p: p.j) if finals else ranked[0]
-        br = next((u for u in free if u.name == rig.bracket), None)
-        if br is not None and finals:
-            span = 0.06 * (br.bounds[1] - br.bounds[0])
-            n = max(2, 2 * pool.workers)
-            for _ in range(settings.bracket_rounds):
-                if elapsed() > 0.85 * settings.budget_s:
-                    break
-                c = br.coord(winner.values[br.name])
-                offs = [o for o in np.linspace(-span, span, n + 1) if abs(o) > 1e-12]
-                cand = [{**winner.values, br.name: br.value(float(np.clip(c + o, *br.bounds)))} for o in offs]
-                pts = ev.batch(cand, fine, "fine")
-                history.append(_gen(ev, "bracket", pts, elapsed()))
-                winner = min([winner, *pts], key=lambda p: p.j)
-                span /= n / 2 + 1
+        if br is not None and finals and settings.bracket_rounds > 0 and elapsed() < 0.85 * settings.budget_s:
+            c = br.coord(winner.values[br.name])
+            half = 0.06 * (br.bounds[1] - br.bounds[0])
+            winner = min(
+                winner,
+                bracket(
+                    ev,
+                    winner.values,
+                    br,
+                    (c - half, c + half),
+                    fine,
+                    "fine",
+                    settings.bracket_rounds,
+                    max(2, 2 * pool.workers),
+                    history,
+                    elapsed,
+                    "bracket",
+                    stop=lambda: elapsed() > 0.9 * settings.budget_s,
+                ),
+                key=lambda p: p.j,
+            )
         if winner.stage != "fine":  # out of time before the fine stage: still report the map on every frequency
             winner = ev.batch([winner.values], fine, "fine")[0]
         ident = identifiability([p for p in ev.points if p.stage == "coarse"], free)
@@ -503,6 +530,54 @@ def calibrate(
     return result
 
 
+def bracket(
+    ev: Evaluator,
+    start: dict[str, float],
+    u: Unknown,
+    interval: tuple[float, float],
+    freqs: list[float],
+    stage: str,
+    rounds: int,
+    n: int,
+    history: list[dict],
+    elapsed: Callable[[], float],
+    label: str,
+    stop: Callable[[], bool] = lambda: False,
+) -> Point:
+    """A parallel 1-D search of ``u`` (others as in ``start``): ``n`` points spread over the interval per round,
+    then the interval shrinks to ± one spacing around the best (the middle of a tie: the objective is flat
+    between map changes). Returns the best point seen."""
+    lo, hi = max(interval[0], u.bounds[0]), min(interval[1], u.bounds[1])
+    best: Point | None = None
+    for _ in range(rounds):
+        if best is not None and stop():
+            break
+        xs = lo + (np.arange(n) + 0.5) / n * (hi - lo)
+        pts = ev.batch([{**start, u.name: u.value(float(x))} for x in xs], freqs, stage)
+        history.append({**_gen(ev, stage, pts, elapsed()), "stage": label})
+        js = np.array([p.j for p in pts])
+        ties = np.flatnonzero(js <= js.min() + 1e-9)
+        i = int(ties[len(ties) // 2])
+        if best is None or pts[i].j <= best.j:
+            best = pts[i]
+        step = (hi - lo) / n
+        c = float(xs[i])
+        lo, hi = max(u.bounds[0], c - step), min(u.bounds[1], c + step)
+    assert best is not None
+    return best
+
+
+def initial_population(free: list[Unknown], settings: SearchSettings) -> np.ndarray:
+    """Generation 0: a scrambled Sobol design over the box (``popsize`` points)."""
+    from scipy.stats import qmc
+
+    lo = np.array([u.bounds[0] for u in free])
+    hi = np.array([u.bounds[1] for u in free])
+    n = max(5, settings.popsize)
+    pts = qmc.Sobol(len(free), scramble=True, seed=settings.seed).random(2 ** math.ceil(math.log2(n)))[:n]
+    return lo + pts * (hi - lo)
+
+
 def _default(u: Unknown) -> float:
     return math.sqrt(u.lo * u.hi) if u.log else 0.5 * (u.lo + u.hi)
 
@@ -513,13 +588,13 @@ def _distance(a: dict[str, float], b: dict[str, float], free: list[Unknown]) -> 
 
 
 def _gen(ev: Evaluator, stage: str, pts: list[Point], elapsed: float) -> dict:
-    js = [p.j for p in pts] or [math.nan]
+    js = [p.j for p in pts] or [math.inf]
     ev.generation += 1
     return {
         "generation": ev.generation - 1,
         "stage": stage,
-        "best": float(np.nanmin(js)),
-        "median": float(np.nanmedian(js)),
+        "best": float(np.min(js)),
+        "median": float(np.median(js)),
         "n": len(pts),
         "elapsed_s": elapsed,
     }
@@ -657,7 +732,7 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
 
     fig = Figure(figsize=(6, 3.2), layout="constrained")
     ax = fig.add_subplot()
-    for stage, marker in (("coarse", "o"), ("fine", "s"), ("bracket", "^")):
+    for stage, marker in (("prior line", "v"), ("coarse", "o"), ("fine", "s"), ("bracket", "^")):
         h = [x for x in result.history if x["stage"] == stage]
         if h:
             ax.plot([x["generation"] for x in h], [x["best"] for x in h], marker + "-", label=f"{stage} best")
@@ -855,9 +930,12 @@ def static_sag_m(beam: Any, twist_deg: float, rig: Any) -> float:
 
 
 def simulate_contact(base: dict, values: dict[str, float], frequencies: list[float], sim: dict) -> dict:
-    """The contact twin's regime map at ``frequencies`` for the fitted ``values`` (runs in a worker)."""
+    """The contact twin's regime map at ``frequencies`` for the fitted ``values`` (runs in a worker): the gap h'
+    is the static sag minus the preload; the map is :func:`beambench.sim.scenes.contact_sweep.regime_map`
+    (force-only regimes, as ``beambench analyze`` finds them; noise off)."""
     from beambench.sim.models.registry import make_beam_model
     from beambench.sim.scenes.contact_rig import RigParams
+    from beambench.sim.scenes.contact_sweep import regime_map
 
     params = calibrated_params(base, values)
     beam = make_beam_model(base["model"], params)
@@ -865,70 +943,18 @@ def simulate_contact(base: dict, values: dict[str, float], frequencies: list[flo
     sag = static_sag_m(beam, base["twist_deg"], rig)
     gap = sag - values.get("preload_mm", 0.0) * 1e-3
     table = regime_map(
-        beam,
         frequencies,
-        gap_m=gap,
-        rig=rig,
-        twist_deg=base["twist_deg"],
-        amplitude_m=base["amplitude_m"],
+        model=base["model"],
+        params=params,
+        rig_overrides={"plate_gap": gap},
         settle_s=sim["settle_s"],
         record_s=sim["record_s"],
-    )
-    return {"steps": table.to_dict("records"), "extras": {"gap_mm": gap * 1e3, "sag_mm": sag * 1e3}}
-
-
-def regime_map(
-    beam: Any,
-    frequencies: Sequence[float],
-    *,
-    gap_m: float,
-    rig: Any,
-    twist_deg: float,
-    amplitude_m: float,
-    settle_s: float,
-    record_s: float,
-) -> pd.DataFrame:
-    """Per frequency: contacts per cycle, regime, in-contact fraction, tangential sign (NaN: not recorded) —
-    from the batched contact sweep, classified by :mod:`beambench.analysis.contact` on the normal force averaged
-    over the load cells' 1 ms sample (the foot height, exact in the twin, filters micro-chatter)."""
-    from beambench.analysis.contact import detect_contacts, summarize_contacts
-    from beambench.sim.scenes.contact_sweep import contact_sweep
-
-    sw = contact_sweep(
-        beam,
-        list(frequencies),
-        gap_m=gap_m,
-        rig=rig,
-        twist_deg=twist_deg,
-        amplitude=amplitude_m,
-        settle_s=settle_s,
-        record_s=record_s,
         nthread=1,
+        twist_deg=base["twist_deg"],
+        amplitude=base["amplitude_m"],
     )
-    rows = []
-    for i, f in enumerate(sw.frequencies):
-        row: dict[str, Any] = {"frequency_hz": float(f), "tangential_sign": math.nan}
-        if not sw.ok[i]:
-            rows.append({**row, "contacts_per_cycle": math.nan, "regime": "irregular", "in_contact_fraction": math.nan})
-            continue
-        normal, z = sw.contact[i]
-        h = float(sw.timesteps[i])
-        k = max(1, round(1e-3 / h))
-        m = len(normal) // k * k
-        fn = np.asarray(normal[:m], float).reshape(-1, k).mean(axis=1)
-        zz = np.asarray(z[:m], float).reshape(-1, k).mean(axis=1)
-        t = np.arange(len(fn)) * 1e-3
-        c = detect_contacts(t, fn, float(f), foot_t_s=t, foot_height_m=zz)
-        s = summarize_contacts(c, float(f))
-        rows.append(
-            {
-                **row,
-                "contacts_per_cycle": s.contacts_per_cycle,
-                "regime": s.regime,
-                "in_contact_fraction": s.in_contact_fraction,
-            }
-        )
-    return pd.DataFrame(rows)
+    table = table.astype({"tangential_sign": float, "touchdown_direction": float})
+    return {"steps": table.to_dict("records"), "extras": {"gap_mm": gap * 1e3, "sag_mm": sag * 1e3}}
 
 
 def contact_summary(steps: pd.DataFrame) -> dict:
@@ -954,7 +980,7 @@ def write_contact_protocol(
         "source": f"beambench calibrate sim against {targets.source} (prior: {base['params']}); "
         + ", ".join(f"{k} = {v:.5g}" for k, v in values.items()),
         "beam": {k: float(v) if isinstance(v, float | int) else v for k, v in beam.items()},
-        "rig": dict(p.rig),
+        "rig": {**p.rig, "plate_gap": round(float(extras["gap_mm"]) * 1e-3, 7)},
     }
     params_path = (out_dir / f"{name}_params.yaml").resolve()
     params_path.write_text(
