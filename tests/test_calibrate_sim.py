@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import subprocess
-import sys
 from pathlib import Path
 
 import h5py
@@ -35,10 +34,16 @@ REPO = Path(__file__).resolve().parents[1]
 PAPER = REPO / "calibration" / "paper_contact_targets.yaml"
 
 
-def _beambench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "beambench.cli", *args], capture_output=True, text=True, timeout=timeout
-    )
+def _beambench(*args: str) -> subprocess.CompletedProcess:
+    """The CLI in-process (typer's runner: separate stdout/stderr, the exit code), as a CompletedProcess."""
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+
+    r = CliRunner().invoke(app, list(args))
+    if r.exception is not None and not isinstance(r.exception, SystemExit):
+        raise r.exception
+    return subprocess.CompletedProcess(list(args), r.exit_code, r.stdout, r.stderr)
 
 
 def _one_line_exit_2(res: subprocess.CompletedProcess, words: str) -> None:
@@ -172,7 +177,7 @@ def truth() -> tuple[Targets, dict]:
 def test_objective_is_zero_at_the_truth_and_grows_away_from_it(truth):
     targets, _ = truth
     js = {}
-    for p in (-0.15, -0.05, TRUE_PRELOAD, 0.15, 0.3):
+    for p in (-0.15, -0.05, TRUE_PRELOAD, 0.15, 0.3):  # one run each
         steps = pd.DataFrame(simulate_contact(BASE, {"preload_mm": p}, FREQS, FAST)["steps"])
         js[p] = contact_objective(steps, targets)[0]
     assert js[TRUE_PRELOAD] == 0.0
@@ -192,12 +197,13 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
         coarse_record_s=1.0,
         fine_settle_s=0.6,
         fine_record_s=1.0,
-        popsize=8,
-        max_generations=6,
-        stall_generations=3,
+        popsize=6,
+        max_generations=1,
+        stall_generations=2,
         good_enough=0.0,
-        refine_top=2,
-        bracket_rounds=1,
+        refine_top=1,
+        bracket_rounds=2,
+        prior_rounds=3,
         free=("b_scale", "preload_mm"),
         fixed={"k_scale": 1.0},
     )
@@ -214,8 +220,13 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
     distinct = {line.split('"key": "')[1][:40] for line in log.read_text().splitlines() if line.startswith('{"key": "')}
     assert res.evaluations == len(distinct) - 10
     gap_true = extras["gap_mm"]
-    assert abs(res.extras["gap_mm"] - gap_true) <= 0.03, (res.extras, gap_true, res.values)
+    # the map pins the gap to a few 10 µm (about 10 Hz of shift per 0.1 mm here); b trades a little against it
+    assert abs(res.extras["gap_mm"] - gap_true) <= 0.05, (res.extras, gap_true, res.values)
     assert res.j <= 0.1
+    want = transitions(targets.table["frequency_hz"].to_numpy(), list(targets.table["regime"]))
+    got = res.summary
+    for k in ("half_at_hz", "third_at_hz"):
+        assert want[k] is not None and got[k] is not None and abs(got[k] - want[k]) <= 2.0, (k, want, got)
     # the written protocol loads and runs dry
     assert res.protocol.is_file() and res.protocol.parent == tmp_path
     dry = _beambench("run", str(res.protocol), "--dry-run")
@@ -228,9 +239,7 @@ def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
     t = tmp_path / "small.yaml"
     t.write_text("rig: contact\nhalf_at_hz: 30\nthird_at_hz: 36\n")
     out = tmp_path / "out"
-    res = _beambench(
-        "calibrate", "sim", "--targets", str(t), "--out", str(out), "--quick", "--budget-s", "8", timeout=300
-    )
+    res = _beambench("calibrate", "sim", "--targets", str(t), "--out", str(out), "--quick", "--budget-s", "8")
     assert res.returncode == 0, res.stderr
     last = Path(res.stdout.strip().splitlines()[-1])
     assert last == (out / "small_calibrated.yaml").resolve() and last.is_file()

@@ -22,6 +22,7 @@ killed calibration resumable. Nothing is written outside ``out``.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib
 import json
@@ -163,6 +164,10 @@ class SearchSettings:
         if stage == "coarse":
             return {"settle_s": self.coarse_settle_s, "record_s": self.coarse_record_s}
         return {"settle_s": self.fine_settle_s, "record_s": self.fine_record_s}
+
+
+class _OutOfTime(Exception):
+    """The coarse stage's share of the budget is spent (raised inside the evolution, caught around it)."""
 
 
 class Interrupted(Exception):
@@ -407,6 +412,8 @@ def calibrate(
 
         # --- 1. coarse: differential evolution, one generation per parallel batch
         def mapper(_func: Any, xs: Any) -> list[float]:
+            if history and history[-1]["stage"] == "coarse" and elapsed() > 0.55 * settings.budget_s:
+                raise _OutOfTime  # a generation would overrun the coarse stage's share of the budget
             pts = ev.batch([values_of(np.asarray(x)) for x in xs], coarse, "coarse")
             js = [p.j for p in pts]
             history.append(
@@ -455,22 +462,24 @@ def calibrate(
                 history,
                 elapsed,
                 "prior line",
+                stop=lambda: elapsed() > 0.25 * settings.budget_s,
             )
             init[-1] = [u.coord(best_line.values[u.name]) for u in free]
-        differential_evolution(
-            lambda x: 0.0,  # never called: the mapper evaluates
-            [u.bounds for u in free],
-            maxiter=settings.max_generations,
-            init=init,
-            rng=settings.seed,
-            updating="deferred",
-            workers=mapper,
-            polish=False,
-            tol=0.0,
-            mutation=(0.5, 1.0),
-            recombination=0.7,
-            callback=stop,
-        )
+        with contextlib.suppress(_OutOfTime):
+            differential_evolution(
+                lambda x: 0.0,  # never called: the mapper evaluates
+                [u.bounds for u in free],
+                maxiter=settings.max_generations,
+                init=init,
+                rng=settings.seed,
+                updating="deferred",
+                workers=mapper,
+                polish=False,
+                tol=0.0,
+                mutation=(0.5, 1.0),
+                recombination=0.7,
+                callback=stop,
+            )
 
         # --- 2. refine: the best distinct coarse points on every target frequency, then a bracket
         ranked = sorted((p for p in ev.points if p.stage == "coarse"), key=lambda p: p.j)
