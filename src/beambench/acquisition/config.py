@@ -57,7 +57,7 @@ class Sweep(_Model):
     def values(self) -> list[float]:
         if self.frequencies is not None:
             return [float(f) for f in self.frequencies]
-        n = int(round((self.stop - self.start) / self.step))  # type: ignore[operator]
+        n = round((self.stop - self.start) / self.step)  # type: ignore[operator]
         vals = [round(self.start + i * self.step, 9) for i in range(n + 1)]  # type: ignore[operator]
         return [v for v in vals if v <= self.stop + 1e-9]  # type: ignore[operator]
 
@@ -87,7 +87,8 @@ class SimOptions(_Model):
     timestep: float | None = Field(None, gt=0, le=0.01)
     integrator: Integrator = "implicitfast"
     tolerance_mm: float | None = Field(None, gt=0)
-    plate_gap_mm: float = Field(5.5, ge=-2, le=50)
+    # h' (mm) from the foot's unloaded position; None: the parameter set's rig.plate_gap (paper: 5.5 mm)
+    plate_gap_mm: float | None = Field(None, ge=-2, le=50)
     twist_deg: float = 90.0
     noise: bool = True
     seed: int = 0

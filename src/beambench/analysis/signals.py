@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from beambench.acquisition.contact_events import runs as runs  # re-exported (moved there)
 from beambench.analysis.sync import golden_min
 
 
@@ -94,7 +95,7 @@ def velocity(t_s: np.ndarray, x: np.ndarray, smooth_s: float = 0.0) -> np.ndarra
     v = np.asarray(x, np.float64)
     if smooth_s > 0 and len(t) > 2:
         dt = float(np.median(np.diff(t)))
-        k = max(1, int(round(smooth_s / dt)))
+        k = max(1, round(smooth_s / dt))
         if k > 1:
             from scipy.ndimage import uniform_filter1d
 
@@ -110,10 +111,3 @@ def velocity(t_s: np.ndarray, x: np.ndarray, smooth_s: float = 0.0) -> np.ndarra
         out[idx] = np.gradient(v[idx], t[idx], axis=0)
         out = out[np.maximum.accumulate(np.where(step, np.arange(len(t)), 0))]
     return out
-
-
-def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start (inclusive) and end (exclusive) indices of the runs of True in a boolean array."""
-    m = np.asarray(mask, bool).astype(np.int8)
-    d = np.diff(np.concatenate([[0], m, [0]]))
-    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)

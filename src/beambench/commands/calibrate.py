@@ -17,6 +17,8 @@ from typing import TYPE_CHECKING, NoReturn
 
 import typer
 
+from beambench.commands.calibrate_sim import register_sim
+
 if TYPE_CHECKING:
     import numpy as np
     from rich.console import Console
@@ -320,4 +322,5 @@ def register(app: typer.Typer) -> None:
     """Add ``beambench calibrate loadcells``."""
     sub = typer.Typer(help="Calibrate rig sensors.", no_args_is_help=True)
     sub.command("loadcells")(loadcells)
+    register_sim(sub)
     app.add_typer(sub, name="calibrate")

@@ -55,7 +55,7 @@ def build_scene(protocol: Protocol) -> DrivenScene:
     return ContactRigSim(
         beam,
         twist_deg=sim.twist_deg,
-        gap_m=sim.plate_gap_mm * 1e-3,
+        gap_m=None if sim.plate_gap_mm is None else sim.plate_gap_mm * 1e-3,  # None: the parameter set's gap
         amplitude_m=protocol.amplitude_mm * 1e-3,
         integrator=plan.integrator if plan else sim.integrator,
         timestep=sim.timestep,

@@ -5,8 +5,11 @@ stage (beam clamp) is at the origin.
 - Stage: a slider with a large armature driven by a servo whose feed-forward uses the *discrete*
   acceleration of the reference x = A·sin θ, so it follows the crank to ~µm whatever the beam does.
 - Foot: rigid, ``foot_length`` below the beam tip in the natural shape, its mass at the sole (a sphere).
-- Plate: top at z = −(foot_length + gap); the gap is h' of the paper (5.5 mm) measured from the foot's
-  natural (gravity-free) position. Stiff contact: solref time constant ``contact_timeconst`` on the one
+- Plate: top at z = −(foot_length + gap); the gap is h' of the paper (5.5 mm; ``RigParams.plate_gap``, a
+  parameter set's ``rig:`` block or the protocol's ``sim.plate_gap_mm`` may override it) measured from the
+  foot's natural (unloaded, gravity-free) position, as the paper defines it ("the contact distance between the
+  foot at its unload, natural position and the plate"): the scene is built in the natural shape and only
+  then settles under gravity (``preroll_s``). Stiff contact: solref time constant ``contact_timeconst`` on the one
   sole–plate contact pair.
 """
 
@@ -30,6 +33,9 @@ class RigParams:
     """Contact-rig constants (SI). A parameter set may override any of them in its ``rig:`` block."""
 
     foot_length: float = 0.0665  # m, beam tip to sole bottom
+    # m, h' of the paper: the plate's top below the sole in the beam's UNLOADED (natural, gravity-free) shape;
+    # the sag under gravity is the rig's own business (a sag larger than the gap is a preload)
+    plate_gap: float = 0.0055
     foot_mass: float = 0.020  # kg, at the sole
     sole_radius: float = 0.003  # m
     plate_from_stage: float = 0.072  # m, informational: foot_length + the paper's 5.5 mm gap
@@ -187,7 +193,7 @@ class ContactRigSim(DrivenScene):
         self,
         beam: BeamModel,
         twist_deg: float = 90.0,
-        gap_m: float = 0.0055,
+        gap_m: float | None = None,
         amplitude_m: float = 0.002,
         rig: RigParams | None = None,
         integrator: str = "implicitfast",
@@ -195,15 +201,16 @@ class ContactRigSim(DrivenScene):
         timestep_for: Callable[[float], float] | None = None,
         selection: dict | None = None,
     ) -> None:
-        self.beam, self.twist_deg, self.gap_m, self.amplitude = beam, twist_deg, gap_m, amplitude_m
         self.rig = rig or RigParams.with_overrides(beam.params.rig)
+        gap = self.rig.plate_gap if gap_m is None else gap_m
+        self.beam, self.twist_deg, self.gap_m, self.amplitude = beam, twist_deg, gap, amplitude_m
         self.integrator = integrator
         self.fixed_timestep = timestep
         # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.select (model: auto)
         self.timestep_for = timestep_for or default_timestep
         self.selection = selection
         h0 = timestep or self.timestep_for(1.0)
-        self.spec = build_contact_spec(beam, twist_deg, gap_m, self.rig, integrator, h0)
+        self.spec = build_contact_spec(beam, twist_deg, gap, self.rig, integrator, h0)
         model = self.spec.compile()
         super().__init__(Physics(model))
         self.ramp = VelocityRamp(self.rig.vel_ramp_rate)

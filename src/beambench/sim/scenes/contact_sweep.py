@@ -24,9 +24,13 @@ import mujoco
 import numpy as np
 import pandas as pd
 
+from beambench.acquisition.calibration import default_calibration
+from beambench.acquisition.contact_events import ContactParams, force_contacts
+from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ
 from beambench.sim.engine.batch import rollout_batch, thread_count, window
 from beambench.sim.models.beam import BeamModel
-from beambench.sim.models.registry import beam_model
+from beambench.sim.models.params import BeamParams, load_params
+from beambench.sim.models.registry import beam_model, make_beam_model, model_family
 from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
 from beambench.sim.scenes.free_beam import slider_inertia, stage_controls
 
@@ -49,6 +53,8 @@ class ContactSweep:
     ok: np.ndarray
     wall_s: float
     contact: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (normal, foot_z) per run
+    # per run, every step of the window: tangential force of the foot on the plate along +x (N), foot x (m)
+    motion: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     info: dict = field(default_factory=dict)
 
     def contacts_per_cycle(self) -> np.ndarray:
@@ -150,17 +156,18 @@ def contact_sweep(
     rig = rig or RigParams.with_overrides(bm.params.rig)
     models = _models(bm, twist_deg, gap_m, rig, integrator, dts)
     q0 = _rest(next(iter(models.values())))
-    nt = int(round(record_s / sample_dt))
+    nt = round(record_s / sample_dt)
     foot = np.full((len(freqs), nt, 3), np.nan)
     normal = np.full((len(freqs), nt), np.nan)
     ok = np.ones(len(freqs), bool)
     contact: list = [None] * len(freqs)
+    motion: list = [None] * len(freqs)
     walls: list[float] = []
 
     def run_group(h: float, idx: np.ndarray, threads: int | None) -> None:
         """Runs ``idx`` (all at timestep h) in one batch; fills their rows of the outputs."""
         m = models[h]
-        every = max(1, int(round(sample_dt / h)))
+        every = max(1, round(sample_dt / h))
         n_total, keep = window(settle_s, record_s, h, every)
         keep = keep[:nt]
         mass = slider_inertia(m, q0)
@@ -180,6 +187,8 @@ def contact_sweep(
         n_settle = int(keep[0])
         full_n = np.zeros((len(idx), n_total - n_settle), np.float32)
         full_z = np.zeros((len(idx), n_total - n_settle), np.float32)
+        full_t = np.zeros((len(idx), n_total - n_settle), np.float32)
+        full_x = np.zeros((len(idx), n_total - n_settle), np.float32)
 
         def grab(k0: int, rows: np.ndarray) -> None:
             a = max(k0, n_settle)
@@ -187,6 +196,8 @@ def contact_sweep(
             if b > a:
                 full_n[:, a - n_settle : b - n_settle] = -rows[:, a - k0 : b - k0, a_plate + 3]
                 full_z[:, a - n_settle : b - n_settle] = rows[:, a - k0 : b - k0, a_foot + 2]
+                full_t[:, a - n_settle : b - n_settle] = rows[:, a - k0 : b - k0, a_plate + 1]
+                full_x[:, a - n_settle : b - n_settle] = rows[:, a - k0 : b - k0, a_foot]
 
         sd, okg, w = rollout_batch(
             [m] * len(idx),
@@ -201,13 +212,14 @@ def contact_sweep(
         )
         for j, i in enumerate(idx):
             contact[i] = (full_n[j], full_z[j])
+            motion[i] = (full_t[j], full_x[j])
         walls.append(w)
         foot[idx, : len(keep)] = sd[:, :, a_foot : a_foot + 3]
         normal[idx, : len(keep)] = -sd[:, :, a_plate + 3]  # contact sensor: force of the foot on the plate
         ok[idx] = okg & np.isfinite(sd[:, :, a_foot]).all(axis=1)
 
     for h in models:
-        every = max(1, int(round(sample_dt / h)))
+        every = max(1, round(sample_dt / h))
         if abs(every * h - sample_dt) > 1e-12:
             raise ValueError(f"timestep {h:g} does not divide the sample interval {sample_dt:g}")
     workers = thread_count(nthread, len(freqs))
@@ -235,6 +247,7 @@ def contact_sweep(
         ok,
         wall,
         contact,
+        motion,
         {"model": bm.name, "gap_m": gap_m, "integrator": integrator, "twist_deg": twist_deg},
     )
 
@@ -249,6 +262,164 @@ def _balanced_shares(dts: np.ndarray, seconds: float, workers: int) -> list[list
         load[w] += seconds / dts[i]
         picks[w].setdefault(float(dts[i]), []).append(i)
     return [[(h, np.array(ix)) for h, ix in p.items()] for p in picks if p]
+
+
+REGIME_MAP_COLUMNS = (
+    "frequency_hz",
+    "contacts_per_cycle",
+    "regime",
+    "tangential_sign",
+    "touchdown_direction",
+    "in_contact_fraction",
+    "n_contacts",
+    "mean_tangential_n",
+    "peak_normal_n",
+    "timestep",
+    "ok",
+)
+LOADCELL_NOISE_COUNTS = 15.0  # per raw channel, as the sim backend's load cells (sim.noise: true)
+MOCAP_NOISE_M = 1e-4  # per axis, as the sim backend's mocap
+
+
+def regime_map(
+    frequencies: Sequence[float],
+    *,
+    model: str = "prb3",
+    params: str | BeamParams = "paper",
+    rig_overrides: dict | None = None,
+    settle_s: float = 1.5,
+    record_s: float = 2.0,
+    nthread: int | None = None,
+    noise: bool = False,
+    seed: int = 0,
+    timesteps: Sequence[float] | float | None = None,
+    twist_deg: float = 90.0,
+    amplitude: float = 0.002,
+    contact: ContactParams | None = None,
+) -> pd.DataFrame:
+    """The contact regime at each drive frequency, fast: every frequency held from t = 0 in one batched run
+    (:func:`contact_sweep`), classified from the plate's normal force alone as ``beambench analyze`` does
+    (:func:`beambench.acquisition.contact_events.force_regime`).
+
+    ``params``: a parameter-set name (``sim_backend/<family>_<name>.yaml``), a YAML path or a
+    :class:`BeamParams`; its ``rig:`` block, then ``rig_overrides`` (e.g. ``{"plate_gap": 0.0074}``) set the
+    :class:`RigParams`, including the gap h' from the unloaded foot. The force is box-averaged over the load
+    cells' sample period (1 ms) like the rig's load cells; ``noise`` adds their noise (15 counts per raw
+    channel through the shipped calibration) and 0.1 mm of mocap noise to the foot track (``seed``).
+
+    One row per frequency, columns :data:`REGIME_MAP_COLUMNS`:
+
+    - ``contacts_per_cycle``: touchdowns per drive cycle (0 for continuous contact, NaN if diverged);
+    - ``regime``: ``none``, ``continuous``, ``1``, ``1/2``, ``1/3``…, ``2``…, ``irregular``;
+    - ``tangential_sign``: sign of the mean tangential force **of the foot on the plate** along +x (the
+      stage's travel axis) while in contact — the load cells' tangential channel in a session
+      (``steps.csv`` ``tangential_sign``); 0 without contact;
+    - ``touchdown_direction``: sign of the median foot velocity along +x (relative to the plate) over the
+      last 10 % of a period before each touchdown; 0 without touchdowns (e.g. continuous contact);
+    - ``ok``: False where the run diverged (its regime is then ``irregular``).
+    """
+    freqs = np.asarray(frequencies, float)
+    bp = load_params(params, model=model_family(model)) if isinstance(params, str) else params
+    bm = make_beam_model(model, bp)
+    rig = RigParams.with_overrides({**bp.rig, **(rig_overrides or {})})
+    sw = contact_sweep(
+        bm,
+        freqs,
+        timesteps,
+        twist_deg=twist_deg,
+        gap_m=rig.plate_gap,
+        amplitude=amplitude,
+        settle_s=settle_s,
+        record_s=record_s,
+        rig=rig,
+        nthread=nthread,
+    )
+    cp = contact or ContactParams()
+    rng = np.random.default_rng(seed)
+    cal = default_calibration()
+    box = 1.0 / LOADCELL_RATE_HZ
+    rows = []
+    for i, f in enumerate(freqs):
+        h = float(sw.timesteps[i])
+        row: dict = {"frequency_hz": float(f), "timestep": h, "ok": bool(sw.ok[i])}
+        normal, _z = sw.contact[i]
+        tang, foot_x = sw.motion[i]
+        if not sw.ok[i] or not np.isfinite(normal).all():
+            rows.append(row | {"contacts_per_cycle": np.nan, "regime": "irregular", "ok": False})
+            continue
+        every = max(1, round(box / h))
+        nb = len(normal) // every
+        force = np.column_stack(
+            [
+                normal[: nb * every].reshape(nb, every).mean(axis=1),
+                tang[: nb * every].reshape(nb, every).mean(axis=1),
+            ]
+        )
+        if noise:
+            counts = cal.counts_from_force(force)
+            counts = np.round(counts + rng.normal(0.0, LOADCELL_NOISE_COUNTS, counts.shape))
+            force = cal.force_from_counts(counts)
+        t = settle_s + (np.arange(nb) + 1) * box  # each sample at the end of its averaging interval
+        c, summ = force_contacts(t, force[:, 0], float(f), cp)
+        ft_in = force[c.mask, 1]
+        mean_ft = float(np.mean(ft_in)) if len(ft_in) else np.nan
+        # foot track as the mocap sees it (360 Hz, optional noise), velocity by central differences
+        step = max(1, round(1.0 / (MOCAP_RATE_HZ * h)))
+        xm = foot_x[::step].astype(float)
+        tm = settle_s + np.arange(len(xm)) * step * h
+        if noise:
+            xm = xm + rng.normal(0.0, MOCAP_NOISE_M, xm.shape)
+        v = np.gradient(xm, tm) if len(xm) > 1 else np.zeros_like(xm)
+        win = 0.1 / f
+        td_v = [
+            float(np.mean(v[(tm >= td - win) & (tm <= td)]))
+            for td in c.touchdown_s
+            if np.any((tm >= td - win) & (tm <= td))
+        ]
+        med = float(np.median(td_v)) if td_v else np.nan
+        rows.append(
+            row
+            | {
+                "contacts_per_cycle": summ.contacts_per_cycle,
+                "regime": summ.regime,
+                "tangential_sign": _sign(mean_ft),
+                "touchdown_direction": _sign(med),
+                "in_contact_fraction": summ.in_contact_fraction,
+                "n_contacts": summ.n_contacts,
+                "mean_tangential_n": mean_ft,
+                "peak_normal_n": float(force[:, 0].max()) if len(force) else np.nan,
+            }
+        )
+    df = pd.DataFrame(rows, columns=list(REGIME_MAP_COLUMNS))
+    df["tangential_sign"] = df["tangential_sign"].fillna(0).astype(int)
+    df["touchdown_direction"] = df["touchdown_direction"].fillna(0).astype(int)
+    df.attrs["wall_s"] = sw.wall_s
+    df.attrs["plate_gap_m"] = rig.plate_gap
+    return df
+
+
+def _sign(x: float) -> int:
+    return 0 if not np.isfinite(x) or x == 0 else int(np.sign(x))
+
+
+def transitions(frequencies: Sequence[float], regimes: Sequence[str]) -> dict[str, float]:
+    """The map's landmarks: ``continuous_below_hz`` (the highest frequency up to which every step is
+    continuous, 0 if the first is not), ``half_at_hz`` / ``third_at_hz`` (the lowest ``1/2`` / ``1/3``, NaN if
+    none). Frequencies in ascending order."""
+    order = np.argsort(np.asarray(frequencies, float))
+    f = np.asarray(frequencies, float)[order]
+    lab = [str(regimes[i]) for i in order]
+    cont = 0.0
+    for fi, li in zip(f, lab):
+        if li != "continuous":
+            break
+        cont = float(fi)
+
+    def lowest(name: str) -> float:
+        hits = [float(fi) for fi, li in zip(f, lab) if li == name]
+        return min(hits) if hits else float("nan")
+
+    return {"continuous_below_hz": cont, "half_at_hz": lowest("1/2"), "third_at_hz": lowest("1/3")}
 
 
 def default_contact_plan(model: str, frequencies: Sequence[float], tolerance_mm: float = 0.1) -> tuple[str, np.ndarray]:
