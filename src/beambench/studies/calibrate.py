@@ -81,7 +81,9 @@ class CalibratableRig:
     ``objective(steps DataFrame, targets) -> (J, {term: value})``; ``base(targets) -> dict`` (the fixed part:
     parameter set, model, geometry; picklable); ``write(base, values, extras, targets, out_dir, name) -> Path``
     writes the calibrated protocol; ``bracket``: the unknown to refine last with a 1-D search (or None);
-    ``summary(steps DataFrame) -> dict`` for the report (transitions, speeds …)."""
+    ``summary(steps DataFrame) -> dict`` for the report (transitions, speeds …); ``stage_sim(stage, sim) -> sim``
+    (optional): the rig's own simulation settings per stage instead of the search's settle/record (the walker's
+    speed needs a longer settle and a timestep per stage)."""
 
     name: str
     unknowns: tuple[Unknown, ...]
@@ -92,6 +94,7 @@ class CalibratableRig:
     summary: Callable[[pd.DataFrame], dict]
     bracket: str | None = None
     min_frequency_hz: float = 3.0
+    stage_sim: Callable[[str, dict[str, float]], dict[str, float]] | None = None  # the rig's own window per stage
 
 
 RIGS: dict[str, CalibratableRig] = {}
@@ -269,6 +272,8 @@ class Evaluator:
         from beambench.studies.executor import run_tasks
 
         sim = self.settings.sim(stage)
+        if self.rig.stage_sim is not None:
+            sim = self.rig.stage_sim(stage, sim)
         keys = [_key(self.rig.name, self.base, v, freqs, sim) for v in values]
         recs: list[dict | None] = [self.log.get(k) for k in keys]
         todo = [i for i, r in enumerate(recs) if r is None]

@@ -245,7 +245,9 @@ def build_walker_spec(
         quat = mount.copy()
         if side < 0:
             mujoco.mju_mulQuat(quat, mount, np.array([0.0, 0, 0, 1]))
-        sites = add_beam(body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat.tolist(), prefix=f"{name}_")
+        sites = add_beam(
+            body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat.tolist(), prefix=f"{name}_"
+        )
         tip = spec.body(sites.tip_body)
         r = wp.sole_radius
         tip.add_geom(
