@@ -120,3 +120,19 @@ def test_default_walker_walks_backward_at_23_hz_and_forward_at_65_hz_like_the_pa
     assert v[0] < 0 < v[1]
     assert v[0] == pytest.approx(-35.7, rel=0.3)
     assert v[1] == pytest.approx(156.3, rel=0.3)
+
+
+def test_protocol_selects_the_named_set_and_refuses_rod_legs():
+    """`sim.params: walker_paper_guesses` gives the walker the paper_guesses set; the shipped protocol the
+    calibrated defaults; a rod leg model is a one-line ConfigError before anything is built."""
+    from beambench.acquisition.config import ConfigError, parse_protocol
+    from beambench.common.resources import shipped_dir
+    from beambench.rigs.sim import build_scene
+
+    text = (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
+    shipped = build_scene(parse_protocol(text))
+    assert shipped.rig == WalkerParams.named("calibrated")
+    guesses = build_scene(parse_protocol(text.replace("params: paper", "params: walker_paper_guesses")))
+    assert guesses.rig == WalkerParams.named("paper_guesses")
+    with pytest.raises(ConfigError, match=r"sim.model = 'rod3g'.*refused for the walker"):
+        build_scene(parse_protocol(text.replace("model: prb3", "model: rod3g")))
