@@ -8,9 +8,18 @@ lateral slide for experiments). On the body: a 45 g carbon plate, a 110 g Maxon 
 lying on its side with its axis along y at plate half-thickness + motor radius (23 mm) above the leg
 clamps, its rotor carrying a 40 g mass at 10 mm turning in the x–z plane (f Hz = f turn/s); two PRB3
 legs sticking out sideways, mirrored across the sagittal plane (left −φ, right +φ), each with a 66.5 mm
-rigid foot, 20 g at its sole (the paper's foot load, Sec. IV-A) and a 3 mm sphere sole; and a 100 g cart
+rigid foot, a calibrated 3 g at its sole (the paper_guesses set: 20 g, the paper's foot load, Sec. IV-A) and a
+3 mm sphere sole; and a 100 g cart
 rigidly at the tail on two frictionless wheels (total length 295 mm).
 
+Calibrated set (the defaults; ``protocols/walker_sweep.yaml``, one CLI run + ``beambench analyze``): backward at
+13–26 Hz (−64 at 18 Hz, −38.7 at 23 Hz; paper −35.7), forward from 27 Hz, a plateau of ~155 at 58–66 Hz (+155.3 at
+65 Hz; paper +156.3), +139 at 80 Hz. Steady speeds (settle 3 s from a settled robot, ``walker_batch``) at 23 / 65 Hz:
+−35.7 / +154.8; at half the timestep and half the contact time constant −35.1 / +156.1 (1.6 % / 0.8 %,
+``bench_walker.py --check``). The speed needs ~3 s from rest to be steady. The soft contacts creep: standing, the
+soles slide outward and the body sinks ~1–2 mm/s.
+
+With the paper_guesses set (20 g feet), from the planning work (short windows, settle 1 s from rest):
 Numerics (``benchmarks/bench_walker.py``; speeds mm/s at 23 / 65 Hz): the contact time constant matters,
 the timestep much less. 2 ms: +4 / +10 (no reversal); 1 ms: −10 / +15; 0.5 ms: −14 / +15; 0.25 ms:
 −15.6 / +12.0 (dt 1.25e-5). The defaults, 0.25 ms at dt 5e-5, give −15.6 / +11.6 (within 3.3 % of the
@@ -71,7 +80,10 @@ class WalkerParams:
     length: float = 0.295  # P: 295 mm platform, plate front to cart tail
     leg_offset: float = 0.03  # G: clamp distance from the centre line (≈ no effect on the speed)
     foot_length: float = 0.0665  # P (Sec. IV-A): 66.5 mm foot
-    foot_mass: float = 0.003  # C: point mass at each sole (paper_guesses: 20 g, the Sec. IV-A foot load)
+    # C: point mass at each sole (paper_guesses: 20 g, the Sec. IV-A foot load). research12's steady 2-D scan: 3.0 g
+    # at μ 0.5 → −35.5 / +154.7 mm/s at 23 / 65 Hz; `beambench calibrate sim` on the paper's targets (540 s budget)
+    # lands in the same basin (3.3 g, μ 0.507 → −36.3 / +138.8)
+    foot_mass: float = 0.003
     foot_bar_mass: float = 0.0  # G: mass of each rigid foot bar (spread along it)
     frame_mass: float = 0.0  # G: the boom from the plate to the cart
     sole_radius: float = 0.003  # G: 3 mm sphere sole
