@@ -237,7 +237,7 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
 
 def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
     t = tmp_path / "small.yaml"
-    t.write_text("rig: contact\nhalf_at_hz: 30\nthird_at_hz: 36\n")
+    t.write_text("rig: contact\nhalf_at_hz: 30\nthird_at_hz: 32\n")
     out = tmp_path / "out"
     res = _beambench("calibrate", "sim", "--targets", str(t), "--out", str(out), "--quick", "--budget-s", "8")
     assert res.returncode == 0, res.stderr

@@ -150,7 +150,7 @@ class SearchSettings:
             coarse_record_s=1.2,
             fine_settle_s=1.0,
             fine_record_s=1.5,
-            popsize=8,
+            popsize=6,
             max_generations=12,
             stall_generations=4,
             refine_top=2,
