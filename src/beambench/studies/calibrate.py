@@ -516,6 +516,9 @@ def calibrate(
         if winner.stage != "fine":  # out of time before the fine stage: still report the map on every frequency
             winner = ev.batch([winner.values], fine, "fine")[0]
         ident = identifiability([p for p in ev.points if p.stage == "coarse"], free)
+        fine_pts = [p for p in ev.points if p.stage == "fine"]
+        if len(fine_pts) > 1:  # the refine/bracket points: on every frequency, so their spread is the sharper one
+            ident["fine_spread"] = identifiability(fine_pts, free).get("spread", {})
 
     summary = rig.summary(winner.steps)
     wall = elapsed()
@@ -701,7 +704,7 @@ def write_report(
         "| unknown | value | near-best range | unit |",
         "|---|---|---|---|",
     ]
-    spread = result.identifiability.get("spread", {})
+    spread = result.identifiability.get("fine_spread") or result.identifiability.get("spread", {})
     for k, v in result.values.items():
         s = spread.get(k)
         rng = f"{s['min']:.4g} … {s['max']:.4g}" if s else "fixed"
