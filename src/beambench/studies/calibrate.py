@@ -18,6 +18,14 @@ The search (:func:`calibrate`) is the same for every rig:
 Every evaluation is appended to ``<out>/<name>.evals.jsonl`` as soon as it finishes; a restart reads it back and
 re-uses every point already evaluated (the search is seeded, so it replays the same proposals), which makes a
 killed calibration resumable. Nothing is written outside ``out``.
+
+Plugging in a rig (the walker): create ``beambench/studies/calibrate_walker.py`` (listed in :data:`PLUGINS`) that
+calls ``register_rig(CalibratableRig(name="walker", unknowns=(...), simulate=..., objective=..., base=...,
+write=..., summary=..., bracket=None or the most monotone unknown))``; ``simulate`` returns
+``{"steps": [{"frequency_hz": f, "body_speed_mm_s": v, ...}, ...], "extras": {...}}`` and the objective compares
+them with ``targets.table`` (``frequency_hz``, ``body_speed_mm_s``; parsed by
+:func:`beambench.studies.calibration_targets.parse_targets` from ``rig: walker`` / ``speed_mm_s`` files or walker
+sessions). Nothing else changes: the CLI, the search, the log and the report are rig-agnostic.
 """
 
 from __future__ import annotations
