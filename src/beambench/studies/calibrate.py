@@ -788,7 +788,9 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
             ms=6,
             label="calibrated twin",
         )
-        ax.set_yticks([-1, -0.5, 0, 1, math.log2(3), 2, 3], ["continuous", "2+", "1", "1/2", "1/3", "1/4", "none"])
+        ax.set_yticks(
+            [CONTINUOUS_LEVEL, -0.5, 0, 1, math.log2(3), 2, 3], ["continuous", "2+", "1", "1/2", "1/3", "1/4", "none"]
+        )
         ax.set_ylabel("regime (contacts per cycle)")
     else:  # e.g. the walker: plot the numeric targets the rig names
         for col in [c for c in meas.columns if c not in ("frequency_hz", "regime")][:1]:
@@ -805,16 +807,19 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
 # ================================================================================================ contact rig
 
 
+CONTINUOUS_LEVEL = -2.0  # two levels below 1:1: losing the continuous band costs as much as a ½ ↔ ⅓ swap ×2
+
+
 def regime_level(regime: str, ratio: float = math.nan, fraction: float = math.nan) -> float:
     """A number per step that orders the contact regimes as they appear with rising frequency, so per-step
-    differences measure how far apart two maps are: continuous −1, several contacts per cycle −½, one per cycle 0,
+    differences measure how far apart two maps are: continuous −2, several contacts per cycle −½, one per cycle 0,
     one every k cycles log₂ k (½ → 1, ⅓ → 1.58), no contact 3. Irregular steps sit at log₂(1/ratio) of their
     measured ratio (e.g. 0.6 → 0.74, between 1 and ½); a stepping foot that spends most of the window on the plate
     is pulled toward continuous (soft: in-contact fraction 0.7 … 0.95)."""
     if regime == NONE:
         return 3.0
     if regime == CONTINUOUS:
-        return -1.0
+        return CONTINUOUS_LEVEL
     r = ratio
     if not (isinstance(r, float | int) and math.isfinite(r) and r > 0):
         try:
@@ -826,7 +831,7 @@ def regime_level(regime: str, ratio: float = math.nan, fraction: float = math.na
     lev = -0.5 * min(math.log2(r), 1.0) if r > 1 else min(math.log2(1.0 / r), 2.5)
     if isinstance(fraction, float | int) and math.isfinite(fraction):
         s = min(1.0, max(0.0, (fraction - 0.7) / 0.25))
-        lev = s * -1.0 + (1 - s) * lev
+        lev = s * CONTINUOUS_LEVEL + (1 - s) * lev
     return float(lev)
 
 
