@@ -188,6 +188,7 @@ def test_objective_is_zero_at_the_truth_and_grows_away_from_it(truth):
 # ------------------------------------------------------------------------------------------------ calibration
 
 
+@pytest.mark.slow
 def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_path):
     targets, extras = truth
     settings = SearchSettings(
@@ -235,6 +236,7 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
         assert (tmp_path / name).is_file(), name
 
 
+@pytest.mark.slow
 def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
     t = tmp_path / "small.yaml"
     t.write_text("rig: contact\nhalf_at_hz: 30\nthird_at_hz: 32\n")

@@ -807,7 +807,7 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
 # ================================================================================================ contact rig
 
 
-CONTINUOUS_LEVEL = -2.0  # two levels below 1:1: losing the continuous band costs as much as a ½ ↔ ⅓ swap ×2
+CONTINUOUS_LEVEL = -2.0  # two levels below 1:1: a continuous step seen as 1:1 costs 4, as 2+ 2.25 (1 ↔ ½: 1)
 
 
 def regime_level(regime: str, ratio: float = math.nan, fraction: float = math.nan) -> float:
