@@ -807,12 +807,12 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
 # ================================================================================================ contact rig
 
 
-CONTINUOUS_LEVEL = -2.0  # two levels below 1:1: a continuous step seen as 1:1 costs 4, as 2+ 2.25 (1 ↔ ½: 1)
+CONTINUOUS_LEVEL = -1.0  # one level below 1:1 (as ½ is one above); -2 was tried: see the bench notes
 
 
 def regime_level(regime: str, ratio: float = math.nan, fraction: float = math.nan) -> float:
     """A number per step that orders the contact regimes as they appear with rising frequency, so per-step
-    differences measure how far apart two maps are: continuous −2, several contacts per cycle −½, one per cycle 0,
+    differences measure how far apart two maps are: continuous −1, several contacts per cycle −½, one per cycle 0,
     one every k cycles log₂ k (½ → 1, ⅓ → 1.58), no contact 3. Irregular steps sit at log₂(1/ratio) of their
     measured ratio (e.g. 0.6 → 0.74, between 1 and ½); a stepping foot that spends most of the window on the plate
     is pulled toward continuous (soft: in-contact fraction 0.7 … 0.95)."""
