@@ -170,7 +170,8 @@ TRUE_PRELOAD = 0.05  # mm: the paper set sags ~1.13 mm; gap ≈ 1.08 mm (½ and 
 def truth() -> tuple[Targets, dict]:
     out = simulate_contact(BASE, {"preload_mm": TRUE_PRELOAD}, FREQS, FAST)
     steps = pd.DataFrame(out["steps"])
-    targets = Targets("contact", "twin", steps[["frequency_hz", "regime", "contacts_per_cycle", "in_contact_fraction"]])
+    cols = ["frequency_hz", "regime", "contacts_per_cycle", "in_contact_fraction"]
+    targets = Targets("contact", "twin", steps[cols], prior={"params": BASE["params"]})  # the set the twin used
     return targets, out["extras"]
 
 
