@@ -12,6 +12,19 @@ Per case: the calibration's wall time, the fitted parameters, and the calibrated
     python benchmarks/bench_calibrate.py --out /tmp/bench_calibrate [--cases 1,2,3] [--budget-s 540]
 
 Writes ``<out>/bench_calibrate.json``; prints a table. Nothing is written outside ``--out``.
+
+Measured 2026-12-01 (branch issue11b, as-built PRB3 contact scene, prior = the paper set; 2-core machine shared,
+load average 6–14 throughout, so ~5–10 s per evaluation instead of ~1.5 s), one run per case:
+
+- case 1, session with gap 1.0 mm, seed 7 (4–44 Hz, 2 Hz): 559 s, 55 evaluations; k_scale 1, b_scale 1,
+  gap 0.996 mm; run of the calibrated protocol: ½ at 30 Hz (session 30). The session has no continuous or ⅓ band.
+- case 2, targets 15 / 30 / 42: 515 s, 54 evaluations; k_scale 0.086, b_scale 1.28, gap 7.25 mm; run: continuous
+  below 10 (MISS), ½ at 32, ⅓ at 44 (within ± 2 Hz).
+- case 3, paper 18 / 26 / 38: 459 s, 107 evaluations; k_scale 0.138, b_scale 1.49, gap 5.48 mm; run: continuous
+  below 6 (MISS: "2"/"3" force-level bouncing at 10–17 Hz), ½ at 26, ⅓ at 39.
+- case 3 again with the continuous level at −2 (the edge weighted 4× more): continuous below 17 but no ½ or ⅓ up
+  to 42 Hz. This model family cannot give both the continuous band and the subharmonics with force-only
+  regimes; the weighting only chooses which to lose (kept at −1).
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ from beambench.rigs.sim_devices import (
     SimMotor,
 )
 from beambench.sim.engine.stepping import DrivenScene, Trajectory
-from beambench.sim.models.params import load_params
+from beambench.sim.models.params import has_params, load_params
 from beambench.sim.models.registry import make_beam_model, model_family
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
@@ -95,7 +95,11 @@ def _contact_plan(protocol: Protocol):
     if protocol.rig != "contact" or (not auto and sim.timestep is not None):
         return None
     tol = sim.tolerance_mm or AUTO_TOLERANCE_MM
-    only = {} if auto else {"models": [sim.model], "integrators": [sim.integrator]}
+    if auto:  # every model with a contact table whose family has the protocol's parameter set
+        models = [m for m in select.table_models("contact") if has_params(sim.params, model_family(m))]
+        only: dict = {"models": models or None}
+    else:
+        only = {"models": [sim.model], "integrators": [sim.integrator]}
     try:
         return select.plan_sweep("contact", tol, protocol.sweep.values(), **only)
     except select.SelectionError as exc:

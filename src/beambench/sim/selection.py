@@ -87,12 +87,33 @@ def table_path(scene: str) -> Path:
         raise SelectionError(f"scene = {scene!r}: no measured table (known: {', '.join(TABLES)})") from None
 
 
+def table_paths(scene: str) -> list[Path]:
+    """Every shipped table of ``scene``: ``<table>.csv`` and per-model additions ``<table>_<model>.csv``
+    (e.g. ``contact_table_rod10.csv`` from ``benchmarks/bench_models.py --part contact --model rod10 --ship``)."""
+    main = table_path(scene)
+    extra = sorted(main.parent.glob(f"{main.stem}_*{main.suffix}"))
+    return [p for p in [main, *extra] if p.exists()]
+
+
 def load_table(scene: str, path: str | Path | None = None) -> pd.DataFrame:
-    """The measured table for ``scene`` (or the CSV at ``path``), with an ``err_mm`` column."""
-    p = Path(path) if path else table_path(scene)
-    if not p.exists():
-        raise SelectionError(f"{p}: no measured table for the {scene} scene (run benchmarks/bench_models.py --ship)")
-    return _normalize(pd.read_csv(p), str(p))
+    """The measured table for ``scene`` — every shipped file of it, so ``sim.model: auto`` considers every
+    model that has one — or the CSV at ``path``, with an ``err_mm`` column."""
+    paths = [Path(path)] if path else table_paths(scene)
+    if not paths or not all(p.exists() for p in paths):
+        where = paths[0] if paths else table_path(scene)
+        raise SelectionError(
+            f"{where}: no measured table for the {scene} scene (run benchmarks/bench_models.py --ship)"
+        )
+    frames = [_normalize(pd.read_csv(p), str(p)) for p in paths]
+    return pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
+
+
+def table_models(scene: str) -> list[str]:
+    """The models the shipped tables of ``scene`` cover."""
+    try:
+        return sorted(str(m) for m in load_table(scene).model.unique())
+    except SelectionError:
+        return []
 
 
 def _normalize(df: pd.DataFrame, where: str = "table") -> pd.DataFrame:
@@ -140,7 +161,7 @@ def _converged_rows(g: pd.DataFrame, tolerance_mm: float) -> dict[tuple[float, f
 def plan_sweep(
     scene: str,
     tolerance_mm: float,
-    frequencies: Sequence[float],
+    frequencies: Sequence[float] | np.ndarray,
     models: Sequence[str] | None = None,
     integrators: Sequence[str] | None = None,
     table: pd.DataFrame | None = None,
@@ -176,8 +197,9 @@ def plan_sweep(
         for f in wanted:
             br = _bracket(freqs, f)
             for dt in dts:
-                rows = [ok.get((dt, fb)) for fb in br]
-                if all(r is not None for r in rows):
+                found = [ok.get((dt, fb)) for fb in br]
+                rows = [r for r in found if r is not None]
+                if len(rows) == len(found):
                     steps[f] = float(dt)
                     errs[f] = float(max(r.err_mm for r in rows))
                     walls[f] = float(max(r.wall_s_per_10s for r in rows))

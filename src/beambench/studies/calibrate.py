@@ -18,6 +18,14 @@ The search (:func:`calibrate`) is the same for every rig:
 Every evaluation is appended to ``<out>/<name>.evals.jsonl`` as soon as it finishes; a restart reads it back and
 re-uses every point already evaluated (the search is seeded, so it replays the same proposals), which makes a
 killed calibration resumable. Nothing is written outside ``out``.
+
+Plugging in a rig (the walker): create ``beambench/studies/calibrate_walker.py`` (listed in :data:`PLUGINS`) that
+calls ``register_rig(CalibratableRig(name="walker", unknowns=(...), simulate=..., objective=..., base=...,
+write=..., summary=..., bracket=None or the most monotone unknown))``; ``simulate`` returns
+``{"steps": [{"frequency_hz": f, "body_speed_mm_s": v, ...}, ...], "extras": {...}}`` and the objective compares
+them with ``targets.table`` (``frequency_hz``, ``body_speed_mm_s``; parsed by
+:func:`beambench.studies.calibration_targets.parse_targets` from ``rig: walker`` / ``speed_mm_s`` files or walker
+sessions). Nothing else changes: the CLI, the search, the log and the report are rig-agnostic.
 """
 
 from __future__ import annotations
@@ -153,7 +161,7 @@ class SearchSettings:
             coarse_record_s=1.2,
             fine_settle_s=1.0,
             fine_record_s=1.5,
-            popsize=8,
+            popsize=6,
             max_generations=12,
             stall_generations=4,
             refine_top=2,
@@ -521,6 +529,9 @@ def calibrate(
         if winner.stage != "fine":  # out of time before the fine stage: still report the map on every frequency
             winner = ev.batch([winner.values], fine, "fine")[0]
         ident = identifiability([p for p in ev.points if p.stage == "coarse"], free)
+        fine_pts = [p for p in ev.points if p.stage == "fine"]
+        if len(fine_pts) > 1:  # the refine/bracket points: on every frequency, so their spread is the sharper one
+            ident["fine_spread"] = identifiability(fine_pts, free).get("spread", {})
 
     summary = rig.summary(winner.steps)
     wall = elapsed()
@@ -706,7 +717,7 @@ def write_report(
         "| unknown | value | near-best range | unit |",
         "|---|---|---|---|",
     ]
-    spread = result.identifiability.get("spread", {})
+    spread = result.identifiability.get("fine_spread") or result.identifiability.get("spread", {})
     for k, v in result.values.items():
         s = spread.get(k)
         rng = f"{s['min']:.4g} … {s['max']:.4g}" if s else "fixed"
@@ -782,7 +793,9 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
             ms=6,
             label="calibrated twin",
         )
-        ax.set_yticks([-1, -0.5, 0, 1, math.log2(3), 2, 3], ["continuous", "2+", "1", "1/2", "1/3", "1/4", "none"])
+        ax.set_yticks(
+            [CONTINUOUS_LEVEL, -0.5, 0, 1, math.log2(3), 2, 3], ["continuous", "2+", "1", "1/2", "1/3", "1/4", "none"]
+        )
         ax.set_ylabel("regime (contacts per cycle)")
     else:  # e.g. the walker: plot the numeric targets the rig names
         for col in [c for c in meas.columns if c not in ("frequency_hz", "regime")][:1]:
@@ -799,6 +812,9 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
 # ================================================================================================ contact rig
 
 
+CONTINUOUS_LEVEL = -1.0  # one level below 1:1 (as ½ is one above); -2 was tried: see the bench notes
+
+
 def regime_level(regime: str, ratio: float = math.nan, fraction: float = math.nan) -> float:
     """A number per step that orders the contact regimes as they appear with rising frequency, so per-step
     differences measure how far apart two maps are: continuous −1, several contacts per cycle −½, one per cycle 0,
@@ -808,7 +824,7 @@ def regime_level(regime: str, ratio: float = math.nan, fraction: float = math.na
     if regime == NONE:
         return 3.0
     if regime == CONTINUOUS:
-        return -1.0
+        return CONTINUOUS_LEVEL
     r = ratio
     if not (isinstance(r, float | int) and math.isfinite(r) and r > 0):
         try:
@@ -820,7 +836,7 @@ def regime_level(regime: str, ratio: float = math.nan, fraction: float = math.na
     lev = -0.5 * min(math.log2(r), 1.0) if r > 1 else min(math.log2(1.0 / r), 2.5)
     if isinstance(fraction, float | int) and math.isfinite(fraction):
         s = min(1.0, max(0.0, (fraction - 0.7) / 0.25))
-        lev = s * -1.0 + (1 - s) * lev
+        lev = s * CONTINUOUS_LEVEL + (1 - s) * lev
     return float(lev)
 
 

@@ -73,6 +73,18 @@ def available(model: str = "prb3") -> list[str]:
     return sorted(p.stem.removeprefix(f"{model}_") for p in SIM_BACKEND_DIR.glob(f"{model}_*.yaml"))
 
 
+def has_params(name: str, model: str) -> bool:
+    """Whether ``name`` (a set name or a YAML path) gives parameters for the model family ``model``."""
+    path = Path(name)
+    if path.suffix in (".yaml", ".yml") and path.exists():
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError:
+            return False
+        return isinstance(data, dict) and str(data.get("model", "prb3")) == model
+    return name in available(model)
+
+
 def load_params(name: str = "paper", model: str = "prb3") -> BeamParams:
     """Load the set ``name`` (``sim_backend/<model>_<name>.yaml``) or a YAML file path."""
     path = Path(name)

@@ -36,7 +36,14 @@ class RigParams:
     # m, h' of the paper: the plate's top below the sole in the beam's UNLOADED (natural, gravity-free) shape;
     # the sag under gravity is the rig's own business (a sag larger than the gap is a preload)
     plate_gap: float = 0.0055
-    foot_mass: float = 0.020  # kg, at the sole
+    foot_mass: float = 0.020  # kg, the load on the foot frame (paper: 20 g), at the sole unless mass_dx
+    # m, offset of that mass from the sole along x (stage travel); the paper puts the 20 g "at the lower left
+    # corner of the load frame" without giving the offset — an offset mass twists the tip
+    mass_dx: float = 0.0
+    # deg, the beam's section turned about its own axis at the clamp: 0 = as built (width vertical at the
+    # clamp, weak bending along the stage travel, see beambench.sim.models.beam), 90 = flat face horizontal
+    # at the root (research note, issue 11); the foot still hangs plumb below the tip
+    clamp_roll_deg: float = 0.0
     sole_radius: float = 0.003  # m
     plate_from_stage: float = 0.072  # m, informational: foot_length + the paper's 5.5 mm gap
     friction: float = 0.5
@@ -122,15 +129,24 @@ def build_contact_spec(
         rgba=[0.3, 0.3, 0.3, 1],
     )
     stage.add_site(name="stage", size=[0.002, 0, 0])
-    clamp = stage.add_body(name="clamp")  # welded: a force sensor here reads the beam's pull on the stage
-    clamp.add_site(name="clamp", size=[0.001, 0, 0])
+    roll = np.radians(rig.clamp_roll_deg)
+    clamp = stage.add_body(name="clamp", quat=[np.cos(roll / 2), 0, np.sin(roll / 2), 0])  # welded to the stage
+    clamp.add_site(name="clamp", size=[0.001, 0, 0])  # a force sensor here reads the beam's pull on the stage
     sites = add_beam(clamp, beam, twist_deg)
+
+    # the foot is rigid on the tip body, whose frame is the clamp frame in the natural shape: place its
+    # parts at their world-aligned offsets rotated back by the clamp roll, so the foot hangs plumb
+    back = np.array([[np.cos(roll), 0, -np.sin(roll)], [0, 1, 0], [np.sin(roll), 0, np.cos(roll)]])
+
+    def at(x: float, y: float, z: float) -> list[float]:
+        return [float(v) for v in back @ np.array([x, y, z])]
 
     tip = spec.body(sites.tip_body)
     r = rig.sole_radius
+    offset = abs(rig.mass_dx) > 0
     tip.add_geom(
         type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-        fromto=[0, 0, 0, 0, 0, -(rig.foot_length - 2 * r)],
+        fromto=at(0, 0, 0) + at(0, 0, -(rig.foot_length - 2 * r)),
         size=[0.002, 0, 0],
         mass=0.0,
         contype=0,
@@ -141,13 +157,23 @@ def build_contact_spec(
         name=names.sole,
         type=mujoco.mjtGeom.mjGEOM_SPHERE,
         size=[r, 0, 0],
-        pos=[0, 0, -(rig.foot_length - r)],
-        mass=rig.foot_mass,
+        pos=at(0, 0, -(rig.foot_length - r)),
+        mass=1e-4 if offset else rig.foot_mass,
         contype=0,
         conaffinity=0,
         rgba=[0.9, 0.5, 0.1, 1],
     )
-    tip.add_site(name="foot", pos=[0, 0, -rig.foot_length], size=[0.002, 0, 0])
+    if offset:  # the load at the frame's lower corner, mass_dx along the stage travel
+        tip.add_geom(
+            type=mujoco.mjtGeom.mjGEOM_SPHERE,
+            size=[0.004, 0, 0],
+            pos=at(rig.mass_dx, 0, -(rig.foot_length - r)),
+            mass=rig.foot_mass,
+            contype=0,
+            conaffinity=0,
+            rgba=[0.5, 0.5, 0.5, 1],
+        )
+    tip.add_site(name="foot", pos=at(0, 0, -rig.foot_length), size=[0.002, 0, 0])
 
     spec.add_pair(
         name="sole_plate",

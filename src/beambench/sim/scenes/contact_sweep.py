@@ -36,6 +36,7 @@ from beambench.sim.scenes.free_beam import slider_inertia, stage_controls
 
 REFERENCE_DT = 2.5e-5
 IRREGULAR_MM = 0.05  # fine runs this far from the reference (foot path RMS) mark an irregular regime
+Floats = Sequence[float] | np.ndarray  # frequencies or timesteps: a list or an array
 SAMPLE_DT = 1e-3  # common sample grid of every timestep in the table (2.5e-5 … 1e-3 divide it)
 
 
@@ -97,7 +98,7 @@ def contact_ratio(t: np.ndarray, normal: np.ndarray, foot_z: np.ndarray, f: floa
 
 
 def _models(
-    beam: BeamModel, twist_deg: float, gap_m: float, rig: RigParams, integrator: str, timesteps: Sequence[float]
+    beam: BeamModel, twist_deg: float, gap_m: float, rig: RigParams, integrator: str, timesteps: Floats
 ) -> dict[float, mujoco.MjModel]:
     spec = build_contact_spec(beam, twist_deg, gap_m, rig, integrator, float(timesteps[0]))
     spec.delete(spec.sensor("clamp_force"))  # unused here; a force sensor costs a post-constraint RNE per step
@@ -128,8 +129,8 @@ def _rest(model: mujoco.MjModel, seconds: float = 0.5) -> np.ndarray:
 
 def contact_sweep(
     beam: BeamModel | str = "prb3",
-    frequencies: Sequence[float] = tuple(range(1, 46)),
-    timesteps: Sequence[float] | float | None = None,
+    frequencies: Floats = tuple(range(1, 46)),
+    timesteps: Floats | float | None = None,
     twist_deg: float = 90.0,
     gap_m: float = 0.001,
     amplitude: float = 0.002,
@@ -149,10 +150,12 @@ def contact_sweep(
     bm = beam_model(beam) if isinstance(beam, str) else beam
     freqs = np.asarray(frequencies, float)
     if timesteps is None:
-        planned, timesteps = default_contact_plan(bm.name, freqs)
+        planned, planned_dts = default_contact_plan(bm.name, freqs)
         integrator = integrator or planned
+        dts = planned_dts
+    else:
+        dts = np.broadcast_to(np.asarray(timesteps, float), freqs.shape).copy()
     integrator = integrator or "implicitfast"
-    dts = np.broadcast_to(np.asarray(timesteps, float), freqs.shape).copy()
     rig = rig or RigParams.with_overrides(bm.params.rig)
     models = _models(bm, twist_deg, gap_m, rig, integrator, dts)
     q0 = _rest(next(iter(models.values())))
@@ -229,11 +232,13 @@ def contact_sweep(
         wall = float(sum(walls))
     else:  # balanced: each worker thread steps its share of the runs, one MuJoCo thread each
         t0 = time.perf_counter()
+
+        def run_share(share: list[tuple[float, np.ndarray]]) -> None:
+            for h, idx in share:
+                run_group(h, idx, 1)
+
         with ThreadPoolExecutor(workers) as pool:
-            jobs = [
-                pool.submit(lambda share: [run_group(h, idx, 1) for h, idx in share], share)
-                for share in _balanced_shares(dts, settle_s + record_s, workers)
-            ]
+            jobs = [pool.submit(run_share, share) for share in _balanced_shares(dts, settle_s + record_s, workers)]
             for job in jobs:
                 job.result()
         wall = time.perf_counter() - t0
@@ -264,6 +269,19 @@ def _balanced_shares(dts: np.ndarray, seconds: float, workers: int) -> list[list
     return [[(h, np.array(ix)) for h, ix in p.items()] for p in picks if p]
 
 
+def static_sag(beam: BeamModel, rig: RigParams | None = None, twist_deg: float = 90.0) -> float:
+    """How far (m) the sole sinks under gravity from its unloaded (natural) position with no plate — the sag
+    against which the gap h' acts: sag > gap means the foot rests on the plate with a preload."""
+    rig = rig or RigParams.with_overrides(beam.params.rig)
+    m = next(iter(_models(beam, twist_deg, 1.0, rig, "implicitfast", [1e-4]).values()))
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    z0 = float(d.site("foot").xpos[2])
+    d.qpos[:] = _rest(m, 1.5)
+    mujoco.mj_forward(m, d)
+    return z0 - float(d.site("foot").xpos[2])
+
+
 REGIME_MAP_COLUMNS = (
     "frequency_hz",
     "contacts_per_cycle",
@@ -282,7 +300,7 @@ MOCAP_NOISE_M = 1e-4  # per axis, as the sim backend's mocap
 
 
 def regime_map(
-    frequencies: Sequence[float],
+    frequencies: Floats,
     *,
     model: str = "prb3",
     params: str | BeamParams = "paper",
@@ -292,7 +310,7 @@ def regime_map(
     nthread: int | None = None,
     noise: bool = False,
     seed: int = 0,
-    timesteps: Sequence[float] | float | None = None,
+    timesteps: Floats | float | None = None,
     twist_deg: float = 90.0,
     amplitude: float = 0.002,
     contact: ContactParams | None = None,
@@ -402,7 +420,7 @@ def _sign(x: float) -> int:
     return 0 if not np.isfinite(x) or x == 0 else int(np.sign(x))
 
 
-def transitions(frequencies: Sequence[float], regimes: Sequence[str]) -> dict[str, float]:
+def transitions(frequencies: Floats, regimes: Sequence[str]) -> dict[str, float]:
     """The map's landmarks: ``continuous_below_hz`` (the highest frequency up to which every step is
     continuous, 0 if the first is not), ``half_at_hz`` / ``third_at_hz`` (the lowest ``1/2`` / ``1/3``, NaN if
     none). Frequencies in ascending order."""
@@ -422,7 +440,7 @@ def transitions(frequencies: Sequence[float], regimes: Sequence[str]) -> dict[st
     return {"continuous_below_hz": cont, "half_at_hz": lowest("1/2"), "third_at_hz": lowest("1/3")}
 
 
-def default_contact_plan(model: str, frequencies: Sequence[float], tolerance_mm: float = 0.1) -> tuple[str, np.ndarray]:
+def default_contact_plan(model: str, frequencies: Floats, tolerance_mm: float = 0.1) -> tuple[str, np.ndarray]:
     """(integrator, timestep per frequency) the measured contact table picks for ``model``, else implicitfast
     with the rig's default timestep policy."""
     from beambench.sim import selection as select
@@ -497,7 +515,7 @@ TABLE_FREQUENCIES = (
 
 def measure_contact_table(
     model: str = "prb3",
-    frequencies: Sequence[float] = TABLE_FREQUENCIES,
+    frequencies: Floats = TABLE_FREQUENCIES,
     timesteps: Sequence[float] = (5e-5, 1e-4, 2e-4, 2.5e-4, 1e-3 / 3, 5e-4, 1e-3),
     integrators: Sequence[str] = ("implicitfast", "euler"),
     gap_m: float = 0.001,
