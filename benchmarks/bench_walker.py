@@ -3,6 +3,10 @@
     python benchmarks/bench_walker.py [--quick] [--out DIR]
 
 Writes to DIR (default ``bench_out/walker``):
+``--check`` only tests the convergence criterion (steady speeds at 23 and 65 Hz at the defaults within 5 % of a run at
+half the timestep and half the contact time constant). All speeds are steady ones: from a settled robot, ramp at
+200 turn/s², settle 3 s, record 1.5 s (:mod:`beambench.sim.scenes.walker_batch`).
+
 - ``walker_convergence.csv``: forward speed at 23 and 65 Hz for contact time constant × timestep, with the
   wall time per simulated second (one thread) and the deviation from the finest setting (0.25 ms, 1.25e-5 s;
   two extra rows at 0.125 ms check the time constant itself);
@@ -10,7 +14,7 @@ Writes to DIR (default ``bench_out/walker``):
   finest numerics, with the paper's two points (−35.7 mm/s at 23 Hz, +156.3 at 65 Hz);
 - ``walker_sensitivity.csv``: speed at 23 and 65 Hz when one unknown (paper silent) is changed at a time.
 
-Single process, single thread (mujoco.rollout without a pool). ``--quick`` takes about a minute.
+Single process, single thread (mujoco.rollout without a pool).
 """
 
 from __future__ import annotations
@@ -51,14 +55,39 @@ VARIANTS: list[tuple[str, dict[str, float]]] = [
 
 
 def _speed(beam, f: float, settle: float, record: float, **overrides: float) -> tuple[float, float]:
-    """(forward speed mm/s, wall s per simulated s)."""
-    from beambench.sim.scenes.walker import WalkerParams, measure_speed
+    """(steady forward speed mm/s from a settled robot, wall s per simulated s)."""
+    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scenes.walker_batch import RAMP_RATE, steady_speeds
 
     wp = replace(WalkerParams(), **overrides)
     t0 = time.perf_counter()
-    vx, _ = measure_speed(beam, f, wp, settle_s=settle, record_s=record)
-    sim_s = f / wp.vel_ramp_rate + settle + record + wp.preroll_s
-    return 1e3 * vx, (time.perf_counter() - t0) / sim_s
+    v, _ = steady_speeds(beam, [f], wp, settle_s=settle, record_s=record)
+    sim_s = f / RAMP_RATE + settle + record + wp.preroll_s
+    return float(v[0]), (time.perf_counter() - t0) / sim_s
+
+
+def check(beam) -> bool:
+    """The convergence criterion: steady speeds at 23 and 65 Hz at the defaults within 5 % of a run at half the
+    timestep and half the contact time constant (both frequencies in one batch each)."""
+    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scenes.walker_batch import steady_speeds
+
+    d = WalkerParams()
+    half = replace(d, timestep=d.timestep / 2, contact_timeconst=d.contact_timeconst / 2)
+    t0, c0 = time.perf_counter(), time.process_time()
+    v1, _ = steady_speeds(beam, list(PAPER), d)
+    v2, _ = steady_speeds(beam, list(PAPER), half)
+    dev = np.abs(v1 - v2) / np.abs(v2)
+    ok = bool(np.all(dev <= 0.05))
+    for f, a, b, e in zip(PAPER, v1, v2, dev):
+        print(
+            f"{f:.0f} Hz: defaults {a:+.1f} mm/s, half dt + half contact time constant {b:+.1f} mm/s: {100 * e:.1f} %"
+        )
+    print(
+        f"converged (<= 5 %): {ok}; {time.perf_counter() - t0:.1f} s wall, {time.process_time() - c0:.1f} s CPU",
+        flush=True,
+    )
+    return ok
 
 
 def _write(path: Path, rows: list[dict]) -> None:
@@ -70,7 +99,8 @@ def _write(path: Path, rows: list[dict]) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="coarse grid and sweep, no sensitivity table (~1 min)")
+    ap.add_argument("--quick", action="store_true", help="coarse grid and sweep, no sensitivity table")
+    ap.add_argument("--check", action="store_true", help="only the 5 %% convergence criterion at 23 and 65 Hz")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "bench_out" / "walker")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -78,10 +108,13 @@ def main() -> None:
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
     from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scenes.walker_batch import RECORD_S, STEADY_SETTLE_S
 
     beam = make_beam_model("prb3", load_params())
     d = WalkerParams()
-    settle, record = (0.6, 1.0) if args.quick else (1.0, 1.5)
+    if args.check:
+        raise SystemExit(0 if check(beam) else 1)
+    settle, record = STEADY_SETTLE_S, RECORD_S  # the speed needs ~3 s from rest to be steady
 
     # 1. convergence at 23 and 65 Hz ------------------------------------------------------------------
     tcs = (1e-3, 2.5e-4) if args.quick else (2e-3, 1e-3, 5e-4, 2.5e-4)

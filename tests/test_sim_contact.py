@@ -97,8 +97,8 @@ def test_walker_scene_runs_with_its_markers_and_tare_only_loadcells():
 
 
 def test_walker_reverses_direction_between_23_and_65_hz():
-    """Like the paper (−35.7 mm/s at 23 Hz, +156.3 at 65 Hz), in sign if not in size: at the scene's
-    (converged) defaults it walks backward at 23 Hz (≈ −17 mm/s) and forward at 65 Hz (≈ +11 mm/s)."""
+    """Like the paper (−35.7 mm/s at 23 Hz, +156.3 at 65 Hz): at the scene's (converged, calibrated) defaults it
+    walks backward at 23 Hz and forward at 65 Hz (sizes: tests/test_physics_walker.py, from a steady state)."""
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
     from beambench.sim.scenes.walker import WalkerSim, measure_speed

@@ -278,6 +278,24 @@ class LoadCellWiring(_Model):
     silence_timeout_s: float | None = Field(1.0, gt=0, le=60)  # no frame for this long (1 kHz board): fault
 
 
+class WalkerDrive(_Model):
+    """The walker's motor on the ODrive (``calibration/rig.yaml`` ``walker:``): what the ODrive must be configured
+    with for it, and what the emulated ODrive plays. Defaults: Maxon EC 45 flat Ø42.9 mm 30 W with Hall sensors,
+    article 200142 (12 V winding), datasheet May 2012 edition (line numbers in the comments)."""
+
+    motor: str = "Maxon EC 45 flat 30 W, 200142 (Hall sensors, 12 V winding)"
+    feedback: Literal["hall", "encoder"] = "hall"  # ODrive encoder mode: Hall (the motor's own sensors)
+    pole_pairs: int = Field(8, ge=1, le=50)  # EC 45 flat: 16 magnet poles
+    torque_constant_nm_a: float = Field(0.0255, gt=0)  # line 12: 25.5 mN·m/A
+    phase_resistance_ohm: float = Field(0.6, gt=0)  # line 10: 1.2 Ω phase to phase (ODrive wants phase)
+    phase_inductance_h: float = Field(2.8e-4, gt=0)  # line 11: 0.56 mH phase to phase
+    rotor_inertia_kg_m2: float = Field(9.25e-6, gt=0)  # line 16: 92.5 g·cm²
+    load_inertia_kg_m2: float = Field(4.0e-6, ge=0)  # the 40 g offset mass at 10 mm (paper; radius guessed)
+    continuous_current_a: float = Field(2.03, gt=0, le=60)  # line 6: nominal (max. continuous) current
+    current_lim_a: float = Field(4.0, gt=0, le=60)  # ODrive current_lim: ~2× line 6 for short peaks (twin: 2.7 A)
+    vel_limit_turn_s: float = Field(88.0, gt=0, le=250)  # 80 Hz = 80 turn/s, ×1.1; 24 V reach 150 turn/s (line 13)
+
+
 class RigFile(_Model):
     """``calibration/rig.yaml``: server/client addresses, CAN channel and node id, serial port, marker ids."""
 
@@ -286,6 +304,7 @@ class RigFile(_Model):
     loadcell: LoadCellWiring = LoadCellWiring()
     loadcell_calibration: str = "loadcells.yaml"
     geometry: Geometry = Geometry()
+    walker: WalkerDrive = Field(default_factory=WalkerDrive)
 
 
 def load_rig_file(path: str | Path) -> RigFile:

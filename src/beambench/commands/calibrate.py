@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from beambench.commands import fail, sub_app
+from beambench.commands.calibrate_sim import register_sim
 
 if TYPE_CHECKING:
     import numpy as np
@@ -354,4 +355,5 @@ def register(app: typer.Typer) -> None:
     """Add ``beambench calibrate loadcells``."""
     sub = sub_app("Calibrate rig sensors.")
     sub.command("loadcells")(loadcells)
+    register_sim(sub)
     app.add_typer(sub, name="calibrate")

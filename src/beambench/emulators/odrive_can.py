@@ -77,6 +77,8 @@ class OdriveEmulatorConfig:
     vel_integrator_gain: float = 0.5  # N·m/(turn/s·s)
     torque_constant: float = 0.04  # N·m/A (8.27 / KV)
     inertia: float = 1e-4  # kg·m², rotor + crank
+    pole_pairs: int = 7  # motor.config.pole_pairs (reported; the model is torque-level, commutation is not modelled)
+    feedback: str = "encoder"  # encoder mode: "encoder" (incremental + index) or "hall" (the motor's Hall sensors)
     viscous_friction: float = 1e-4  # N·m/(turn/s)
     coulomb_friction: float = 2e-3  # N·m
     bus_voltage: float = 24.0  # V at no load

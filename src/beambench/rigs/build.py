@@ -25,7 +25,7 @@ def build_rig(
     if backend == "emulated":
         from beambench.rigs.emulated import build_emulated_rig
 
-        return build_emulated_rig(protocol, can_log=can_log)
+        return build_emulated_rig(protocol, can_log=can_log, rig_file=rig_file)
     from beambench.rigs.hardware import build_device_rig
 
     return build_device_rig(protocol, rig_file=rig_file, can_log=can_log)

@@ -223,7 +223,8 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
     sim = protocol.sim
     group, port = spec["can"]
     odrive_bus = LoopbackCanBus(group, port)
-    odrive = EmulatedOdrive(channel=f"{group}:{port}", config=OdriveEmulatorConfig(calibration_s=0.2), bus=odrive_bus)
+    config = odrive_config(protocol, spec.get("rig_file"), OdriveEmulatorConfig)
+    odrive = EmulatedOdrive(channel=f"{group}:{port}", config=config, bus=odrive_bus)
     physics = RealtimePhysics(protocol, None)
     drop = inject.get("mocap_drop")
     outage = _Outage(None if isinstance(drop, float) else drop)
@@ -427,9 +428,38 @@ class PeerProcess:
                 self.mcu = SimpleNamespace(**{**c, "injected": Injected(**c["injected"])})
 
 
+def odrive_config(protocol: Protocol, rig_file: Path | None, config_type: Any) -> Any:
+    """The emulated ODrive's boot configuration: for the walker, the motor of the rig file's ``walker:`` section
+    (default: the shipped ``calibration/rig.yaml``; pole pairs, Hall feedback, torque constant, rotor + offset-mass
+    inertia); the emulator's default motor for the other rigs. ``vel_limit``/``current_lim`` come from the
+    protocol's limits through Set_Limits, as on the bench."""
+    if protocol.rig != "walker":
+        return config_type(calibration_s=0.2)
+    from beambench.acquisition.config import load_rig_file
+    from beambench.rigs.hardware import DEFAULT_RIG_FILE
+
+    drive = load_rig_file(rig_file or DEFAULT_RIG_FILE).walker
+    return config_type(
+        calibration_s=0.2,
+        pole_pairs=drive.pole_pairs,
+        feedback=drive.feedback,
+        torque_constant=drive.torque_constant_nm_a,
+        # the offset mass's inertia arrives with the scene's rotor torque (fed back as the load torque); that torque
+        # also carries the rotor's own inertia, so the ramp sees it twice (≈ 3 mN·m at 50 turn/s², ≈ 0.1 A)
+        inertia=drive.rotor_inertia_kg_m2,
+        vel_gain=0.01,
+        vel_integrator_gain=0.1,
+        viscous_friction=0.0,
+        # no-load current × torque constant (datasheet lines 3, 12: 144 mA × 25.5 mN·m/A); it also holds the idle
+        # rotor against the offset mass's weight (3.9 mN·m), which the kinematic scene would otherwise spin up
+        coulomb_friction=drive.torque_constant_nm_a * 0.144,
+    )
+
+
 def build_emulated_rig(
     protocol: Protocol,
     can_log: Path | None = None,
+    rig_file: Path | None = None,
     calibration: LoadCellCalibration | None = None,
     inject: dict[str, Any] | None = None,
     wiring: RigFile | None = None,
@@ -459,6 +489,7 @@ def build_emulated_rig(
             "inject": inject,
             "calibration": calibration or default_calibration(),
             "can": (group, port),
+            "rig_file": rig_file,
         }
     )
     try:

@@ -52,6 +52,8 @@ def build_scene(protocol: Protocol) -> DrivenScene:
         beam = beam_model(model_name, sim.params)
     except UnknownModelError as exc:
         raise ConfigError("<protocol>", "sim.model", sim.model, str(exc).split(": ", 1)[-1]) from None
+    if protocol.rig == "walker":
+        _check_walker_legs(model_name)
     if protocol.rig == "release":
         from beambench.sim.scenes.release import ReleaseSim
 
@@ -72,6 +74,17 @@ def build_scene(protocol: Protocol) -> DrivenScene:
         timestep_for=plan.timestep if plan else None,
         selection=plan.describe() if plan else None,
     )
+
+
+def _check_walker_legs(model_name: str) -> None:
+    """A leg model the walker cannot stand on is a ConfigError (one line) before anything is built."""
+    from beambench.acquisition.config import ConfigError
+    from beambench.sim.scenes.walker import WalkerLegError, check_leg_model
+
+    try:
+        check_leg_model(model_name)
+    except WalkerLegError as exc:
+        raise ConfigError("<protocol>", "sim.model", model_name, exc.reason) from None
 
 
 AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)

@@ -8,9 +8,18 @@ lateral slide for experiments). On the body: a 45 g carbon plate, a 110 g Maxon 
 lying on its side with its axis along y at plate half-thickness + motor radius (23 mm) above the leg
 clamps, its rotor carrying a 40 g mass at 10 mm turning in the x–z plane (f Hz = f turn/s); two PRB3
 legs sticking out sideways, mirrored across the sagittal plane (left −φ, right +φ), each with a 66.5 mm
-rigid foot, 20 g at its sole (the paper's foot load, Sec. IV-A) and a 3 mm sphere sole; and a 100 g cart
+rigid foot, a calibrated 3 g at its sole (the paper_guesses set: 20 g, the paper's foot load, Sec. IV-A) and a
+3 mm sphere sole; and a 100 g cart
 rigidly at the tail on two frictionless wheels (total length 295 mm).
 
+Calibrated set (the defaults; ``protocols/walker_sweep.yaml``, one CLI run + ``beambench analyze``): backward at
+13–26 Hz (−64 at 18 Hz, −38.7 at 23 Hz; paper −35.7), forward from 27 Hz, a plateau of ~155 at 58–66 Hz (+155.3 at
+65 Hz; paper +156.3), +139 at 80 Hz. Steady speeds (settle 3 s from a settled robot, ``walker_batch``) at 23 / 65 Hz:
+−35.7 / +154.8; at half the timestep and half the contact time constant −35.1 / +156.1 (1.6 % / 0.8 %,
+``bench_walker.py --check``). The speed needs ~3 s from rest to be steady. The soft contacts creep: standing, the
+soles slide outward and the body sinks ~1–2 mm/s.
+
+With the paper_guesses set (20 g feet), from the planning work (short windows, settle 1 s from rest):
 Numerics (``benchmarks/bench_walker.py``; speeds mm/s at 23 / 65 Hz): the contact time constant matters,
 the timestep much less. 2 ms: +4 / +10 (no reversal); 1 ms: −10 / +15; 0.5 ms: −14 / +15; 0.25 ms:
 −15.6 / +12.0 (dt 1.25e-5). The defaults, 0.25 ms at dt 5e-5, give −15.6 / +11.6 (within 3.3 % of the
@@ -45,49 +54,65 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.streams import WALKER_MARKERS
+from beambench.common.errors import BeambenchError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, quat_y
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 
 
+# Where each number comes from: P = the paper (Sec. IV-B, Fig. 5a); D = Maxon EC 45 flat Ø42.9 mm 30 W datasheet
+# (article 200142, Hall sensors, 12 V winding; May 2012 edition; line numbers are the datasheet's); C = calibrated
+# to the paper's two speeds (research12: 2-D scan settle 3 s; the calibrator ``beambench calibrate sim`` redoes it);
+# G = guessed (the paper is silent; the module docstring and benchmarks/bench_walker.py give what each does);
+# N = numerics (converged, benchmarks/bench_walker.py).
 @dataclass(frozen=True)
 class WalkerParams:
-    """Walker constants (SI); guessed where the paper is silent (the module docstring gives what each
-    guess does to the speed). Flags are floats (0/1) so that ``with_overrides`` can read them."""
+    """Walker constants (SI). Source of each number in the comment: P paper, D datasheet, C calibrated,
+    G guessed, N numerics (see the legend above the class). Flags are floats (0/1) so that ``with_overrides``
+    can read them. :meth:`named` gives the named sets (``calibrated`` = the defaults, ``paper_guesses``)."""
 
-    plate_mass: float = 0.045
-    motor_mass: float = 0.110
-    eccentric_mass: float = 0.040
-    eccentric_radius: float = 0.010
-    rotor_inertia: float = 1.35e-5  # kg·m² (Maxon EC45 flat class)
-    cart_mass: float = 0.100
-    length: float = 0.295  # m, plate front to cart tail
-    leg_offset: float = 0.03  # m, clamp distance from the centre line
-    foot_length: float = 0.0665
-    foot_mass: float = 0.020  # kg, point mass at each sole
-    foot_bar_mass: float = 0.0  # kg, mass of each rigid foot bar (spread along it)
-    frame_mass: float = 0.0  # kg, the boom from the plate to the cart
-    sole_radius: float = 0.003
-    wheel_radius: float = 0.008
-    friction: float = 0.5
-    contact_timeconst: float = 0.00025  # s, solref time constant (converged; see the module docstring)
-    contact_dampratio: float = 1.0
-    servo_hz: float = 300.0  # rotor angle servo bandwidth
-    vel_ramp_rate: float = 50.0  # turn/s²
-    spin: float = (
-        -1.0
-    )  # rotor turns about -y (guess; with the legs below it walks backward at 23 Hz, forward above ~27 Hz)
-    left_chirality: float = -1.0  # left leg twisted -φ, right leg +φ (mirror images)
-    right_chirality: float = 1.0
-    motor_radius: float = 0.02145  # m, EC 45 flat: Ø42.9 mm (paper footnote)
-    rotor_height: float = 0.023  # m, motor axis above the leg clamps: plate half-thickness + motor radius
-    motor_flat: float = 0.0  # 1: motor axis vertical (offset mass turns in the x–y plane) instead of along y
-    leg_mount_deg: float = 0.0  # leg rake: legs + feet turned about the lateral axis; + = soles toward the cart
-    lateral_free: float = 0.0  # 1: let the body slide sideways (the paper's slider holds it; see above)
-    torque_constant: float = 0.0255  # N·m/A
-    bus_voltage: float = 24.0
-    preroll_s: float = 0.5
-    timestep: float = 5e-5  # s (converged with the contact time constant above)
+    plate_mass: float = 0.045  # G: carbon-fibre plate (paper: material only)
+    motor_mass: float = 0.110  # G: EC 45 flat class; the datasheet's weight line was not retrieved (not verified)
+    eccentric_mass: float = 0.040  # P: "a 40 g offset load"
+    eccentric_radius: float = 0.010  # G: offset radius (sensitivity: 5/15 mm move 23 Hz by ~±10 mm/s)
+    rotor_inertia: float = 9.25e-6  # D line 16: 92.5 g·cm² (all windings)
+    cart_mass: float = 0.100  # P: "a cart with a 100 g load"
+    length: float = 0.295  # P: 295 mm platform, plate front to cart tail
+    leg_offset: float = 0.03  # G: clamp distance from the centre line (≈ no effect on the speed)
+    foot_length: float = 0.0665  # P (Sec. IV-A): 66.5 mm foot
+    # C: point mass at each sole (paper_guesses: 20 g, the Sec. IV-A foot load). research12's steady 2-D scan: 3.0 g
+    # at μ 0.5 → −35.5 / +154.7 mm/s at 23 / 65 Hz; `beambench calibrate sim` on the paper's targets (540 s budget)
+    # lands in the same basin (3.3 g, μ 0.507 → −36.3 / +138.8)
+    foot_mass: float = 0.003
+    foot_bar_mass: float = 0.0  # G: mass of each rigid foot bar (spread along it)
+    frame_mass: float = 0.0  # G: the boom from the plate to the cart
+    sole_radius: float = 0.003  # G: 3 mm sphere sole
+    wheel_radius: float = 0.008  # G: cart wheels (frictionless)
+    friction: float = 0.5  # C: sole-floor Coulomb friction, jointly with foot_mass (usable band 0.45-0.52)
+    contact_timeconst: float = 0.00025  # N: solref time constant (converged; see the module docstring)
+    contact_dampratio: float = 1.0  # N: critically damped contact
+    servo_hz: float = 300.0  # N: rotor angle servo bandwidth (the ODrive holds the commanded speed)
+    vel_ramp_rate: float = 50.0  # G: ODrive velocity ramp, turn/s²
+    spin: float = -1.0  # G: rotor turns about -y (with the legs below: backward at 23 Hz, forward above ~27 Hz)
+    left_chirality: float = -1.0  # P: mirrored legs, left twisted -φ, right +φ
+    right_chirality: float = 1.0  # P
+    motor_radius: float = 0.02145  # P footnote / D: Ø42.9 mm
+    rotor_height: float = 0.023  # G: motor axis above the leg clamps: plate half-thickness + motor radius
+    motor_flat: float = 0.0  # G: 1 = motor axis vertical (offset mass turns in the x–y plane) instead of along y
+    leg_mount_deg: float = 0.0  # G: leg rake about the lateral axis; + = soles toward the cart
+    lateral_free: float = 0.0  # P: 1 = let the body slide sideways (the paper's slider holds it; see above)
+    torque_constant: float = 0.0255  # D line 12: 25.5 mN·m/A (12 V winding 200142; the walker's winding is unknown)
+    bus_voltage: float = 24.0  # G: ODrive bus
+    preroll_s: float = 0.5  # N: motor off, settle under gravity (a quenched half, then a free half)
+    timestep: float = 5e-5  # N: converged with the contact time constant above
+
+    @classmethod
+    def named(cls, name: str) -> WalkerParams:
+        """A named parameter set: ``calibrated`` (the defaults: foot 3 g, friction 0.5, datasheet rotor inertia)
+        or ``paper_guesses`` (before calibration: foot 20 g, rotor 135 g·cm² "EC 45 flat class")."""
+        if name not in PARAMETER_SETS:
+            raise ValueError(f"walker parameter set {name!r}: one of {', '.join(PARAMETER_SETS)}")
+        return cls(**PARAMETER_SETS[name])
 
     @classmethod
     def with_overrides(cls, overrides: dict[str, Any]) -> WalkerParams:
@@ -95,22 +120,53 @@ class WalkerParams:
         return cls(**{k: float(v) for k, v in overrides.items() if k in known})
 
 
+PARAMETER_SETS: dict[str, dict[str, float]] = {
+    "calibrated": {},
+    "paper_guesses": {"foot_mass": 0.020, "rotor_inertia": 1.35e-5},
+}
+
+LEG_MODELS = ("prb3",)  # leg models that stand and walk; the segmented rods collapse when driven
+
+
+class WalkerLegError(BeambenchError, ValueError):
+    """A leg model the walker refuses (one line); ``reason`` without the model name."""
+
+    def __init__(self, name: str, reason: str) -> None:
+        self.name, self.reason = name, reason
+        super().__init__(f"sim.model = {name!r}: {reason}")
+
+
+def check_leg_model(name: str) -> None:
+    """Refuse leg models that cannot carry the walker (research12, 3 g foot: rod3g, rod3gs, rod5g stand 17-25 mm
+    lower than prb3 and collapse when driven at 23 and 65 Hz, the body ~57 mm below the floor)."""
+    if name not in LEG_MODELS:
+        raise WalkerLegError(
+            name,
+            "refused for the walker: segmented-rod legs collapse under the drive (body ~57 mm below the floor "
+            f"at 23 and 65 Hz); use sim.model: {' or '.join(LEG_MODELS)}",
+        )
+
+
 def build_walker_spec(
     beam: BeamModel, twist_deg: float, wp: WalkerParams, integrator: str = "implicitfast", timestep: float = 1e-4
 ) -> mujoco.MjSpec:
-    """The walker scene as an ``MjSpec``."""
+    """The walker scene as an ``MjSpec``. Only the soles and the wheels touch the floor, through explicit
+    ``<pair>``s (every geom has contype = conaffinity = 0: no broad phase); no force sensor (it would add a
+    post-constraint RNE pass)."""
     spec = mujoco.MjSpec()
     spec.modelname = "beambench_walker"
     spec.option.timestep = timestep
     spec.option.integrator = INTEGRATORS[integrator]
     solref = [wp.contact_timeconst, wp.contact_dampratio]
-    friction = [wp.friction, 0.005, 0.0001]
+    friction = [wp.friction, 0.005, 0.0001]  # the floor's own (visual: contacts come from the pairs below)
     spec.worldbody.add_geom(
         name="floor",
         type=mujoco.mjtGeom.mjGEOM_PLANE,
         size=[2, 2, 0.01],
         solref=solref,
         friction=friction,
+        contype=0,
+        conaffinity=0,
         rgba=[0.8, 0.8, 0.8, 1],
     )
 
@@ -189,18 +245,21 @@ def build_walker_spec(
             size=[wp.wheel_radius, 0, 0],
             pos=[cart_x, side * 0.03, wheel_z],
             mass=0.0,
-            friction=[0, 0, 0],
-            condim=1,
-            priority=1,
-            solref=solref,
+            contype=0,
+            conaffinity=0,
+            rgba=[0.1, 0.1, 0.1, 1],
         )
+        # explicit pairs only (no broad phase): frictionless wheel on the floor
+        spec.add_pair(geomname1="floor", geomname2=f"wheel_{'l' if side > 0 else 'r'}", condim=1, solref=solref)
     # legs: left along +y with +φ, right along −y (frame turned 180° about z) with −φ: mirror images
     mount = quat_y(math.radians(wp.leg_mount_deg))
     for side, name, chir in ((1, "left", wp.left_chirality), (-1, "right", wp.right_chirality)):
         quat = mount.copy()
         if side < 0:
             mujoco.mju_mulQuat(quat, mount, np.array([0.0, 0, 0, 1]))
-        sites = add_beam(body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat, prefix=f"{name}_")
+        sites = add_beam(
+            body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat.tolist(), prefix=f"{name}_"
+        )
         tip = spec.body(sites.tip_body)
         r = wp.sole_radius
         tip.add_geom(
@@ -218,10 +277,15 @@ def build_walker_spec(
             size=[r, 0, 0],
             pos=[0, 0, -(wp.foot_length - r)],
             mass=wp.foot_mass,
-            priority=1,
+            contype=0,
+            conaffinity=0,
+        )
+        spec.add_pair(
+            geomname1="floor",
+            geomname2=f"sole_{name}",
+            condim=3 if wp.friction > 0 else 1,  # frictionless: normal-only (μ = 0 in a cone diverges)
             solref=solref,
-            friction=friction,
-            condim=3 if wp.friction > 0 else 1,  # frictionless: a normal-only contact (μ = 0 in a cone diverges)
+            friction=[wp.friction, wp.friction, 0.005, 0.0001, 0.0001],
         )
         tip.add_site(name=f"foot_{name}", pos=[0, 0, -wp.foot_length], size=[0.002, 0, 0])
     spec.add_actuator(
@@ -243,6 +307,9 @@ def build_walker_spec(
     return spec
 
 
+QUENCH_S = 0.001  # s, velocity-quench interval of the damped preroll
+
+
 class WalkerSim(DrivenScene):
     """The walker advanced in chunks; channels: ``markers`` [n, 3, 3] (body, foot_left, foot_right),
     ``force_nt`` (zeros: no load-cell plate), the motor's ``theta``/``omega``/``setpoint`` and ``rotor_torque``."""
@@ -259,6 +326,7 @@ class WalkerSim(DrivenScene):
         integrator: str = "implicitfast",
         timestep: float | None = None,
     ) -> None:
+        check_leg_model(beam.name)
         self.beam, self.twist_deg = beam, twist_deg
         self.rig = params or WalkerParams.with_overrides(beam.params.rig)
         self.integrator = integrator
@@ -269,7 +337,24 @@ class WalkerSim(DrivenScene):
         self.ramp = VelocityRamp(self.rig.vel_ramp_rate)
         inertia = self.rig.rotor_inertia + self.rig.eccentric_mass * self.rig.eccentric_radius**2
         self.servo = KinematicServo(model, "rotor_servo", inertia, self.rig.servo_hz, integrator, h)
-        self.physics.reset_to_equilibrium(self.rig.preroll_s, np.zeros(1))
+        self._preroll()
+
+    def _preroll(self) -> None:
+        """Motor off, settle under gravity: half of ``preroll_s`` quenched (velocities zeroed every
+        ``QUENCH_S``, which removes the light foot's ringing on the stiff contact), then the other half free, into
+        the steady creep of the soft contacts; time is then set to zero."""
+        ph = self.physics
+        quench = max(1, round(QUENCH_S / ph.timestep))
+        ctrl = np.zeros((quench, 1))
+        ph.data.ctrl[:] = 0.0
+        for _ in range(round(0.5 * self.rig.preroll_s / QUENCH_S)):
+            ph.step(ctrl)
+            ph.data.qvel[:] = 0.0
+        ph.step(np.zeros((round(0.5 * self.rig.preroll_s / ph.timestep), 1)))
+        # keep the velocities: the soft friction cone holds the splayed legs' sideways push only while the soles
+        # creep (~1e-5 m/s), so zeroing them would leave the legs out of balance (weight carried -2 %, 3 g foot)
+        ph.data.time = 0.0
+        mujoco.mj_forward(ph.model, ph.data)
 
     def set_frequency(self, hz: float) -> None:
         self.ramp.setpoint = float(hz)

@@ -1,0 +1,1056 @@
+"""``beambench calibrate sim``: fit a rig's twin to measured per-step results or to published numbers.
+
+A *calibratable rig* (:class:`CalibratableRig`, registered with :func:`register_rig`) brings its unknowns
+(name, bounds, log or linear), a ``simulate(base, values, frequencies, settings)`` that returns per-step results
+(a picklable module-level function: it runs in executor workers), an ``objective(steps, targets)`` and the way
+its calibrated values go into a protocol. The contact rig is registered here; other rigs (the walker) register
+themselves from their own module, listed in :data:`PLUGINS` (imported when present).
+
+The search (:func:`calibrate`) is the same for every rig:
+
+1. *coarse*: differential evolution (Sobol start, deferred updating: one generation = one parallel batch on the
+   sweep executor) on the target frequencies thinned to ``coarse_step_hz``, until ~55 % of the budget, a near-zero
+   objective, or a stall;
+2. *refine*: the best few coarse points re-evaluated on every target frequency, then a 1-D bracket of the rig's
+   most monotone unknown (contact rig: the preload, which shifts the whole map) around the best;
+3. *verify*: the winner's map on every target frequency, for the report.
+
+Every evaluation is appended to ``<out>/<name>.evals.jsonl`` as soon as it finishes; a restart reads it back and
+re-uses every point already evaluated (the search is seeded, so it replays the same proposals), which makes a
+killed calibration resumable. Nothing is written outside ``out``.
+
+Plugging in a rig (the walker): create ``beambench/studies/calibrate_walker.py`` (listed in :data:`PLUGINS`) that
+calls ``register_rig(CalibratableRig(name="walker", unknowns=(...), simulate=..., objective=..., base=...,
+write=..., summary=..., bracket=None or the most monotone unknown))``; ``simulate`` returns
+``{"steps": [{"frequency_hz": f, "body_speed_mm_s": v, ...}, ...], "extras": {...}}`` and the objective compares
+them with ``targets.table`` (``frequency_hz``, ``body_speed_mm_s``; parsed by
+:func:`beambench.studies.calibration_targets.parse_targets` from ``rig: walker`` / ``speed_mm_s`` files or walker
+sessions). Nothing else changes: the CLI, the search, the log and the report are rig-agnostic.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import importlib
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from beambench.studies.calibration_targets import (
+    CONTINUOUS,
+    NONE,
+    CalibrationInputError,
+    Targets,
+    transitions,
+)
+
+PLUGINS = ("beambench.studies.calibrate_walker",)  # modules that register more rigs, imported when present
+
+
+# ------------------------------------------------------------------------------------------------ registry
+
+
+@dataclass(frozen=True)
+class Unknown:
+    """One fitted parameter. The search works on ``log10(value)`` for ``log=True``, else on the value."""
+
+    name: str
+    lo: float
+    hi: float
+    log: bool = False
+    unit: str = ""
+    doc: str = ""
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        return (math.log10(self.lo), math.log10(self.hi)) if self.log else (self.lo, self.hi)
+
+    def value(self, u: float) -> float:
+        return float(10.0**u) if self.log else float(u)
+
+    def coord(self, value: float) -> float:
+        return math.log10(value) if self.log else float(value)
+
+
+@dataclass(frozen=True)
+class CalibratableRig:
+    """What the calibrator needs to know about a rig (see the module docstring).
+
+    ``simulate(base, values, frequencies, settings) -> {"steps": [row dict per frequency], "extras": {...}}``;
+    ``objective(steps DataFrame, targets) -> (J, {term: value})``; ``base(targets) -> dict`` (the fixed part:
+    parameter set, model, geometry; picklable); ``write(base, values, extras, targets, out_dir, name) -> Path``
+    writes the calibrated protocol; ``bracket``: the unknown to refine last with a 1-D search (or None);
+    ``summary(steps DataFrame) -> dict`` for the report (transitions, speeds …); ``stage_sim(stage, sim) -> sim``
+    (optional): the rig's own simulation settings per stage instead of the search's settle/record (the walker's
+    speed needs a longer settle and a timestep per stage)."""
+
+    name: str
+    unknowns: tuple[Unknown, ...]
+    simulate: Callable[[dict, dict, list[float], dict], dict]
+    objective: Callable[[pd.DataFrame, Targets], tuple[float, dict[str, float]]]
+    base: Callable[[Targets], dict]
+    write: Callable[..., Path]
+    summary: Callable[[pd.DataFrame], dict]
+    bracket: str | None = None
+    min_frequency_hz: float = 3.0
+    stage_sim: Callable[[str, dict[str, float]], dict[str, float]] | None = None  # the rig's own window per stage
+
+
+RIGS: dict[str, CalibratableRig] = {}
+
+
+def register_rig(rig: CalibratableRig) -> None:
+    RIGS[rig.name] = rig
+
+
+def get_rig(name: str) -> CalibratableRig:
+    """The registered rig ``name``; CalibrationInputError (one line) for a rig the calibrator does not know."""
+    for mod in PLUGINS:
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:
+                raise
+    if name not in RIGS:
+        raise CalibrationInputError(
+            f"rig: {name}: the calibrator does not know this rig yet (calibratable: {', '.join(sorted(RIGS))})"
+        )
+    return RIGS[name]
+
+
+# ------------------------------------------------------------------------------------------------ settings
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """Knobs of the search; ``quick()`` is a smaller, faster variant (smoke runs, tests)."""
+
+    budget_s: float = 540.0
+    coarse_step_hz: float = 2.0
+    coarse_settle_s: float = 1.0
+    coarse_record_s: float = 1.5
+    fine_settle_s: float = 1.5
+    fine_record_s: float = 2.0
+    popsize: int = 16  # points per generation
+    max_generations: int = 40
+    stall_generations: int = 8
+    good_enough: float = 0.01  # objective at which the coarse stage stops
+    refine_top: int = 4
+    bracket_rounds: int = 3
+    prior_rounds: int = 3  # rounds of the 1-D bracket along the prior's line before the evolution
+    seed: int = 1
+    free: tuple[str, ...] | None = None  # fit only these unknowns (others at their ``fixed`` value)
+    fixed: dict[str, float] = field(default_factory=dict)
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)  # per-unknown (lo, hi) overrides
+    max_evals: int | None = None  # stop (as if killed) after this many *new* evaluations
+
+    @classmethod
+    def quick(cls, **kw: Any) -> SearchSettings:
+        base: dict[str, Any] = dict(
+            budget_s=150.0,
+            coarse_settle_s=0.8,
+            coarse_record_s=1.2,
+            fine_settle_s=1.0,
+            fine_record_s=1.5,
+            popsize=6,
+            max_generations=12,
+            stall_generations=4,
+            refine_top=2,
+            bracket_rounds=2,
+            prior_rounds=2,
+        )
+        base.update(kw)
+        return cls(**base)
+
+    def sim(self, stage: str) -> dict[str, float]:
+        if stage == "coarse":
+            return {"settle_s": self.coarse_settle_s, "record_s": self.coarse_record_s}
+        return {"settle_s": self.fine_settle_s, "record_s": self.fine_record_s}
+
+
+class _OutOfTime(Exception):
+    """The coarse stage's share of the budget is spent (raised inside the evolution, caught around it)."""
+
+
+class Interrupted(Exception):
+    """``max_evals`` reached: the calibration stops where a kill would (the log holds every finished point)."""
+
+
+# ------------------------------------------------------------------------------------------------ evaluation log
+
+
+def _key(rig: str, base: dict, values: dict[str, float], freqs: Sequence[float], sim: dict) -> str:
+    blob = json.dumps(
+        [rig, base, {k: round(v, 10) for k, v in sorted(values.items())}, [round(f, 6) for f in freqs], sim],
+        sort_keys=True,
+        default=str,
+    )
+    return hashlib.sha1(blob.encode()).hexdigest()
+
+
+class EvalLog:
+    """Every evaluated point, one JSON object per line, appended (and flushed) as each finishes."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.cache: dict[str, dict] = {}
+        if path.exists():
+            for line in path.read_text().splitlines():
+                try:
+                    rec = json.loads(line)
+                except json.JSONDecodeError:  # a line cut by a kill
+                    continue
+                if isinstance(rec, dict) and "key" in rec:
+                    self.cache[rec["key"]] = rec
+        self.reused = 0
+        self.new = 0
+
+    def get(self, key: str) -> dict | None:
+        rec = self.cache.get(key)
+        if rec is not None:
+            self.reused += 1
+        return rec
+
+    def add(self, rec: dict) -> None:
+        self.cache[rec["key"]] = rec
+        self.new += 1
+        with self.path.open("a") as fh:
+            fh.write(json.dumps(rec, default=_json_default) + "\n")
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o).__name__)
+
+
+def _evaluate(task: dict) -> dict:
+    """Executor task: one simulation of a rig's map (runs in a worker process)."""
+    rig = get_rig(task["rig"])
+    t0 = time.perf_counter()
+    out = rig.simulate(task["base"], task["values"], task["frequencies"], task["sim"])
+    out["wall_s"] = time.perf_counter() - t0
+    return out
+
+
+@dataclass
+class Point:
+    """One evaluated point: unit coordinates ``u`` of the free unknowns, values of all, objective, stage."""
+
+    values: dict[str, float]
+    j: float
+    parts: dict[str, float]
+    steps: pd.DataFrame
+    extras: dict[str, Any]
+    stage: str
+    generation: int
+
+
+class Evaluator:
+    """Runs batches of points on the executor, through the log (cache)."""
+
+    def __init__(
+        self,
+        pool: Any,
+        rig: CalibratableRig,
+        base: dict,
+        targets: Targets,
+        log: EvalLog,
+        settings: SearchSettings,
+        on_eval: Callable[[Point], None] | None = None,
+    ) -> None:
+        self.pool, self.rig, self.base, self.targets, self.log = pool, rig, base, targets, log
+        self.settings = settings
+        self.on_eval = on_eval or (lambda p: None)
+        self.points: list[Point] = []
+        self.generation = 0
+
+    def batch(self, values: list[dict[str, float]], freqs: list[float], stage: str) -> list[Point]:
+        from beambench.studies.executor import run_tasks
+
+        sim = self.settings.sim(stage)
+        if self.rig.stage_sim is not None:
+            sim = self.rig.stage_sim(stage, sim)
+        keys = [_key(self.rig.name, self.base, v, freqs, sim) for v in values]
+        recs: list[dict | None] = [self.log.get(k) for k in keys]
+        todo = [i for i, r in enumerate(recs) if r is None]
+        seen: dict[str, int] = {}
+        unique = []
+        for i in todo:
+            if keys[i] not in seen:
+                seen[keys[i]] = i
+                unique.append(i)
+        limit = self.settings.max_evals
+        if limit is not None and self.log.new + len(unique) > limit:
+            unique = unique[: max(0, limit - self.log.new)]
+            cut = True
+        else:
+            cut = False
+        tasks = [
+            {
+                "rig": self.rig.name,
+                "base": self.base,
+                "values": values[i],
+                "frequencies": list(freqs),
+                "sim": sim,
+                "key": keys[i],
+            }
+            for i in unique
+        ]
+
+        def done(task: dict, res: dict) -> None:
+            rec = {
+                "key": task["key"],
+                "rig": self.rig.name,
+                "values": task["values"],
+                "frequencies": task["frequencies"],
+                "sim": task["sim"],
+                "stage": stage,
+                **res,
+            }
+            self.log.add(rec)
+            self.on_eval(self._point(rec, stage))
+
+        if tasks:
+            run_tasks(self.pool.executor, _evaluate, tasks, done)
+        if cut:
+            raise Interrupted(f"stopped after {limit} new evaluations")
+        out = []
+        for k in keys:
+            rec = self.log.cache[k]
+            p = self._point(rec, stage)
+            out.append(p)
+            self.points.append(p)
+        return out
+
+    def _point(self, rec: dict, stage: str) -> Point:
+        steps = pd.DataFrame(rec["steps"])
+        j, parts = self.rig.objective(steps, self.targets)
+        return Point(dict(rec["values"]), float(j), parts, steps, dict(rec.get("extras", {})), stage, self.generation)
+
+
+# ------------------------------------------------------------------------------------------------ the search
+
+
+@dataclass
+class Result:
+    """What :func:`calibrate` found and wrote."""
+
+    rig: str
+    values: dict[str, float]
+    j: float
+    steps: pd.DataFrame
+    extras: dict[str, Any]
+    protocol: Path
+    report: Path
+    history: list[dict]
+    identifiability: dict[str, Any]
+    summary: dict[str, Any]
+    evaluations: int
+    reused: int
+    wall_s: float
+
+
+def coarse_frequencies(targets: Targets, step_hz: float, lo: float) -> list[float]:
+    """The target frequencies thinned to about ``step_hz`` apart (at least ``lo`` Hz)."""
+    fs = sorted(f for f in targets.frequencies if f >= lo - 1e-9)
+    out: list[float] = []
+    for f in fs:
+        if not out or f - out[-1] >= step_hz - 1e-9:
+            out.append(float(f))
+    return out
+
+
+def calibrate(
+    targets: Targets,
+    out_dir: Path,
+    name: str,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    settings: SearchSettings = SearchSettings(),
+    progress: Any = None,
+) -> Result:
+    """Fit the twin of ``targets.rig`` to ``targets``; write ``out_dir/<name>.yaml`` (runnable protocol) and the
+    report beside it. ``progress``: a rich Progress (or None)."""
+    from scipy.optimize import differential_evolution
+
+    from beambench.studies.executor import make_executor
+
+    t_start = time.perf_counter()
+    rig = get_rig(targets.rig)
+    base = rig.base(targets)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    log = EvalLog(out_dir / f"{name}.evals.jsonl")
+    unknowns = {u.name: u for u in rig.unknowns}
+    for k, (lo, hi) in settings.bounds.items():
+        unknowns[k] = replace(unknowns[k], lo=lo, hi=hi)
+    free = [unknowns[n] for n in (settings.free or tuple(unknowns))]
+    fixed = {n: float(settings.fixed.get(n, _default(u))) for n, u in unknowns.items() if u not in free}
+    coarse = coarse_frequencies(targets, settings.coarse_step_hz, rig.min_frequency_hz)
+    fine = [float(f) for f in sorted(targets.frequencies) if f >= rig.min_frequency_hz - 1e-9]
+    history: list[dict] = []
+    task = progress.add_task("calibrating", total=None) if progress is not None else None
+    best: list[Point] = []
+
+    def on_eval(p: Point) -> None:
+        if not best or p.j < best[0].j:
+            best[:] = [p]
+        if progress is not None:
+            progress.update(
+                task,
+                advance=1,
+                description=f"{p.stage} gen {ev.generation}: best J {best[0].j:.3f} ({log.new} run, {log.reused} reused)",
+            )
+
+    def values_of(x: np.ndarray) -> dict[str, float]:
+        return {**fixed, **{u.name: u.value(float(v)) for u, v in zip(free, x)}}
+
+    def elapsed() -> float:
+        return time.perf_counter() - t_start
+
+    with make_executor(workers, scheduler) as pool:
+        ev = Evaluator(pool, rig, base, targets, log, settings, on_eval)
+
+        # --- 1. coarse: differential evolution, one generation per parallel batch
+        def mapper(_func: Any, xs: Any) -> list[float]:
+            if history and history[-1]["stage"] == "coarse" and elapsed() > 0.55 * settings.budget_s:
+                raise _OutOfTime  # a generation would overrun the coarse stage's share of the budget
+            pts = ev.batch([values_of(np.asarray(x)) for x in xs], coarse, "coarse")
+            js = [p.j for p in pts]
+            history.append(
+                {
+                    "generation": ev.generation,
+                    "stage": "coarse",
+                    "best": float(min(js)),
+                    "median": float(np.median(js)),
+                    "n": len(js),
+                    "elapsed_s": elapsed(),
+                }
+            )
+            ev.generation += 1
+            return js
+
+        stall = {"best": math.inf, "since": 0}
+
+        def stop(intermediate_result: Any) -> bool:
+            j = float(intermediate_result.fun)
+            if j < stall["best"] - 1e-9:
+                stall.update(best=j, since=0)
+            else:
+                stall["since"] += 1
+            return bool(
+                j <= settings.good_enough
+                or elapsed() > 0.55 * settings.budget_s
+                or stall["since"] >= settings.stall_generations
+            )
+
+        # --- 0. the prior's line: a 1-D bracket of the monotone unknown (e.g. the preload) at the prior's
+        # other values; its best point joins the initial population
+        init = initial_population(free, settings)
+        br = next((u for u in free if u.name == rig.bracket), None)
+        if br is not None and settings.prior_rounds > 0:
+            centre = {u.name: (1.0 if u.log and u.lo <= 1.0 <= u.hi else _default(u)) for u in free}
+            start = {**fixed, **centre}
+            best_line = bracket(
+                ev,
+                start,
+                br,
+                br.bounds,
+                coarse,
+                "coarse",
+                settings.prior_rounds,
+                max(4, 2 * pool.workers),
+                history,
+                elapsed,
+                "prior line",
+                stop=lambda: elapsed() > 0.25 * settings.budget_s,
+            )
+            init[-1] = [u.coord(best_line.values[u.name]) for u in free]
+        with contextlib.suppress(_OutOfTime):
+            differential_evolution(
+                lambda x: 0.0,  # never called: the mapper evaluates
+                [u.bounds for u in free],
+                maxiter=settings.max_generations,
+                init=init,
+                rng=settings.seed,
+                updating="deferred",
+                workers=mapper,
+                polish=False,
+                tol=0.0,
+                mutation=(0.5, 1.0),
+                recombination=0.7,
+                callback=stop,
+            )
+
+        # --- 2. refine: the best distinct coarse points on every target frequency, then a bracket
+        ranked = sorted((p for p in ev.points if p.stage == "coarse"), key=lambda p: p.j)
+        picks: list[dict[str, float]] = []
+        for p in ranked:
+            if all(_distance(p.values, q, free) > 0.02 for q in picks):
+                picks.append(p.values)
+            if len(picks) >= settings.refine_top:
+                break
+        finals = ev.batch(picks, fine, "fine") if elapsed() < 0.85 * settings.budget_s else []
+        history.append(_gen(ev, "fine", finals, elapsed()))
+        winner = min(finals, key=lambda p: p.j) if finals else ranked[0]
+        if br is not None and finals and settings.bracket_rounds > 0 and elapsed() < 0.85 * settings.budget_s:
+            c = br.coord(winner.values[br.name])
+            half = 0.06 * (br.bounds[1] - br.bounds[0])
+            winner = min(
+                winner,
+                bracket(
+                    ev,
+                    winner.values,
+                    br,
+                    (c - half, c + half),
+                    fine,
+                    "fine",
+                    settings.bracket_rounds,
+                    max(2, 2 * pool.workers),
+                    history,
+                    elapsed,
+                    "bracket",
+                    stop=lambda: elapsed() > 0.9 * settings.budget_s,
+                ),
+                key=lambda p: p.j,
+            )
+        if winner.stage != "fine":  # out of time before the fine stage: still report the map on every frequency
+            winner = ev.batch([winner.values], fine, "fine")[0]
+        ident = identifiability([p for p in ev.points if p.stage == "coarse"], free)
+        fine_pts = [p for p in ev.points if p.stage == "fine"]
+        if len(fine_pts) > 1:  # the refine/bracket points: on every frequency, so their spread is the sharper one
+            ident["fine_spread"] = identifiability(fine_pts, free).get("spread", {})
+
+    summary = rig.summary(winner.steps)
+    wall = elapsed()
+    protocol = rig.write(base, winner.values, winner.extras, targets, out_dir, name)
+    result = Result(
+        rig.name,
+        winner.values,
+        winner.j,
+        winner.steps,
+        winner.extras,
+        protocol,
+        out_dir / f"{name}_report.md",
+        history,
+        ident,
+        summary,
+        log.new,
+        log.reused,
+        wall,
+    )
+    write_report(result, targets, out_dir, name, free, settings)
+    return result
+
+
+def bracket(
+    ev: Evaluator,
+    start: dict[str, float],
+    u: Unknown,
+    interval: tuple[float, float],
+    freqs: list[float],
+    stage: str,
+    rounds: int,
+    n: int,
+    history: list[dict],
+    elapsed: Callable[[], float],
+    label: str,
+    stop: Callable[[], bool] = lambda: False,
+) -> Point:
+    """A parallel 1-D search of ``u`` (others as in ``start``): ``n`` points spread over the interval per round,
+    then the interval shrinks to ± one spacing around the best (the middle of a tie: the objective is flat
+    between map changes). Returns the best point seen."""
+    lo, hi = max(interval[0], u.bounds[0]), min(interval[1], u.bounds[1])
+    best: Point | None = None
+    for _ in range(rounds):
+        if best is not None and stop():
+            break
+        xs = lo + (np.arange(n) + 0.5) / n * (hi - lo)
+        pts = ev.batch([{**start, u.name: u.value(float(x))} for x in xs], freqs, stage)
+        history.append({**_gen(ev, stage, pts, elapsed()), "stage": label})
+        js = np.array([p.j for p in pts])
+        ties = np.flatnonzero(js <= js.min() + 1e-9)
+        i = int(ties[len(ties) // 2])
+        if best is None or pts[i].j <= best.j:
+            best = pts[i]
+        step = (hi - lo) / n
+        c = float(xs[i])
+        lo, hi = max(u.bounds[0], c - step), min(u.bounds[1], c + step)
+    assert best is not None
+    return best
+
+
+def initial_population(free: list[Unknown], settings: SearchSettings) -> np.ndarray:
+    """Generation 0: a scrambled Sobol design over the box (``popsize`` points)."""
+    from scipy.stats import qmc
+
+    lo = np.array([u.bounds[0] for u in free])
+    hi = np.array([u.bounds[1] for u in free])
+    n = max(5, settings.popsize)
+    pts = qmc.Sobol(len(free), scramble=True, seed=settings.seed).random(2 ** math.ceil(math.log2(n)))[:n]
+    return lo + pts * (hi - lo)
+
+
+def _default(u: Unknown) -> float:
+    return math.sqrt(u.lo * u.hi) if u.log else 0.5 * (u.lo + u.hi)
+
+
+def _distance(a: dict[str, float], b: dict[str, float], free: list[Unknown]) -> float:
+    d = [(u.coord(a[u.name]) - u.coord(b[u.name])) / (u.bounds[1] - u.bounds[0]) for u in free]
+    return float(np.sqrt(np.sum(np.square(d))))
+
+
+def _gen(ev: Evaluator, stage: str, pts: list[Point], elapsed: float) -> dict:
+    js = [p.j for p in pts] or [math.inf]
+    ev.generation += 1
+    return {
+        "generation": ev.generation - 1,
+        "stage": stage,
+        "best": float(np.min(js)),
+        "median": float(np.median(js)),
+        "n": len(pts),
+        "elapsed_s": elapsed,
+    }
+
+
+def identifiability(points: list[Point], free: list[Unknown]) -> dict[str, Any]:
+    """How well the data pin each unknown: the spread of the near-best points (J within
+    max(0.05, 25 %) of the best) in each unknown, and the principal directions of the valley — from a quadratic
+    fit of J around the best (the Hessian's eigenvectors; small eigenvalue = flat direction) when there are
+    enough points, else from the near-best points' covariance (large spread = flat)."""
+    if not points:
+        return {}
+    js = np.array([p.j for p in points])
+    jb = float(js.min())
+    near = [p for p in points if p.j <= jb + max(0.05, 0.25 * jb)]
+    spans = np.array([u.bounds[1] - u.bounds[0] for u in free])
+    out: dict[str, Any] = {"best_objective": jb, "near_best_points": len(near), "threshold": jb + max(0.05, 0.25 * jb)}
+    out["spread"] = {
+        u.name: {
+            "min": float(min(p.values[u.name] for p in near)),
+            "max": float(max(p.values[u.name] for p in near)),
+            "unit": u.unit,
+        }
+        for u in free
+    }
+    names = [u.name for u in free]
+    U = np.array([[(u.coord(p.values[u.name])) / s for u, s in zip(free, spans)] for p in points])
+    ub = U[int(np.argmin(js))]
+    d = len(free)
+    n_coef = 1 + d + d * (d + 1) // 2
+    order = np.argsort(js)[: max(3 * n_coef, 12)]
+    if len(order) >= 2 * n_coef:
+        X = U[order] - ub
+        cols = [np.ones(len(X))] + [X[:, i] for i in range(d)]
+        pairs = [(i, k) for i in range(d) for k in range(i, d)]
+        cols += [X[:, i] * X[:, k] * (0.5 if i == k else 1.0) for i, k in pairs]
+        A = np.column_stack(cols)
+        coef, *_ = np.linalg.lstsq(A, js[order], rcond=None)
+        H = np.zeros((d, d))
+        for c, (i, k) in zip(coef[1 + d :], pairs):
+            H[i, k] = H[k, i] = c
+        w, v = np.linalg.eigh(H)
+        out["hessian_unit"] = H.tolist()
+        out["directions"] = [
+            {"curvature": float(wi), "direction": dict(zip(names, np.round(v[:, i], 3).tolist()))}
+            for i, wi in enumerate(w)
+        ]
+        out["method"] = "quadratic fit of J on the best points (unknowns scaled to their search range)"
+    elif len(near) >= d + 1:
+        Un = np.array([[u.coord(p.values[u.name]) / s for u, s in zip(free, spans)] for p in near])
+        w, v = np.linalg.eigh(np.cov(Un.T).reshape(d, d))
+        out["directions"] = [
+            {"spread": float(np.sqrt(max(wi, 0))), "direction": dict(zip(names, np.round(v[:, i], 3).tolist()))}
+            for i, wi in enumerate(w[::-1])
+        ]
+        out["method"] = "covariance of the near-best points (unknowns scaled to their search range)"
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ report
+
+
+def write_report(
+    result: Result, targets: Targets, out_dir: Path, name: str, free: list[Unknown], settings: SearchSettings
+) -> None:
+    """``<name>_report.json`` / ``.md``, ``<name>_objective.png`` and ``<name>_maps.png`` beside the protocol."""
+    meas = targets.table
+    twin = result.steps
+    rep = {
+        "rig": result.rig,
+        "targets": {"source": targets.source, **{k: v for k, v in targets.scalars.items()}},
+        "protocol": str(result.protocol),
+        "objective": result.j,
+        "parameters": result.values,
+        "extras": result.extras,
+        "twin_summary": result.summary,
+        "identifiability": result.identifiability,
+        "history": result.history,
+        "evaluations": {"new": result.evaluations, "reused_from_log": result.reused},
+        "wall_s": result.wall_s,
+        "settings": asdict(settings),
+    }
+    (out_dir / f"{name}_report.json").write_text(json.dumps(rep, indent=1, default=_json_default))
+    _figures(result, meas, twin, out_dir, name)
+    lines = [
+        f"# Calibration of the {result.rig} twin: {name}",
+        "",
+        f"- targets: {targets.source}",
+        f"- protocol: `{result.protocol}`",
+        f"- objective: {result.j:.4f} after {result.evaluations} new "
+        f"evaluations ({result.reused} re-used from the log), {result.wall_s:.0f} s wall",
+        "",
+        "## Parameters",
+        "",
+        "| unknown | value | near-best range | unit |",
+        "|---|---|---|---|",
+    ]
+    spread = result.identifiability.get("fine_spread") or result.identifiability.get("spread", {})
+    for k, v in result.values.items():
+        s = spread.get(k)
+        rng = f"{s['min']:.4g} … {s['max']:.4g}" if s else "fixed"
+        unit = s["unit"] if s else ""
+        lines.append(f"| {k} | {v:.5g} | {rng} | {unit} |")
+    for k, v in result.extras.items():
+        lines.append(f"| {k} (derived) | {v:.5g} | | |" if isinstance(v, float) else f"| {k} | {v} | | |")
+    lines += ["", "## Targets vs twin", "", "| quantity | target | twin |", "|---|---|---|"]
+    for k, v in result.summary.items():
+        tv = targets.scalars.get(k)
+        if isinstance(v, dict) or isinstance(tv, dict):
+            continue
+        lines.append(f"| {k} | {tv} | {v} |")
+    dirs = result.identifiability.get("directions")
+    if dirs:
+        lines += ["", "## Identifiability", "", result.identifiability.get("method", ""), ""]
+        for d in dirs:
+            lines.append(f"- {json.dumps({k: v for k, v in d.items()}, default=_json_default)}")
+    lines += [
+        "",
+        "## Objective per generation",
+        "",
+        "| gen | stage | best | median | points | elapsed s |",
+        "|---|---|---|---|---|---|",
+    ]
+    for h in result.history:
+        lines.append(
+            f"| {h['generation']} | {h['stage']} | {h['best']:.4f} | {h['median']:.4f} | {h['n']} | "
+            f"{h['elapsed_s']:.0f} |"
+        )
+    lines += ["", f"![maps]({name}_maps.png)", "", f"![objective]({name}_objective.png)", ""]
+    (out_dir / f"{name}_report.md").write_text("\n".join(lines))
+
+
+def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Path, name: str) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 3.2), layout="constrained")
+    ax = fig.add_subplot()
+    for stage, marker in (("prior line", "v"), ("coarse", "o"), ("fine", "s"), ("bracket", "^")):
+        h = [x for x in result.history if x["stage"] == stage]
+        if h:
+            ax.plot([x["generation"] for x in h], [x["best"] for x in h], marker + "-", label=f"{stage} best")
+            ax.plot(
+                [x["generation"] for x in h],
+                [x["median"] for x in h],
+                marker,
+                alpha=0.4,
+                mfc="none",
+                label=f"{stage} median",
+            )
+    ax.set_yscale("symlog", linthresh=0.01)
+    ax.set_xlabel("generation")
+    ax.set_ylabel("objective J")
+    ax.legend(fontsize=7)
+    fig.savefig(out_dir / f"{name}_objective.png", dpi=110)
+
+    fig = Figure(figsize=(8, 3.6), layout="constrained")
+    ax = fig.add_subplot()
+    if "regime" in meas and meas["regime"].astype(str).ne("").any():
+        ax.plot(
+            meas["frequency_hz"],
+            [regime_level_of(r) for r in meas.to_dict("records")],
+            "o",
+            ms=7,
+            mfc="none",
+            label="measured / target",
+        )
+        ax.plot(
+            twin["frequency_hz"],
+            [regime_level_of(r) for r in twin.to_dict("records")],
+            "x",
+            ms=6,
+            label="calibrated twin",
+        )
+        ax.set_yticks(
+            [CONTINUOUS_LEVEL, -0.5, 0, 1, math.log2(3), 2, 3], ["continuous", "2+", "1", "1/2", "1/3", "1/4", "none"]
+        )
+        ax.set_ylabel("regime (contacts per cycle)")
+    else:  # e.g. the walker: plot the numeric targets the rig names
+        for col in [c for c in meas.columns if c not in ("frequency_hz", "regime")][:1]:
+            ax.plot(meas["frequency_hz"], meas[col], "o", mfc="none", label=f"target {col}")
+            if col in twin:
+                ax.plot(twin["frequency_hz"], twin[col], "x-", label=f"twin {col}")
+            ax.set_ylabel(col)
+    ax.set_xlabel("drive frequency (Hz)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(out_dir / f"{name}_maps.png", dpi=110)
+
+
+# ================================================================================================ contact rig
+
+
+CONTINUOUS_LEVEL = -1.0  # one level below 1:1 (as ½ is one above); -2 was tried: see the bench notes
+
+
+def regime_level(regime: str, ratio: float = math.nan, fraction: float = math.nan) -> float:
+    """A number per step that orders the contact regimes as they appear with rising frequency, so per-step
+    differences measure how far apart two maps are: continuous −1, several contacts per cycle −½, one per cycle 0,
+    one every k cycles log₂ k (½ → 1, ⅓ → 1.58), no contact 3. Irregular steps sit at log₂(1/ratio) of their
+    measured ratio (e.g. 0.6 → 0.74, between 1 and ½); a stepping foot that spends most of the window on the plate
+    is pulled toward continuous (soft: in-contact fraction 0.7 … 0.95)."""
+    if regime == NONE:
+        return 3.0
+    if regime == CONTINUOUS:
+        return CONTINUOUS_LEVEL
+    r = ratio
+    if not (isinstance(r, float | int) and math.isfinite(r) and r > 0):
+        try:
+            from fractions import Fraction
+
+            r = float(Fraction(regime))
+        except (ValueError, ZeroDivisionError):
+            return math.nan
+    lev = -0.5 * min(math.log2(r), 1.0) if r > 1 else min(math.log2(1.0 / r), 2.5)
+    if isinstance(fraction, float | int) and math.isfinite(fraction):
+        s = min(1.0, max(0.0, (fraction - 0.7) / 0.25))
+        lev = s * CONTINUOUS_LEVEL + (1 - s) * lev
+    return float(lev)
+
+
+def regime_level_of(row: dict) -> float:
+    return regime_level(
+        str(row.get("regime", "")),
+        float(row.get("contacts_per_cycle", math.nan)),
+        float(row.get("in_contact_fraction", math.nan)),
+    )
+
+
+TANGENTIAL_WEIGHT = 0.5
+
+
+def contact_objective(steps: pd.DataFrame, targets: Targets) -> tuple[float, dict[str, float]]:
+    """Mean squared regime-level difference over the target steps the twin ran (nearest frequency within
+    0.5 Hz), plus ``TANGENTIAL_WEIGHT`` × the fraction of target tangential signs the twin gets wrong."""
+    if steps.empty:
+        return 10.0, {"regime": 10.0}
+    tf = steps["frequency_hz"].to_numpy(float)
+    twin = steps.to_dict("records")
+    diffs, signs = [], []
+    for row in targets.table.to_dict("records"):
+        i = int(np.argmin(np.abs(tf - row["frequency_hz"])))
+        if abs(tf[i] - row["frequency_hz"]) > 0.5:
+            continue
+        if str(row.get("regime", "")):
+            lt = regime_level_of(row)
+            lw = regime_level_of(twin[i])
+            if math.isfinite(lt):
+                diffs.append((lw - lt) ** 2 if math.isfinite(lw) else 4.0)
+        s = row.get("tangential_sign", math.nan)
+        sw = twin[i].get("tangential_sign", math.nan)
+        if (
+            isinstance(s, float | int)
+            and math.isfinite(s)
+            and s != 0
+            and isinstance(sw, float | int)
+            and math.isfinite(sw)
+        ):
+            signs.append(float(np.sign(sw) != np.sign(s)))
+    reg = float(np.mean(diffs)) if diffs else 10.0
+    tan = float(np.mean(signs)) if signs else 0.0
+    return reg + TANGENTIAL_WEIGHT * tan, {"regime": reg, "tangential": tan, "steps": float(len(diffs))}
+
+
+CONTACT_UNKNOWNS = (
+    Unknown("k_scale", 0.05, 1.6, log=True, doc="multiplies the prior set's k and k_twist"),
+    Unknown("b_scale", 0.25, 4.0, log=True, doc="multiplies the prior set's b and b_twist"),
+    Unknown(
+        "preload_mm",
+        -0.3,
+        1.0,
+        unit="mm",
+        doc="static interference of the foot with the plate: sag under gravity − gap (the gap follows)",
+    ),
+)
+
+
+def contact_base(targets: Targets) -> dict:
+    """The fixed part of the contact twin: the prior parameter set (the session's, else the protocol default),
+    model, twist and amplitude (the session's protocol, else the shipped contact sweep)."""
+    from beambench.acquisition.config import parse_protocol
+    from beambench.common.resources import shipped_dir
+
+    text = targets.protocol_text or (shipped_dir("protocols") / "contact_sweep.yaml").read_text()
+    try:
+        proto = parse_protocol(text, targets.source)
+    except ValueError as exc:
+        raise CalibrationInputError(str(exc)) from None
+    model = proto.sim.model if proto.sim.model != "auto" else "prb3"
+    params = targets.prior.get("params", proto.sim.params)
+    return {
+        "model": model,
+        "params": str(params),
+        "twist_deg": float(proto.sim.twist_deg),
+        "amplitude_m": float(proto.amplitude_mm) * 1e-3,
+    }
+
+
+def calibrated_params(base: dict, values: dict[str, float]) -> Any:
+    """The prior :class:`BeamParams` with the fitted scales applied."""
+    from beambench.sim.models.params import load_params
+    from beambench.sim.models.registry import model_family
+
+    p = load_params(base["params"], model=model_family(base["model"]))
+    ks, bs = values.get("k_scale", 1.0), values.get("b_scale", 1.0)
+    return replace(
+        p,
+        k=p.k * ks,
+        k_twist=p.k_twist * ks,
+        b=p.b * bs,
+        b_twist=p.b_twist * bs,
+        beta=p.beta * bs / ks if ks > 0 else p.beta,
+    )
+
+
+def static_sag_m(beam: Any, twist_deg: float, rig: Any) -> float:
+    """How far the foot sinks under gravity from its natural (gravity-free) position, plate out of reach."""
+    import mujoco
+
+    from beambench.sim.scenes.contact_rig import build_contact_spec
+
+    spec = build_contact_spec(beam, twist_deg, 0.2, rig, "implicitfast", 2e-4)
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    site = m.site("foot").id
+    z0 = float(d.site_xpos[site, 2])
+    dof = m.jnt_dofadr[m.joint("stage").id]
+    for _ in range(40):  # 2 s, stage held
+        mujoco.mj_step(m, d, nstep=250)
+        d.qpos[dof] = d.qvel[dof] = 0.0
+    # finish with the static equilibrium: damp the remaining swing out
+    d.qvel[:] = 0.0
+    for _ in range(20):
+        mujoco.mj_step(m, d, nstep=100)
+        d.qvel[:] *= 0.0
+    mujoco.mj_forward(m, d)
+    return z0 - float(d.site_xpos[site, 2])
+
+
+def simulate_contact(base: dict, values: dict[str, float], frequencies: list[float], sim: dict) -> dict:
+    """The contact twin's regime map at ``frequencies`` for the fitted ``values`` (runs in a worker): the gap h'
+    is the static sag minus the preload; the map is :func:`beambench.sim.scenes.contact_sweep.regime_map`
+    (force-only regimes, as ``beambench analyze`` finds them; noise off)."""
+    from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scenes.contact_rig import RigParams
+    from beambench.sim.scenes.contact_sweep import regime_map
+
+    params = calibrated_params(base, values)
+    beam = make_beam_model(base["model"], params)
+    rig = RigParams.with_overrides(params.rig)
+    sag = static_sag_m(beam, base["twist_deg"], rig)
+    gap = sag - values.get("preload_mm", 0.0) * 1e-3
+    table = regime_map(
+        frequencies,
+        model=base["model"],
+        params=params,
+        rig_overrides={"plate_gap": gap},
+        settle_s=sim["settle_s"],
+        record_s=sim["record_s"],
+        nthread=1,
+        twist_deg=base["twist_deg"],
+        amplitude=base["amplitude_m"],
+    )
+    table = table.astype({"tangential_sign": float, "touchdown_direction": float})
+    return {"steps": table.to_dict("records"), "extras": {"gap_mm": gap * 1e3, "sag_mm": sag * 1e3}}
+
+
+def contact_summary(steps: pd.DataFrame) -> dict:
+    tr = transitions(steps["frequency_hz"].to_numpy(float), list(steps["regime"].astype(str)))
+    return {**tr, "map": " ".join(f"{f:g}:{r}" for f, r in zip(steps["frequency_hz"], steps["regime"]))}
+
+
+def write_contact_protocol(
+    base: dict, values: dict[str, float], extras: dict, targets: Targets, out_dir: Path, name: str
+) -> Path:
+    """``out_dir/<name>_params.yaml`` (the calibrated parameter set) and ``out_dir/<name>.yaml``: the session's
+    protocol (or the shipped contact sweep) with ``sim.params`` = that file's absolute path and
+    ``sim.plate_gap_mm`` = the fitted gap; the sweep is extended to cover the targets if it stops short."""
+    from beambench.acquisition.config import parse_protocol
+    from beambench.common.resources import shipped_dir
+
+    p = calibrated_params(base, values)
+    beam = {k: v for k, v in p.to_dict().items() if k not in ("name", "model", "source", "rig", "material")}
+    beam["material"] = asdict(p.material)
+    params_doc = {
+        "name": name,
+        "model": p.model,
+        "source": f"beambench calibrate sim against {targets.source} (prior: {base['params']}); "
+        + ", ".join(f"{k} = {v:.5g}" for k, v in values.items()),
+        "beam": {k: float(v) if isinstance(v, float | int) else v for k, v in beam.items()},
+        "rig": {**p.rig, "plate_gap": round(float(extras["gap_mm"]) * 1e-3, 7)},
+    }
+    params_path = (out_dir / f"{name}_params.yaml").resolve()
+    params_path.write_text(
+        "# Calibrated by `beambench calibrate sim` (see the report beside this file). SI units.\n"
+        + yaml.safe_dump(params_doc, sort_keys=False)
+    )
+    text = targets.protocol_text or (shipped_dir("protocols") / "contact_sweep.yaml").read_text()
+    doc = yaml.safe_load(text)
+    doc["name"] = name
+    doc["backend"] = "sim"
+    doc.setdefault("sim", {})
+    doc["sim"]["params"] = str(params_path)
+    doc["sim"]["model"] = base["model"]
+    doc["sim"]["plate_gap_mm"] = round(float(extras["gap_mm"]), 4)
+    top = float(max(targets.frequencies)) if len(targets.table) else 0.0
+    sweep = doc.get("sweep", {})
+    if "stop" in sweep and top > float(sweep["stop"]):
+        sweep["stop"] = math.ceil(top)
+        lim = doc.setdefault("limits", {})
+        lim["max_frequency_hz"] = max(float(lim.get("max_frequency_hz", 45)), math.ceil(top))
+    out = out_dir / f"{name}.yaml"
+    header = (
+        f"# Calibrated by `beambench calibrate sim` against {targets.source}.\n"
+        f"# sim.params points at the calibrated parameter set; sim.plate_gap_mm is the fitted gap.\n"
+    )
+    body = yaml.safe_dump(doc, sort_keys=False, allow_unicode=True)
+    parse_protocol(body, str(out))  # refuse to write a protocol that would not load
+    out.write_text(header + body)
+    return out.resolve()
+
+
+register_rig(
+    CalibratableRig(
+        name="contact",
+        unknowns=CONTACT_UNKNOWNS,
+        simulate=simulate_contact,
+        objective=contact_objective,
+        base=contact_base,
+        write=write_contact_protocol,
+        summary=contact_summary,
+        bracket="preload_mm",
+    )
+)

@@ -1,0 +1,178 @@
+"""The walker in ``beambench calibrate sim`` (a plugin of :mod:`beambench.studies.calibrate`).
+
+Targets: ``rig: walker`` with ``speed_mm_s: {f: v}`` (any number of frequencies; e.g.
+``calibration/paper_walker_targets.yaml``) or a walker session (speeds from :mod:`beambench.analysis`).
+
+Unknowns (``benchmarks/bench_walker.py`` sensitivity: one at a time, 23 / 65 Hz): the foot mass moves 65 Hz by
+×12 between 20 g and 2 g, the friction turns 23 Hz from +21 to −60 mm/s between 0.3 and 0.8 (with a cliff: two
+gaits near 20 Hz between 0.475 and 0.525); rotor inertia, cart and clamp offset move nothing. Leg rake and foot
+length also move the speed but are geometry one can measure on the robot, so they stay fixed.
+
+Objective: the mean over the target frequencies of |v − v*| / max(|v*|, 20 mm/s) — absolute (L1) relative
+errors, so that the friction cliff's overshoot does not dominate, floored at 20 mm/s so a near-zero target does
+not. Each evaluation runs every target frequency as one batch from a settled robot
+(:func:`beambench.sim.scenes.walker_batch.steady_speeds`: settle 3 s, record 1.5 s); the coarse stage at
+dt 1e-4 (≈ 2× cheaper, 23 Hz ≈ 10 % off), the fine stages at the scene's converged 5e-5.
+
+Output: ``<name>_params.yaml`` (the prior set with ``rig: {foot_mass, friction}``) and ``<name>.yaml`` (the
+session's protocol, else the shipped walker sweep, with ``sim.params`` pointing at it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from beambench.studies.calibrate import CalibratableRig, Unknown, register_rig
+from beambench.studies.calibration_targets import CalibrationInputError, Targets
+
+SPEED_FLOOR_MM_S = 20.0
+WALKER_UNKNOWNS = (
+    Unknown("foot_mass", 0.001, 0.008, unit="kg", doc="point mass at each sole (the foot's load)"),
+    Unknown("friction", 0.35, 0.60, doc="sole–floor Coulomb friction"),
+)
+STAGES = {
+    "coarse": {"settle_s": 3.0, "record_s": 1.5, "timestep": 1e-4},
+    "fine": {"settle_s": 3.0, "record_s": 1.5, "timestep": 5e-5},
+}
+
+
+def walker_stage_sim(stage: str, sim: dict[str, float]) -> dict[str, float]:
+    """The walker's window per stage (the search's settle/record are for the contact rig's maps)."""
+    return dict(STAGES["coarse" if stage == "coarse" else "fine"])
+
+
+def walker_objective(steps: pd.DataFrame, targets: Targets) -> tuple[float, dict[str, float]]:
+    """Mean floored relative error over the target frequencies (module docstring); a missing or diverged
+    frequency counts 10."""
+    want = targets.scalars["speed_mm_s"]
+    got = dict(zip(steps["frequency_hz"].astype(float), steps["body_speed_mm_s"].astype(float)))
+    parts: dict[str, float] = {}
+    for f, v in want.items():
+        g = got.get(float(f), math.nan)
+        parts[f"{float(f):g} Hz"] = abs(g - v) / max(abs(v), SPEED_FLOOR_MM_S) if math.isfinite(g) else 10.0
+    return float(np.mean(list(parts.values()))), parts
+
+
+def walker_base(targets: Targets) -> dict:
+    """The fixed part: the prior parameter set, leg model and twist of the session's protocol (else the shipped
+    walker sweep)."""
+    from beambench.acquisition.config import parse_protocol
+    from beambench.common.resources import shipped_dir
+
+    text = targets.protocol_text or (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
+    try:
+        proto = parse_protocol(text, targets.source)
+    except ValueError as exc:
+        raise CalibrationInputError(str(exc)) from None
+    model = "prb3" if proto.sim.model == "auto" else proto.sim.model
+    return {"model": model, "params": str(proto.sim.params), "twist_deg": float(proto.sim.twist_deg)}
+
+
+def _prior(base: dict) -> Any:
+    from beambench.sim.models.params import load_params
+    from beambench.sim.models.registry import model_family
+
+    return load_params(base["params"], model=model_family(base["model"]))
+
+
+def simulate_walker(base: dict, values: dict[str, float], frequencies: list[float], sim: dict) -> dict:
+    """Steady body speeds at ``frequencies`` for the fitted ``values`` (runs in a worker)."""
+    from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scenes.walker_batch import steady_speeds
+
+    params = _prior(base)
+    beam = make_beam_model(base["model"], params)
+    wp = replace(WalkerParams.with_overrides(params.rig), **{k: float(v) for k, v in values.items()})
+    speed, height = steady_speeds(
+        beam,
+        frequencies,
+        wp,
+        twist_deg=base["twist_deg"],
+        timestep=sim.get("timestep"),
+        settle_s=sim["settle_s"],
+        record_s=sim["record_s"],
+    )
+    steps = [
+        {"frequency_hz": float(f), "body_speed_mm_s": float(v), "body_height_mm": float(z)}
+        for f, v, z in zip(frequencies, speed, height)
+    ]
+    return {"steps": steps, "extras": {}}
+
+
+def walker_summary(steps: pd.DataFrame) -> dict:
+    return {
+        "speed_mm_s": {float(f): round(float(v), 1) for f, v in zip(steps["frequency_hz"], steps["body_speed_mm_s"])}
+    }
+
+
+def write_walker_protocol(
+    base: dict, values: dict[str, float], extras: dict, targets: Targets, out_dir: Path, name: str
+) -> Path:
+    """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring); the sweep is extended to
+    cover the target frequencies."""
+    from beambench.acquisition.config import parse_protocol
+    from beambench.common.resources import shipped_dir
+
+    p = _prior(base)
+    beam = {k: v for k, v in p.to_dict().items() if k not in ("name", "model", "source", "rig", "material")}
+    beam["material"] = asdict(p.material)
+    params_doc = {
+        "name": name,
+        "model": p.model,
+        "source": f"beambench calibrate sim (walker) against {targets.source} (prior: {base['params']}); "
+        + ", ".join(f"{k} = {v:.5g}" for k, v in values.items()),
+        "beam": {k: float(v) if isinstance(v, float | int) else v for k, v in beam.items()},
+        "rig": {**p.rig, **{k: round(float(v), 7) for k, v in values.items()}},
+    }
+    params_path = (out_dir / f"{name}_params.yaml").resolve()
+    params_path.write_text(
+        "# Calibrated by `beambench calibrate sim` (see the report beside this file). SI units; the rig block\n"
+        "# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).\n"
+        + yaml.safe_dump(params_doc, sort_keys=False)
+    )
+    text = targets.protocol_text or (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
+    doc = yaml.safe_load(text)
+    doc["name"] = name
+    doc["backend"] = "sim"
+    doc.setdefault("sim", {})
+    doc["sim"]["params"] = str(params_path)
+    doc["sim"]["model"] = base["model"]
+    top = float(max(targets.frequencies)) if len(targets.table) else 0.0
+    sweep = doc.get("sweep", {})
+    if "stop" in sweep and top > float(sweep["stop"]):
+        sweep["stop"] = math.ceil(top)
+        lim = doc.setdefault("limits", {})
+        lim["max_frequency_hz"] = max(float(lim.get("max_frequency_hz", 80)), math.ceil(top))
+    out = out_dir / f"{name}.yaml"
+    header = (
+        f"# Calibrated by `beambench calibrate sim` against {targets.source}.\n"
+        "# sim.params points at the calibrated parameter set (foot mass and friction in its rig block).\n"
+    )
+    body = yaml.safe_dump(doc, sort_keys=False, allow_unicode=True)
+    parse_protocol(body, str(out))  # refuse to write a protocol that would not load
+    out.write_text(header + body)
+    return out.resolve()
+
+
+register_rig(
+    CalibratableRig(
+        name="walker",
+        unknowns=WALKER_UNKNOWNS,
+        simulate=simulate_walker,
+        objective=walker_objective,
+        base=walker_base,
+        write=write_walker_protocol,
+        summary=walker_summary,
+        bracket="foot_mass",
+        min_frequency_hz=1.0,
+        stage_sim=walker_stage_sim,
+    )
+)

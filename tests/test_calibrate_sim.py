@@ -1,0 +1,253 @@
+"""``beambench calibrate sim``: targets, bad input (one line, exit 2), the objective's shape, a tiny calibration
+that recovers a known gap, resuming from the evaluation log, and the runnable protocol it writes."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pandas as pd
+import pytest
+
+from beambench.studies.calibrate import (
+    RIGS,
+    Interrupted,
+    SearchSettings,
+    calibrate,
+    contact_objective,
+    get_rig,
+    regime_level,
+    simulate_contact,
+)
+from beambench.studies.calibration_targets import (
+    CalibrationInputError,
+    Targets,
+    load_targets,
+    parse_targets,
+    transitions,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+PAPER = REPO / "calibration" / "paper_contact_targets.yaml"
+
+
+def _beambench(*args: str) -> subprocess.CompletedProcess:
+    """The CLI in-process (typer's runner: separate stdout/stderr, the exit code), as a CompletedProcess."""
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+
+    r = CliRunner().invoke(app, list(args))
+    if r.exception is not None and not isinstance(r.exception, SystemExit):
+        raise r.exception
+    return subprocess.CompletedProcess(list(args), r.exit_code, r.stdout, r.stderr)
+
+
+def _one_line_exit_2(res: subprocess.CompletedProcess, words: str) -> None:
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("beambench: error: ") and words in lines[0], res.stderr
+    assert "Traceback" not in res.stderr
+
+
+# ------------------------------------------------------------------------------------------------ targets
+
+
+def test_paper_targets_parse_into_a_step_map():
+    t = load_targets(PAPER)
+    assert t.rig == "contact"
+    assert t.scalars["continuous_below_hz"] == 18 and t.scalars["half_at_hz"] == 26 and t.scalars["third_at_hz"] == 38
+    assert t.scalars["tangential_sign"] == {26.0: -1.0, 40.0: 1.0}
+    lab = dict(zip(t.table["frequency_hz"], t.table["regime"]))
+    assert lab[1.0] == lab[17.0] == "continuous"
+    assert lab[18.0] == lab[25.0] == "1"
+    assert lab[26.0] == lab[37.0] == "1/2"
+    assert lab[38.0] == lab[42.0] == "1/3"
+    assert 43.0 not in lab  # nothing is said above ⅓ + 4 Hz
+    # the map's own transitions are the targets
+    assert transitions(t.table["frequency_hz"].to_numpy(), list(t.table["regime"])) == {
+        "continuous_below_hz": 18.0,
+        "half_at_hz": 26.0,
+        "third_at_hz": 38.0,
+    }
+
+
+def test_walker_targets_parse():
+    t = load_targets(REPO / "calibration" / "paper_walker_targets.yaml")
+    assert t.rig == "walker" and t.scalars["speed_mm_s"] == {23.0: -35.7, 65.0: 156.3}
+
+
+@pytest.mark.parametrize(
+    "data, words",
+    [
+        ({"rig": "contact", "half_at_hz": 40, "third_at_hz": 30}, "half_at_hz = 40 is not below third_at_hz = 30"),
+        ({"rig": "contact", "continuous_below_hz": 30, "half_at_hz": 26}, "continuous_below_hz = 30 is above"),
+        ({"rig": "contact"}, "needs at least one of"),
+        ({"rig": "contact", "half_at_hz": "soon"}, "half_at_hz = 'soon'"),
+        ({"rig": "contact", "half_at_hz": 26, "tangential_sign": {26: 2}}, "expected -1 or 1"),
+        ({"rig": "contact", "half_at_hz": 26, "halfway": 3}, "halfway: unknown field"),
+        ({"rig": "treadmill", "half_at_hz": 26}, "unknown rig"),
+    ],
+)
+def test_contradicting_or_malformed_targets_are_refused(data, words):
+    with pytest.raises(CalibrationInputError, match=words.replace("(", r"\(")):
+        parse_targets(data, "t.yaml")
+
+
+def test_cli_bad_input_is_one_line_and_exit_2(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("rig: contact\ncontinuous_below_hz: 18\nhalf_at_hz: 40\nthird_at_hz: 30\n")
+    _one_line_exit_2(_beambench("calibrate", "sim", "--targets", str(bad), "--out", str(tmp_path)), "not below")
+    _one_line_exit_2(
+        _beambench("calibrate", "sim", "--targets", str(tmp_path / "none.yaml"), "--out", str(tmp_path)),
+        "no such targets file",
+    )
+    _one_line_exit_2(
+        _beambench("calibrate", "sim", str(tmp_path / "none.h5"), "--out", str(tmp_path)), "no such session file"
+    )
+    _one_line_exit_2(_beambench("calibrate", "sim", "--out", str(tmp_path)), "give a SESSION file or --targets")
+    assert not any(tmp_path.glob("*calibrated*"))
+
+
+def test_a_rig_the_calibrator_does_not_know_is_refused(tmp_path):
+    unknown = "walker" if "walker" not in RIGS else None
+    try:
+        get_rig("walker")
+        unknown = None
+    except CalibrationInputError:
+        pass
+    if unknown is None:
+        pytest.skip("the walker registered itself with the calibrator")
+    t = tmp_path / "walk.yaml"
+    t.write_text("rig: walker\nspeed_mm_s: {23: -35.7, 65: 156.3}\n")
+    _one_line_exit_2(_beambench("calibrate", "sim", "--targets", str(t), "--out", str(tmp_path)), "does not know")
+
+
+@pytest.fixture(scope="module")
+def twin_session(tmp_path_factory) -> Path:
+    """A short twin-made contact session (3 steps)."""
+    d = tmp_path_factory.mktemp("session")
+    proto = d / "short.yaml"
+    proto.write_text(
+        "name: short\nrig: contact\nbackend: sim\nsweep: {frequencies: [20, 28, 36]}\nsettle_s: 0.3\nrecord_s: 0.6\n"
+        "sim: {model: prb3, params: paper, plate_gap_mm: 1.08, noise: true, seed: 2}\n"
+    )
+    res = _beambench("run", str(proto), "--out", str(d), "--name", "short", "--rerun", "off")
+    assert res.returncode == 0, res.stderr
+    return Path(res.stdout.strip().splitlines()[-1])
+
+
+def test_session_without_contact_data_is_refused(twin_session, tmp_path):
+    copy = tmp_path / "no_force.h5"
+    copy.write_bytes(twin_session.read_bytes())
+    with h5py.File(copy, "r+") as f:
+        del f["acquisition/loadcell"]
+    _one_line_exit_2(_beambench("calibrate", "sim", str(copy), "--out", str(tmp_path)), "no load-cell data")
+
+
+# ------------------------------------------------------------------------------------------------ objective
+
+
+def test_regime_levels_are_ordered_as_the_map_runs():
+    seq = ["continuous", "2", "1", "1/2", "1/3", "none"]
+    levels = [regime_level(s) for s in seq]
+    assert levels == sorted(levels) and len(set(levels)) == len(levels)
+    # an irregular step sits between its neighbours; a mostly-on-plate stepper leans toward continuous
+    assert regime_level("1", 1.0) < regime_level("irregular", 0.6) < regime_level("1/2", 0.5)
+    assert regime_level("1", 1.0, 0.95) == regime_level("continuous") < regime_level("1", 1.0, 0.85) < 0.0
+
+
+FREQS = [float(f) for f in range(20, 46, 2)]
+FAST = {"settle_s": 0.6, "record_s": 1.0}
+BASE = {"model": "prb3", "params": "paper", "twist_deg": 90.0, "amplitude_m": 0.002}
+TRUE_PRELOAD = 0.05  # mm: the paper set sags ~1.13 mm; gap ≈ 1.08 mm (½ and ⅓ inside 20–44 Hz)
+
+
+@pytest.fixture(scope="module")
+def truth() -> tuple[Targets, dict]:
+    out = simulate_contact(BASE, {"preload_mm": TRUE_PRELOAD}, FREQS, FAST)
+    steps = pd.DataFrame(out["steps"])
+    cols = ["frequency_hz", "regime", "contacts_per_cycle", "in_contact_fraction"]
+    targets = Targets("contact", "twin", steps[cols], prior={"params": BASE["params"]})  # the set the twin used
+    return targets, out["extras"]
+
+
+def test_objective_is_zero_at_the_truth_and_grows_away_from_it(truth):
+    targets, _ = truth
+    js = {}
+    for p in (-0.15, -0.05, TRUE_PRELOAD, 0.15, 0.3):  # one run each
+        steps = pd.DataFrame(simulate_contact(BASE, {"preload_mm": p}, FREQS, FAST)["steps"])
+        js[p] = contact_objective(steps, targets)[0]
+    assert js[TRUE_PRELOAD] == 0.0
+    assert js[-0.15] >= js[-0.05] > 0.0  # monotone on each side of the truth
+    assert js[0.3] >= js[0.15] > 0.0
+
+
+# ------------------------------------------------------------------------------------------------ calibration
+
+
+@pytest.mark.slow
+def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_path):
+    targets, extras = truth
+    settings = SearchSettings(
+        budget_s=240.0,
+        coarse_step_hz=4.0,
+        coarse_settle_s=0.6,
+        coarse_record_s=1.0,
+        fine_settle_s=0.6,
+        fine_record_s=1.0,
+        popsize=6,
+        max_generations=1,
+        stall_generations=2,
+        good_enough=0.0,
+        refine_top=1,
+        bracket_rounds=2,
+        prior_rounds=3,
+        free=("b_scale", "preload_mm"),
+        fixed={"k_scale": 1.0},
+    )
+    with pytest.raises(Interrupted):  # as if killed after 10 evaluations
+        calibrate(
+            targets, tmp_path, "tiny", workers=2, settings=SearchSettings(**{**settings.__dict__, "max_evals": 10})
+        )
+    log = tmp_path / "tiny.evals.jsonl"
+    assert len(log.read_text().splitlines()) == 10
+    with log.open("a") as fh:
+        fh.write('{"key": "cut by a kill')  # a half-written last line is skipped
+    res = calibrate(targets, tmp_path, "tiny", workers=2, settings=settings)
+    assert res.reused >= 10  # the logged points were not run again
+    distinct = {line.split('"key": "')[1][:40] for line in log.read_text().splitlines() if line.startswith('{"key": "')}
+    assert res.evaluations == len(distinct) - 10
+    gap_true = extras["gap_mm"]
+    # the map pins the gap to a few 10 µm (about 10 Hz of shift per 0.1 mm here); b trades a little against it
+    assert abs(res.extras["gap_mm"] - gap_true) <= 0.05, (res.extras, gap_true, res.values)
+    assert res.j <= 0.1
+    want = transitions(targets.table["frequency_hz"].to_numpy(), list(targets.table["regime"]))
+    got = res.summary
+    for k in ("half_at_hz", "third_at_hz"):
+        assert want[k] is not None and got[k] is not None and abs(got[k] - want[k]) <= 2.0, (k, want, got)
+    # the written protocol loads and runs dry
+    assert res.protocol.is_file() and res.protocol.parent == tmp_path
+    dry = _beambench("run", str(res.protocol), "--dry-run")
+    assert dry.returncode == 0, dry.stderr
+    for name in ("tiny_report.md", "tiny_report.json", "tiny_maps.png", "tiny_objective.png", "tiny_params.yaml"):
+        assert (tmp_path / name).is_file(), name
+
+
+@pytest.mark.slow
+def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
+    t = tmp_path / "small.yaml"
+    t.write_text("rig: contact\nhalf_at_hz: 30\nthird_at_hz: 32\n")
+    out = tmp_path / "out"
+    res = _beambench("calibrate", "sim", "--targets", str(t), "--out", str(out), "--quick", "--budget-s", "8")
+    assert res.returncode == 0, res.stderr
+    last = Path(res.stdout.strip().splitlines()[-1])
+    assert last == (out / "small_calibrated.yaml").resolve() and last.is_file()
+    dry = _beambench("run", str(last), "--dry-run")
+    assert dry.returncode == 0, dry.stderr
+    text = last.read_text()
+    assert "small_calibrated_params.yaml" in text and "plate_gap_mm" in text
+    assert math.isfinite(float(np.loadtxt([text.split("plate_gap_mm:")[1].split()[0]])))

@@ -1,0 +1,53 @@
+"""The walker in `beambench calibrate sim`: registration, objective, the evaluator, and the written protocol."""
+
+from __future__ import annotations
+
+import math
+
+import pandas as pd
+import pytest
+
+from beambench.studies.calibrate import get_rig
+from beambench.studies.calibration_targets import parse_targets
+
+TARGETS = parse_targets({"rig": "walker", "speed_mm_s": {23: -35.7, 65: 156.3}}, "<test>")
+
+
+def test_walker_is_calibratable_in_foot_mass_and_friction():
+    rig = get_rig("walker")
+    assert [u.name for u in rig.unknowns] == ["foot_mass", "friction"]
+    assert rig.stage_sim is not None
+    assert rig.stage_sim("coarse", {})["settle_s"] >= 3.0  # the speed needs ~3 s from rest
+
+
+def test_objective_is_the_mean_floored_relative_error():
+    rig = get_rig("walker")
+    steps = pd.DataFrame({"frequency_hz": [23.0, 65.0], "body_speed_mm_s": [-25.7, 156.3 * 1.1]})
+    j, parts = rig.objective(steps, TARGETS)
+    assert parts["23 Hz"] == pytest.approx(10.0 / 35.7)
+    assert parts["65 Hz"] == pytest.approx(0.1)
+    assert j == pytest.approx((10.0 / 35.7 + 0.1) / 2)
+    small = parse_targets({"rig": "walker", "speed_mm_s": {10: 2.0}}, "<test>")
+    j, _ = rig.objective(pd.DataFrame({"frequency_hz": [10.0], "body_speed_mm_s": [12.0]}), small)
+    assert j == pytest.approx(10.0 / 20.0)  # floored at 20 mm/s
+    j, _ = rig.objective(pd.DataFrame({"frequency_hz": [10.0], "body_speed_mm_s": [math.nan]}), small)
+    assert j == 10.0
+
+
+def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
+    """One short evaluation (the speeds come back per frequency), then the written protocol builds a walker
+    scene with the fitted foot mass and friction."""
+    from beambench.acquisition.config import load_protocol
+    from beambench.rigs.sim import build_scene
+
+    rig = get_rig("walker")
+    base = rig.base(TARGETS)
+    values = {"foot_mass": 0.004, "friction": 0.45}
+    out = rig.simulate(base, values, [23.0, 65.0], {"settle_s": 0.3, "record_s": 0.3, "timestep": 1e-4})
+    steps = pd.DataFrame(out["steps"])
+    assert list(steps["frequency_hz"]) == [23.0, 65.0]
+    assert steps["body_speed_mm_s"].notna().all() and (steps["body_height_mm"] > 30).all()
+    path = rig.write(base, values, out["extras"], TARGETS, tmp_path, "cal")
+    assert path.exists()
+    scene = build_scene(load_protocol(path)[0])
+    assert (scene.rig.foot_mass, scene.rig.friction) == (pytest.approx(0.004), pytest.approx(0.45))
