@@ -25,6 +25,15 @@ load average 6–14 throughout, so ~5–10 s per evaluation instead of ~1.5 s), 
 - case 3 again with the continuous level at −2 (the edge weighted 4× more): continuous below 17 but no ½ or ⅓ up
   to 42 Hz. This model family cannot give both the continuous band and the subharmonics with force-only
   regimes; the weighting only chooses which to lose (kept at −1).
+
+After merging issue 11 part A (shipped sweep on the ``contact_paper`` set, which is then the prior; load 1–5):
+
+- case 2, targets 15 / 30 / 42: 332 s, 266 evaluations, J 0.025; k_scale 0.717, b_scale 0.679, gap 8.787 mm.
+  Calibrator's map: ½ at 30, ⅓ at 41, continuous ≤ 8 then "2"/irregular to 14. Stepped run of the protocol:
+  1 at 14–29, ½ at 30–40, ⅓ at 41–46 (± 2 Hz), but stray "1/2" labels at 7 and 11 Hz in the bouncing band make
+  the "lowest ½" read 7, and continuous only ≤ 4.
+- case 3, paper: 142 s, 186 evaluations (stall after the prior line found the set: k_scale 1, b_scale 1,
+  gap 7.377 mm); stepped run: ½ at 27, ⅓ at 38 (± 2 Hz); continuous 3–9 Hz with "2" at 12–17 (edge MISS).
 """
 
 from __future__ import annotations
