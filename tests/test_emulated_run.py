@@ -18,7 +18,7 @@ from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
 PROTOCOL = """
 name: emu
 sweep: {frequencies: [8, 16]}
-settle_s: 0.6
+settle_s: 1.5
 record_s: 1.0
 sim: {seed: 1}
 """

@@ -6,6 +6,7 @@ time by the MuJoCo physics of the sim scene.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import signal
 import socket
@@ -262,6 +263,7 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
                     "loadcell_port": lc_port,
                     "markers": tuple(physics.scene.markers),
                     "scene": getattr(physics.scene, "identity", dict)(),
+                    "odrive_config": dataclasses.asdict(config),  # the motor the emulated ODrive plays
                 },
             )
         )
@@ -323,10 +325,15 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
 
 
 class _Snapshot:
-    """The emulated ODrive as the parent sees it: live snapshots while the peers run, the last one after."""
+    """The emulated ODrive as the parent sees it: its boot configuration (``config``), live snapshots while the
+    peers run, the last one after."""
 
     def __init__(self, peers: PeerProcess) -> None:
         self._peers = peers
+
+    @property
+    def config(self) -> SimpleNamespace:
+        return SimpleNamespace(**self._peers.ready["odrive_config"])
 
     def snapshot(self) -> dict[str, Any]:
         return self._peers.odrive_snapshot()
