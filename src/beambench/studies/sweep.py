@@ -607,6 +607,25 @@ def _value_label(val: Any) -> str:
     return f"{val:g}" if isinstance(val, (int, float)) else str(val)
 
 
+AXIS_LABELS = {
+    "twist_deg": "twist angle φ (deg)",
+    "frequency_hz": "drive frequency (Hz)",
+    "k": "bending stiffness k (N·m/rad)",
+    "b": "joint damping b (N·m·s/rad)",
+    "gap_mm": "plate gap h′ (mm)",
+    "amplitude_mm": "stage amplitude A (mm)",
+    "youngs_modulus": "Young's modulus E (Pa)",
+    "beta": "stiffness-proportional damping β (s)",
+    "model": "beam model",
+    "params": "parameter set",
+}
+
+
+def axis_label(column: str) -> str:
+    """A swept column's name in words, with its unit (``twist_deg`` → ``twist angle φ (deg)``)."""
+    return AXIS_LABELS.get(column, column.replace("_", " "))
+
+
 def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | None:
     """Metrics against the first swept parameter (free beam: tip major/minor axes, as the paper's Fig. 2e;
     contact: contacts per cycle and foot axes)."""
@@ -632,9 +651,9 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
                 g[col],
                 "o-",
                 ms=3,
-                label=None if series is None else f"{series} = {_value_label(val)}",
+                label=None if series is None else f"{axis_label(series)} = {_value_label(val)}",
             )
-        ax.set(xlabel=x, ylabel=label)
+        ax.set(xlabel=axis_label(x), ylabel=label)
         ax.grid(alpha=0.3)
     if series is not None:
         axs[0].legend(fontsize=7)
