@@ -39,7 +39,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -52,6 +52,9 @@ from beambench.studies.calibration_targets import (
     Targets,
     transitions,
 )
+
+if TYPE_CHECKING:
+    from beambench.sim.models.params import BeamParams
 
 PLUGINS = ("beambench.studies.calibrate_walker",)  # modules that register more rigs, imported on first use
 
@@ -988,54 +991,90 @@ def contact_summary(steps: pd.DataFrame) -> dict:
     return {**tr, "map": " ".join(f"{f:g}:{r}" for f, r in zip(steps["frequency_hz"], steps["regime"]))}
 
 
-def write_contact_protocol(
-    base: dict, values: dict[str, float], extras: dict, targets: Targets, out_dir: Path, name: str
+def write_calibrated_protocol(
+    *,
+    params: BeamParams,
+    rig_block: dict[str, Any],
+    base: dict,
+    values: dict[str, float],
+    targets: Targets,
+    out_dir: Path,
+    name: str,
+    shipped_protocol: str,
+    sim_extra: dict[str, Any],
+    params_note: str,
+    protocol_note: str,
+    default_max_hz: float,
+    rig_label: str = "",
 ) -> Path:
-    """``out_dir/<name>_params.yaml`` (the calibrated parameter set) and ``out_dir/<name>.yaml``: the session's
-    protocol (or the shipped contact sweep) with ``sim.params`` = that file's absolute path and
-    ``sim.plate_gap_mm`` = the fitted gap; the sweep is extended to cover the targets if it stops short."""
+    """Write ``out_dir/<name>_params.yaml`` (``params`` with ``rig_block``) and ``out_dir/<name>.yaml``: the
+    session's protocol (or the shipped ``shipped_protocol``) with ``sim.params`` = that file's absolute path plus
+    ``sim_extra``; the sweep is extended to cover the targets if it stops short. Every calibratable rig writes
+    its outputs through here; a protocol that would not load is refused, never written."""
     from beambench.acquisition.config import parse_protocol
     from beambench.common.resources import shipped_dir
 
-    p = calibrated_params(base, values)
-    beam = {k: v for k, v in p.to_dict().items() if k not in ("name", "model", "source", "rig", "material")}
-    beam["material"] = asdict(p.material)
+    beam = {k: v for k, v in params.to_dict().items() if k not in ("name", "model", "source", "rig", "material")}
+    beam["material"] = asdict(params.material)
+    what = f" ({rig_label})" if rig_label else ""
     params_doc = {
         "name": name,
-        "model": p.model,
-        "source": f"beambench calibrate sim against {targets.source} (prior: {base['params']}); "
+        "model": params.model,
+        "source": f"beambench calibrate sim{what} against {targets.source} (prior: {base['params']}); "
         + ", ".join(f"{k} = {v:.5g}" for k, v in values.items()),
         "beam": {k: float(v) if isinstance(v, float | int) else v for k, v in beam.items()},
-        "rig": {**p.rig, "plate_gap": round(float(extras["gap_mm"]) * 1e-3, 7)},
+        "rig": rig_block,
     }
     params_path = (out_dir / f"{name}_params.yaml").resolve()
     params_path.write_text(
-        "# Calibrated by `beambench calibrate sim` (see the report beside this file). SI units.\n"
+        "# Calibrated by `beambench calibrate sim` (see the report beside this file). SI units"
+        + params_note
+        + "\n"
         + yaml.safe_dump(params_doc, sort_keys=False)
     )
-    text = targets.protocol_text or (shipped_dir("protocols") / "contact_sweep.yaml").read_text()
+    text = targets.protocol_text or (shipped_dir("protocols") / shipped_protocol).read_text()
     doc = yaml.safe_load(text)
     doc["name"] = name
     doc["backend"] = "sim"
     doc.setdefault("sim", {})
     doc["sim"]["params"] = str(params_path)
     doc["sim"]["model"] = base["model"]
-    doc["sim"]["plate_gap_mm"] = round(float(extras["gap_mm"]), 4)
+    doc["sim"].update(sim_extra)
     top = float(max(targets.frequencies)) if len(targets.table) else 0.0
     sweep = doc.get("sweep", {})
     if "stop" in sweep and top > float(sweep["stop"]):
         sweep["stop"] = math.ceil(top)
         lim = doc.setdefault("limits", {})
-        lim["max_frequency_hz"] = max(float(lim.get("max_frequency_hz", 45)), math.ceil(top))
+        lim["max_frequency_hz"] = max(float(lim.get("max_frequency_hz", default_max_hz)), math.ceil(top))
     out = out_dir / f"{name}.yaml"
-    header = (
-        f"# Calibrated by `beambench calibrate sim` against {targets.source}.\n"
-        f"# sim.params points at the calibrated parameter set; sim.plate_gap_mm is the fitted gap.\n"
-    )
+    header = f"# Calibrated by `beambench calibrate sim` against {targets.source}.\n# {protocol_note}\n"
     body = yaml.safe_dump(doc, sort_keys=False, allow_unicode=True)
     parse_protocol(body, str(out))  # refuse to write a protocol that would not load
     out.write_text(header + body)
     return out.resolve()
+
+
+def write_contact_protocol(
+    base: dict, values: dict[str, float], extras: dict, targets: Targets, out_dir: Path, name: str
+) -> Path:
+    """The contact rig's outputs (:func:`write_calibrated_protocol`): its rig block and ``sim.plate_gap_mm``
+    carry the fitted gap."""
+    p = calibrated_params(base, values)
+    gap_mm = float(extras["gap_mm"])
+    return write_calibrated_protocol(
+        params=p,
+        rig_block={**p.rig, "plate_gap": round(gap_mm * 1e-3, 7)},
+        base=base,
+        values=values,
+        targets=targets,
+        out_dir=out_dir,
+        name=name,
+        shipped_protocol="contact_sweep.yaml",
+        sim_extra={"plate_gap_mm": round(gap_mm, 4)},
+        params_note=".",
+        protocol_note="sim.params points at the calibrated parameter set; sim.plate_gap_mm is the fitted gap.",
+        default_max_hz=45,
+    )
 
 
 register_rig(

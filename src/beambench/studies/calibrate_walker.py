@@ -21,15 +21,14 @@ session's protocol, else the shipped walker sweep, with ``sim.params`` pointing 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
-import yaml
 
-from beambench.studies.calibrate import CalibratableRig, Unknown, register_rig
+from beambench.studies.calibrate import CalibratableRig, Unknown, register_rig, write_calibrated_protocol
 from beambench.studies.calibration_targets import CalibrationInputError, Targets
 
 SPEED_FLOOR_MM_S = 20.0
@@ -116,50 +115,24 @@ def walker_summary(steps: pd.DataFrame) -> dict:
 def write_walker_protocol(
     base: dict, values: dict[str, float], extras: dict, targets: Targets, out_dir: Path, name: str
 ) -> Path:
-    """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring); the sweep is extended to
-    cover the target frequencies."""
-    from beambench.acquisition.config import parse_protocol
-    from beambench.common.resources import shipped_dir
-
+    """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring), through the calibrator's
+    :func:`~beambench.studies.calibrate.write_calibrated_protocol`; the rig block carries foot mass and friction."""
     p = _prior(base)
-    beam = {k: v for k, v in p.to_dict().items() if k not in ("name", "model", "source", "rig", "material")}
-    beam["material"] = asdict(p.material)
-    params_doc = {
-        "name": name,
-        "model": p.model,
-        "source": f"beambench calibrate sim (walker) against {targets.source} (prior: {base['params']}); "
-        + ", ".join(f"{k} = {v:.5g}" for k, v in values.items()),
-        "beam": {k: float(v) if isinstance(v, float | int) else v for k, v in beam.items()},
-        "rig": {**p.rig, **{k: round(float(v), 7) for k, v in values.items()}},
-    }
-    params_path = (out_dir / f"{name}_params.yaml").resolve()
-    params_path.write_text(
-        "# Calibrated by `beambench calibrate sim` (see the report beside this file). SI units; the rig block\n"
-        "# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).\n"
-        + yaml.safe_dump(params_doc, sort_keys=False)
+    return write_calibrated_protocol(
+        params=p,
+        rig_block={**p.rig, **{k: round(float(v), 7) for k, v in values.items()}},
+        base=base,
+        values=values,
+        targets=targets,
+        out_dir=out_dir,
+        name=name,
+        shipped_protocol="walker_sweep.yaml",
+        sim_extra={},
+        params_note="; the rig block\n# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).",
+        protocol_note="sim.params points at the calibrated parameter set (foot mass and friction in its rig block).",
+        default_max_hz=80,
+        rig_label="walker",
     )
-    text = targets.protocol_text or (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
-    doc = yaml.safe_load(text)
-    doc["name"] = name
-    doc["backend"] = "sim"
-    doc.setdefault("sim", {})
-    doc["sim"]["params"] = str(params_path)
-    doc["sim"]["model"] = base["model"]
-    top = float(max(targets.frequencies)) if len(targets.table) else 0.0
-    sweep = doc.get("sweep", {})
-    if "stop" in sweep and top > float(sweep["stop"]):
-        sweep["stop"] = math.ceil(top)
-        lim = doc.setdefault("limits", {})
-        lim["max_frequency_hz"] = max(float(lim.get("max_frequency_hz", 80)), math.ceil(top))
-    out = out_dir / f"{name}.yaml"
-    header = (
-        f"# Calibrated by `beambench calibrate sim` against {targets.source}.\n"
-        "# sim.params points at the calibrated parameter set (foot mass and friction in its rig block).\n"
-    )
-    body = yaml.safe_dump(doc, sort_keys=False, allow_unicode=True)
-    parse_protocol(body, str(out))  # refuse to write a protocol that would not load
-    out.write_text(header + body)
-    return out.resolve()
 
 
 register_rig(
