@@ -21,12 +21,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import yaml
+
+from bench_calibrate import sh  # the same `beambench` subprocess runner (this folder is on sys.path)
 
 HIDDEN = {"foot_mass": 0.005, "friction": 0.45}
 TWIN_PROTOCOL = """name: twin_walker
@@ -40,17 +39,6 @@ limits: {{max_frequency_hz: 80, max_current_a: 4, max_amplitude_mm: 3}}
 sim: {{model: prb3, params: {params}, twist_deg: 90, noise: true, seed: 3}}
 """
 UNREACHABLE = {20: -20.0, 50: 80.0, 70: 120.0}
-
-
-def sh(*args: str, timeout: float = 3600) -> tuple[subprocess.CompletedProcess, float]:
-    t0 = time.perf_counter()
-    res = subprocess.run(
-        [sys.executable, "-m", "beambench.cli", *args], capture_output=True, text=True, timeout=timeout
-    )
-    wall = time.perf_counter() - t0
-    if res.returncode != 0:
-        raise RuntimeError(f"beambench {' '.join(args)} failed ({res.returncode}): {res.stderr[-2000:]}")
-    return res, wall
 
 
 def twin_session(out: Path) -> Path:
