@@ -33,7 +33,7 @@ from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.params import BeamParams, load_params
 from beambench.sim.models.registry import beam_model, make_beam_model, model_family
 from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
-from beambench.sim.scenes.free_beam import slider_inertia, stage_controls
+from beambench.sim.scenes.free_beam import equilibrium_qpos, slider_inertia, stage_controls
 
 REFERENCE_DT = 2.5e-5
 IRREGULAR_MM = 0.05  # fine runs this far from the reference (foot path RMS) mark an irregular regime
@@ -115,16 +115,9 @@ def _models(
 
 
 def _rest(model: mujoco.MjModel, seconds: float = 0.5) -> np.ndarray:
-    """Joint positions at rest (foot on or above the plate) with the stage held at x = 0."""
-    m = copy.copy(model)
-    m.opt.timestep = 1e-4
-    m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-    d = mujoco.MjData(m)
-    dof = m.jnt_dofadr[m.joint("stage").id]
-    for _ in range(int(seconds / 1e-4) // 100):
-        mujoco.mj_step(m, d, nstep=100)
-        d.qpos[dof] = d.qvel[dof] = 0.0
-    return d.qpos.copy()
+    """Joint positions at rest (foot on or above the plate) with the stage held at x = 0 (1e-4 s implicitfast
+    steps: the plate contact needs them)."""
+    return equilibrium_qpos(model, seconds, mujoco.mjtIntegrator.mjINT_IMPLICITFAST, 1e-4)
 
 
 def contact_sweep(

@@ -63,14 +63,20 @@ def build_free_beam_spec(
     return spec
 
 
-def equilibrium_qpos(model: mujoco.MjModel, seconds: float = 3.0) -> np.ndarray:
-    """Joint positions at rest under gravity with the stage held at x = 0."""
+def equilibrium_qpos(
+    model: mujoco.MjModel,
+    seconds: float = 3.0,
+    integrator: mujoco.mjtIntegrator = mujoco.mjtIntegrator.mjINT_DISCRETE,
+    timestep: float = 1e-3,
+) -> np.ndarray:
+    """Joint positions at rest under gravity with the stage held at x = 0. The default ``discrete`` integrator
+    is implicit in the springs, so any dt is stable; a scene with contact passes a small implicitfast step."""
     m = copy.copy(model)
-    m.opt.integrator = mujoco.mjtIntegrator.mjINT_DISCRETE  # implicit in the springs: any dt is stable
-    m.opt.timestep = 1e-3
+    m.opt.integrator = integrator
+    m.opt.timestep = timestep
     d = mujoco.MjData(m)
     stage = m.jnt_dofadr[m.joint("stage").id]
-    for _ in range(int(seconds / 1e-3) // 100):
+    for _ in range(int(seconds / timestep) // 100):
         mujoco.mj_step(m, d, nstep=100)
         d.qpos[stage] = d.qvel[stage] = 0.0
     return d.qpos.copy()
