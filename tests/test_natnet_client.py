@@ -149,7 +149,9 @@ def test_bitstream_version_can_be_requested_from_a_4_x_server():
         with NatNetClient(cfg) as client:
             assert client.version == nn.V3_0 and emu.stream_version == nn.V3_0
             assert client.server_info.natnet_version == (4, 1, 0, 0)
-            time.sleep(0.2)
+            deadline = time.monotonic() + 5.0  # 20 frames take 56 ms at 360 Hz; a busy machine may take longer
+            while client.stats.frames <= 20 and time.monotonic() < deadline:
+                time.sleep(0.01)
             assert client.stats.frames > 20 and client.stats.parse_errors == 0
         assert "Bitstream,3.0" in emu.requests
 
@@ -283,3 +285,24 @@ def test_a_failing_position_source_stops_the_emulator_visibly():
         n = client.stats.frames
         time.sleep(0.1)
         assert client.stats.frames == n  # nothing more arrives
+
+
+@pytest.mark.parametrize("multicast", [False, True])
+def test_each_frame_carries_the_kernels_receive_time_not_the_time_it_was_read(multicast):
+    """The receive thread reads a few frames per wake-up (less CPU); each frame's host time is still its own
+    arrival (the kernel's stamp): stamps precede the read, and keep the server's 1/360 s spacing instead of
+    bunching at the read."""
+    seen: list[tuple[int, int]] = []
+    with emulator("4.1", multicast=multicast) as emu:
+        client = NatNetClient(config_for(emu), on_frame=lambda host_ns, _f: seen.append((host_ns, time.monotonic_ns())))
+        with client:
+            deadline = time.monotonic() + 10.0
+            while len(seen) < 400 and time.monotonic() < deadline:
+                time.sleep(0.02)
+    stamps = np.array([s for s, _ in seen[50:400]])
+    read = np.array([r for _, r in seen[50:400]])
+    assert len(stamps) >= 300
+    assert np.all(stamps <= read)
+    gaps = np.diff(stamps) * 1e-9
+    assert abs(np.median(gaps) - 1 / 360) < 0.2 / 360, np.median(gaps)
+    assert np.mean(gaps < 0.25 / 360) < 0.1  # read-time stamps would bunch: most gaps within a pass ~ 0

@@ -26,6 +26,10 @@ from beambench.devices.base import StreamDriver
 from beambench.devices.loadcell_protocol import CRC_NAME, VERSION, Frame, StreamDecoder
 
 DEFAULT_BAUDRATE = 921_600
+# After the first bytes arrive the reader waits this long and reads everything then waiting: at 1 kHz a wake-up
+# per sample costs more CPU than decoding it. Samples carry the board's own microsecond clock (t_us), which is
+# what sync uses; the host time of a read only bounds it.
+READ_COALESCE_S = 0.005
 _U32 = 1 << 32
 
 
@@ -138,6 +142,8 @@ class SerialLoadCells(StreamDriver):
         data = ser.read(max(1, ser.in_waiting))
         if not data:
             return
+        time.sleep(READ_COALESCE_S)  # one wake-up per few ms of samples, not one per sample
+        data += ser.read(ser.in_waiting)
         now = time.monotonic_ns()
         with self._lock:
             frames = self.decoder.feed(data)

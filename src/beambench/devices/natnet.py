@@ -34,6 +34,7 @@ from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import MOCAP, MOCAP_RATE_HZ, mocap_spec
 from beambench.devices import natnet_protocol as nn
 from beambench.devices.base import StreamDriver
+from beambench.devices.receive_time import enable_receive_timestamps, recv_stamped
 
 __all__ = ["EchoSample", "NatNetClient", "NatNetConfig", "NatNetError", "NatNetMocap", "NatNetStats", "ping"]
 
@@ -42,6 +43,9 @@ log = logging.getLogger(__name__)
 DEFAULT_MULTICAST = "239.255.42.99"
 DEFAULT_DATA_PORT = 1511
 CLIENT_VERSION = nn.Version(0, 1, 0, 0)
+# After a wake-up the receive thread waits this long, so that one pass reads the frames of a few milliseconds
+# (waking up per frame costs more CPU than decoding it); the kernel's receive stamps keep each frame's time.
+RECEIVE_COALESCE_S = 0.004
 STREAM_SETTINGS = frozenset({"silence_timeout_s"})  # rig-file keys of the mocap stream, not of the client
 
 
@@ -132,6 +136,8 @@ class NatNetClient:
         self._cmd: socket.socket | None = None
         self._data: socket.socket | None = None
         self._sel: selectors.DefaultSelector | None = None
+        self._stamped = False  # the kernel stamps received datagrams (see receive_time)
+        self._pending_bitstream: nn.Version | None = None  # asked for, not yet confirmed
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._serverinfo_evt = threading.Event()
@@ -163,6 +169,7 @@ class NatNetClient:
             self._cmd.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, cfg.recv_buffer_bytes)
             self._cmd.bind((cfg.local_address, 0))
             self._cmd.setblocking(False)
+            self._stamped = enable_receive_timestamps(self._cmd)
         except OSError as exc:
             self.close()
             raise NatNetError(f"NatNet: cannot open the command socket on {cfg.local_address}: {exc}") from None
@@ -227,6 +234,7 @@ class NatNetClient:
             iface = socket.inet_aton(cfg.local_address if cfg.local_address not in ("", "0.0.0.0") else "0.0.0.0")
             s.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, socket.inet_aton(group) + iface)
             s.setblocking(False)
+            self._stamped = self._stamped and enable_receive_timestamps(s)
         except OSError as exc:
             raise NatNetError(f"NatNet: cannot join multicast {group}:{port} on {cfg.local_address}: {exc}") from None
         self._data = s
@@ -298,7 +306,13 @@ class NatNetClient:
             return
         if self.server_info.natnet_version.major < 4:
             raise NatNetError(f"NatNet: a NatNet {self.server_info.natnet_version} server cannot change its bitstream")
-        code = self.request(f"Bitstream,{want.major}.{want.minor}").as_int()
+        with self._lock:
+            self._pending_bitstream = want
+        try:
+            code = self.request(f"Bitstream,{want.major}.{want.minor}").as_int()
+        finally:
+            with self._lock:
+                self._pending_bitstream = None
         if code != 0:
             raise NatNetError(f"NatNet: server refused bitstream {want} (code {code})")
         with self._lock:
@@ -348,7 +362,10 @@ class NatNetClient:
                 sel = self._sel
                 if sel is None:
                     break
-                for key, _ in sel.select(timeout=0.05):
+                ready = sel.select(timeout=0.05)
+                if ready and self._stamped:
+                    time.sleep(RECEIVE_COALESCE_S)  # let a few frames gather: one wake-up reads them all
+                for key, _ in ready:
                     self._drain(key.fileobj)  # type: ignore[arg-type]
                 self._timers()
         except BaseException as exc:  # pragma: no cover - reported through read()/check()
@@ -357,9 +374,10 @@ class NatNetClient:
                 log.exception("NatNet receive thread failed")
 
     def _drain(self, sock: socket.socket) -> None:
+        mono_minus_real = time.monotonic_ns() - time.time_ns()
         for _ in range(256):
             try:
-                data, addr = sock.recvfrom(65536)
+                data, addr, host_ns = recv_stamped(sock, 65536, self._stamped, mono_minus_real)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:
@@ -367,7 +385,7 @@ class NatNetClient:
             if not self._from_server(sock, addr):
                 self._forged(addr)
                 continue
-            self._handle(data, time.monotonic_ns())
+            self._handle(data, host_ns)
 
     def _from_server(self, sock: socket.socket, addr: tuple[str, int]) -> bool:
         """Is this datagram from the server the handshake found? Multicast data: its address (the group is
@@ -436,11 +454,25 @@ class NatNetClient:
             self.model_def = msg
             self._modeldef_evt.set()
         elif isinstance(msg, (nn.Response, nn.UnrecognizedRequest)):
+            if isinstance(msg, nn.Response):
+                self._accept_bitstream(msg)
             self._responses.put(msg)
         elif isinstance(msg, nn.MessageString):
             log.info("NatNet server message: %s", msg.text)
         else:
             st.ignored += 1
+
+    def _accept_bitstream(self, reply: nn.Response) -> None:
+        """The server's yes to a bitstream change: decode with the new version from the next packet on (the
+        server sends the reply, then frames in the new version; the requesting thread would switch too late)."""
+        with self._lock:
+            want = self._pending_bitstream
+            if want is None:
+                return
+            with contextlib.suppress(ValueError, nn.NatNetParseError):
+                if reply.as_int() == 0:
+                    self.version = want
+                    self._pending_bitstream = None
 
     def _on_frame(self, host_ns: int, frame: nn.FrameOfData) -> None:
         st = self.stats

@@ -115,6 +115,7 @@ Quat = tuple[float, float, float, float]
 _U8x4 = struct.Struct("<4B")
 _I16 = struct.Struct("<h")
 _I32 = struct.Struct("<i")
+_I32_UNPACK = _I32.unpack_from
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
 _F32 = struct.Struct("<f")
@@ -151,20 +152,30 @@ class _Reader:
         if n < 0 or self.pos + n > self.end:
             raise NatNetParseError(f"truncated {what}: need {n} bytes at offset {self.pos}, have {self.end - self.pos}")
 
+    # unpack, i32 and count run ~40 times a frame at 360 Hz: the bounds check is inlined rather than a call
     def unpack(self, st: struct.Struct, what: str) -> tuple:
-        self.need(st.size, what)
-        out = st.unpack_from(self.data, self.pos)
-        self.pos += st.size
-        return out
+        pos, size = self.pos, st.size
+        if pos + size > self.end:
+            self.need(size, what)  # raises, with the message
+        self.pos = pos + size
+        return st.unpack_from(self.data, pos)
 
     def i32(self, what: str) -> int:
-        return self.unpack(_I32, what)[0]
+        pos = self.pos
+        if pos + 4 > self.end:
+            self.need(4, what)
+        self.pos = pos + 4
+        return _I32_UNPACK(self.data, pos)[0]
 
     def count(self, what: str, min_item_size: int) -> int:
         """A non-negative int32 item count that can fit in what is left (guards against absurd counts)."""
-        n = self.i32(what)
-        if n < 0 or n * max(min_item_size, 1) > self.end - self.pos:
-            raise NatNetParseError(f"bad {what} {n} at offset {self.pos - 4} ({self.end - self.pos} bytes left)")
+        pos = self.pos
+        if pos + 4 > self.end:
+            self.need(4, what)
+        n: int = _I32_UNPACK(self.data, pos)[0]
+        self.pos = pos = pos + 4
+        if n < 0 or n * (min_item_size if min_item_size > 1 else 1) > self.end - pos:
+            raise NatNetParseError(f"bad {what} {n} at offset {pos - 4} ({self.end - pos} bytes left)")
         return n
 
     def cstring(self, what: str) -> str:

@@ -9,12 +9,13 @@ Chunking: a viewer (spawn/connect) gets every batch as it comes. A saved ``.rrd`
 gathered to about :data:`SAVE_CHUNK_BYTES` per ``send_columns`` call, and the row-logged entities (trail,
 events) batched by Rerun's chunk batcher to the same size, so a recording comes out near the lower bound of
 chunks that ``rerun rrd stats`` computes (its object-store profile targets 2 MiB chunks) and needs no
-``rerun rrd optimize``.
+``rerun rrd optimize``. No entity waits longer than :data:`SAVE_CHUNK_SECONDS` of session time, so a slow
+stream (100 Hz motor telemetry needs ~20 min to fill 2 MiB) neither holds memory for an hour-long run nor loses
+more than that to a killed one.
 """
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 from datetime import timedelta
 from pathlib import Path
@@ -33,6 +34,7 @@ if TYPE_CHECKING:
 TIMELINE = "session_time"
 TRAIL_POINTS = 360  # one second of tip path at 360 Hz
 SAVE_CHUNK_BYTES = 2 * 1024 * 1024  # per chunk in a saved .rrd (rerun's object-store chunk target)
+SAVE_CHUNK_SECONDS = 60.0  # longest span of session time an entity's columns wait before they are sent
 FORCE_LABELS = ("normal", "tangential")
 
 
@@ -100,14 +102,19 @@ class RerunSink:
         self.mode, self.rrd_path, self.t0_ns, self.calibration = mode, rrd_path, t0_ns, calibration
         # A file is read after the run: gather big chunks. A viewer wants every batch now.
         self.chunk_bytes = SAVE_CHUNK_BYTES if mode == "save" else 0
+        self.chunk_seconds = SAVE_CHUNK_SECONDS if mode == "save" else 0.0
         batcher = (
-            rr.ChunkBatcherConfig(flush_tick=timedelta(seconds=3600), flush_num_bytes=SAVE_CHUNK_BYTES)
+            rr.ChunkBatcherConfig(flush_tick=timedelta(seconds=SAVE_CHUNK_SECONDS), flush_num_bytes=SAVE_CHUNK_BYTES)
             if mode == "save"
             else None
         )
         self.rec = rr.RecordingStream("beambench", recording_id=recording_id, batcher_config=batcher)
         self._specs: dict[str, StreamSpec] = {}
-        self._trail: deque[np.ndarray] = deque(maxlen=TRAIL_POINTS)
+        self._trail = np.zeros((0, 3), np.float32)  # the tip's last TRAIL_POINTS positions (mm)
+        self._trail_new = 0  # positions added since the trail was last logged
+        # A viewer redraws the trail every batch; a saved file needs it once per TRAIL_POINTS positions (each
+        # logged trail is then a new second of path, not ten overlapping copies of it).
+        self._trail_every = TRAIL_POINTS if mode == "save" else 1
         self._pending: dict[str, _Pending] = {}
 
     def open(self, specs: list[StreamSpec]) -> None:
@@ -150,9 +157,12 @@ class RerunSink:
             self._send(f"mocap/{label}", "points", t, pos_mm[:, j, :].astype(np.float32))
         if "tip" in labels or "foot" in labels:
             j = labels.index("tip") if "tip" in labels else labels.index("foot")
-            self._trail.extend(pos_mm[:, j, :])
-            self.rec.set_time(TIMELINE, duration=float(t[-1]))
-            self.rec.log("mocap/tip_trail", rr.LineStrips3D([np.asarray(self._trail, np.float32)], radii=0.05))
+            self._trail = np.concatenate([self._trail, pos_mm[:, j, :].astype(np.float32)])[-TRAIL_POINTS:]
+            self._trail_new += len(t)
+            if self._trail_new >= self._trail_every:
+                self._trail_new = 0
+                self.rec.set_time(TIMELINE, duration=float(t[-1]))
+                self.rec.log("mocap/tip_trail", rr.LineStrips3D([self._trail], radii=0.05))
 
     def _send(self, entity: str, kind: str, t: np.ndarray, values: np.ndarray) -> None:
         """Queue one entity's columns; send them once about :attr:`chunk_bytes` are waiting."""
@@ -160,7 +170,7 @@ class RerunSink:
         p.times.append(np.asarray(t, float))
         p.values.append(values)
         p.nbytes += values.nbytes + 8 * len(t)
-        if p.nbytes >= self.chunk_bytes:
+        if p.nbytes >= self.chunk_bytes or float(t[-1]) - float(p.times[0][0]) >= self.chunk_seconds:
             self._flush(entity)
 
     def _flush(self, entity: str) -> None:
