@@ -25,6 +25,7 @@ import gc
 import os
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -85,6 +86,23 @@ class Timed:
 
     def close(self) -> None:
         self.sink.close()
+
+
+def thread_cpu_s() -> dict[str, float]:
+    """CPU seconds of each live thread of this process, by Python thread name (others: by kernel name)."""
+    names = {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
+    tick = os.sysconf("SC_CLK_TCK")
+    out: dict[str, float] = {}
+    for tid in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as f:
+                head, rest = f.read().rsplit(")", 1)
+        except OSError:
+            continue
+        fields = rest.split()
+        name = names.get(int(tid), head.split("(", 1)[1])
+        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+    return out
 
 
 def pct(values: list[float]) -> str:
@@ -151,6 +169,7 @@ def main() -> None:
     state = {"last_print": time.monotonic(), "done": 0.0, "peers_cpu": float("nan")}
 
     def on_progress(index: int, freq: float, seconds: float) -> None:
+        on_step_edges(index, freq, seconds)
         rss.append(rss_mb())
         with contextlib.suppress(OSError):
             state["peers_cpu"] = cpu_s(peers_pid)  # read while the peers run (they exit when the rig closes)
@@ -158,6 +177,14 @@ def main() -> None:
         if time.monotonic() - state["last_print"] >= 60:
             state["last_print"] = time.monotonic()
             print(f"  {state['done'] / 60:.1f} min, RSS {rss[-1]:.0f} MB", flush=True)
+
+    threads: list[tuple[float, dict[str, float]]] = []  # (wall, CPU s per thread): first and latest poll
+
+    def on_step_edges(index: int, freq: float, seconds: float) -> None:
+        snap = (time.monotonic(), thread_cpu_s())  # read while every driver thread runs
+        threads[1:] = [snap] if threads else []
+        if not threads:
+            threads.append(snap)
 
     gc_pauses: dict[int, list[float]] = {0: [], 1: [], 2: []}
     gc_t0 = [0.0]
@@ -208,6 +235,10 @@ def main() -> None:
         f"acquisition process CPU: {100 * cpu / wall:.1f} % of one core (peers' process: "
         f"{100 * peers_cpu / wall:.1f} %)"
     )
+    if len(threads) == 2:
+        (w0, c0), (w1, c1) = threads
+        share = sorted(((c1[k] - c0.get(k, 0.0)) / (w1 - w0) * 100, k) for k in c1)[::-1]
+        print("  by thread: " + ", ".join(f"{name} {p:.1f} %" for p, name in share if p >= 0.05))
     print(f"RSS: start {rss_start:.0f} MB, end {rss_end:.0f} MB, max {max(rss, default=rss_end):.0f} MB")
     print(f"batch-to-disk:  {pct(disk.latency_ms)}")
     print(f"batch-to-Rerun: {pct(view.latency_ms)}")
