@@ -700,21 +700,23 @@ class NatNetMocap(StreamDriver):
         host = np.empty(n, dtype=np.int64)
         dev = np.empty(n, dtype=np.float64)
         use_ticks = self.device_time_mode == "mid_exposure" and bool(clock_frequency)
+        marker_cols: dict[int, list[int]] = {}  # id -> the columns it fills (two names may share a marker)
+        body_cols: dict[int, list[int]] = {}
+        for j, src in enumerate(self.sources):
+            (marker_cols if src.kind == "marker" else body_cols).setdefault(src.id, []).append(j)
         for i, (host_ns, f) in enumerate(items):
             host[i] = host_ns
             frame[i] = f.frame_number
             dev[i] = f.mid_exposure / clock_frequency if use_ticks and f.mid_exposure else f.timestamp  # type: ignore[operator]
-            lms = {lm.id: lm for lm in f.labeled_markers}
-            rbs = {rb.id: rb for rb in f.rigid_bodies} if f.rigid_bodies else {}
-            for j, src in enumerate(self.sources):
-                if src.kind == "marker":
-                    lm = lms.get(src.id)
-                    if lm is not None and not lm.occluded:
-                        data[i, j] = lm.position
-                        occluded[i, j] = False
-                else:
-                    rb = rbs.get(src.id)
-                    if rb is not None and rb.tracking_valid:
-                        data[i, j] = rb.position
-                        occluded[i, j] = False
+            for lm in f.labeled_markers:  # one pass over what the frame holds (not a lookup per marker name)
+                cols = marker_cols.get(lm.id)
+                if cols is not None and not lm.params & 0x01:  # bit 0: occluded
+                    data[i, cols] = lm.position
+                    occluded[i, cols] = False
+            if body_cols:
+                for rb in f.rigid_bodies:
+                    cols = body_cols.get(rb.id)
+                    if cols is not None and rb.tracking_valid:
+                        data[i, cols] = rb.position
+                        occluded[i, cols] = False
         return Batch(self.name, host, dev, {"data": data, "frame": frame, "occluded": occluded})
