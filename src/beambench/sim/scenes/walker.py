@@ -89,7 +89,7 @@ class WalkerParams:
     sole_radius: float = 0.003  # G: 3 mm sphere sole
     wheel_radius: float = 0.008  # G: cart wheels (frictionless)
     friction: float = 0.5  # C: sole-floor Coulomb friction, jointly with foot_mass (usable band 0.45-0.52)
-    contact_timeconst: float = 0.00025  # N: solref time constant (converged; see the module docstring)
+    contact_timeconst: float = 0.0003  # N: solref time constant (converged with the timestep; module docstring)
     contact_dampratio: float = 1.0  # N: critically damped contact
     servo_hz: float = 300.0  # N: rotor angle servo bandwidth (the ODrive holds the commanded speed)
     vel_ramp_rate: float = 50.0  # G: ODrive velocity ramp, turn/s²
@@ -104,7 +104,7 @@ class WalkerParams:
     torque_constant: float = 0.0255  # D line 12: 25.5 mN·m/A (12 V winding 200142; the walker's winding is unknown)
     bus_voltage: float = 24.0  # G: ODrive bus
     preroll_s: float = 0.5  # N: motor off, settle under gravity (a quenched half, then a free half)
-    timestep: float = 5e-5  # N: converged with the contact time constant above
+    timestep: float = 1.2e-4  # N: converged with the contact time constant above
 
     @classmethod
     def named(cls, name: str) -> WalkerParams:
