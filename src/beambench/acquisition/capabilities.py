@@ -127,7 +127,8 @@ class ChecksDevices(Protocol):
 class Anticipates(Protocol):
     """A rig that can compute ahead (the sim rig's physics). The runner tells it, once armed, what the run will do
     if nothing stops or pauses it: each step's motor frequency and the ``clock.wait`` durations that follow that
-    command, in order. Only a hint: the data must be the same whatever the run then does."""
+    command, in order. Only a hint: the run may then do otherwise (stop, pause a record window), and the rig must
+    carry on from its state at that point."""
 
     def anticipate(self, schedule: list[tuple[float, list[float]]]) -> None: ...
 
