@@ -24,6 +24,7 @@ speed is a steady one measured after it).
 from __future__ import annotations
 
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -95,6 +96,7 @@ class _Segment:
     join_row: dict[str, np.ndarray] | None = None  # the pre-settle's last row (markers, theta)
     error: BaseException | None = None
     thread: threading.Thread | None = None
+    cpu_s: float = 0.0  # the worker thread's CPU time
 
 
 class Lookahead:
@@ -140,6 +142,7 @@ class Lookahead:
 
     # --- worker -----------------------------------------------------------------------------------------
     def _work(self, seg: _Segment) -> None:
+        c0 = time.thread_time()
         try:
             if seg.presettle is not None:
                 hz, seconds, t_phys = seg.presettle
@@ -165,6 +168,7 @@ class Lookahead:
                 with self._cv:
                     seg.results[i] = (out, snap)
                     seg.done = i + 1
+                    seg.cpu_s = time.thread_time() - c0
                     self._cv.notify_all()
         except BaseException as exc:  # handed to the caller in take()
             with self._cv:
@@ -243,4 +247,5 @@ def info(look: Lookahead) -> dict[str, Any]:
         "presettle_s": PRESETTLE_S if len(look.segments) > 1 else 0.0,
         "calls_taken": look.next,
         "calls_planned": len(look.calls),
+        "worker_cpu_s": [round(seg.cpu_s, 2) for seg in look.segments],
     }
