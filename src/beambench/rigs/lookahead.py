@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -56,18 +57,32 @@ def script(schedule: list[tuple[float, list[float]]], now_ns: int, max_chunk_ns:
     return calls
 
 
-def cut_points(calls: list[Call], segments: int, presettle_s: float) -> list[int]:
-    """Indices of the step commands where the script is cut into ``segments`` parts of about equal physics time
-    (a later part also pre-settles ``presettle_s``); fewer cuts when there are too few commands."""
+def cut_points(
+    calls: list[Call], segments: int, presettle_s: float, cost: Callable[[float], float] | None = None
+) -> list[int]:
+    """Indices of the step commands where the script is cut into ``segments`` parts of about equal physics cost
+    (a later part also pre-settles ``presettle_s``); fewer cuts when there are too few commands. ``cost(hz)``: the
+    physics' relative cost per rig second at a drive frequency (None: the same at every frequency)."""
     cmds = [i for i, c in enumerate(calls) if c[0] == "cmd" and i > 0]
     if segments <= 1 or not cmds:
         return []
-    t0, t1 = calls[0][1] * 1e-9, calls[-1][1] * 1e-9
-    part = (t1 - t0 + (segments - 1) * presettle_s) / segments
+    weight = cost or (lambda hz: 1.0)
+    cum = np.zeros(len(calls))  # cost of the script up to each call
+    hz, t, total = 0.0, calls[0][1], 0.0
+    for i, (kind, t_ns, f) in enumerate(calls):
+        if kind == "cmd":
+            hz = f
+        else:
+            total += (t_ns - t) * 1e-9 * weight(hz)
+            t = t_ns
+        cum[i] = total
+    mean_w = total / max((calls[-1][1] - calls[0][1]) * 1e-9, 1e-12)
+    pre = presettle_s * mean_w
+    part = (total + (segments - 1) * pre) / segments
     cuts: list[int] = []
     for j in range(1, segments):
-        want = t0 + j * (part - presettle_s) + presettle_s
-        best = min(cmds, key=lambda i: abs(calls[i][1] * 1e-9 - want))
+        want = j * part - (j - 1) * pre
+        best = min(cmds, key=lambda i: abs(cum[i] - want))
         if best not in cuts and (not cuts or best > cuts[-1]):
             cuts.append(best)
     return cuts

@@ -209,7 +209,7 @@ class SimRig:
         self._undo_ahead()
         calls = lookahead.script(schedule, self.clock.now_ns(), int(self.clock.max_chunk_s * 1e9))
         segments = self.protocol.sim.segments if self._own_scene else 1
-        cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S)
+        cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, getattr(self.scene, "step_cost", None))
         clones = [build_scene(self.protocol) for _ in cuts]
         self._scenes += clones
         self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
