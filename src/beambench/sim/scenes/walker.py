@@ -14,8 +14,8 @@ rigidly at the tail on two frictionless wheels (total length 295 mm).
 
 Calibrated set (the defaults; ``protocols/walker_sweep.yaml``, one CLI run + ``beambench analyze``): backward at
 13–26 Hz (−64 at 18 Hz, −41.0 at 23 Hz; paper −35.7), forward from 27 Hz, a plateau of ~160 at 57–66 Hz (+161.1 at
-65 Hz, +162.2 with segments: 1; paper +156.3); above ~73 Hz the gait turns irregular (speeds 70–150 mm/s that change with any perturbation,
-impacts that peak the motor current at 4–5 A for a few ms) — so does the finest setting (dt 2.5e-5, contact
+65 Hz, +162.2 with segments: 1; paper +156.3); above ~73 Hz the gait turns irregular (speeds 70–150 mm/s that
+change with any perturbation, impacts that peak the motor current at 4–5 A for a few ms) — so does the finest setting (dt 2.5e-5, contact
 0.125 ms) from 76 Hz; only the old 0.25 ms / 5e-5 pair stayed smooth to 80 Hz. Steady speeds (settle 3 s from a
 settled robot, ``walker_batch``) at 23 / 65 Hz: −39.2 / +160.1; at half the timestep and half the contact time
 constant −38.8 / +159.4 (1.0 % / 0.4 %, ``bench_walker.py --check``). The speed needs ~3 s from rest to be steady.
