@@ -1,11 +1,20 @@
 """Walker (paper Sec. IV-B): numerical convergence, the 1–80 Hz speed curve, and the sensitivity to the unknowns.
 
-    python benchmarks/bench_walker.py [--quick] [--out DIR]
+    python benchmarks/bench_walker.py --goal [--repeats 3] [--segments N]   # issue 12's goals, one command
+    python benchmarks/bench_walker.py --check                               # the convergence criterion only
+    python benchmarks/bench_walker.py --sweep [--repeats 3] [--segments N]  # the shipped sweep's wall time only
+    python benchmarks/bench_walker.py [--quick] [--out DIR]                 # the tables below
 
-Writes to DIR (default ``bench_out/walker``):
-``--check`` only tests the convergence criterion (steady speeds at 23 and 65 Hz at the defaults within 5 % of a run at
-half the timestep and half the contact time constant). All speeds are steady ones: from a settled robot, ramp at
-200 turn/s², settle 3 s, record 1.5 s (:mod:`beambench.sim.scenes.walker_batch`).
+``--check`` tests the convergence criterion (steady speeds at 23 and 65 Hz at the defaults within 5 % of a run at
+half the timestep and half the contact time constant; deterministic, one run each). ``--sweep`` runs the shipped
+``protocols/walker_sweep.yaml`` with ``beambench run --rerun off`` ``--repeats`` times (``--segments`` overrides its
+``sim.segments``), prints each run's wall and CPU time with the load average before it, the median wall time and
+the real-time factor (goal: 240 s of rig time in ≤ 24 s), then ``beambench analyze`` of the last session: the speeds
+at 23 and 65 Hz against the paper (goal: within ±30 %). ``--goal`` does both and prints a verdict per goal.
+The sweep uses both cores when the protocol has ``segments: 2``: run it on an otherwise idle machine.
+
+All other speeds are steady ones: from a settled robot, ramp at 200 turn/s², settle 3 s, record 1.5 s
+(:mod:`beambench.sim.scenes.walker_batch`).
 
 - ``walker_convergence.csv``: forward speed at 23 and 65 Hz for contact time constant × timestep, with the
   wall time per simulated second (one thread) and the deviation from the finest setting (0.25 ms, 1.25e-5 s;
@@ -21,11 +30,20 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SWEEP = ROOT / "protocols" / "walker_sweep.yaml"
 
 PAPER = {23.0: -35.7, 65.0: 156.3}  # mm/s
 
@@ -66,6 +84,67 @@ def _speed(beam, f: float, settle: float, record: float, **overrides: float) -> 
     return float(v[0]), (time.perf_counter() - t0) / sim_s
 
 
+def cli_sweep(repeats: int, segments: int | None = None) -> dict:
+    """Wall/CPU time of the shipped walker sweep on the CLI (``--rerun off``), and the analyzed speeds at 23 and
+    65 Hz of the last run's session."""
+    import pandas as pd
+    import yaml
+
+    from beambench.acquisition.config import load_protocol
+    from beambench.acquisition.plan import summary
+
+    protocol, _ = load_protocol(str(SWEEP))
+    sim_s = float(summary(protocol, "sim")["total_duration_s"])
+    walls, cpus = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = SWEEP
+        if segments is not None:
+            data = yaml.safe_load(SWEEP.read_text())
+            data["sim"]["segments"] = segments
+            path = Path(tmp) / "walker_sweep.yaml"
+            path.write_text(yaml.safe_dump(data, sort_keys=False))
+        for i in range(repeats):
+            load = os.getloadavg()[0]
+            c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t0 = time.perf_counter()
+            cmd = [sys.executable, "-m", "beambench.cli", "run", str(path), "--rerun", "off", "--out", tmp]
+            subprocess.run([*cmd, "--name", f"bench{i}"], check=True, capture_output=True)
+            walls.append(time.perf_counter() - t0)
+            c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpus.append(c1.ru_utime + c1.ru_stime - c0.ru_utime - c0.ru_stime)
+            print(
+                f"sweep run {i + 1}/{repeats}: {walls[-1]:.1f} s wall, {cpus[-1]:.1f} s CPU (load {load:.2f})",
+                flush=True,
+            )
+        out = Path(tmp) / "analysis"
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "beambench.cli",
+                "analyze",
+                str(Path(tmp) / f"bench{repeats - 1}.h5"),
+                "--out",
+                str(out),
+            ],
+            check=True,
+            capture_output=True,
+        )
+        steps = pd.read_csv(out / "steps.csv")
+    speeds = dict(zip(steps["frequency_hz"].astype(float), steps["body_speed_mm_s"].astype(float)))
+    med = statistics.median(walls)
+    print(
+        f"walker sweep ({sim_s:g} s of rig time, segments {segments or protocol.sim.segments}): median wall {med:.1f} s "
+        f"over {repeats} run(s) (min {min(walls):.1f}, max {max(walls):.1f}), CPU {statistics.median(cpus):.1f} s; "
+        f"real-time factor {sim_s / med:.1f}x",
+        flush=True,
+    )
+    for f, want in PAPER.items():
+        got = speeds.get(f, float("nan"))
+        print(f"analyze {f:.0f} Hz: {got:+.1f} mm/s (paper {want:+.1f}: {100 * (got - want) / abs(want):+.1f} %)")
+    return {"wall_s": med, "sim_s": sim_s, "speeds": {f: speeds.get(f, float("nan")) for f in PAPER}}
+
+
 def check(beam) -> bool:
     """The convergence criterion: steady speeds at 23 and 65 Hz at the defaults within 5 % of a run at half the
     timestep and half the contact time constant (both frequencies in one batch each)."""
@@ -101,6 +180,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="coarse grid and sweep, no sensitivity table")
     ap.add_argument("--check", action="store_true", help="only the 5 %% convergence criterion at 23 and 65 Hz")
+    ap.add_argument("--sweep", action="store_true", help="only the shipped sweep's wall time and analyzed speeds")
+    ap.add_argument("--goal", action="store_true", help="--check and --sweep, with a verdict per goal")
+    ap.add_argument("--repeats", type=int, default=3, help="sweep runs (median wall time)")
+    ap.add_argument("--segments", type=int, default=None, help="override the sweep protocol's sim.segments")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "bench_out" / "walker")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -114,6 +197,17 @@ def main() -> None:
     d = WalkerParams()
     if args.check:
         raise SystemExit(0 if check(beam) else 1)
+    if args.sweep or args.goal:
+        res = cli_sweep(args.repeats, args.segments)
+        if not args.goal:
+            return
+        converged = check(beam)
+        fast = res["wall_s"] <= res["sim_s"] / 10
+        close = all(abs(res["speeds"][f] - v) <= 0.3 * abs(v) for f, v in PAPER.items())
+        print(
+            f"goal wall <= {res['sim_s'] / 10:g} s: {fast}; speeds within 30 % of the paper: {close}; converged: {converged}"
+        )
+        raise SystemExit(0 if fast and close and converged else 1)
     settle, record = STEADY_SETTLE_S, RECORD_S  # the speed needs ~3 s from rest to be steady
 
     # 1. convergence at 23 and 65 Hz ------------------------------------------------------------------

@@ -104,7 +104,7 @@ def test_walker_reverses_direction_between_23_and_65_hz():
     from beambench.sim.scenes.walker import WalkerSim, measure_speed
 
     beam = make_beam_model("prb3", load_params())
-    assert WalkerSim(beam, 90.0).physics.timestep == 5e-5  # the converged default (no protocol override)
+    assert WalkerSim(beam, 90.0).physics.timestep == 1.2e-4  # the converged default (no protocol override)
     v23, _ = measure_speed(beam, 23.0)
     v65, _ = measure_speed(beam, 65.0)
     assert v23 < -8e-3 and v65 > 5e-3

@@ -124,6 +124,16 @@ class ChecksDevices(Protocol):
 
 
 @runtime_checkable
+class Anticipates(Protocol):
+    """A rig that can compute ahead (the sim rig's physics). The runner tells it, once armed, what the run will do
+    if nothing stops or pauses it: each step's motor frequency and the ``clock.wait`` durations that follow that
+    command, in order. Only a hint: the run may then do otherwise (stop, pause a record window), and the rig must
+    carry on from its state at that point."""
+
+    def anticipate(self, schedule: list[tuple[float, list[float]]]) -> None: ...
+
+
+@runtime_checkable
 class HasSilenceTimeouts(Protocol):
     """A rig whose streams each have a silence timeout (s) from the rig file, watched by a monitor per stream."""
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 from beambench.acquisition.batch import StepRecord
 from beambench.acquisition.capabilities import (
+    Anticipates,
     ChecksDevices,
     DeviceFault,
     HasIdleTail,
@@ -54,6 +55,24 @@ class RunResult:
 
 
 ProgressCallback = Callable[[int, float, float], None]  # (step index, frequency, rig seconds just waited)
+
+
+def wait_polls(seconds: float, poll_s: float) -> list[float]:
+    """The polls that let ``seconds`` of rig time pass: equal ones of at most ``poll_s`` (settle windows)."""
+    if seconds <= 0:
+        return []
+    n = max(1, math.ceil(seconds / poll_s - 1e-9))
+    return [seconds / n] * n
+
+
+def record_polls(seconds: float, poll_s: float) -> list[float]:
+    """The polls of a monitored record window that no monitor pauses: ``poll_s`` each, the remainder last."""
+    polls, remaining = [], seconds
+    while remaining > 1e-9:
+        dt = min(poll_s, remaining)
+        polls.append(dt)
+        remaining -= dt
+    return polls
 
 
 class StopSignal:
@@ -143,6 +162,8 @@ class Runner:
                 self._check_stop()
                 self.rig.motor.arm(self.limits)
                 self.hub.event(self.rig.clock.now_ns(), "armed", "")
+                if isinstance(self.rig, Anticipates):
+                    self.rig.anticipate(self.schedule())
                 for step in self.steps:
                     self._check_stop()
                     self._run_step(step)
@@ -175,6 +196,14 @@ class Runner:
             if not 0 <= s.frequency_hz <= self.limits.max_frequency_hz:
                 raise DeviceFault(f"step {s.index}: {s.frequency_hz} Hz outside 0..{self.limits.max_frequency_hz} Hz")
 
+    def schedule(self) -> list[tuple[float, list[float]]]:
+        """What the run will do if nothing stops or pauses it: each step's frequency and the rig-clock waits (polls)
+        that follow its command, in order (a hint for rigs that compute ahead, :class:`Anticipates`)."""
+        record = record_polls if self.monitors else wait_polls
+        return [
+            (s.frequency_hz, wait_polls(s.settle_s, self.poll_s) + record(s.record_s, self.poll_s)) for s in self.steps
+        ]
+
     def _run_step(self, step: Step) -> None:
         clock = self.rig.clock
         self.rig.motor.set_frequency(step.frequency_hz)
@@ -193,14 +222,11 @@ class Runner:
 
     def _wait(self, seconds: float, step: Step) -> None:
         """Let ``seconds`` of rig time pass in polls of at most ``poll_s``, pumping batches after each."""
-        if seconds <= 0:
-            return
-        n = max(1, math.ceil(seconds / self.poll_s - 1e-9))
-        for _ in range(n):
+        for dt in wait_polls(seconds, self.poll_s):
             self._check_stop()
-            self._poll(seconds / n)
+            self._poll(dt)
             if self.on_progress:
-                self.on_progress(step.index, step.frequency_hz, seconds / n)
+                self.on_progress(step.index, step.frequency_hz, dt)
 
     def _record(self, step: Step) -> None:
         """The record window: ``record_s`` of rig time during which no monitor reports a problem."""
@@ -211,7 +237,7 @@ class Runner:
         self._problem()  # monitors start watching here
         remaining = step.record_s
         paused_at: int | None = None
-        while remaining > 1e-9:
+        while remaining > 1e-9:  # as record_polls() while nothing pauses
             self._check_stop()
             dt = min(self.poll_s, remaining)
             began = clock.now_ns()

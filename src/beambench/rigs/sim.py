@@ -5,13 +5,16 @@ chunk every device samples the new trajectory rows on its own clock.
 
 With ``prefetch`` the next chunk (same length, same command) is computed on a worker thread while the caller
 stores the last one (MuJoCo releases the GIL); a command or a different wait undoes it from a snapshot, so
-the data are identical with and without prefetch.
+the data are identical with and without prefetch. Once the runner announces the run's schedule
+(:meth:`SimRig.anticipate`), a worker computes the whole script ahead instead (:mod:`beambench.rigs.lookahead`;
+same data), and with ``sim.segments: n`` (walker) n workers compute consecutive parts of the sweep in parallel,
+each later part pre-settled at its first frequency (what that changes: the lookahead module's docstring).
 """
 
 from __future__ import annotations
 
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any
+from typing import Any, cast
 
 import mujoco
 import numpy as np
@@ -20,6 +23,7 @@ from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import Stream
 from beambench.acquisition.config import ClockModel, ConfigError, Protocol
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
+from beambench.rigs import lookahead
 from beambench.rigs.sim_devices import (
     DeviceClock,
     SimClock,
@@ -30,7 +34,7 @@ from beambench.rigs.sim_devices import (
 from beambench.sim.engine.stepping import Trajectory
 from beambench.sim.models.params import has_params
 from beambench.sim.models.registry import UnknownModelError, beam_model, model_family
-from beambench.sim.scenes.drive import DrivenScene
+from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
 
 CONTACT_ONLY = {"plate_gap_mm", "tolerance_mm"}  # sim options only the contact rig builds
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
@@ -54,6 +58,9 @@ def build_scene(protocol: Protocol) -> DrivenScene:
         raise ConfigError("<protocol>", "sim.model", sim.model, str(exc).split(": ", 1)[-1]) from None
     if protocol.rig == "walker":
         _check_walker_legs(model_name)
+    elif sim.segments > 1:
+        reason = "applies to rig: walker only (the other scenes do not settle into a steady gait)"
+        raise ConfigError("<protocol>", "sim.segments", sim.segments, reason)
     if protocol.rig == "release":
         from beambench.sim.scenes.release import ReleaseSim
 
@@ -160,6 +167,11 @@ class SimRig:
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="sim-prefetch") if prefetch else None
         self._ahead: tuple[int, Future, tuple] | None = None  # (target ns, job, snapshot to undo it)
         self._last_ns = 0
+        self._own_scene = scene is None  # segments need copies of the scene, built from the protocol
+        self._look: lookahead.Lookahead | None = None
+        self._look_info: dict[str, Any] | None = None
+        self._scenes: list[DrivenScene] = [self.scene]  # every scene built (segments), closed at the end
+        self._offset = {"x": 0.0, "theta": 0.0}  # added to the rows once a later segment's scene took over
 
     def open(self) -> None:
         if self._state != "new":
@@ -177,17 +189,60 @@ class SimRig:
         try:
             self.motor.idle()
         finally:
+            if self._look is not None:
+                self._look.stop()
+                self._look = None
             self._undo_ahead()
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
             for dev in self._devices:
                 dev.stop()
-            self.scene.physics.close()
+            for scene in self._scenes:
+                scene.physics.close()
             self._state = "closed"
+
+    # --- lookahead ------------------------------------------------------------------------------------
+    def anticipate(self, schedule: list[tuple[float, list[float]]]) -> None:
+        """The run's schedule (``Anticipates``): compute it ahead on worker threads (with prefetch only)."""
+        if self._state != "open" or self._pool is None or self._look is not None or not schedule:
+            return
+        self._undo_ahead()
+        calls = lookahead.script(schedule, self.clock.now_ns(), int(self.clock.max_chunk_s * 1e9))
+        segments = self.protocol.sim.segments if self._own_scene else 1
+        cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, getattr(self.scene, "step_cost", None))
+        clones = [build_scene(self.protocol) for _ in cuts]
+        self._scenes += clones
+        self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
+
+    def _drop_lookahead(self) -> None:
+        """The run left the script: stop the workers, continue from the state after the last call taken."""
+        look = self._look
+        if look is None:
+            return
+        self._look = None
+        snap = look.stop()
+        if look.scene is not self.scene:  # a later segment's scene holds the state now
+            self.scene = look.scene
+            self._offset = dict(look.offset)
+            self.motor.ramp = cast(VelocityRamp, _ShiftedRamp(self.scene.ramp, self._offset["theta"]))
+        self.scene.restore(snap if snap is not None else look.start)
+        if len(look.segments) > 1:
+            self._look_info = lookahead.info(look)
+
+    def after_run(self) -> dict[str, Any]:
+        """``sim_segments`` in ``/general`` when the sweep was cut into segments (``ReportsAfterRun``)."""
+        if self._look is not None and len(self._look.segments) > 1:
+            self._look_info = lookahead.info(self._look)
+        return {"sim_segments": self._look_info} if self._look_info else {}
 
     # --- stepping -------------------------------------------------------------------------------------
     def _command(self, hz: float) -> None:
         """Motor → scene: a new crank-speed setpoint takes effect from the current time."""
+        if self._look is not None:
+            if self._look.expects("cmd", self.clock.now_ns(), hz):
+                self._look.take(self._hist)
+                return
+            self._drop_lookahead()
         self._undo_ahead()
         self.scene.set_frequency(hz)
 
@@ -202,12 +257,17 @@ class SimRig:
         if self._state != "open":
             raise RuntimeError("sim rig: clock.wait() before open() or after close()")
         now = now_ns * 1e-9
-        if self._ahead is not None and self._ahead[0] == now_ns:
-            new = self._ahead[1].result()
+        if self._look is not None and not self._look.expects("adv", now_ns):
+            self._drop_lookahead()
+        if self._look is not None:
+            new = self._look.take(self._hist)
+            assert new is not None
+        elif self._ahead is not None and self._ahead[0] == now_ns:
+            new = lookahead.shifted(self._ahead[1].result(), self._offset, 0)
             self._ahead = None
         else:
             self._undo_ahead()
-            new = self.scene.advance_to(now)
+            new = lookahead.shifted(self.scene.advance_to(now), self._offset, 0)
         if len(new):
             old = self._hist
             keep = old.t >= new.t[0] - HISTORY_S if old is not None else None
@@ -220,7 +280,7 @@ class SimRig:
         for dev in self._devices:
             dev.ingest(self._hist, now)
         step_ns, self._last_ns = now_ns - self._last_ns, now_ns
-        if self._pool is not None and step_ns > 0:
+        if self._pool is not None and step_ns > 0 and self._look is None:
             target = now_ns + step_ns
             snap = self.scene.snapshot()
             self._ahead = (target, self._pool.submit(self.scene.advance_to, target * 1e-9), snap)
@@ -266,6 +326,20 @@ class SimRig:
                 },
             },
         }
+
+
+class _ShiftedRamp:
+    """The motor's view of a later segment's ramp: its angle continues the first scene's (``SimMotor.idle``)."""
+
+    def __init__(self, ramp: Any, theta_offset: float) -> None:
+        self._ramp, self._dtheta = ramp, theta_offset
+
+    @property
+    def theta(self) -> float:
+        return float(self._ramp.theta) + self._dtheta
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._ramp, name)
 
 
 def build_sim_rig(protocol: Protocol, realtime: bool = False, prefetch: bool = True) -> SimRig:

@@ -13,16 +13,25 @@ rigid foot, a calibrated 3 g at its sole (the paper_guesses set: 20 g, the paper
 rigidly at the tail on two frictionless wheels (total length 295 mm).
 
 Calibrated set (the defaults; ``protocols/walker_sweep.yaml``, one CLI run + ``beambench analyze``): backward at
-13–26 Hz (−64 at 18 Hz, −38.7 at 23 Hz; paper −35.7), forward from 27 Hz, a plateau of ~155 at 58–66 Hz (+155.3 at
-65 Hz; paper +156.3), +139 at 80 Hz. Steady speeds (settle 3 s from a settled robot, ``walker_batch``) at 23 / 65 Hz:
-−35.7 / +154.8; at half the timestep and half the contact time constant −35.1 / +156.1 (1.6 % / 0.8 %,
-``bench_walker.py --check``). The speed needs ~3 s from rest to be steady. The soft contacts creep: standing, the
-soles slide outward and the body sinks ~1–2 mm/s.
+13–26 Hz (−64 at 18 Hz, −41.0 at 23 Hz; paper −35.7), forward from 27 Hz, a plateau of ~160 at 57–66 Hz (+161.1 at
+65 Hz, +162.2 with segments: 1; paper +156.3); above ~73 Hz the gait turns irregular (speeds 70–150 mm/s that
+change with any perturbation, impacts that peak the motor current at 4–5 A for a few ms) — so does the finest setting (dt 2.5e-5, contact
+0.125 ms) from 76 Hz; only the old 0.25 ms / 5e-5 pair stayed smooth to 80 Hz. Steady speeds (settle 3 s from a
+settled robot, ``walker_batch``) at 23 / 65 Hz: −39.2 / +160.1; at half the timestep and half the contact time
+constant −38.8 / +159.4 (1.0 % / 0.4 %, ``bench_walker.py --check``). The speed needs ~3 s from rest to be steady.
+The soft contacts creep: standing, the soles slide outward and the body sinks ~1–2 mm/s.
+
+Numerics (issue 12, steady speeds at 23 / 65 Hz, mm/s): the contact time constant and the timestep were chosen
+together for speed — dt 1.2e-4 s with 0.3 ms (2.5 steps; MuJoCo's floor is 2) costs 2.4× less than the earlier
+5e-5 / 0.25 ms (−35.7 / +154.8, its own halving check 1.6 % / 0.8 %). Pairs with the same halving check: 1e-4 /
+0.3 ms 0.8 % / 1.1 %; 1.25e-4 / 0.3 ms 2.8 % / 1.0 %; 1.5e-4 / 0.4 ms 1.1 % / 0.1 % (but irregular from 72 Hz);
+failing it: 1e-4 / 0.5 ms 8.2 % at 23 Hz, 1e-4 / 0.4 ms 5.5 %, 2e-4 / 0.6 ms 6.6 %, 1e-4 / 0.25 ms ~10 %. Speeds at
+0.075–0.4 ms all lie within −35…−40 / +155…+163; 0.5 ms and softer slow 65 Hz (+137 at 0.5 ms, dt 2.5e-5).
 
 With the paper_guesses set (20 g feet), from the planning work (short windows, settle 1 s from rest):
 Numerics (``benchmarks/bench_walker.py``; speeds mm/s at 23 / 65 Hz): the contact time constant matters,
 the timestep much less. 2 ms: +4 / +10 (no reversal); 1 ms: −10 / +15; 0.5 ms: −14 / +15; 0.25 ms:
-−15.6 / +12.0 (dt 1.25e-5). The defaults, 0.25 ms at dt 5e-5, give −15.6 / +11.6 (within 3.3 % of the
+−15.6 / +12.0 (dt 1.25e-5). The then defaults, 0.25 ms at dt 5e-5, give −15.6 / +11.6 (within 3.3 % of the
 finest setting at a quarter of its cost; dt 1e-4 is 12 % off at 65 Hz). Stiffer still (0.125 ms):
 −16.2 / +9.4, so the 65 Hz speed carries a ±3 mm/s contact-model uncertainty. Over 1–80 Hz the defaults
 follow the finest setting within ~1.5 mm/s except at 20–32 Hz, where the speed changes sign within a few
@@ -89,7 +98,7 @@ class WalkerParams:
     sole_radius: float = 0.003  # G: 3 mm sphere sole
     wheel_radius: float = 0.008  # G: cart wheels (frictionless)
     friction: float = 0.5  # C: sole-floor Coulomb friction, jointly with foot_mass (usable band 0.45-0.52)
-    contact_timeconst: float = 0.00025  # N: solref time constant (converged; see the module docstring)
+    contact_timeconst: float = 0.0003  # N: solref time constant, converged with the timestep (module docstring)
     contact_dampratio: float = 1.0  # N: critically damped contact
     servo_hz: float = 300.0  # N: rotor angle servo bandwidth (the ODrive holds the commanded speed)
     vel_ramp_rate: float = 50.0  # G: ODrive velocity ramp, turn/s²
@@ -104,7 +113,7 @@ class WalkerParams:
     torque_constant: float = 0.0255  # D line 12: 25.5 mN·m/A (12 V winding 200142; the walker's winding is unknown)
     bus_voltage: float = 24.0  # G: ODrive bus
     preroll_s: float = 0.5  # N: motor off, settle under gravity (a quenched half, then a free half)
-    timestep: float = 5e-5  # N: converged with the contact time constant above
+    timestep: float = 1.2e-4  # N: converged with the contact time constant above (halving both: ≤ 1 %)
 
     @classmethod
     def named(cls, name: str) -> WalkerParams:
@@ -358,6 +367,14 @@ class WalkerSim(DrivenScene):
 
     def set_frequency(self, hz: float) -> None:
         self.ramp.setpoint = float(hz)
+
+    @staticmethod
+    def step_cost(hz: float) -> float:
+        """The physics' relative cost per simulated second at drive frequency ``hz``: the sim rig cuts a sweep into
+        segments of equal cost with it (:func:`beambench.rigs.lookahead.cut_points`). Issue 12, dt 1.2e-4, on a loaded
+        machine: ~20 µs/step at 4–12 Hz, ~17.5 at 20–33 Hz, ~12.5 from 55 Hz; tuned down a little so that the shipped
+        sweep's two workers take about the same CPU time (cut at 37 Hz)."""
+        return float(np.interp(hz, [0, 3, 4, 12, 20, 33, 45, 55], [1.0, 1.1, 1.45, 1.4, 1.3, 1.25, 1.1, 1.0]))
 
     def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         omega, theta = self.ramp.plan(n, h)
