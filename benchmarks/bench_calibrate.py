@@ -92,10 +92,12 @@ def check(target: dict, got: dict, tol: float = 2.0) -> dict:
     return out
 
 
-def run_case(label: str, cal_args: list[str], target: dict, out: Path, budget: float) -> dict:
+def run_case(
+    label: str, cal_args: list[str], target: dict, out: Path, budget: float, extra: list[str] | None = None
+) -> dict:
     cdir = out / label
     cdir.mkdir(parents=True, exist_ok=True)
-    res, wall = sh("calibrate", "sim", *cal_args, "--out", str(cdir / "cal"), "--budget-s", str(budget))
+    res, wall = sh("calibrate", "sim", *cal_args, "--out", str(cdir / "cal"), "--budget-s", str(budget), *(extra or []))
     proto = Path(res.stdout.strip().splitlines()[-1])
     report = json.loads(next((cdir / "cal").glob("*_report.json")).read_text())
     run, run_wall = sh("run", str(proto), "--out", str(cdir / "run"), "--name", "calibrated", "--rerun", "off")
@@ -126,7 +128,10 @@ def main() -> None:
     ap.add_argument("--gap-mm", type=float, default=1.0, help="case 1: the twin session's gap (paper set)")
     ap.add_argument("--seed", type=int, default=7, help="case 1: the twin session's seed")
     ap.add_argument("--other", default="15,30,42", help="case 2: continuous_below,half_at,third_at (Hz)")
+    ap.add_argument("--free", default=None, help="unknowns to fit (calibrate sim --free), e.g. adding frame_mass_g")
+    ap.add_argument("--workers", type=int, default=None, help="calibrate sim --workers (default: all cores)")
     args = ap.parse_args()
+    extra = (["--free", args.free] if args.free else []) + (["--workers", str(args.workers)] if args.workers else [])
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     repo = Path(__file__).resolve().parents[1]
@@ -140,17 +145,17 @@ def main() -> None:
         res, _ = sh("run", str(p), "--out", str(d), "--name", "twin_gap", "--rerun", "off")
         session = Path(res.stdout.strip().splitlines()[-1])
         target = transitions(analyze(session, d / "analysis"))
-        results.append(run_case("case1_session", [str(session)], target, out, args.budget_s))
+        results.append(run_case("case1_session", [str(session)], target, out, args.budget_s, extra))
     if "2" in cases:
         c, h, t = (float(x) for x in args.other.split(","))
         f = out / "other_targets.yaml"
         f.write_text(f"rig: contact\ncontinuous_below_hz: {c:g}\nhalf_at_hz: {h:g}\nthird_at_hz: {t:g}\n")
         target = {"continuous_below_hz": c, "half_at_hz": h, "third_at_hz": t}
-        results.append(run_case("case2_other_targets", ["--targets", str(f)], target, out, args.budget_s))
+        results.append(run_case("case2_other_targets", ["--targets", str(f)], target, out, args.budget_s, extra))
     if "3" in cases:
         target = {"continuous_below_hz": 18.0, "half_at_hz": 26.0, "third_at_hz": 38.0}
         paper = repo / "calibration" / "paper_contact_targets.yaml"
-        results.append(run_case("case3_paper", ["--targets", str(paper)], target, out, args.budget_s))
+        results.append(run_case("case3_paper", ["--targets", str(paper)], target, out, args.budget_s, extra))
     (out / "bench_calibrate.json").write_text(json.dumps(results, indent=1, default=str))
     for r in results:
         checks = ", ".join(
