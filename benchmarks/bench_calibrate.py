@@ -34,6 +34,14 @@ After merging issue 11 part A (shipped sweep on the ``contact_paper`` set, which
   the "lowest ½" read 7, and continuous only ≤ 4.
 - case 3, paper: 142 s, 186 evaluations (stall after the prior line found the set: k_scale 1, b_scale 1,
   gap 7.377 mm); stepped run: ½ at 27, ⅓ at 38 (± 2 Hz); continuous 3–9 Hz with "2" at 12–17 (edge MISS).
+
+With the opt-in unknowns (``--free k_scale,b_scale,preload_mm,frame_mass_g,mass_dx_mm --workers 1``; branch
+s10-contact-edge, load ~3.5, one run each; details in docs/contact-twin.md):
+
+- case 2, 15 / 30 / 42: 360 s, 164 evaluations; k_scale 0.563, b_scale 1.35, preload 0.962 mm, frame 2.76 g,
+  offset 8.2 mm; run: ½ at 30, ⅓ at 41 (± 2 Hz), continuous 1–9 and 11–12 (edge MISS), no stray subharmonics.
+- case 3, paper: 344 s, 146 evaluations; k_scale 0.837, b_scale 1.55, preload 0.561 mm, frame 3.35 g, offset
+  3.1 mm; run: ½ at 28, ⅓ at 37 (± 2 Hz), continuous 1–4 and 6–9 (edge MISS).
 """
 
 from __future__ import annotations

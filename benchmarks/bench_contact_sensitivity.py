@@ -8,7 +8,8 @@ One unknown at a time, each at two values around the parameter set (default: the
 unloaded foot), the foot mass, the contact time constant, friction, the load's offset from the sole along
 the stage travel, and the clamp orientation (section turned 90° at the clamp); then (second pass) the stiffness
 and the load frame's own mass at the same interference (sag − gap), the load's offset along y, a stuck foot
-(friction 6) and a compliant sole (``--only 'compliant sole,friction'`` runs a subset). For each: the continuous
+(friction 6) and a compliant sole (``--only 'compliant sole,friction'`` runs a subset; ``_match_sag`` rows move
+the gap with the sag so the interference stays the base's). For each: the continuous
 edge (highest frequency up to which every step is ``continuous``), the lowest ``1/2``, the lowest ``1/3`` and
 the map as a string (C continuous, 1, h = 1/2, t = 1/3, q = 1/4, 2, 3, . irregular, - none). Regimes come
 from the plate's normal force only (:func:`beambench.sim.scenes.contact_sweep.regime_map`).
@@ -61,12 +62,22 @@ def variations(base_rig) -> list[tuple[str, str, dict, dict]]:
         ("clamp orientation", "turned 90°", {}, {"clamp_roll_deg": 90.0}),
         ("clamp orientation", "turned 90°, gap −sag diff", {}, {"clamp_roll_deg": 90.0, "_match_sag": 1.0}),
         # second pass (docs/contact-twin.md, "What moves the continuous edge")
-        ("stiffness, same interference", "×0.8", {"k": 0.8}, {"_match_sag": 1.0}),
-        ("stiffness, same interference", "×1.25", {"k": 1.25}, {"_match_sag": 1.0}),
-        ("frame mass, same interference", "5 g", {}, {"frame_mass": 0.005, "_match_sag": 1.0}),
-        ("frame mass, same interference", "10 g", {}, {"frame_mass": 0.010, "_match_sag": 1.0}),
-        ("mass offset along y", "+10 mm", {}, {"mass_dy": base_rig.mass_dy + 0.01}),
-        ("mass offset along y", "−10 mm", {}, {"mass_dy": base_rig.mass_dy - 0.01}),
+        ("stiffness at same interference", "×0.8", {"k": 0.8}, {"_match_sag": 1.0}),
+        ("stiffness at same interference", "×1.25", {"k": 1.25}, {"_match_sag": 1.0}),
+        ("frame mass at same interference", "5 g", {}, {"frame_mass": 0.005, "_match_sag": 1.0}),
+        ("frame mass at same interference", "10 g", {}, {"frame_mass": 0.010, "_match_sag": 1.0}),
+        (
+            "mass offset along y",
+            "+10 mm, same interference",
+            {},
+            {"mass_dy": base_rig.mass_dy + 0.01, "_match_sag": 1.0},
+        ),
+        (
+            "mass offset along y",
+            "−10 mm, same interference",
+            {},
+            {"mass_dy": base_rig.mass_dy - 0.01, "_match_sag": 1.0},
+        ),
         ("friction", "6 (foot stuck)", {}, {"friction": 6.0}),
         (
             "compliant sole",
@@ -123,7 +134,7 @@ def main() -> None:
             b_twist=base.b_twist * scale.get("b", 1.0),
         )
         over = {k: v for k, v in rig.items() if not k.startswith("_")}
-        if rig.get("_match_sag"):  # same preload (sag − gap) as the base in the turned scene
+        if rig.get("_match_sag"):  # same preload (sag − gap) as the base
             sag = static_sag(make_beam_model("prb3", p), RigParams.with_overrides({**base.rig, **over}))
             over["plate_gap"] = base_rig.plate_gap + (sag - sag0)
         t0 = time.perf_counter()
