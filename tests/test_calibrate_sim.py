@@ -131,6 +131,17 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     assert p.rig["friction"] == 1.5  # the prior's rig block is kept
     plain = calibrated_params(base, {"k_scale": 1.0})
     assert "frame_mass" not in plain.rig and "mass_dx" not in plain.rig
+    # not fitted, the prior's own value stays (the shipped default's frame mass is 10 g)
+    stuck = {**base, "params": "contact_stuck"}
+    assert calibrated_params(stuck, {"k_scale": 1.0}).rig["frame_mass"] == pytest.approx(0.010)
+    assert names["frame_mass_g"].opt_in and names["mass_dx_mm"].opt_in
+    # the search's fixed values leave the opt-in unknowns out unless they are fixed explicitly
+    from beambench.studies.calibrate import fixed_values
+
+    free = [names[n] for n in rig.default_free]
+    assert set(fixed_values(names, free, SearchSettings())) == set()
+    assert fixed_values(names, free, SearchSettings(fixed={"frame_mass_g": 2.0})) == {"frame_mass_g": 2.0}
+    assert set(fixed_values(names, free[:2], SearchSettings())) == {"preload_mm"}
 
 
 def test_a_rig_the_calibrator_does_not_know_is_refused(tmp_path):

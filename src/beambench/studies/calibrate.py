@@ -73,6 +73,7 @@ class Unknown:
     unit: str = ""
     doc: str = ""
     default: float | None = None  # the value when not fitted (None: the middle of the bounds)
+    opt_in: bool = False  # not fitted unless named; when not fitted the prior's own value stays (not ``default``)
 
     @property
     def bounds(self) -> tuple[float, float]:
@@ -404,7 +405,7 @@ def calibrate(
             f"unknown {bad[0]!r}: the {rig.name} rig's unknowns are {', '.join(u.name for u in rig.unknowns)}"
         )
     free = [unknowns[n] for n in names]
-    fixed = {n: float(settings.fixed.get(n, _default(u))) for n, u in unknowns.items() if u not in free}
+    fixed = fixed_values(unknowns, free, settings)
     coarse = coarse_frequencies(targets, settings.coarse_step_hz, rig.min_frequency_hz)
     fine = [float(f) for f in sorted(targets.frequencies) if f >= rig.min_frequency_hz - 1e-9]
     history: list[dict] = []
@@ -608,6 +609,17 @@ def initial_population(free: list[Unknown], settings: SearchSettings) -> np.ndar
     n = max(5, settings.popsize)
     pts = qmc.Sobol(len(free), scramble=True, seed=settings.seed).random(2 ** math.ceil(math.log2(n)))[:n]
     return lo + pts * (hi - lo)
+
+
+def fixed_values(unknowns: dict[str, Unknown], free: list[Unknown], settings: SearchSettings) -> dict[str, float]:
+    """The values of the unknowns that are not fitted: ``settings.fixed``, else their default — except opt-in
+    unknowns, which are left out (the prior parameter set keeps its own value) unless ``settings.fixed`` names
+    them."""
+    return {
+        n: float(settings.fixed.get(n, _default(u)))
+        for n, u in unknowns.items()
+        if u not in free and (not u.opt_in or n in settings.fixed)
+    }
 
 
 def _default(u: Unknown) -> float:
@@ -904,8 +916,18 @@ CONTACT_UNKNOWNS = (
     ),
     # opt-in (``--free``): the load frame's own mass and the load's offset along the stage travel (paper: the
     # 20 g sits "at the lower left corner of the load frame"; neither the frame's mass nor the offset is given)
-    Unknown("frame_mass_g", 0.0, 15.0, unit="g", default=0.0, doc="the load frame's own mass (rig.frame_mass)"),
-    Unknown("mass_dx_mm", -5.0, 25.0, unit="mm", default=0.0, doc="the 20 g load's offset along x (rig.mass_dx)"),
+    Unknown(
+        "frame_mass_g", 0.0, 15.0, unit="g", default=0.0, opt_in=True, doc="the load frame's own mass (rig.frame_mass)"
+    ),
+    Unknown(
+        "mass_dx_mm",
+        -5.0,
+        25.0,
+        unit="mm",
+        default=0.0,
+        opt_in=True,
+        doc="the 20 g load's offset along x (rig.mass_dx)",
+    ),
 )
 CONTACT_RIG_UNKNOWNS = {"frame_mass_g": ("frame_mass", 1e-3), "mass_dx_mm": ("mass_dx", 1e-3)}  # → rig block (SI)
 
