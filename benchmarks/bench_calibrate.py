@@ -42,6 +42,11 @@ s10-contact-edge, load ~3.5, one run each; details in docs/contact-twin.md):
   offset 8.2 mm; run: ½ at 30, ⅓ at 41 (± 2 Hz), continuous 1–9 and 11–12 (edge MISS), no stray subharmonics.
 - case 3, paper: 344 s, 146 evaluations; k_scale 0.837, b_scale 1.55, preload 0.561 mm, frame 3.35 g, offset
   3.1 mm; run: ½ at 28, ⅓ at 37 (± 2 Hz), continuous 1–4 and 6–9 (edge MISS).
+
+From the new default prior (``contact_stuck``, non-sliding sole), default unknowns, ``--workers 1 --budget-s 300``:
+
+- case 2, 15 / 30 / 42: 222 s, 130 evaluations; k_scale 0.698, b_scale 1.63, preload 0.211 mm; run: continuous
+  1–16 (± 2 Hz), ½ at 30, ⅓ at 45 (MISS by 1 Hz beyond ± 2).
 """
 
 from __future__ import annotations
