@@ -34,6 +34,19 @@ After merging issue 11 part A (shipped sweep on the ``contact_paper`` set, which
   the "lowest ½" read 7, and continuous only ≤ 4.
 - case 3, paper: 142 s, 186 evaluations (stall after the prior line found the set: k_scale 1, b_scale 1,
   gap 7.377 mm); stepped run: ½ at 27, ⅓ at 38 (± 2 Hz); continuous 3–9 Hz with "2" at 12–17 (edge MISS).
+
+With the opt-in unknowns (``--free k_scale,b_scale,preload_mm,frame_mass_g,mass_dx_mm --workers 1``; branch
+s10-contact-edge, load ~3.5, one run each; details in docs/contact-twin.md):
+
+- case 2, 15 / 30 / 42: 360 s, 164 evaluations; k_scale 0.563, b_scale 1.35, preload 0.962 mm, frame 2.76 g,
+  offset 8.2 mm; run: ½ at 30, ⅓ at 41 (± 2 Hz), continuous 1–9 and 11–12 (edge MISS), no stray subharmonics.
+- case 3, paper: 344 s, 146 evaluations; k_scale 0.837, b_scale 1.55, preload 0.561 mm, frame 3.35 g, offset
+  3.1 mm; run: ½ at 28, ⅓ at 37 (± 2 Hz), continuous 1–4 and 6–9 (edge MISS).
+
+From the new default prior (``contact_stuck``, non-sliding sole), default unknowns, ``--workers 1 --budget-s 300``:
+
+- case 2, 15 / 30 / 42: 222 s, 130 evaluations; k_scale 0.698, b_scale 1.63, preload 0.211 mm; run: continuous
+  1–16 (± 2 Hz), ½ at 30, ⅓ at 45 (MISS by 1 Hz beyond ± 2).
 """
 
 from __future__ import annotations
@@ -92,10 +105,12 @@ def check(target: dict, got: dict, tol: float = 2.0) -> dict:
     return out
 
 
-def run_case(label: str, cal_args: list[str], target: dict, out: Path, budget: float) -> dict:
+def run_case(
+    label: str, cal_args: list[str], target: dict, out: Path, budget: float, extra: list[str] | None = None
+) -> dict:
     cdir = out / label
     cdir.mkdir(parents=True, exist_ok=True)
-    res, wall = sh("calibrate", "sim", *cal_args, "--out", str(cdir / "cal"), "--budget-s", str(budget))
+    res, wall = sh("calibrate", "sim", *cal_args, "--out", str(cdir / "cal"), "--budget-s", str(budget), *(extra or []))
     proto = Path(res.stdout.strip().splitlines()[-1])
     report = json.loads(next((cdir / "cal").glob("*_report.json")).read_text())
     run, run_wall = sh("run", str(proto), "--out", str(cdir / "run"), "--name", "calibrated", "--rerun", "off")
@@ -126,7 +141,10 @@ def main() -> None:
     ap.add_argument("--gap-mm", type=float, default=1.0, help="case 1: the twin session's gap (paper set)")
     ap.add_argument("--seed", type=int, default=7, help="case 1: the twin session's seed")
     ap.add_argument("--other", default="15,30,42", help="case 2: continuous_below,half_at,third_at (Hz)")
+    ap.add_argument("--free", default=None, help="unknowns to fit (calibrate sim --free), e.g. adding frame_mass_g")
+    ap.add_argument("--workers", type=int, default=None, help="calibrate sim --workers (default: all cores)")
     args = ap.parse_args()
+    extra = (["--free", args.free] if args.free else []) + (["--workers", str(args.workers)] if args.workers else [])
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     repo = Path(__file__).resolve().parents[1]
@@ -140,17 +158,17 @@ def main() -> None:
         res, _ = sh("run", str(p), "--out", str(d), "--name", "twin_gap", "--rerun", "off")
         session = Path(res.stdout.strip().splitlines()[-1])
         target = transitions(analyze(session, d / "analysis"))
-        results.append(run_case("case1_session", [str(session)], target, out, args.budget_s))
+        results.append(run_case("case1_session", [str(session)], target, out, args.budget_s, extra))
     if "2" in cases:
         c, h, t = (float(x) for x in args.other.split(","))
         f = out / "other_targets.yaml"
         f.write_text(f"rig: contact\ncontinuous_below_hz: {c:g}\nhalf_at_hz: {h:g}\nthird_at_hz: {t:g}\n")
         target = {"continuous_below_hz": c, "half_at_hz": h, "third_at_hz": t}
-        results.append(run_case("case2_other_targets", ["--targets", str(f)], target, out, args.budget_s))
+        results.append(run_case("case2_other_targets", ["--targets", str(f)], target, out, args.budget_s, extra))
     if "3" in cases:
         target = {"continuous_below_hz": 18.0, "half_at_hz": 26.0, "third_at_hz": 38.0}
         paper = repo / "calibration" / "paper_contact_targets.yaml"
-        results.append(run_case("case3_paper", ["--targets", str(paper)], target, out, args.budget_s))
+        results.append(run_case("case3_paper", ["--targets", str(paper)], target, out, args.budget_s, extra))
     (out / "bench_calibrate.json").write_text(json.dumps(results, indent=1, default=str))
     for r in results:
         checks = ", ".join(

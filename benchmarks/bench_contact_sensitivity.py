@@ -1,12 +1,15 @@
 """Benchmark: which unknowns of the contact-rig twin move its regime map (issue 11).
 
     python benchmarks/bench_contact_sensitivity.py [--params contact_paper] [--out bench_out/contact_sensitivity]
-        [--start 2 --stop 44 --step 2] [--settle 1.5] [--record 2.0] [--noise]
+        [--start 2 --stop 44 --step 2] [--settle 1.5] [--record 2.0] [--noise] [--only U1,U2] [--nthread N]
 
 One unknown at a time, each at two values around the parameter set (default: the shipped calibrated
 ``prb3_contact_paper``): stiffness scale (k and k_twist), damping scale (b and b_twist), the gap h' (from the
 unloaded foot), the foot mass, the contact time constant, friction, the load's offset from the sole along
-the stage travel, and the clamp orientation (section turned 90° at the clamp). For each: the continuous
+the stage travel, and the clamp orientation (section turned 90° at the clamp); then (second pass) the stiffness
+and the load frame's own mass at the same interference (sag − gap), the load's offset along y, a stuck foot
+(friction 6) and a compliant sole (``--only 'compliant sole,friction'`` runs a subset; ``_match_sag`` rows move
+the gap with the sag so the interference stays the base's). For each: the continuous
 edge (highest frequency up to which every step is ``continuous``), the lowest ``1/2``, the lowest ``1/3`` and
 the map as a string (C continuous, 1, h = 1/2, t = 1/3, q = 1/4, 2, 3, . irregular, - none). Regimes come
 from the plate's normal force only (:func:`beambench.sim.scenes.contact_sweep.regime_map`).
@@ -58,6 +61,36 @@ def variations(base_rig) -> list[tuple[str, str, dict, dict]]:
         ("mass offset", "−10 mm", {}, {"mass_dx": base_rig.mass_dx - 0.01}),
         ("clamp orientation", "turned 90°", {}, {"clamp_roll_deg": 90.0}),
         ("clamp orientation", "turned 90°, gap −sag diff", {}, {"clamp_roll_deg": 90.0, "_match_sag": 1.0}),
+        # second pass (docs/contact-twin.md, "What moves the continuous edge")
+        ("stiffness at same interference", "×0.8", {"k": 0.8}, {"_match_sag": 1.0}),
+        ("stiffness at same interference", "×1.25", {"k": 1.25}, {"_match_sag": 1.0}),
+        ("frame mass at same interference", "5 g", {}, {"frame_mass": 0.005, "_match_sag": 1.0}),
+        ("frame mass at same interference", "10 g", {}, {"frame_mass": 0.010, "_match_sag": 1.0}),
+        (
+            "mass offset along y",
+            "+10 mm, same interference",
+            {},
+            {"mass_dy": base_rig.mass_dy + 0.01, "_match_sag": 1.0},
+        ),
+        (
+            "mass offset along y",
+            "−10 mm, same interference",
+            {},
+            {"mass_dy": base_rig.mass_dy - 0.01, "_match_sag": 1.0},
+        ),
+        ("friction", "6 (foot stuck)", {}, {"friction": 6.0}),
+        (
+            "compliant sole",
+            "300 N/m, 0.5 N·s/m",
+            {},
+            {"sole_stiffness": 300.0, "sole_damping": 0.5, "sole_mass": 3e-4},
+        ),
+        (
+            "compliant sole",
+            "1500 N/m, 0.5 N·s/m, 20 µm travel",
+            {},
+            {"sole_stiffness": 1500.0, "sole_damping": 0.5, "sole_mass": 3e-4, "sole_travel": 2e-5},
+        ),
     ]
 
 
@@ -71,6 +104,8 @@ def main() -> None:
     ap.add_argument("--settle", type=float, default=1.5)
     ap.add_argument("--record", type=float, default=2.0)
     ap.add_argument("--noise", action="store_true")
+    ap.add_argument("--only", default="", help="comma-separated unknowns to run (default: all), e.g. 'frame mass'")
+    ap.add_argument("--nthread", type=int, default=None, help="MuJoCo threads (default: all cores)")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "src"))
     import numpy as np
@@ -87,7 +122,10 @@ def main() -> None:
     freqs = np.arange(args.start, args.stop + 1e-9, args.step)
     rows = []
     t_all = time.perf_counter()
+    only = {w.strip() for w in args.only.split(",") if w.strip()}
     for unknown, label, scale, rig in variations(base_rig):
+        if only and unknown not in only and unknown != "base":
+            continue
         p = replace(
             base,
             k=base.k * scale.get("k", 1.0),
@@ -96,12 +134,18 @@ def main() -> None:
             b_twist=base.b_twist * scale.get("b", 1.0),
         )
         over = {k: v for k, v in rig.items() if not k.startswith("_")}
-        if rig.get("_match_sag"):  # same preload (sag − gap) as the base in the turned scene
+        if rig.get("_match_sag"):  # same preload (sag − gap) as the base
             sag = static_sag(make_beam_model("prb3", p), RigParams.with_overrides({**base.rig, **over}))
             over["plate_gap"] = base_rig.plate_gap + (sag - sag0)
         t0 = time.perf_counter()
         df = regime_map(
-            freqs, params=p, rig_overrides=over, settle_s=args.settle, record_s=args.record, noise=args.noise
+            freqs,
+            params=p,
+            rig_overrides=over,
+            settle_s=args.settle,
+            record_s=args.record,
+            noise=args.noise,
+            nthread=args.nthread,
         )
         tr = transitions(df.frequency_hz, df.regime)
         rows.append(

@@ -109,7 +109,39 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path):
         _beambench("calibrate", "sim", str(tmp_path / "none.h5"), "--out", str(tmp_path)), "no such session file"
     )
     _one_line_exit_2(_beambench("calibrate", "sim", "--out", str(tmp_path)), "give a SESSION file or --targets")
+    _one_line_exit_2(
+        _beambench("calibrate", "sim", "--targets", str(PAPER), "--free", "k_scale,gravity", "--out", str(tmp_path)),
+        "rig unknowns are",
+    )
     assert not any(tmp_path.glob("*calibrated*"))
+
+
+def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
+    """frame_mass_g / mass_dx_mm are the contact rig's opt-in unknowns: not fitted unless named, neutral (0) when
+    not, and a fitted value lands in the parameter set's rig block (SI) — the scene the map is computed on."""
+    from beambench.studies.calibrate import calibrated_params
+
+    rig = get_rig("contact")
+    assert rig.default_free == ("k_scale", "b_scale", "preload_mm")
+    names = {u.name: u for u in rig.unknowns}
+    assert names["frame_mass_g"].default == 0.0 and names["mass_dx_mm"].default == 0.0
+    base = {"model": "prb3", "params": "contact_paper", "twist_deg": 90.0, "amplitude_m": 0.002}
+    p = calibrated_params(base, {"k_scale": 1.0, "frame_mass_g": 4.0, "mass_dx_mm": 12.0})
+    assert p.rig["frame_mass"] == pytest.approx(0.004) and p.rig["mass_dx"] == pytest.approx(0.012)
+    assert p.rig["friction"] == 1.5  # the prior's rig block is kept
+    plain = calibrated_params(base, {"k_scale": 1.0})
+    assert "frame_mass" not in plain.rig and "mass_dx" not in plain.rig
+    # not fitted, the prior's own value stays (the shipped default's frame mass is 10 g)
+    stuck = {**base, "params": "contact_stuck"}
+    assert calibrated_params(stuck, {"k_scale": 1.0}).rig["frame_mass"] == pytest.approx(0.010)
+    assert names["frame_mass_g"].opt_in and names["mass_dx_mm"].opt_in
+    # the search's fixed values leave the opt-in unknowns out unless they are fixed explicitly
+    from beambench.studies.calibrate import fixed_values
+
+    free = [names[n] for n in rig.default_free]
+    assert set(fixed_values(names, free, SearchSettings())) == set()
+    assert fixed_values(names, free, SearchSettings(fixed={"frame_mass_g": 2.0})) == {"frame_mass_g": 2.0}
+    assert set(fixed_values(names, free[:2], SearchSettings())) == {"preload_mm"}
 
 
 def test_a_rig_the_calibrator_does_not_know_is_refused(tmp_path):

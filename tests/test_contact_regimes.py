@@ -106,6 +106,22 @@ def test_default_set_is_continuous_at_low_frequency_and_halves_in_the_mid_twenti
     assert paper.regime.tolist() == ["none", "none"]
 
 
+@pytest.mark.slow
+def test_shipped_default_keeps_the_foot_down_to_17_hz_where_a_sliding_sole_hops():
+    """The contact sweep's default (``contact_stuck``: a sole that does not slide) is continuous through 17 Hz,
+    bounces once a cycle at 22 Hz and every other cycle at 30 Hz; the same beam with a sliding sole (friction
+    1.5, the first calibration's value) loses the continuous contact at 12-16 Hz (the sole's sliding makes the
+    force drop to zero twice a cycle; docs/contact-twin.md)."""
+    freqs = [5.0, 12.0, 14.0, 16.0, 17.0, 22.0, 30.0]
+    lab = dict(zip(freqs, regime_map(freqs, params="contact_stuck", settle_s=1.5, record_s=1.5).regime))
+    assert all(lab[f] == "continuous" for f in (5.0, 12.0, 14.0, 16.0, 17.0)), lab
+    assert lab[22.0] == "1" and lab[30.0] == "1/2", lab
+    sliding = regime_map(
+        freqs[1:4], params="contact_stuck", rig_overrides={"friction": 1.5}, settle_s=1.5, record_s=1.5
+    )
+    assert "continuous" not in set(sliding.regime), sliding.regime.tolist()
+
+
 # ------------------------------------------------------------------------------ gap, parameter sets, model: auto
 
 

@@ -52,6 +52,14 @@ def sim(
     name: Annotated[
         str | None, typer.Option("--name", help="Output name (default: <session or targets>_calibrated).")
     ] = None,
+    free: Annotated[
+        str | None,
+        typer.Option(
+            "--free",
+            help="Comma-separated unknowns to fit instead of the rig's default set, e.g. "
+            "k_scale,b_scale,preload_mm,frame_mass_g,mass_dx_mm (contact rig; the others stay at their defaults).",
+        ),
+    ] = None,
 ) -> None:
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
     runnable protocol carrying the calibrated parameters and a report beside it."""
@@ -81,7 +89,17 @@ def sim(
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         _fail(f"--out {out_dir}: cannot create ({exc.strerror or exc})")
-    settings = SearchSettings.quick(budget_s=min(budget_s, 150.0)) if quick else SearchSettings(budget_s=budget_s)
+    chosen = tuple(n.strip() for n in free.split(",") if n.strip()) if free is not None else None
+    if chosen is not None:
+        known = {u.name for u in get_rig(tg.rig).unknowns}
+        bad = [n for n in chosen if n not in known]
+        if not chosen or bad:
+            _fail(f"--free {free}: {tg.rig} rig unknowns are {', '.join(sorted(known))}")
+    settings = (
+        SearchSettings.quick(budget_s=min(budget_s, 150.0), free=chosen)
+        if quick
+        else SearchSettings(budget_s=budget_s, free=chosen)
+    )
     console = Console(stderr=True)
     cols = (
         SpinnerColumn(),

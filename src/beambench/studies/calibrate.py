@@ -72,6 +72,8 @@ class Unknown:
     log: bool = False
     unit: str = ""
     doc: str = ""
+    default: float | None = None  # the value when not fitted (None: the middle of the bounds)
+    opt_in: bool = False  # not fitted unless named; when not fitted the prior's own value stays (not ``default``)
 
     @property
     def bounds(self) -> tuple[float, float]:
@@ -106,6 +108,7 @@ class CalibratableRig:
     bracket: str | None = None
     min_frequency_hz: float = 3.0
     stage_sim: Callable[[str, dict[str, float]], dict[str, float]] | None = None  # the rig's own window per stage
+    default_free: tuple[str, ...] | None = None  # the unknowns fitted unless the caller names them (None: all)
 
 
 RIGS: dict[str, CalibratableRig] = {}
@@ -395,8 +398,14 @@ def calibrate(
     unknowns = {u.name: u for u in rig.unknowns}
     for k, (lo, hi) in settings.bounds.items():
         unknowns[k] = replace(unknowns[k], lo=lo, hi=hi)
-    free = [unknowns[n] for n in (settings.free or tuple(unknowns))]
-    fixed = {n: float(settings.fixed.get(n, _default(u))) for n, u in unknowns.items() if u not in free}
+    names = settings.free or rig.default_free or tuple(unknowns)
+    bad = [n for n in names if n not in unknowns]
+    if bad:
+        raise CalibrationInputError(
+            f"unknown {bad[0]!r}: the {rig.name} rig's unknowns are {', '.join(u.name for u in rig.unknowns)}"
+        )
+    free = [unknowns[n] for n in names]
+    fixed = fixed_values(unknowns, free, settings)
     coarse = coarse_frequencies(targets, settings.coarse_step_hz, rig.min_frequency_hz)
     fine = [float(f) for f in sorted(targets.frequencies) if f >= rig.min_frequency_hz - 1e-9]
     history: list[dict] = []
@@ -602,7 +611,20 @@ def initial_population(free: list[Unknown], settings: SearchSettings) -> np.ndar
     return lo + pts * (hi - lo)
 
 
+def fixed_values(unknowns: dict[str, Unknown], free: list[Unknown], settings: SearchSettings) -> dict[str, float]:
+    """The values of the unknowns that are not fitted: ``settings.fixed``, else their default — except opt-in
+    unknowns, which are left out (the prior parameter set keeps its own value) unless ``settings.fixed`` names
+    them."""
+    return {
+        n: float(settings.fixed.get(n, _default(u)))
+        for n, u in unknowns.items()
+        if u not in free and (not u.opt_in or n in settings.fixed)
+    }
+
+
 def _default(u: Unknown) -> float:
+    if u.default is not None:
+        return u.default
     return math.sqrt(u.lo * u.hi) if u.log else 0.5 * (u.lo + u.hi)
 
 
@@ -892,7 +914,22 @@ CONTACT_UNKNOWNS = (
         unit="mm",
         doc="static interference of the foot with the plate: sag under gravity − gap (the gap follows)",
     ),
+    # opt-in (``--free``): the load frame's own mass and the load's offset along the stage travel (paper: the
+    # 20 g sits "at the lower left corner of the load frame"; neither the frame's mass nor the offset is given)
+    Unknown(
+        "frame_mass_g", 0.0, 15.0, unit="g", default=0.0, opt_in=True, doc="the load frame's own mass (rig.frame_mass)"
+    ),
+    Unknown(
+        "mass_dx_mm",
+        -5.0,
+        25.0,
+        unit="mm",
+        default=0.0,
+        opt_in=True,
+        doc="the 20 g load's offset along x (rig.mass_dx)",
+    ),
 )
+CONTACT_RIG_UNKNOWNS = {"frame_mass_g": ("frame_mass", 1e-3), "mass_dx_mm": ("mass_dx", 1e-3)}  # → rig block (SI)
 
 
 def contact_base(targets: Targets) -> dict:
@@ -923,8 +960,13 @@ def calibrated_params(base: dict, values: dict[str, float]) -> Any:
 
     p = load_params(base["params"], model=model_family(base["model"]))
     ks, bs = values.get("k_scale", 1.0), values.get("b_scale", 1.0)
+    rig = dict(p.rig)
+    for key, (field_name, si) in CONTACT_RIG_UNKNOWNS.items():
+        if key in values:
+            rig[field_name] = float(values[key]) * si
     return replace(
         p,
+        rig=rig,
         k=p.k * ks,
         k_twist=p.k_twist * ks,
         b=p.b * bs,
@@ -1087,5 +1129,6 @@ register_rig(
         write=write_contact_protocol,
         summary=contact_summary,
         bracket="preload_mm",
+        default_free=("k_scale", "b_scale", "preload_mm"),
     )
 )

@@ -40,11 +40,22 @@ class RigParams:
     # m, offset of that mass from the sole along x (stage travel); the paper puts the 20 g "at the lower left
     # corner of the load frame" without giving the offset — an offset mass twists the tip
     mass_dx: float = 0.0
+    mass_dy: float = 0.0  # m, the same along y (the beam's axis, away from the stage)
+    # kg, the load frame's own mass, spread along the foot (tip to sole); the paper gives only the 20 g load
+    frame_mass: float = 0.0
     # deg, the beam's section turned about its own axis at the clamp: 0 = as built (width vertical at the
     # clamp, weak bending along the stage travel, see beambench.sim.models.beam), 90 = flat face horizontal
     # at the root (research note, issue 11); the foot still hangs plumb below the tip
     clamp_roll_deg: float = 0.0
     sole_radius: float = 0.003  # m
+    # N/m and N·s/m, the sole's own compliance along the foot axis (a lossy pad between the load frame and
+    # the plate: TPU sole, frame, load-cell plate mount in series); 0 = a rigid sole on the frame
+    sole_stiffness: float = 0.0
+    sole_damping: float = 0.0
+    sole_mass: float = 0.001  # kg, the part of the sole that moves with the plate (only with sole_stiffness)
+    # m, how far the compliant sole compresses before the frame bottoms out on it (a hard stop, the contact's
+    # solref); 0 = no stop
+    sole_travel: float = 0.0
     plate_from_stage: float = 0.072  # m, informational: foot_length + the paper's 5.5 mm gap
     friction: float = 0.5
     contact_timeconst: float = 0.001  # s (≤ 2 ms needed; MuJoCo's default 20 ms hides the contact effects)
@@ -143,31 +154,62 @@ def build_contact_spec(
 
     tip = spec.body(sites.tip_body)
     r = rig.sole_radius
-    offset = abs(rig.mass_dx) > 0
+    offset = abs(rig.mass_dx) > 0 or abs(rig.mass_dy) > 0
     tip.add_geom(
         type=mujoco.mjtGeom.mjGEOM_CAPSULE,
         fromto=at(0, 0, 0) + at(0, 0, -(rig.foot_length - 2 * r)),
         size=[0.002, 0, 0],
-        mass=0.0,
+        mass=rig.frame_mass,
         contype=0,
         conaffinity=0,
         rgba=[0.9, 0.5, 0.1, 1],
     )
-    tip.add_geom(
-        name=names.sole,
-        type=mujoco.mjtGeom.mjGEOM_SPHERE,
-        size=[r, 0, 0],
-        pos=at(0, 0, -(rig.foot_length - r)),
-        mass=1e-4 if offset else rig.foot_mass,
-        contype=0,
-        conaffinity=0,
-        rgba=[0.9, 0.5, 0.1, 1],
-    )
+    sole_at = at(0, 0, -(rig.foot_length - r))
+    if rig.sole_stiffness > 0:  # a compliant sole: its own body on a damped slide along the foot axis
+        if not offset:  # the load stays on the frame, at the sole
+            tip.add_geom(
+                type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                size=[0.004, 0, 0],
+                pos=sole_at,
+                mass=rig.foot_mass,
+                contype=0,
+                conaffinity=0,
+                rgba=[0.5, 0.5, 0.5, 1],
+            )
+        sole_body = tip.add_body(name="sole_pad", pos=sole_at)
+        sole_body.add_joint(
+            name="sole_slide",
+            type=mujoco.mjtJoint.mjJNT_SLIDE,
+            axis=at(0, 0, 1),
+            stiffness=[rig.sole_stiffness, 0, 0],
+            damping=[rig.sole_damping, 0, 0],
+            **(dict(limited=1, range=[-0.01, rig.sole_travel], solref_limit=solref) if rig.sole_travel > 0 else {}),
+        )
+        sole_body.add_geom(
+            name=names.sole,
+            type=mujoco.mjtGeom.mjGEOM_SPHERE,
+            size=[r, 0, 0],
+            mass=rig.sole_mass,
+            contype=0,
+            conaffinity=0,
+            rgba=[0.9, 0.5, 0.1, 1],
+        )
+    else:
+        tip.add_geom(
+            name=names.sole,
+            type=mujoco.mjtGeom.mjGEOM_SPHERE,
+            size=[r, 0, 0],
+            pos=sole_at,
+            mass=1e-4 if offset else rig.foot_mass,
+            contype=0,
+            conaffinity=0,
+            rgba=[0.9, 0.5, 0.1, 1],
+        )
     if offset:  # the load at the frame's lower corner, mass_dx along the stage travel
         tip.add_geom(
             type=mujoco.mjtGeom.mjGEOM_SPHERE,
             size=[0.004, 0, 0],
-            pos=at(rig.mass_dx, 0, -(rig.foot_length - r)),
+            pos=at(rig.mass_dx, rig.mass_dy, -(rig.foot_length - r)),
             mass=rig.foot_mass,
             contype=0,
             conaffinity=0,
