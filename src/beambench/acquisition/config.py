@@ -295,7 +295,7 @@ class WalkerDrive(_Model):
     rotor_inertia_kg_m2: float = Field(9.25e-6, gt=0)  # line 16: 92.5 g·cm²
     load_inertia_kg_m2: float = Field(4.0e-6, ge=0)  # the 40 g offset mass at 10 mm (paper; radius guessed)
     continuous_current_a: float = Field(2.03, gt=0, le=60)  # line 6: nominal (max. continuous) current
-    current_lim_a: float = Field(6.0, gt=0, le=60)  # ODrive current_lim: ~3× line 6 for short peaks (twin: 5.1 A at 80 Hz)
+    current_lim_a: float = Field(6.0, gt=0, le=60)  # ODrive current_lim: ~3× line 6 (twin: 5.1 A peaks at 80 Hz)
     vel_limit_turn_s: float = Field(88.0, gt=0, le=250)  # 80 Hz = 80 turn/s, ×1.1; 24 V reach 150 turn/s (line 13)
 
 
