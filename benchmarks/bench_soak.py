@@ -42,11 +42,17 @@ def rss_mb(pid: int | str = "self") -> float:
     return float("nan")
 
 
+def _stat(path: str) -> tuple[str, float]:
+    """The kernel's name and user + system CPU seconds from a ``/proc/…/stat`` file."""
+    with open(path) as f:
+        head, rest = f.read().rsplit(")", 1)
+    fields = rest.split()
+    return head.split("(", 1)[1], (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def cpu_s(pid: int) -> float:
     """User + system CPU seconds of a process (and its reaped children: none for the peers)."""
-    with open(f"/proc/{pid}/stat") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return _stat(f"/proc/{pid}/stat")[1]
 
 
 class Timed:
@@ -91,17 +97,14 @@ class Timed:
 def thread_cpu_s() -> dict[str, float]:
     """CPU seconds of each live thread of this process, by Python thread name (others: by kernel name)."""
     names = {t.native_id: t.name for t in threading.enumerate() if t.native_id is not None}
-    tick = os.sysconf("SC_CLK_TCK")
     out: dict[str, float] = {}
     for tid in os.listdir("/proc/self/task"):
         try:
-            with open(f"/proc/self/task/{tid}/stat") as f:
-                head, rest = f.read().rsplit(")", 1)
-        except OSError:
+            kernel_name, seconds = _stat(f"/proc/self/task/{tid}/stat")
+        except OSError:  # the thread ended meanwhile
             continue
-        fields = rest.split()
-        name = names.get(int(tid), head.split("(", 1)[1])
-        out[name] = out.get(name, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+        name = names.get(int(tid), kernel_name)
+        out[name] = out.get(name, 0.0) + seconds
     return out
 
 
@@ -168,8 +171,19 @@ def main() -> None:
     rss: list[float] = []
     state = {"last_print": time.monotonic(), "done": 0.0, "peers_cpu": float("nan")}
 
+    threads: list[tuple[float, dict[str, float]]] = []  # (wall, CPU s per thread): first and latest poll
+
+    def snapshot_threads() -> None:
+        if threads and time.monotonic() - threads[-1][0] < 10.0:
+            return  # every 10 s: reading /proc for every thread each poll would weigh on the CPU measured
+        snap = (time.monotonic(), thread_cpu_s())  # read while every driver thread runs
+        if threads:
+            threads[1:] = [snap]  # the latest
+        else:
+            threads.append(snap)  # the first
+
     def on_progress(index: int, freq: float, seconds: float) -> None:
-        on_step_edges(index, freq, seconds)
+        snapshot_threads()
         rss.append(rss_mb())
         with contextlib.suppress(OSError):
             state["peers_cpu"] = cpu_s(peers_pid)  # read while the peers run (they exit when the rig closes)
@@ -177,16 +191,6 @@ def main() -> None:
         if time.monotonic() - state["last_print"] >= 60:
             state["last_print"] = time.monotonic()
             print(f"  {state['done'] / 60:.1f} min, RSS {rss[-1]:.0f} MB", flush=True)
-
-    threads: list[tuple[float, dict[str, float]]] = []  # (wall, CPU s per thread): first and latest poll
-
-    def on_step_edges(index: int, freq: float, seconds: float) -> None:
-        if threads and time.monotonic() - threads[-1][0] < 10.0:
-            return  # every 10 s: reading /proc for every thread each poll would weigh on the CPU measured
-        snap = (time.monotonic(), thread_cpu_s())  # read while every driver thread runs
-        threads[1:] = [snap] if threads else []
-        if not threads:
-            threads.append(snap)
 
     gc_pauses: dict[int, list[float]] = {0: [], 1: [], 2: []}
     gc_t0 = [0.0]

@@ -213,6 +213,9 @@ def chunk_rows(spec: StreamSpec) -> int:
     return max(16, int(spec.rate_hz))
 
 
+MIN_CHUNK_CACHE_BYTES = 64 * 1024
+
+
 def chunk_cache_bytes(specs: list[StreamSpec]) -> int:
     """The writer's chunk cache per dataset: two of the largest chunk, at least 64 KiB. Rows are appended once
     and never read back, so one chunk being filled is all a cache needs to hold; HDF5's default (1 MiB per
@@ -223,10 +226,10 @@ def chunk_cache_bytes(specs: list[StreamSpec]) -> int:
         for col in spec.columns.values():
             row = int(np.prod(col.shape, dtype=np.int64)) * np.dtype(col.dtype).itemsize
             largest = max(largest, chunk_rows(spec) * max(row, 8))
-    return max(64 * 1024, 2 * largest)
+    return max(MIN_CHUNK_CACHE_BYTES, 2 * largest)
 
 
-def create_session_file(path: Path, chunk_cache: int = 64 * 1024) -> h5py.File:
+def create_session_file(path: Path, chunk_cache: int = MIN_CHUNK_CACHE_BYTES) -> h5py.File:
     """A new, empty HDF5 file at ``path``, created exclusively: an existing file is never overwritten."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
