@@ -7,8 +7,11 @@ compare the ratios (and against the 360 Hz a rig needs) rather than the absolute
    decoded from bytes (if ../shared exists);
 2. the emulator's 4.1 frames (3 markers in a marker set + labeled markers, precision timestamp);
 3. a crowded 4.1 frame (200 labeled markers, 10 rigid bodies);
-4. ``decode_capture`` end to end: pcapng → UDP → frames (if ../shared exists);
-5. the same 4.1 frames through the PyPI ``natnet`` package's decoder, if installed (reference ratio).
+4. the mocap stream's own path for those 4.1 frames, 36 at a time (what one 100 ms poll reads at 360 Hz) to a
+   Batch: the codec frame by frame then ``to_batch``, against ``raw_to_batch`` (frames of one layout decoded
+   together with numpy, :mod:`beambench.devices.natnet_block`);
+5. ``decode_capture`` end to end: pcapng → UDP → frames (if ../shared exists);
+6. the same 4.1 frames through the PyPI ``natnet`` package's decoder, if installed (reference ratio).
 """
 
 from __future__ import annotations
@@ -61,6 +64,27 @@ def main() -> None:
     rows.append(
         ("emulator frames (4.1, 3 markers)", rate(lambda: sum(1 for p in small if nn.decode(p, nn.V4_1)), args.repeats))
     )
+
+    # the mocap stream's path: the packets of one 100 ms poll (36 frames at 360 Hz) to a Batch
+    from beambench.devices.natnet import NatNetClient, NatNetMocap
+
+    names = [f"m{i}" for i in range(len(emu.marker_ids))]  # type: ignore[arg-type]
+    mocap = NatNetMocap(names, marker_map=dict(zip(names, emu.marker_ids, strict=True)))  # type: ignore[arg-type]
+    client = NatNetClient()
+    chunks = [small[i : i + 36] for i in range(0, len(small), 36)]
+
+    def one_by_one() -> int:
+        for chunk in chunks:
+            mocap.to_batch([(0, nn.decode(p, nn.V4_1)) for p in chunk], None)  # type: ignore[misc]
+        return len(small)
+
+    def in_blocks() -> int:
+        for chunk in chunks:
+            mocap.raw_to_batch([(0, p, nn.V4_1) for p in chunk], client)
+        return len(small)
+
+    rows.append(("mocap stream, codec + to_batch per frame", rate(one_by_one, args.repeats)))
+    rows.append(("mocap stream, 36-frame blocks (natnet_block)", rate(in_blocks, args.repeats)))
 
     crowd = nn.FrameOfData(
         1,

@@ -17,7 +17,14 @@ from hypothesis import strategies as st
 from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
 from beambench.acquisition.streams import motor_spec
 from beambench.devices import odrive_cansimple as cs
-from beambench.devices.odrive_can import MAX_VEL_LIMIT, LimitError, OdriveCanMotor, ping
+from beambench.devices.odrive_can import (
+    MAX_VEL_LIMIT,
+    RECEIVE_COALESCE_S,
+    LimitError,
+    OdriveCanMotor,
+    ping,
+    receive_ns,
+)
 from beambench.devices.odrive_cansimple import AxisError, AxisState
 from beambench.emulators.odrive_can import (
     EmulatedOdrive,
@@ -142,6 +149,34 @@ def test_velocity_ramps_to_setpoint_and_telemetry_is_a_motor_batch(motor, emu):
     assert slope.max() < 40.0 * 1.5
     assert np.all(np.isfinite(batch.columns["iq_measured"][-5:]))
     assert np.all(batch.columns["position"][-1] > batch.columns["position"][0])
+
+
+def test_receive_time_is_the_interfaces_wall_clock_stamp_moved_to_the_monotonic_clock():
+    now, offset = 5_000_000_000_000, -1_700_000_000_000_000_000
+    wall = (now - offset - 3_000_000) * 1e-9  # arrived 3 ms ago on the wall clock
+    assert receive_ns(can.Message(timestamp=wall), now, offset) == pytest.approx(now - 3_000_000, abs=1_000)
+    assert receive_ns(can.Message(timestamp=0.0), now, offset) == now  # no stamp: the handling time
+    assert receive_ns(can.Message(timestamp=wall + 0.01), now, offset) == now  # in the future: another clock
+    assert receive_ns(can.Message(timestamp=wall - 2.0), now, offset) == now  # 2 s old: another clock
+    assert receive_ns(can.Message(timestamp=12.5), now, offset) == now  # e.g. an adapter's uptime clock
+
+
+def test_telemetry_is_stamped_at_arrival_not_when_the_receive_thread_handles_it(channel, emu, tmp_path):
+    """The receive thread handles frames in gatherings every ~RECEIVE_COALESCE_S; the rows' host times must
+    still be the frames' arrival times: 100 Hz Encoder_Estimates spaced ~10 ms apart, not bunched (handling
+    times would put several rows within a fraction of a millisecond, then a 20 ms gap)."""
+    with OdriveCanMotor(channel, "virtual", NODE) as m:
+        m.start()
+        time.sleep(1.0)
+        batch = m.read()
+    assert len(batch) > 50
+    gaps_ms = np.diff(batch.host_time_ns) * 1e-6
+    assert RECEIVE_COALESCE_S * 1e3 > 15  # the premise: gatherings longer than the 10 ms telemetry period
+    assert np.median(gaps_ms) == pytest.approx(10.0, abs=2.0)
+    assert np.mean(gaps_ms < 2.0) < 0.2, np.round(gaps_ms, 2)
+    # host and device clocks agree: both are the frame's stamp (wall → monotonic), so they move together
+    host_s = (batch.host_time_ns - batch.host_time_ns[0]) * 1e-9
+    assert np.max(np.abs(host_s - (batch.device_time - batch.device_time[0]))) < 1e-3
 
 
 def test_frequency_above_limit_is_refused_before_anything_is_sent(motor, emu, tmp_path):

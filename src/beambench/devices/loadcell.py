@@ -157,11 +157,12 @@ class SerialLoadCells(StreamDriver):
 
     def _to_batch(self, rows: list[tuple[int, Frame]]) -> Batch:
         n = len(rows)
-        host = np.fromiter((h for h, _ in rows), np.int64, n)
-        t_us = self._t(np.fromiter((f.t_us for _, f in rows), np.int64, n))
-        seq = self._seq(np.fromiter((f.seq for _, f in rows), np.int64, n))
-        edges = self._edges(np.fromiter((f.sync_edges for _, f in rows), np.int64, n))
-        counts = np.array([f.counts for _, f in rows], dtype=np.int32).reshape(-1, 4)
+        # one pass over the rows into one table (host, seq, t_us, 4 counts, edges), then columns
+        table = np.array([(h, f.seq, f.t_us, *f.counts, f.sync_edges) for h, f in rows], dtype=np.int64)
+        table = table.reshape(n, 8)
+        host = table[:, 0].copy()
+        seq, t_us, edges = self._seq(table[:, 1]), self._t(table[:, 2]), self._edges(table[:, 7])
+        counts = table[:, 3:7].astype(np.int32)
         self.samples_delivered += n
         return Batch(self.name, host, t_us * 1e-6, {"data": counts, "seq": seq, "sync_edges": edges})
 

@@ -32,6 +32,7 @@ import numpy as np
 from beambench.acquisition.batch import Batch, Frame, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import MOCAP, MOCAP_RATE_HZ, mocap_spec
+from beambench.devices import natnet_block as nb
 from beambench.devices import natnet_protocol as nn
 from beambench.devices.base import StreamDriver
 from beambench.devices.receive_time import enable_receive_timestamps, recv_stamped
@@ -134,6 +135,10 @@ class NatNetClient:
         self.echoes: collections.deque[EchoSample] = collections.deque(maxlen=self.config.echo_history)
         self.frames: collections.deque[tuple[int, nn.FrameOfData]] = collections.deque(maxlen=100_000)
         self.keep_frames = False
+        # keep_raw: frames are kept undecoded (host ns, packet, version) for a reader that decodes many at once
+        # (NatNetMocap); the reader then counts them with account_frames()
+        self.raw_frames: collections.deque[tuple[int, bytes, nn.Version]] = collections.deque(maxlen=100_000)
+        self.keep_raw = False
         self._cmd: socket.socket | None = None
         self._data: socket.socket | None = None
         self._sel: selectors.DefaultSelector | None = None
@@ -432,6 +437,13 @@ class NatNetClient:
             if mid in (nn.MessageId.FRAMEOFDATA, nn.MessageId.MODELDEF) and self.version is None:
                 st.ignored += 1
                 return
+            if mid == nn.MessageId.FRAMEOFDATA and self.keep_raw:
+                raw = self.raw_frames
+                if len(raw) == raw.maxlen:
+                    st.overflowed += 1
+                raw.append((host_ns, data, self.version))  # type: ignore[arg-type]  # not None: checked above
+                st.last_frame_ns = host_ns
+                return
             msg = nn.decode(data, self.version)
         except nn.NatNetParseError as exc:
             st.parse_errors += 1
@@ -477,24 +489,30 @@ class NatNetClient:
 
     def _on_frame(self, host_ns: int, frame: nn.FrameOfData) -> None:
         st = self.stats
-        n = frame.frame_number
-        last = st.last_frame_number
-        if last is None:
-            st.first_frame_number = n
-        else:
-            if n > last + 1:
-                st.dropped_frames += n - last - 1
-            elif n <= last:
-                st.out_of_order += 1
-        st.last_frame_number = n
+        self.account_frames((frame.frame_number,))
         st.last_frame_ns = host_ns
-        st.frames += 1
         if self.keep_frames:
             if len(self.frames) == self.frames.maxlen:
                 st.overflowed += 1
             self.frames.append((host_ns, frame))
         if self.on_frame is not None:
             self.on_frame(host_ns, frame)
+
+    def account_frames(self, numbers: Sequence[int]) -> None:
+        """Count decoded frames, in arrival order, by frame number: a gap is dropped frames; a number that goes
+        back or repeats is out of order. Called by the receive thread, or by the raw frames' reader."""
+        st = self.stats
+        last = st.last_frame_number
+        for n in numbers:
+            if last is None:
+                st.first_frame_number = n
+            elif n > last + 1:
+                st.dropped_frames += n - last - 1
+            elif n <= last:
+                st.out_of_order += 1
+            last = n
+        st.last_frame_number = last
+        st.frames += len(numbers)
 
     def check(self) -> None:
         if self._thread_error is not None:
@@ -600,6 +618,16 @@ class NatNetMocap(StreamDriver):
         self.frame = frame or Frame(up_axis="y")  # Motive's default world frame
         super().__init__(MOCAP, mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ, self.frame), silence_timeout_s)
         self._last_stats = NatNetStats()
+        self._layouts: dict[tuple[int, nn.Version], nb.FrameLayout] = {}  # by packet length and version
+        self._marker_cols, self._body_cols = self._columns_by_source()
+
+    def _columns_by_source(self) -> tuple[dict[int, list[int]], dict[int, list[int]]]:
+        """Labeled-marker id → the stream columns it fills, and rigid-body id → columns (two names may share)."""
+        marker_cols: dict[int, list[int]] = {}
+        body_cols: dict[int, list[int]] = {}
+        for j, src in enumerate(self.sources):
+            (marker_cols if src.kind == "marker" else body_cols).setdefault(src.id, []).append(j)
+        return marker_cols, body_cols
 
     @classmethod
     def from_rig(cls, section: Mapping[str, Any], markers: Sequence[str] | None = None, **kw: Any) -> NatNetMocap:
@@ -623,8 +651,8 @@ class NatNetMocap(StreamDriver):
     def _open(self) -> None:
         if self.client is None:
             self.client = NatNetClient(self.config).connect()
-        self.client.frames.clear()
-        self.client.keep_frames = True
+        self.client.raw_frames.clear()
+        self.client.keep_raw = True  # decoded many at a time in read(): see natnet_block
 
     def _close(self) -> None:
         if self.client is not None:
@@ -674,11 +702,12 @@ class NatNetMocap(StreamDriver):
         items = []
         while True:
             try:
-                items.append(c.frames.popleft())
+                items.append(c.raw_frames.popleft())
             except IndexError:
                 break
+        batch = self.raw_to_batch(items, c) if items else None
         self._sync_counters()
-        if not items:
+        if batch is None or len(batch) == 0:
             if not self._fault_reported:
                 try:
                     self.check()
@@ -686,37 +715,133 @@ class NatNetMocap(StreamDriver):
                     self._fault_reported = True
                     raise
             return self._spec.empty_batch()
-        self.counters.received += len(items)
-        return self.to_batch(items, c.clock_frequency)
+        self.counters.received += len(batch)
+        return batch
+
+    def raw_to_batch(self, items: list[tuple[int, bytes, nn.Version]], client: NatNetClient) -> Batch:
+        """Undecoded frames (host ns, packet, version), in arrival order → one Batch; frames that do not decode
+        are counted as parse errors and left out. Frames of a layout seen before are decoded together
+        (:mod:`natnet_block`); the rest one at a time by the codec."""
+        n = len(items)
+        rows = self._empty_rows(n)
+        host = rows[0]
+        kept = np.zeros(n, dtype=bool)
+        pending = np.arange(n)
+        passes = 0
+        while len(pending) and passes < 4:  # a layout per pass; ever-changing layouts end in the one-by-one loop
+            first = int(pending[0])
+            layout = self._layout(items[first][1], items[first][2])
+            if layout is None:  # does not decode: counted (and left out) by the codec's path
+                kept[first] = self._decode_one(rows, first, items[first], client)
+                pending = pending[1:]
+                continue
+            passes += 1
+            group = [i for i in pending if items[i][2] == layout.version]
+            block, matches = nb.decode_block([items[i][1] for i in group], layout)
+            done = np.asarray(group)[matches]
+            self._fill_block(rows, done, block, client.clock_frequency)
+            kept[done] = True
+            pending = pending[~np.isin(pending, done)]
+        for k in pending.tolist():
+            kept[k] = self._decode_one(rows, k, items[k], client)
+        host[:] = [item[0] for item in items]
+        host, dev, data, frame_no, occluded = (a[kept] for a in rows)
+        client.account_frames(frame_no.tolist())
+        return Batch(self.name, host, dev, {"data": data, "frame": frame_no, "occluded": occluded})
+
+    def _decode_one(
+        self, rows: tuple[np.ndarray, ...], i: int, item: tuple[int, bytes, nn.Version], client: NatNetClient
+    ) -> bool:
+        """Row ``i`` from one packet through the codec; False (and a parse error counted) if it does not decode."""
+        try:
+            frame = nn.decode(item[1], item[2])
+        except nn.NatNetParseError as exc:
+            client.stats.parse_errors += 1
+            client.stats.last_error = str(exc)
+            return False
+        if not isinstance(frame, nn.FrameOfData):  # pragma: no cover - only frame packets are kept raw
+            return False
+        self._fill_frame(rows, i, frame, client.clock_frequency)
+        return True
+
+    def _layout(self, packet: bytes, version: nn.Version) -> nb.FrameLayout | None:
+        """The layout of ``packet``: the one cached for its length if its structure matches, else learned."""
+        key = (len(packet), version)
+        layout = self._layouts.get(key)
+        if layout is not None and layout.fits(packet):
+            return layout
+        try:
+            layout = nb.frame_layout(packet, version)
+        except nn.NatNetParseError:
+            return None
+        if len(self._layouts) >= 64:
+            self._layouts.clear()
+        self._layouts[key] = layout
+        return layout
+
+    def _empty_rows(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Empty rows for ``n`` frames: host ns, device time, positions (NaN), frame numbers, occluded (True)."""
+        m = len(self.markers)
+        return (
+            np.empty(n, dtype=np.int64),
+            np.empty(n, dtype=np.float64),
+            np.full((n, m, 3), np.nan),
+            np.empty(n, dtype=np.int64),
+            np.ones((n, m), dtype=bool),
+        )
+
+    def _fill_block(
+        self, rows: tuple[np.ndarray, ...], at: np.ndarray, block: nb.FrameBlock, clock_frequency: int | None
+    ) -> None:
+        """Rows ``at`` from a block of frames decoded together (the same rules as :meth:`_fill_frame`)."""
+        _, dev, data, frame, occluded = rows
+        frame[at] = block.frame_number
+        mid, ts = block.suffix["mid_exposure"].tolist(), block.suffix["timestamp"].tolist()
+        use_ticks = self.device_time_mode == "mid_exposure" and bool(clock_frequency)
+        dev[at] = [m / clock_frequency if use_ticks and m else t for m, t in zip(mid, ts, strict=True)]
+        for records, cols_by_id, flag_is_valid in (
+            (block.labeled_markers, self._marker_cols, False),  # params bit 0: occluded
+            (block.rigid_bodies, self._body_cols, True),  # params bit 0: tracking valid
+        ):
+            if not cols_by_id or records.shape[1] == 0:
+                continue
+            valid = (records["params"] & 0x01) != 0 if flag_is_valid else (records["params"] & 0x01) == 0
+            for source_id, cols in cols_by_id.items():
+                match = (records["id"] == source_id) & valid
+                has = match.any(axis=1)
+                if not has.any():
+                    continue
+                last = match.shape[1] - 1 - np.argmax(match[:, ::-1], axis=1)  # the frame's last entry wins
+                pos = records["position"][np.arange(len(records)), last][has]
+                for j in cols:
+                    data[at[has], j] = pos
+                    occluded[at[has], j] = False
+
+    def _fill_frame(self, rows: tuple[np.ndarray, ...], i: int, f: nn.FrameOfData, clock_frequency: int | None) -> None:
+        """Row ``i`` from one decoded frame."""
+        _, dev, data, frame, occluded = rows
+        frame[i] = f.frame_number
+        use_ticks = self.device_time_mode == "mid_exposure" and bool(clock_frequency)
+        dev[i] = f.mid_exposure / clock_frequency if use_ticks and f.mid_exposure else f.timestamp  # type: ignore[operator]
+        for lm in f.labeled_markers:  # one pass over what the frame holds (not a lookup per marker name)
+            cols = self._marker_cols.get(lm.id)
+            if cols is not None and not lm.params & 0x01:  # bit 0: occluded
+                data[i, cols] = lm.position
+                occluded[i, cols] = False
+        if self._body_cols:
+            for rb in f.rigid_bodies:
+                cols = self._body_cols.get(rb.id)
+                if cols is not None and rb.tracking_valid:
+                    data[i, cols] = rb.position
+                    occluded[i, cols] = False
 
     def to_batch(self, items: list[tuple[int, nn.FrameOfData]], clock_frequency: int | None) -> Batch:
-        """Frames (host ns, frame) → one Batch of the mocap stream."""
-        n, m = len(items), len(self.markers)
-        if n == 0:
+        """Decoded frames (host ns, frame) → one Batch of the mocap stream."""
+        if not items:
             return self._spec.empty_batch()
-        data = np.full((n, m, 3), np.nan)
-        occluded = np.ones((n, m), dtype=bool)
-        frame = np.empty(n, dtype=np.int64)
-        host = np.empty(n, dtype=np.int64)
-        dev = np.empty(n, dtype=np.float64)
-        use_ticks = self.device_time_mode == "mid_exposure" and bool(clock_frequency)
-        marker_cols: dict[int, list[int]] = {}  # id -> the columns it fills (two names may share a marker)
-        body_cols: dict[int, list[int]] = {}
-        for j, src in enumerate(self.sources):
-            (marker_cols if src.kind == "marker" else body_cols).setdefault(src.id, []).append(j)
+        rows = self._empty_rows(len(items))
         for i, (host_ns, f) in enumerate(items):
-            host[i] = host_ns
-            frame[i] = f.frame_number
-            dev[i] = f.mid_exposure / clock_frequency if use_ticks and f.mid_exposure else f.timestamp  # type: ignore[operator]
-            for lm in f.labeled_markers:  # one pass over what the frame holds (not a lookup per marker name)
-                cols = marker_cols.get(lm.id)
-                if cols is not None and not lm.params & 0x01:  # bit 0: occluded
-                    data[i, cols] = lm.position
-                    occluded[i, cols] = False
-            if body_cols:
-                for rb in f.rigid_bodies:
-                    cols = body_cols.get(rb.id)
-                    if cols is not None and rb.tracking_valid:
-                        data[i, cols] = rb.position
-                        occluded[i, cols] = False
+            rows[0][i] = host_ns
+            self._fill_frame(rows, i, f, clock_frequency)
+        host, dev, data, frame, occluded = rows
         return Batch(self.name, host, dev, {"data": data, "frame": frame, "occluded": occluded})

@@ -222,10 +222,10 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
     protocol: Protocol = spec["protocol"]
     inject: dict[str, Any] = spec["inject"]
     sim = protocol.sim
-    group, port = spec["can"]
-    odrive_bus = LoopbackCanBus(group, port)
+    group, host_port, peer_port = spec["can"]
+    odrive_bus = LoopbackCanBus(group, peer_port, send_port=host_port)  # the ODrive's end of the rig's bus
     config = odrive_config(protocol, spec.get("rig_file"), OdriveEmulatorConfig)
-    odrive = EmulatedOdrive(channel=f"{group}:{port}", config=config, bus=odrive_bus)
+    odrive = EmulatedOdrive(channel=f"{group}:{peer_port}", config=config, bus=odrive_bus)
     physics = RealtimePhysics(protocol, None)
     drop = inject.get("mocap_drop")
     outage = _Outage(None if isinstance(drop, float) else drop)
@@ -489,13 +489,13 @@ def build_emulated_rig(
     from beambench.emulators.motive import MOTIVE_GEOMETRY
 
     wiring = wiring or RigFile()
-    group, port = new_channel()
+    group, host_port, peer_port = new_channel()
     peers = PeerProcess(
         {
             "protocol": protocol,
             "inject": inject,
             "calibration": calibration or default_calibration(),
-            "can": (group, port),
+            "can": (group, host_port, peer_port),
             "rig_file": rig_file,
         }
     )
@@ -513,12 +513,12 @@ def build_emulated_rig(
             frame=Frame(**MOTIVE_GEOMETRY),
             silence_timeout_s=wiring.natnet.silence_timeout_s,
         )
-        channel = f"{group}:{port}"
+        channel = f"{group}:{host_port}"
         motor = OdriveCanMotor(
             channel,
             "udp_multicast",
             0,
-            bus=LoopbackCanBus(group, port),
+            bus=LoopbackCanBus(group, host_port, send_port=peer_port),  # the host's end
             own_bus=True,
             can_log=can_log,
             heartbeat_timeout_s=wiring.odrive.heartbeat_timeout_s,
