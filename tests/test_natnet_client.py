@@ -23,6 +23,7 @@ from beambench.devices.natnet import (
     NatNetMocap,
     ping,
 )
+from beambench.devices.receive_time import mono_minus_real_ns
 from beambench.emulators.motive import EmulatorClock, MotiveEmulator
 
 MARKERS = ("stage", "tip", "foot")
@@ -309,3 +310,12 @@ def test_each_frame_carries_the_kernels_receive_time_not_the_time_it_was_read(mu
     assert np.all(stamp_s >= sent_s - 1e-4)  # never before the server sent it (0.1 ms for clock reads)
     assert np.median(stamp_s - sent_s) < 0.004, np.median(stamp_s - sent_s)  # arrival: right after sending
     assert np.median(read_s - sent_s) > np.median(stamp_s - sent_s)  # the read itself comes later
+
+
+def test_the_offset_between_the_wall_and_monotonic_clocks_is_read_tightly():
+    """The offset moves kernel (wall-clock) receive stamps onto the monotonic clock: it must be the true offset
+    (sign and size) and steady from read to read (a skewed read would move a stamp by the skew)."""
+    naive = time.monotonic_ns() - time.time_ns()
+    reads = [mono_minus_real_ns() for _ in range(2000)]
+    assert abs(reads[0] - naive) < 5_000_000
+    assert max(reads) - min(reads) < 200_000, (max(reads) - min(reads)) / 1e3

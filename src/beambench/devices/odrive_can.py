@@ -59,6 +59,7 @@ from beambench.acquisition.streams import MOTOR, motor_spec
 from beambench.common.errors import BeambenchError
 from beambench.devices import odrive_cansimple as cs
 from beambench.devices.odrive_cansimple import AxisState, ControlMode, InputMode
+from beambench.devices.receive_time import mono_minus_real_ns
 
 # The ODrive sends its heartbeat every axis.config.can.heartbeat_rate_ms, 100 ms by default, and
 # Encoder_Estimates every encoder_rate_ms, 10 ms by default (firmware 0.5.x: CANConfig_t in
@@ -365,8 +366,8 @@ class OdriveCanMotor(TelemetryStream):
                 if frame is None:
                     continue
                 stop.wait(RECEIVE_COALESCE_S)
+                mono_minus_real = mono_minus_real_ns()
                 now_ns = time.monotonic_ns()
-                mono_minus_real = now_ns - time.time_ns()
                 for _ in range(MAX_FRAMES_PER_WAKE):
                     if self._log is not None:
                         self._log(frame)
