@@ -27,6 +27,7 @@ import sys
 import tempfile
 import threading
 import time
+from array import array
 from pathlib import Path
 
 import numpy as np
@@ -61,7 +62,7 @@ class Timed:
     def __init__(self, sink, at_flush: bool) -> None:  # type: ignore[no-untyped-def]
         self.sink, self.at_flush = sink, at_flush
         self.pending: list[int] = []
-        self.latency_ms: list[float] = []
+        self.latency_ms = array("d")  # 8 bytes a batch: a list of floats grew the RSS measured by ~7 MB an hour
 
     def open(self, specs) -> None:  # type: ignore[no-untyped-def]
         self.sink.open(specs)
@@ -108,7 +109,7 @@ def thread_cpu_s() -> dict[str, float]:
     return out
 
 
-def pct(values: list[float]) -> str:
+def pct(values: "array[float] | list[float]") -> str:
     if not values:
         return "n/a"
     a = np.asarray(values)
