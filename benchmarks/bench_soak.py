@@ -109,7 +109,7 @@ def thread_cpu_s() -> dict[str, float]:
     return out
 
 
-def pct(values: "array[float] | list[float]") -> str:
+def pct(values: array[float] | list[float]) -> str:
     if not values:
         return "n/a"
     a = np.asarray(values)
