@@ -122,7 +122,7 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     from beambench.studies.calibrate import calibrated_params
 
     rig = get_rig("contact")
-    assert rig.default_free == ("k_scale", "b_scale", "preload_mm")
+    assert rig.default_free == ("b_scale", "preload_mm", "frame_mass_g")
     names = {u.name: u for u in rig.unknowns}
     assert names["frame_mass_g"].default == 0.0 and names["mass_dx_mm"].default == 0.0
     base = {"model": "prb3", "params": "contact_paper", "twist_deg": 90.0, "amplitude_m": 0.002}
@@ -139,9 +139,18 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     from beambench.studies.calibrate import fixed_values
 
     free = [names[n] for n in rig.default_free]
-    assert set(fixed_values(names, free, SearchSettings())) == set()
-    assert fixed_values(names, free, SearchSettings(fixed={"frame_mass_g": 2.0})) == {"frame_mass_g": 2.0}
-    assert set(fixed_values(names, free[:2], SearchSettings())) == {"preload_mm"}
+    assert fixed_values(names, free, SearchSettings()) == {"k_scale": 1.0}  # k stays the prior's
+    assert fixed_values(names, free, SearchSettings(fixed={"mass_dx_mm": 2.0})) == {"k_scale": 1.0, "mass_dx_mm": 2.0}
+    # the frame mass not fitted: the prior keeps its own (left out of the fixed values)
+    assert set(fixed_values(names, free[:2], SearchSettings())) == {"k_scale"}
+    # the search's first line starts at the prior set's own values
+    from beambench.studies.calibrate import contact_prior
+
+    assert contact_prior(stuck) == pytest.approx(
+        {"k_scale": 1.0, "b_scale": 1.0, "frame_mass_g": 10.0, "mass_dx_mm": 0.0, "friction": 6.0}
+    )
+    f6 = calibrated_params(stuck, {"friction": 4.5})
+    assert f6.rig["friction"] == 4.5 and f6.rig["frame_mass"] == pytest.approx(0.010)
 
 
 def test_a_rig_the_calibrator_does_not_know_is_refused(tmp_path):
@@ -212,6 +221,69 @@ def test_objective_is_zero_at_the_truth_and_grows_away_from_it(truth):
     assert js[0.3] >= js[0.15] > 0.0
 
 
+def _steps(regimes: dict[tuple[int, int], str]) -> pd.DataFrame:
+    freqs, labels = [], []
+    for (lo, hi), lab in regimes.items():
+        for f in range(lo, hi + 1):
+            freqs.append(float(f))
+            labels.append(lab)
+    return pd.DataFrame({"frequency_hz": freqs, "regime": labels})
+
+
+def test_transitions_are_scored_beyond_the_per_step_levels():
+    """A map that lacks the target's ⅓ band, or has a stray low ½ step, is a missed calibration (the goal is
+    each transition within ± 2 Hz) although it differs from the target at only a few steps: the transition term
+    makes it cost as much as a whole band of wrong steps."""
+    from beambench.studies.calibrate import TRANSITION_WEIGHT, transition_misfit
+
+    targets = parse_targets({"rig": "contact", "continuous_below_hz": 15, "half_at_hz": 30, "third_at_hz": 42})
+    exact = _steps({(1, 14): "continuous", (15, 29): "1", (30, 41): "1/2", (42, 46): "1/3"})
+    no_third = _steps({(1, 14): "continuous", (15, 29): "1", (30, 46): "1/2"})
+    stray = _steps(
+        {(1, 6): "continuous", (7, 7): "1/2", (8, 14): "continuous", (15, 29): "1", (30, 41): "1/2", (42, 46): "1/3"}
+    )
+    close = _steps({(1, 15): "continuous", (16, 29): "1", (30, 42): "1/2", (43, 46): "1/3"})  # within ± 2 Hz
+    j = {
+        k: contact_objective(v, targets)
+        for k, v in (("exact", exact), ("no_third", no_third), ("stray", stray), ("close", close))
+    }
+    assert j["exact"][0] == 0.0 and j["exact"][1]["transitions"] == 0.0
+    # one third of the transitions missing: the full share of the transition term
+    assert j["no_third"][1]["transitions"] == pytest.approx(1 / 3)
+    assert j["no_third"][0] >= j["no_third"][1]["regime"] + TRANSITION_WEIGHT / 3 - 1e-12
+    # the stray ½ at 7 Hz moves the lowest ½ 23 Hz and cuts the continuous edge to 7: two of three missed
+    assert transition_misfit(stray, targets) == pytest.approx(2 / 3)
+    # within the tolerance costs less than a quarter of a missed transition each
+    assert 0.0 < j["close"][1]["transitions"] < 0.25 / 3 * 2 + 1e-12
+    assert j["close"][0] < j["no_third"][0] and j["close"][0] < j["stray"][0]
+    # a session's scalars without a transition add nothing
+    bare = Targets("contact", "x", targets.table, {"half_at_hz": None})
+    assert transition_misfit(no_third, bare) == 0.0
+
+
+def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
+    """The calibrator fits maps of a stepped sweep; they must be what `beambench run` + `beambench analyze` of the
+    same protocol give (maps of every frequency from rest put the continuous edge several Hz lower than the run:
+    calibrations fitted on them missed their targets once run)."""
+    from beambench.analysis.session import analyze_session
+    from beambench.sim.scenes.contact_sweep import stepped_regime_map
+    from beambench.sinks.hdf5 import read_session
+
+    freqs = [16, 20, 24, 28, 32, 36]
+    proto = tmp_path / "stepped.yaml"
+    proto.write_text(
+        f"name: stepped\nrig: contact\nbackend: sim\nsweep: {{frequencies: {freqs}}}\nsettle_s: 1.0\nrecord_s: 2.0\n"
+        "sim: {model: prb3, params: contact_stuck, noise: false}\n"
+    )
+    res = _beambench("run", str(proto), "--out", str(tmp_path), "--name", "stepped", "--rerun", "off")
+    assert res.returncode == 0, res.stderr
+    run = analyze_session(read_session(Path(res.stdout.strip().splitlines()[-1]))).table
+    twin = stepped_regime_map(freqs, params="contact_stuck", settle_s=1.0, record_s=2.0)
+    assert list(run["regime"]) == list(twin["regime"]), (list(run["regime"]), list(twin["regime"]))
+    assert {"continuous", "1/2"} <= set(twin["regime"])  # a map with edges, not a row of one label
+    assert list(run["tangential_sign"].astype(int)) == list(twin["tangential_sign"])
+
+
 # ------------------------------------------------------------------------------------------------ calibration
 
 
@@ -255,6 +327,9 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
     got = res.summary
     for k in ("half_at_hz", "third_at_hz"):
         assert want[k] is not None and got[k] is not None and abs(got[k] - want[k]) <= 2.0, (k, want, got)
+    # the winner's map is the written protocol's own sweep and windows (the verify stage), not the search's
+    assert [h["stage"] for h in res.history][-1] == "verify"
+    assert list(res.steps["frequency_hz"]) == [float(f) for f in range(1, 45)]  # shipped 1–40, extended to 44
     # the written protocol loads and runs dry
     assert res.protocol.is_file() and res.protocol.parent == tmp_path
     dry = _beambench("run", str(res.protocol), "--dry-run")
