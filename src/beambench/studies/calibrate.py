@@ -976,10 +976,9 @@ CONTACT_UNKNOWNS = (
         unit="mm",
         doc="static interference of the foot with the plate: sag under gravity − gap (the gap follows)",
     ),
-    # the rig block's unknowns: when not fitted the prior set keeps its own value (``opt_in``). The load frame's
-    # own mass is fitted by default; the load's offset along the stage travel (paper: the 20 g sits "at the lower
-    # left corner of the load frame"; neither the frame's mass nor the offset is given) and the sole's friction
-    # only when named (``--free``)
+    # opt-in (``--free``), when not fitted the prior set keeps its own value: the load frame's own mass and the
+    # load's offset along the stage travel (paper: the 20 g sits "at the lower left corner of the load frame";
+    # neither the frame's mass nor the offset is given)
     Unknown(
         "frame_mass_g", 0.0, 15.0, unit="g", default=0.0, opt_in=True, doc="the load frame's own mass (rig.frame_mass)"
     ),
@@ -993,21 +992,18 @@ CONTACT_UNKNOWNS = (
         doc="the 20 g load's offset along x (rig.mass_dx)",
     ),
     Unknown(
-        "friction",
-        0.5,
-        7.0,
+        "friction_scale",
+        0.7,
+        1.15,
+        log=True,
         default=1.0,
-        opt_in=True,
-        doc="the sole's effective friction coefficient (rig.friction): with preload_mm the pair that decides "
-        "whether the sole slides (>= 6: a sole that does not slide; >= 7: the foot can stick with little force)",
+        doc="multiplies the sole's effective friction (rig.friction): with the preload the pair that decides how "
+        "far up the sole stays stuck (the continuous edge) with little effect on the ½ and ⅓ edges "
+        "(docs/contact-twin.md); above ~7 the foot can stick during the settle with too little force",
     ),
 )
 # → rig block (SI)
-CONTACT_RIG_UNKNOWNS = {
-    "frame_mass_g": ("frame_mass", 1e-3),
-    "mass_dx_mm": ("mass_dx", 1e-3),
-    "friction": ("friction", 1.0),
-}
+CONTACT_RIG_UNKNOWNS = {"frame_mass_g": ("frame_mass", 1e-3), "mass_dx_mm": ("mass_dx", 1e-3)}
 
 
 def contact_base(targets: Targets) -> dict:
@@ -1052,7 +1048,7 @@ def contact_prior(base: dict) -> dict[str, float]:
     from beambench.sim.scenes.contact_rig import RigParams
 
     rig = RigParams.with_overrides(load_params(base["params"], model=model_family(base["model"])).rig)
-    own = {"k_scale": 1.0, "b_scale": 1.0}
+    own = {"k_scale": 1.0, "b_scale": 1.0, "friction_scale": 1.0}
     for key, (field_name, si) in CONTACT_RIG_UNKNOWNS.items():
         own[key] = float(getattr(rig, field_name)) / si
     return own
@@ -1068,6 +1064,7 @@ def calibrated_params(base: dict, values: dict[str, float]) -> Any:
     """The prior :class:`BeamParams` with the fitted scales applied."""
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import model_family
+    from beambench.sim.scenes.contact_rig import RigParams
 
     p = load_params(base["params"], model=model_family(base["model"]))
     ks, bs = values.get("k_scale", 1.0), values.get("b_scale", 1.0)
@@ -1075,6 +1072,8 @@ def calibrated_params(base: dict, values: dict[str, float]) -> Any:
     for key, (field_name, si) in CONTACT_RIG_UNKNOWNS.items():
         if key in values:
             rig[field_name] = float(values[key]) * si
+    if "friction_scale" in values:
+        rig["friction"] = float(RigParams.with_overrides(p.rig).friction) * float(values["friction_scale"])
     return replace(
         p,
         rig=rig,
@@ -1253,9 +1252,9 @@ register_rig(
         write=write_contact_protocol,
         summary=contact_summary,
         bracket="preload_mm",
-        # k alone moves no edge at a fixed interference (docs/contact-twin.md); the frame mass moves ½ and ⅓
-        # against the continuous edge, the damping ½ against ⅓, the preload all three
-        default_free=("b_scale", "preload_mm", "frame_mass_g"),
+        # k alone moves no edge at a fixed interference (docs/contact-twin.md); the sole's friction moves the
+        # continuous edge against ½ and ⅓, the damping ½ against ⅓, the preload all three
+        default_free=("b_scale", "preload_mm", "friction_scale"),
         verify=contact_verify,
         prior=contact_prior,
     )
