@@ -122,7 +122,7 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     from beambench.studies.calibrate import calibrated_params
 
     rig = get_rig("contact")
-    assert rig.default_free == ("b_scale", "preload_mm", "frame_mass_g")
+    assert rig.default_free == ("b_scale", "preload_mm", "friction_scale")
     names = {u.name: u for u in rig.unknowns}
     assert names["frame_mass_g"].default == 0.0 and names["mass_dx_mm"].default == 0.0
     base = {"model": "prb3", "params": "contact_paper", "twist_deg": 90.0, "amplitude_m": 0.002}
@@ -140,17 +140,21 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
 
     free = [names[n] for n in rig.default_free]
     assert fixed_values(names, free, SearchSettings()) == {"k_scale": 1.0}  # k stays the prior's
-    assert fixed_values(names, free, SearchSettings(fixed={"mass_dx_mm": 2.0})) == {"k_scale": 1.0, "mass_dx_mm": 2.0}
-    # the frame mass not fitted: the prior keeps its own (left out of the fixed values)
-    assert set(fixed_values(names, free[:2], SearchSettings())) == {"k_scale"}
+    assert fixed_values(names, free, SearchSettings(fixed={"frame_mass_g": 2.0})) == {
+        "k_scale": 1.0,
+        "frame_mass_g": 2.0,
+    }
+    assert fixed_values(names, free[:2], SearchSettings()) == {"k_scale": 1.0, "friction_scale": 1.0}
     # the search's first line starts at the prior set's own values
     from beambench.studies.calibrate import contact_prior
 
     assert contact_prior(stuck) == pytest.approx(
-        {"k_scale": 1.0, "b_scale": 1.0, "frame_mass_g": 10.0, "mass_dx_mm": 0.0, "friction": 6.0}
+        {"k_scale": 1.0, "b_scale": 1.0, "friction_scale": 1.0, "frame_mass_g": 10.0, "mass_dx_mm": 0.0}
     )
-    f6 = calibrated_params(stuck, {"friction": 4.5})
-    assert f6.rig["friction"] == 4.5 and f6.rig["frame_mass"] == pytest.approx(0.010)
+    # the friction is scaled from the prior's own (the stuck sole's 6, the scene's default 0.5 for the paper set)
+    assert calibrated_params(stuck, {"friction_scale": 0.9}).rig["friction"] == pytest.approx(5.4)
+    assert calibrated_params(base | {"params": "paper"}, {"friction_scale": 0.9}).rig["friction"] == pytest.approx(0.45)
+    assert calibrated_params(stuck, {"friction_scale": 0.9}).rig["frame_mass"] == pytest.approx(0.010)
 
 
 def test_a_rig_the_calibrator_does_not_know_is_refused(tmp_path):

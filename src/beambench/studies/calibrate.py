@@ -162,6 +162,8 @@ class SearchSettings:
     verify_top: int = 3  # distinct best refined points re-run as the written protocol runs (rigs with ``verify``)
     bracket_rounds: int = 3
     prior_rounds: int = 3  # rounds of the 1-D bracket along the prior's line before the evolution
+    line_cycles: int = 2  # passes of 1-D lines over every free unknown from the prior (:func:`prior_lines`)
+    line_share: float = 0.35  # share of the budget the lines may take
     seed: int = 1
     free: tuple[str, ...] | None = None  # fit only these unknowns (others at their ``fixed`` value)
     fixed: dict[str, float] = field(default_factory=dict)
@@ -183,6 +185,7 @@ class SearchSettings:
             verify_top=2,
             bracket_rounds=2,
             prior_rounds=2,
+            line_cycles=1,
         )
         base.update(kw)
         return cls(**base)
@@ -482,8 +485,8 @@ def calibrate(
                 or stall["since"] >= settings.stall_generations
             )
 
-        # --- 0. the prior's line: a 1-D bracket of the monotone unknown (e.g. the preload) at the prior's
-        # other values; its best point joins the initial population
+        # --- 0. the prior's lines: 1-D brackets of each unknown from the prior, the monotone one (e.g. the
+        # preload) first; the best point joins the initial population
         init = initial_population(free, settings)
         br = next((u for u in free if u.name == rig.bracket), None)
         if br is not None and settings.prior_rounds > 0:
@@ -496,20 +499,15 @@ def calibrate(
                 )
                 for u in free
             }
-            start = {**fixed, **centre}
-            best_line = bracket(
+            best_line = prior_lines(
                 ev,
-                start,
-                br,
-                br.bounds,
+                {**fixed, **centre},
+                [br, *(u for u in free if u is not br)],
                 coarse,
-                "coarse",
-                settings.prior_rounds,
+                settings,
                 max(4, 2 * pool.workers),
                 history,
                 elapsed,
-                "prior line",
-                stop=lambda: elapsed() > 0.25 * settings.budget_s,
             )
             init[-1] = [u.coord(best_line.values[u.name]) for u in free]
         with contextlib.suppress(_OutOfTime):
@@ -601,6 +599,53 @@ def calibrate(
     )
     write_report(result, targets, out_dir, name, free, settings)
     return result
+
+
+def prior_lines(
+    ev: Evaluator,
+    start: dict[str, float],
+    order: list[Unknown],
+    freqs: list[float],
+    settings: SearchSettings,
+    n: int,
+    history: list[dict],
+    elapsed: Callable[[], float],
+) -> Point:
+    """Coordinate lines from the prior: a 1-D :func:`bracket` of each unknown in ``order`` (the monotone one
+    first, over its whole range) at the best point so far, for ``settings.line_cycles`` passes (later passes
+    over ± 15 % of each range), until ``settings.line_share`` of the budget. Each unknown of the contact rig
+    moves mainly one landmark of the map (the preload all of them, the friction the continuous edge, the
+    damping ⅓ against ½), so lines reach a good region in a few dozen maps where the evolution's first
+    generations (one map per point of a box-filling design) do not."""
+    best: Point | None = None
+    cur = dict(start)
+    for cycle in range(max(1, settings.line_cycles)):
+        for k, u in enumerate(order):
+            if best is not None and elapsed() > settings.line_share * settings.budget_s:
+                return best
+            lo, hi = u.bounds
+            if cycle > 0:
+                c, half = u.coord(cur[u.name]), 0.15 * (hi - lo)
+                lo, hi = c - half, c + half
+            rounds = settings.prior_rounds if k == 0 and cycle == 0 else max(1, settings.prior_rounds - 1)
+            p = bracket(
+                ev,
+                cur,
+                u,
+                (lo, hi),
+                freqs,
+                "coarse",
+                rounds,
+                n,
+                history,
+                elapsed,
+                "prior line",
+                stop=lambda: elapsed() > settings.line_share * settings.budget_s,
+            )
+            if best is None or p.j < best.j:
+                best, cur = p, dict(p.values)
+    assert best is not None
+    return best
 
 
 def bracket(
