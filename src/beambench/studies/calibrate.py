@@ -8,9 +8,11 @@ themselves from their own module, listed in :data:`PLUGINS` (imported when prese
 
 The search (:func:`calibrate`) is the same for every rig:
 
-1. *coarse*: differential evolution (Sobol start, deferred updating: one generation = one parallel batch on the
-   sweep executor) on the target frequencies thinned to ``coarse_step_hz``, until ~55 % of the budget, a near-zero
-   objective, or a stall;
+1. *coarse* (on the target frequencies thinned to ``coarse_step_hz``): 1-D lines over each free unknown from the
+   prior set's own values, the rig's most monotone unknown first (:func:`prior_lines`, up to ``line_share`` of
+   the budget), then differential evolution (Sobol start plus the lines' best, deferred updating: one
+   generation = one parallel batch on the sweep executor) until ~55 % of the budget, a near-zero objective, or a
+   stall;
 2. *refine*: the best few coarse points re-evaluated on every target frequency, then a 1-D bracket of the rig's
    most monotone unknown (contact rig: the preload, which shifts the whole map) around the best;
 3. *verify* (rigs that name how their written protocol runs, ``CalibratableRig.verify``): the best few distinct
@@ -992,22 +994,28 @@ def contact_objective(steps: pd.DataFrame, targets: Targets) -> tuple[float, dic
 
 
 TRANSITION_WEIGHT = 0.5
-TRANSITION_SCALE_HZ = 4.0  # a transition this far from its target costs as much as a missing one (capped at 1)
+TRANSITION_SCALE_HZ = 4.0  # a transition this far from its target costs 1 (quadratic inside, linear beyond)
 
 
 def transition_misfit(steps: pd.DataFrame, targets: Targets) -> float:
     """Mean over the target's transitions (continuous edge, lowest ½, lowest ⅓ — those it names) of
-    min(1, (Δf / ``TRANSITION_SCALE_HZ``)²), a transition the twin's map lacks counting 1. The per-step regime
-    term alone scores a missing ⅓ band or a stray low ½ step as a few steps out of ~45; these are what a
-    calibration is judged on (the goal is each within ± 2 Hz)."""
+    ρ(Δf / ``TRANSITION_SCALE_HZ``), ρ(x) = x² for |x| ≤ 1 and 2|x| − 1 beyond (it keeps growing, so a search
+    still sees which of two far misses is nearer). A transition the twin's map lacks counts as if just outside
+    the map: a missing ½ or ⅓ at the map's top + 2 Hz, a missing continuous band (the map does not start
+    continuous) at its lowest frequency. The per-step regime term alone scores a missing ⅓ band or a stray low
+    ½ step as a few steps out of ~45; these are what a calibration is judged on (each within ± 2 Hz)."""
     keys = [k for k in ("continuous_below_hz", "half_at_hz", "third_at_hz") if targets.scalars.get(k) is not None]
     if not keys or steps.empty or "regime" not in steps:
         return 0.0
-    got = transitions(steps["frequency_hz"].to_numpy(float), list(steps["regime"].fillna("").astype(str)))
+    f = steps["frequency_hz"].to_numpy(float)
+    got = transitions(f, list(steps["regime"].fillna("").astype(str)))
     terms = []
     for k in keys:
         g, t = got.get(k), float(targets.scalars[k])
-        terms.append(1.0 if g is None else min(1.0, ((g - t) / TRANSITION_SCALE_HZ) ** 2))
+        if g is None:
+            g = float(f.min()) if k == "continuous_below_hz" else float(f.max()) + 2.0
+        x = abs(g - t) / TRANSITION_SCALE_HZ
+        terms.append(x * x if x <= 1.0 else 2.0 * x - 1.0)
     return float(np.mean(terms))
 
 
