@@ -252,14 +252,17 @@ def test_transitions_are_scored_beyond_the_per_step_levels():
         for k, v in (("exact", exact), ("no_third", no_third), ("stray", stray), ("close", close))
     }
     assert j["exact"][0] == 0.0 and j["exact"][1]["transitions"] == 0.0
-    # one third of the transitions missing: the full share of the transition term
-    assert j["no_third"][1]["transitions"] == pytest.approx(1 / 3)
-    assert j["no_third"][0] >= j["no_third"][1]["regime"] + TRANSITION_WEIGHT / 3 - 1e-12
-    # the stray ½ at 7 Hz moves the lowest ½ 23 Hz and cuts the continuous edge to 7: two of three missed
-    assert transition_misfit(stray, targets) == pytest.approx(2 / 3)
-    # within the tolerance costs less than a quarter of a missed transition each
-    assert 0.0 < j["close"][1]["transitions"] < 0.25 / 3 * 2 + 1e-12
-    assert j["close"][0] < j["no_third"][0] and j["close"][0] < j["stray"][0]
+    # the missing ⅓ counts as if at the map's top + 2 Hz (48: 6 Hz high → ρ(1.5) = 2), one of three transitions
+    assert j["no_third"][1]["transitions"] == pytest.approx(2 / 3)
+    assert j["no_third"][0] == pytest.approx(j["no_third"][1]["regime"] + TRANSITION_WEIGHT * 2 / 3)
+    # the stray ½ at 7 Hz cuts the continuous edge to 7 (8 Hz low: ρ(2) = 3) and puts the lowest ½ 23 Hz low
+    assert transition_misfit(stray, targets) == pytest.approx((3 + (2 * 23 / 4 - 1)) / 3)
+    # within the tolerance: (1/4)² for each of two transitions 1 Hz off
+    assert j["close"][1]["transitions"] == pytest.approx(2 / 16 / 3)
+    assert j["close"][0] < j["no_third"][0] < j["stray"][0]
+    # far misses keep their order (a search still sees which is nearer)
+    edge_at = {e: _steps({(1, e - 1): "continuous", (e, 29): "1", (30, 41): "1/2", (42, 46): "1/3"}) for e in (7, 10)}
+    assert transition_misfit(edge_at[10], targets) < transition_misfit(edge_at[7], targets)
     # a session's scalars without a transition add nothing
     bare = Targets("contact", "x", targets.table, {"half_at_hz": None})
     assert transition_misfit(no_third, bare) == 0.0

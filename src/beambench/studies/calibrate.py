@@ -1168,7 +1168,9 @@ def simulate_contact(base: dict, values: dict[str, float], frequencies: list[flo
     is the static sag minus the preload; the map is a *stepped* sweep in rising frequency
     (:func:`beambench.sim.scenes.contact_sweep.stepped_regime_map`: the scene, drive and timestep plan of
     ``beambench run``, the state carried from step to step) classified from the normal force as ``beambench
-    analyze`` does; noise as ``sim["noise"]`` (off unless the verify stage asks). Maps of every frequency from
+    analyze`` does; the load cells' noise (and seed) as ``sim`` says, else as the written protocol will run
+    (``base["protocol_run"]``): with noise the contact threshold is 8σ instead of 20 mN, which moves labels at
+    the continuous edge. Maps of every frequency from
     rest (``regime_map``) put the continuous edge up to ~6 Hz lower than the stepped run of the same protocol:
     a calibration fitted on them missed its targets once run (bench_calibrate.py's history)."""
     from beambench.sim.models.registry import make_beam_model
@@ -1178,6 +1180,7 @@ def simulate_contact(base: dict, values: dict[str, float], frequencies: list[flo
     params = calibrated_params(base, values)
     beam = make_beam_model(base["model"], params)
     rig = RigParams.with_overrides(params.rig)
+    run = base.get("protocol_run", {})  # the load cells' noise as the written protocol has it (threshold 8σ)
     sag = static_sag_m(beam, base["twist_deg"], rig)
     gap = sag - values.get("preload_mm", 0.0) * 1e-3
     table = stepped_regime_map(
@@ -1187,8 +1190,8 @@ def simulate_contact(base: dict, values: dict[str, float], frequencies: list[flo
         rig_overrides={"plate_gap": gap},
         settle_s=float(sim["settle_s"]),
         record_s=float(sim["record_s"]),
-        noise=bool(sim.get("noise", False)),
-        seed=int(sim.get("seed", 0)),
+        noise=bool(sim.get("noise", run.get("noise", False))),
+        seed=int(sim.get("seed", run.get("seed", 0))),
         twist_deg=base["twist_deg"],
         amplitude=base["amplitude_m"],
         integrator=base.get("integrator", "implicitfast"),
