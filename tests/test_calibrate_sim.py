@@ -210,7 +210,12 @@ def truth() -> tuple[Targets, dict]:
     out = simulate_contact(BASE, {"preload_mm": TRUE_PRELOAD}, FREQS, FAST)
     steps = pd.DataFrame(out["steps"])
     cols = ["frequency_hz", "regime", "contacts_per_cycle", "in_contact_fraction"]
-    targets = Targets("contact", "twin", steps[cols], prior={"params": BASE["params"]})  # the set the twin used
+    # the session's protocol: the sweep and windows the truth ran with (what the verify stage re-runs)
+    proto = (
+        "name: truth\nrig: contact\nbackend: sim\nsweep: {start: 20, stop: 44, step: 2}\nsettle_s: 0.6\n"
+        "record_s: 1.0\nsim: {model: prb3, params: paper, noise: false}\n"
+    )
+    targets = Targets("contact", "twin", steps[cols], protocol_text=proto, prior={"params": BASE["params"]})
     return targets, out["extras"]
 
 
@@ -309,8 +314,10 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
         stall_generations=2,
         good_enough=0.0,
         refine_top=1,
+        verify_top=1,
         bracket_rounds=2,
         prior_rounds=3,
+        line_cycles=1,
         free=("b_scale", "preload_mm"),
         fixed={"k_scale": 1.0},
     )
@@ -336,7 +343,7 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
         assert want[k] is not None and got[k] is not None and abs(got[k] - want[k]) <= 2.0, (k, want, got)
     # the winner's map is the written protocol's own sweep and windows (the verify stage), not the search's
     assert [h["stage"] for h in res.history][-1] == "verify"
-    assert list(res.steps["frequency_hz"]) == [float(f) for f in range(1, 45)]  # shipped 1–40, extended to 44
+    assert list(res.steps["frequency_hz"]) == FREQS
     # the written protocol loads and runs dry
     assert res.protocol.is_file() and res.protocol.parent == tmp_path
     dry = _beambench("run", str(res.protocol), "--dry-run")
