@@ -71,7 +71,9 @@ marginal step at a transition:
   maps that reach 16 / 24 / 34 need friction ×1.07–1.1 with preload ~0.3 mm, and their continuous edge is
   marginal (a ¼ or ½ label at the edge under noise). 20 / 24 / 34 is beyond the twin: friction ×1.15 (6.9) gives
   continuous below 18 with ½ at 24 and ⅓ at 37.
-CASE2_540
+- case 2 again at ``--budget-s 540``: 453 s, 127 evaluations, the same point (the lines' best; the evolution's
+  extra ~50 maps found nothing better) and the same run (14 / 26 / 44: ½ MISS). Not reliable yet: see
+  docs/contact-twin.md for what is left.
 """
 
 from __future__ import annotations
