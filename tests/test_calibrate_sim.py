@@ -122,7 +122,7 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     from beambench.studies.calibrate import calibrated_params
 
     rig = get_rig("contact")
-    assert rig.default_free == ("k_scale", "b_scale", "preload_mm")
+    assert rig.default_free == ("b_scale", "preload_mm", "friction_scale")
     names = {u.name: u for u in rig.unknowns}
     assert names["frame_mass_g"].default == 0.0 and names["mass_dx_mm"].default == 0.0
     base = {"model": "prb3", "params": "contact_paper", "twist_deg": 90.0, "amplitude_m": 0.002}
@@ -139,9 +139,22 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     from beambench.studies.calibrate import fixed_values
 
     free = [names[n] for n in rig.default_free]
-    assert set(fixed_values(names, free, SearchSettings())) == set()
-    assert fixed_values(names, free, SearchSettings(fixed={"frame_mass_g": 2.0})) == {"frame_mass_g": 2.0}
-    assert set(fixed_values(names, free[:2], SearchSettings())) == {"preload_mm"}
+    assert fixed_values(names, free, SearchSettings()) == {"k_scale": 1.0}  # k stays the prior's
+    assert fixed_values(names, free, SearchSettings(fixed={"frame_mass_g": 2.0})) == {
+        "k_scale": 1.0,
+        "frame_mass_g": 2.0,
+    }
+    assert fixed_values(names, free[:2], SearchSettings()) == {"k_scale": 1.0, "friction_scale": 1.0}
+    # the search's first line starts at the prior set's own values
+    from beambench.studies.calibrate import contact_prior
+
+    assert contact_prior(stuck) == pytest.approx(
+        {"k_scale": 1.0, "b_scale": 1.0, "friction_scale": 1.0, "frame_mass_g": 10.0, "mass_dx_mm": 0.0}
+    )
+    # the friction is scaled from the prior's own (the stuck sole's 6, the scene's default 0.5 for the paper set)
+    assert calibrated_params(stuck, {"friction_scale": 0.9}).rig["friction"] == pytest.approx(5.4)
+    assert calibrated_params(base | {"params": "paper"}, {"friction_scale": 0.9}).rig["friction"] == pytest.approx(0.45)
+    assert calibrated_params(stuck, {"friction_scale": 0.9}).rig["frame_mass"] == pytest.approx(0.010)
 
 
 def test_a_rig_the_calibrator_does_not_know_is_refused(tmp_path):
@@ -197,7 +210,12 @@ def truth() -> tuple[Targets, dict]:
     out = simulate_contact(BASE, {"preload_mm": TRUE_PRELOAD}, FREQS, FAST)
     steps = pd.DataFrame(out["steps"])
     cols = ["frequency_hz", "regime", "contacts_per_cycle", "in_contact_fraction"]
-    targets = Targets("contact", "twin", steps[cols], prior={"params": BASE["params"]})  # the set the twin used
+    # the session's protocol: the sweep and windows the truth ran with (what the verify stage re-runs)
+    proto = (
+        "name: truth\nrig: contact\nbackend: sim\nsweep: {start: 20, stop: 44, step: 2}\nsettle_s: 0.6\n"
+        "record_s: 1.0\nsim: {model: prb3, params: paper, noise: false}\n"
+    )
+    targets = Targets("contact", "twin", steps[cols], protocol_text=proto, prior={"params": BASE["params"]})
     return targets, out["extras"]
 
 
@@ -210,6 +228,72 @@ def test_objective_is_zero_at_the_truth_and_grows_away_from_it(truth):
     assert js[TRUE_PRELOAD] == 0.0
     assert js[-0.15] >= js[-0.05] > 0.0  # monotone on each side of the truth
     assert js[0.3] >= js[0.15] > 0.0
+
+
+def _steps(regimes: dict[tuple[int, int], str]) -> pd.DataFrame:
+    freqs, labels = [], []
+    for (lo, hi), lab in regimes.items():
+        for f in range(lo, hi + 1):
+            freqs.append(float(f))
+            labels.append(lab)
+    return pd.DataFrame({"frequency_hz": freqs, "regime": labels})
+
+
+def test_transitions_are_scored_beyond_the_per_step_levels():
+    """A map that lacks the target's ⅓ band, or has a stray low ½ step, is a missed calibration (the goal is
+    each transition within ± 2 Hz) although it differs from the target at only a few steps: the transition term
+    makes it cost as much as a whole band of wrong steps."""
+    from beambench.studies.calibrate import TRANSITION_WEIGHT, transition_misfit
+
+    targets = parse_targets({"rig": "contact", "continuous_below_hz": 15, "half_at_hz": 30, "third_at_hz": 42})
+    exact = _steps({(1, 14): "continuous", (15, 29): "1", (30, 41): "1/2", (42, 46): "1/3"})
+    no_third = _steps({(1, 14): "continuous", (15, 29): "1", (30, 46): "1/2"})
+    stray = _steps(
+        {(1, 6): "continuous", (7, 7): "1/2", (8, 14): "continuous", (15, 29): "1", (30, 41): "1/2", (42, 46): "1/3"}
+    )
+    close = _steps({(1, 15): "continuous", (16, 29): "1", (30, 42): "1/2", (43, 46): "1/3"})  # within ± 2 Hz
+    j = {
+        k: contact_objective(v, targets)
+        for k, v in (("exact", exact), ("no_third", no_third), ("stray", stray), ("close", close))
+    }
+    assert j["exact"][0] == 0.0 and j["exact"][1]["transitions"] == 0.0
+    # the missing ⅓ counts as if at the map's top + 2 Hz (48: 6 Hz high → ρ(1.5) = 2), one of three transitions
+    assert j["no_third"][1]["transitions"] == pytest.approx(2 / 3)
+    assert j["no_third"][0] == pytest.approx(j["no_third"][1]["regime"] + TRANSITION_WEIGHT * 2 / 3)
+    # the stray ½ at 7 Hz cuts the continuous edge to 7 (8 Hz low: ρ(2) = 3) and puts the lowest ½ 23 Hz low
+    assert transition_misfit(stray, targets) == pytest.approx((3 + (2 * 23 / 4 - 1)) / 3)
+    # within the tolerance: (1/4)² for each of two transitions 1 Hz off
+    assert j["close"][1]["transitions"] == pytest.approx(2 / 16 / 3)
+    assert j["close"][0] < j["no_third"][0] < j["stray"][0]
+    # far misses keep their order (a search still sees which is nearer)
+    edge_at = {e: _steps({(1, e - 1): "continuous", (e, 29): "1", (30, 41): "1/2", (42, 46): "1/3"}) for e in (7, 10)}
+    assert transition_misfit(edge_at[10], targets) < transition_misfit(edge_at[7], targets)
+    # a session's scalars without a transition add nothing
+    bare = Targets("contact", "x", targets.table, {"half_at_hz": None})
+    assert transition_misfit(no_third, bare) == 0.0
+
+
+def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
+    """The calibrator fits maps of a stepped sweep; they must be what `beambench run` + `beambench analyze` of the
+    same protocol give (maps of every frequency from rest put the continuous edge several Hz lower than the run:
+    calibrations fitted on them missed their targets once run)."""
+    from beambench.analysis.session import analyze_session
+    from beambench.sim.scenes.contact_sweep import stepped_regime_map
+    from beambench.sinks.hdf5 import read_session
+
+    freqs = [16, 20, 24, 28, 32, 36]
+    proto = tmp_path / "stepped.yaml"
+    proto.write_text(
+        f"name: stepped\nrig: contact\nbackend: sim\nsweep: {{frequencies: {freqs}}}\nsettle_s: 1.0\nrecord_s: 2.0\n"
+        "sim: {model: prb3, params: contact_stuck, noise: false}\n"
+    )
+    res = _beambench("run", str(proto), "--out", str(tmp_path), "--name", "stepped", "--rerun", "off")
+    assert res.returncode == 0, res.stderr
+    run = analyze_session(read_session(Path(res.stdout.strip().splitlines()[-1]))).table
+    twin = stepped_regime_map(freqs, params="contact_stuck", settle_s=1.0, record_s=2.0)
+    assert list(run["regime"]) == list(twin["regime"]), (list(run["regime"]), list(twin["regime"]))
+    assert {"continuous", "1/2"} <= set(twin["regime"])  # a map with edges, not a row of one label
+    assert list(run["tangential_sign"].astype(int)) == list(twin["tangential_sign"])
 
 
 # ------------------------------------------------------------------------------------------------ calibration
@@ -230,8 +314,10 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
         stall_generations=2,
         good_enough=0.0,
         refine_top=1,
+        verify_top=1,
         bracket_rounds=2,
         prior_rounds=3,
+        line_cycles=1,
         free=("b_scale", "preload_mm"),
         fixed={"k_scale": 1.0},
     )
@@ -255,6 +341,9 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
     got = res.summary
     for k in ("half_at_hz", "third_at_hz"):
         assert want[k] is not None and got[k] is not None and abs(got[k] - want[k]) <= 2.0, (k, want, got)
+    # the winner's map is the written protocol's own sweep and windows (the verify stage), not the search's
+    assert [h["stage"] for h in res.history][-1] == "verify"
+    assert list(res.steps["frequency_hz"]) == FREQS
     # the written protocol loads and runs dry
     assert res.protocol.is_file() and res.protocol.parent == tmp_path
     dry = _beambench("run", str(res.protocol), "--dry-run")

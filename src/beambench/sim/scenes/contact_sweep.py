@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -26,7 +27,7 @@ import pandas as pd
 
 from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.contact_events import ContactParams, force_contacts
-from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ
+from beambench.acquisition.streams import CONTACT_MARKERS, LOADCELL_RATE_HZ, MOCAP_RATE_HZ
 from beambench.common.types import Floats
 from beambench.sim.engine.batch import rollout_batch, thread_count, window
 from beambench.sim.models.beam import BeamModel
@@ -348,7 +349,6 @@ def regime_map(
     cp = contact or ContactParams()
     rng = np.random.default_rng(seed)
     cal = default_calibration()
-    box = 1.0 / LOADCELL_RATE_HZ
     rows = []
     for i, f in enumerate(freqs):
         h = float(sw.timesteps[i])
@@ -358,53 +358,136 @@ def regime_map(
         if not sw.ok[i] or not np.isfinite(normal).all():
             rows.append(row | {"contacts_per_cycle": np.nan, "regime": "irregular", "ok": False})
             continue
-        every = max(1, round(box / h))
-        nb = len(normal) // every
-        force = np.column_stack(
-            [
-                normal[: nb * every].reshape(nb, every).mean(axis=1),
-                tang[: nb * every].reshape(nb, every).mean(axis=1),
-            ]
-        )
-        if noise:
-            counts = cal.counts_from_force(force)
-            counts = np.round(counts + rng.normal(0.0, LOADCELL_NOISE_COUNTS, counts.shape))
-            force = cal.force_from_counts(counts)
-        t = settle_s + (np.arange(nb) + 1) * box  # each sample at the end of its averaging interval
-        c, summ = force_contacts(t, force[:, 0], float(f), cp)
-        ft_in = force[c.mask, 1]
-        mean_ft = float(np.mean(ft_in)) if len(ft_in) else np.nan
-        # foot track as the mocap sees it (360 Hz, optional noise), velocity by central differences
-        step = max(1, round(1.0 / (MOCAP_RATE_HZ * h)))
-        xm = foot_x[::step].astype(float)
-        tm = settle_s + np.arange(len(xm)) * step * h
-        if noise:
-            xm = xm + rng.normal(0.0, MOCAP_NOISE_M, xm.shape)
-        v = np.gradient(xm, tm) if len(xm) > 1 else np.zeros_like(xm)
-        win = 0.1 / f
-        td_v = [
-            float(np.mean(v[(tm >= td - win) & (tm <= td)]))
-            for td in c.touchdown_s
-            if np.any((tm >= td - win) & (tm <= td))
-        ]
-        med = float(np.median(td_v)) if td_v else np.nan
-        rows.append(
-            row
-            | {
-                "contacts_per_cycle": summ.contacts_per_cycle,
-                "regime": summ.regime,
-                "tangential_sign": _sign(mean_ft),
-                "touchdown_direction": _sign(med),
-                "in_contact_fraction": summ.in_contact_fraction,
-                "n_contacts": summ.n_contacts,
-                "mean_tangential_n": mean_ft,
-                "peak_normal_n": float(force[:, 0].max()) if len(force) else np.nan,
-            }
-        )
+        rows.append(row | _classify(float(f), h, settle_s, normal, tang, foot_x, noise, rng, cal, cp))
     df = pd.DataFrame(rows, columns=list(REGIME_MAP_COLUMNS))
     df["tangential_sign"] = df["tangential_sign"].fillna(0).astype(int)
     df["touchdown_direction"] = df["touchdown_direction"].fillna(0).astype(int)
     df.attrs["wall_s"] = sw.wall_s
+    df.attrs["plate_gap_m"] = rig.plate_gap
+    return df
+
+
+def _classify(
+    f: float,
+    h: float,
+    t0: float,
+    normal: np.ndarray,
+    tang: np.ndarray,
+    foot_x: np.ndarray,
+    noise: bool,
+    rng: np.random.Generator,
+    cal: Any,
+    cp: ContactParams,
+) -> dict:
+    """One step's regime row from its record window (rows every ``h`` s from ``t0``): the plate's normal and
+    tangential force box-averaged over the load cells' sample period (optional load-cell noise), classified by
+    :func:`force_contacts`; the foot's x track as the mocap sees it for the touchdown direction."""
+    box = 1.0 / LOADCELL_RATE_HZ
+    every = max(1, round(box / h))
+    nb = len(normal) // every
+    force = np.column_stack(
+        [
+            normal[: nb * every].reshape(nb, every).mean(axis=1),
+            tang[: nb * every].reshape(nb, every).mean(axis=1),
+        ]
+    )
+    if noise:
+        counts = cal.counts_from_force(force)
+        counts = np.round(counts + rng.normal(0.0, LOADCELL_NOISE_COUNTS, counts.shape))
+        force = cal.force_from_counts(counts)
+    t = t0 + (np.arange(nb) + 1) * box  # each sample at the end of its averaging interval
+    c, summ = force_contacts(t, force[:, 0], float(f), cp)
+    ft_in = force[c.mask, 1]
+    mean_ft = float(np.mean(ft_in)) if len(ft_in) else np.nan
+    # foot track as the mocap sees it (360 Hz, optional noise), velocity by central differences
+    step = max(1, round(1.0 / (MOCAP_RATE_HZ * h)))
+    xm = foot_x[::step].astype(float)
+    tm = t0 + np.arange(len(xm)) * step * h
+    if noise:
+        xm = xm + rng.normal(0.0, MOCAP_NOISE_M, xm.shape)
+    v = np.gradient(xm, tm) if len(xm) > 1 else np.zeros_like(xm)
+    win = 0.1 / f
+    td_v = [
+        float(np.mean(v[(tm >= td - win) & (tm <= td)]))
+        for td in c.touchdown_s
+        if np.any((tm >= td - win) & (tm <= td))
+    ]
+    med = float(np.median(td_v)) if td_v else np.nan
+    return {
+        "contacts_per_cycle": summ.contacts_per_cycle,
+        "regime": summ.regime,
+        "tangential_sign": _sign(mean_ft),
+        "touchdown_direction": _sign(med),
+        "in_contact_fraction": summ.in_contact_fraction,
+        "n_contacts": summ.n_contacts,
+        "mean_tangential_n": mean_ft,
+        "peak_normal_n": float(force[:, 0].max()) if len(force) else np.nan,
+    }
+
+
+def stepped_regime_map(
+    frequencies: Floats,
+    *,
+    model: str = "prb3",
+    params: str | BeamParams = "paper",
+    rig_overrides: dict | None = None,
+    settle_s: float = 2.0,
+    record_s: float = 5.0,
+    noise: bool = False,
+    seed: int = 0,
+    twist_deg: float = 90.0,
+    amplitude: float = 0.002,
+    integrator: str = "implicitfast",
+    tolerance_mm: float = 0.1,
+    contact: ContactParams | None = None,
+) -> pd.DataFrame:
+    """The contact regime per step of a *stepped* sweep, as the sim backend runs a protocol: one
+    :class:`ContactRigSim` (the run's scene: servo-driven stage, the motor's velocity ramp between steps, the
+    timestep the measured table plans per frequency), the frequencies in the given order, each settled for
+    ``settle_s`` then recorded for ``record_s``; the state carries over from step to step, so a regime that
+    persists past its edge going up (hysteresis) shows here as in ``beambench run``, unlike :func:`regime_map`
+    (every frequency from rest). Classified as :func:`regime_map` does; same columns. No device clocks or
+    sample jitter: the load cells' 1 ms boxcar on the physics rows, ``noise`` for their noise."""
+    from beambench.sim import selection as select
+    from beambench.sim.scenes.contact_rig import ContactRigSim
+
+    freqs = [float(f) for f in frequencies]
+    bp = load_params(params, model=model_family(model)) if isinstance(params, str) else params
+    bm = make_beam_model(model, bp)
+    rig = RigParams.with_overrides({**bp.rig, **(rig_overrides or {})})
+    try:
+        plan = select.plan_sweep("contact", tolerance_mm, freqs, models=[model], integrators=[integrator])
+        scene = ContactRigSim(bm, twist_deg, rig.plate_gap, amplitude, rig, plan.integrator, timestep_for=plan.timestep)
+    except select.SelectionError:
+        scene = ContactRigSim(bm, twist_deg, rig.plate_gap, amplitude, rig, integrator)
+    cp = contact or ContactParams()
+    rng = np.random.default_rng(seed)
+    cal = default_calibration()
+    rows = []
+    t_now = 0.0
+    try:
+        for f in freqs:
+            scene.set_frequency(f)
+            scene.advance_to(t_now + settle_s)
+            t_now += settle_s
+            tr = scene.advance_to(t_now + record_s)
+            keep = tr.t > t_now
+            t_rec = tr.t[keep]
+            t_now += record_s
+            normal = tr.channels["force_nt"][keep, 0]
+            tang = tr.channels["force_nt"][keep, 1]
+            foot_x = tr.channels["markers"][keep, CONTACT_MARKERS.index("foot"), 0]
+            h = float(np.median(np.diff(t_rec))) if len(t_rec) > 1 else float(scene.physics.timestep)
+            row: dict = {"frequency_hz": f, "timestep": h, "ok": True}
+            if len(t_rec) < 2 or not np.isfinite(normal).all():
+                rows.append(row | {"contacts_per_cycle": np.nan, "regime": "irregular", "ok": False})
+                continue
+            rows.append(row | _classify(f, h, float(t_rec[0]) - h, normal, tang, foot_x, noise, rng, cal, cp))
+    finally:
+        scene.physics.close()
+    df = pd.DataFrame(rows, columns=list(REGIME_MAP_COLUMNS))
+    df["tangential_sign"] = df["tangential_sign"].fillna(0).astype(int)
+    df["touchdown_direction"] = df["touchdown_direction"].fillna(0).astype(int)
     df.attrs["plate_gap_m"] = rig.plate_gap
     return df
 
