@@ -193,3 +193,27 @@ def test_frames_nobody_reads_overflow_the_boards_buffer_and_show_up_as_lost():
     assert mcu.injected.frames_overflowed > 100
     assert st["lost_frames"] == mcu.injected.frames_overflowed and st["seq_gaps"] >= 1
     assert st["crc_errors"] == st["truncated"] == 0
+
+
+def test_a_silence_found_by_check_is_not_raised_again_by_the_final_read():
+    """The runner finds a fault either in read() or in check(), whichever runs first after the timeout; after
+    the idle it drains every stream once more, and that drain must not fail on the fault that stopped the run
+    (it did when check() found it first: a flaky 'final read failed' event in the session)."""
+    mcu = EmulatedLoadCellMCU(force, PLATE, tx_buffer=BIG_TX, seed=4)
+    port = mcu.open()
+    lc = SerialLoadCells(port, silence_timeout_s=0.3)
+    try:
+        lc.start()
+        mcu.start()
+        time.sleep(0.3)
+        mcu.stop()
+        time.sleep(0.6)  # silent for longer than the timeout
+        with pytest.raises(DeviceFault, match="silent"):
+            lc.check()  # the runner's check() finds it first
+        drained = [lc.read(), lc.read()]  # what arrived before the silence, then nothing: no second raise
+        assert len(drained[0]) > 100 and len(drained[1]) == 0
+        with pytest.raises(DeviceFault, match="silent"):
+            lc.check()  # the device is still reported as silent to whoever asks
+    finally:
+        lc.stop()
+        mcu.close()

@@ -151,7 +151,16 @@ class StreamDriver:
         return self._started and (not self.reader_thread or (self._thread is not None and self._thread.is_alive()))
 
     def check(self) -> None:
-        """Raise :class:`DeviceFault` if the device failed, or sent nothing for ``silence_timeout_s``."""
+        """Raise :class:`DeviceFault` if the device failed, or sent nothing for ``silence_timeout_s``. A fault
+        raised here counts as reported: :meth:`read` then does not raise it again (the runner's final drain
+        after the idle must not fail on the fault that stopped the run, whichever call found it first)."""
+        try:
+            self._check_health()
+        except DeviceFault:
+            self._fault_reported = True
+            raise
+
+    def _check_health(self) -> None:
         if self._fault is not None:
             raise DeviceFault(f"{self.name}: {self._fault}")
         timeout = self.silence_timeout_s
