@@ -802,8 +802,7 @@ class NatNetMocap(StreamDriver):
         _, dev, data, frame, occluded = rows
         frame[at] = block.frame_number
         mid, ts = block.suffix["mid_exposure"].tolist(), block.suffix["timestamp"].tolist()
-        use_ticks = self.device_time_mode == "mid_exposure" and bool(clock_frequency)
-        dev[at] = [m / clock_frequency if use_ticks and m else t for m, t in zip(mid, ts, strict=True)]
+        dev[at] = [self._device_time(m, t, clock_frequency) for m, t in zip(mid, ts, strict=True)]
         for records, cols_by_id, flag_is_valid in (
             (block.labeled_markers, self._marker_cols, False),  # params bit 0: occluded
             (block.rigid_bodies, self._body_cols, True),  # params bit 0: tracking valid
@@ -822,12 +821,18 @@ class NatNetMocap(StreamDriver):
                     data[at[has], j] = pos
                     occluded[at[has], j] = False
 
+    def _device_time(self, mid_exposure: int, timestamp: float, clock_frequency: int | None) -> float:
+        """A frame's device time: mid-exposure ticks / the QPC rate when that mode is on and both are known (Python
+        int division: exact), else Motive's timestamp."""
+        if self.device_time_mode == "mid_exposure" and clock_frequency and mid_exposure:
+            return mid_exposure / clock_frequency
+        return timestamp
+
     def _fill_frame(self, rows: tuple[np.ndarray, ...], i: int, f: nn.FrameOfData, clock_frequency: int | None) -> None:
         """Row ``i`` from one decoded frame."""
         _, dev, data, frame, occluded = rows
         frame[i] = f.frame_number
-        use_ticks = self.device_time_mode == "mid_exposure" and bool(clock_frequency)
-        dev[i] = f.mid_exposure / clock_frequency if use_ticks and f.mid_exposure else f.timestamp  # type: ignore[operator]
+        dev[i] = self._device_time(f.mid_exposure, f.timestamp, clock_frequency)
         for lm in f.labeled_markers:  # one pass over what the frame holds (not a lookup per marker name)
             cols = self._marker_cols.get(lm.id)
             if cols is not None and not lm.params & 0x01:  # bit 0: occluded
