@@ -359,11 +359,17 @@ def regime_map(
             rows.append(row | {"contacts_per_cycle": np.nan, "regime": "irregular", "ok": False})
             continue
         rows.append(row | _classify(float(f), h, settle_s, normal, tang, foot_x, noise, rng, cal, cp))
+    df = _regime_table(rows, rig.plate_gap)
+    df.attrs["wall_s"] = sw.wall_s
+    return df
+
+
+def _regime_table(rows: list[dict], plate_gap_m: float) -> pd.DataFrame:
+    """Regime rows → the map's table (both maps: the same columns, signs 0 where a step has none)."""
     df = pd.DataFrame(rows, columns=list(REGIME_MAP_COLUMNS))
     df["tangential_sign"] = df["tangential_sign"].fillna(0).astype(int)
     df["touchdown_direction"] = df["touchdown_direction"].fillna(0).astype(int)
-    df.attrs["wall_s"] = sw.wall_s
-    df.attrs["plate_gap_m"] = rig.plate_gap
+    df.attrs["plate_gap_m"] = plate_gap_m
     return df
 
 
@@ -485,11 +491,7 @@ def stepped_regime_map(
             rows.append(row | _classify(f, h, float(t_rec[0]) - h, normal, tang, foot_x, noise, rng, cal, cp))
     finally:
         scene.physics.close()
-    df = pd.DataFrame(rows, columns=list(REGIME_MAP_COLUMNS))
-    df["tangential_sign"] = df["tangential_sign"].fillna(0).astype(int)
-    df["touchdown_direction"] = df["touchdown_direction"].fillna(0).astype(int)
-    df.attrs["plate_gap_m"] = rig.plate_gap
-    return df
+    return _regime_table(rows, rig.plate_gap)
 
 
 def _sign(x: float) -> int:
