@@ -159,7 +159,6 @@ class SerialLoadCells(StreamDriver):
         n = len(rows)
         # one pass over the rows into one table (host, seq, t_us, 4 counts, edges), then columns
         table = np.array([(h, f.seq, f.t_us, *f.counts, f.sync_edges) for h, f in rows], dtype=np.int64)
-        table = table.reshape(n, 8)
         host = table[:, 0].copy()
         seq, t_us, edges = self._seq(table[:, 1]), self._t(table[:, 2]), self._edges(table[:, 7])
         counts = table[:, 3:7].astype(np.int32)
