@@ -52,7 +52,9 @@ def test_pypi_natnet_client_decodes_our_emulator_over_multicast(version):
             client.connect(timeout=2.0)
             client.run_async()
             client.request_modeldef()
-            time.sleep(0.4)
+            deadline = time.monotonic() + 5.0  # ~0.2 s at 360 Hz; a busy machine gets longer, not fewer frames
+            while (len(received) <= 60 or not descriptions) and time.monotonic() < deadline:
+                time.sleep(0.05)
         finally:
             client.shutdown()
     v = nn.Version.parse(version)
