@@ -157,6 +157,30 @@ def test_bitstream_version_can_be_requested_from_a_4_x_server():
         assert "Bitstream,3.0" in emu.requests
 
 
+@pytest.mark.parametrize("keep_raw", [False, True], ids=["decoded", "raw"])
+def test_frames_in_the_new_bitstream_that_beat_the_reply_are_decoded_in_it(keep_raw):
+    """A server may switch its stream before its reply to ``Bitstream`` goes out (here 80 ms before: ~29 frames
+    at 360 Hz); those frames are in the requested version and must decode as such, not count as parse errors."""
+    with emulator("4.1", multicast=False, reply_delay_s=0.08) as emu, NatNetClient(config_for(emu)) as client:
+        client.keep_raw = keep_raw
+        before = client.stats.frames
+        deadline = time.monotonic() + 5.0
+        while client.stats.frames + len(client.raw_frames) <= before + 20 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        client.set_bitstream_version("3.0")
+        assert client.version == nn.V3_0 and emu.stream_version == nn.V3_0
+        time.sleep(0.1)
+        client.check()
+        assert client.stats.parse_errors == 0, client.stats.last_error
+        if keep_raw:  # the raw frames carry the version each one is in: all decode
+            raw = list(client.raw_frames)
+            assert {v for _, _, v in raw} == {nn.V4_1, nn.V3_0}
+            for _, packet, v in raw:
+                assert isinstance(nn.decode(packet, v), nn.FrameOfData)
+        else:
+            assert client.stats.frames > before + 40
+
+
 def test_bitstream_change_is_refused_by_a_3_0_server():
     with emulator("3.0", multicast=False) as emu, pytest.raises(NatNetError, match="cannot change"):
         NatNetClient(config_for(emu, bitstream_version="4.1")).connect()

@@ -438,14 +438,17 @@ class NatNetClient:
             if mid in (nn.MessageId.FRAMEOFDATA, nn.MessageId.MODELDEF) and self.version is None:
                 st.ignored += 1
                 return
+            version = self.version
+            if mid == nn.MessageId.FRAMEOFDATA and self._pending_bitstream is not None:
+                version = self._transition_version(data)
             if mid == nn.MessageId.FRAMEOFDATA and self.keep_raw:
                 raw = self.raw_frames
                 if len(raw) == raw.maxlen:
                     st.overflowed += 1
-                raw.append((host_ns, data, self.version))  # type: ignore[arg-type]  # not None: checked above
+                raw.append((host_ns, data, version))  # type: ignore[arg-type]  # not None: checked above
                 st.last_frame_ns = host_ns
                 return
-            msg = nn.decode(data, self.version)
+            msg = nn.decode(data, version)
         except nn.NatNetParseError as exc:
             st.parse_errors += 1
             st.last_error = str(exc)
@@ -475,6 +478,21 @@ class NatNetClient:
             log.info("NatNet server message: %s", msg.text)
         else:
             st.ignored += 1
+
+    def _transition_version(self, data: bytes) -> nn.Version | None:
+        """The version a frame that arrives while a bitstream change awaits its reply is in: the server may
+        switch its stream before its reply goes out (its stream and command threads race), so a frame that does
+        not decode in the current version but does in the requested one is in the requested one."""
+        want = self._pending_bitstream
+        if want is None or self.version is None:
+            return self.version
+        try:
+            nn.decode(data, self.version)
+        except nn.NatNetParseError:
+            with contextlib.suppress(nn.NatNetParseError):
+                nn.decode(data, want)
+                return want
+        return self.version
 
     def _accept_bitstream(self, reply: nn.Response) -> None:
         """The server's yes to a bitstream change: decode with the new version from the next packet on (the

@@ -115,6 +115,9 @@ class MotiveEmulator:
     max_frames: int | None = None  # stop streaming after this many frames (sent or dropped)
     wait_for_client: bool = True  # frame 1 is exposed when the first CONNECT arrives (else at start())
     keep_sent: int = 0  # keep this many of the last frames sent in ``sent`` (for tests)
+    # answer requests this much later, the stream going on meanwhile: frames in a newly requested bitstream
+    # version reach the client before the reply does (the race of a server's command and stream threads)
+    reply_delay_s: float = 0.0
 
     def __post_init__(self) -> None:
         v = nn.Version.parse(self.version)
@@ -269,7 +272,10 @@ class MotiveEmulator:
             self._reply(self.model_def(), addr)
         elif isinstance(msg, nn.Request):
             self.requests.append(msg.command)
-            self._reply(self._answer(msg.command), addr)
+            answer = self._answer(msg.command)
+            if self.reply_delay_s > 0:
+                time.sleep(self.reply_delay_s)
+            self._reply(answer, addr)
 
     def _answer(self, command: str) -> nn.Message:
         name, _, arg = command.partition(",")
