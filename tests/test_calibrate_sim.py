@@ -366,3 +366,20 @@ def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
     text = last.read_text()
     assert "small_calibrated_params.yaml" in text and "plate_gap_mm" in text
     assert math.isfinite(float(np.loadtxt([text.split("plate_gap_mm:")[1].split()[0]])))
+
+
+def test_the_written_sweep_reaches_the_targets_and_its_limit_starts_from_the_parsers_default():
+    from beambench.acquisition.config import Limits
+    from beambench.studies.calibrate import extended_sweep
+
+    targets = parse_targets({"rig": "contact", "half_at_hz": 30, "third_at_hz": 42})
+    top = float(max(targets.frequencies))
+    assert top > 45  # the target map runs past ⅓
+    doc = extended_sweep({"sweep": {"start": 1, "stop": 40, "step": 1}}, targets)
+    assert doc["sweep"]["stop"] == math.ceil(top)
+    assert doc["limits"]["max_frequency_hz"] == max(Limits().max_frequency_hz, math.ceil(top))
+    # a protocol's own higher limit stays; a sweep that already covers the targets is left alone
+    doc = extended_sweep({"sweep": {"start": 1, "stop": 40, "step": 1}, "limits": {"max_frequency_hz": 80}}, targets)
+    assert doc["limits"]["max_frequency_hz"] == 80
+    doc = extended_sweep({"sweep": {"start": 1, "stop": 60, "step": 1}}, targets)
+    assert doc == {"sweep": {"start": 1, "stop": 60, "step": 1}}

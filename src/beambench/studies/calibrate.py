@@ -10,9 +10,12 @@ The search (:func:`calibrate`) is the same for every rig:
 
 1. *coarse* (on the target frequencies thinned to ``coarse_step_hz``): 1-D lines over each free unknown from the
    prior set's own values, the rig's most monotone unknown first (:func:`prior_lines`, up to ``line_share`` of
-   the budget), then differential evolution (Sobol start plus the lines' best, deferred updating: one
-   generation = one parallel batch on the sweep executor) until ~55 % of the budget, a near-zero objective, or a
-   stall;
+   the budget); for rigs with ``landmarks`` (the contact rig's transitions), trust-region steps on a local
+   linear model of the landmarks fitted to every point so far (:mod:`beambench.studies.landmark_steps`; they
+   make the diagonal moves lines cannot, e.g. more preload with less friction); then, unless every landmark is
+   within ``landmark_tolerance``, differential evolution (Sobol start plus the best so far, deferred updating:
+   one generation = one parallel batch on the sweep executor) until ~55 % of the budget, a near-zero
+   objective, or a stall;
 2. *refine*: the best few coarse points re-evaluated on every target frequency, then a 1-D bracket of the rig's
    most monotone unknown (contact rig: the preload, which shifts the whole map) around the best;
 3. *verify* (rigs that name how their written protocol runs, ``CalibratableRig.verify``): the best few distinct
@@ -57,6 +60,7 @@ from beambench.studies.calibration_targets import (
     Targets,
     transitions,
 )
+from beambench.studies.landmark_steps import Landmarks, landmark_steps
 
 if TYPE_CHECKING:
     from beambench.sim.models.params import BeamParams
@@ -120,6 +124,9 @@ class CalibratableRig:
     # the prior parameter set's own values of the unknowns (``prior(base) -> {name: value}``): the centre of the
     # search's first line (None: 1 for log unknowns whose bounds hold it, else their defaults)
     prior: Callable[[dict], dict[str, float]] | None = None
+    # the map's landmarks the targets name (:data:`beambench.studies.landmark_steps.Landmarks`): with them the
+    # search takes trust-region steps on a local linear model of the landmarks after the lines (None: none)
+    landmarks: Landmarks | None = None
 
 
 RIGS: dict[str, CalibratableRig] = {}
@@ -166,6 +173,11 @@ class SearchSettings:
     prior_rounds: int = 3  # rounds of the 1-D bracket along the prior's line before the evolution
     line_cycles: int = 2  # passes of 1-D lines over every free unknown from the prior (:func:`prior_lines`)
     line_share: float = 0.35  # share of the budget the lines may take
+    landmark_rounds: int = 10  # trust-region steps on the landmarks' linear model (rigs with ``landmarks``)
+    landmark_share: float = 0.5  # share of the budget the lines and the landmark steps may take together
+    # landmarks this close to their targets (the rig's units: Hz for the contact rig, one coarse step) end the
+    # coarse stage without the evolution; the rest of the budget goes to the refine and verify stages
+    landmark_tolerance: float = 1.0
     seed: int = 1
     free: tuple[str, ...] | None = None  # fit only these unknowns (others at their ``fixed`` value)
     fixed: dict[str, float] = field(default_factory=dict)
@@ -490,6 +502,7 @@ def calibrate(
         # --- 0. the prior's lines: 1-D brackets of each unknown from the prior, the monotone one (e.g. the
         # preload) first; the best point joins the initial population
         init = initial_population(free, settings)
+        reached = False  # the landmark steps put every landmark within tolerance
         br = next((u for u in free if u.name == rig.bracket), None)
         if br is not None and settings.prior_rounds > 0:
             own = rig.prior(base) if rig.prior is not None else {}
@@ -511,8 +524,29 @@ def calibrate(
                 history,
                 elapsed,
             )
+            if rig.landmarks is not None and settings.landmark_rounds > 0:
+                best_line = landmark_steps(
+                    ev,
+                    best_line,
+                    free,
+                    rig.landmarks,
+                    coarse,
+                    "coarse",
+                    settings.landmark_rounds,
+                    max(2, 2 * pool.workers),
+                    history,
+                    elapsed,
+                    stop=lambda: elapsed() > settings.landmark_share * settings.budget_s,
+                    good_enough=settings.good_enough,
+                )
+                lm = rig.landmarks(best_line.steps, targets)
+                reached = bool(lm) and all(
+                    v is not None and abs(v - t) <= settings.landmark_tolerance for v, t in lm.values()
+                )
             init[-1] = [u.coord(best_line.values[u.name]) for u in free]
         with contextlib.suppress(_OutOfTime):
+            if reached or (best and best[0].j <= settings.good_enough):
+                raise _OutOfTime  # the lines and landmark steps already reached the targets
             differential_evolution(
                 lambda x: 0.0,  # never called: the mapper evaluates
                 [u.bounds for u in free],
@@ -1027,6 +1061,36 @@ def transition_misfit(steps: pd.DataFrame, targets: Targets) -> float:
     return float(np.mean(terms))
 
 
+TRANSITION_KEYS = (("continuous_below_hz", CONTINUOUS), ("half_at_hz", "1/2"), ("third_at_hz", "1/3"))
+
+
+def contact_landmarks(steps: pd.DataFrame, targets: Targets) -> dict[str, tuple[float | None, float]]:
+    """The transitions the targets name, each as (the map's, the target's) in Hz, for the landmark steps
+    (:mod:`beambench.studies.landmark_steps`). The map's lowest ½ and ⅓ are the lowest steps that *hold* the
+    regime (the next step has it too, or it is the map's top): a lone ½ step at the continuous edge, where
+    the foot starts to bounce, is a stray label that sits on another landmark's line and would bend the model
+    (the objective still scores the plain lowest, as the user's map shows it)."""
+    f = steps["frequency_hz"].to_numpy(float) if "frequency_hz" in steps else np.zeros(0)
+    order = np.argsort(f)
+    f = f[order]
+    lab = [str(steps["regime"].iloc[i]) for i in order] if "regime" in steps else []
+    got = transitions(f, lab) if len(f) else {}
+    out: dict[str, tuple[float | None, float]] = {}
+    for key, label in TRANSITION_KEYS:
+        want = targets.scalars.get(key)
+        if want is None:
+            continue
+        if label == CONTINUOUS:
+            out[key] = (got.get(key), float(want))
+            continue
+        held = next(
+            (float(x) for i, x in enumerate(f) if lab[i] == label and (i + 1 == len(f) or lab[i + 1] == label)),
+            None,
+        )
+        out[key] = (held, float(want))
+    return out
+
+
 CONTACT_UNKNOWNS = (
     Unknown("k_scale", 0.05, 1.6, log=True, default=1.0, doc="multiplies the prior set's k and k_twist"),
     Unknown("b_scale", 0.25, 4.0, log=True, default=1.0, doc="multiplies the prior set's b and b_twist"),
@@ -1080,7 +1144,7 @@ def contact_base(targets: Targets) -> dict:
         raise CalibrationInputError(str(exc)) from None
     model = proto.sim.model if proto.sim.model != "auto" else "prb3"
     params = targets.prior.get("params", proto.sim.params)
-    sweep = extended_sweep(yaml.safe_load(text), targets, 45).get("sweep", {})
+    sweep = extended_sweep(yaml.safe_load(text), targets).get("sweep", {})
     try:
         freqs = type(proto.sweep).model_validate(sweep).values()
     except ValueError as exc:
@@ -1226,7 +1290,6 @@ def write_calibrated_protocol(
     sim_extra: dict[str, Any],
     params_note: str,
     protocol_note: str,
-    default_max_hz: float,
     rig_label: str = "",
 ) -> Path:
     """Write ``out_dir/<name>_params.yaml`` (``params`` with ``rig_block``) and ``out_dir/<name>.yaml``: the
@@ -1262,7 +1325,7 @@ def write_calibrated_protocol(
     doc["sim"]["params"] = str(params_path)
     doc["sim"]["model"] = base["model"]
     doc["sim"].update(sim_extra)
-    doc = extended_sweep(doc, targets, default_max_hz)
+    doc = extended_sweep(doc, targets)
     out = out_dir / f"{name}.yaml"
     header = f"# Calibrated by `beambench calibrate sim` against {targets.source}.\n# {protocol_note}\n"
     body = yaml.safe_dump(doc, sort_keys=False, allow_unicode=True)
@@ -1271,15 +1334,18 @@ def write_calibrated_protocol(
     return out.resolve()
 
 
-def extended_sweep(doc: dict[str, Any], targets: Targets, default_max_hz: float) -> dict[str, Any]:
+def extended_sweep(doc: dict[str, Any], targets: Targets) -> dict[str, Any]:
     """The protocol mapping ``doc`` with its sweep (and frequency limit) extended up to the targets' highest
-    frequency when it stops short (in place; returned)."""
+    frequency when it stops short (in place; returned). A protocol without ``limits.max_frequency_hz`` has the
+    parser's default limit (:class:`~beambench.acquisition.config.Limits`), raised only as far as the targets."""
+    from beambench.acquisition.config import Limits
+
     top = float(max(targets.frequencies)) if len(targets.table) else 0.0
     sweep = doc.get("sweep", {})
     if isinstance(sweep, dict) and "stop" in sweep and top > float(sweep["stop"]):
         sweep["stop"] = math.ceil(top)
         lim = doc.setdefault("limits", {})
-        lim["max_frequency_hz"] = max(float(lim.get("max_frequency_hz", default_max_hz)), math.ceil(top))
+        lim["max_frequency_hz"] = max(float(lim.get("max_frequency_hz", Limits().max_frequency_hz)), math.ceil(top))
     return doc
 
 
@@ -1302,7 +1368,6 @@ def write_contact_protocol(
         sim_extra={"plate_gap_mm": round(gap_mm, 4)},
         params_note=".",
         protocol_note="sim.params points at the calibrated parameter set; sim.plate_gap_mm is the fitted gap.",
-        default_max_hz=45,
     )
 
 
@@ -1321,5 +1386,6 @@ register_rig(
         default_free=("b_scale", "preload_mm", "friction_scale"),
         verify=contact_verify,
         prior=contact_prior,
+        landmarks=contact_landmarks,
     )
 )

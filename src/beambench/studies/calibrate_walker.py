@@ -131,7 +131,6 @@ def write_walker_protocol(
         sim_extra={},
         params_note="; the rig block\n# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).",
         protocol_note="sim.params points at the calibrated parameter set (foot mass and friction in its rig block).",
-        default_max_hz=80,
         rig_label="walker",
     )
 
