@@ -294,6 +294,13 @@ def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
     assert list(run["regime"]) == list(twin["regime"]), (list(run["regime"]), list(twin["regime"]))
     assert {"continuous", "1/2"} <= set(twin["regime"])  # a map with edges, not a row of one label
     assert list(run["tangential_sign"].astype(int)) == list(twin["tangential_sign"])
+    # the verify stage's map of a written protocol is that run's analysed map, step for step
+    from beambench.studies.written_run import run_written_protocol
+
+    verify = pd.DataFrame(run_written_protocol(proto)["steps"])
+    assert list(verify["frequency_hz"]) == list(run["frequency_hz"])
+    assert list(verify["regime"]) == list(run["regime"])
+    np.testing.assert_allclose(verify["contacts_per_cycle"], run["contacts_per_cycle"], equal_nan=True)
 
 
 # ------------------------------------------------------------------------------------------------ calibration

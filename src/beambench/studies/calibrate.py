@@ -20,8 +20,11 @@ The search (:func:`calibrate`) is the same for every rig:
    most monotone unknown (contact rig: the preload, which shifts the whole map) around the best;
 3. *verify* (rigs that name how their written protocol runs, ``CalibratableRig.verify``): the best few distinct
    refined points re-run with the protocol's own sweep, windows, noise and seed, and with a second noise seed;
-   the winner has the best worse-of-two objective, and its map (the protocol's seed) is the one ``beambench run``
-   of the written protocol reproduces (otherwise: the winner's map on every target frequency, for the report).
+   the winner has the best worse-of-two objective. Rigs with ``run_written`` (the contact rig) write each
+   candidate's protocol into ``<out>/<name>_verify/`` and run it as the user will (``beambench run`` on the sim
+   backend, then the analysis: :mod:`beambench.studies.written_run`), so the winner's map (the protocol's seed)
+   is the one a run of the written protocol shows, label for label (otherwise: the winner's map on every target
+   frequency, for the report).
 
 Every evaluation is appended to ``<out>/<name>.evals.jsonl`` as soon as it finishes; a restart reads it back and
 re-uses every point already evaluated (the search is seeded, so it replays the same proposals), which makes a
@@ -61,6 +64,7 @@ from beambench.studies.calibration_targets import (
     transitions,
 )
 from beambench.studies.landmark_steps import Landmarks, landmark_steps
+from beambench.studies.written_run import run_written_protocol
 
 if TYPE_CHECKING:
     from beambench.sim.models.params import BeamParams
@@ -121,6 +125,10 @@ class CalibratableRig:
     # the frequencies and simulation settings of the protocol ``write`` produces (``verify(base) -> (freqs, sim)``):
     # the best candidates are re-run with them before the winner is chosen (None: no verify stage)
     verify: Callable[[dict], tuple[list[float], dict[str, Any]]] | None = None
+    # run a protocol ``write`` produced as the user will (``run_written(path, seed) -> {"steps", "extras"}``:
+    # ``beambench run`` then ``beambench analyze``, ``seed`` instead of the protocol's when not None): the verify
+    # stage then judges the candidates on those maps, the very ones a run of the written protocol shows
+    run_written: Callable[[Path, int | None], dict] | None = None
     # the prior parameter set's own values of the unknowns (``prior(base) -> {name: value}``): the centre of the
     # search's first line (None: 1 for log unknowns whose bounds hold it, else their defaults)
     prior: Callable[[dict], dict[str, float]] | None = None
@@ -272,7 +280,11 @@ def _evaluate(task: dict) -> dict:
     """Executor task: one simulation of a rig's map (runs in a worker process)."""
     rig = get_rig(task["rig"])
     t0 = time.perf_counter()
-    out = rig.simulate(task["base"], task["values"], task["frequencies"], task["sim"])
+    sim = task["sim"]
+    if "protocol" in sim and rig.run_written is not None:
+        out = rig.run_written(Path(sim["protocol"]), sim.get("seed"))
+    else:
+        out = rig.simulate(task["base"], task["values"], task["frequencies"], sim)
     out["wall_s"] = time.perf_counter() - t0
     return out
 
@@ -310,16 +322,23 @@ class Evaluator:
         self.generation = 0
 
     def batch(
-        self, values: list[dict[str, float]], freqs: list[float], stage: str, sim: dict[str, Any] | None = None
+        self,
+        values: list[dict[str, float]],
+        freqs: list[float],
+        stage: str,
+        sim: dict[str, Any] | None = None,
+        sims: list[dict[str, Any]] | None = None,
     ) -> list[Point]:
-        """Evaluate ``values`` at ``freqs`` with the stage's simulation settings (or ``sim``)."""
+        """Evaluate ``values`` at ``freqs`` with the stage's simulation settings (or ``sim``, or one ``sims`` entry
+        per point)."""
         from beambench.studies.executor import run_tasks
 
         if sim is None:
             sim = self.settings.sim(stage)
             if self.rig.stage_sim is not None:
                 sim = self.rig.stage_sim(stage, sim)
-        keys = [_key(self.rig.name, self.base, v, freqs, sim) for v in values]
+        per = sims if sims is not None else [sim] * len(values)
+        keys = [_key(self.rig.name, self.base, v, freqs, si) for v, si in zip(values, per)]
         recs: list[dict | None] = [self.log.get(k) for k in keys]
         todo = [i for i, r in enumerate(recs) if r is None]
         seen: dict[str, int] = {}
@@ -340,7 +359,7 @@ class Evaluator:
                 "base": self.base,
                 "values": values[i],
                 "frequencies": list(freqs),
-                "sim": sim,
+                "sim": per[i],
                 "key": keys[i],
             }
             for i in unique
@@ -599,20 +618,42 @@ def calibrate(
             # windows, noise and seed); the winner is the best of these maps, which is what the user will see
             vfreqs, vsim = rig.verify(base)
             refined = sorted((p for p in ev.points if p.stage == "fine"), key=lambda p: p.j) or [winner]
-            cands: list[dict[str, float]] = []
+            cands: list[Point] = []
             for p in [winner, *refined]:
-                if all(_distance(p.values, q, free) > 1e-6 for q in cands):
-                    cands.append(p.values)
+                if all(_distance(p.values, q.values, free) > 1e-6 for q in cands):
+                    cands.append(p)
                 if len(cands) >= settings.verify_top:
                     break
             # each also with a second noise realisation: a label that flips with the noise (a stray ½ or ⅓ at
             # the continuous edge) would move a "lowest" transition in the user's run; the worse of the two counts
-            checked = ev.batch(cands, vfreqs, "verify", sim=vsim)
-            again = ev.batch(cands, vfreqs, "verify", sim={**vsim, "seed": int(vsim.get("seed", 0)) + 1})
+            seed = int(vsim.get("seed", 0))
+            if rig.run_written is not None:  # the candidates' protocols, written and run as the user will run them
+                vdir = out_dir / f"{name}_verify"
+                vdir.mkdir(exist_ok=True)
+                paths = [
+                    str(
+                        rig.write(
+                            base,
+                            c.values,
+                            c.extras,
+                            targets,
+                            vdir,
+                            f"{name}_{_key(rig.name, {}, c.values, [], {})[:8]}",
+                        )
+                    )
+                    for c in cands
+                ]
+                checked = ev.batch([c.values for c in cands], vfreqs, "verify", sims=[{"protocol": p} for p in paths])
+                again = ev.batch(
+                    [c.values for c in cands], vfreqs, "verify", sims=[{"protocol": p, "seed": seed + 1} for p in paths]
+                )
+            else:
+                checked = ev.batch([c.values for c in cands], vfreqs, "verify", sim=vsim)
+                again = ev.batch([c.values for c in cands], vfreqs, "verify", sim={**vsim, "seed": seed + 1})
             worst = [max(a.j, b.j) for a, b in zip(checked, again)]
             history.append(_gen(ev, "verify", checked + again, elapsed()))
-            winner = checked[int(np.argmin(worst))]
-            winner = replace(winner, j=float(min(worst)))
+            ib = int(np.argmin(worst))
+            winner = replace(checked[ib], j=float(worst[ib]), extras={**cands[ib].extras, **checked[ib].extras})
         elif winner.stage != "fine":  # out of time before the fine stage: still report the map on every frequency
             winner = ev.batch([winner.values], fine, "fine")[0]
         ident = identifiability([p for p in ev.points if p.stage == "coarse"], free)
@@ -1385,6 +1426,7 @@ register_rig(
         # continuous edge against ½ and ⅓, the damping ½ against ⅓, the preload all three
         default_free=("b_scale", "preload_mm", "friction_scale"),
         verify=contact_verify,
+        run_written=run_written_protocol,
         prior=contact_prior,
         landmarks=contact_landmarks,
     )
