@@ -204,7 +204,7 @@ class SearchSettings:
             max_generations=12,
             stall_generations=4,
             refine_top=2,
-            verify_top=2,
+            verify_top=1,  # each candidate is two runs of the written protocol
             bracket_rounds=2,
             prior_rounds=2,
             line_cycles=1,
