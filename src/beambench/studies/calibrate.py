@@ -63,7 +63,7 @@ from beambench.studies.calibration_targets import (
     Targets,
     transitions,
 )
-from beambench.studies.landmark_steps import Landmarks, landmark_steps
+from beambench.studies.landmark_steps import Landmarks, landmark_steps, within
 from beambench.studies.written_run import run_written_protocol
 
 if TYPE_CHECKING:
@@ -558,10 +558,7 @@ def calibrate(
                     stop=lambda: elapsed() > settings.landmark_share * settings.budget_s,
                     good_enough=settings.good_enough,
                 )
-                lm = rig.landmarks(best_line.steps, targets)
-                reached = bool(lm) and all(
-                    v is not None and abs(v - t) <= settings.landmark_tolerance for v, t in lm.values()
-                )
+                reached = within(rig.landmarks(best_line.steps, targets), settings.landmark_tolerance)
             init[-1] = [u.coord(best_line.values[u.name]) for u in free]
         with contextlib.suppress(_OutOfTime):
             if reached or (best and best[0].j <= settings.good_enough):
@@ -1114,7 +1111,7 @@ def contact_landmarks(steps: pd.DataFrame, targets: Targets) -> dict[str, tuple[
     f = steps["frequency_hz"].to_numpy(float) if "frequency_hz" in steps else np.zeros(0)
     order = np.argsort(f)
     f = f[order]
-    lab = [str(steps["regime"].iloc[i]) for i in order] if "regime" in steps else []
+    lab = list(steps["regime"].astype(str).to_numpy()[order]) if "regime" in steps else []
     got = transitions(f, lab) if len(f) else {}
     out: dict[str, tuple[float | None, float]] = {}
     for key, label in TRANSITION_KEYS:

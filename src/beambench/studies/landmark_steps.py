@@ -145,18 +145,22 @@ def landmark_steps(
     def unit(p: Point) -> np.ndarray:
         return (np.array([u.coord(p.values[u.name]) for u in free]) - lo) / span
 
+    seen: dict[int, dict[str, tuple[float | None, float]]] = {}  # landmarks of each point, found once
+
+    def of(p: Point) -> dict[str, tuple[float | None, float]]:
+        if id(p) not in seen:
+            seen[id(p)] = landmarks(p.steps, ev.targets)
+        return seen[id(p)]
+
     best, region = start, TrustRegion()
-    names = list(landmarks(start.steps, ev.targets))
-    target = np.array([landmarks(start.steps, ev.targets)[k][1] for k in names], float)
+    names = list(of(start))
+    target = np.array([of(start)[k][1] for k in names], float)
     for _ in range(rounds):
-        own = landmarks(best.steps, ev.targets)
-        if stop() or best.j <= good_enough or region.exhausted:
-            break
-        if all(v is not None and abs(v - t) <= 0.5 for v, t in own.values()):
+        if stop() or best.j <= good_enough or region.exhausted or within(of(best), 0.5):
             break
         pts = [p for p in ev.points if p.stage == stage and len(p.steps) == len(best.steps)]
         x = np.array([unit(p) for p in pts])
-        y = np.array([[_nan(landmarks(p.steps, ev.targets)[k][0]) for k in names] for p in pts])
+        y = np.array([[_nan(of(p)[k][0]) for k in names] for p in pts])
         x0 = unit(best)
         model = fit_local_linear(x, y, x0, scale=max(0.15, 1.5 * region.radius))
         step = solve_step(model, target, region.radius)
@@ -176,6 +180,11 @@ def landmark_steps(
         else:
             region.miss()
     return best
+
+
+def within(landmarks: dict[str, tuple[float | None, float]], tolerance: float) -> bool:
+    """Does the map have every landmark, each within ``tolerance`` of its target? (False when none is named.)"""
+    return bool(landmarks) and all(v is not None and abs(v - t) <= tolerance for v, t in landmarks.values())
 
 
 def _nan(v: Any) -> float:
