@@ -1,8 +1,15 @@
-"""Ctrl-C and SIGTERM always stop a run: at random moments, many times, from a Python parent process.
+"""Every stop signal stops a run: at random moments, many times, from a Python parent process, on the sim and
+the emulated backend — SIGINT, SIGTERM, SIGHUP (a closed terminal), SIGQUIT and the others the runner takes
+(:data:`beambench.acquisition.runner.STOP_SIGNALS`).
 
 A signal handler only sets a flag; the runner acts on it at its next poll, idles the motor, then saves. Every
-interrupted run must exit 130 without a traceback, leave a cleanly closed session (it opens without SWMR) whose
-last event is ``interrupted`` after an ``idle``, and whose motor telemetry ends at setpoint 0.
+interrupted run must exit 3 (EXIT_STOPPED) without a traceback and with one line on stderr naming the signal, leave
+a cleanly closed session (it opens without SWMR) whose last event is ``interrupted`` after an ``idle``, whose last
+step is not ``running``, and whose motor telemetry ends at setpoint 0. On the emulated backend also: the last
+Set_Axis_State on the CAN bus (``--can-log``) requests IDLE, the emulated ODrive's last heartbeat says IDLE, and
+``/general/devices`` holds the drivers' counters.
+
+``BEAMBENCH_SIGNAL_RUNS`` multiplies the number of runs (the soak loops of issue 21 ran it at 5-10).
 
 Starting ``python -m beambench.cli`` costs seconds of imports per run, so most runs are forked from a "zygote"
 process that imported beambench once: each child is ``beambench.cli.main()`` with the run's argv and Python's
@@ -102,20 +109,48 @@ def _one_h5py_reader() -> Iterator[None]:
                 gc.enable()
 
 
-def _check_interrupted(path: Path, code: int, log: str, motor_state_idle: bool = False) -> None:
-    assert code == 130, f"exit {code}: {log[-2000:]}"
+SCALE = max(1, int(os.environ.get("BEAMBENCH_SIGNAL_RUNS", "1")))
+SET_AXIS_STATE = 0x07  # CAN Simple command id (node 0)
+
+
+def _last_requested_state(can_log: Path) -> int | None:
+    """The state the last Set_Axis_State frame on the bus asked for (from the run's own .asc log)."""
+    import can
+
+    last = None
+    with can.ASCReader(str(can_log)) as reader:
+        for msg in reader:
+            if msg.arbitration_id == SET_AXIS_STATE and not msg.is_remote_frame and len(msg.data) >= 4:
+                last = int.from_bytes(bytes(msg.data[:4]), "little")
+    return last
+
+
+def _check_interrupted(
+    path: Path, code: int, log: str, motor_state_idle: bool = False, sig: int | None = None, can_log: Path | None = None
+) -> None:
+    assert code == 3, f"exit {code}: {log[-2000:]}"
     assert "Traceback" not in log and "Exception ignored" not in log, log[-2000:]
+    said = [line for line in log.replace("\r", "\n").splitlines() if "beambench:" in line]
+    assert len(said) == 1 and "run interrupted" in said[0], log[-2000:]
+    if sig is not None:
+        assert signal.Signals(sig).name in said[0] or "SIGRTMIN" in said[0], said
     with h5py.File(path, "r"):  # a plain (non-SWMR) open works only on a cleanly closed file
         pass
     s = read_session(path)
     kinds = list(s.events["kind"])
     assert kinds[-1] == "interrupted", kinds
     assert "idle" in kinds[:-1], kinds
+    if len(s.steps):
+        assert s.steps["status"].iloc[-1] != "running", s.steps
     motor = s.streams["motor"]
     if len(motor):
         assert motor.columns["velocity_setpoint"][-1] == 0.0
         if motor_state_idle:
             assert motor.columns["axis_state"][-1] == 1  # ODrive AXIS_STATE_IDLE
+    if motor_state_idle:  # the emulated rig: its drivers' counters, and the bus itself
+        assert "devices" in kinds and "motor" in s.general.get("devices", {}), (kinds, list(s.general))
+    if can_log is not None:
+        assert _last_requested_state(can_log) in (None, 1), "the last Set_Axis_State did not request IDLE"
 
 
 class Zygote:
@@ -153,8 +188,9 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3) -> list[str]:
+def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3, backend: str = "sim") -> list[str]:
     """``n`` runs, each sent ``sig`` once at a random moment after its session file appears; failures listed."""
+    emulated = backend == "emulated"
     proto = tmp_path / "endless.yaml"
     proto.write_text(ENDLESS)
     rng = random.Random(seed)
@@ -168,7 +204,10 @@ def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3) ->
             for i in range(k, n, lanes):
                 name = f"r{i}"
                 path, log = tmp_path / f"{name}.h5", tmp_path / f"{name}.log"
-                argv = ["run", str(proto), "--out", str(tmp_path), "--name", name, "--rerun", "off"]
+                argv = ["run", str(proto), "--out", str(tmp_path), "--name", name, "--rerun", "off", "-b", backend]
+                can_log = tmp_path / f"{name}.asc" if emulated else None
+                if can_log is not None:
+                    argv += ["--can-log", str(can_log)]
                 pid = z.run(argv, log)
                 status_read = False
                 try:
@@ -182,7 +221,7 @@ def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3) ->
                     code = z.status()
                     status_read = True
                     with _one_h5py_reader():
-                        _check_interrupted(path, code, log.read_text())
+                        _check_interrupted(path, code, log.read_text(), emulated, sig, can_log)
                 except Exception as exc:  # collect every failure, so one report shows how many failed
                     failures.append(f"run {i} (delay {delays[i]:.2f} s, double={doubles[i]}): {exc}")
                     with contextlib.suppress(ProcessLookupError):
@@ -201,19 +240,74 @@ def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3) ->
     return failures
 
 
+def _sig(name: str) -> int:
+    if name.startswith("SIGRTMIN+"):
+        return int(signal.SIGRTMIN) + int(name.split("+")[1])
+    return int(getattr(signal, name))
+
+
+# (signal, runs on the sim, runs on the emulated backend): the hang-up and quit signals of issue 21 as often as
+# SIGINT/SIGTERM, the rarer ones a few times each
+SIGNAL_RUNS = [
+    ("SIGINT", 8, 2),
+    ("SIGTERM", 8, 2),
+    ("SIGHUP", 8, 3),
+    ("SIGQUIT", 8, 3),
+    ("SIGUSR1", 2, 1),
+    ("SIGUSR2", 2, 0),
+    ("SIGALRM", 2, 1),
+    ("SIGXCPU", 2, 0),
+    ("SIGVTALRM", 2, 0),
+    ("SIGPROF", 2, 0),
+    ("SIGIO", 1, 0),
+    ("SIGPWR", 1, 0),
+    ("SIGRTMIN+3", 1, 0),
+]
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_every_signal_at_a_random_moment_stops_the_run_idles_and_saves(tmp_path, sig):
-    n = 20
-    failures = _signal_runs(tmp_path, sig, n, seed=int(sig) * 1000 + 13)
+@pytest.mark.parametrize(("name", "n"), [(name, n) for name, n, _ in SIGNAL_RUNS], ids=[s[0] for s in SIGNAL_RUNS])
+def test_every_signal_at_a_random_moment_stops_the_run_idles_and_saves(tmp_path, name, n):
+    sig, n = _sig(name), n * SCALE
+    failures = _signal_runs(tmp_path, sig, n, seed=sig * 1000 + 13, lanes=min(3, n))
     assert not failures, f"{len(failures)} of {n} runs not stopped cleanly:\n" + "\n".join(failures)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
+    ("name", "n"), [(name, n) for name, _, n in SIGNAL_RUNS if n], ids=[s[0] for s in SIGNAL_RUNS if s[2]]
+)
+def test_every_signal_on_the_emulated_rig_leaves_the_odrive_idle(tmp_path, name, n):
+    sig, n = _sig(name), n * SCALE
+    failures = _signal_runs(tmp_path, sig, n, seed=sig * 1000 + 17, lanes=min(2, n), backend="emulated")
+    assert not failures, f"{len(failures)} of {n} runs not stopped cleanly:\n" + "\n".join(failures)
+
+
+def test_the_runner_takes_every_signal_that_ends_a_process_by_default():
+    """The list the README gives; and a signal ignored on purpose (nohup's SIGHUP) stays ignored."""
+    from beambench.acquisition.runner import STOP_SIGNALS, stop_on_signals
+
+    for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM", "SIGXCPU"):
+        assert getattr(signal, name) in STOP_SIGNALS
+    for name in ("SIGKILL", "SIGSTOP", "SIGSEGV", "SIGPIPE", "SIGCHLD", "SIGWINCH"):
+        assert getattr(signal, name) not in STOP_SIGNALS
+    before = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with stop_on_signals() as stop:
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            assert signal.getsignal(signal.SIGQUIT) not in (signal.SIG_DFL, signal.SIG_IGN)
+            os.kill(os.getpid(), signal.SIGUSR1)
+            assert stop.wait(2.0) and stop.signum == signal.SIGUSR1
+        assert signal.getsignal(signal.SIGQUIT) is signal.SIG_DFL
+    finally:
+        signal.signal(signal.SIGHUP, before)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
     ("backend", "sig"),
-    [("sim", signal.SIGINT), ("emulated", signal.SIGINT), ("emulated", signal.SIGTERM)],
-    ids=["sim-SIGINT", "emulated-SIGINT", "emulated-SIGTERM"],
+    [("sim", signal.SIGHUP), ("emulated", signal.SIGINT), ("emulated", signal.SIGQUIT)],
+    ids=["sim-SIGHUP", "emulated-SIGINT", "emulated-SIGQUIT"],
 )
 def test_python_m_beambench_run_stops_on_a_signal(tmp_path, backend, sig):
     """The plain interpreter (not forked): ``python -m beambench.cli run`` with SIGINT restored to its default."""
@@ -238,7 +332,9 @@ def test_python_m_beambench_run_stops_on_a_signal(tmp_path, backend, sig):
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    _check_interrupted(path, proc.returncode, out.decode(errors="replace"), motor_state_idle=backend == "emulated")
+    _check_interrupted(
+        path, proc.returncode, out.decode(errors="replace"), motor_state_idle=backend == "emulated", sig=sig
+    )
 
 
 # --- in-process: the flag, from any state, and a signal during the shutdown ---------------------------

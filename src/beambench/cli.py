@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import sys
 
 import typer
 
 from beambench import __version__
-from beambench.commands import HELP_MARKUP
+from beambench.commands import EXIT_STOPPED, HELP_MARKUP
 
 
 def _version(value: bool) -> None:
@@ -49,6 +50,10 @@ def main() -> None:
     """The ``beambench`` entry point: usage errors come out as one line like every other error (exit 2)."""
     try:
         code = app(standalone_mode=False, prog_name="beambench")
+    except typer.Abort:  # click's answer to KeyboardInterrupt or EOFError outside a run (a prompt, the imports)
+        with contextlib.suppress(OSError):
+            typer.echo("beambench: aborted", err=True)
+        sys.exit(EXIT_STOPPED)
     except Exception as exc:
         # click's exceptions (typer vendors its own click, so match by shape, not by class)
         if not (hasattr(exc, "format_message") and hasattr(exc, "exit_code")):
@@ -60,9 +65,6 @@ def main() -> None:
         hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
         typer.echo(f"beambench: error: {exc.format_message()}{hint}", err=True)
         sys.exit(exc.exit_code)
-    except typer.Abort:
-        typer.echo("beambench: aborted", err=True)
-        sys.exit(130)
     sys.exit(code if isinstance(code, int) else 0)
 
 

@@ -4,8 +4,16 @@ The runner never touches a wire or a file: devices give it batches, the hub hand
 Every exit path (normal end, exception, Ctrl-C, SIGTERM, device fault) commands the motor to idle first,
 then drains what the devices still hold, logs the final event and closes the sinks.
 
-Signals never raise: SIGINT and SIGTERM only set a :class:`StopSignal` flag, which the runner reads before and
-after every poll (settle, record, pause) and between steps, from any state and on every backend. An exception
+Signals never raise: every signal that ends a process by default and can be caught (:data:`STOP_SIGNALS`:
+SIGINT, SIGTERM, SIGHUP — a closed terminal or SSH session —, SIGQUIT, SIGUSR1/2, SIGALRM, SIGVTALRM, SIGPROF,
+SIGXCPU, SIGIO, SIGPWR, SIGSTKFLT and the real-time signals) only sets a :class:`StopSignal` flag, which the
+runner reads before and after every poll (settle, record, pause) and between steps, from any state and on every
+backend. SIGINT and SIGTERM are always taken; the others only where their disposition is still the default
+(terminate): one ignored on purpose (``nohup`` ignores SIGHUP) or handled by someone else (a profiler's SIGPROF)
+is left alone. Not caught: SIGKILL and SIGSTOP (they cannot be), the fault signals (SIGSEGV, SIGBUS, SIGFPE,
+SIGILL, SIGABRT, SIGTRAP, SIGSYS: a program error, after which nothing can safely run), SIGPIPE and SIGXFSZ
+(Python ignores them: the write fails with an error instead, which stops the run through the sink-failure path).
+When the process cannot run its stop path at all (SIGKILL, a crash), the ODrive's own watchdog idles the motor. An exception
 raised inside a signal handler lands in whatever code happens to run (a weakref callback, a C callback, a
 ``finally``) and may be swallowed there; a flag cannot be. Further signals during shutdown are only counted,
 so a second Ctrl-C cannot skip the idle.
@@ -17,12 +25,14 @@ longer than ``max_pause_s`` ends the run as a fault.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import signal
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 
 from beambench.acquisition.batch import StepRecord
 from beambench.acquisition.capabilities import (
@@ -34,7 +44,7 @@ from beambench.acquisition.capabilities import (
     ReportsDeviceHealth,
     Rig,
 )
-from beambench.acquisition.hub import Hub
+from beambench.acquisition.hub import Hub, SinkFailure
 from beambench.acquisition.monitors import Monitor
 from beambench.acquisition.plan import Step
 
@@ -49,7 +59,7 @@ class _Stopped(BaseException):
 
 @dataclass
 class RunResult:
-    status: str  # completed | interrupted | fault | error
+    status: str  # completed | interrupted | fault | failed (a critical sink: the session file) | error
     steps_done: int
     message: str = ""
 
@@ -96,20 +106,66 @@ class StopSignal:
 
     @property
     def reason(self) -> str:
+        if self.signum is None:
+            return "stopped"
+        name = signal_name(self.signum)
         if self.signum == signal.SIGINT:
-            return "interrupted by user (SIGINT)"
+            return f"interrupted by user ({name})"
         if self.signum == signal.SIGTERM:
-            return "terminated (SIGTERM)"
-        return "stopped" if self.signum is None else f"stopped by signal {self.signum}"
+            return f"terminated ({name})"
+        if self.signum == getattr(signal, "SIGHUP", None):
+            return f"hang-up: the terminal or session closed ({name})"
+        return f"stopped by {name}"
 
     def wait(self, timeout: float) -> bool:
         """Sleep up to ``timeout`` s, waking early on a stop request; True if one came."""
         return self._event.wait(timeout)
 
 
+def signal_name(signum: int) -> str:
+    """``SIGHUP``, ``SIGRTMIN+3`` … for a signal number."""
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        rtmin = getattr(signal, "SIGRTMIN", None)
+        if rtmin is not None and rtmin < signum <= getattr(signal, "SIGRTMAX", rtmin):
+            return f"SIGRTMIN+{signum - rtmin}"
+        return f"signal {signum}"
+
+
+ALWAYS_TAKEN = ("SIGINT", "SIGTERM")
+IF_DEFAULT = (
+    "SIGHUP",
+    "SIGQUIT",
+    "SIGUSR1",
+    "SIGUSR2",
+    "SIGALRM",
+    "SIGVTALRM",
+    "SIGPROF",
+    "SIGXCPU",
+    "SIGIO",
+    "SIGPWR",
+    "SIGSTKFLT",
+)
+
+
+def _stop_signals() -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """(signals always taken, signals taken where their disposition is the default) on this platform."""
+    always = tuple(int(getattr(signal, n)) for n in ALWAYS_TAKEN)
+    named = [int(getattr(signal, n)) for n in IF_DEFAULT if hasattr(signal, n)]
+    if hasattr(signal, "SIGRTMIN"):
+        named += range(int(signal.SIGRTMIN), int(signal.SIGRTMAX) + 1)
+    return always, tuple(dict.fromkeys(s for s in named if s not in always))
+
+
+ALWAYS_SIGNALS, DEFAULT_SIGNALS = _stop_signals()
+STOP_SIGNALS = ALWAYS_SIGNALS + DEFAULT_SIGNALS  # every signal that can stop a run through its stop path
+
+
 @contextmanager
 def stop_on_signals(stop: StopSignal | None = None) -> Iterator[StopSignal]:
-    """While inside, SIGINT and SIGTERM set ``stop`` instead of raising (main thread only; elsewhere a no-op)."""
+    """While inside, the :data:`STOP_SIGNALS` set ``stop`` instead of ending the process (main thread only;
+    elsewhere a no-op). Nested uses keep the outer handlers (they set the same flag)."""
     stop = stop or StopSignal()
     if threading.current_thread() is not threading.main_thread():
         yield stop
@@ -118,13 +174,17 @@ def stop_on_signals(stop: StopSignal | None = None) -> Iterator[StopSignal]:
     def handler(signum: int, frame: object) -> None:
         stop.request(signum)
 
-    old_int = signal.signal(signal.SIGINT, handler)
-    old_term = signal.signal(signal.SIGTERM, handler)
+    old: dict[int, Any] = {}
     try:
+        for signum in STOP_SIGNALS:
+            current = signal.getsignal(signum)
+            if signum in DEFAULT_SIGNALS and current is not signal.SIG_DFL:
+                continue  # ignored on purpose (nohup), or someone else's (a profiler): left alone
+            old[signum] = signal.signal(signum, handler)
         yield stop
     finally:
-        signal.signal(signal.SIGINT, old_int)
-        signal.signal(signal.SIGTERM, old_term)
+        for signum, previous in old.items():
+            signal.signal(signum, previous)
 
 
 class Runner:
@@ -170,6 +230,8 @@ class Runner:
                 result = RunResult("completed", self.steps_done, "all steps done")
             except _Stopped:
                 result = RunResult("interrupted", self.steps_done, self.stop.reason)
+            except SinkFailure as exc:
+                result = RunResult("failed", self.steps_done, str(exc))
             except KeyboardInterrupt:  # raised by code outside our handlers (e.g. a caller's thread)
                 result = RunResult("interrupted", self.steps_done, "interrupted by user (SIGINT)")
             except Terminated:
@@ -184,7 +246,16 @@ class Runner:
                 raise
             finally:
                 self._shutdown(result)
+                failure = self.hub.failure
+                if failure is not None and result.status != "failed":  # the file failed while closing
+                    before = f"; the run had {result.status}: {result.message}" if result.status != "completed" else ""
+                    result.status, result.message = "failed", f"{failure}{before}"
             return result
+
+    def _log_event(self, now_ns: int, kind: str, message: str) -> None:
+        """An event during the shutdown: a sink failing now is in ``hub.failure``, never raised."""
+        with contextlib.suppress(SinkFailure):
+            self.hub.event(now_ns, kind, message)
 
     def _check_stop(self) -> None:
         if self.stop.requested:
@@ -282,26 +353,30 @@ class Runner:
 
     # --- shutdown -------------------------------------------------------------------------------------
     def _shutdown(self, result: RunResult) -> None:
-        """Idle first, then save: the order matters more than anything else here."""
+        """Idle first, then save: the order matters more than anything else here. Nothing here raises before
+        the rig and the sinks are closed: a sink that fails now is only recorded (``hub.failure``)."""
         # Signals during shutdown only set the stop flag (see run()): they cannot skip the idle.
         try:
             try:
                 self.rig.motor.idle()
             except Exception as exc:  # the idle attempt must not hide the original problem
-                self.hub.event(self.rig.clock.now_ns(), "error", f"idle failed: {exc}")
-            self.hub.event(self.rig.clock.now_ns(), "idle", "motor commanded to idle")
+                self._log_event(self.rig.clock.now_ns(), "error", f"idle failed: {exc}")
+            self._log_event(self.rig.clock.now_ns(), "idle", "motor commanded to idle")
             try:
                 # real devices: record a short tail so the session shows the motor stopping
                 if isinstance(self.rig, HasIdleTail) and self.rig.idle_tail_s > 0:
                     self.rig.clock.wait(self.rig.idle_tail_s)
                 self._pump()
+            except SinkFailure:
+                pass  # recorded in hub.failure
             except Exception as exc:
-                self.hub.event(self.rig.clock.now_ns(), "error", f"final read failed: {exc}")
+                self._log_event(self.rig.clock.now_ns(), "error", f"final read failed: {exc}")
             now = self.rig.clock.now_ns()
             if self._current is not None:
                 self._current.t_end_ns = now
-                self._current.status = "aborted" if result.status != "fault" else "fault"
-                self.hub.step(self._current)
+                self._current.status = {"fault": "fault", "failed": "failed"}.get(result.status, "aborted")
+                with contextlib.suppress(SinkFailure):
+                    self.hub.step(self._current)
             if result.status == "error":
                 result.message = result.message or "error"
             if isinstance(self.rig, ReportsDeviceHealth):
@@ -311,9 +386,11 @@ class Runner:
                     health = {"error": {"message": str(exc)}}
                 for stream, counts in sorted(health.items()):
                     listed = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
-                    self.hub.event(now, "devices", f"{stream}: {listed}")
+                    self._log_event(now, "devices", f"{stream}: {listed}")
             kind = {"completed": "stop"}.get(result.status, result.status)
-            self.hub.event(now, kind, result.message)
+            if result.status != "failed" and self.hub.failure is not None:
+                kind, result.message = "failed", f"{self.hub.failure}; the run had {result.status}: {result.message}"
+            self._log_event(now, kind, result.message)
         finally:
             try:
                 self.rig.close()

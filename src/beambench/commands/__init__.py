@@ -9,6 +9,14 @@ import typer
 if TYPE_CHECKING:
     from rich.console import Console
 
+# Exit codes of every command (README, "Exit codes"). All below 128: a shell reads 128 + N as "killed by signal
+# N", which a run stopped through its stop path (motor idled, session closed) is not.
+EXIT_OK = 0
+EXIT_FAULT = 1  # a device fault or an error during the run (session saved)
+EXIT_USAGE = 2  # bad input: a flag, a file, a field (nothing moved)
+EXIT_STOPPED = 3  # stopped by a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT, …): motor idled, session saved
+EXIT_SINK = 4  # a sink failed (a full disk): motor idled, the session holds what was written before
+
 # Help as plain paragraphs, rewrapped to the terminal: flags show no type, sentences do not break mid-line.
 HELP_MARKUP = None
 

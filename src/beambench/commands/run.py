@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from pathlib import Path
@@ -10,7 +11,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from beambench.acquisition.config import BACKENDS, Backend, ConfigError
-from beambench.commands import fail
+from beambench.commands import EXIT_FAULT, EXIT_OK, EXIT_SINK, EXIT_STOPPED, fail
 from beambench.sinks import RerunMode
 
 if TYPE_CHECKING:
@@ -76,7 +77,8 @@ def run(
 
     Progress goes to stderr. Standard output carries only the result: with --rerun save the .rrd path, then the
     session path (<out>/<name>.h5) last, so S=$(beambench run … | tail -n1) captures the session. Limits are
-    checked before anything moves. Ctrl-C idles the motor and closes the file cleanly.
+    checked before anything moves. Ctrl-C, SIGTERM, SIGHUP (a closed terminal), SIGQUIT and the other stop
+    signals idle the motor and close the file cleanly (exit 3); a full disk idles the motor too (exit 4).
     """
     from beambench.acquisition.config import load_protocol
     from beambench.acquisition.plan import session_path, summary
@@ -96,7 +98,7 @@ def run(
         path = session_path(protocol, chosen, out, name)
     except ConfigError as exc:
         fail(str(exc))
-    from beambench.session.run import run_session
+    from beambench.session.run import RigStartError, run_session
 
     try:
         result = run_session(
@@ -104,12 +106,27 @@ def run(
         )
     except ConfigError as exc:
         fail(str(exc))
-    if mode == "save":
-        typer.echo(str(path.with_suffix(".rrd")))
-    typer.echo(str(path))
-    if result.status != "completed":
-        typer.echo(f"beambench: run {result.status}: {result.message} (session saved)", err=True)
-        raise typer.Exit(130 if result.status == "interrupted" else 1)
+    except RigStartError as exc:
+        fail(f"{exc} (motor idled; no session written)", EXIT_FAULT)
+    report_run(result.status, result.message, path, mode == "save")
+
+
+RUN_EXIT_CODES = {"completed": EXIT_OK, "interrupted": EXIT_STOPPED, "failed": EXIT_SINK}
+
+
+def report_run(status: str, message: str, path: Path, rrd: bool) -> None:
+    """The result on stdout (the .rrd, then the session), one line on stderr unless completed, the exit code.
+    A terminal that hung up (SIGHUP) or a closed pipe cannot take them: then only the exit code tells."""
+    with contextlib.suppress(OSError):
+        if rrd:
+            typer.echo(str(path.with_suffix(".rrd")))
+        typer.echo(str(path))
+    if status == "completed":
+        return
+    saved = "the session holds what was written before" if status == "failed" else "session saved"
+    with contextlib.suppress(OSError):
+        typer.echo(f"beambench: run {status}: {message} (motor idled; {saved})", err=True)
+    raise typer.Exit(RUN_EXIT_CODES.get(status, EXIT_FAULT))
 
 
 def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) -> str:

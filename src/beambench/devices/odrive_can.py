@@ -593,6 +593,7 @@ class OdriveCanMotor(TelemetryStream):
             self.send(cs.ClearErrors())
             hb = self._wait_heartbeat(lambda h: h.axis_error == 0, max(0.5, 3 * self.heartbeat_timeout_s), cleared)
             if hb is None:
+                self._raise_if_lost(cleared, "Clear_Errors")
                 last = self.heartbeat
                 raise DeviceFault("errors persist after Clear_Errors: " + (self._describe_fault(last) if last else "?"))
             self.send(cs.SetLimits(vel_limit, current))
@@ -610,6 +611,7 @@ class OdriveCanMotor(TelemetryStream):
                 sent,
             )
             if hb is None:
+                self._raise_if_lost(sent, "the closed-loop request")
                 raise DeviceFault(
                     f"ODrive node {self.node_id} did not enter closed loop within {self.closed_loop_timeout_s:g} s"
                 )
@@ -619,12 +621,25 @@ class OdriveCanMotor(TelemetryStream):
             self.idle()
             raise
 
+    def _raise_if_lost(self, since_ns: int, what: str) -> None:
+        """A wait for an answer ran out: if no heartbeat came at all since ``since_ns``, say the link is lost
+        (the last heartbeat's state, from before, would describe an ODrive that is no longer there)."""
+        with self._cond:
+            hb_ns = self._hb_ns
+        if hb_ns is None or hb_ns <= since_ns:
+            quiet = (time.monotonic_ns() - (hb_ns or since_ns)) * 1e-9
+            raise DeviceFault(
+                f"ODrive node {self.node_id}: no heartbeat for {quiet:.1f} s since {what} "
+                f"({self.interface}:{self.channel}): the ODrive or its link is lost"
+            )
+
     def _calibrate(self) -> None:
         sent = time.monotonic_ns()
         self.send(cs.SetAxisState(AxisState.FULL_CALIBRATION_SEQUENCE))
         startup = max(0.5, 4 * self.heartbeat_timeout_s)
         hb = self._wait_heartbeat(lambda h: h.axis_state != AxisState.IDLE or h.axis_error != 0, startup, sent)
         if hb is None:
+            self._raise_if_lost(sent, "the calibration request")
             raise DeviceFault(f"ODrive node {self.node_id} did not start calibrating")
         if hb.axis_error == 0:
             t = time.monotonic_ns()

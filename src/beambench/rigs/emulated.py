@@ -25,6 +25,7 @@ import numpy as np
 
 from beambench.acquisition.batch import Frame
 from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.config import (
     LoadCellWiring,
     NatNetWiring,
@@ -382,19 +383,33 @@ class PeerProcess:
     def _alive(self) -> bool:
         return self._proc.poll() is None
 
+    def _lost(self) -> DeviceFault:
+        """The peers' process went away (killed, crashed): one device fault saying so."""
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self._proc.wait(timeout=0.5)
+        code = self._proc.poll()
+        how = "is gone" if code is None else f"ended (exit {code})" if code >= 0 else f"was killed ({-code})"
+        return DeviceFault(f"the emulated peers' process {how}")
+
     def _expect(self, what: str, timeout_s: float) -> Any:
-        if not self._conn.poll(timeout_s):
-            raise RuntimeError(f"emulated peers: no {what!r} within {timeout_s:g} s")
-        kind, value = self._conn.recv()
+        try:
+            if not self._conn.poll(timeout_s):
+                raise DeviceFault(f"emulated peers: no {what!r} within {timeout_s:g} s")
+            kind, value = self._conn.recv()
+        except (EOFError, OSError):
+            raise self._lost() from None
         if kind != what:
-            raise RuntimeError(f"emulated peers: expected {what!r}, got {kind!r}")
+            raise DeviceFault(f"emulated peers: expected {what!r}, got {kind!r}")
         return value
 
     def _ask(self, cmd: str, arg: Any = None, timeout_s: float = 10.0) -> Any:
         with self._lock:
             if self.report is not None or not self._alive():
-                raise RuntimeError("emulated peers are not running")
-            self._conn.send((cmd, arg))
+                raise self._lost()
+            try:
+                self._conn.send((cmd, arg))
+            except OSError:
+                raise self._lost() from None
             return self._expect(cmd if cmd != "start" else "started", timeout_s)
 
     def start(self) -> None:

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
 
 from rich.console import Console
 from rich.progress import (
@@ -16,17 +18,37 @@ from rich.progress import (
 )
 
 from beambench.acquisition.calibration import default_calibration
-from beambench.acquisition.capabilities import HasSilenceTimeouts, ReportsAfterRun
-from beambench.acquisition.config import Backend, Protocol
+from beambench.acquisition.capabilities import DeviceFault, HasSilenceTimeouts, ReportsAfterRun, Rig
+from beambench.acquisition.config import Backend, ConfigError, Protocol
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
+from beambench.common.errors import BeambenchError
 from beambench.rigs.build import build_rig
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """What one run needs: the protocol (parsed and as written), where it runs and where its files go."""
+
+    protocol: Protocol
+    protocol_text: str
+    backend: Backend
+    path: Path
+    rerun_mode: RerunMode = "off"
+    realtime: bool = False
+    rig_file: Path | None = None
+    can_log: Path | None = None
+    show_progress: bool = True
+
+
+class RigStartError(BeambenchError):
+    """The rig could not start (a device or an emulated peer lost while opening): one line, motor idled."""
 
 
 def run_session(
@@ -42,36 +64,38 @@ def run_session(
 ) -> RunResult:
     """Run ``protocol`` on ``backend`` and save the session at ``path`` (and ``.rrd`` beside it with save).
 
-    From the first line on, SIGINT and SIGTERM only request a stop (see :mod:`beambench.acquisition.runner`):
-    a signal while the rig opens still yields a session that ends ``interrupted`` with the motor idled.
+    From the first line on, every stop signal (:data:`beambench.acquisition.runner.STOP_SIGNALS`: SIGINT, SIGTERM,
+    SIGHUP, SIGQUIT, …) only requests a stop: a signal while the rig opens still yields a session that ends
+    ``interrupted`` with the motor idled. A rig that cannot start raises :class:`RigStartError`; a session file
+    that cannot be created or written at the start, :class:`~beambench.acquisition.hub.SinkFailure`.
     """
+    request = RunRequest(protocol, protocol_text, backend, path, rerun_mode, realtime, rig_file, can_log, show_progress)
     with stop_on_signals() as stop:
-        return _run_session(
-            protocol, protocol_text, backend, path, rerun_mode, realtime, rig_file, can_log, show_progress, stop
-        )
+        return _run_session(request, stop)
 
 
-def _run_session(
-    protocol: Protocol,
-    protocol_text: str,
-    backend: str,
-    path: Path,
-    rerun_mode: RerunMode,
-    realtime: bool,
-    rig_file: Path | None,
-    can_log: Path | None,
-    show_progress: bool,
-    stop: StopSignal,
-) -> RunResult:
-    check_protocol(protocol, "<protocol>", backend, can_log)
-    if rerun_mode == "save":
+def _open_rig(req: RunRequest) -> Rig:
+    """Build and open the rig; a device or peer lost meanwhile is one :class:`RigStartError` (rig closed)."""
+    try:
+        rig = build_rig(req.protocol, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
+        rig.open()
+    except (DeviceFault, OSError, EOFError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        why = str(exc) or type(exc).__name__
+        raise RigStartError(f"the {req.backend} rig did not start: {why}") from None
+    return rig
+
+
+def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
+    protocol, path, backend = req.protocol, req.path, req.backend
+    check_protocol(protocol, "<protocol>", backend, req.can_log)
+    if req.rerun_mode == "save":
         _reserve(path.with_suffix(".rrd"))
-    rig = build_rig(protocol, cast(Backend, backend), realtime=realtime, rig_file=rig_file, can_log=can_log)
-    steps = plan(protocol)
-    rig.open()
+    rig = _open_rig(req)
     try:
         general = {
-            "protocol": protocol_text,
+            "protocol": req.protocol_text,
             "protocol_name": protocol.name,
             "rig": protocol.rig,
             "backend": backend,
@@ -88,12 +112,12 @@ def _run_session(
         silence = rig.silence_timeouts() if isinstance(rig, HasSilenceTimeouts) else None
         monitors = build_monitors(protocol, [s.name for s in specs], silence)
         sinks += monitors
-        if rerun_mode != "off":
+        if req.rerun_mode != "off":
             from beambench.sinks.rerun_view import RerunSink
 
             sinks.append(
                 RerunSink(
-                    rerun_mode,
+                    req.rerun_mode,
                     path.stem,
                     path.with_suffix(".rrd"),
                     t0_ns=rig.clock.now_ns(),
@@ -105,26 +129,18 @@ def _run_session(
     except BaseException:
         rig.close()
         raise
-    total = sum(s.duration_s for s in steps)
-    with Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed:.0f}/{task.total:.0f} s rig time"),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=Console(stderr=True),  # progress is chatter: stdout carries only the command's result
-        disable=not show_progress,
-        transient=False,
-    ) as progress:
-        task = progress.add_task("starting", total=total)
+    steps = plan(protocol)
+    with _progress(req.show_progress) as progress:
+        task = progress.add_task("starting", total=sum(s.duration_s for s in steps))
 
         def on_progress(index: int, freq: float, waited: float) -> None:
-            progress.update(task, advance=waited, description=f"step {index + 1}/{len(steps)}  {freq:g} Hz")
+            with contextlib.suppress(OSError):  # a hung-up terminal (SIGHUP) must not end the run's shutdown
+                progress.update(task, advance=waited, description=f"step {index + 1}/{len(steps)}  {freq:g} Hz")
 
         # Batches are ~10 per second of wall time: on a sim running 10-20x faster than real time, 1 s rig-time polls
         # (each poll's HDF5 appends and flush cost ~10 ms; the data do not depend on the poll: the sim clock advances
         # the physics in its own chunks of at most 0.5 s either way).
-        poll_s = 1.0 if backend == "sim" and not realtime else 0.1
+        poll_s = 1.0 if backend == "sim" and not req.realtime else 0.1
         runner = Runner(
             rig,
             hub,
@@ -137,13 +153,39 @@ def _run_session(
             stop=stop,
         )
         result = runner.run()
-    if isinstance(rig, ReportsAfterRun):
+    if isinstance(rig, ReportsAfterRun) and result.status != "failed":
         extra = rig.after_run()
         if extra:
-            append_general(path, extra)
+            try:
+                append_general(path, extra)
+            except OSError as exc:
+                hub.errors.append(f"{writer.label}: /general not completed ({exc.strerror or exc})")
     for err in hub.errors:
-        progress.console.print(f"[yellow]warning: live view stopped: {err}")
+        with contextlib.suppress(OSError):
+            progress.console.print(f"[yellow]warning: {err}")
     return result
+
+
+@contextlib.contextmanager
+def _progress(show: bool) -> Iterator[Progress]:
+    """The run's progress bar on stderr; a terminal gone (SIGHUP: writes fail with EIO) only ends the bar."""
+    progress = Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f} s rig time"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=Console(stderr=True),  # progress is chatter: stdout carries only the command's result
+        disable=not show,
+        transient=False,
+    )
+    with contextlib.suppress(OSError):
+        progress.start()
+    try:
+        yield progress
+    finally:
+        with contextlib.suppress(OSError):
+            progress.stop()
 
 
 def _reserve(path: Path) -> None:

@@ -17,10 +17,12 @@ Every dataset exists before SWMR mode starts (HDF5 allows no new objects after t
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import glob
 import json
 import os
+import re
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -76,36 +78,112 @@ def _encode(text: str, size: int) -> bytes:
     return data[: size - 3].decode("utf-8", "ignore").encode() + b"..."
 
 
+class SessionWriteError(OSError):
+    """The session file could not take a write (a full disk, an I/O error): one line, no HDF5 stack."""
+
+
+SPACE_RESERVE_BYTES = 4 * 1024 * 1024  # held beside the session; freed on a full disk so the file can close whole
+
+
+def _reason(exc: BaseException) -> str:
+    """The OS reason inside an HDF5 error (``No space left on device``), else its first line."""
+    text = str(exc)
+    found = re.search(r"error message = '([^']+)'", text)
+    if found:
+        return found.group(1)
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    return (text.splitlines() or [type(exc).__name__])[0][:160]
+
+
+class _SpaceReserve:
+    """Disk space held for the closing writes: an unlinked file of ``nbytes`` preallocated in ``folder`` (gone
+    with the process, whatever kills it). :meth:`release` frees it when the disk is full."""
+
+    def __init__(self, folder: Path, nbytes: int = SPACE_RESERVE_BYTES) -> None:
+        self.fd: int | None = None
+        self.nbytes = 0
+        for size in (nbytes, nbytes // 4):
+            try:
+                fd = os.open(folder, os.O_TMPFILE | os.O_RDWR, 0o600)
+            except (OSError, AttributeError):  # no O_TMPFILE here: no reserve (the closing writes may then fail)
+                return
+            try:
+                os.posix_fallocate(fd, 0, size)
+            except OSError:
+                os.close(fd)
+                continue
+            self.fd, self.nbytes = fd, size
+            return
+
+    def release(self) -> bool:
+        """Free the reserve; True if there was one to free."""
+        if self.fd is None:
+            return False
+        with contextlib.suppress(OSError):
+            os.ftruncate(self.fd, 0)
+        os.close(self.fd)
+        self.fd = None
+        return True
+
+
 class SessionWriter:
-    """A :class:`~beambench.acquisition.hub.Sink` that writes one session file (the run's critical sink)."""
+    """A :class:`~beambench.acquisition.hub.Sink` that writes one session file (the run's critical sink).
+
+    Every h5py object of the file is created, used and closed by the thread that calls the sink (the runner's),
+    and is referenced only from here: a failing write raises a :class:`SessionWriteError` that carries no HDF5
+    traceback (whose frames would keep h5py ids alive for the garbage collector to free later, from any thread).
+
+    On the first failed write (a full disk) the writer stops taking batches, frees its space reserve and keeps
+    only the closing records (step status, the last events), so the file closes whole with only real rows; a
+    second failure ends all writing, and :meth:`close` then releases the file without flushing.
+    """
 
     def __init__(self, path: str | Path, general: dict[str, Any]) -> None:
         self.path = Path(path)
+        self.label = f"session file {self.path}"
         self.general = general
         self._f: h5py.File | None = None
         self._datasets: dict[str, list[tuple[str, _Appender]]] = {}
         self._dirty = False
+        self._reserve: _SpaceReserve | None = None
+        self.failed: str | None = None  # the first failure's reason
+        self._dead = False  # a second failure: nothing more is written
 
     # --- Sink -------------------------------------------------------------------------------------------
     def open(self, specs: list[StreamSpec]) -> None:
         f = create_session_file(self.path, chunk_cache_bytes(specs))
-        f.attrs["schema_version"] = SCHEMA_VERSION
-        f.attrs["software"] = "beambench"
-        _write_general(f.create_group("general"), self.general)
-        acq = f.create_group("acquisition")
-        for spec in specs:
-            _create_stream(acq.create_group(spec.name), spec)
-        f.create_dataset("steps", shape=(0,), maxshape=(None,), dtype=STEP_DTYPE, chunks=(64,))
-        f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(64,))
-        f.create_group("processing")
-        self._datasets = {name: [(k, _Appender(ds)) for k, ds in g.items()] for name, g in acq.items()}
-        f.swmr_mode = True
-        f.flush()
-        self._f = f
+        try:
+            f.attrs["schema_version"] = SCHEMA_VERSION
+            f.attrs["software"] = "beambench"
+            _write_general(f.create_group("general"), self.general)
+            acq = f.create_group("acquisition")
+            for spec in specs:
+                _create_stream(acq.create_group(spec.name), spec)
+            f.create_dataset("steps", shape=(0,), maxshape=(None,), dtype=STEP_DTYPE, chunks=(64,))
+            f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(64,))
+            f.create_group("processing")
+            self._datasets = {name: [(k, _Appender(ds)) for k, ds in g.items()] for name, g in acq.items()}
+            f.swmr_mode = True
+            f.flush()
+        except (OSError, RuntimeError, ValueError) as exc:
+            why = _reason(exc)
+        else:
+            self._f = f
+            self._reserve = _SpaceReserve(self.path.parent)
+            return
+        self._datasets = {}
+        with contextlib.suppress(Exception):
+            f.close()
+        del f
+        raise SessionFileError(f"{self.path}: cannot write the session file ({why})")
 
     def write(self, batch: Batch) -> None:
-        if self._f is None:
-            raise RuntimeError("session file is not open")
+        if self.failed is not None:
+            return  # the data stream stopped at the first failure
+        self._guard(self._write, batch)
+
+    def _write(self, batch: Batch) -> None:
         for name, appender in self._datasets[batch.stream]:
             if name == "host_time_ns":
                 appender.append(batch.host_time_ns)
@@ -117,16 +195,22 @@ class SessionWriter:
 
     def flush(self) -> None:
         """Make every batch written so far visible to SWMR readers (called once per poll round)."""
-        if self._dirty and self._f is not None:
-            self._f.flush()
+        if self._dirty and self.failed is None:
+            self._guard(self._file.flush)
             self._dirty = False
 
     def event(self, host_time_ns: int, kind: str, message: str) -> None:
         row = np.array([(host_time_ns, _encode(kind, 32), _encode(message, EVENT_TEXT))], dtype=EVENT_DTYPE)
+        self._guard(self._event, row)
+
+    def _event(self, row: np.ndarray) -> None:
         _append(self._file["events"], row)
         self._file.flush()
 
     def step(self, record: StepRecord) -> None:
+        self._guard(self._step, record)
+
+    def _step(self, record: StepRecord) -> None:
         ds = self._file["steps"]
         if record.index < ds.shape[0]:
             ds[record.index] = _step_row(record)[0]
@@ -135,12 +219,43 @@ class SessionWriter:
         self._file.flush()
 
     def close(self) -> None:
-        if self._f is not None:
-            try:
-                self._f.flush()
-            finally:
-                self._f.close()
-                self._f = None
+        """Flush (unless writing failed twice) and close the file, releasing every h5py object here."""
+        f, self._f = self._f, None
+        if f is None:
+            return
+        why = None
+        try:
+            if not self._dead:
+                f.flush()
+        except (OSError, RuntimeError, ValueError) as exc:
+            why = _reason(exc)
+        self._datasets = {}
+        try:
+            f.close()
+        except (OSError, RuntimeError, ValueError) as exc:
+            why = why or _reason(exc)
+        del f
+        if self._reserve is not None:
+            self._reserve.release()
+        if why is not None and not self._dead:
+            self._dead = True
+            raise SessionWriteError(f"cannot close ({why})")
+
+    def _guard(self, op: Callable[..., None], *args: Any) -> None:
+        """Run one write; a failure becomes one :class:`SessionWriteError` raised outside the HDF5 frames."""
+        if self._dead:
+            return
+        try:
+            op(*args)
+            return
+        except (OSError, RuntimeError, ValueError, KeyError) as exc:
+            why = _reason(exc)
+        if self.failed is None:
+            self.failed = why
+            if self._reserve is not None and self._reserve.release():
+                raise SessionWriteError(why)  # the closing records may still fit in the freed reserve
+        self._dead = True
+        raise SessionWriteError(why)
 
     @property
     def _file(self) -> h5py.File:
@@ -187,9 +302,14 @@ class _Appender:
         if m == 0:
             return
         self.dsid.set_extent((self.n + m, *self.row_shape))
-        file_space = self.dsid.get_space()
-        file_space.select_hyperslab((self.n,) + (0,) * len(self.row_shape), arr.shape)
-        self.dsid.write(h5py.h5s.create_simple(arr.shape), file_space, arr)
+        try:
+            file_space = self.dsid.get_space()
+            file_space.select_hyperslab((self.n,) + (0,) * len(self.row_shape), arr.shape)
+            self.dsid.write(h5py.h5s.create_simple(arr.shape), file_space, arr)
+        except BaseException:
+            with contextlib.suppress(Exception):  # no rows of zeros where the write failed
+                self.dsid.set_extent((self.n, *self.row_shape))
+            raise
         self.n += m
 
 
@@ -412,7 +532,18 @@ def _read_stream(name: str, g: h5py.Group, geometry: dict[str, Any] | None = Non
         frame = Frame(str(geometry.get("up_axis", "z")), str(geometry.get("forward_axis", "x")))
     unit = str(g["device_time"].attrs.get("unit", "s"))
     spec = StreamSpec(name, float(g.attrs.get("rate_hz", 0.0)), specs, unit, frame=frame)
-    return StreamData(spec, host[:n], dev[:n], {k: v[:n] for k, v in cols.items()})
+    keep = real_rows(host[:n])
+    return StreamData(spec, host[:n][keep], dev[:n][keep], {k: v[:n][keep] for k, v in cols.items()})
+
+
+def real_rows(host_time_ns: np.ndarray) -> np.ndarray:
+    """Which rows hold data: every sample has a host time, so ``host_time_ns == 0`` is a row the file extended
+    but never received (a full disk, a killed run: HDF5 fills unwritten rows with zeros). The one exception is
+    a first row at 0 followed by real rows: the sim clock starts at 0."""
+    keep = host_time_ns != 0
+    if len(keep) > 1 and not keep[0] and keep[1:].any():
+        keep[0] = True
+    return keep
 
 
 def read_session(path: str | Path) -> Session:
@@ -423,10 +554,12 @@ def read_session(path: str | Path) -> Session:
             general = _read_general(f["general"])
             geometry = general.get("geometry") if isinstance(general.get("geometry"), dict) else None
             streams = {name: _read_stream(name, g, geometry) for name, g in f["acquisition"].items()}
-            steps = pd.DataFrame(f["steps"][()])
+            step_rows, event_rows = f["steps"][()], f["events"][()]
+            # rows the file extended but never received (see real_rows): a step always has a status, an event a kind
+            steps = pd.DataFrame(step_rows[step_rows["status"] != b""])
             if len(steps):
                 steps["status"] = steps["status"].str.decode("utf-8")
-            events = pd.DataFrame(f["events"][()])
+            events = pd.DataFrame(event_rows[event_rows["kind"] != b""])
             for c in ("kind", "message"):
                 if len(events):
                     events[c] = events[c].str.decode("utf-8")

@@ -16,6 +16,8 @@ more than that to a killed one.
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import timedelta
 from pathlib import Path
@@ -100,6 +102,7 @@ class RerunSink:
         if mode == "save" and rrd_path is None:
             raise ValueError("mode 'save' needs an .rrd path")
         self.mode, self.rrd_path, self.t0_ns, self.calibration = mode, rrd_path, t0_ns, calibration
+        self.label = f"recording {rrd_path}" if mode == "save" else "live view"
         # A file is read after the run: gather big chunks. A viewer wants every batch now.
         self.chunk_bytes = SAVE_CHUNK_BYTES if mode == "save" else 0
         self.chunk_seconds = SAVE_CHUNK_SECONDS if mode == "save" else 0.0
@@ -190,7 +193,40 @@ class RerunSink:
         self.rec.log("events", rr.TextLog(f"{kind}: {message}" if message else kind, level=level))
 
     def close(self) -> None:
-        for entity in list(self._pending):
-            self._flush(entity)
-        self.rec.flush()
+        """Send what waits, flush and disconnect, within :data:`CLOSE_TIMEOUT_S`: on a full disk the SDK's file
+        sink never finishes (``RecordingStream::set_sink`` waits for it), so the wait is bounded and given up."""
+        try:
+            for entity in list(self._pending):
+                self._flush(entity)
+        finally:
+            finished = _within(self._finish, CLOSE_TIMEOUT_S)
+        if not finished:
+            rr.unregister_shutdown()  # the SDK's exit hook would wait for the stuck sink too
+            raise RuntimeError(f"not finished within {CLOSE_TIMEOUT_S:g} s (a full disk?): it may be cut short")
+
+    def _finish(self) -> None:
+        self.rec.flush(timeout_sec=CLOSE_TIMEOUT_S)
         self.rec.disconnect()
+
+
+CLOSE_TIMEOUT_S = 5.0  # the longest a recording's close may take before it is given up
+
+
+def _within(fn: Callable[[], None], timeout_s: float) -> bool:
+    """Run ``fn`` in a daemon thread; True if it returned within ``timeout_s`` (its exception is re-raised)."""
+    errors: list[BaseException] = []
+
+    def target() -> None:
+        try:
+            fn()
+        except BaseException as exc:
+            errors.append(exc)
+
+    t = threading.Thread(target=target, name="rerun-close", daemon=True)
+    t.start()
+    t.join(timeout_s)
+    if t.is_alive():
+        return False
+    if errors:
+        raise errors[0]
+    return True
