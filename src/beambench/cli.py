@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import importlib
+import os
 import sys
 
 import typer
@@ -48,6 +49,21 @@ for _mod_name in COMMAND_MODULES:
 
 def main() -> None:
     """The ``beambench`` entry point: usage errors come out as one line like every other error (exit 2)."""
+    try:
+        _main_inner()
+    except SystemExit as exc:
+        code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
+        hdf5 = sys.modules.get("beambench.sinks.hdf5")
+        if hdf5 is not None and hdf5.hdf5_left_open():
+            # a session file HDF5 could not close (a full disk): its exit handler would retry and crash (SIGSEGV)
+            with contextlib.suppress(Exception):
+                sys.stdout.flush()
+                sys.stderr.flush()
+            os._exit(code)
+        raise
+
+
+def _main_inner() -> None:
     try:
         code = app(standalone_mode=False, prog_name="beambench")
     except typer.Abort:  # click's answer to KeyboardInterrupt or EOFError outside a run (a prompt, the imports)

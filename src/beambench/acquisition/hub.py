@@ -117,10 +117,7 @@ class Hub:
                 self.errors.append(f"{sink_label(sink)} ({method}): {reason}")
                 self.sinks.remove(sink)
                 return
-            if self._is_failed(sink):  # already reported: closing records it could not take
-                self.errors.append(f"{sink_label(sink)} ({method}): {reason}")
-                if method != "close":
-                    self.sinks.remove(sink)
+            if self._is_failed(sink):  # the same failure again (a closing record it could not take): said once
                 return
             self._failed.append(sink)
             failure = SinkFailure(sink_label(sink), reason)

@@ -23,6 +23,7 @@ import glob
 import json
 import os
 import re
+import shutil
 import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -97,24 +98,24 @@ def _reason(exc: BaseException) -> str:
 
 
 class _SpaceReserve:
-    """Disk space held for the closing writes: an unlinked file of ``nbytes`` preallocated in ``folder`` (gone
-    with the process, whatever kills it). :meth:`release` frees it when the disk is full."""
+    """Disk space held for the closing writes: a file of ``nbytes`` preallocated in ``folder`` and unlinked at once
+    (so it goes with the process, whatever ends it). :meth:`release` frees it when the disk is full."""
 
-    def __init__(self, folder: Path, nbytes: int = SPACE_RESERVE_BYTES) -> None:
-        self.fd: int | None = None
-        self.nbytes = 0
-        for size in (nbytes, nbytes // 4):
-            try:
-                fd = os.open(folder, os.O_TMPFILE | os.O_RDWR, 0o600)
-            except (OSError, AttributeError):  # no O_TMPFILE here: no reserve (the closing writes may then fail)
-                return
-            try:
-                os.posix_fallocate(fd, 0, size)
-            except OSError:
-                os.close(fd)
-                continue
-            self.fd, self.nbytes = fd, size
-            return
+    def __init__(self, folder: Path, nbytes: int | None = None) -> None:
+        nbytes = SPACE_RESERVE_BYTES if nbytes is None else nbytes
+        self.nbytes = nbytes
+        name = folder / f".beambench-reserve-{os.getpid()}-{id(self):x}"
+        fd = os.open(name, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o600)
+        os.unlink(name)
+        try:
+            if hasattr(os, "posix_fallocate"):
+                os.posix_fallocate(fd, 0, nbytes)
+            else:  # pragma: no cover - macOS: write it out
+                os.write(fd, bytes(nbytes))
+        except OSError:
+            os.close(fd)
+            raise
+        self.fd: int | None = fd
 
     def release(self) -> bool:
         """Free the reserve; True if there was one to free."""
@@ -125,6 +126,15 @@ class _SpaceReserve:
         os.close(self.fd)
         self.fd = None
         return True
+
+
+LEFT_OPEN: list[tuple[Any, ...]] = []  # session files that could not be closed, with their h5py objects (kept)
+
+
+def hdf5_left_open() -> bool:
+    """True if a session file could not be closed in this process. HDF5's own exit handler then tries again and
+    crashes (segmentation fault), so the command line ends such a process with ``os._exit`` after its last line."""
+    return bool(LEFT_OPEN)
 
 
 class SessionWriter:
@@ -145,6 +155,7 @@ class SessionWriter:
         self.general = general
         self._f: h5py.File | None = None
         self._datasets: dict[str, list[tuple[str, _Appender]]] = {}
+        self._tables: dict[str, _Appender] = {}
         self._dirty = False
         self._reserve: _SpaceReserve | None = None
         self.failed: str | None = None  # the first failure's reason
@@ -152,6 +163,22 @@ class SessionWriter:
 
     # --- Sink -------------------------------------------------------------------------------------------
     def open(self, specs: list[StreamSpec]) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self._reserve = _SpaceReserve(self.path.parent)
+        except OSError as exc:
+            free = shutil.disk_usage(self.path.parent).free if self.path.parent.exists() else 0
+            raise SessionFileError(
+                f"{self.path.parent}: not enough free space for a run ({exc.strerror or exc}; {free / 1e6:.1f} MB "
+                f"free, the session keeps {SPACE_RESERVE_BYTES / 1e6:.0f} MB in reserve for its closing writes)"
+            ) from None
+        try:
+            self._create(specs)
+        except BaseException:
+            self._reserve.release()
+            raise
+
+    def _create(self, specs: list[StreamSpec]) -> None:
         f = create_session_file(self.path, chunk_cache_bytes(specs))
         try:
             f.attrs["schema_version"] = SCHEMA_VERSION
@@ -164,17 +191,19 @@ class SessionWriter:
             f.create_dataset("events", shape=(0,), maxshape=(None,), dtype=EVENT_DTYPE, chunks=(64,))
             f.create_group("processing")
             self._datasets = {name: [(k, _Appender(ds)) for k, ds in g.items()] for name, g in acq.items()}
+            self._tables = {name: _Appender(f[name]) for name in ("steps", "events")}  # held: no ids freed per write
             f.swmr_mode = True
             f.flush()
         except (OSError, RuntimeError, ValueError) as exc:
             why = _reason(exc)
         else:
             self._f = f
-            self._reserve = _SpaceReserve(self.path.parent)
             return
-        self._datasets = {}
-        with contextlib.suppress(Exception):
+        self._datasets, self._tables = {}, {}
+        try:
             f.close()
+        except (OSError, RuntimeError, ValueError):
+            LEFT_OPEN.append((self.path, f))
         del f
         raise SessionFileError(f"{self.path}: cannot write the session file ({why})")
 
@@ -204,36 +233,44 @@ class SessionWriter:
         self._guard(self._event, row)
 
     def _event(self, row: np.ndarray) -> None:
-        _append(self._file["events"], row)
+        self._tables["events"].append(row)
         self._file.flush()
 
     def step(self, record: StepRecord) -> None:
         self._guard(self._step, record)
 
     def _step(self, record: StepRecord) -> None:
-        ds = self._file["steps"]
-        if record.index < ds.shape[0]:
-            ds[record.index] = _step_row(record)[0]
+        steps = self._tables["steps"]
+        if record.index < steps.n:
+            steps.overwrite(record.index, _step_row(record))
         else:
-            _append(ds, _step_row(record))
+            steps.append(_step_row(record))
         self._file.flush()
 
     def close(self) -> None:
-        """Flush (unless writing failed twice) and close the file, releasing every h5py object here."""
+        """Flush and close the file, releasing every h5py object here, in the writer's thread.
+
+        A file that cannot be flushed (the disk stayed full) is not closed: HDF5 would retry the flush on every
+        id it releases, fail on each (h5py prints "Can't decrement id ref count" for each) and crash at exit.
+        Its objects are kept (:data:`LEFT_OPEN`) and the file stays as of its last flush, which SWMR readers read;
+        the command line then ends the process without HDF5's exit handler (:func:`hdf5_left_open`)."""
         f, self._f = self._f, None
         if f is None:
             return
         why = None
-        try:
-            if not self._dead:
+        if not self._dead:
+            try:
                 f.flush()
-        except (OSError, RuntimeError, ValueError) as exc:
-            why = _reason(exc)
-        self._datasets = {}
-        try:
-            f.close()
-        except (OSError, RuntimeError, ValueError) as exc:
-            why = why or _reason(exc)
+            except (OSError, RuntimeError, ValueError) as exc:
+                why = _reason(exc)
+        if self._dead or why is not None:
+            LEFT_OPEN.append((self.path, f, self._datasets, self._tables))
+        else:
+            self._datasets, self._tables = {}, {}
+            try:
+                f.close()
+            except (OSError, RuntimeError, ValueError) as exc:
+                why = _reason(exc)
         del f
         if self._reserve is not None:
             self._reserve.release()
@@ -311,6 +348,13 @@ class _Appender:
                 self.dsid.set_extent((self.n, *self.row_shape))
             raise
         self.n += m
+
+    def overwrite(self, index: int, rows: np.ndarray) -> None:
+        """Write ``rows`` over the rows from ``index`` on (they exist)."""
+        arr = np.ascontiguousarray(rows, dtype=self.dtype)
+        file_space = self.dsid.get_space()
+        file_space.select_hyperslab((index,) + (0,) * len(self.row_shape), arr.shape)
+        self.dsid.write(h5py.h5s.create_simple(arr.shape), file_space, arr)
 
 
 def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
