@@ -1,11 +1,25 @@
-"""The emulated rig's CAN bus between processes: each end hears the other and never itself, as on a real bus."""
+"""The emulated rig's CAN bus between processes: each end hears the other and never itself, as on a real bus; it
+binds loopback only, and a frame from any other socket is dropped and counted, never a motor row (issue 21.3).
+During an emulated run nothing the run's processes listen on is beyond loopback."""
 
 from __future__ import annotations
 
-import can
-import pytest
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
 
-from beambench.emulators.canbus import LoopbackCanBus, new_channel
+import can
+import numpy as np
+import pytest
+from can.interfaces.udp_multicast.utils import pack_message
+
+from beambench.devices import odrive_cansimple as cs
+from beambench.emulators.canbus import LoopbackCanBus
+from beambench.sinks.hdf5 import read_session
 
 
 def drain(bus: can.BusABC, timeout: float = 0.3) -> list[can.Message]:
@@ -17,10 +31,9 @@ def drain(bus: can.BusABC, timeout: float = 0.3) -> list[can.Message]:
 
 
 def test_each_end_hears_the_other_and_never_itself():
-    group, host_port, peer_port = new_channel()
-    assert host_port != peer_port
-    host = LoopbackCanBus(group, host_port, send_port=peer_port)
-    peer = LoopbackCanBus(group, peer_port, send_port=host_port)
+    host = LoopbackCanBus(0)
+    peer = LoopbackCanBus(0, peer_port=host.port)
+    host.connect(peer.port)
     try:
         for i in range(5):
             host.send(can.Message(arbitration_id=0x10 + i, data=[i], is_extended_id=False))
@@ -28,25 +41,155 @@ def test_each_end_hears_the_other_and_never_itself():
         at_peer, at_host = drain(peer), drain(host)
         assert [m.arbitration_id for m in at_peer] == [0x10, 0x11, 0x12, 0x13, 0x14]
         assert [m.arbitration_id for m in at_host] == [0x7F] and bytes(at_host[0].data) == b"\x01\x02\x03"
-        assert all(m.timestamp > 0 for m in at_peer + at_host)  # the kernel's receive time
+        assert all(abs(m.timestamp - time.time()) < 5 for m in at_peer + at_host)  # the receive time
+        assert host.forged == peer.forged == 0
     finally:
         host.shutdown()
         peer.shutdown()
 
 
-def test_two_rigs_do_not_hear_each_other():
-    a, b = new_channel(), new_channel()
-    a_host = LoopbackCanBus(a[0], a[1], send_port=a[2])
-    b_peer = LoopbackCanBus(b[0], b[2], send_port=b[1])
+def test_it_binds_loopback_only():
+    bus = LoopbackCanBus(0)
     try:
-        a_host.send(can.Message(arbitration_id=0x1, data=[], is_extended_id=False))
-        assert drain(b_peer, 0.2) == []
+        assert socket.socket.getsockname(bus._sock)[0] == "127.0.0.1"
     finally:
-        a_host.shutdown()
-        b_peer.shutdown()
+        bus.shutdown()
+
+
+def test_frames_from_another_socket_are_dropped_and_counted():
+    host = LoopbackCanBus(0)
+    peer = LoopbackCanBus(0, peer_port=host.port)
+    host.connect(peer.port)
+    intruder = LoopbackCanBus(0, peer_port=host.port)  # a well-formed python-can end, but not the peer
+    raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        forged = cs.to_can(0, cs.EncoderEstimates(0.0, 999.0))
+        for _ in range(100):
+            intruder.send(forged)
+        raw.sendto(pack_message(forged), ("127.0.0.1", host.port))
+        raw.sendto(b"\x00garbage", ("127.0.0.1", host.port))
+        peer.send(can.Message(arbitration_id=0x7F, data=[1], is_extended_id=False))
+        got = drain(host)
+        assert [m.arbitration_id for m in got] == [0x7F]
+        assert host.forged == 102 and host.garbled == 0
+    finally:
+        for bus in (host, peer, intruder):
+            bus.shutdown()
+        raw.close()
 
 
 def test_one_port_for_both_ends_is_refused():
-    group, port, _ = new_channel()
-    with pytest.raises(ValueError, match="two ports"):
-        LoopbackCanBus(group, port, send_port=port)
+    bus = LoopbackCanBus(0)
+    try:
+        with pytest.raises(ValueError, match="two ports"):
+            bus.connect(bus.port)
+    finally:
+        bus.shutdown()
+
+
+# --- an emulated run: forged frames from another process, and the run's listening sockets ---------------------
+ENDLESS = """
+name: endless
+sweep: {start: 2, stop: 40, step: 0.19}
+settle_s: 0.2
+record_s: 0.3
+sim: {seed: 5}
+"""
+
+
+def _socket_inodes(pid: int) -> set[str]:
+    out = set()
+    fd_dir = Path(f"/proc/{pid}/fd")
+    for fd in fd_dir.iterdir():
+        try:
+            target = os.readlink(fd)
+        except OSError:
+            continue
+        if target.startswith("socket:["):
+            out.add(target[8:-1])
+    return out
+
+
+def _bound_inet(pids: list[int]) -> list[tuple[str, str, int]]:
+    """(protocol, local address, port) of every IPv4/IPv6 TCP or UDP socket the processes hold (from /proc/net)."""
+    inodes = set().union(*(_socket_inodes(p) for p in pids))
+    found = []
+    for proto in ("udp", "tcp", "udp6", "tcp6"):
+        path = Path(f"/proc/net/{proto}")
+        if not path.exists():
+            continue
+        for line in path.read_text().splitlines()[1:]:
+            cols = line.split()
+            local, inode = cols[1], cols[9]
+            if inode not in inodes:
+                continue
+            hexaddr, hexport = local.split(":")
+            if len(hexaddr) == 8:
+                addr = socket.inet_ntop(socket.AF_INET, bytes.fromhex(hexaddr)[::-1])
+            else:
+                raw = bytes.fromhex(hexaddr)
+                addr = socket.inet_ntop(socket.AF_INET6, b"".join(raw[i : i + 4][::-1] for i in range(0, 16, 4)))
+            found.append((proto, addr, int(hexport, 16)))
+    return found
+
+
+def _children(pid: int) -> list[int]:
+    kids = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with open(task / "children") as fh:
+            kids += [int(x) for x in fh.read().split()]
+    return kids
+
+
+@pytest.mark.skipif(not Path("/proc/net/udp").exists(), reason="needs Linux /proc/net to list sockets")
+def test_an_emulated_run_listens_on_loopback_only_and_counts_forged_can_frames(tmp_path):
+    proto = tmp_path / "endless.yaml"
+    proto.write_text(ENDLESS)
+    path = tmp_path / "e.h5"
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env = dict(os.environ, PYTHONPATH=os.environ.get("PYTHONPATH") or src)
+    cmd = [sys.executable, "-m", "beambench.cli", "run", str(proto), "-b", "emulated", "--out", str(tmp_path)]
+    proc = subprocess.Popen([*cmd, "--name", "e", "--rerun", "off"], stderr=subprocess.PIPE, env=env)
+    intruder = None
+    try:
+        deadline = time.monotonic() + 120
+        while not path.exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "the run never started"
+            time.sleep(0.1)
+        time.sleep(1.0)
+        pids = [proc.pid, *_children(proc.pid)]
+        bound = _bound_inet(pids)
+        assert bound, "no sockets found: the listing is broken"
+        wide = [b for b in bound if b[1] not in ("127.0.0.1", "::1")]
+        assert not wide, f"bound beyond loopback: {wide}"
+        # 100 Encoder_Estimates at 999 turn/s from another process's socket, to every UDP port of the run
+        ports = sorted({port for p, addr, port in bound if p == "udp" and addr == "127.0.0.1"})
+        intruder = subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                "import sys, time\nfrom beambench.emulators.canbus import LoopbackCanBus\n"
+                "from beambench.devices import odrive_cansimple as cs\n"
+                "frame = cs.to_can(0, cs.EncoderEstimates(0.0, 999.0))\n"
+                "for port in map(int, sys.argv[1:]):\n"
+                "    bus = LoopbackCanBus(0, peer_port=port)\n"
+                "    for _ in range(100):\n        bus.send(frame); time.sleep(0.001)\n"
+                "    bus.shutdown()\n",
+                *map(str, ports),
+            ],
+            env=env,
+            timeout=60,
+        )
+        time.sleep(0.5)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert intruder is not None and intruder.returncode == 0
+    assert proc.returncode == 3, err.decode()[-2000:]
+    s = read_session(path)
+    vel = s.streams["motor"].columns["velocity"]
+    assert len(vel) > 50 and np.all(np.abs(vel) < 100), "a forged frame became a motor row"
+    assert int(s.general["devices"]["motor"]["forged"]) == 100

@@ -70,6 +70,15 @@ class ReportsHealth(Protocol):
 
 
 @runtime_checkable
+class RefusesForeign(Protocol):
+    """A transport that accepts only its device's endpoint: ``forged`` datagrams came from any other sender,
+    ``garbled`` ones from the device but were no frame (the emulated rig's loopback CAN bus)."""
+
+    forged: int
+    garbled: int
+
+
+@runtime_checkable
 class Motor(Stream, Protocol):
     """The drive: crank speed f turn/s gives the stage x = A·sin(2πft). Also a telemetry stream."""
 

@@ -25,7 +25,7 @@ feeding when the heartbeat is lost, so a half-broken link lets the ODrive's own 
 Telemetry (:func:`beambench.acquisition.streams.motor_spec`): one row per Encoder_Estimates frame (100 Hz), with the
 latest Iq and bus voltage (polled by RTR every ``poll_period_s``), the heartbeat's state and error, and the
 commanded velocity. CAN Simple frames carry no device timestamp: ``device_time`` is python-can's message
-timestamp (the interface's receive time — the kernel's for socketcan and udp_multicast, the sender's for the
+timestamp (the interface's receive time — the kernel's for socketcan, the host's for the loopback bus, the sender's for the
 virtual bus; host receive time if the interface gives none) and ``host_time_ns`` is that same time on the
 monotonic clock when it is a recent wall-clock time (:func:`receive_ns`), else ``time.monotonic_ns()`` when the
 driver handled the frame.
@@ -54,7 +54,7 @@ import can
 import numpy as np
 
 from beambench.acquisition.batch import Batch, StreamSpec
-from beambench.acquisition.capabilities import DeviceFault, MotorLimits
+from beambench.acquisition.capabilities import DeviceFault, MotorLimits, RefusesForeign
 from beambench.acquisition.streams import MOTOR, motor_spec
 from beambench.common.errors import BeambenchError
 from beambench.devices import odrive_cansimple as cs
@@ -502,13 +502,17 @@ class OdriveCanMotor(TelemetryStream):
         return None
 
     def health(self) -> dict[str, Any]:
-        """Counters for the session: telemetry rows received, CAN frames that failed to parse, send errors."""
+        """Counters for the session: telemetry rows received, CAN frames that failed to parse, send errors; and
+        what a transport that accepts only the device's endpoint refused (``forged``; on a real CAN bus any
+        node may send, so 0)."""
+        bus = self._bus
+        forged, garbled = (bus.forged, bus.garbled) if isinstance(bus, RefusesForeign) else (0, 0)
         with self._cond:
             return {
                 "received": self.rows_received,
                 "dropped": 0,  # CAN Simple frames carry no sequence number: losses cannot be counted
-                "garbled": self.parse_errors,
-                "forged": 0,
+                "garbled": self.parse_errors + garbled,
+                "forged": forged,
                 "frames_received": self.rx_count,
                 "frames_sent": self.tx_count,
                 "send_errors": len(self.send_errors),

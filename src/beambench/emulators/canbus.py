@@ -1,52 +1,89 @@
-"""A CAN bus between two processes on this machine: python-can's ``udp_multicast`` interface, without its echo.
+"""A CAN bus between two processes on this machine: python-can frames in UDP datagrams on the loopback interface.
 
 python-can's ``virtual`` bus only reaches buses of the same process; the emulated rig runs its peers (the
-emulated ODrive among them) in a process of their own, as real devices are. ``udp_multicast`` crosses
-processes, but a bus also receives what it sent itself (python-can cannot switch that off yet), which a real
-CAN controller does not do. :class:`LoopbackCanBus` is one end of a two-ended bus: it listens on one UDP port of
-the group and sends to the other, so the driver and the emulator see only each other, as on a real bus (the
-watchdog is not fed by the emulator's own heartbeats), and no end spends time receiving and dropping its own
-frames (a quarter of the driver's traffic: its watchdog feeds and polls).
+emulated ODrive among them) in a process of their own, as real devices are. :class:`LoopbackCanBus` is one end of
+a two-ended bus: one UDP socket bound to ``127.0.0.1`` (never a wider interface), sending to the other end's
+socket and accepting datagrams from that socket only, so the driver and the emulator hear only each other, as on a
+real bus (the watchdog is not fed by the emulator's own heartbeats). A datagram from any other sender (another
+program on this machine) is dropped and counted (``forged``), one that is not a python-can frame too
+(``garbled``) — as the NatNet client does with its mocap datagrams. Frames are packed as python-can's
+``udp_multicast`` interface packs them.
 
-Each rig gets a group and two ports of its own (:func:`new_channel`), so runs on one machine never hear each other.
+Each end binds a free port of its own (port 0); the other end learns it in the rig's handshake (:meth:`connect`).
 """
 
 from __future__ import annotations
 
-import random
+import select
 import socket
+import time
 from typing import Any
 
-from can.interfaces.udp_multicast import UdpMulticastBus
+import can
+from can.interfaces.udp_multicast.utils import pack_message, unpack_message
 
-__all__ = ["LoopbackCanBus", "new_channel"]
+__all__ = ["LOOPBACK", "LoopbackCanBus"]
 
-
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+LOOPBACK = "127.0.0.1"
+MAX_DATAGRAM = 4096
 
 
-def new_channel() -> tuple[str, int, int]:
-    """A multicast group (administratively scoped, 239.x) and two free UDP ports: one per end of a rig's bus."""
-    group = f"239.{random.randint(64, 254)}.{random.randint(0, 255)}.{random.randint(1, 254)}"
-    host_port = _free_port()
-    peer_port = _free_port()
-    while peer_port == host_port:
-        peer_port = _free_port()
-    return group, host_port, peer_port
+class LoopbackCanBus(can.BusABC):
+    """One end of a two-ended bus on ``host`` (loopback): receives on ``port`` (0: a free one), sends to and
+    accepts only ``peer_port`` (set now or by :meth:`connect` once the other end is known)."""
 
+    def __init__(self, port: int = 0, peer_port: int | None = None, host: str = LOOPBACK, **kwargs: Any) -> None:
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self._sock.bind((host, port))
+        except OSError as exc:
+            self._sock.close()
+            raise can.CanInitializationError(f"cannot bind the loopback CAN bus to {host}:{port}: {exc}") from exc
+        self.host = host
+        self.port = int(self._sock.getsockname()[1])
+        self._peer: tuple[str, int] | None = None
+        self.received = 0  # frames accepted from the other end
+        self.forged = 0  # datagrams from any other sender: dropped
+        self.garbled = 0  # datagrams from the other end that are no python-can frame: dropped
+        self.channel_info = f"loopback UDP {host}:{self.port}"
+        super().__init__(channel=f"{host}:{self.port}", **kwargs)
+        if peer_port is not None:
+            self.connect(peer_port)
 
-class LoopbackCanBus(UdpMulticastBus):
-    """One end of a bus on the IPv4 group ``channel``: receives on ``port``, sends to ``send_port``."""
-
-    def __init__(self, channel: str, port: int, send_port: int, **kwargs: Any) -> None:
-        if port == send_port:
+    def connect(self, peer_port: int) -> None:
+        """The other end's port: frames go there, and only datagrams from there are accepted."""
+        if peer_port == self.port:
             raise ValueError("the two ends of a loopback CAN bus need two ports (one end would hear itself)")
-        super().__init__(channel=channel, port=port, hop_limit=0, fd=False, **kwargs)
-        multicast = getattr(self, "_multicast", None)
-        if multicast is None or not hasattr(multicast, "_send_destination"):  # pragma: no cover - python-can change
-            self.shutdown()
-            raise RuntimeError("python-can's udp_multicast bus has no send destination to set (version changed?)")
-        multicast._send_destination = (channel, send_port)
+        self._peer = (self.host, int(peer_port))
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        ready, _, _ = select.select([self._sock], [], [], timeout)
+        if not ready:
+            return None, False
+        data, sender = self._sock.recvfrom(MAX_DATAGRAM)
+        if self._peer is None or sender[:2] != self._peer:
+            self.forged += 1
+            return None, False
+        try:
+            msg = unpack_message(data, check=True)
+        except Exception:  # msgpack's and python-can's errors alike: not a frame
+            self.garbled += 1
+            return None, False
+        msg.timestamp = time.time()  # the receive time (the driver maps it to the monotonic clock)
+        self.received += 1
+        return msg, False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self._peer is None:
+            raise can.CanOperationError("the loopback CAN bus has no other end yet")
+        try:
+            self._sock.sendto(pack_message(msg), self._peer)
+        except OSError as exc:
+            raise can.CanOperationError(f"loopback CAN send failed: {exc}") from exc
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        self._sock.close()

@@ -1,5 +1,5 @@
 """The emulated rig: the real drivers against wire-level emulated peers on this machine (Motive on UDP
-loopback, an ODrive on a python-can virtual bus, the load-cell MCU on a pseudo-terminal), all driven in real
+loopback, an ODrive on a two-ended CAN bus over loopback UDP (:mod:`beambench.emulators.canbus`), the load-cell MCU on a pseudo-terminal), all driven in real
 time by the MuJoCo physics of the sim scene.
 """
 
@@ -223,10 +223,9 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
     protocol: Protocol = spec["protocol"]
     inject: dict[str, Any] = spec["inject"]
     sim = protocol.sim
-    group, host_port, peer_port = spec["can"]
-    odrive_bus = LoopbackCanBus(group, peer_port, send_port=host_port)  # the ODrive's end of the rig's bus
+    odrive_bus = LoopbackCanBus(0, peer_port=spec["can_port"])  # the ODrive's end of the rig's bus (loopback)
     config = odrive_config(protocol, spec.get("rig_file"), OdriveEmulatorConfig)
-    odrive = EmulatedOdrive(channel=f"{group}:{peer_port}", config=config, bus=odrive_bus)
+    odrive = EmulatedOdrive(channel=odrive_bus.channel_info, config=config, bus=odrive_bus)
     physics = RealtimePhysics(protocol, None)
     drop = inject.get("mocap_drop")
     outage = _Outage(None if isinstance(drop, float) else drop)
@@ -265,6 +264,7 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
                     "markers": tuple(physics.scene.markers),
                     "scene": getattr(physics.scene, "identity", dict)(),
                     "odrive_config": dataclasses.asdict(config),  # the motor the emulated ODrive plays
+                    "can_port": odrive_bus.port,  # the host's end accepts frames from this port only
                 },
             )
         )
@@ -291,8 +291,9 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
                 conn.send(("outage", None))
             elif cmd == "stop":
                 break
-    except (EOFError, OSError, KeyboardInterrupt):  # the parent went away: stop quietly
-        pass
+    except (EOFError, OSError, KeyboardInterrupt):  # the parent went away (killed: SIGKILL, a crash)
+        if started:
+            _await_watchdog(odrive, config.watchdog_timeout_s)
     finally:
         if stop_mcu is not None:
             stop_mcu.cancel()
@@ -323,6 +324,24 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
             conn.send(("report", report))
         with contextlib.suppress(Exception):
             conn.close()
+
+
+def _await_watchdog(odrive: Any, timeout_s: float) -> None:
+    """The host died without idling the motor: like a real ODrive, the emulated one runs on, fed by nobody, until
+    its own watchdog idles the axis (``watchdog_timeout_s``). Says on stderr (the run's) what it did and when."""
+    t0 = time.monotonic()
+    deadline = t0 + timeout_s + 1.0
+    snap = odrive.snapshot()
+    while snap["state"] != 1 and time.monotonic() < deadline:  # AXIS_STATE_IDLE
+        time.sleep(0.005)
+        snap = odrive.snapshot()
+    after = time.monotonic() - t0
+    if snap["state"] == 1:
+        how = f"its watchdog idled the axis {after:.2f} s after the host was lost (axis error {snap['axis_error']:#x})"
+    else:
+        how = f"still in state {snap['state']} {after:.2f} s after the host was lost: its watchdog did not stop it"
+    with contextlib.suppress(OSError):
+        print(f"beambench: emulated ODrive: {how}", file=sys.stderr, flush=True)
 
 
 class _Snapshot:
@@ -500,22 +519,27 @@ def build_emulated_rig(
     from beambench.devices.loadcell import SerialLoadCells
     from beambench.devices.natnet import NatNetConfig, NatNetMocap
     from beambench.devices.odrive_can import OdriveCanMotor
-    from beambench.emulators.canbus import LoopbackCanBus, new_channel
+    from beambench.emulators.canbus import LoopbackCanBus
     from beambench.emulators.motive import MOTIVE_GEOMETRY
 
     wiring = wiring or RigFile()
-    group, host_port, peer_port = new_channel()
-    peers = PeerProcess(
-        {
-            "protocol": protocol,
-            "inject": inject,
-            "calibration": calibration or default_calibration(),
-            "can": (group, host_port, peer_port),
-            "rig_file": rig_file,
-        }
-    )
+    bus = LoopbackCanBus(0)  # the host's end, on loopback: the peers learn its port, it learns theirs
+    try:
+        peers = PeerProcess(
+            {
+                "protocol": protocol,
+                "inject": inject,
+                "calibration": calibration or default_calibration(),
+                "can_port": bus.port,
+                "rig_file": rig_file,
+            }
+        )
+    except BaseException:
+        bus.shutdown()
+        raise
     try:
         ready = peers.ready
+        bus.connect(int(ready["can_port"]))
         markers = tuple(ready["markers"])  # the scene's own markers (release test: stage, tip1..tip3)
         mocap = NatNetMocap(
             markers,
@@ -528,12 +552,12 @@ def build_emulated_rig(
             frame=Frame(**MOTIVE_GEOMETRY),
             silence_timeout_s=wiring.natnet.silence_timeout_s,
         )
-        channel = f"{group}:{host_port}"
+        channel = bus.channel_info
         motor = OdriveCanMotor(
             channel,
-            "udp_multicast",
+            "loopback",
             0,
-            bus=LoopbackCanBus(group, host_port, send_port=peer_port),  # the host's end
+            bus=bus,
             own_bus=True,
             can_log=can_log,
             heartbeat_timeout_s=wiring.odrive.heartbeat_timeout_s,
@@ -542,6 +566,7 @@ def build_emulated_rig(
         loadcells = SerialLoadCells(ready["loadcell_port"], silence_timeout_s=wiring.loadcell.silence_timeout_s)
     except BaseException:
         peers.stop()
+        bus.shutdown()
         raise
     return DeviceRig(
         motor,

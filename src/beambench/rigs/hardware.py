@@ -161,7 +161,8 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
     if od.transport == "usb":
         from beambench.devices.odrive_usb import OdriveUsbMotor
 
-        return OdriveUsbMotor(serial_number=od.serial_number, axis=od.axis)
+        # the rig file's watchdog timeout: armed by the driver over USB (it was the driver's default before)
+        return OdriveUsbMotor(serial_number=od.serial_number, axis=od.axis, watchdog_timeout_s=od.watchdog_timeout_s)
     from beambench.devices.odrive_can import OdriveCanMotor
 
     return OdriveCanMotor(
