@@ -68,7 +68,9 @@ class LoadCellCalibration:
 
     @classmethod
     def load(cls, path: str | Path = DEFAULT_PATH) -> LoadCellCalibration:
-        return cls.from_dict(yaml.safe_load(Path(path).read_text()))
+        from beambench.common.yaml_config import parse_yaml, read_text
+
+        return cls.from_dict(parse_yaml(read_text(path), str(path)))  # kind and size checked before the read
 
 
 def default_calibration() -> LoadCellCalibration:

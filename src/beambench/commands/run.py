@@ -91,6 +91,10 @@ def run(
         if chosen not in BACKENDS:  # typer checks the flag; this guards a bad protocol value
             raise ConfigError("<cli>", "--backend", chosen, f"must be one of {', '.join(BACKENDS)}")
         check_protocol(protocol, str(protocol_file), chosen, can_log)  # every field, dry run included
+        if rig_file is not None:  # every input file too: kind, size, fields
+            from beambench.acquisition.config import load_rig_file
+
+            load_rig_file(rig_file)
         mode: RerunMode = rerun or default_rerun_mode()
         if dry_run:
             print_dry_run(summary(protocol, chosen), expected_run_time(protocol, chosen, realtime))

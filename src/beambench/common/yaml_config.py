@@ -21,6 +21,7 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from beambench.common.errors import BeambenchError
+from beambench.common.inputs import read_input_bytes
 
 MAX_FILE_BYTES = 1 << 20  # 1 MiB: the largest shipped configuration is ~2 kB
 MAX_DEPTH = 32  # nested mappings/lists
@@ -116,9 +117,12 @@ def _one_line(text: str) -> str:
 def read_text(path: str | Path, error: type[ConfigError] = ConfigError) -> str:
     """The file's text, refusing files over :data:`MAX_FILE_BYTES`, unreadable files and non-UTF-8 bytes."""
     p = Path(path)
+
+    def refuse(message: str) -> ConfigError:  # check_input_file's one line, as this module's error
+        return error(str(p), "(file)", MISSING, message.removeprefix(f"{p}: "))
+
     try:
-        with p.open("rb") as fh:
-            raw = fh.read(MAX_FILE_BYTES + 1)
+        raw = read_input_bytes(p, "configuration file", MAX_FILE_BYTES, refuse)  # kind and size before any read
     except OSError as exc:
         raise error(str(p), "(file)", MISSING, exc.strerror or str(exc)) from None
     if len(raw) > MAX_FILE_BYTES:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from beambench.common.errors import BeambenchError
+from beambench.common.inputs import check_input_file
 
 __all__ = ["CaptureError", "UdpDatagram", "read_udp"]
 
@@ -132,6 +133,7 @@ def read_udp(path: str | Path, ports: Iterable[int] | None = None) -> Iterator[U
 
     want = set(ports) if ports is not None else None
     p = Path(path)
+    check_input_file(p, "capture", None, CaptureError)  # streamed, so any size; but a file, not a FIFO/device
     try:
         f = p.open("rb")
     except OSError as exc:

@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from beambench.common.errors import BeambenchError
+from beambench.common.inputs import check_input_file
 from beambench.common.types import Floats
 from beambench.sim.models.params import SIM_BACKEND_DIR
 
@@ -40,6 +41,9 @@ STABLE = ("ok", "inaccurate", "irregular")
 
 class SelectionError(BeambenchError, ValueError):
     """No configuration in the table meets the request (one line, names the scene and tolerance)."""
+
+
+TABLE_MAX_BYTES = 16 << 20  # a measured timing table is a few hundred kB
 
 
 @dataclass(frozen=True)
@@ -106,6 +110,8 @@ def load_table(scene: str, path: str | Path | None = None) -> pd.DataFrame:
         raise SelectionError(
             f"{where}: no measured table for the {scene} scene (run benchmarks/bench_models.py --ship)"
         )
+    for p in paths:  # kind and size before pandas reads it
+        check_input_file(p, "timing table", TABLE_MAX_BYTES, SelectionError)
     frames = [_normalize(pd.read_csv(p), str(p)) for p in paths]
     return pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
 

@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from beambench.acquisition.batch import Batch, ColumnSpec, Frame, StepRecord, StreamSpec
+from beambench.common.inputs import check_input_file
 from beambench.common.yaml_config import ConfigError
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -439,6 +440,7 @@ def check_session_file(path: str | Path) -> None:
     recorded end of file is compared with the size instead.
     """
     path = Path(path)
+    check_input_file(path, "session file", None, SessionFileError)  # a folder, a FIFO, a device: one line
     try:
         size = path.stat().st_size
         with path.open("rb") as fh:

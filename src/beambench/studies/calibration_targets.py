@@ -34,9 +34,13 @@ import pandas as pd
 import yaml
 
 from beambench.common.errors import BeambenchError
+from beambench.common.inputs import read_input_bytes
 
 CONTINUOUS, NONE, IRREGULAR = "continuous", "none", "irregular"
 THIRD_SPAN_HZ = 4.0  # a targets file says nothing above third_at_hz + this: the ⅓ band's width is unknown
+
+
+TARGETS_MAX_BYTES = 1 << 20  # a targets file is a few kB: kind and size are checked before it is read
 
 
 class CalibrationInputError(BeambenchError, ValueError):
@@ -182,10 +186,9 @@ def target_map(scalars: dict[str, Any], step_hz: float = 1.0) -> pd.DataFrame:
 def load_targets(path: str | Path) -> Targets:
     """Read a targets YAML file."""
     p = Path(path)
-    if not p.is_file():
-        raise CalibrationInputError(f"{p}: no such targets file")
+    text = read_input_bytes(p, "targets file", TARGETS_MAX_BYTES, CalibrationInputError).decode("utf-8", "replace")
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise CalibrationInputError(f"{p}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
     except OSError as exc:

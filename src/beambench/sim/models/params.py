@@ -17,7 +17,7 @@ from typing import Any
 import yaml
 
 from beambench.common.resources import search_path, shipped_dir
-from beambench.common.yaml_config import ConfigError, load_yaml_file, shorten
+from beambench.common.yaml_config import ConfigError, load_yaml_file, read_text, shorten
 
 SIM_BACKEND_DIR = shipped_dir("sim_backend")  # the shipped sets and measured tables (read-only)
 
@@ -92,8 +92,8 @@ def has_params(name: str, model: str) -> bool:
     path = Path(name)
     if path.suffix in (".yaml", ".yml") and path.exists():
         try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError:
+            data = yaml.safe_load(read_text(path)) or {}  # kind and size checked before the read
+        except (yaml.YAMLError, ConfigError):
             return False
         return isinstance(data, dict) and str(data.get("model", "prb3")) == model
     return name in available(model)
