@@ -64,13 +64,30 @@ def _load(path: Path, options: AnalysisOptions, progress, write: bool) -> Sessio
     return analysis
 
 
+def _check_outputs(folder: Path, sessions: list[Path]) -> None:
+    """Every place analyze writes, checked before it writes anything: the report folder, and each session it
+    stores results in (``/processing``). One line, exit 2."""
+    from beambench.common.outputs import unwritable_file, unwritable_folder
+
+    problem = unwritable_folder(folder)
+    if problem:
+        fail(f"{problem}: the report folder (give another with --out)")
+    for path in sessions:
+        problem = unwritable_file(path) if path.is_file() else None
+        if problem:
+            fail(f"{problem}: the results go into the session (--no-write analyses without storing them)")
+
+
 def _report(analyses: list[SessionAnalysis], out: Path, force_at: list[float] | None, progress) -> Path:
     from beambench.analysis.report import make_report
 
     task = progress.add_task("figures", total=8)
-    return make_report(
-        analyses, out, force_at, lambda key: progress.update(task, advance=1, description=f"figure: {key}")
-    )
+    try:
+        return make_report(
+            analyses, out, force_at, lambda key: progress.update(task, advance=1, description=f"figure: {key}")
+        )
+    except OSError as exc:  # the folder changed under us (checked first): still one line
+        fail(f"{out}: cannot write the report ({exc.strerror or exc})")
 
 
 def _progress(quiet: bool):
@@ -131,6 +148,7 @@ def register(app: typer.Typer) -> None:
         freqs = _frequencies(force_at)
         opts = _options(up, forward)
         folder = out or session.with_name(f"{session.stem}_report")
+        _check_outputs(folder, [] if no_write else [session])
         with _progress(quiet) as progress:
             a = _load(session, opts, progress, not no_write)
             index = _report([a], folder, freqs, progress)
@@ -164,6 +182,7 @@ def register(app: typer.Typer) -> None:
         freqs = _frequencies(force_at)
         opts = _options(up, forward)
         folder = out or a.with_name(f"{a.stem}_vs_{b.stem}_report")
+        _check_outputs(folder, [] if no_write else [a, b])
         with _progress(quiet) as progress:
             analyses = [_load(p, opts, progress, not no_write) for p in (a, b)]
             if analyses[0].label == analyses[1].label:  # same file name in two folders: say which is which

@@ -631,19 +631,51 @@ def append_general(path: str | Path, extra: dict[str, Any]) -> None:
 
 
 def write_processing(path: str | Path, name: str, table: pd.DataFrame | dict[str, np.ndarray]) -> None:
-    """Write analysis results to ``/processing/<name>`` (one dataset per column), replacing any old copy."""
+    """Write analysis results to ``/processing/<name>`` (one dataset per column), replacing any old copy.
+
+    HDF5 does not reuse the space of a deleted object, so deleting and re-creating the group grew the session
+    by ~9 kB per ``analyze``. A table of the same columns, shapes and types (the same session analysed again) is
+    written over the old one in place instead: the file does not grow. A table of another layout still replaces
+    the group; ``h5repack SESSION.h5 COPY.h5`` reclaims the space that leaves (README, "Session files")."""
     cols = {c: table[c].to_numpy() for c in table.columns} if isinstance(table, pd.DataFrame) else dict(table)
+    arrays = {key: _stored(values) for key, values in cols.items()}
     with h5py.File(path, "r+") as f:
         proc = f.require_group("processing")
+        old = proc.get(name)
+        if isinstance(old, h5py.Group) and _same_layout(old, arrays):
+            for key, arr in arrays.items():
+                old[key][...] = arr
+            return
         if name in proc:
             del proc[name]
         g = proc.create_group(name)
-        for key, values in cols.items():
-            arr = np.asarray(values)
-            if arr.dtype.kind in "OUS":
-                g.create_dataset(key, data=arr.astype(str).astype(object), dtype=h5py.string_dtype())
-            else:
-                g.create_dataset(key, data=arr)
+        for key, arr in arrays.items():
+            g.create_dataset(key, data=arr)
+
+
+def _stored(values: Any) -> np.ndarray:
+    """A column as stored: text as fixed-length UTF-8 bytes (rewritten in place without new heap space)."""
+    arr = np.asarray(values)
+    if arr.dtype.kind in "OUS":
+        encoded = [str(x).encode("utf-8") for x in arr.reshape(-1)]
+        width = max([len(b) for b in encoded] + [1])
+        return np.array(encoded, dtype=f"S{width}").reshape(arr.shape)
+    return arr
+
+
+def _same_layout(group: h5py.Group, arrays: dict[str, np.ndarray]) -> bool:
+    if set(group.keys()) != set(arrays):
+        return False
+    for key, arr in arrays.items():
+        ds = group[key]
+        if not isinstance(ds, h5py.Dataset) or ds.shape != arr.shape:
+            return False
+        if arr.dtype.kind == "S":
+            if ds.dtype.kind != "S" or ds.dtype.itemsize < arr.dtype.itemsize:
+                return False
+        elif ds.dtype != arr.dtype:
+            return False
+    return True
 
 
 def read_processing(path: str | Path, name: str) -> pd.DataFrame:
@@ -653,7 +685,7 @@ def read_processing(path: str | Path, name: str) -> pd.DataFrame:
         data = {}
         for key, ds in g.items():
             v = ds[()]
-            if ds.dtype.kind == "O":
-                v = np.array([x.decode() if isinstance(x, bytes) else x for x in v])
+            if ds.dtype.kind in "OS":  # text: variable-length (older sessions) or fixed-length UTF-8 bytes
+                v = np.array([x.decode("utf-8") if isinstance(x, bytes) else x for x in v])
             data[key] = v
     return pd.DataFrame(data)
