@@ -56,8 +56,10 @@ ZYGOTE = textwrap.dedent(
         req = json.loads(line)
         pid = os.fork()
         if pid == 0:
-            signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a fresh interpreter
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            from beambench.acquisition.runner import STOP_SIGNALS
+            for s in STOP_SIGNALS:  # as in a fresh interpreter started from a terminal (whatever started pytest)
+                signal.signal(s, signal.SIG_DFL)
+            signal.signal(signal.SIGINT, signal.default_int_handler)
             fd = os.open(req["log"], os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
             os.dup2(fd, 1); os.dup2(fd, 2)
             sys.argv = ["beambench", *req["argv"]]
@@ -181,6 +183,13 @@ class Zygote:
         self.proc.wait(timeout=30)
 
 
+def _default_dispositions() -> None:
+    from beambench.acquisition.runner import STOP_SIGNALS
+
+    for s in STOP_SIGNALS:
+        signal.signal(s, signal.SIG_DFL)
+
+
 def _pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -293,15 +302,19 @@ def test_the_runner_takes_every_signal_that_ends_a_process_by_default():
     for name in ("SIGKILL", "SIGSTOP", "SIGSEGV", "SIGPIPE", "SIGCHLD", "SIGWINCH"):
         assert getattr(signal, name) not in STOP_SIGNALS
     before = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    usr1 = signal.signal(signal.SIGUSR1, signal.SIG_DFL)
+    quit_before = signal.signal(signal.SIGQUIT, signal.SIG_IGN)  # as in a shell's background job: taken anyway
     try:
         with stop_on_signals() as stop:
             assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
             assert signal.getsignal(signal.SIGQUIT) not in (signal.SIG_DFL, signal.SIG_IGN)
             os.kill(os.getpid(), signal.SIGUSR1)
             assert stop.wait(2.0) and stop.signum == signal.SIGUSR1
-        assert signal.getsignal(signal.SIGQUIT) is signal.SIG_DFL
+        assert signal.getsignal(signal.SIGQUIT) is signal.SIG_IGN  # restored
     finally:
         signal.signal(signal.SIGHUP, before)
+        signal.signal(signal.SIGUSR1, usr1)
+        signal.signal(signal.SIGQUIT, quit_before)
 
 
 @pytest.mark.slow
@@ -322,7 +335,7 @@ def test_python_m_beambench_run_stops_on_a_signal(tmp_path, backend, sig):
         stderr=subprocess.STDOUT,
         env=_env(),
         start_new_session=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a shell's background job ignores it
+        preexec_fn=_default_dispositions,  # a shell's background job ignores SIGINT and SIGQUIT, nohup SIGHUP
     )
     try:
         _wait_for_file(path, lambda: proc.poll() is None, timeout=120)

@@ -8,9 +8,10 @@ Signals never raise: every signal that ends a process by default and can be caug
 SIGINT, SIGTERM, SIGHUP — a closed terminal or SSH session —, SIGQUIT, SIGUSR1/2, SIGALRM, SIGVTALRM, SIGPROF,
 SIGXCPU, SIGIO, SIGPWR, SIGSTKFLT and the real-time signals) only sets a :class:`StopSignal` flag, which the
 runner reads before and after every poll (settle, record, pause) and between steps, from any state and on every
-backend. SIGINT and SIGTERM are always taken; the others only where their disposition is still the default
-(terminate): one ignored on purpose (``nohup`` ignores SIGHUP) or handled by someone else (a profiler's SIGPROF)
-is left alone. Not caught: SIGKILL and SIGSTOP (they cannot be), the fault signals (SIGSEGV, SIGBUS, SIGFPE,
+backend. SIGINT, SIGTERM and SIGQUIT are always taken (a shell's background job ignores SIGINT and SIGQUIT, as it
+does not want the terminal's Ctrl-C; a stop sent to the process is still meant); the others only where their
+disposition is still the default (terminate): one ignored on purpose (``nohup`` ignores SIGHUP) or handled by
+someone else (a profiler's SIGPROF) is left alone. Not caught: SIGKILL and SIGSTOP (they cannot be), the fault signals (SIGSEGV, SIGBUS, SIGFPE,
 SIGILL, SIGABRT, SIGTRAP, SIGSYS: a program error, after which nothing can safely run), SIGPIPE and SIGXFSZ
 (Python ignores them: the write fails with an error instead, which stops the run through the sink-failure path).
 When the process cannot run its stop path at all (SIGKILL, a crash), the ODrive's own watchdog idles the motor. An exception
@@ -133,10 +134,11 @@ def signal_name(signum: int) -> str:
         return f"signal {signum}"
 
 
-ALWAYS_TAKEN = ("SIGINT", "SIGTERM")
+# SIGINT and SIGQUIT are the two a shell ignores in its background jobs (no job control): taken anyway, as Ctrl-C
+# and Ctrl-backslash are the user's; SIGTERM is every supervisor's stop
+ALWAYS_TAKEN = ("SIGINT", "SIGTERM", "SIGQUIT")
 IF_DEFAULT = (
     "SIGHUP",
-    "SIGQUIT",
     "SIGUSR1",
     "SIGUSR2",
     "SIGALRM",
