@@ -32,7 +32,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from beambench.acquisition.batch import StepRecord
@@ -63,6 +63,7 @@ class RunResult:
     status: str  # completed | interrupted | fault | failed (a critical sink: the session file) | error
     steps_done: int
     message: str = ""
+    warnings: list[str] = field(default_factory=list)  # what went wrong besides (a live view or recording lost)
 
 
 ProgressCallback = Callable[[int, float, float], None]  # (step index, frequency, rig seconds just waited)

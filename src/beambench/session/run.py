@@ -160,9 +160,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                 append_general(path, extra)
             except OSError as exc:
                 hub.errors.append(f"{writer.label}: /general not completed ({exc.strerror or exc})")
-    for err in hub.errors:
-        with contextlib.suppress(OSError):
-            progress.console.print(f"[yellow]warning: {err}")
+    result.warnings += hub.errors  # the command says them (one line with the result when the run failed)
     return result
 
 

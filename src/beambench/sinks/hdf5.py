@@ -226,7 +226,7 @@ class SessionWriter:
     def flush(self) -> None:
         """Make every batch written so far visible to SWMR readers (called once per poll round)."""
         if self._dirty and self.failed is None:
-            self._guard(self._file.flush)
+            self._guard(self._flush)
             self._dirty = False
 
     def event(self, host_time_ns: int, kind: str, message: str) -> None:
@@ -235,7 +235,7 @@ class SessionWriter:
 
     def _event(self, row: np.ndarray) -> None:
         self._tables["events"].append(row)
-        self._file.flush()
+        self._flush()
 
     def step(self, record: StepRecord) -> None:
         self._guard(self._step, record)
@@ -246,7 +246,7 @@ class SessionWriter:
             steps.overwrite(record.index, _step_row(record))
         else:
             steps.append(_step_row(record))
-        self._file.flush()
+        self._flush()
 
     def close(self) -> None:
         """Flush and close the file, releasing every h5py object here, in the writer's thread.
@@ -279,6 +279,14 @@ class SessionWriter:
             self._dead = True
             raise SessionWriteError(f"cannot close ({why})")
 
+    def _appenders(self) -> list[_Appender]:
+        return [a for cols in self._datasets.values() for _, a in cols] + list(self._tables.values())
+
+    def _flush(self) -> None:
+        self._file.flush()
+        for appender in self._appenders():
+            appender.flushed = appender.n
+
     def _guard(self, op: Callable[..., None], *args: Any) -> None:
         """Run one write; a failure becomes one :class:`SessionWriteError` raised outside the HDF5 frames."""
         if self._dead:
@@ -290,10 +298,19 @@ class SessionWriter:
             why = _reason(exc)
         if self.failed is None:
             self.failed = why
-            if self._reserve is not None and self._reserve.release():
+            if self._reserve is not None and self._reserve.release() and self._roll_back():
                 raise SessionWriteError(why)  # the closing records may still fit in the freed reserve
         self._dead = True
         raise SessionWriteError(why)
+
+    def _roll_back(self) -> bool:
+        """Every dataset back to its rows of the last successful flush; False if even that failed."""
+        try:
+            for appender in self._appenders():
+                appender.rollback()
+        except (OSError, RuntimeError, ValueError):
+            return False
+        return True
 
     @property
     def _file(self) -> h5py.File:
@@ -327,10 +344,18 @@ def _create_stream(g: h5py.Group, spec: StreamSpec) -> None:
 class _Appender:
     """Appends rows to one time-first dataset through the low-level API (~3x faster than ``ds[n:] = v``)."""
 
-    __slots__ = ("dsid", "dtype", "n", "row_shape")
+    __slots__ = ("dsid", "dtype", "flushed", "n", "row_shape")
 
     def __init__(self, ds: h5py.Dataset) -> None:
         self.dsid, self.dtype, self.row_shape, self.n = ds.id, ds.dtype, ds.shape[1:], ds.shape[0]
+        self.flushed = self.n  # rows known on disk (at the writer's last successful flush)
+
+    def rollback(self) -> None:
+        """Forget the rows appended since the last successful flush (a failed flush may have lost their data
+        but not the dataset's new extent: rows of zeros); the next rows go where they began."""
+        if self.n > self.flushed:
+            self.dsid.set_extent((self.flushed, *self.row_shape))
+            self.n = self.flushed
 
     def append(self, values: np.ndarray) -> None:
         arr = np.ascontiguousarray(values, dtype=self.dtype)
