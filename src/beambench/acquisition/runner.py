@@ -166,9 +166,11 @@ STOP_SIGNALS = ALWAYS_SIGNALS + DEFAULT_SIGNALS  # every signal that can stop a 
 
 
 @contextmanager
-def stop_on_signals(stop: StopSignal | None = None) -> Iterator[StopSignal]:
+def stop_on_signals(stop: StopSignal | None = None, *, then_ignore: bool = False) -> Iterator[StopSignal]:
     """While inside, the :data:`STOP_SIGNALS` set ``stop`` instead of ending the process (main thread only;
-    elsewhere a no-op). Nested uses keep the outer handlers (they set the same flag)."""
+    elsewhere a no-op). Nested uses keep the outer handlers (they set the same flag). ``then_ignore``: after,
+    the signals taken are ignored instead of restored (a command line about to exit: a second Ctrl-C just after
+    the first must not kill the process between the run and its last line)."""
     stop = stop or StopSignal()
     if threading.current_thread() is not threading.main_thread():
         yield stop
@@ -187,7 +189,7 @@ def stop_on_signals(stop: StopSignal | None = None) -> Iterator[StopSignal]:
         yield stop
     finally:
         for signum, previous in old.items():
-            signal.signal(signum, previous)
+            signal.signal(signum, signal.SIG_IGN if then_ignore else previous)
 
 
 class Runner:

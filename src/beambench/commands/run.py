@@ -106,7 +106,15 @@ def run(
 
     try:
         result = run_session(
-            protocol, text, chosen, path, rerun_mode=mode, realtime=realtime, rig_file=rig_file, can_log=can_log
+            protocol,
+            text,
+            chosen,
+            path,
+            rerun_mode=mode,
+            realtime=realtime,
+            rig_file=rig_file,
+            can_log=can_log,
+            then_ignore_signals=True,  # the run is over: a late signal must not kill the process before its result
         )
     except ConfigError as exc:
         fail(str(exc))

@@ -61,6 +61,7 @@ def run_session(
     rig_file: Path | None = None,
     can_log: Path | None = None,
     show_progress: bool = True,
+    then_ignore_signals: bool = False,
 ) -> RunResult:
     """Run ``protocol`` on ``backend`` and save the session at ``path`` (and ``.rrd`` beside it with save).
 
@@ -68,9 +69,10 @@ def run_session(
     SIGHUP, SIGQUIT, …) only requests a stop: a signal while the rig opens still yields a session that ends
     ``interrupted`` with the motor idled. A rig that cannot start raises :class:`RigStartError`; a session file
     that cannot be created or written at the start, :class:`~beambench.acquisition.hub.SinkFailure`.
+    ``then_ignore_signals``: the stop signals stay ignored after the run (for a command about to exit).
     """
     request = RunRequest(protocol, protocol_text, backend, path, rerun_mode, realtime, rig_file, can_log, show_progress)
-    with stop_on_signals() as stop:
+    with stop_on_signals(then_ignore=then_ignore_signals) as stop:
         return _run_session(request, stop)
 
 
