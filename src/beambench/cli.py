@@ -10,7 +10,7 @@ import sys
 import typer
 
 from beambench import __version__
-from beambench.commands import EXIT_STOPPED, HELP_MARKUP
+from beambench.commands import EXIT_STOPPED, HELP_MARKUP, STANDALONE
 
 
 def _version(value: bool) -> None:
@@ -49,6 +49,7 @@ for _mod_name in COMMAND_MODULES:
 
 def main() -> None:
     """The ``beambench`` entry point: usage errors come out as one line like every other error (exit 2)."""
+    STANDALONE["process"] = True
     try:
         _main_inner()
     except SystemExit as exc:

@@ -17,6 +17,10 @@ EXIT_USAGE = 2  # bad input: a flag, a file, a field (nothing moved)
 EXIT_STOPPED = 3  # stopped by a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT, …): motor idled, session saved
 EXIT_SINK = 4  # a sink failed (a full disk): motor idled, the session holds what was written before
 
+# True in the ``beambench`` process itself (cli.main), which exits after the command: signals may then stay
+# ignored after a run. False when a command is invoked in-process (tests, notebooks): everything is restored.
+STANDALONE = {"process": False}
+
 # Help as plain paragraphs, rewrapped to the terminal: flags show no type, sentences do not break mid-line.
 HELP_MARKUP = None
 

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import typer
 
 from beambench.acquisition.config import BACKENDS, Backend, ConfigError
-from beambench.commands import EXIT_FAULT, EXIT_OK, EXIT_SINK, EXIT_STOPPED, fail
+from beambench.commands import EXIT_FAULT, EXIT_OK, EXIT_SINK, EXIT_STOPPED, STANDALONE, fail
 from beambench.sinks import RerunMode
 
 if TYPE_CHECKING:
@@ -114,7 +114,8 @@ def run(
             realtime=realtime,
             rig_file=rig_file,
             can_log=can_log,
-            then_ignore_signals=True,  # the run is over: a late signal must not kill the process before its result
+            # the run is over: a late signal must not kill the process before its result (the real command only)
+            then_ignore_signals=STANDALONE["process"],
         )
     except ConfigError as exc:
         fail(str(exc))
