@@ -15,6 +15,23 @@ def _fail(message: str) -> NoReturn:
     raise typer.Exit(2)
 
 
+def _interrupted(log: Path) -> NoReturn:
+    """One line saying where the finished evaluations are and how to resume; exit 3 (stopped)."""
+    import shlex
+    import sys
+
+    from beambench.commands import EXIT_STOPPED
+
+    kept = sum(1 for _ in log.open("rb")) if log.is_file() else 0
+    again = shlex.join(["beambench", *sys.argv[1:]]) if sys.argv[1:2] == ["calibrate"] else "the same command"
+    typer.echo(
+        f"beambench: calibration interrupted: {kept} evaluations kept in {log}; to resume, run {again} "
+        "again (same --out and --name): they are reused",
+        err=True,
+    )
+    raise typer.Exit(EXIT_STOPPED)
+
+
 def default_out() -> Path:
     """A per-user folder (``$XDG_DATA_HOME/beambench/calibration``, else ``~/.local/share/...``); never the
     repository or the installed package."""
@@ -117,6 +134,8 @@ def sim(
             )
     except (BeambenchError, ExecutorError) as exc:
         _fail(str(exc))
+    except KeyboardInterrupt:  # Ctrl-C: every finished evaluation is in the log, which a rerun reuses
+        _interrupted(out_dir / f"{name}.evals.jsonl")
     s = result.summary
     console.print(
         f"objective {result.j:.4f}; "

@@ -56,6 +56,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from beambench.common.jsonl import append_record, read_records
 from beambench.studies.calibration_targets import (
     CONTINUOUS,
     NONE,
@@ -245,11 +246,7 @@ class EvalLog:
         self.path = path
         self.cache: dict[str, dict] = {}
         if path.exists():
-            for line in path.read_text().splitlines():
-                try:
-                    rec = json.loads(line)
-                except json.JSONDecodeError:  # a line cut by a kill
-                    continue
+            for rec in read_records(path, "evaluation log"):  # a line cut by a kill: skipped, repaired
                 if isinstance(rec, dict) and "key" in rec:
                     self.cache[rec["key"]] = rec
         self.reused = 0
@@ -264,8 +261,7 @@ class EvalLog:
     def add(self, rec: dict) -> None:
         self.cache[rec["key"]] = rec
         self.new += 1
-        with self.path.open("a") as fh:
-            fh.write(json.dumps(rec, default=_json_default) + "\n")
+        append_record(self.path, rec, default=_json_default)
 
 
 def _json_default(o: Any) -> Any:
