@@ -69,7 +69,22 @@ class Sweep(_Model):
             raise ValueError("stop must be >= start")
         elif self.n_steps() > MAX_STEPS:
             raise ValueError(f"{self.n_steps():.3g} steps (start/stop/step): more than {MAX_STEPS}")
+        else:
+            self._check_lands_on_stop()
         return self
+
+    def _check_lands_on_stop(self) -> None:
+        """``stop`` is inclusive: a step that jumps over it (1 to 10 by 4: 1, 5, 9) is refused, naming the field."""
+        start, stop, step = float(self.start), float(self.stop), float(self.step)  # type: ignore[arg-type]
+        n = (stop - start) / step
+        if abs(n - round(n)) <= 1e-6 * max(1.0, n):
+            return
+        last = start + math.floor(n) * step
+        fits = sorted({round((stop - start) / k, 6) for k in (math.floor(n), math.ceil(n)) if k >= 1})
+        raise ValueError(
+            f"step = {step:g} does not land on stop = {stop:g} from start = {start:g} (the last step would be "
+            f"{last:g}; stop is inclusive): use step {' or '.join(f'{f:g}' for f in fits)}, or stop {last:g}"
+        )
 
     def n_steps(self) -> float:
         """How many steps, computed without building them (a float: may be astronomically large)."""

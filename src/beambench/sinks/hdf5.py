@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import errno
 import glob
 import json
 import os
@@ -164,10 +165,17 @@ class SessionWriter:
 
     # --- Sink -------------------------------------------------------------------------------------------
     def open(self, specs: list[StreamSpec]) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SessionFileError(
+                f"{self.path.parent}: cannot create the output folder ({exc.strerror or exc})"
+            ) from None
         try:
             self._reserve = _SpaceReserve(self.path.parent)
         except OSError as exc:
+            if exc.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+                raise SessionFileError(f"{self.path}: cannot create the session file ({exc.strerror or exc})") from None
             free = shutil.disk_usage(self.path.parent).free if self.path.parent.exists() else 0
             raise SessionFileError(
                 f"{self.path.parent}: not enough free space for a run ({exc.strerror or exc}; {free / 1e6:.1f} MB "
