@@ -251,10 +251,10 @@ def loadcells(
 
     The result goes to --out or to the per-user folder; the package's shipped calibration is never changed.
     """
-    from rich.console import Console
     from rich.prompt import Confirm, Prompt
 
     from beambench.acquisition.capabilities import DeviceFault
+    from beambench.common.console import stderr_console
     from beambench.devices.loadcell import DEFAULT_BAUDRATE, SerialLoadCells
 
     try:
@@ -283,7 +283,7 @@ def loadcells(
         port, baudrate = wiring.loadcell.port, baudrate or wiring.loadcell.baudrate
         out = out or default_out(False, wiring.loadcell_calibration)
     out = out or default_out(emulate)
-    console = Console(stderr=True)
+    console = stderr_console()
     unattended = yes and load_list is not None
 
     def ask(text: str) -> str:

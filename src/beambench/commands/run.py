@@ -11,6 +11,7 @@ import typer
 
 from beambench.acquisition.config import BACKENDS, Backend, ConfigError
 from beambench.commands import fail
+from beambench.common.resources import shipped_names
 from beambench.sinks import RerunMode
 
 if TYPE_CHECKING:
@@ -27,23 +28,23 @@ def default_rerun_mode() -> RerunMode:
 
 def resolve_protocol(given: Path) -> Path:
     """``given`` if it is a file; else the shipped protocol of that name (``contact_sweep`` or
-    ``protocols/contact_sweep.yaml`` from any folder); else ``given`` (whose read then fails with one line)."""
-    if given.is_file():
-        return given
-    from beambench.common.resources import shipped_protocols
+    ``protocols/contact_sweep.yaml`` from any folder); else one line naming the shipped protocols, exit 2."""
+    from beambench.common.resources import ShippedFileError, resolve_file
 
-    shipped = shipped_protocols()
-    name = given.name.removesuffix(".yaml").removesuffix(".yml")
-    if given.suffix in ("", ".yaml", ".yml") and name in shipped and len(given.parts) <= 2:
-        return shipped[name]
-    return given
+    try:
+        return resolve_file("protocol", given)
+    except ShippedFileError as exc:
+        fail(str(exc))
+
+
+_PROTOCOL_HELP = f"Protocol YAML, or the name of a shipped protocol: {shipped_names('protocol')}."
 
 
 def run(
     protocol_file: Path = typer.Argument(
         ...,
         metavar="PROTOCOL",
-        help="Protocol YAML, or the name of a shipped protocol: contact_sweep, twist_sweep, release_test, …",
+        help=_PROTOCOL_HELP,
     ),
     backend: Backend | None = typer.Option(
         None, "--backend", "-b", help="Where to run (default: the protocol's backend, else sim)."
