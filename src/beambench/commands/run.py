@@ -128,10 +128,15 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
         sim_plan = _contact_plan(protocol)
     except ConfigError:
         sim_plan = None
-    if sim_plan is None:
+    if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
+        from beambench.session.estimate import probe_run_time
+
+        est = probe_run_time(protocol)
+        parts = f"; {est.parallel} segments in parallel" if est.parallel > 1 else ""
         return (
-            f"not estimated: no timing table for the {protocol.rig} rig with these sim settings "
-            "(the sim runs as fast as it can)"
+            f"about {_duration(est.wall_s)} of stepping ({protocol.sim.model}; measured here: "
+            f"{est.wall_per_s * 1e3:.0f} ms per simulated second at {est.probe_hz:g} Hz{parts}), plus recording "
+            "overhead"
         )
     wall = sum(s.duration_s / 10.0 * sim_plan.wall_s_per_10s[s.frequency_hz] for s in steps)
     return (
@@ -141,6 +146,8 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
 
 
 def _duration(seconds: float) -> str:
+    if seconds < 1:
+        return "under 1 s"
     if seconds < 90:
         return f"{seconds:.0f} s"
     return f"{seconds / 60:.1f} min"
@@ -159,9 +166,12 @@ def print_dry_run(s: dict, expected: str) -> None:
     con = Console(soft_wrap=True)  # the dry run's table is its result: stdout
     con.print(t)
     lim = s["limits"]
+    if s["rig"] == "release":  # the release test drives nothing: its load is what it is about
+        drive = f"no drive: a {s['release_load_g']:g} g tip load released"
+    else:
+        drive = f"max frequency: {s['max_frequency_hz']:g} Hz   amplitude: {s['amplitude_mm']:g} mm"
     con.print(
-        f"steps: {s['steps']}   total duration: {s['total_duration_s']:g} s of rig time   "
-        f"max frequency: {s['max_frequency_hz']:g} Hz   amplitude: {s['amplitude_mm']:g} mm\n"
+        f"steps: {s['steps']}   total duration: {s['total_duration_s']:g} s of rig time   {drive}\n"
         f"expected run time here: {expected}\n"
         f"limits: max_frequency_hz={lim['max_frequency_hz']:g}  max_current_a={lim['max_current_a']:g}  "
         f"max_amplitude_mm={lim['max_amplitude_mm']:g}"
