@@ -101,3 +101,19 @@ def test_processing_steps_come_back_in_stored_column_order(session_file):
     assert steps.columns.tolist() == a.table.columns.tolist()
     assert steps.columns.tolist() != sorted(steps.columns)
     assert isinstance(steps, pd.DataFrame) and len(steps) == 2
+
+
+def test_the_readme_example_plots_one_step(session_file, tmp_path, monkeypatch):
+    """The README's "Reading a session in Python" example, run on the short session (its step 1)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme.split("## Reading a session in Python", 1)[1]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    assert len(code.strip().splitlines()) <= 11
+    path = code.split('read_session("', 1)[1].split('"', 1)[0]
+    code = code.replace(path, str(session_file)).replace("step == 25", "step == 1").replace("[25]", "[1]")
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "README.md", "exec"), {})
+    assert (tmp_path / "step25.png").stat().st_size > 10_000
