@@ -48,6 +48,7 @@ from beambench.analysis.trajectory import (
     stage_frame,
 )
 from beambench.analysis.walking import body_speed
+from beambench.sinks.session_frames import step_of
 
 
 @dataclass(frozen=True)
@@ -606,24 +607,12 @@ def resample_session(
                 continue
             held, valid = hold_previous(t, arr, grid)
             flat = held.reshape(len(grid), -1)
-            kind = "boolean" if arr.dtype.kind == "b" else "Int64"
             for i, nm in enumerate(names):
-                column = pd.array(flat[:, i], dtype=kind)
-                column[~valid] = pd.NA
-                out[nm] = column
-    out["step"] = _step_index(session, grid)
+                held_i = pd.Series(flat[:, i])
+                typed = held_i.astype("boolean") if arr.dtype.kind == "b" else held_i.astype("Int64")
+                out[nm] = typed.mask(~valid).array
+    out["step"] = step_of(session, grid)[0]
     return pd.DataFrame(out, index=pd.Index((grid - a) / NS, name="t_s"))
-
-
-def _step_index(session: Any, grid_ns: np.ndarray) -> np.ndarray:
-    """The protocol step each host time falls in (``t_start_ns <= t < t_end_ns``), -1 outside every step."""
-    step = np.full(len(grid_ns), -1, np.int64)
-    steps = getattr(session, "steps", None)
-    if steps is None or not len(steps):
-        return step
-    for row in steps.itertuples(index=False):
-        step[(grid_ns >= row.t_start_ns) & (grid_ns < row.t_end_ns)] = row.index
-    return step
 
 
 def _column_names(stream: str, col: str, shape: tuple[int, ...], labels: list[str]) -> list[str]:

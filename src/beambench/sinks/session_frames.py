@@ -43,10 +43,14 @@ def step_of(session: Session, host_time_ns: np.ndarray) -> tuple[np.ndarray, np.
     t = np.asarray(host_time_ns, np.int64)
     step = np.full(len(t), -1, np.int64)
     recording = np.zeros(len(t), bool)
-    for row in session.steps.itertuples(index=False):
-        inside = (t >= row.t_start_ns) & (t < row.t_end_ns)
-        step[inside] = row.index
-        recording |= inside & (t >= row.t_settled_ns)
+    st = session.steps
+    if not len(st):
+        return step, recording
+    rows = zip(*(st[c].to_numpy(np.int64) for c in ("index", "t_start_ns", "t_settled_ns", "t_end_ns")))
+    for index, start, settled, end in rows:
+        inside = (t >= start) & (t < end)
+        step[inside] = index
+        recording |= inside & (t >= settled)
     return step, recording
 
 
