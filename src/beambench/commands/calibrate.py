@@ -269,7 +269,7 @@ def loadcells(
         load_list = list(EMULATE_LOADS)
     if not emulate and port is None:
         if rig is None:
-            from beambench.rigs.hardware import DEFAULT_RIG_FILE
+            from beambench.backends.hardware import DEFAULT_RIG_FILE
 
             rig = DEFAULT_RIG_FILE
         if not rig.exists():

@@ -26,14 +26,14 @@ def register(app: typer.Typer) -> None:
         from rich.table import Table
 
         from beambench.acquisition.config import ConfigError, load_rig_file
-        from beambench.rigs.hardware import DEFAULT_RIG_FILE
+        from beambench.backends.hardware import DEFAULT_RIG_FILE
 
         try:
             rig = load_rig_file(rig_file or DEFAULT_RIG_FILE) if not emulate else None
         except ConfigError as exc:
             fail(str(exc))
         if emulate:
-            from beambench.rigs.emulated import emulated_peers
+            from beambench.backends.emulated import emulated_peers
 
             with emulated_peers() as wiring:
                 results = ping_all(wiring)
