@@ -14,8 +14,8 @@ from beambench.acquisition.hub import Hub
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
-from beambench.devices import natnet_protocol as nn
-from beambench.devices.odrive_cansimple import AxisState
+from beambench.devices.natnet import protocol as nn
+from beambench.devices.odrive.cansimple import AxisState
 from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
 
 PROTOCOL = """

@@ -486,9 +486,9 @@ def build_emulated_rig(
     unknown = sorted(set(inject) - set(INJECTIONS))
     if unknown:
         raise ValueError(f"unknown injections {unknown}; known: {list(INJECTIONS)}")
-    from beambench.devices.loadcell import SerialLoadCells
-    from beambench.devices.natnet import NatNetConfig, NatNetMocap
-    from beambench.devices.odrive_can import OdriveCanMotor
+    from beambench.devices.loadcell.driver import SerialLoadCells
+    from beambench.devices.natnet.client import NatNetConfig, NatNetMocap
+    from beambench.devices.odrive.can_motor import OdriveCanMotor
     from beambench.emulators.canbus import LoopbackCanBus, new_channel
     from beambench.emulators.motive import MOTIVE_GEOMETRY
 

@@ -255,7 +255,7 @@ def loadcells(
     from rich.prompt import Confirm, Prompt
 
     from beambench.acquisition.capabilities import DeviceFault
-    from beambench.devices.loadcell import DEFAULT_BAUDRATE, SerialLoadCells
+    from beambench.devices.loadcell.driver import DEFAULT_BAUDRATE, SerialLoadCells
 
     try:
         load_list = parse_loads(loads) or None
