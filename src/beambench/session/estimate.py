@@ -27,7 +27,7 @@ class ProbeEstimate:
 
 def probe_run_time(protocol: Protocol) -> ProbeEstimate:
     """Time :data:`PROBE_S` of ``protocol``'s scene at its highest frequency and extrapolate to every step."""
-    from beambench.rigs.sim import build_scene
+    from beambench.backends.sim import build_scene
 
     steps = plan(protocol)
     scene = build_scene(protocol)
