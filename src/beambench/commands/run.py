@@ -129,9 +129,13 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
     except ConfigError:
         sim_plan = None
     if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
+        from beambench.common.errors import BeambenchError
         from beambench.session.estimate import probe_run_time
 
-        est = probe_run_time(protocol)
+        try:
+            est = probe_run_time(protocol)
+        except BeambenchError as exc:  # the run itself would say so; the dry run still prints its plan
+            return f"not estimated ({exc})"
         parts = f"; {est.parallel} segments in parallel" if est.parallel > 1 else ""
         return (
             f"about {_duration(est.wall_s)} of stepping ({protocol.sim.model}; measured here: "
