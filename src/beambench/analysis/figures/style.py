@@ -82,7 +82,19 @@ def legend_below(fig: Figure, axes: Any, ncol: int = 4, handles: list[Any] | Non
     else:
         handles_, labels = handles, [h.get_label() for h in handles]
     if handles_:
-        fig.legend(handles_, labels, loc="outside lower center", ncol=min(ncol, len(handles_)), **kw)
+        ncol = fitting_columns(labels, float(fig.get_figwidth()), ncol)
+        fig.legend(handles_, labels, loc="outside lower center", ncol=ncol, **kw)
+
+
+def fitting_columns(labels: list[str], width_in: float, ncol: int) -> int:
+    """At most ``ncol`` legend columns, as many as fit the figure's width (a legend wider than the figure is cut
+    at both edges): every column as wide as the longest label at the legend's font size, plus its handle."""
+    import matplotlib
+    from matplotlib.font_manager import FontProperties
+
+    size = FontProperties(size=matplotlib.rcParams["legend.fontsize"]).get_size_in_points()
+    column_in = max((len(s) for s in labels), default=1) * 0.56 * size / 72 + 0.75
+    return max(1, min(ncol, len(labels), int(width_in / column_in)))
 
 
 def session_style(si: int) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from beambench.analysis.figures.style import (
     R2_SENSE_MIN,
     REGIME_COLORS,
     UNCERTAIN,
+    fitting_columns,
     marker_name,
     new_figure,
     primary_marker,
@@ -142,7 +143,8 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
         notes.append("no contact in panels without a plate line: the plate is further below")
     fig.suptitle("\n".join([title, *notes]), y=1 - 0.1 / height, va="top")
     handles = _handles(analyses, markers, marks, single)
-    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), legend_cols), bbox_to_anchor=(0.5, 0.0))
+    ncol = fitting_columns([str(h.get_label()) for h in handles], float(fig.get_figwidth()), legend_cols)
+    fig.legend(handles=handles, loc="lower center", ncol=ncol, bbox_to_anchor=(0.5, 0.0))
     fig.savefig(path)
     return path
 
