@@ -4,7 +4,9 @@ load, is let go and returns to rest; its free response gives the natural frequen
 The displacement is the tip markers' mean relative to the clamp (stage) marker, minus its rest position at the
 end of the record, projected on the direction of the loaded deflection. After the release instant it is fitted
 with the free response of ``x'' + 2ζω x' + ω² x = 0`` released from rest at ``x0``, which covers the under-,
-critically and over-damped cases alike (an over-damped beam has a natural frequency but no oscillation).
+critically and over-damped cases alike (an over-damped beam has a natural frequency but no oscillation). A
+strongly over-damped decay (ζ ≳ 2) shows little more than its slow pole ω(ζ − √(ζ² − 1)), so ω and ζ are then
+poorly determined one by one.
 """
 
 from __future__ import annotations
