@@ -11,10 +11,10 @@ import numpy as np
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import (
     FOOT_COLORS,
-    SESSION_COLORS,
     legend_below,
     marker_name,
     new_figure,
+    session_style,
     step_frequency,
 )
 from beambench.analysis.walking import STANCE_MM, Stance, foot_stance, ground_level
@@ -52,16 +52,21 @@ def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) ->
     for si, a in enumerate(analyses):
         for foot in feet_of[id(a)]:
             f, duty = _duty(a, foot, ground[id(a)][foot])
-            color = FOOT_COLORS.get(foot, "0.3") if len(analyses) == 1 else SESSION_COLORS[si % 4]
-            style = "-" if foot.endswith("left") else "--"
-            lbl = marker_name(foot) + ("" if len(analyses) == 1 else f" ({a.label})")
-            ax_d.plot(f, duty, style, marker="o", ms=3, lw=1, color=color, label=lbl + ": duty factor")
+            lbl = marker_name(foot) + ("" if len(analyses) == 1 else f" ({a.label})") + ": duty factor"
+            if len(analyses) == 1:
+                ls = "-" if foot.endswith("left") else "--"
+                ax_d.plot(f, duty, ls, marker="o", ms=3, lw=1, color=FOOT_COLORS.get(foot, "0.3"), label=lbl)
+            else:  # an overlay: the first session broad underneath, the others dashed on top
+                mk = "o" if foot.endswith("left") else "s"
+                ax_d.plot(f, duty, marker=mk, ms=3, **session_style(si), label=lbl)
     ax_d.set(
         xlabel="drive frequency (Hz)",
         ylabel="duty factor (share on the ground)",
         ylim=(-0.03, 1.03),
         title="Time on the ground per step",
     )
+    if len(analyses) > 1:
+        fig.suptitle(f"Foot timing (top): {a0.label}")
     legend_below(fig, np.array(fig.axes), ncol=4)
     fig.savefig(path)
     return path

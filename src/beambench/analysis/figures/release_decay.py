@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
-from beambench.analysis.figures.style import SESSION_COLORS, legend_below, new_figure
+from beambench.analysis.figures.style import SESSION_COLORS, legend_below, new_figure, session_style
 from beambench.analysis.release import step_decay
 
 if TYPE_CHECKING:
@@ -42,7 +42,8 @@ def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) ->
         if single:
             for k, (name, c) in enumerate(zip(AXES, AXIS_COLORS)):
                 ax_all.plot(t_ms, d.xyz[:, k], color=c, lw=0.8, alpha=0.8, label=f"{name} (world)")
-        ax_all.plot(t_ms, d.along, color=color, lw=1.8, label="along the loaded deflection" + sfx)
+        line = dict(color=color, lw=1.8) if single else session_style(si)
+        ax_all.plot(t_ms, d.along, **line, label="along the loaded deflection" + sfx)
         if not np.isfinite(decay.release_s):
             continue
         for ax in (ax_all, ax_zoom):
@@ -50,12 +51,12 @@ def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) ->
         tau = (d.t - decay.release_s) * 1e3
         span = max(ZOOM_SETTLING * decay.settling_ms, 10 * float(np.median(np.diff(t_ms))))
         sel = (tau >= -0.15 * span) & (tau <= span)
-        ax_zoom.plot(tau[sel], d.along[sel], "o", ms=3.5, color=color, label="measured" + sfx)
+        dots = dict(ms=3.5) if single or si else dict(ms=7, alpha=0.45)  # an overlay: the first broad underneath
+        ax_zoom.plot(tau[sel], d.along[sel], "o", color=color, ls="", **dots, label="measured" + sfx)
         fine = np.linspace(tau[sel][0], tau[sel][-1], 400)
         text = f"fit: fₙ {decay.natural_frequency_hz:.1f} Hz, ζ {decay.damping_ratio:.2f}"
-        ax_zoom.plot(
-            fine, decay(fine / 1e3 + decay.release_s), "-", color="k" if single else color, lw=1.2, label=text + sfx
-        )
+        fit_line = dict(color="k", lw=1.2) if single else session_style(si)
+        ax_zoom.plot(fine, decay(fine / 1e3 + decay.release_s), **fit_line, label=text + sfx)
     ax_all.axhline(0, color="0.6", lw=0.8)
     ax_all.set(
         xlabel="time in the record window (ms)",
