@@ -335,7 +335,12 @@ def _handles(analyses: list[SessionAnalysis], markers: dict[int, list[str]], mar
             handles.append(Line2D([], [], color=PLATE, lw=2.2, label="plate (foot height at touchdown)"))
     else:
         handles += [
-            Line2D([], [], **{**session_style(i), "zorder": None}, label=f"{a.label} ({'/'.join(markers[id(a)])})")
+            Line2D(
+                [],
+                [],
+                **{**session_style(i), "zorder": None},
+                label=f"{a.label} ({', '.join(marker_name(m) for m in markers[id(a)])})",
+            )
             for i, a in enumerate(analyses)
         ]
         if marks.arrows:
