@@ -62,8 +62,9 @@ def find_file(name: ShippedName, filename: str) -> Path | None:
 
 
 def shipped_protocols() -> dict[str, Path]:
-    """The protocols shipped with the package, by name (``contact_sweep`` → …/protocols/contact_sweep.yaml)."""
-    return {p.stem: p for p in sorted(shipped_dir("protocols").glob("*.yaml"))}
+    """The protocols shipped with the package, by name (``contact_sweep`` → …/protocols/contact_sweep.yaml);
+    not the sweep files beside them (:func:`shipped_files`)."""
+    return shipped_files("protocol")
 
 
 # ------------------------------------------------------------------------------------- shipped files by name
@@ -76,12 +77,7 @@ _FOLDER: dict[str, ShippedName] = {
     "params": "sim_backend",
 }
 _WHAT = {"protocol": "protocol", "sweep": "sweep file", "targets": "targets file", "params": "parameter set"}
-_USE = {
-    "protocol": "beambench run",
-    "sweep": "beambench sweep",
-    "targets": "beambench calibrate sim --targets",
-    "params": "sim.params: in a protocol",
-}
+_USE = {"protocol": "beambench run", "sweep": "beambench sweep"}  # the commands of kinds that share a folder
 _SWEEP_KEY = re.compile(r"^(scene|grid|points):", re.MULTILINE)  # a sweep file's own top-level keys
 
 
@@ -131,9 +127,8 @@ def resolve_file(kind: FileKind, given: str | Path) -> Path:
     if in_folder:
         for other in FILE_KINDS:
             if other != kind and _FOLDER[other] == _FOLDER[kind] and name in shipped_files(other):  # type: ignore[arg-type]
-                raise ShippedFileError(
-                    f"{given}: a shipped {_WHAT[other]}, not a {what} (use it with `{_USE[other]} {name}`)"
-                )
+                hint = f" (use it with `{_USE[other]} {name}`)" if other in _USE else ""
+                raise ShippedFileError(f"{given}: a shipped {_WHAT[other]}, not a {what}{hint}")
     names = ", ".join(shipped) or "none"
     raise ShippedFileError(f"{given}: no such {what}, nor a shipped one of that name (shipped: {names})")
 
