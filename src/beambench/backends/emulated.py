@@ -32,6 +32,7 @@ from beambench.acquisition.config import (
     Protocol,
     RigFile,
 )
+from beambench.acquisition.scenes import scene_info
 from beambench.backends.hardware import DeviceRig
 
 
@@ -444,7 +445,7 @@ def odrive_config(protocol: Protocol, rig_file: Path | None, config_type: Any) -
     (default: the shipped ``calibration/rig.yaml``; pole pairs, Hall feedback, torque constant, rotor + offset-mass
     inertia); the emulator's default motor for the other rigs. ``vel_limit``/``current_lim`` come from the
     protocol's limits through Set_Limits, as on the bench."""
-    if protocol.rig != "walker":
+    if not scene_info(protocol.rig).own_motor:
         return config_type(calibration_s=0.2)
     from beambench.acquisition.config import load_rig_file
     from beambench.backends.hardware import DEFAULT_RIG_FILE
