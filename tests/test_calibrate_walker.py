@@ -7,8 +7,8 @@ import math
 import pandas as pd
 import pytest
 
-from beambench.studies.calibrate import get_rig
-from beambench.studies.calibration_targets import parse_targets
+from beambench.studies.calibration.search import get_rig
+from beambench.studies.calibration.targets import parse_targets
 
 TARGETS = parse_targets({"rig": "walker", "speed_mm_s": {23: -35.7, 65: 156.3}}, "<test>")
 
