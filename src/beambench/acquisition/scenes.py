@@ -97,6 +97,14 @@ def foreign_option(scene: str, given: Iterable[str], where: str) -> tuple[str, s
     return None
 
 
+FREE_BEAM = declare(
+    SceneInfo(
+        "free_beam",
+        "the beam shaken at one end with nothing under its tip (sweeps and the fidelity ladder)",
+        runnable=False,
+        batched=True,
+    )
+)
 CONTACT = declare(
     SceneInfo(
         "contact",
@@ -129,13 +137,5 @@ RELEASE = declare(
         markers=("stage", "tip1", "tip2", "tip3"),
         bench_markers=CONTACT.markers,  # on the bench the release test is wired like the contact rig
         driven=False,
-    )
-)
-FREE_BEAM = declare(
-    SceneInfo(
-        "free_beam",
-        "the beam shaken at one end with nothing under its tip (sweeps and the fidelity ladder)",
-        runnable=False,
-        batched=True,
     )
 )

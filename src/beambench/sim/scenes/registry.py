@@ -14,12 +14,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 from beambench.acquisition.config import Release, SimOptions
 from beambench.acquisition.scenes import SceneInfo, scene_info
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.scenes.drive import DrivenScene
+
+if TYPE_CHECKING:
+    from beambench.sim.selection import Plan
 
 __all__ = ["Scene", "SceneConfig", "get", "register"]
 
@@ -35,7 +38,7 @@ class SceneConfig:
     settle_s: float = 2.0
     record_s: float = 5.0
     release: Release = field(default_factory=Release)
-    plan: Any = None  # beambench.sim.selection's SweepPlan, or None: the scene's own timestep policy
+    plan: Plan | None = None  # the measured plan (beambench.sim.selection), or None: the scene's own timestep policy
 
 
 Builder = Callable[[SceneConfig], DrivenScene]
