@@ -84,14 +84,15 @@ AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the m
 
 
 def _contact_plan(protocol: Protocol):
-    """The measured plan for the contact rig (:mod:`beambench.sim.selection`), within ``sim.tolerance_mm``:
+    """The measured plan of a scene with a measured table (the contact rig; :mod:`beambench.sim.selection`),
+    within ``sim.tolerance_mm``:
 
     - ``sim.model: auto``: the cheapest (model, integrator, timestep per frequency); a tolerance nothing
       meets is a ConfigError;
     - a named model without ``sim.timestep``: the timestep each frequency needs for that model and
       integrator, or None (the rig's fixed policy) when the table does not cover them.
 
-    None for rigs without a measured table and for a fixed ``sim.timestep``."""
+    None for scenes without a measured table and for a fixed ``sim.timestep``."""
     from beambench.sim import selection as select
 
     sim = protocol.sim

@@ -367,9 +367,8 @@ def _run_free_beam(task: dict[str, Any]) -> list[dict[str, Any]]:
         )
         for j, i in enumerate(idx):
             index, jid, point, f = jobs[i]
-            rows[index] = _row(
-                index, jid, point, f, "free_beam", bool(ok[j]), _free_metrics(t, tip[j], stage[j], f) if ok[j] else {}
-            )
+            metrics = _free_metrics(t, tip[j], stage[j], f) if ok[j] else {}
+            rows[index] = _row(index, jid, point, f, FREE_BEAM.name, bool(ok[j]), metrics)
     return [rows[i] for i in sorted(rows)]
 
 
@@ -402,7 +401,7 @@ def _run_contact(task: dict[str, Any]) -> list[dict[str, Any]]:
             ok = bool(r.ok[i])
             metrics = _contact_metrics(r, i, f, point["amplitude_mm"] * 1e-3) if ok else {}
             metrics["timestep_s"] = float(r.timesteps[i])
-            rows[index] = _row(index, jid, p, f, "contact", ok, metrics)
+            rows[index] = _row(index, jid, p, f, CONTACT.name, ok, metrics)
     return [rows[i] for i in sorted(rows)]
 
 
