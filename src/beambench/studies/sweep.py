@@ -347,6 +347,7 @@ def _run_free_beam(task: dict[str, Any]) -> list[dict[str, Any]]:
 
 def _run_contact(task: dict[str, Any]) -> list[dict[str, Any]]:
     from beambench.sim.scenes.contact_sweep import contact_sweep
+    from beambench.sim.settings import SimSettings
 
     rows: dict[int, dict[str, Any]] = {}
     groups: dict[str, list[tuple]] = {}
@@ -356,19 +357,16 @@ def _run_contact(task: dict[str, Any]) -> list[dict[str, Any]]:
     for key, jobs in groups.items():
         point = json.loads(key)
         freqs = [j[3] for j in jobs]
-        r = contact_sweep(
-            _beam(point),
-            freqs,
-            point["timestep"],
-            twist_deg=point["twist_deg"] * point["chirality"],
-            gap_m=point["gap_mm"] * 1e-3,
-            amplitude=point["amplitude_mm"] * 1e-3,
+        sim = SimSettings(
             settle_s=task["settle_s"],
             record_s=task["record_s"],
+            twist_deg=point["twist_deg"] * point["chirality"],
+            amplitude_m=point["amplitude_mm"] * 1e-3,
             integrator=point["integrator"],
-            sample_dt=task["sample_dt"],
+            timestep=point["timestep"],
             nthread=1,
         )
+        r = contact_sweep(_beam(point), freqs, sim, gap_m=point["gap_mm"] * 1e-3, sample_dt=task["sample_dt"])
         for i, (index, jid, p, f) in enumerate(jobs):
             ok = bool(r.ok[i])
             metrics = _contact_metrics(r, i, f, point["amplitude_mm"] * 1e-3) if ok else {}
