@@ -39,7 +39,7 @@ def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
     """One short evaluation (the speeds come back per frequency), then the written protocol builds a walker
     scene with the fitted foot mass and friction."""
     from beambench.acquisition.config import load_protocol
-    from beambench.rigs.sim import build_scene
+    from beambench.backends.sim import build_scene
 
     rig = get_rig("walker")
     base = rig.base(TARGETS)
