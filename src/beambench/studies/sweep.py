@@ -277,23 +277,16 @@ def make_tasks(spec: SweepSpec, jobs: list[Job], size: int) -> list[dict[str, An
 
 # ------------------------------------------------------------------------------------------- simulation
 def _beam(point: dict[str, Any]):
-    """The beam model of a point, with its stiffness/damping overrides applied."""
-    from dataclasses import replace
-
+    """The beam model of a point, with its stiffness/damping overrides applied (the beam's own overrides,
+    :data:`beambench.studies.unknowns.BEAM_OVERRIDES`, as the fit applies them)."""
     from beambench.sim.models.registry import default_params, is_rod, make_beam_model
+    from beambench.studies.unknowns import BEAM_OVERRIDES
 
     name = point["model"]
     params = default_params(name, point["params"])
-    if not is_rod(name):
-        if point.get("k") is not None:
-            params = replace(params, k=point["k"], k_twist=point["k"])
-        if point.get("b") is not None:
-            params = replace(params, b=point["b"], b_twist=point["b"])
-    else:
-        if point.get("youngs_modulus") is not None:
-            params = replace(params, material=replace(params.material, youngs_modulus=point["youngs_modulus"]))
-        if point.get("beta") is not None:
-            params = replace(params, beta=point["beta"])
+    for key in ("youngs_modulus", "beta") if is_rod(name) else ("k", "b"):
+        if point.get(key) is not None:
+            params = BEAM_OVERRIDES[key](params, point[key])
     return make_beam_model(name, params)
 
 

@@ -25,7 +25,8 @@ Effect = Callable[["BeamParams", float], "BeamParams"]  # (parameter set, value)
 class Override:
     """Sets ``fields`` of a :class:`BeamParams` to ``value × si`` — or, with ``scale``, multiplies them by the
     value and divides the ``inverse`` fields by it. A field is an attribute (``k``), a nested one
-    (``material.youngs_modulus``) or a key of the rig block (``rig.frame_mass``)."""
+    (``material.youngs_modulus``) or a key of the rig block (``rig.frame_mass``; scaling one needs the key in
+    the block — the scene's default is the scene's to know, e.g. ``contact.scale_friction``)."""
 
     fields: tuple[str, ...]
     scale: bool = False
@@ -35,16 +36,19 @@ class Override:
     def __call__(self, params: BeamParams, value: float) -> BeamParams:
         v = value * self.si if self.si != 1.0 else value
         for path in self.fields:
-            params = _set(params, path, (lambda old: old * v) if self.scale else (lambda old: v))
+            params = _set(params, path, (lambda old: old * v) if self.scale else (lambda old: v), self.scale)
         if v != 0:
             for path in self.inverse:
-                params = _set(params, path, lambda old: old / v)
+                params = _set(params, path, lambda old: old / v, True)
         return params
 
 
-def _set(params: BeamParams, path: str, new: Callable[[float], float]) -> BeamParams:
+def _set(params: BeamParams, path: str, new: Callable[[float], float], reads: bool) -> BeamParams:
+    """``params`` with the field at ``path`` set to ``new(old value)`` (``reads``: ``new`` needs the old one)."""
     head, _, rest = path.partition(".")
     if head == "rig":
+        if reads and rest not in params.rig:
+            raise ValueError(f"{path}: the parameter set's rig block has no {rest} to scale (use a function)")
         return replace(params, rig={**params.rig, rest: new(params.rig.get(rest, math.nan))})
     changes: dict[str, Any]
     if rest:

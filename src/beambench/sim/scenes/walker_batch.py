@@ -22,31 +22,34 @@ from mujoco import rollout
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.scenes.drive import KinematicServo, VelocityRamp
 from beambench.sim.scenes.walker import WalkerParams, WalkerSim
+from beambench.sim.settings import SimSettings
 
 STEADY_SETTLE_S = 3.0  # s after the ramp before the speed is steady (see the module docstring)
 RECORD_S = 1.5
 RAMP_RATE = 200.0  # turn/s²: the steady speed does not depend on it (10–200 agree within 0.2 mm/s)
 CHUNK = 10_000  # steps per rollout call (bounds the state/sensor arrays)
+STEADY_SIM = SimSettings(settle_s=STEADY_SETTLE_S, record_s=RECORD_S, nthread=1)  # steady_speeds' default
 
 
 def steady_speeds(
     beam: BeamModel,
     frequencies: Sequence[float],
     params: WalkerParams | None = None,
+    sim: SimSettings = STEADY_SIM,
     *,
-    twist_deg: float = 90.0,
-    timestep: float | None = None,
-    settle_s: float = STEADY_SETTLE_S,
-    record_s: float = RECORD_S,
     ramp_rate: float = RAMP_RATE,
-    nthread: int = 1,
     stride: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Forward body speed (mm/s) at each frequency and the mean body height (mm) over the record window; NaN
-    where a run diverged."""
+    where a run diverged. ``sim``: twist, timestep (None: the scene's), settle after the ramp, record window,
+    threads (None: one)."""
+    if isinstance(sim.timestep, tuple):
+        raise ValueError("steady_speeds: one timestep for every frequency")
+    settle_s, record_s = sim.settle_s, sim.record_s
+    nthread = sim.nthread or 1
     wp = replace(params or WalkerParams(), vel_ramp_rate=ramp_rate)
-    sim = WalkerSim(beam, twist_deg, wp, timestep=timestep)
-    m, d0 = sim.physics.model, sim.physics.data
+    scene = WalkerSim(beam, sim.twist_deg, wp, timestep=sim.timestep)
+    m, d0 = scene.physics.model, scene.physics.data
     h = float(m.opt.timestep)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     state0 = np.empty(mujoco.mj_stateSize(m, spec))
@@ -59,7 +62,7 @@ def steady_speeds(
     for i, f in enumerate(freqs):
         ramp = VelocityRamp(ramp_rate)
         ramp.setpoint = f
-        servo = KinematicServo(m, "rotor_servo", inertia, wp.servo_hz, sim.integrator, h)
+        servo = KinematicServo(m, "rotor_servo", inertia, wp.servo_hz, scene.integrator, h)
         _, theta = ramp.plan(nstep, h)
         ctrl[i, :, 0] = servo.controls(wp.spin * theta, h)[0]
     body = slice(int(m.sensor_adr[m.sensor("body").id]), int(m.sensor_adr[m.sensor("body").id]) + 3)
@@ -73,7 +76,7 @@ def steady_speeds(
             s_out, sens = roll.rollout(m, datas, state, ctrl[:, a:b], initial_warmstart=warm, nstep=b - a)
             rows.append(sens[:, ::stride, body])
             state, warm = s_out[:, -1], None
-    sim.physics.close()
+    scene.physics.close()
     pos = np.concatenate(rows, axis=1)
     t = np.arange(pos.shape[1]) * h * stride
     speed, height = np.full(len(freqs), np.nan), np.full(len(freqs), np.nan)

@@ -104,17 +104,7 @@ def simulate_walker(
 
     params = apply_values(_prior(base), WALKER_UNKNOWNS, values)
     beam = make_beam_model(base.model, params)
-    if isinstance(sim.timestep, tuple):
-        raise ValueError("the walker's steady speeds take one timestep for every frequency")
-    speed, height = steady_speeds(
-        beam,
-        frequencies,
-        WalkerParams.with_overrides(params.rig),
-        twist_deg=sim.twist_deg,
-        timestep=sim.timestep,
-        settle_s=sim.settle_s,
-        record_s=sim.record_s,
-    )
+    speed, height = steady_speeds(beam, frequencies, WalkerParams.with_overrides(params.rig), sim)
     steps = [
         {"frequency_hz": float(f), "body_speed_mm_s": float(v), "body_height_mm": float(z)}
         for f, v, z in zip(frequencies, speed, height)
