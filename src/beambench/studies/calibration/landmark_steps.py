@@ -25,12 +25,8 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from beambench.studies.calibration.evaluate import Point
-    from beambench.studies.calibration.targets import Targets
     from beambench.studies.unknowns import Unknown
 
-# landmarks(steps, targets) -> {name: (the map's value or None where it has none, the target's value)}, both in
-# the units the objective compares them in (the walker: speeds over their floor)
-Landmarks = Callable[["pd.DataFrame", "Targets"], dict[str, tuple[float | None, float]]]
 # evaluate(values, frequencies, stage) -> one evaluated point per values, in order
 Evaluate = Callable[[list[dict[str, float]], list[float], str], list["Point"]]
 

@@ -15,11 +15,10 @@ from typing import Any
 import pandas as pd
 
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration.landmark_steps import Landmarks
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
 from beambench.studies.unknowns import Unknown
 
-__all__ = ["RIGS", "CalibratableRig", "CalibrationBase", "Unknown", "get_rig", "register_rig"]
+__all__ = ["RIGS", "CalibratableRig", "CalibrationBase", "Landmarks", "Unknown", "get_rig", "register_rig"]
 
 
 @dataclass(frozen=True)
@@ -35,6 +34,9 @@ class CalibrationBase:
     frequencies: tuple[float, ...] = ()
 
 
+# landmarks(steps, targets) -> {name: (the map's value or None where it has none, the target's value)}, both in
+# the units the objective compares them in (the contact rig: Hz; the landmark steps move them to the targets')
+Landmarks = Callable[[pd.DataFrame, Targets], dict[str, tuple[float | None, float]]]
 Steps = dict[str, Any]  # {"steps": [row per frequency], "extras": {...}} (JSON-friendly: the log is JSON lines)
 
 
