@@ -22,6 +22,8 @@ def test_bounds_are_a_finite_interval_and_a_search_box_only_narrows_them():
         Unknown("x", 1.0, 1.0)
     with pytest.raises(ValueError, match="lo > 0"):
         Unknown("x", 0.0, 2.0, log=True)
+    with pytest.raises(ValueError, match="default 3 outside"):
+        Unknown("x", 0.0, 2.0, default=3.0)
     u = Unknown("x", 0.1, 10.0, log=True)
     assert u.bounds == (-1.0, 1.0) and u.value(0.5) == pytest.approx(math.sqrt(10.0))
     assert u.within(0.2, 5.0).bounds == pytest.approx((math.log10(0.2), math.log10(5.0)))
@@ -33,6 +35,8 @@ def test_bounds_are_a_finite_interval_and_a_search_box_only_narrows_them():
         free_unknowns(rig, SearchSettings(bounds={"preload_mm": (-1.0, 0.5)}))
     with pytest.raises(CalibrationInputError, match="unknown 'gravity'"):
         free_unknowns(rig, SearchSettings(bounds={"gravity": (0.0, 1.0)}))
+    with pytest.raises(CalibrationInputError, match="fixed: k_scale = 3 is outside its bounds"):
+        free_unknowns(rig, SearchSettings(fixed={"k_scale": 3.0}))
     free, _ = free_unknowns(rig, SearchSettings(bounds={"preload_mm": (0.0, 0.5)}))
     assert [u.name for u in free] == ["b_scale", "preload_mm", "friction_scale"]
     assert free[1].bounds == (0.0, 0.5)

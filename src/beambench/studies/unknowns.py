@@ -86,6 +86,8 @@ class Unknown:
             raise ValueError(f"unknown {self.name}: bounds [{self.lo}, {self.hi}] are not a finite interval")
         if self.log and self.lo <= 0:
             raise ValueError(f"unknown {self.name}: a log axis needs lo > 0 (got {self.lo})")
+        if self.default is not None and not self.lo <= self.default <= self.hi:
+            raise ValueError(f"unknown {self.name}: default {self.default:g} outside [{self.lo:g}, {self.hi:g}]")
 
     @property
     def bounds(self) -> tuple[float, float]:

@@ -216,8 +216,10 @@ def calibrate(
 
 def free_unknowns(rig: CalibratableRig, settings: SearchSettings) -> tuple[list[Unknown], dict[str, float]]:
     """The fitted unknowns (``settings.free``, else the rig's default set; ``settings.bounds`` narrow their
-    boxes, never widen them) and the values of the others (:func:`fixed_values`)."""
+    boxes, never widen them) and the values of the others (:func:`fixed_values`; ``settings.fixed`` inside the
+    unknowns' bounds)."""
     unknowns = {u.name: u for u in rig.unknowns}
+    rig_unknowns = dict(unknowns)
     names = settings.free or rig.default_free or tuple(unknowns)
     bad = [n for n in (*names, *settings.bounds) if n not in unknowns]
     if bad:
@@ -229,6 +231,11 @@ def free_unknowns(rig: CalibratableRig, settings: SearchSettings) -> tuple[list[
             unknowns[k] = unknowns[k].within(lo, hi)
         except ValueError as exc:
             raise CalibrationInputError(f"bounds: {exc}") from None
+    for k, v in settings.fixed.items():
+        u = rig_unknowns.get(k)
+        if u is None or not u.lo <= v <= u.hi:
+            where = f"outside its bounds [{u.lo:g}, {u.hi:g}]" if u is not None else "not an unknown of the rig"
+            raise CalibrationInputError(f"fixed: {k} = {v:g} is {where}")
     free = [unknowns[n] for n in names]
     return free, fixed_values(unknowns, free, settings)
 
