@@ -10,7 +10,8 @@ the stage travel, and the clamp orientation (section turned 90° at the clamp); 
 and the load frame's own mass at the same interference (sag − gap), the load's offset along y, a stuck foot
 (friction 6) and a compliant sole (``--only 'compliant sole,friction'`` runs a subset; ``_match_sag`` rows move
 the gap with the sag so the interference stays the base's). For each: the continuous
-edge (highest frequency up to which every step is ``continuous``), the lowest ``1/2``, the lowest ``1/3`` and
+edge (the lowest step that is not ``continuous``, when the map starts continuous:
+:func:`~beambench.sim.scenes.contact_regimes.transitions`), the lowest ``1/2``, the lowest ``1/3`` and
 the map as a string (C continuous, 1, h = 1/2, t = 1/3, q = 1/4, 2, 3, . irregular, - none). Regimes come
 from the plate's normal force only (:func:`beambench.sim.scenes.contact_regimes.regime_map`).
 
