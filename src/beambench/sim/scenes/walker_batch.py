@@ -12,6 +12,7 @@ The speed needs ~3 s from rest to reach its steady value (23 / 65 Hz, research12
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -28,28 +29,34 @@ STEADY_SETTLE_S = 3.0  # s after the ramp before the speed is steady (see the mo
 RECORD_S = 1.5
 RAMP_RATE = 200.0  # turn/s²: the steady speed does not depend on it (10–200 agree within 0.2 mm/s)
 CHUNK = 10_000  # steps per rollout call (bounds the state/sensor arrays)
-STEADY_SIM = SimSettings(settle_s=STEADY_SETTLE_S, record_s=RECORD_S, nthread=1)  # steady_speeds' default
+STEADY_SETTINGS = SimSettings(settle_s=STEADY_SETTLE_S, record_s=RECORD_S, nthread=1)
 
 
 def steady_speeds(
     beam: BeamModel,
     frequencies: Sequence[float],
     params: WalkerParams | None = None,
-    sim: SimSettings = STEADY_SIM,
     *,
+    settings: SimSettings = STEADY_SETTINGS,
     ramp_rate: float = RAMP_RATE,
     stride: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Forward body speed (mm/s) at each frequency and the mean body height (mm) over the record window; NaN
-    where a run diverged. ``sim``: twist, timestep (None: the scene's), settle after the ramp, record window,
-    threads (None: one)."""
-    if isinstance(sim.timestep, tuple):
-        raise ValueError("steady_speeds: one timestep for every frequency")
-    settle_s, record_s = sim.settle_s, sim.record_s
-    nthread = sim.nthread or 1
+    where a run diverged. ``settings``: twist, timestep (None: the walker's), the settle time after the ramp,
+    the record window and threads (None: all cores); the integrator is the walker's, amplitude and noise do not
+    apply."""
+    twist_deg, timestep, settle_s, record_s = (
+        settings.twist_deg,
+        settings.timestep,
+        settings.settle_s,
+        settings.record_s,
+    )
+    if isinstance(timestep, tuple):
+        raise ValueError("the walker takes one timestep for all frequencies")
+    nthread = settings.nthread if settings.nthread is not None else (os.cpu_count() or 1)
     wp = replace(params or WalkerParams(), vel_ramp_rate=ramp_rate)
-    scene = WalkerSim(beam, sim.twist_deg, wp, timestep=sim.timestep)
-    m, d0 = scene.physics.model, scene.physics.data
+    sim = WalkerSim(beam, twist_deg, wp, timestep=timestep)
+    m, d0 = sim.physics.model, sim.physics.data
     h = float(m.opt.timestep)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     state0 = np.empty(mujoco.mj_stateSize(m, spec))
@@ -62,7 +69,7 @@ def steady_speeds(
     for i, f in enumerate(freqs):
         ramp = VelocityRamp(ramp_rate)
         ramp.setpoint = f
-        servo = KinematicServo(m, "rotor_servo", inertia, wp.servo_hz, scene.integrator, h)
+        servo = KinematicServo(m, "rotor_servo", inertia, wp.servo_hz, sim.integrator, h)
         _, theta = ramp.plan(nstep, h)
         ctrl[i, :, 0] = servo.controls(wp.spin * theta, h)[0]
     body = slice(int(m.sensor_adr[m.sensor("body").id]), int(m.sensor_adr[m.sensor("body").id]) + 3)
@@ -76,7 +83,7 @@ def steady_speeds(
             s_out, sens = roll.rollout(m, datas, state, ctrl[:, a:b], initial_warmstart=warm, nstep=b - a)
             rows.append(sens[:, ::stride, body])
             state, warm = s_out[:, -1], None
-    scene.physics.close()
+    sim.physics.close()
     pos = np.concatenate(rows, axis=1)
     t = np.arange(pos.shape[1]) * h * stride
     speed, height = np.full(len(freqs), np.nan), np.full(len(freqs), np.nan)

@@ -104,7 +104,8 @@ def simulate_walker(
 
     params = apply_values(_prior(base), WALKER_UNKNOWNS, values)
     beam = make_beam_model(base.model, params)
-    speed, height = steady_speeds(beam, frequencies, WalkerParams.with_overrides(params.rig), sim)
+    wp = WalkerParams.with_overrides(params.rig)
+    speed, height = steady_speeds(beam, frequencies, wp, settings=sim.replace(nthread=1))  # one thread per worker
     steps = [
         {"frequency_hz": float(f), "body_speed_mm_s": float(v), "body_height_mm": float(z)}
         for f, v, z in zip(frequencies, speed, height)
