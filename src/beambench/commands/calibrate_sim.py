@@ -1,5 +1,5 @@
 """``beambench calibrate sim [SESSION.h5] [--targets TARGETS.yaml]``: fit the twin to a measured sweep or to
-published numbers (:mod:`beambench.studies.calibration.search`). The last stdout line is the calibrated protocol's path."""
+published numbers (:mod:`beambench.studies.calibration`). The last stdout line is the calibrated protocol's path."""
 
 from __future__ import annotations
 
@@ -75,7 +75,7 @@ def sim(
     from beambench.common.console import stderr_console
     from beambench.common.errors import BeambenchError
     from beambench.common.resources import resolve_file
-    from beambench.studies.calibration.search import SearchSettings, calibrate, get_rig
+    from beambench.studies.calibration import SearchSettings, calibrate, get_rig, write_report
     from beambench.studies.calibration.targets import load_targets, session_targets
     from beambench.studies.executor import ExecutorError
 
@@ -121,6 +121,7 @@ def sim(
             result = calibrate(
                 tg, out_dir, name, workers=workers, scheduler=scheduler, settings=settings, progress=progress
             )
+        report = write_report(result, tg, out_dir, name)
     except (BeambenchError, ExecutorError) as exc:
         _fail(str(exc))
     s = result.summary
@@ -129,7 +130,7 @@ def sim(
         + ", ".join(f"{k} {v:.4g}" for k, v in result.values.items())
         + "; twin "
         + ", ".join(f"{k} {v}" for k, v in s.items() if k != "map" and not isinstance(v, dict))
-        + f"; {result.evaluations} runs ({result.reused} re-used), {result.wall_s:.0f} s; report {result.report}",
+        + f"; {result.evaluations} runs ({result.reused} re-used), {result.wall_s:.0f} s; report {report}",
         soft_wrap=True,
     )
     typer.echo(str(result.protocol))
