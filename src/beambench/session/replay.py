@@ -1,12 +1,14 @@
 """Replay a recorded session into the Rerun viewer (or an ``.rrd`` file), as the run sent it live.
 
-The streams go out interleaved in windows of :data:`WINDOW_S` of session time (every stream's slice of one
-window, then the steps that started or ended in it, then its events), so the view is built in the order the
-run saw it: the plate's height from the contacts, the step panel with each step's regime or speed.
+The streams go out interleaved in windows of :data:`WINDOW_S` of session time, split at each step's start and
+end (a step's record and the events at a window's start, then every stream's slice of the window), so the view
+is built in the order the run saw it: the plate's height from the contacts, the step panel with each step's
+regime or speed from the data before its end and no data from after a step's start in its first line.
 """
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -44,20 +46,22 @@ def replay_session(session_path: Path, mode: RerunMode, out: Path | None = None)
     steps = _step_records(session)
     events = sorted(zip(session.events.host_time_ns, session.events.kind, session.events.message), key=lambda e: e[0])
     window = int(WINDOW_S * 1e9)
-    edges = np.arange(t0, max(ends, default=t0) + window + 1, window, dtype=np.int64)
+    grid = np.arange(t0, max(ends, default=t0) + window + 1, window, dtype=np.int64)
+    at_steps = np.asarray([t for t, _ in steps if t0 <= t <= grid[-1]], dtype=np.int64)
+    edges = np.unique(np.concatenate([grid, at_steps]))  # steps split the windows
     cursor = {name: 0 for name in session.streams}
-    for w1 in edges[1:]:
+    for w0, w1 in itertools.pairwise(edges):
+        while steps and steps[0][0] <= w0:  # a step that starts (or ends) here, before the data after it
+            sink.step(steps.pop(0)[1])
+        while events and events[0][0] <= w0:
+            t_ns, kind, message = events.pop(0)
+            sink.event(int(t_ns), str(kind), str(message))
         for name, s in session.streams.items():
             i, j = cursor[name], int(np.searchsorted(s.host_time_ns, w1, side="left"))
             if j > i:
                 cols = {k: v[i:j] for k, v in s.columns.items()}
                 sink.write(Batch(name, s.host_time_ns[i:j], s.device_time[i:j], cols))
             cursor[name] = j
-        while steps and steps[0][0] < w1:
-            sink.step(steps.pop(0)[1])
-        while events and events[0][0] < w1:
-            t_ns, kind, message = events.pop(0)
-            sink.event(int(t_ns), str(kind), str(message))
     for _, record in steps:  # any step time past the streams' end
         sink.step(record)
     for t_ns, kind, message in events:

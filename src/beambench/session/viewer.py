@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -100,7 +101,9 @@ class HeadlessViewer:
         deadline = time.monotonic() + START_TIMEOUT_S
         while True:
             if self._proc is not None and self._proc.poll() is not None:
-                raise ViewerUnavailable(f"the Rerun viewer exited at start ({self._last_log_line()})")
+                raise ViewerUnavailable(
+                    f"the Rerun viewer exited at start: {self._last_log_line()} (it needs a working Vulkan driver)"
+                )
             try:
                 self.client = ViewerClient(f"rerun+http://127.0.0.1:{self.port}/proxy")
                 self.client.get_state()
@@ -113,8 +116,11 @@ class HeadlessViewer:
                 time.sleep(0.2)
 
     def _last_log_line(self) -> str:
-        lines = (Path(self._tmp.name) / "viewer.log").read_text(errors="replace").strip().splitlines()
-        return lines[-1][-300:] if lines else "no output"
+        """The viewer's reason: its panic line if it panicked, else its last line of output."""
+        text = (Path(self._tmp.name) / "viewer.log").read_text(errors="replace")
+        lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in text.splitlines() if line.strip()]
+        panics = [line for line in lines if "panicked" in line or " ERROR " in line]
+        return (panics or lines or ["no output"])[-1][-300:]
 
     def open(self, rrd: Path | None = None) -> Any:
         """Open a recording (None: the one given at start); wait until it is loaded and its views exist.
@@ -177,6 +183,8 @@ def session_screenshot(session: Path, png: Path, at: float | None = None, rrd: P
         at = (int(steps["t_end_ns"].iloc[0]) - t0) * 1e-9 if len(steps) else 0.0
     if not 0.0 <= at <= max(end_s, 0.0) + 1.0:
         raise ValueError(f"--at {at:g} s is outside the session (0 to {end_s:g} s)")
+    with HeadlessViewer():  # fail in a second, not after the replay, where the viewer cannot run
+        pass
     with tempfile.TemporaryDirectory(prefix="beambench-view-") as tmp:
         path = rrd or Path(tmp) / f"{session.stem}.rrd"
         replay_session(session, "save", path)

@@ -22,12 +22,13 @@ TRAIL_S = 0.3  # the fading foot/tip trail: a few drive periods above ~10 Hz
 TRAIL_SEGMENTS = 6
 TRAIL_EVERY_S = 0.1  # a saved file gets the trails 10 times a second (a viewer: every batch)
 BODY_TRAIL_S = 20.0
-BODY_TRAIL_STEP_S = 0.1  # spacing of the body trail's points
-BODY_TRAIL_EVERY_S = 0.5  # a saved file redraws the body trail and the floor twice a second
+BODY_TRAIL_STEP_S = 0.2  # spacing of the body trail's points
+BODY_TRAIL_EVERY_S = 0.2  # a saved file redraws the body trail and the floor five times a second
 BODY_SERIES_HZ = 30.0  # body position and speed samples per second
 SPEED_WINDOW_S = 0.5  # speed: forward displacement over this span
 CONTACT_N = 0.02  # normal force that counts as a contact for the plate's height (ContactParams.floor_n)
 PLATE_MOVE_MM = 0.25
+BEAM_COLOR = (250, 205, 90)
 MARKER_COLORS = {
     "stage": (120, 160, 255),
     "tip": (255, 170, 40),
@@ -70,7 +71,7 @@ class Scene3D:
         for chain in self.layout.chains:
             self.rec.log(
                 _beam_entity(chain),
-                rr.LineStrips3D.from_fields(radii=[self.radius * 0.45], colors=[(235, 235, 210)]),
+                rr.LineStrips3D.from_fields(radii=[self.radius * 0.45], colors=[BEAM_COLOR]),
                 static=True,
             )
 
@@ -82,7 +83,7 @@ class Scene3D:
         heights = first_mm @ self.up
         if self.layout.body is not None:
             extent = 450.0
-            direction = -1.0 * side + 0.45 * self.up - 0.35 * self.fwd
+            direction = -1.0 * side + 0.8 * self.up - 0.35 * self.fwd
             spacing = 100.0
         else:
             extent = max(float(np.max(hi - lo)), 40.0) * 1.5

@@ -15,6 +15,7 @@ from beambench.acquisition.contact_events import force_regime
 from beambench.sinks.rerun_layout import TIMELINE
 
 MEASURED_SPAN_S = 0.5  # the measured frequency: mean motor velocity over the last half second
+MEASURED_EVERY_S = 0.25  # a batch longer than this (a saved file's) updates the panel at this spacing
 
 
 class StepPanel:
@@ -29,6 +30,8 @@ class StepPanel:
         self._normal = np.zeros(0)
         self._bt = np.zeros(0)
         self._bx = np.zeros(0)
+        self._mt = np.zeros(0)
+        self._mv = np.zeros(0)
 
     def step(self, record: StepRecord, t_s: float) -> None:
         """A step started (status running) or ended; ``t_s``: its start or end in session seconds."""
@@ -47,11 +50,16 @@ class StepPanel:
         self._bt, self._bx = np.concatenate([self._bt, t]), np.concatenate([self._bx, forward_mm])
 
     def motor(self, t: np.ndarray, velocity: np.ndarray) -> None:
-        """Motor telemetry (turn/s = drive Hz): update the measured frequency."""
-        recent = t >= t[-1] - MEASURED_SPAN_S
-        self.measured_hz = float(np.mean(velocity[recent]))
-        if self.current is not None:
-            self._write(float(t[-1]))
+        """Motor telemetry (turn/s = drive Hz): the measured frequency, every :data:`MEASURED_EVERY_S` within
+        the batch (the mean over the :data:`MEASURED_SPAN_S` before each)."""
+        self._mt = np.concatenate([self._mt, t])[-2000:]
+        self._mv = np.concatenate([self._mv, velocity])[-2000:]
+        ticks = np.arange(float(t[-1]), float(t[0]), -MEASURED_EVERY_S)[::-1]
+        for tk in ticks:
+            recent = (self._mt > tk - MEASURED_SPAN_S) & (self._mt <= tk)
+            self.measured_hz = float(np.mean(self._mv[recent]))
+            if self.current is not None:
+                self._write(float(tk))
 
     def _drop_before(self, t_s: float) -> None:
         keep = self._t >= t_s - 1e-6
@@ -76,15 +84,15 @@ class StepPanel:
 
     def _write(self, t_s: float) -> None:
         lines = []
-        if self.current is not None:
+        c = self.current
+        if c is not None:
             of = f" of {self.total}" if self.total else ""
-            c = self.current
-            lines.append(f"## Step {c.index + 1}{of}: {c.frequency_hz:g} Hz commanded")
-            lines[-1] += f" (index {c.index})"
+            lines.append(f"## Step {c.index + 1}{of} (index {c.index}): {c.frequency_hz:g} Hz")
         else:
             lines.append("## Between steps")
         if self.measured_hz is not None:
-            lines.append(f"**Measured: {self.measured_hz:.2f} Hz** (motor turn/s, last {MEASURED_SPAN_S:g} s)")
+            commanded = f"commanded {c.frequency_hz:g} Hz · " if c is not None else ""
+            lines.append(f"**{commanded}measured {self.measured_hz:.2f} Hz** (motor, last {MEASURED_SPAN_S:g} s)")
         if self.last_done:
             lines.append(f"Last finished: {self.last_done}")
         self.rec.set_time(TIMELINE, duration=t_s)
