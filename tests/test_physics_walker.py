@@ -129,8 +129,8 @@ def test_protocol_selects_the_named_set_and_refuses_rod_legs():
     """`sim.params: walker_paper_guesses` gives the walker the paper_guesses set; the shipped protocol the
     calibrated defaults; a rod leg model is a one-line ConfigError before anything is built."""
     from beambench.acquisition.config import ConfigError, parse_protocol
+    from beambench.backends.sim import build_scene
     from beambench.common.resources import shipped_dir
-    from beambench.rigs.sim import build_scene
 
     text = (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
     shipped = build_scene(parse_protocol(text))
