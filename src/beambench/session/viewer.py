@@ -78,7 +78,8 @@ class HeadlessViewer:
                 "the Rerun viewer needs a Vulkan driver and finds none: on Debian/Ubuntu "
                 "`apt-get install mesa-vulkan-drivers libvulkan1` (Mesa's software renderer; no GPU or display needed)"
             )
-        env = dict(os.environ, XDG_RUNTIME_DIR=self._tmp.name, MESA_VK_WSI_DEBUG="noshm")
+        # RUST_LOG: the viewer shows its info and warning log lines as toasts over the views (in screenshots too)
+        env = dict(os.environ, XDG_RUNTIME_DIR=self._tmp.name, MESA_VK_WSI_DEBUG="noshm", RUST_LOG="error")
         if "VK_ICD_FILENAMES" not in env and LAVAPIPE_ICD.exists() and not Path("/dev/dri").exists():
             env["VK_ICD_FILENAMES"] = str(LAVAPIPE_ICD)  # no GPU: the software rasteriser, not a search of all
         os.chmod(self._tmp.name, 0o700)
