@@ -23,12 +23,12 @@ from beambench.session.viewer import HeadlessViewer, rerun_binary, vulkan_availa
 CONTACT = """
 name: lv_contact
 rig: contact
-sweep: {frequencies: [18, 21]}
-settle_s: 0.5
+sweep: {frequencies: [20, 30]}
+settle_s: 1.0
 record_s: 1.5
 amplitude_mm: 2.0
 limits: {max_frequency_hz: 40}
-sim: {seed: 3}
+sim: {seed: 3, plate_gap_mm: 1.0}  # the foot reaches the plate within a short run
 """
 WALKER = """
 name: lv_walker
@@ -41,6 +41,7 @@ limits: {max_frequency_hz: 80, max_current_a: 6}
 sim: {model: prb3, seed: 2, segments: 1}
 """
 MIN_BEAM_FRACTION = 0.003  # of the 3-D view's pixels in colour (the old view: 0.0002 at the contact sweep's 140 s)
+MIN_PLATE_FRACTION = 0.005  # brown (the plate's box), of the contact rig's 3-D view
 
 
 @pytest.fixture(scope="module")
@@ -70,14 +71,24 @@ def sessions(tmp_path_factory, viewer_ok) -> dict[str, Path]:
     return {"contact": _run(tmp, "c", CONTACT), "walker": _run(tmp, "w", WALKER)}
 
 
+def _pixels(png: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(float)
+
+
 def colour_fraction(png: bytes) -> float:
     """Share of pixels in colour (not grey: channel spread > 40 of 255)."""
-    a = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+    a = _pixels(png)
     return float(np.mean(a.max(axis=-1) - a.min(axis=-1) > 40))
 
 
-def _look(rrd: Path, at: float, shots: Path) -> tuple[dict[str, str], dict, float]:
-    """Open ``rrd``; the views by name (class), the blueprint and the 3-D view's colour fraction at ``at``."""
+def brown_fraction(png: bytes) -> float:
+    """Share of brown pixels (the plate, shaded: green 0.45-0.75 of red, little blue; the beam is yellower)."""
+    r, g, b = np.moveaxis(_pixels(png), -1, 0)
+    return float(np.mean((r > 60) & (g > 0.45 * r) & (g < 0.75 * r) & (b < 0.55 * r)))
+
+
+def _look(rrd: Path, at: float, shots: Path) -> tuple[dict[str, str], dict, bytes]:
+    """Open ``rrd``; the views by name (class), the blueprint and the 3-D view's picture at ``at``."""
     with HeadlessViewer(rrd, window=(1280, 720)) as viewer:
         state = viewer.open()
         assert state.recordings and not state.loading
@@ -87,7 +98,7 @@ def _look(rrd: Path, at: float, shots: Path) -> tuple[dict[str, str], dict, floa
         errors = [(v.name, r.severity, r.summary) for v in state.views for r in v.reports]
         assert not errors, errors  # no view reports a warning or an error
         blueprint = viewer.client.get_blueprint().blueprint
-        return {v.name: v.view_class for v in state.views}, blueprint, colour_fraction(png)
+        return {v.name: v.view_class for v in state.views}, blueprint, png
 
 
 def _time_range_s(blueprint: dict, title: str) -> float:
@@ -99,8 +110,10 @@ def _time_range_s(blueprint: dict, title: str) -> float:
 
 def test_contact_view_shows_the_beam_plate_forces_and_the_step(sessions, tmp_path):
     session = sessions["contact"]
-    views, blueprint, beam = _look(session.with_suffix(".rrd"), 3.0, tmp_path)
+    views, blueprint, png = _look(session.with_suffix(".rrd"), 4.5, tmp_path)
+    beam, plate = colour_fraction(png), brown_fraction(png)
     assert beam >= MIN_BEAM_FRACTION, f"3-D view: {100 * beam:.3f} % of pixels in colour"
+    assert plate >= MIN_PLATE_FRACTION, f"3-D view: {100 * plate:.3f} % of pixels brown (the plate)"
     names = set(views)
     assert {"Plate normal force (N)", "Plate tangential force (N)", "Motor current (A)"} <= names, names
     assert any("Drive frequency (Hz)" in n for n in names) and views["Step (drive frequency, Hz)"] == "TextDocument"
@@ -113,7 +126,8 @@ def test_contact_view_shows_the_beam_plate_forces_and_the_step(sessions, tmp_pat
 
 
 def test_walker_view_has_no_plate_panels(sessions, tmp_path):
-    views, _, beam = _look(sessions["walker"].with_suffix(".rrd"), 1.5, tmp_path)
+    views, _, png = _look(sessions["walker"].with_suffix(".rrd"), 1.5, tmp_path)
+    beam = colour_fraction(png)
     assert beam >= MIN_BEAM_FRACTION, f"3-D view: {100 * beam:.3f} % of pixels in colour"
     names = set(views)
     assert not [n for n in names if "Plate" in n or "Load cell" in n], names
@@ -122,7 +136,7 @@ def test_walker_view_has_no_plate_panels(sessions, tmp_path):
 
 def test_view_screenshot_command_writes_the_viewer_picture(sessions, tmp_path):
     png = tmp_path / "shot.png"
-    res = CliRunner().invoke(app, ["view", str(sessions["contact"]), "--screenshot", str(png), "--at", "3"])
+    res = CliRunner().invoke(app, ["view", str(sessions["contact"]), "--screenshot", str(png), "--at", "4.5"])
     assert res.exit_code == 0, res.output
     assert res.stdout.strip() == str(png)
     image = Image.open(png)

@@ -28,6 +28,7 @@ BODY_SERIES_HZ = 30.0  # body position and speed samples per second
 SPEED_WINDOW_S = 0.5  # speed: forward displacement over this span
 CONTACT_N = 0.02  # normal force that counts as a contact for the plate's height (ContactParams.floor_n)
 PLATE_MOVE_MM = 0.25
+PLATE_MATCH_S = 3.0  # mocap frames wait this long for the plate's force of the same time
 BEAM_COLOR = (250, 205, 90)
 MARKER_COLORS = {
     "stage": (120, 160, 255),
@@ -51,13 +52,17 @@ class Scene3D:
         self.fwd = layout.forward_vector()
         self._hist_t = np.zeros(0)
         self._hist_p = np.zeros((0, len(layout.markers), 3), np.float32)
-        self._keep_s = max(TRAIL_S, SPEED_WINDOW_S, BODY_TRAIL_S if walker else 0.0) + 0.5
+        # kept: the trails, the speed window, and mocap frames the plate's force has not covered yet (the streams
+        # arrive in their own batches, up to a poll apart)
+        self._keep_s = max(TRAIL_S, SPEED_WINDOW_S, PLATE_MATCH_S, BODY_TRAIL_S if walker else 0.0) + 0.5
         self._next_trail = -np.inf
         self._next_body = -np.inf
         self._next_series = -np.inf
         self._contacts: list[tuple[float, float]] = []  # recent (start, end) s of normal force > CONTACT_N
         self._plate_heights: list[np.ndarray] = []
         self._plate_mm: float | None = None
+        self._force_until = -np.inf  # the plate's force has been seen up to this time
+        self._plate_until = -np.inf  # mocap frames up to this time were matched with it
 
     def log_static(self) -> None:
         """Marker styles (colour, radius, label shown) and beam colour, once."""
@@ -96,12 +101,14 @@ class Scene3D:
     def contacts(self, t: np.ndarray, normal_n: np.ndarray) -> None:
         """The plate's force: remember when it read a contact (for the plate's height from the foot)."""
         on = normal_n > CONTACT_N
-        if not on.any():
-            return
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(np.int8), [0]])))
-        for a, b in zip(edges[::2], edges[1::2]):
-            self._contacts.append((float(t[a]), float(t[b - 1])))
-        self._contacts = self._contacts[-4000:]
+        if on.any():
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(np.int8), [0]])))
+            for a, b in zip(edges[::2], edges[1::2], strict=True):
+                self._contacts.append((float(t[a]), float(t[b - 1])))
+            self._contacts = self._contacts[-4000:]
+        self._force_until = max(self._force_until, float(t[-1]))
+        if self.layout.plate:
+            self._plate()
 
     def write(self, t: np.ndarray, pos_mm: np.ndarray) -> None:
         """One mocap batch: ``t`` (n,) session seconds, ``pos_mm`` (n, markers, 3)."""
@@ -118,7 +125,7 @@ class Scene3D:
         if self.layout.body is not None:
             self._body_series(t)
         if self.layout.plate:
-            self._plate(t, pos_mm)
+            self._plate()
 
     def _trails(self, t: np.ndarray) -> None:
         times = [float(t[-1])] if self.live else _ticks(t, self._next_trail, TRAIL_EVERY_S)
@@ -180,9 +187,17 @@ class Scene3D:
         if ok.any():
             self.send("body/speed", "scalars", times[ok], (x_now[ok] - x_then[ok]) / span[ok])
 
-    def _plate(self, t: np.ndarray, pos_mm: np.ndarray) -> None:
-        if not self._contacts or "foot" not in self.index:
+    def _plate(self) -> None:
+        """Mocap frames the force now covers: the foot's heights while the plate reads a contact."""
+        if "foot" not in self.index or not len(self._hist_t):
             return
+        upto = min(self._force_until, float(self._hist_t[-1]))
+        sel = (self._hist_t > self._plate_until) & (self._hist_t <= upto)
+        if not sel.any() or not self._contacts:
+            self._plate_until = max(self._plate_until, upto)
+            return
+        self._plate_until = upto
+        t, pos_mm = self._hist_t[sel], self._hist_p[sel]
         starts = np.array([c[0] for c in self._contacts])
         ends = np.array([c[1] for c in self._contacts])
         k = np.searchsorted(starts, t, side="right") - 1
