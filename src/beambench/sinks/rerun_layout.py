@@ -57,6 +57,7 @@ class RigLayout:
     plate: bool  # a force plate under the foot: plate box, force and load-cell panels
     loadcell_channels: tuple[str, ...]
     motor: bool
+    mocap_rate_hz: float = 360.0
 
     @property
     def panels(self) -> tuple[Panel, ...]:
@@ -160,6 +161,7 @@ def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
         plate=plate,
         loadcell_channels=channels,
         motor="motor" in by_name,
+        mocap_rate_hz=mocap.rate_hz if mocap is not None and mocap.rate_hz > 0 else 360.0,
     )
 
 

@@ -23,7 +23,8 @@ TRAIL_SEGMENTS = 6
 TRAIL_EVERY_S = 0.1  # a saved file gets the trails 10 times a second (a viewer: every batch)
 BODY_TRAIL_S = 20.0
 BODY_TRAIL_STEP_S = 0.2  # spacing of the body trail's points
-BODY_TRAIL_EVERY_S = 0.2  # a saved file redraws the body trail and the floor five times a second
+BODY_TRAIL_EVERY_S = 0.2  # a saved file redraws the body trail five times a second
+FLOOR_EVERY_S = 1.0  # and the floor patch under the body once a second
 BODY_SERIES_HZ = 30.0  # body position and speed samples per second
 SPEED_WINDOW_S = 0.5  # speed: forward displacement over this span
 CONTACT_N = 0.02  # normal force that counts as a contact for the plate's height (ContactParams.floor_n)
@@ -57,6 +58,9 @@ class Scene3D:
         self._keep_s = max(TRAIL_S, SPEED_WINDOW_S, PLATE_MATCH_S, BODY_TRAIL_S if walker else 0.0) + 0.5
         self._next_trail = -np.inf
         self._next_body = -np.inf
+        self._next_floor = -np.inf
+        # frames per trail segment: TRAIL_S of frames at the mocap's rate over TRAIL_SEGMENTS pieces
+        self._seg = max(2, round(TRAIL_S * layout.mocap_rate_hz / TRAIL_SEGMENTS))
         self._next_series = -np.inf
         self._contacts: list[tuple[float, float]] = []  # recent (start, end) s of normal force > CONTACT_N
         self._plate_heights: list[np.ndarray] = []
@@ -71,6 +75,14 @@ class Scene3D:
             self.rec.log(
                 f"mocap/{m}",
                 rr.Points3D.from_fields(radii=[self.radius], colors=[color], labels=[m], show_labels=True),
+                static=True,
+            )
+        fade = [int(40 + 215 * (k + 1) / TRAIL_SEGMENTS) for k in range(TRAIL_SEGMENTS)]  # oldest piece faintest
+        for m in self.layout.trails:
+            color = MARKER_COLORS.get(m, (255, 200, 0))
+            self.rec.log(
+                f"mocap/trail/{m}",
+                rr.LineStrips3D.from_fields(radii=[self.radius * 0.3], colors=[(*color, a) for a in fade]),
                 static=True,
             )
         for chain in self.layout.chains:
@@ -128,39 +140,41 @@ class Scene3D:
             self._plate()
 
     def _trails(self, t: np.ndarray) -> None:
-        times = [float(t[-1])] if self.live else _ticks(t, self._next_trail, TRAIL_EVERY_S)
-        for tk in times:
-            self.rec.set_time(TIMELINE, duration=tk)
+        """The fading trails (one column of rows per batch) and, on the walker, the body's trail and floor."""
+        due = [len(t) - 1] if self.live else _ticks(t, self._next_trail, TRAIL_EVERY_S)
+        if not due:
+            return
+        self._next_trail = float(t[due[-1]]) + TRAIL_EVERY_S
+        span = TRAIL_SEGMENTS * self._seg
+        at = len(self._hist_t) - len(t) + np.asarray(due)  # the due frames' places in the history
+        at = at[at >= span]
+        if len(at):
+            offsets = np.arange(TRAIL_SEGMENTS)[:, None] * self._seg + np.arange(self._seg + 1)[None, :]
+            frames = (at - span)[:, None, None] + offsets[None]  # (rows, segments, points): pieces overlap by one
             for m in self.layout.trails:
-                self.rec.log(f"mocap/trail/{m}", self._fading(tk, self.index[m], MARKER_COLORS.get(m, (255, 200, 0))))
-            body = self.layout.body
-            if body is not None and (self.live or tk >= self._next_body):
-                self._body_trail(tk, self.index[body])
+                self.send(f"mocap/trail/{m}", "segments", self._hist_t[at], self._hist_p[frames, self.index[m], :])
+        body = self.layout.body
+        if body is None:
+            return
+        for i in due:
+            tk = float(t[i])
+            if self.live or tk >= self._next_body:
+                self.rec.set_time(TIMELINE, duration=tk)
+                self._body_trail(tk, self.index[body], floor=self.live or tk >= self._next_floor)
                 self._next_body = tk + BODY_TRAIL_EVERY_S
-        if times:
-            self._next_trail = times[-1] + TRAIL_EVERY_S
+                if tk >= self._next_floor:
+                    self._next_floor = tk + FLOOR_EVERY_S
 
-    def _fading(self, tk: float, j: int, color: tuple[int, int, int]) -> rr.LineStrips3D:
-        sel = (self._hist_t > tk - TRAIL_S) & (self._hist_t <= tk)
-        path = self._hist_p[sel, j, :]
-        pieces = np.array_split(np.arange(len(path)), TRAIL_SEGMENTS)
-        strips, colors = [], []
-        for k, idx in enumerate(pieces):
-            if len(idx) == 0:
-                continue
-            lo = max(int(idx[0]) - 1, 0)  # overlap one point so the pieces join
-            strips.append(path[lo : int(idx[-1]) + 1])
-            colors.append((*color, int(40 + 215 * (k + 1) / TRAIL_SEGMENTS)))
-        return rr.LineStrips3D(strips, colors=colors, radii=self.radius * 0.3)
-
-    def _body_trail(self, tk: float, j: int) -> None:
+    def _body_trail(self, tk: float, j: int, floor: bool) -> None:
         sel = (self._hist_t > tk - BODY_TRAIL_S) & (self._hist_t <= tk)
         path = self._hist_p[sel, j, :][:: max(1, int(np.sum(sel) * BODY_TRAIL_STEP_S / BODY_TRAIL_S))]
         if len(path) < 2:
             return
-        floor = self._floor_mm()  # the trail lies on the floor, just above the floor patch
-        below = path - np.outer(path @ self.up - (floor + 0.5), self.up)
+        level = self._floor_mm()  # the trail lies on the floor, just above the floor patch
+        below = path - np.outer(path @ self.up - (level + 0.5), self.up)
         self.rec.log("mocap/body_trail", rr.LineStrips3D([below], colors=[(60, 200, 90, 200)], radii=1.5))
+        if not floor:
+            return
         centre = below[-1] - self.up * 1.5
         half = np.abs(self.fwd) * 300.0 + np.abs(np.cross(self.up, self.fwd)) * 150.0 + np.abs(self.up) * 1.0
         self.rec.log(
@@ -173,7 +187,7 @@ class Scene3D:
         return float(np.min(self._hist_p[:, feet, :] @ self.up)) if feet else 0.0
 
     def _body_series(self, t: np.ndarray) -> None:
-        times = np.asarray(_ticks(t, self._next_series, 1.0 / BODY_SERIES_HZ))
+        times = t[_ticks(t, self._next_series, 1.0 / BODY_SERIES_HZ)]
         if not len(times):
             return
         self._next_series = float(times[-1]) + 1.0 / BODY_SERIES_HZ
@@ -230,12 +244,12 @@ def _beam_entity(chain: tuple[str, ...]) -> str:
     return f"mocap/beam/{chain[-1]}"
 
 
-def _ticks(t: np.ndarray, next_t: float, every: float) -> list[float]:
-    """The frame times in ``t`` at which a drawing falls due (one per ``every`` seconds, from ``next_t``)."""
-    out: list[float] = []
-    for x in t:
+def _ticks(t: np.ndarray, next_t: float, every: float) -> list[int]:
+    """The frames (indices into ``t``) at which a drawing falls due: one per ``every`` seconds, from ``next_t``."""
+    out: list[int] = []
+    for i, x in enumerate(t):
         if x >= next_t:
-            out.append(float(x))
+            out.append(i)
             next_t = float(x) + every
     return out
 

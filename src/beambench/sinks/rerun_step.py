@@ -15,7 +15,7 @@ from beambench.acquisition.contact_events import force_regime
 from beambench.sinks.rerun_layout import TIMELINE
 
 MEASURED_SPAN_S = 0.5  # the measured frequency: mean motor velocity over the last half second
-MEASURED_EVERY_S = 0.25  # a batch longer than this (a saved file's) updates the panel at this spacing
+MEASURED_EVERY_S = 0.5  # a batch longer than this (a saved file's) updates the panel at this spacing
 
 
 class StepPanel:

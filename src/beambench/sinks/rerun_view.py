@@ -62,7 +62,7 @@ def view_coordinates(up_axis: str) -> rr.components.ViewCoordinates:
 class _Pending:
     """Columns of one entity waiting to go out in one ``send_columns`` call."""
 
-    kind: str  # "scalars", "points" or "strips" (one line strip per row)
+    kind: str  # "scalars", "points", "strips" (a line strip per row) or "segments" (several per row)
     times: list[np.ndarray] = field(default_factory=list)
     values: list[np.ndarray] = field(default_factory=list)
     nbytes: int = 0
@@ -191,8 +191,10 @@ class RerunSink:
         values = np.concatenate(p.values)
         if p.kind == "points":
             self.rec.send_columns(entity, [times], rr.Points3D.columns(positions=values))
-        elif p.kind == "strips":  # values (rows, points, 3): one strip per row
-            strips = rr.LineStrips3D.columns(strips=values).partition(np.ones(len(values), np.int32))  # numpy path
+        elif p.kind in ("strips", "segments"):  # (rows, points, 3): a strip a row; (rows, k, points, 3): k a row
+            per_row = 1 if p.kind == "strips" else values.shape[1]
+            flat = values.reshape(-1, values.shape[-2], 3)  # equal-length strips: Rerun's numpy path
+            strips = rr.LineStrips3D.columns(strips=flat).partition(np.full(len(values), per_row, np.int32))
             self.rec.send_columns(entity, [times], strips)
         else:
             self.rec.send_columns(entity, [times], rr.Scalars.columns(scalars=values))
