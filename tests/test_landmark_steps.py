@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from beambench.studies.calibration.landmark_steps import fit_local_linear, landmark_steps, solve_step
 from beambench.studies.calibration.search import (
     RIGS,
     CalibratableRig,
@@ -24,7 +25,6 @@ from beambench.studies.calibration.search import (
 )
 from beambench.studies.calibration.targets import parse_targets
 from beambench.studies.executor import Pool
-from beambench.studies.calibration.landmark_steps import fit_local_linear, landmark_steps, solve_step
 
 # ------------------------------------------------------------------------------------------------ the model
 

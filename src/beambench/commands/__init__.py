@@ -26,6 +26,6 @@ def sub_app(help: str) -> typer.Typer:
 
 def chatter() -> Console:
     """The console for progress, tables and notes: stderr, so stdout carries only the command's result."""
-    from rich.console import Console
+    from beambench.common.console import stderr_console
 
-    return Console(stderr=True)
+    return stderr_console()

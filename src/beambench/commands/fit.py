@@ -95,6 +95,7 @@ def fit(
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from beambench.common.console import stderr_console
     from beambench.common.resources import user_dir
     from beambench.studies.fit import (
         FitError,
@@ -104,7 +105,7 @@ def fit(
         write_param_set,
     )
 
-    console = Console(stderr=True)
+    console = stderr_console()
     try:
         data = load_release_session(session, register=register)
     except FitError as exc:

@@ -56,6 +56,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from beambench.studies.calibration.landmark_steps import Landmarks, landmark_steps, within
 from beambench.studies.calibration.targets import (
     CONTINUOUS,
     NONE,
@@ -63,7 +64,6 @@ from beambench.studies.calibration.targets import (
     Targets,
     transitions,
 )
-from beambench.studies.calibration.landmark_steps import Landmarks, landmark_steps, within
 from beambench.studies.calibration.written_run import run_written_protocol
 
 if TYPE_CHECKING:
