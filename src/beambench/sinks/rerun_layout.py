@@ -16,6 +16,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from beambench.acquisition.batch import StreamSpec
+from beambench.acquisition.scenes import scene_info
 
 TIMELINE = "session_time"
 FORCE_WINDOW_S = 2.0  # 1 kHz plate forces: 2 s holds a few cycles of a slow step and stays readable at 40 Hz
@@ -133,8 +134,10 @@ def axis_vector(axis: str) -> np.ndarray:
 def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
     """The layout for these streams on rig ``rig`` (``contact``, ``walker`` …; None: from the markers alone).
 
-    A body marker makes a walker (legs drawn body → each foot, no plate); otherwise the markers form one chain
-    in the stream's order (stage → tip → foot) and a load-cell stream is the plate under the foot."""
+    A body marker makes a walker (legs drawn body → each foot); otherwise the markers form one chain in the
+    stream's order (stage → tip → foot). A load-cell stream is a plate under the foot where the scene catalogue
+    says the rig has one (:attr:`beambench.acquisition.scenes.SceneInfo.plate`; the walker's sim streams a load
+    cell but has no plate)."""
     by_name = {s.name: s for s in specs}
     mocap = by_name.get("mocap")
     markers = tuple(mocap.columns["data"].labels) if mocap is not None and "data" in mocap.columns else ()
@@ -148,7 +151,11 @@ def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
     feet = tuple(m for m in markers if m.startswith("foot"))
     trails = feet + tuple(m for m in markers if m == "tip")
     loadcell = by_name.get("loadcell")
-    plate = loadcell is not None and body is None and rig != "walker"
+    try:  # the scene catalogue says whether the rig's load cells are a plate under the foot
+        has_plate = scene_info(rig).plate if rig else body is None
+    except KeyError:  # a rig the catalogue does not know: a plate unless it has a body (a walker)
+        has_plate = body is None
+    plate = loadcell is not None and has_plate
     channels = tuple(loadcell.columns["data"].labels) if loadcell is not None and "data" in loadcell.columns else ()
     return RigLayout(
         rig=rig or "",
