@@ -66,6 +66,7 @@ from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.common.errors import BeambenchError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, quat_y
+from beambench.sim.models.registry import UnknownModelError, model_family
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 
 
@@ -134,7 +135,7 @@ PARAMETER_SETS: dict[str, dict[str, float]] = {
     "paper_guesses": {"foot_mass": 0.020, "rotor_inertia": 1.35e-5},
 }
 
-LEG_MODELS = ("prb3",)  # leg models that stand and walk; the segmented rods collapse when driven
+LEG_FAMILIES = ("prb3", "rod")  # leg model families the walker builds (the physical twin's legs are rods)
 
 
 class WalkerLegError(BeambenchError, ValueError):
@@ -146,14 +147,14 @@ class WalkerLegError(BeambenchError, ValueError):
 
 
 def check_leg_model(name: str) -> None:
-    """Refuse leg models that cannot carry the walker (research12, 3 g foot: rod3g, rod3gs, rod5g stand 17-25 mm
-    lower than prb3 and collapse when driven at 23 and 65 Hz, the body ~57 mm below the floor)."""
-    if name not in LEG_MODELS:
-        raise WalkerLegError(
-            name,
-            "refused for the walker: segmented-rod legs collapse under the drive (body ~57 mm below the floor "
-            f"at 23 and 65 Hz); use sim.model: {' or '.join(LEG_MODELS)}",
-        )
+    """Refuse leg models of a family the walker cannot build (every known family builds today: PRB3 and the
+    segmented rods; issue 22 puts the contact rig's physical rod on the walker, docs/contact-twin.md)."""
+    try:
+        family = model_family(name)
+    except UnknownModelError as exc:
+        raise WalkerLegError(name, str(exc).split(": ", 1)[-1]) from None
+    if family not in LEG_FAMILIES:
+        raise WalkerLegError(name, f"refused for the walker: use a leg model of {' or '.join(LEG_FAMILIES)}")
 
 
 WALKER_FRONT = 0.04  # m, the plate's front edge ahead of the leg clamps (the platform's length is counted from it)
@@ -349,7 +350,7 @@ class WalkerSim(DrivenScene):
     ) -> None:
         check_leg_model(beam.name)
         self.beam, self.twist_deg = beam, twist_deg
-        self.rig = params or WalkerParams.with_overrides(beam.params.rig)
+        self.rig = params or WalkerParams.with_overrides(beam.params.walker or beam.params.rig)
         self.integrator = integrator
         h = timestep or self.rig.timestep
         self.spec = build_walker_spec(beam, twist_deg, self.rig, integrator, h)
