@@ -99,7 +99,7 @@ def test_every_shipped_number_is_inside_its_physical_range():
     assert b["beam.beta"].max <= 0.02
     assert b["rig.plate_gap"].min >= 0.0045 and b["rig.plate_gap"].max <= 0.0065
     assert PHYSICAL.value("rig.foot_length") == 0.0665 and PHYSICAL.value("rig.foot_mass") == 0.020
-    assert 10e6 <= b["beam.material.youngs_modulus"].min and b["beam.material.youngs_modulus"].max <= 30e6
+    assert b["beam.material.youngs_modulus"].min >= 10e6 and b["beam.material.youngs_modulus"].max <= 30e6
 
 
 def test_the_soles_tangential_force_never_exceeds_its_friction():
