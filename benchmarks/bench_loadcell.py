@@ -21,7 +21,7 @@ REQUIRED_HZ = 1000.0
 
 
 def decode_rate(data: bytes, chunk: int, repeats: int) -> tuple[float, int]:
-    from beambench.devices.loadcell_protocol import StreamDecoder
+    from beambench.devices.loadcell.protocol import StreamDecoder
 
     rates, n = [], 0
     for _ in range(repeats):

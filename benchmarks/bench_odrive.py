@@ -19,8 +19,8 @@ import uuid
 from pathlib import Path
 
 from beambench.acquisition.capabilities import MotorLimits
-from beambench.devices import odrive_cansimple as cs
-from beambench.devices.odrive_can import OdriveCanMotor
+from beambench.devices.odrive import cansimple as cs
+from beambench.devices.odrive.can_motor import OdriveCanMotor
 from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
 
 DBC = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "odrive" / "odrive-cansimple.dbc"

@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from beambench.studies.calibrate import (
+from beambench.studies.calibration.search import (
     RIGS,
     Interrupted,
     SearchSettings,
@@ -22,7 +22,7 @@ from beambench.studies.calibrate import (
     regime_level,
     simulate_contact,
 )
-from beambench.studies.calibration_targets import (
+from beambench.studies.calibration.targets import (
     CalibrationInputError,
     Targets,
     load_targets,
@@ -119,7 +119,7 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path):
 def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     """frame_mass_g / mass_dx_mm are the contact rig's opt-in unknowns: not fitted unless named, neutral (0) when
     not, and a fitted value lands in the parameter set's rig block (SI) — the scene the map is computed on."""
-    from beambench.studies.calibrate import calibrated_params
+    from beambench.studies.calibration.search import calibrated_params
 
     rig = get_rig("contact")
     assert rig.default_free == ("b_scale", "preload_mm", "friction_scale")
@@ -136,7 +136,7 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     assert calibrated_params(stuck, {"k_scale": 1.0}).rig["frame_mass"] == pytest.approx(0.010)
     assert names["frame_mass_g"].opt_in and names["mass_dx_mm"].opt_in
     # the search's fixed values leave the opt-in unknowns out unless they are fixed explicitly
-    from beambench.studies.calibrate import fixed_values
+    from beambench.studies.calibration.search import fixed_values
 
     free = [names[n] for n in rig.default_free]
     assert fixed_values(names, free, SearchSettings()) == {"k_scale": 1.0}  # k stays the prior's
@@ -146,7 +146,7 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     }
     assert fixed_values(names, free[:2], SearchSettings()) == {"k_scale": 1.0, "friction_scale": 1.0}
     # the search's first line starts at the prior set's own values
-    from beambench.studies.calibrate import contact_prior
+    from beambench.studies.calibration.search import contact_prior
 
     assert contact_prior(stuck) == pytest.approx(
         {"k_scale": 1.0, "b_scale": 1.0, "friction_scale": 1.0, "frame_mass_g": 10.0, "mass_dx_mm": 0.0}
@@ -243,7 +243,7 @@ def test_transitions_are_scored_beyond_the_per_step_levels():
     """A map that lacks the target's ⅓ band, or has a stray low ½ step, is a missed calibration (the goal is
     each transition within ± 2 Hz) although it differs from the target at only a few steps: the transition term
     makes it cost as much as a whole band of wrong steps."""
-    from beambench.studies.calibrate import TRANSITION_WEIGHT, transition_misfit
+    from beambench.studies.calibration.search import TRANSITION_WEIGHT, transition_misfit
 
     targets = parse_targets({"rig": "contact", "continuous_below_hz": 15, "half_at_hz": 30, "third_at_hz": 42})
     exact = _steps({(1, 14): "continuous", (15, 29): "1", (30, 41): "1/2", (42, 46): "1/3"})
@@ -295,7 +295,7 @@ def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
     assert {"continuous", "1/2"} <= set(twin["regime"])  # a map with edges, not a row of one label
     assert list(run["tangential_sign"].astype(int)) == list(twin["tangential_sign"])
     # the verify stage's map of a written protocol is that run's analysed map, step for step
-    from beambench.studies.written_run import run_written_protocol
+    from beambench.studies.calibration.written_run import run_written_protocol
 
     verify = pd.DataFrame(run_written_protocol(proto)["steps"])
     assert list(verify["frequency_hz"]) == list(run["frequency_hz"])
@@ -377,7 +377,7 @@ def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
 
 def test_the_written_sweep_reaches_the_targets_and_its_limit_starts_from_the_parsers_default():
     from beambench.acquisition.config import Limits
-    from beambench.studies.calibrate import extended_sweep
+    from beambench.studies.calibration.search import extended_sweep
 
     targets = parse_targets({"rig": "contact", "half_at_hz": 30, "third_at_hz": 42})
     top = float(max(targets.frequencies))

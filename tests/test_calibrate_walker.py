@@ -7,8 +7,8 @@ import math
 import pandas as pd
 import pytest
 
-from beambench.studies.calibrate import get_rig
-from beambench.studies.calibration_targets import parse_targets
+from beambench.studies.calibration.search import get_rig
+from beambench.studies.calibration.targets import parse_targets
 
 TARGETS = parse_targets({"rig": "walker", "speed_mm_s": {23: -35.7, 65: 156.3}}, "<test>")
 
@@ -38,7 +38,7 @@ def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
     """One short evaluation (the speeds come back per frequency), then the written protocol builds a walker
     scene with the fitted foot mass and friction."""
     from beambench.acquisition.config import load_protocol
-    from beambench.rigs.sim import build_scene
+    from beambench.backends.sim import build_scene
 
     rig = get_rig("walker")
     base = rig.base(TARGETS)

@@ -127,7 +127,7 @@ def test_shipped_default_keeps_the_foot_down_to_17_hz_where_a_sliding_sole_hops(
 
 def test_the_gap_comes_from_the_parameter_set_unless_the_protocol_sets_it():
     from beambench.acquisition.config import parse_protocol
-    from beambench.rigs.sim import build_scene
+    from beambench.backends.sim import build_scene
 
     base = "rig: contact\nsweep: {frequencies: [5]}\nsim: {model: %s, params: %s%s}\n"
     assert build_scene(parse_protocol(base % ("prb3", "contact_paper", ""))).identity()["plate_gap_m"] == 0.0074
@@ -138,7 +138,7 @@ def test_the_gap_comes_from_the_parameter_set_unless_the_protocol_sets_it():
 
 def test_auto_considers_every_model_with_a_contact_table_and_the_parameter_set():
     from beambench.acquisition.config import parse_protocol
-    from beambench.rigs.sim import build_scene
+    from beambench.backends.sim import build_scene
     from beambench.sim import selection as select
     from beambench.sim.models.params import has_params
 

@@ -138,7 +138,7 @@ def test_fit_command_end_to_end(session, tmp_path):
     p = load_params(str(yaml_path))
     assert p.k == pytest.approx(r["values"]["k"]) and p.k_twist == p.k
     proto = parse_protocol(f"rig: release\nsweep: {{frequencies: [0]}}\nsim: {{params: {yaml_path}}}\n")
-    from beambench.rigs.sim import build_scene
+    from beambench.backends.sim import build_scene
 
     scene = build_scene(proto)
     assert scene.identity()["params"]["k"] == pytest.approx(p.k)

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from beambench.studies.calibrate import (
+from beambench.studies.calibration.search import (
     RIGS,
     CalibratableRig,
     EvalLog,
@@ -22,9 +22,9 @@ from beambench.studies.calibrate import (
     contact_objective,
     register_rig,
 )
-from beambench.studies.calibration_targets import parse_targets
+from beambench.studies.calibration.targets import parse_targets
 from beambench.studies.executor import Pool
-from beambench.studies.landmark_steps import fit_local_linear, landmark_steps, solve_step
+from beambench.studies.calibration.landmark_steps import fit_local_linear, landmark_steps, solve_step
 
 # ------------------------------------------------------------------------------------------------ the model
 

@@ -15,7 +15,7 @@ from beambench.acquisition.calibration import (
     tare_counts,
 )
 from beambench.commands.calibrate import parse_loads, register, walkthrough
-from beambench.devices.loadcell import SerialLoadCells
+from beambench.devices.loadcell.driver import SerialLoadCells
 from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
 
 RNG = np.random.default_rng(42)

@@ -10,7 +10,7 @@ from beambench.acquisition.batch import Batch
 from beambench.acquisition.calibration import LoadCellCalibration
 from beambench.acquisition.capabilities import DeviceFault, Stream
 from beambench.acquisition.streams import LOADCELL, loadcell_spec
-from beambench.devices.loadcell import SerialLoadCells, Unwrap32
+from beambench.devices.loadcell.driver import SerialLoadCells, Unwrap32
 from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
 
 SENS = np.array([[20000.0, 1000.0], [21000.0, -800.0], [500.0, 19000.0], [-300.0, 20500.0]])

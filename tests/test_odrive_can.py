@@ -16,8 +16,8 @@ from hypothesis import strategies as st
 
 from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
 from beambench.acquisition.streams import motor_spec
-from beambench.devices import odrive_cansimple as cs
-from beambench.devices.odrive_can import (
+from beambench.devices.odrive import cansimple as cs
+from beambench.devices.odrive.can_motor import (
     MAX_VEL_LIMIT,
     RECEIVE_COALESCE_S,
     LimitError,
@@ -25,7 +25,7 @@ from beambench.devices.odrive_can import (
     ping,
     receive_ns,
 )
-from beambench.devices.odrive_cansimple import AxisError, AxisState
+from beambench.devices.odrive.cansimple import AxisError, AxisState
 from beambench.emulators.odrive_can import (
     EmulatedOdrive,
     OdriveAxisModel,

@@ -15,14 +15,14 @@ import pytest
 
 from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
 from beambench.acquisition.streams import motor_spec
-from beambench.devices.odrive_can import LimitError
-from beambench.devices.odrive_cansimple import (
+from beambench.devices.odrive.can_motor import LimitError
+from beambench.devices.odrive.cansimple import (
     AxisError,
     AxisState,
     ControlMode,
     InputMode,
 )
-from beambench.devices.odrive_usb import OdriveUsbMotor, ping
+from beambench.devices.odrive.usb_motor import OdriveUsbMotor, ping
 
 LIMITS = MotorLimits(max_frequency_hz=20.0, max_current_a=8.0, amplitude_mm=2.0)
 

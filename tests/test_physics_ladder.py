@@ -146,7 +146,7 @@ def test_auto_model_picks_the_timestep_each_frequency_needs():
     """``sim.model: auto`` on the contact rig: the plan from the shipped contact table is recorded in the
     scene's identity, and the timestep follows the frequency (not the worst case over the sweep)."""
     from beambench.acquisition.config import parse_protocol
-    from beambench.rigs.sim import build_scene
+    from beambench.backends.sim import build_scene
 
     if not select.table_path("contact").exists():
         pytest.skip("no shipped contact table (benchmarks/bench_models.py --part contact --ship)")
@@ -184,7 +184,7 @@ def test_fixed_model_gets_the_timestep_each_frequency_needs_unless_one_is_given(
     """``sim.model: prb3`` without ``sim.timestep``: the plan for that model and integrator from the contact
     table (recorded in the session); with ``sim.timestep`` that step is used throughout."""
     from beambench.acquisition.config import parse_protocol
-    from beambench.rigs.sim import build_scene
+    from beambench.backends.sim import build_scene
 
     base = "rig: contact\nsweep: {frequencies: [2, 20, 40]}\nsim: {model: prb3, integrator: implicitfast%s}\n"
     planned = build_scene(parse_protocol(base % ""))

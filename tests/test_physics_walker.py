@@ -137,8 +137,8 @@ def test_protocol_selects_the_named_set_and_refuses_unknown_legs():
     sim.params: paper` the effective (PRB3) calibrated defaults, `walker_paper_guesses` the paper_guesses set; an
     unknown leg model is a one-line ConfigError before anything is built."""
     from beambench.acquisition.config import ConfigError, parse_protocol
+    from beambench.backends.sim import build_scene
     from beambench.common.resources import shipped_dir
-    from beambench.rigs.sim import build_scene
 
     text = (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
     shipped = build_scene(parse_protocol(text))

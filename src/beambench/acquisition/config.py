@@ -119,7 +119,7 @@ class SimOptions(_Model):
     noise: bool = True
     seed: int = Field(0, ge=0, le=2**32 - 1)
     # the walker's sweep computed as this many consecutive parts in parallel (one core each), each part after the
-    # first pre-settled at its first frequency: the state is not carried across the cuts (beambench.rigs.lookahead)
+    # first pre-settled at its first frequency: the state is not carried across the cuts (beambench.backends.lookahead)
     segments: int = Field(1, ge=1, le=8)
     mocap_clock: ClockModel = ClockModel()
     loadcell_clock: ClockModel = ClockModel()

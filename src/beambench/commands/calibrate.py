@@ -255,7 +255,7 @@ def loadcells(
     from rich.prompt import Confirm, Prompt
 
     from beambench.acquisition.capabilities import DeviceFault
-    from beambench.devices.loadcell import DEFAULT_BAUDRATE, SerialLoadCells
+    from beambench.devices.loadcell.driver import DEFAULT_BAUDRATE, SerialLoadCells
 
     try:
         load_list = parse_loads(loads) or None
@@ -269,7 +269,7 @@ def loadcells(
         load_list = list(EMULATE_LOADS)
     if not emulate and port is None:
         if rig is None:
-            from beambench.rigs.hardware import DEFAULT_RIG_FILE
+            from beambench.backends.hardware import DEFAULT_RIG_FILE
 
             rig = DEFAULT_RIG_FILE
         if not rig.exists():

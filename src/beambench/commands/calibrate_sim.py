@@ -1,5 +1,5 @@
 """``beambench calibrate sim [SESSION.h5] [--targets TARGETS.yaml]``: fit the twin to a measured sweep or to
-published numbers (:mod:`beambench.studies.calibrate`). The last stdout line is the calibrated protocol's path."""
+published numbers (:mod:`beambench.studies.calibration.search`). The last stdout line is the calibrated protocol's path."""
 
 from __future__ import annotations
 
@@ -69,8 +69,8 @@ def sim(
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from beambench.common.errors import BeambenchError
-    from beambench.studies.calibrate import SearchSettings, calibrate, get_rig
-    from beambench.studies.calibration_targets import load_targets, session_targets
+    from beambench.studies.calibration.search import SearchSettings, calibrate, get_rig
+    from beambench.studies.calibration.targets import load_targets, session_targets
     from beambench.studies.executor import ExecutorError
 
     if (session is None) == (targets is None):

@@ -121,7 +121,7 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
     total = sum(s.duration_s for s in steps)
     if backend != "sim" or realtime:
         return f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
-    from beambench.rigs.sim import _contact_plan
+    from beambench.backends.sim import _contact_plan
 
     try:
         sim_plan = _contact_plan(protocol)

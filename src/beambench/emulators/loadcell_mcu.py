@@ -36,7 +36,7 @@ import numpy as np
 
 from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.clocks import DriftingClock
-from beambench.devices.loadcell_protocol import FRAME_LEN, encode_frame
+from beambench.devices.loadcell.protocol import FRAME_LEN, encode_frame
 
 ForceSource = Callable[[float], tuple[float, float]]
 _I32 = (-(2**31), 2**31 - 1)

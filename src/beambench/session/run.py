@@ -22,7 +22,7 @@ from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
-from beambench.rigs.build import build_rig
+from beambench.backends.build import build_rig
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted

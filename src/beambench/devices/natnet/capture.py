@@ -11,8 +11,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from beambench.devices import natnet_protocol as nn
-from beambench.devices.pcap import read_udp
+from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet.pcap import read_udp
 
 __all__ = ["CaptureDecode", "decode_capture", "frames_table"]
 

@@ -1,4 +1,4 @@
-"""The walker in ``beambench calibrate sim`` (a plugin of :mod:`beambench.studies.calibrate`).
+"""The walker in ``beambench calibrate sim`` (a plugin of :mod:`beambench.studies.calibration.search`).
 
 Targets: ``rig: walker`` with ``speed_mm_s: {f: v}`` (any number of frequencies; e.g.
 ``calibration/paper_walker_targets.yaml``) or a walker session (speeds from :mod:`beambench.analysis`).
@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from beambench.studies.calibrate import CalibratableRig, Unknown, register_rig, write_calibrated_protocol
-from beambench.studies.calibration_targets import CalibrationInputError, Targets
+from beambench.studies.calibration.search import CalibratableRig, Unknown, register_rig, write_calibrated_protocol
+from beambench.studies.calibration.targets import CalibrationInputError, Targets
 
 SPEED_FLOOR_MM_S = 20.0
 WALKER_UNKNOWNS = (
@@ -117,7 +117,7 @@ def write_walker_protocol(
     base: dict, values: dict[str, float], extras: dict, targets: Targets, out_dir: Path, name: str
 ) -> Path:
     """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring), through the calibrator's
-    :func:`~beambench.studies.calibrate.write_calibrated_protocol`; the rig block carries foot mass and friction."""
+    :func:`~beambench.studies.calibration.search.write_calibrated_protocol`; the rig block carries foot mass and friction."""
     p = _prior(base)
     return write_calibrated_protocol(
         params=p,

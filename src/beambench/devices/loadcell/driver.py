@@ -1,4 +1,4 @@
-"""Load-cell plate driver: the MCU's serial frames (see :mod:`beambench.devices.loadcell_protocol`) as a Stream.
+"""Load-cell plate driver: the MCU's serial frames (see :mod:`beambench.devices.loadcell.protocol`) as a Stream.
 
 A reader thread reads the port with pyserial, feeds a :class:`StreamDecoder` and queues the frames, stamped
 with ``time.monotonic_ns()`` when their bytes arrived (every frame of one read shares that receive time).
@@ -23,7 +23,7 @@ from beambench.acquisition.batch import Batch
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import LOADCELL, LOADCELL_RATE_HZ, loadcell_spec
 from beambench.devices.base import StreamDriver
-from beambench.devices.loadcell_protocol import CRC_NAME, VERSION, Frame, StreamDecoder
+from beambench.devices.loadcell.protocol import CRC_NAME, VERSION, Frame, StreamDecoder
 
 DEFAULT_BAUDRATE = 921_600
 # After the first bytes arrive the reader waits this long and reads everything then waiting: at 1 kHz a wake-up

@@ -33,9 +33,9 @@ import numpy as np
 from beambench.acquisition.batch import Batch, Frame, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import MOCAP, MOCAP_RATE_HZ, mocap_spec
-from beambench.devices import natnet_block as nb
-from beambench.devices import natnet_protocol as nn
 from beambench.devices.base import StreamDriver
+from beambench.devices.natnet import block as nb
+from beambench.devices.natnet import protocol as nn
 from beambench.devices.receive_time import enable_receive_timestamps, mono_minus_real_ns, recv_stamped
 
 __all__ = ["EchoSample", "NatNetClient", "NatNetConfig", "NatNetError", "NatNetMocap", "NatNetStats", "ping"]
@@ -610,7 +610,7 @@ class NatNetMocap(StreamDriver):
     Frames from any sender but the server are dropped and counted (``counters.forged``).
 
     The receive thread keeps frames undecoded; :meth:`read` decodes the ~36 of a poll together
-    (:mod:`beambench.devices.natnet_block`: ~5x cheaper a frame than the codec one by one, the same values),
+    (:mod:`beambench.devices.natnet.block`: ~5x cheaper a frame than the codec one by one, the same values),
     falling back to the codec for frames of a layout it has not learned or that do not decode (counted).
     """
 
@@ -675,7 +675,7 @@ class NatNetMocap(StreamDriver):
         if self.client is None:
             self.client = NatNetClient(self.config).connect()
         self.client.raw_frames.clear()
-        self.client.keep_raw = True  # decoded many at a time in read(): see natnet_block
+        self.client.keep_raw = True  # decoded many at a time in read(): see natnet.block
 
     def _close(self) -> None:
         if self.client is not None:
@@ -744,7 +744,7 @@ class NatNetMocap(StreamDriver):
     def raw_to_batch(self, items: list[tuple[int, bytes, nn.Version]], client: NatNetClient) -> Batch:
         """Undecoded frames (host ns, packet, version), in arrival order → one Batch; frames that do not decode
         are counted as parse errors and left out. Frames of a layout seen before are decoded together
-        (:mod:`natnet_block`); the rest one at a time by the codec."""
+        (:mod:`~beambench.devices.natnet.block`); the rest one at a time by the codec."""
         n = len(items)
         rows = self._empty_rows(n)
         host = rows[0]

@@ -11,7 +11,7 @@ The search (:func:`calibrate`) is the same for every rig:
 1. *coarse* (on the target frequencies thinned to ``coarse_step_hz``): 1-D lines over each free unknown from the
    prior set's own values, the rig's most monotone unknown first (:func:`prior_lines`, up to ``line_share`` of
    the budget); for rigs with ``landmarks`` (the contact rig's transitions), trust-region steps on a local
-   linear model of the landmarks fitted to every point so far (:mod:`beambench.studies.landmark_steps`; they
+   linear model of the landmarks fitted to every point so far (:mod:`beambench.studies.calibration.landmark_steps`; they
    make the diagonal moves lines cannot, e.g. more preload with less friction); then, unless every landmark is
    within ``landmark_tolerance``, differential evolution (Sobol start plus the best so far, deferred updating:
    one generation = one parallel batch on the sweep executor) until ~55 % of the budget, a near-zero
@@ -22,7 +22,7 @@ The search (:func:`calibrate`) is the same for every rig:
    refined points re-run with the protocol's own sweep, windows, noise and seed, and with a second noise seed;
    the winner has the best worse-of-two objective. Rigs with ``run_written`` (the contact rig) write each
    candidate's protocol into ``<out>/<name>_verify/`` and run it as the user will (``beambench run`` on the sim
-   backend, then the analysis: :mod:`beambench.studies.written_run`), so the winner's map (the protocol's seed)
+   backend, then the analysis: :mod:`beambench.studies.calibration.written_run`), so the winner's map (the protocol's seed)
    is the one a run of the written protocol shows, label for label (otherwise: the winner's map on every target
    frequency, for the report).
 
@@ -35,7 +35,7 @@ calls ``register_rig(CalibratableRig(name="walker", unknowns=(...), simulate=...
 write=..., summary=..., bracket=None or the most monotone unknown))``; ``simulate`` returns
 ``{"steps": [{"frequency_hz": f, "body_speed_mm_s": v, ...}, ...], "extras": {...}}`` and the objective compares
 them with ``targets.table`` (``frequency_hz``, ``body_speed_mm_s``; parsed by
-:func:`beambench.studies.calibration_targets.parse_targets` from ``rig: walker`` / ``speed_mm_s`` files or walker
+:func:`beambench.studies.calibration.targets.parse_targets` from ``rig: walker`` / ``speed_mm_s`` files or walker
 sessions). Nothing else changes: the CLI, the search, the log and the report are rig-agnostic.
 """
 
@@ -56,20 +56,20 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from beambench.studies.calibration_targets import (
+from beambench.studies.calibration.targets import (
     CONTINUOUS,
     NONE,
     CalibrationInputError,
     Targets,
     transitions,
 )
-from beambench.studies.landmark_steps import Landmarks, landmark_steps, within
-from beambench.studies.written_run import run_written_protocol
+from beambench.studies.calibration.landmark_steps import Landmarks, landmark_steps, within
+from beambench.studies.calibration.written_run import run_written_protocol
 
 if TYPE_CHECKING:
     from beambench.sim.models.params import BeamParams
 
-PLUGINS = ("beambench.studies.calibrate_walker",)  # modules that register more rigs, imported on first use
+PLUGINS = ("beambench.studies.calibration.walker",)  # modules that register more rigs, imported on first use
 
 
 # ------------------------------------------------------------------------------------------------ registry
@@ -132,7 +132,7 @@ class CalibratableRig:
     # the prior parameter set's own values of the unknowns (``prior(base) -> {name: value}``): the centre of the
     # search's first line (None: 1 for log unknowns whose bounds hold it, else their defaults)
     prior: Callable[[dict], dict[str, float]] | None = None
-    # the map's landmarks the targets name (:data:`beambench.studies.landmark_steps.Landmarks`): with them the
+    # the map's landmarks the targets name (:data:`beambench.studies.calibration.landmark_steps.Landmarks`): with them the
     # search takes trust-region steps on a local linear model of the landmarks after the lines (None: none)
     landmarks: Landmarks | None = None
 
@@ -1104,7 +1104,7 @@ TRANSITION_KEYS = (("continuous_below_hz", CONTINUOUS), ("half_at_hz", "1/2"), (
 
 def contact_landmarks(steps: pd.DataFrame, targets: Targets) -> dict[str, tuple[float | None, float]]:
     """The transitions the targets name, each as (the map's, the target's) in Hz, for the landmark steps
-    (:mod:`beambench.studies.landmark_steps`). The map's lowest ½ and ⅓ are the lowest steps that *hold* the
+    (:mod:`beambench.studies.calibration.landmark_steps`). The map's lowest ½ and ⅓ are the lowest steps that *hold* the
     regime (the next step has it too, or it is the map's top): a lone ½ step at the continuous edge, where
     the foot starts to bounce, is a stray label that sits on another landmark's line and would bend the model
     (the objective still scores the plain lowest, as the user's map shows it)."""

@@ -1,7 +1,7 @@
 """Many NatNet frames at once: numpy over the bytes of frames that share one layout.
 
 A steady Motive stream sends frames of one layout: the same sections with the same counts, sizes and names;
-only the values change. :func:`frame_layout` decodes one packet with the full codec (:mod:`natnet_protocol`)
+only the values change. :func:`frame_layout` decodes one packet with the full codec (:mod:`~beambench.devices.natnet.protocol`)
 while noting where every count, size and name lies (the bytes that decide where everything else is) and where
 the values the mocap stream needs sit. :func:`decode_block` stacks packets of that length, compares those bytes
 of all of them at once, and reads the values of every packet that matches as arrays. A packet that does not
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beambench.devices import natnet_protocol as nn
+from beambench.devices.natnet import protocol as nn
 
 __all__ = ["FrameBlock", "FrameLayout", "decode_block", "frame_layout"]
 
@@ -93,7 +93,7 @@ class FrameLayout:
 
 
 def frame_layout(packet: bytes, version: nn.Version) -> FrameLayout:
-    """The layout of one FRAMEOFDATA packet; :class:`~natnet_protocol.NatNetParseError` if it does not decode."""
+    """The layout of one FRAMEOFDATA packet; :class:`~beambench.devices.natnet.protocol.NatNetParseError` if it does not decode."""
     packet = bytes(packet)
     if len(packet) < _HEADER_BYTES:
         raise nn.NatNetParseError(f"packet of {len(packet)} bytes is shorter than the 4-byte header")

@@ -159,10 +159,10 @@ def _markers(protocol: Protocol) -> tuple[str, ...]:
 
 def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
     if od.transport == "usb":
-        from beambench.devices.odrive_usb import OdriveUsbMotor
+        from beambench.devices.odrive.usb_motor import OdriveUsbMotor
 
         return OdriveUsbMotor(serial_number=od.serial_number, axis=od.axis)
-    from beambench.devices.odrive_can import OdriveCanMotor
+    from beambench.devices.odrive.can_motor import OdriveCanMotor
 
     return OdriveCanMotor(
         od.channel,
@@ -177,7 +177,7 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
 
 
 def _make_mocap(nn: NatNetWiring, markers: tuple[str, ...], frame: Frame) -> Stream:
-    from beambench.devices.natnet import NatNetMocap
+    from beambench.devices.natnet.client import NatNetMocap
 
     section = nn.model_dump()
     silence = section.pop("silence_timeout_s", None)
@@ -188,7 +188,7 @@ def _make_mocap(nn: NatNetWiring, markers: tuple[str, ...], frame: Frame) -> Str
 
 
 def _make_loadcells(lc: LoadCellWiring) -> Stream:
-    from beambench.devices.loadcell import SerialLoadCells
+    from beambench.devices.loadcell.driver import SerialLoadCells
 
     return SerialLoadCells(lc.port, lc.baudrate, silence_timeout_s=lc.silence_timeout_s)
 

@@ -32,7 +32,7 @@ from beambench.acquisition.config import (
     Protocol,
     RigFile,
 )
-from beambench.rigs.hardware import DeviceRig
+from beambench.backends.hardware import DeviceRig
 
 
 class RealtimePhysics:
@@ -44,7 +44,7 @@ class RealtimePhysics:
     """
 
     def __init__(self, protocol: Protocol, odrive: Any, period_s: float = 0.005, lag_s: float = 0.03) -> None:
-        from beambench.rigs.sim import build_scene
+        from beambench.backends.sim import build_scene
 
         self.scene = build_scene(protocol)
         self.odrive = odrive
@@ -355,7 +355,11 @@ class PeerProcess:
         src = str(Path(__file__).resolve().parents[2])  # this beambench, whichever checkout it is
         env["PYTHONPATH"] = os.pathsep.join([src, *filter(None, [env.get("PYTHONPATH")])])
         self._proc = subprocess.Popen(
-            [sys.executable, "-c", f"from beambench.rigs.emulated import _peer_entry; _peer_entry({child.fileno()})"],
+            [
+                sys.executable,
+                "-c",
+                f"from beambench.backends.emulated import _peer_entry; _peer_entry({child.fileno()})",
+            ],
             pass_fds=(child.fileno(),),
             env=env,
             stdin=subprocess.DEVNULL,
@@ -443,7 +447,7 @@ def odrive_config(protocol: Protocol, rig_file: Path | None, config_type: Any) -
     if protocol.rig != "walker":
         return config_type(calibration_s=0.2)
     from beambench.acquisition.config import load_rig_file
-    from beambench.rigs.hardware import DEFAULT_RIG_FILE
+    from beambench.backends.hardware import DEFAULT_RIG_FILE
 
     drive = load_rig_file(rig_file or DEFAULT_RIG_FILE).walker
     return config_type(
@@ -482,9 +486,9 @@ def build_emulated_rig(
     unknown = sorted(set(inject) - set(INJECTIONS))
     if unknown:
         raise ValueError(f"unknown injections {unknown}; known: {list(INJECTIONS)}")
-    from beambench.devices.loadcell import SerialLoadCells
-    from beambench.devices.natnet import NatNetConfig, NatNetMocap
-    from beambench.devices.odrive_can import OdriveCanMotor
+    from beambench.devices.loadcell.driver import SerialLoadCells
+    from beambench.devices.natnet.client import NatNetConfig, NatNetMocap
+    from beambench.devices.odrive.can_motor import OdriveCanMotor
     from beambench.emulators.canbus import LoopbackCanBus, new_channel
     from beambench.emulators.motive import MOTIVE_GEOMETRY
 

@@ -19,13 +19,13 @@ def build_rig(
 ) -> Rig:
     """The rig for ``backend``; drivers are imported lazily so the sim needs no hardware packages."""
     if backend == "sim":
-        from beambench.rigs.sim import build_sim_rig
+        from beambench.backends.sim import build_sim_rig
 
         return build_sim_rig(protocol, realtime=realtime)
     if backend == "emulated":
-        from beambench.rigs.emulated import build_emulated_rig
+        from beambench.backends.emulated import build_emulated_rig
 
         return build_emulated_rig(protocol, can_log=can_log, rig_file=rig_file)
-    from beambench.rigs.hardware import build_device_rig
+    from beambench.backends.hardware import build_device_rig
 
     return build_device_rig(protocol, rig_file=rig_file, can_log=can_log)

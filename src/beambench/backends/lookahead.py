@@ -42,7 +42,7 @@ Call = tuple[str, int, float]  # ("cmd", rig time ns, Hz) or ("adv", rig time ns
 
 def script(schedule: list[tuple[float, list[float]]], now_ns: int, max_chunk_ns: int) -> list[Call]:
     """The scene calls the sim rig makes for ``schedule`` from rig time ``now_ns``: a command, then each wait
-    advanced in chunks of at most ``max_chunk_ns`` (as :class:`~beambench.rigs.sim_devices.SimClock.wait`)."""
+    advanced in chunks of at most ``max_chunk_ns`` (as :class:`~beambench.backends.sim_devices.SimClock.wait`)."""
     calls: list[Call] = []
     t = now_ns
     for hz, waits in schedule:

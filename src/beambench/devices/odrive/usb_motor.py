@@ -35,14 +35,14 @@ from typing import Any
 
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits
 from beambench.acquisition.streams import MOTOR
-from beambench.devices.odrive_can import (
+from beambench.devices.odrive.can_motor import (
     MAX_BUFFERED_ROWS,
     LimitError,
     TelemetryStream,
     current_limit_for,
     vel_limit_for,
 )
-from beambench.devices.odrive_cansimple import (
+from beambench.devices.odrive.cansimple import (
     AxisError,
     AxisState,
     ControlMode,
@@ -311,7 +311,7 @@ class OdriveUsbMotor(TelemetryStream):
 
     def identity(self) -> dict[str, Any]:
         info: dict[str, Any] = {
-            "driver": "beambench.devices.odrive_usb.OdriveUsbMotor",
+            "driver": "beambench.devices.odrive.usb_motor.OdriveUsbMotor",
             "axis": self.axis_index,
             "vel_limit_turn_s": self.vel_limit,
             "current_limit_a": self.current_limit,

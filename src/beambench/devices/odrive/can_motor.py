@@ -12,7 +12,7 @@ Safety, in the order :meth:`OdriveCanMotor.arm` does it:
 4. the watchdog feeder starts: Set_Input_Vel with the current setpoint every ``feed_period_s`` (every frame
    to the axis feeds the firmware watchdog). CAN Simple 0.5.x has no message to *enable* the watchdog:
    ``axis.config.enable_watchdog`` and ``watchdog_timeout`` must be set once over USB and saved
-   (:class:`beambench.devices.odrive_usb.OdriveUsbMotor` does this when armed);
+   (:class:`beambench.devices.odrive.usb_motor.OdriveUsbMotor` does this when armed);
 5. FULL_CALIBRATION_SEQUENCE if ``calibrate`` (incremental encoders need it after every power-up), waited for
    through the heartbeat; then CLOSED_LOOP_CONTROL, waited for (timeout → idle + :class:`DeviceFault`).
 
@@ -57,8 +57,8 @@ from beambench.acquisition.batch import Batch, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits
 from beambench.acquisition.streams import MOTOR, motor_spec
 from beambench.common.errors import BeambenchError
-from beambench.devices import odrive_cansimple as cs
-from beambench.devices.odrive_cansimple import AxisState, ControlMode, InputMode
+from beambench.devices.odrive import cansimple as cs
+from beambench.devices.odrive.cansimple import AxisState, ControlMode, InputMode
 from beambench.devices.receive_time import mono_minus_real_ns
 
 # The ODrive sends its heartbeat every axis.config.can.heartbeat_rate_ms, 100 ms by default, and
@@ -713,7 +713,7 @@ class OdriveCanMotor(TelemetryStream):
 
     def identity(self) -> dict[str, Any]:
         return {
-            "driver": "beambench.devices.odrive_can.OdriveCanMotor",
+            "driver": "beambench.devices.odrive.can_motor.OdriveCanMotor",
             "protocol": "ODrive CAN Simple (firmware 0.5.x)",
             "interface": self.interface,
             "channel": self.channel,

@@ -10,7 +10,7 @@ trust-region Gauss–Newton step solves it for the target landmarks. The step is
 it; the trust region grows after a success and shrinks after a miss, as in any trust-region method.
 
 Pure functions (:func:`fit_local_linear`, :func:`solve_step`) and the loop (:func:`landmark_steps`), which
-evaluates through the calibrator's :class:`~beambench.studies.calibrate.Evaluator`.
+evaluates through the calibrator's :class:`~beambench.studies.calibration.search.Evaluator`.
 """
 
 from __future__ import annotations
@@ -24,8 +24,8 @@ import numpy as np
 if TYPE_CHECKING:
     import pandas as pd
 
-    from beambench.studies.calibrate import Evaluator, Point, Unknown
-    from beambench.studies.calibration_targets import Targets
+    from beambench.studies.calibration.search import Evaluator, Point, Unknown
+    from beambench.studies.calibration.targets import Targets
 
 # landmarks(steps, targets) -> {name: (the map's value or None where it has none, the target's value)}, both in
 # the units the objective compares them in (the walker: speeds over their floor)
@@ -137,7 +137,7 @@ def landmark_steps(
     on ``freqs`` as ``stage``). The model is refitted each round over every point of that stage so far. Stops
     early when the best point's objective is ``good_enough`` or every landmark is within half a unit of its
     target, when the model has no landmark left to move, or when ``stop()``. Returns the best point seen."""
-    from beambench.studies.calibrate import _gen
+    from beambench.studies.calibration.search import _gen
 
     lo = np.array([u.bounds[0] for u in free])
     span = np.array([u.bounds[1] - u.bounds[0] for u in free])

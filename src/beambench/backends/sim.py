@@ -6,7 +6,7 @@ chunk every device samples the new trajectory rows on its own clock.
 With ``prefetch`` the next chunk (same length, same command) is computed on a worker thread while the caller
 stores the last one (MuJoCo releases the GIL); a command or a different wait undoes it from a snapshot, so
 the data are identical with and without prefetch. Once the runner announces the run's schedule
-(:meth:`SimRig.anticipate`), a worker computes the whole script ahead instead (:mod:`beambench.rigs.lookahead`;
+(:meth:`SimRig.anticipate`), a worker computes the whole script ahead instead (:mod:`beambench.backends.lookahead`;
 same data), and with ``sim.segments: n`` (walker) n workers compute consecutive parts of the sweep in parallel,
 each later part pre-settled at its first frequency (what that changes: the lookahead module's docstring).
 """
@@ -23,8 +23,8 @@ from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import Stream
 from beambench.acquisition.config import ClockModel, ConfigError, Protocol
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
-from beambench.rigs import lookahead
-from beambench.rigs.sim_devices import (
+from beambench.backends import lookahead
+from beambench.backends.sim_devices import (
     DeviceClock,
     SimClock,
     SimLoadCells,

@@ -1,0 +1,1 @@
+"""Calibration of a twin to measured or published results (``beambench calibrate sim``)."""
