@@ -79,7 +79,7 @@ def main() -> None:
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     from beambench.common.resources import shipped_dir
-    from beambench.studies.calibration_targets import load_targets, session_targets
+    from beambench.studies.calibration.targets import load_targets, session_targets
 
     rows = []
     for case in args.cases.split(","):

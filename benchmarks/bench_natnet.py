@@ -9,7 +9,7 @@ compare the ratios (and against the 360 Hz a rig needs) rather than the absolute
 3. a crowded 4.1 frame (200 labeled markers, 10 rigid bodies);
 4. the mocap stream's own path for those 4.1 frames, 36 at a time (what one 100 ms poll reads at 360 Hz) to a
    Batch: the codec frame by frame then ``to_batch``, against ``raw_to_batch`` (frames of one layout decoded
-   together with numpy, :mod:`beambench.devices.natnet_block`);
+   together with numpy, :mod:`beambench.devices.natnet.block`);
 5. ``decode_capture`` end to end: pcapng → UDP → frames (if ../shared exists);
 6. the same 4.1 frames through the PyPI ``natnet`` package's decoder, if installed (reference ratio).
 """
@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from beambench.devices import natnet_protocol as nn
+from beambench.devices.natnet import protocol as nn
 from beambench.emulators.motive import MotiveEmulator
 
 CAPTURE = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "natnet" / "traffic.pcapng"
@@ -46,8 +46,8 @@ def main() -> None:
     rows: list[tuple[str, float]] = []
 
     if CAPTURE.is_file():
-        from beambench.devices.natnet_capture import decode_capture
-        from beambench.devices.pcap import read_udp
+        from beambench.devices.natnet.capture import decode_capture
+        from beambench.devices.natnet.pcap import read_udp
 
         real = [g.payload for g in read_udp(CAPTURE, [1511]) if nn.peek_message_id(g.payload) == 7] * 4
         rows.append(
@@ -66,7 +66,7 @@ def main() -> None:
     )
 
     # the mocap stream's path: the packets of one 100 ms poll (36 frames at 360 Hz) to a Batch
-    from beambench.devices.natnet import NatNetClient, NatNetMocap
+    from beambench.devices.natnet.client import NatNetClient, NatNetMocap
 
     names = [f"m{i}" for i in range(len(emu.marker_ids))]  # type: ignore[arg-type]
     mocap = NatNetMocap(names, marker_map=dict(zip(names, emu.marker_ids, strict=True)))  # type: ignore[arg-type]
@@ -84,7 +84,7 @@ def main() -> None:
         return len(small)
 
     rows.append(("mocap stream, codec + to_batch per frame", rate(one_by_one, args.repeats)))
-    rows.append(("mocap stream, 36-frame blocks (natnet_block)", rate(in_blocks, args.repeats)))
+    rows.append(("mocap stream, 36-frame blocks (natnet.block)", rate(in_blocks, args.repeats)))
 
     crowd = nn.FrameOfData(
         1,

@@ -27,8 +27,8 @@ sys.path.insert(0, str(ROOT / "src"))
 from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.config import load_protocol, parse_protocol
 from beambench.acquisition.plan import motor_limits, plan
-from beambench.rigs.sim import build_sim_rig
-from beambench.rigs.sim_devices import interp_rows
+from beambench.backends.sim import build_sim_rig
+from beambench.backends.sim_devices import interp_rows
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.scenes.contact_rig import ContactRigSim, default_timestep

@@ -145,7 +145,7 @@ def main() -> None:
     from beambench.acquisition.monitors import build_monitors
     from beambench.acquisition.plan import motor_limits, plan
     from beambench.acquisition.runner import Runner
-    from beambench.rigs.emulated import build_emulated_rig
+    from beambench.backends.emulated import build_emulated_rig
     from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
     from beambench.sinks.rerun_view import RerunSink
 

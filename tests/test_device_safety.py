@@ -13,9 +13,9 @@ from beambench.acquisition.config import parse_protocol
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
-from beambench.devices import natnet_protocol as nn
-from beambench.devices.odrive_cansimple import AxisState
-from beambench.rigs.emulated import build_emulated_rig
+from beambench.backends.emulated import build_emulated_rig
+from beambench.devices.natnet import protocol as nn
+from beambench.devices.odrive.cansimple import AxisState
 from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
 
 PROTOCOL = """
@@ -110,7 +110,7 @@ def test_the_emulated_peers_run_in_their_own_process_and_the_heartbeat_timeout_i
     import os
 
     from beambench.acquisition.config import OdriveWiring, RigFile, load_rig_file
-    from beambench.rigs.hardware import DEFAULT_RIG_FILE
+    from beambench.backends.hardware import DEFAULT_RIG_FILE
 
     assert RigFile().odrive.heartbeat_timeout_s == load_rig_file(DEFAULT_RIG_FILE).odrive.heartbeat_timeout_s == 1.0
     rig = build_emulated_rig(parse_protocol(PROTOCOL), wiring=RigFile(odrive=OdriveWiring(heartbeat_timeout_s=0.8)))

@@ -11,7 +11,7 @@ from beambench.acquisition.config import parse_protocol
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
-from beambench.rigs.emulated import build_emulated_rig
+from beambench.backends.emulated import build_emulated_rig
 from beambench.session.run import run_session
 from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
 
@@ -47,7 +47,7 @@ def clean(tmp_path_factory):
 
 
 def test_same_layout_as_the_sim_backend(clean):
-    from beambench.rigs.sim import SimRig
+    from beambench.backends.sim import SimRig
 
     _, s = clean
     sim = SimRig(parse_protocol(PROTOCOL))
@@ -131,8 +131,8 @@ def test_injected_mocap_drops_are_counted_exactly(tmp_path):
 
 
 def test_devices_ping_finds_the_emulated_peers():
+    from beambench.backends.emulated import emulated_peers
     from beambench.commands.devices import ping_all
-    from beambench.rigs.emulated import emulated_peers
 
     with emulated_peers() as wiring:
         found = ping_all(wiring)

@@ -5,7 +5,7 @@ from datetime import timedelta
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from beambench.devices.loadcell_protocol import (
+from beambench.devices.loadcell.protocol import (
     FRAME_LEN,
     Frame,
     LoadCellParseError,

@@ -5,7 +5,7 @@ import struct
 
 import pytest
 
-from beambench.devices.loadcell_protocol import (
+from beambench.devices.loadcell.protocol import (
     FRAME_LEN,
     SYNC,
     LoadCellParseError,

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from can.interfaces.udp_multicast.utils import pack_message
 
-from beambench.devices import odrive_cansimple as cs
+from beambench.devices.odrive import cansimple as cs
 from beambench.emulators.canbus import LoopbackCanBus
 from beambench.sinks.hdf5 import read_session
 
@@ -169,7 +169,7 @@ def test_an_emulated_run_listens_on_loopback_only_and_counts_forged_can_frames(t
                 sys.executable,
                 "-c",
                 "import sys, time\nfrom beambench.emulators.canbus import LoopbackCanBus\n"
-                "from beambench.devices import odrive_cansimple as cs\n"
+                "from beambench.devices.odrive import cansimple as cs\n"
                 "frame = cs.to_can(0, cs.EncoderEstimates(0.0, 999.0))\n"
                 "for port in map(int, sys.argv[1:]):\n"
                 "    bus = LoopbackCanBus(0, peer_port=port)\n"

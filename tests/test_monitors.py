@@ -12,8 +12,8 @@ from beambench.acquisition.hub import Hub
 from beambench.acquisition.monitors import MocapLost, StreamSilent, build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
-from beambench.devices.odrive_cansimple import AxisState
-from beambench.rigs.emulated import build_emulated_rig
+from beambench.backends.emulated import build_emulated_rig
+from beambench.devices.odrive.cansimple import AxisState
 from beambench.sinks.hdf5 import SessionWriter, read_session
 
 MS = 1_000_000

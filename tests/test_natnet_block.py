@@ -1,4 +1,4 @@
-"""Frames decoded many at a time (natnet_block) against the codec one at a time: the same values, bit for bit;
+"""Frames decoded many at a time (devices.natnet.block) against the codec one at a time: the same values, bit for bit;
 frames of another layout are left to the codec, never misread; the mocap stream is the same either way."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from beambench.devices import natnet_block as nb
-from beambench.devices import natnet_protocol as nn
-from beambench.devices.natnet import NatNetClient, NatNetMocap
-from beambench.devices.pcap import read_udp
+from beambench.devices.natnet import block as nb
+from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet.client import NatNetClient, NatNetMocap
+from beambench.devices.natnet.pcap import read_udp
 from conftest import require_shared
 
 MARKERS = ("base", "tip", "body")

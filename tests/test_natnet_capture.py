@@ -19,9 +19,9 @@ import pytest
 from typer.testing import CliRunner
 
 from beambench.cli import app
-from beambench.devices import natnet_protocol as nn
-from beambench.devices.natnet_capture import decode_capture, frames_table
-from beambench.devices.pcap import CaptureError, read_udp
+from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet.capture import decode_capture, frames_table
+from beambench.devices.natnet.pcap import CaptureError, read_udp
 from conftest import require_shared, shared_path
 
 FIXTURES = shared_path("fixtures", "natnet")

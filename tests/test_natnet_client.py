@@ -14,8 +14,8 @@ import pytest
 
 from beambench.acquisition.capabilities import Stream
 from beambench.acquisition.streams import MOCAP
-from beambench.devices import natnet_protocol as nn
-from beambench.devices.natnet import (
+from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet.client import (
     MarkerSource,
     NatNetClient,
     NatNetConfig,

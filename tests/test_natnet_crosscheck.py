@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from beambench.devices import natnet_protocol as nn
+from beambench.devices.natnet import protocol as nn
 from beambench.emulators.motive import MotiveEmulator
 
 natnet = pytest.importorskip("natnet", reason="the PyPI 'natnet' package (dev-only cross-check) is not installed")

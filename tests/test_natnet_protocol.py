@@ -11,7 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from beambench.devices import natnet_protocol as nn
+from beambench.devices.natnet import protocol as nn
 from conftest import require_shared
 
 V30, V40, V41 = nn.V3_0, nn.V4_0, nn.V4_1

@@ -16,16 +16,17 @@ from hypothesis import strategies as st
 
 from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
 from beambench.acquisition.streams import motor_spec
-from beambench.devices import odrive_cansimple as cs
-from beambench.devices.odrive_can import (
+from beambench.devices.odrive import cansimple as cs
+from beambench.devices.odrive.can_motor import (
     MAX_VEL_LIMIT,
     RECEIVE_COALESCE_S,
+    CanMotorTiming,
     LimitError,
     OdriveCanMotor,
     ping,
     receive_ns,
 )
-from beambench.devices.odrive_cansimple import AxisError, AxisState
+from beambench.devices.odrive.cansimple import AxisError, AxisState
 from beambench.emulators.odrive_can import (
     EmulatedOdrive,
     OdriveAxisModel,
@@ -355,7 +356,9 @@ def test_ping(channel, emu):
 
 
 def test_arm_without_odrive_raises(tmp_path):
-    with OdriveCanMotor(f"empty-{uuid.uuid4().hex}", "virtual", NODE, heartbeat_timeout_s=0.1) as m:
+    with OdriveCanMotor(
+        f"empty-{uuid.uuid4().hex}", "virtual", NODE, timing=CanMotorTiming(heartbeat_timeout_s=0.1)
+    ) as m:
         with pytest.raises(DeviceFault, match="no heartbeat"):
             m.arm(LIMITS)
         with pytest.raises(DeviceFault, match="no heartbeat"):

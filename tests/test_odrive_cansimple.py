@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beambench.devices import odrive_cansimple as cs
+from beambench.devices.odrive import cansimple as cs
 from conftest import require_shared
 
 f32 = st.floats(width=32, allow_nan=False, allow_infinity=False)

@@ -10,8 +10,8 @@ import can
 import numpy as np
 import pytest
 
-from beambench.devices import odrive_cansimple as cs
-from beambench.devices.odrive_cansimple import (
+from beambench.devices.odrive import cansimple as cs
+from beambench.devices.odrive.cansimple import (
     AxisError,
     AxisState,
     ControlMode,

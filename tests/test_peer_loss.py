@@ -37,7 +37,7 @@ def _env() -> dict[str, str]:
 
 
 def _peers_pid(pid: int) -> int | None:
-    """The run's emulated-peers process (``python -c "from beambench.rigs.emulated import _peer_entry…"``)."""
+    """The run's emulated-peers process (``python -c "from beambench.backends.emulated import _peer_entry…"``)."""
     for task in Path(f"/proc/{pid}/task").iterdir():
         with open(task / "children") as fh:
             for child in fh.read().split():

@@ -357,7 +357,7 @@ def _sim_runner(tmp_path: Path, stop=None, on_progress=None):
     from beambench.acquisition.hub import Hub
     from beambench.acquisition.plan import motor_limits, plan
     from beambench.acquisition.runner import Runner
-    from beambench.rigs.sim import SimRig
+    from beambench.backends.sim import SimRig
     from beambench.sinks.hdf5 import SessionWriter
 
     protocol = parse_protocol(ENDLESS)

@@ -8,8 +8,8 @@ import mujoco
 import numpy as np
 import pytest
 
+from beambench.backends.sim_devices import interp_rows
 from beambench.common.errors import BeambenchError
-from beambench.rigs.sim_devices import interp_rows
 from beambench.sim.models.beam import add_beam
 from beambench.sim.models.params import ParamsError, available, load_params
 from beambench.sim.models.registry import (
@@ -139,7 +139,7 @@ def test_segmented_rod_runs_in_the_contact_rig_and_mirrors_with_chirality():
     """With the drive mirrored too (A → −A) the −φ rod's whole tip path, transients included, is the
     mirror image of the +φ one (this rod's response at 20 Hz is not periodic, so no half-period trick)."""
     from beambench.acquisition.config import parse_protocol
-    from beambench.rigs.sim import build_scene
+    from beambench.backends.sim import build_scene
 
     scene = build_scene(parse_protocol("sweep: {frequencies: [1]}\nsim: {model: rod5}\n"))
     assert scene.physics.model.nv == 1 + 3 * 5 and scene.identity()["model"] == "rod5"

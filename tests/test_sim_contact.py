@@ -10,7 +10,7 @@ from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.config import parse_protocol
 from beambench.acquisition.streams import WALKER_MARKERS
-from beambench.rigs.sim import build_sim_rig
+from beambench.backends.sim import build_sim_rig
 
 
 def sweep(text: str, steps: list[tuple[float, float, float]]) -> tuple[list[dict[str, Batch]], object]:

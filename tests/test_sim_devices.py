@@ -14,7 +14,7 @@ from beambench.acquisition.streams import (
     mocap_spec,
     motor_spec,
 )
-from beambench.rigs.sim import build_sim_rig
+from beambench.backends.sim import build_sim_rig
 
 BASE = "sweep: {frequencies: [10]}\nlimits: {max_frequency_hz: 40}\n"
 

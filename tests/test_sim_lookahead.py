@@ -1,4 +1,4 @@
-"""The sim rig computing the runner's announced schedule ahead (beambench.rigs.lookahead): the same data as stepping
+"""The sim rig computing the runner's announced schedule ahead (beambench.backends.lookahead): the same data as stepping
 on demand, a clean fallback when the run leaves the schedule, and the walker's sweep cut into parallel segments."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from typer.testing import CliRunner
 from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.config import parse_protocol
 from beambench.acquisition.runner import record_polls, wait_polls
+from beambench.backends.lookahead import cut_points, script
+from beambench.backends.sim import SimRig
 from beambench.cli import app
-from beambench.rigs.lookahead import cut_points, script
-from beambench.rigs.sim import SimRig
 from beambench.sinks.hdf5 import read_session
 
 WALKER = """

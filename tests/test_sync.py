@@ -161,7 +161,7 @@ def test_clockfit_inverse_and_offset():
 def test_sim_device_clocks_over_five_minutes_align_within_half_a_millisecond():
     """The sim backend's own clock model (offset, drift, exponential receive jitter, FIFO link)."""
     from beambench.acquisition.config import ClockModel
-    from beambench.rigs.sim_devices import DeviceClock
+    from beambench.backends.sim_devices import DeviceClock
 
     rng = np.random.default_rng(9)
     mocap = DeviceClock(ClockModel(offset_s=0.005, drift_ppm=50.0, jitter_s=0.0004), 360.0, rng)

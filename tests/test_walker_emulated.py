@@ -11,8 +11,8 @@ from beambench.acquisition.config import load_rig_file, parse_protocol
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
-from beambench.rigs.emulated import build_emulated_rig
-from beambench.rigs.hardware import DEFAULT_RIG_FILE
+from beambench.backends.emulated import build_emulated_rig
+from beambench.backends.hardware import DEFAULT_RIG_FILE
 from beambench.sinks.hdf5 import SessionWriter, read_session
 
 PROTOCOL = """

@@ -26,14 +26,14 @@ def register(app: typer.Typer) -> None:
         from rich.table import Table
 
         from beambench.acquisition.config import ConfigError, load_rig_file
-        from beambench.rigs.hardware import DEFAULT_RIG_FILE
+        from beambench.backends.hardware import DEFAULT_RIG_FILE
 
         try:
             rig = load_rig_file(rig_file or DEFAULT_RIG_FILE) if not emulate else None
         except ConfigError as exc:
             fail(str(exc))
         if emulate:
-            from beambench.rigs.emulated import emulated_peers
+            from beambench.backends.emulated import emulated_peers
 
             with emulated_peers() as wiring:
                 results = ping_all(wiring)
@@ -57,7 +57,9 @@ def register(app: typer.Typer) -> None:
 
 def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
     """Ping each device of a :class:`beambench.acquisition.config.RigFile`; never raises for a device that is absent."""
-    from beambench.devices import loadcell, natnet, odrive_can
+    from beambench.devices.loadcell import driver as loadcell
+    from beambench.devices.natnet import client as natnet
+    from beambench.devices.odrive import can_motor as odrive_can
 
     out: dict[str, dict[str, Any]] = {}
     nn = rig.natnet.model_dump(exclude={"markers"})
@@ -69,7 +71,7 @@ def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
     if od.transport == "can":
         out["motor (ODrive CAN)"] = odrive_can.ping(od.channel, od.interface, od.node_id, bitrate=od.bitrate)
     else:
-        from beambench.devices import odrive_usb
+        from beambench.devices.odrive import usb_motor as odrive_usb
 
         out["motor (ODrive USB)"] = odrive_usb.ping(od.serial_number)
     try:

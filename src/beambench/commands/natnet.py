@@ -29,9 +29,9 @@ def decode(
     size, occluded, params. The NatNet version is taken from a SERVERINFO in the capture, else --natnet-version.
     Prints a summary line (frames, dropped, parse errors, version, rate).
     """
-    from beambench.devices import natnet_protocol as nn
-    from beambench.devices.natnet_capture import decode_capture, frames_table
-    from beambench.devices.pcap import CaptureError
+    from beambench.devices.natnet import protocol as nn
+    from beambench.devices.natnet.capture import decode_capture, frames_table
+    from beambench.devices.natnet.pcap import CaptureError
 
     if natnet_version is not None:
         try:

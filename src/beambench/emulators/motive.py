@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from beambench.acquisition.clocks import DriftingClock
-from beambench.devices import natnet_protocol as nn
+from beambench.devices.natnet import protocol as nn
 
 __all__ = ["APP_VERSIONS", "EmulatorClock", "MotiveEmulator"]
 

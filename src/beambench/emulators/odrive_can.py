@@ -42,8 +42,8 @@ from dataclasses import dataclass, replace
 
 import can
 
-from beambench.devices import odrive_cansimple as cs
-from beambench.devices.odrive_cansimple import (
+from beambench.devices.odrive import cansimple as cs
+from beambench.devices.odrive.cansimple import (
     AxisError,
     AxisState,
     ControllerError,

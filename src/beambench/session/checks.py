@@ -12,7 +12,7 @@ from pathlib import Path
 from beambench.acquisition.config import ConfigError, Protocol
 from beambench.acquisition.plan import check_limits
 from beambench.common.yaml_config import shorten
-from beambench.devices.odrive_can import LOG_SUFFIXES
+from beambench.devices.odrive.can_motor import LOG_SUFFIXES
 from beambench.sim.models.params import ParamsError, load_params
 from beambench.sim.models.registry import model_family
 

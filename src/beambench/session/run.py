@@ -8,7 +8,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from rich.console import Console
 from rich.progress import (
     BarColumn,
     Progress,
@@ -24,8 +23,9 @@ from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
+from beambench.backends.build import build_rig
+from beambench.common.console import stderr_console
 from beambench.common.errors import BeambenchError
-from beambench.rigs.build import build_rig
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
@@ -95,6 +95,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     if req.rerun_mode == "save":
         _reserve(path.with_suffix(".rrd"))
     rig = _open_rig(req)
+    steps = plan(protocol)
     try:
         general = {
             "protocol": req.protocol_text,
@@ -124,6 +125,8 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                     path.with_suffix(".rrd"),
                     t0_ns=rig.clock.now_ns(),
                     calibration=default_calibration(),  # the one stored in /general: forces in N live
+                    rig=protocol.rig,
+                    total_steps=len(steps),
                 )
             )
         hub = Hub(sinks, critical=(writer,))
@@ -131,7 +134,6 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     except BaseException:
         rig.close()
         raise
-    steps = plan(protocol)
     with _progress(req.show_progress) as progress:
         task = progress.add_task("starting", total=sum(s.duration_s for s in steps))
 
@@ -175,7 +177,7 @@ def _progress(show: bool) -> Iterator[Progress]:
         TextColumn("{task.completed:.0f}/{task.total:.0f} s rig time"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
-        console=Console(stderr=True),  # progress is chatter: stdout carries only the command's result
+        console=stderr_console(),  # progress is chatter: stdout carries only the command's result
         disable=not show,
         transient=False,
     )

@@ -11,6 +11,6 @@
   ``batch`` (many runs on a thread pool with ``mujoco.batch``, for sweeps and fits).
 - ``selection``: the measured (model, integrator, timestep) tables and the cheapest choice within a tolerance.
 
-The simulated devices and the sim rig that wires a scene to them live in :mod:`beambench.rigs`. Nothing here is
+The simulated devices and the sim rig that wires a scene to them live in :mod:`beambench.backends`. Nothing here is
 imported by ``beambench`` at start-up (MuJoCo loads only when a sim rig or a study needs it).
 """

@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from beambench.common.resources import search_path, shipped_dir
+from beambench.common.resources import ShippedFileError, resolve_file, search_path, shipped_dir
 from beambench.common.yaml_config import ConfigError, load_yaml_file, read_text, shorten
 
 SIM_BACKEND_DIR = shipped_dir("sim_backend")  # the shipped sets and measured tables (read-only)
@@ -33,6 +33,18 @@ class Material:
     youngs_modulus: float = 26e6  # Pa (TPU 95A datasheet)
     poisson: float = 0.45
     density: float = 1210.0  # kg/m^3
+
+
+@dataclass(frozen=True)
+class Bound:
+    """The physical range of one number of a parameter set (SI units) and where the range comes from."""
+
+    min: float
+    max: float
+    source: str = ""
+
+    def contains(self, value: float) -> bool:
+        return self.min <= value <= self.max
 
 
 @dataclass(frozen=True)
@@ -63,6 +75,11 @@ class BeamParams:
     beta: float = 6e-4  # s, stiffness-proportional damping of continuum models (b = beta * k)
     material: Material = field(default_factory=Material)
     rig: dict[str, Any] = field(default_factory=dict)  # optional overrides of rig parameters (foot, contact)
+    # optional overrides of the walker's parameters (WalkerParams); a set without them gives the walker ``rig``
+    walker: dict[str, Any] = field(default_factory=dict)
+    # physical range of each number, keyed by its place in the file: ``beam.k``, ``beam.material.youngs_modulus``,
+    # ``rig.friction``, ``walker.foot_mass``, and ``beam.b/k`` for a damping-to-stiffness ratio (s)
+    bounds: dict[str, Bound] = field(default_factory=dict)
 
     @property
     def length(self) -> float:
@@ -70,6 +87,34 @@ class BeamParams:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def value(self, key: str) -> float | None:
+        """The number at ``key`` (as in :attr:`bounds`: ``beam.beta``, ``beam.material.youngs_modulus``,
+        ``rig.plate_gap``, ``walker.friction``, ratios ``beam.b/k``), or None where the set does not give it."""
+        block, _, name = key.partition(".")
+        if block in ("rig", "walker"):
+            v = getattr(self, block).get(name)
+            return None if v is None else float(v)
+        if block != "beam":
+            return None
+        if "/" in name:
+            num, den = (self.value(f"beam.{n}") for n in name.split("/", 1))
+            return None if num is None or not den else num / den
+        if name.startswith("material."):
+            return float(getattr(self.material, name.removeprefix("material."), math.nan))
+        v = getattr(self, name, None)
+        return float(v) if isinstance(v, (int, float)) else None
+
+    def out_of_bounds(self) -> list[str]:
+        """One line per bounded number outside its physical range (empty: every bounded number is inside)."""
+        bad = []
+        for key, b in self.bounds.items():
+            v = self.value(key)
+            if v is None:
+                bad.append(f"{key}: bounded but not given")
+            elif not b.contains(v):
+                bad.append(f"{key} = {v:g} outside [{b.min:g}, {b.max:g}] ({b.source})")
+        return bad
 
 
 def available(model: str = "prb3") -> list[str]:
@@ -90,7 +135,11 @@ def find_params(name: str, model: str = "prb3") -> Path | None:
 def has_params(name: str, model: str) -> bool:
     """Whether ``name`` (a set name or a YAML path) gives parameters for the model family ``model``."""
     path = Path(name)
-    if path.suffix in (".yaml", ".yml") and path.exists():
+    if path.suffix in (".yaml", ".yml"):
+        try:
+            path = resolve_file("params", path)
+        except ShippedFileError:
+            return False
         try:
             data = yaml.safe_load(read_text(path)) or {}  # kind and size checked before the read
         except (yaml.YAMLError, ConfigError):
@@ -102,8 +151,11 @@ def has_params(name: str, model: str) -> bool:
 def load_params(name: str = "paper", model: str = "prb3") -> BeamParams:
     """Load the named set ``name`` (``<model>_<name>.yaml`` in :func:`find_params`' folders) or a YAML file path."""
     given = Path(name)
-    if given.suffix in (".yaml", ".yml") and given.is_file():
-        path: Path | None = given
+    if given.suffix in (".yaml", ".yml"):  # a file, or a shipped set by its path (sim_backend/prb3_paper.yaml)
+        try:
+            path: Path | None = resolve_file("params", given)
+        except ShippedFileError as exc:
+            raise ParamsError(f"sim.params = {exc}") from None
     else:
         if "/" in name or "\\" in name or "\x00" in name or len(name) > 200:
             raise ParamsError(f"sim.params = {shorten(name)}: no such parameter file")
@@ -137,7 +189,7 @@ def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParam
     mat = beam.pop("material", None) or {}
     if not isinstance(mat, dict):
         raise ParamsError(f"{where}: beam.material: expected a mapping of material fields")
-    unknown = set(beam) - (known - {"name", "model", "source", "rig", "material"})
+    unknown = set(beam) - (known - {"name", "model", "source", "rig", "walker", "bounds", "material"})
     if unknown:
         raise ParamsError(f"{where}: beam.{sorted(map(str, unknown))[0][:80]}: unknown field")
     unknown_mat = set(mat) - {f.name for f in fields(Material)}
@@ -151,11 +203,31 @@ def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParam
     rig = data.get("rig") or {}
     if not isinstance(rig, dict):
         raise ParamsError(f"{where}: rig: expected a mapping of rig overrides")
+    walker = data.get("walker") or {}
+    if not isinstance(walker, dict):
+        raise ParamsError(f"{where}: walker: expected a mapping of walker overrides")
     return BeamParams(
         name=str(data.get("name", Path(where).stem)),
         model=str(data.get("model", "prb3")),
         source=str(data.get("source", "")),
         material=material,
         rig=dict(rig),
+        walker=dict(walker),
+        bounds=_bounds(data.get("bounds") or {}, where),
         **values,
     )
+
+
+def _bounds(block: Any, where: str) -> dict[str, Bound]:
+    """The ``bounds:`` block: ``<key>: {min: .., max: .., source: ..}`` per bounded number."""
+    if not isinstance(block, dict):
+        raise ParamsError(f"{where}: bounds: expected a mapping of <key>: {{min, max, source}}")
+    out = {}
+    for key, b in block.items():
+        if not isinstance(b, dict) or not {"min", "max"} <= set(b):
+            raise ParamsError(f"{where}: bounds.{shorten(key)}: expected {{min: .., max: .., source: ..}}")
+        lo, hi = _number(b["min"], where, f"bounds.{key}.min"), _number(b["max"], where, f"bounds.{key}.max")
+        if lo > hi:
+            raise ParamsError(f"{where}: bounds.{shorten(key)}: min {lo:g} > max {hi:g}")
+        out[str(key)] = Bound(lo, hi, str(b.get("source", "")))
+    return out

@@ -1,0 +1,210 @@
+"""Rigs of real drivers: ``hardware`` (the lab's devices, wired by the rig file) and ``emulated`` (the same
+drivers against wire-level emulated peers on this machine, driven in real time by the MuJoCo physics).
+
+Emulated wiring: Motive on UDP loopback (unicast, a free port), the ODrive on a python-can virtual bus (a
+channel of its own), the load-cell MCU on a pseudo-terminal. A physics thread advances the sim scene to the
+wall clock every few milliseconds, following the emulated ODrive's crank speed, and the emulators read
+marker positions and plate force from it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from pathlib import Path
+from typing import Any
+
+from beambench.acquisition.batch import Frame
+from beambench.acquisition.capabilities import Connectable, Motor, ReportsHealth, Stream
+from beambench.acquisition.config import (
+    ConfigError,
+    LoadCellWiring,
+    NatNetWiring,
+    OdriveWiring,
+    Protocol,
+    load_rig_file,
+)
+from beambench.acquisition.scenes import scene_info
+from beambench.common.resources import shipped_dir
+
+DEFAULT_RIG_FILE = shipped_dir("calibration") / "rig.yaml"
+
+
+class WallClock:
+    """Host monotonic time; ``wait`` sleeps to deadlines so polls do not accumulate drift."""
+
+    def __init__(self) -> None:
+        self._deadline: int | None = None
+
+    def now_ns(self) -> int:
+        return time.monotonic_ns()
+
+    def wait(self, seconds: float) -> None:
+        now = time.monotonic_ns()
+        base = self._deadline if self._deadline is not None and now - self._deadline < 50_000_000 else now
+        self._deadline = base + int(seconds * 1e9)
+        delay = (self._deadline - time.monotonic_ns()) * 1e-9
+        if delay > 0:
+            time.sleep(delay)
+
+
+class DeviceRig:
+    """Clock, motor and streams of real drivers, plus whatever must be stopped after them (emulators)."""
+
+    idle_tail_s = 0.3  # recorded after the idle command, so the session shows the motor stopping
+
+    def __init__(
+        self,
+        motor: Motor,
+        mocap: Stream,
+        loadcells: Stream,
+        backend: str,
+        peers: list[Any] | None = None,
+        extra_identity: dict[str, Any] | None = None,
+    ) -> None:
+        self.clock = WallClock()
+        self.motor = motor
+        self.mocap, self.loadcells = mocap, loadcells
+        self.streams: list[Stream] = [motor, mocap, loadcells]
+        self.backend = backend
+        self.peers = peers or []
+        self._extra = extra_identity or {}
+        self._opened: list[Any] = []
+        self._closed = False
+        self._after_run: dict[str, Any] = {}  # what only exists after the run (NatNet ECHO table), for /general
+
+    def open(self) -> None:
+        try:
+            if isinstance(self.motor, Connectable):
+                self.motor.open()
+            self._opened.append(self.motor)
+            for s in self.streams:
+                s.start()
+            # emulated peers start sending once every driver listens (their servers answer from the start):
+            # a real board's first second is not buffered in a port nobody has opened yet either
+            for peer in self.peers:
+                peer.start()
+                self._opened.append(peer)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(Exception):
+            self.motor.idle()
+        self._keep_echoes()
+        for s in (self.mocap, self.loadcells):
+            with contextlib.suppress(Exception):
+                s.stop()
+        self._after_run["devices"] = self.device_health()
+        if isinstance(self.motor, Connectable):
+            with contextlib.suppress(Exception):
+                self.motor.close()
+        for peer in reversed(self.peers):
+            with contextlib.suppress(Exception):
+                peer.stop()
+
+    def check(self) -> None:
+        """Raise :class:`DeviceFault` if any device failed or went silent: the motor first, then each stream."""
+        self.motor.check()
+        for s in (self.mocap, self.loadcells):
+            s.check()
+
+    def silence_timeouts(self) -> dict[str, float]:
+        """Each stream's silence timeout (s), for :func:`beambench.acquisition.monitors.build_monitors`."""
+        out: dict[str, float] = {}
+        for s in (self.mocap, self.loadcells):
+            timeout = getattr(s, "silence_timeout_s", None)
+            if timeout is not None:
+                out[s.name] = float(timeout)
+        return out
+
+    def device_health(self) -> dict[str, dict[str, Any]]:
+        """Every driver's counters (received, dropped, garbled, forged, ...), by stream name."""
+        out: dict[str, dict[str, Any]] = {}
+        for s in self.streams:
+            if isinstance(s, ReportsHealth):
+                with contextlib.suppress(Exception):
+                    out[s.name] = s.health()
+        return out
+
+    def _keep_echoes(self) -> None:
+        client = getattr(self.mocap, "client", None)
+        if client is None or not getattr(client, "clock_frequency", None):
+            return
+        with contextlib.suppress(Exception):
+            table = {k: v.tolist() for k, v in client.echo_table().items()}
+            self._after_run = {"sync": {"natnet_echo": {**table, "clock_frequency": int(client.clock_frequency)}}}
+
+    def after_run(self) -> dict[str, Any]:
+        """The NatNet ECHO table (for the clock fit) and every driver's counters (``devices``), known once the
+        devices have stopped."""
+        return dict(self._after_run)
+
+    def identity(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"backend": self.backend}
+        for key, dev in (("motor", self.motor), ("mocap", self.mocap), ("loadcells", self.loadcells)):
+            ident = getattr(dev, "identity", None)
+            out[key] = ident() if callable(ident) else type(dev).__name__
+        out.update(self._extra)
+        return out
+
+
+def _markers(protocol: Protocol) -> tuple[str, ...]:
+    return scene_info(protocol.rig).wired_markers
+
+
+def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
+    if od.transport == "usb":
+        from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming
+
+        # the rig file's watchdog timeout: armed by the driver over USB (it was the driver's default before)
+        return OdriveUsbMotor(
+            serial_number=od.serial_number,
+            axis=od.axis,
+            timing=UsbMotorTiming(watchdog_timeout_s=od.watchdog_timeout_s),
+        )
+    from beambench.devices.odrive.can_motor import CanMotorTiming, OdriveCanMotor
+
+    return OdriveCanMotor(
+        od.channel,
+        od.interface,
+        od.node_id,
+        bitrate=od.bitrate,
+        can_log=can_log,
+        timing=CanMotorTiming(heartbeat_timeout_s=od.heartbeat_timeout_s, telemetry_timeout_s=od.telemetry_timeout_s),
+        **can_kw,
+    )
+
+
+def _make_mocap(nn: NatNetWiring, markers: tuple[str, ...], frame: Frame) -> Stream:
+    from beambench.devices.natnet.client import NatNetMocap
+
+    section = nn.model_dump()
+    silence = section.pop("silence_timeout_s", None)
+    missing = [m for m in markers if m not in section["markers"]]
+    if missing:
+        raise ConfigError("<rig file>", "natnet.markers", sorted(section["markers"]), f"no source for {missing}")
+    return NatNetMocap.from_rig(section, markers=markers, frame=frame, silence_timeout_s=silence)
+
+
+def _make_loadcells(lc: LoadCellWiring) -> Stream:
+    from beambench.devices.loadcell.driver import SerialLoadCells
+
+    return SerialLoadCells(lc.port, lc.baudrate, silence_timeout_s=lc.silence_timeout_s)
+
+
+def build_device_rig(protocol: Protocol, rig_file: Path | None = None, can_log: Path | None = None) -> DeviceRig:
+    """The rig of real drivers against the lab's devices, wired by ``rig_file`` (default: the shipped rig.yaml)."""
+    path = Path(rig_file) if rig_file else DEFAULT_RIG_FILE
+    rig = load_rig_file(path)
+    return DeviceRig(
+        _make_motor(rig.odrive, can_log),
+        _make_mocap(rig.natnet, _markers(protocol), Frame(**rig.geometry.model_dump())),
+        _make_loadcells(rig.loadcell),
+        "hardware",
+        extra_identity={"rig_file": path.read_text()},
+    )

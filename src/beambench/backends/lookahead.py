@@ -1,0 +1,266 @@
+"""The sim rig's physics computed ahead of the run, on worker threads (:class:`Lookahead`).
+
+Once armed, the runner announces what the run will do if nothing stops or pauses it (each step's command and the
+clock waits after it; :class:`~beambench.acquisition.capabilities.Anticipates`). The sim rig turns that into a
+script of scene calls — ``set_frequency`` at a rig time, ``advance_to`` a rig time: exactly the calls it would
+make itself — and a worker thread makes them ahead of the run (MuJoCo releases the GIL, so the physics runs on
+one core while the devices and the session file use the other), keeping each call's rows and the scene's state
+after it. While the run does what was announced, the rig takes the rows from the worker: the same calls in the
+same order, so the same data as without lookahead. At the first call that differs (an interrupted run, a
+monitor's pause, the final idle) the rig stops the workers and continues from the state after the last call it
+took.
+
+Segments (``sim.segments: n`` > 1, the walker): the script is cut at n − 1 step commands into n parts computed
+in parallel, each part after the first on its own copy of the scene, which first walks :data:`PRESETTLE_S` at
+that step's frequency from the scene's rest state after ramping up (the walker needs ~3 s to walk steadily). Its rows
+are stitched on: time continues, the markers' positions along the walking axis and the motor angle are offset so
+they continue from the previous part's last row. What changes with segments: the state is not carried across a
+cut — the gait's phase, the body's height and tilt jump there, at the start of a step's settle window — and
+each part after the first starts at its first frequency already walking instead of ramping up from the previous
+step's frequency. The per-step settle window is what makes the steps' speeds comparable either way (each step's
+speed is a steady one measured after it).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from beambench.sim.engine.stepping import Trajectory
+from beambench.sim.scenes.drive import DrivenScene
+
+PRESETTLE_S = 3.5  # s a segment's own scene walks at its first frequency (after ramping up) before its rows are used
+MAX_AHEAD = 16  # script calls the first segment may run ahead of the run (the later ones run freely)
+
+Call = tuple[str, int, float]  # ("cmd", rig time ns, Hz) or ("adv", rig time ns, 0.0)
+
+
+def script(schedule: list[tuple[float, list[float]]], now_ns: int, max_chunk_ns: int) -> list[Call]:
+    """The scene calls the sim rig makes for ``schedule`` from rig time ``now_ns``: a command, then each wait
+    advanced in chunks of at most ``max_chunk_ns`` (as :class:`~beambench.backends.sim_devices.SimClock.wait`)."""
+    calls: list[Call] = []
+    t = now_ns
+    for hz, waits in schedule:
+        calls.append(("cmd", t, float(hz)))
+        for w in waits:
+            if w <= 0:
+                continue
+            target = t + round(w * 1e9)
+            while t < target:
+                t = min(target, t + max_chunk_ns)
+                calls.append(("adv", t, 0.0))
+    return calls
+
+
+def cut_points(
+    calls: list[Call], segments: int, presettle_s: float, cost: Callable[[float], float] | None = None
+) -> list[int]:
+    """Indices of the step commands where the script is cut into ``segments`` parts of about equal physics cost
+    (a later part also pre-settles ``presettle_s``); fewer cuts when there are too few commands. ``cost(hz)``: the
+    physics' relative cost per rig second at a drive frequency (None: the same at every frequency)."""
+    cmds = [i for i, c in enumerate(calls) if c[0] == "cmd" and i > 0]
+    if segments <= 1 or not cmds:
+        return []
+    weight = cost or (lambda hz: 1.0)
+    cum = np.zeros(len(calls))  # cost of the script up to each call
+    hz, t, total = 0.0, calls[0][1], 0.0
+    for i, (kind, t_ns, f) in enumerate(calls):
+        if kind == "cmd":
+            hz = f
+        else:
+            total += (t_ns - t) * 1e-9 * weight(hz)
+            t = t_ns
+        cum[i] = total
+    mean_w = total / max((calls[-1][1] - calls[0][1]) * 1e-9, 1e-12)
+    pre = presettle_s * mean_w
+    part = (total + (segments - 1) * pre) / segments
+    cuts: list[int] = []
+    for j in range(1, segments):
+        want = j * part - (j - 1) * pre
+        best = min(cmds, key=lambda i: abs(cum[i] - want))
+        if best not in cuts and (not cuts or best > cuts[-1]):
+            cuts.append(best)
+    return cuts
+
+
+def physics_time_after(calls: list[Call], t_phys: float, h: float) -> float:
+    """The scene's physics time after ``calls`` from physics time ``t_phys`` (as ``DrivenScene.advance_to``)."""
+    for kind, t_ns, _ in calls:
+        if kind == "adv":
+            n = int(np.ceil((t_ns * 1e-9 - t_phys) / h - 1e-9)) + 1
+            if n > 0:
+                t_phys += n * h
+    return t_phys
+
+
+@dataclass
+class _Segment:
+    """One worker: script calls ``first``..``last − 1`` on ``scene`` (pre-settled first unless it is the rig's)."""
+
+    scene: DrivenScene
+    first: int
+    last: int
+    presettle: tuple[float, float, float] | None = None  # (Hz, seconds, physics time to continue from)
+    results: dict[int, tuple[Trajectory | None, tuple]] = field(default_factory=dict)
+    done: int = 0  # calls made
+    join_row: dict[str, np.ndarray] | None = None  # the pre-settle's last row (markers, theta)
+    error: BaseException | None = None
+    thread: threading.Thread | None = None
+    cpu_s: float = 0.0  # the worker thread's CPU time
+
+
+class Lookahead:
+    """Makes a script of scene calls on worker threads ahead of the caller, who takes the results in order with
+    :meth:`expects` and :meth:`take`. ``clones`` makes the later segments' scenes (rest state, like the rig's)."""
+
+    def __init__(
+        self,
+        scene: DrivenScene,
+        calls: list[Call],
+        cuts: list[int] | None = None,
+        clones: list[DrivenScene] | None = None,
+        presettle_s: float = PRESETTLE_S,
+        walk_axis: int = 0,
+    ) -> None:
+        self.calls = calls
+        self.walk_axis = walk_axis
+        self.next = 0  # the next call the caller expects
+        self.start = scene.snapshot()  # the state before the first call
+        self.last_snap: tuple | None = None
+        self.offset: dict[str, float] = {"x": 0.0, "theta": 0.0}  # added to the rows of the segment in use
+        self._cv = threading.Condition()
+        self._stop = False
+        cuts = list(cuts or [])
+        clones = list(clones or [])
+        if len(clones) < len(cuts):
+            raise ValueError("lookahead: one scene copy per cut")
+        bounds = [0, *cuts, len(calls)]
+        self.segments: list[_Segment] = []
+        h = float(scene.physics.timestep)
+        for j in range(len(bounds) - 1):
+            a, b = bounds[j], bounds[j + 1]
+            if j == 0:
+                seg = _Segment(scene, a, b)
+            else:
+                t_phys = physics_time_after(calls[:a], float(scene.physics.time), h)
+                seg = _Segment(clones[j - 1], a, b, (calls[a][2], presettle_s, t_phys))
+            self.segments.append(seg)
+        self._seg = 0  # the segment the caller takes from
+        for seg in self.segments:
+            seg.thread = threading.Thread(target=self._work, args=(seg,), name="sim-lookahead", daemon=True)
+            seg.thread.start()
+
+    # --- worker -----------------------------------------------------------------------------------------
+    def _work(self, seg: _Segment) -> None:
+        c0 = time.thread_time()
+        try:
+            if seg.presettle is not None:
+                hz, seconds, t_phys = seg.presettle
+                seg.scene.set_frequency(hz)
+                ramp_s = hz / seg.scene.ramp.rate
+                pre = seg.scene.advance_to(float(seg.scene.physics.time) + ramp_s + seconds)
+                seg.join_row = {k: pre.channels[k][-1].copy() for k in ("markers", "theta")}
+                seg.scene.physics.data.time = t_phys  # continue on the run's time axis
+            bounded = seg is self.segments[0]
+            for i in range(seg.first, seg.last):
+                with self._cv:
+                    while bounded and not self._stop and i - self.next >= MAX_AHEAD:
+                        self._cv.wait()
+                    if self._stop:
+                        return
+                kind, t_ns, hz = self.calls[i]
+                if kind == "cmd":
+                    seg.scene.set_frequency(hz)
+                    out = None
+                else:
+                    out = seg.scene.advance_to(t_ns * 1e-9)
+                snap = seg.scene.snapshot()
+                with self._cv:
+                    seg.results[i] = (out, snap)
+                    seg.done = i + 1
+                    seg.cpu_s = time.thread_time() - c0
+                    self._cv.notify_all()
+        except BaseException as exc:  # handed to the caller in take()
+            with self._cv:
+                seg.error = exc
+                self._cv.notify_all()
+
+    # --- caller -----------------------------------------------------------------------------------------
+    def expects(self, kind: str, t_ns: int, hz: float = 0.0) -> bool:
+        """Is ``(kind, t_ns, hz)`` the next call of the script?"""
+        return self.next < len(self.calls) and self.calls[self.next] == (kind, t_ns, float(hz))
+
+    def take(self, last_rows: Trajectory | None) -> Trajectory | None:
+        """The next call's rows (None for a command), waiting for its worker. ``last_rows``: the rows taken so far
+        (their last row is where a new segment's rows are stitched on)."""
+        i = self.next
+        if self._seg + 1 < len(self.segments) and i >= self.segments[self._seg + 1].first:
+            self._seg += 1
+        seg = self.segments[self._seg]
+        with self._cv:
+            while seg.done <= i and seg.error is None:
+                self._cv.wait()
+            if seg.error is not None and seg.done <= i:
+                raise seg.error
+            out, snap = seg.results.pop(i)
+            self.last_snap = snap
+            self.next = i + 1
+            self._cv.notify_all()
+        if i == seg.first and seg.join_row is not None and last_rows is not None and len(last_rows):
+            self.offset = {
+                "x": float(
+                    last_rows.channels["markers"][-1, 0, self.walk_axis] - seg.join_row["markers"][0, self.walk_axis]
+                ),
+                "theta": float(last_rows.channels["theta"][-1] - seg.join_row["theta"]),
+            }
+        return None if out is None else shifted(out, self.offset, self.walk_axis)
+
+    @property
+    def scene(self) -> DrivenScene:
+        """The scene whose state follows the last call taken."""
+        return self.segments[self._seg].scene
+
+    @property
+    def cut_times_ns(self) -> list[int]:
+        return [self.calls[s.first][1] for s in self.segments[1:]]
+
+    def stop(self) -> tuple | None:
+        """Stop every worker; the state after the last call taken (None: none taken — then :attr:`start`)."""
+        with self._cv:
+            self._stop = True
+            self._cv.notify_all()
+        for seg in self.segments:
+            if seg.thread is not None:
+                seg.thread.join()
+        return self.last_snap
+
+
+def shifted(tr: Trajectory, offset: dict[str, float], axis: int) -> Trajectory:
+    """``tr`` with ``offset["x"]`` added to every marker along ``axis`` and ``offset["theta"]`` to the motor angle."""
+    if not offset["x"] and not offset["theta"]:
+        return tr
+    ch = dict(tr.channels)
+    if offset["x"] and "markers" in ch:
+        m = ch["markers"].copy()
+        m[..., axis] += offset["x"]
+        ch["markers"] = m
+    if offset["theta"] and "theta" in ch:
+        ch["theta"] = ch["theta"] + offset["theta"]
+    return Trajectory(tr.t, ch)
+
+
+def info(look: Lookahead) -> dict[str, Any]:
+    """What the lookahead did, for the session's ``/general`` (segments: where the script was cut)."""
+    return {
+        "segments": len(look.segments),
+        "cut_times_s": [round(t * 1e-9, 9) for t in look.cut_times_ns],
+        "presettle_s": PRESETTLE_S if len(look.segments) > 1 else 0.0,
+        "calls_taken": look.next,
+        "calls_planned": len(look.calls),
+        "worker_cpu_s": [round(seg.cpu_s, 2) for seg in look.segments],
+    }

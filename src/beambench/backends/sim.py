@@ -1,0 +1,334 @@
+"""The sim backend's :class:`~beambench.acquisition.capabilities.Rig`: a MuJoCo scene plus simulated devices.
+
+``rig.clock.wait(s)`` advances the physics by ``s`` (paced to the wall clock with ``realtime``); after each
+chunk every device samples the new trajectory rows on its own clock.
+
+With ``prefetch`` the next chunk (same length, same command) is computed on a worker thread while the caller
+stores the last one (MuJoCo releases the GIL); a command or a different wait undoes it from a snapshot, so
+the data are identical with and without prefetch. Once the runner announces the run's schedule
+(:meth:`SimRig.anticipate`), a worker computes the whole script ahead instead (:mod:`beambench.backends.lookahead`;
+same data), and with ``sim.segments: n`` (walker) n workers compute consecutive parts of the sweep in parallel,
+each later part pre-settled at its first frequency (what that changes: the lookahead module's docstring).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any, cast
+
+import mujoco
+import numpy as np
+
+from beambench.acquisition.calibration import default_calibration
+from beambench.acquisition.capabilities import Stream
+from beambench.acquisition.config import ClockModel, ConfigError, Protocol, SimOptions
+from beambench.acquisition.scenes import SceneInfo, foreign_option, runnable_names, scene_info
+from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
+from beambench.backends import lookahead
+from beambench.backends.sim_devices import (
+    DeviceClock,
+    SimClock,
+    SimLoadCells,
+    SimMocap,
+    SimMotor,
+)
+from beambench.sim import scenes
+from beambench.sim.engine.stepping import Trajectory
+from beambench.sim.models.params import has_params
+from beambench.sim.models.registry import UnknownModelError, beam_model, model_family
+from beambench.sim.scenes import SceneConfig
+from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
+
+HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
+
+
+def build_scene(protocol: Protocol) -> DrivenScene:
+    """The MuJoCo scene for ``protocol.rig`` (the scene registry's builder) with the protocol's sim options."""
+    sim = protocol.sim
+    info = scene_info(protocol.rig)
+    _check_scene_options(info, sim)
+    plan = _contact_plan(protocol)
+    model_name = plan.model if plan else sim.model
+    try:
+        beam = beam_model(model_name, sim.params)
+    except UnknownModelError as exc:
+        raise ConfigError("<protocol>", "sim.model", sim.model, str(exc).split(": ", 1)[-1]) from None
+    slice_ = SceneConfig(
+        beam,
+        sim,
+        amplitude_mm=protocol.amplitude_mm,
+        settle_s=protocol.settle_s,
+        record_s=protocol.record_s,
+        release=protocol.release,
+        plan=plan,
+    )
+    return scenes.get(info.name).build(slice_)
+
+
+def _check_scene_options(info: SceneInfo, sim: SimOptions) -> None:
+    """``sim.model: auto`` needs a measured table; another scene's options (set to other than their default) are
+    refused with one line."""
+    if sim.model == "auto" and not info.measured_table:
+        tabled = " or ".join(n for n in runnable_names() if scene_info(n).measured_table)
+        reason = f"auto chooses from the measured {tabled}-rig table (rig: {tabled}); name a model (prb3, rod10 …)"
+        raise ConfigError("<protocol>", "sim.model", sim.model, reason)
+    defaults = SimOptions.model_fields
+    given = {k for k in sim.model_fields_set if getattr(sim, k) != defaults[k].default}
+    foreign = foreign_option(info.name, given, "rig")
+    if foreign is not None:
+        option, reason = foreign
+        raise ConfigError("<protocol>", f"sim.{option}", getattr(sim, option), reason)
+
+
+AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
+
+
+def _contact_plan(protocol: Protocol):
+    """The measured plan of a scene with a measured table (the contact rig; :mod:`beambench.sim.selection`),
+    within ``sim.tolerance_mm``:
+
+    - ``sim.model: auto``: the cheapest (model, integrator, timestep per frequency); a tolerance nothing
+      meets is a ConfigError;
+    - a named model without ``sim.timestep``: the timestep each frequency needs for that model and
+      integrator, or None (the rig's fixed policy) when the table does not cover them.
+
+    None for scenes without a measured table and for a fixed ``sim.timestep``."""
+    from beambench.sim import selection as select
+
+    sim = protocol.sim
+    auto = sim.model == "auto"
+    if not scene_info(protocol.rig).measured_table or (not auto and sim.timestep is not None):
+        return None
+    tol = sim.tolerance_mm or AUTO_TOLERANCE_MM
+    if auto:  # every model with a contact table whose family has the protocol's parameter set
+        found = [m for m in select.table_models(protocol.rig) if has_params(sim.params, model_family(m))]
+        models, integrators = (found or None), None
+    else:
+        models, integrators = [sim.model], [sim.integrator]
+    try:
+        return select.plan_sweep(protocol.rig, tol, protocol.sweep.values(), models=models, integrators=integrators)
+    except select.SelectionError as exc:
+        if auto:
+            raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
+        return None
+
+
+class SimRig:
+    """Clock, motor and streams of a simulated rig (``Rig`` protocol)."""
+
+    def __init__(
+        self, protocol: Protocol, realtime: bool = False, scene: DrivenScene | None = None, prefetch: bool = True
+    ) -> None:
+        self.protocol = protocol
+        sim = protocol.sim
+        self.scene = scene or build_scene(protocol)
+        seeds = np.random.SeedSequence(sim.seed).spawn(3)
+        rng_mocap, rng_lc, rng_motor = (np.random.default_rng(s) for s in seeds)
+        self.clock = SimClock(self._advance, realtime=realtime)
+        mocap_clock = DeviceClock(sim.mocap_clock, MOCAP_RATE_HZ, rng_mocap)
+        self.mocap = SimMocap(self.scene.markers, mocap_clock, rng_mocap, noise_m=1e-4 if sim.noise else 0.0)
+        self.loadcells = SimLoadCells(
+            DeviceClock(sim.loadcell_clock, LOADCELL_RATE_HZ, rng_lc),
+            default_calibration(),
+            mocap_clock,
+            rng_lc,
+            noise_counts=15.0 if sim.noise else 0.0,
+        )
+        rig = self.scene.rig
+        self.motor = SimMotor(
+            DeviceClock(sim.motor_clock, MOTOR_RATE_HZ, rng_motor),
+            self.scene.ramp,
+            self.scene.motor_torque,
+            self._command,
+            rng_motor,
+            torque_constant=rig.torque_constant,
+            bus_voltage=rig.bus_voltage,
+            noise=sim.noise,
+            now=lambda: self.clock.now_ns() * 1e-9,
+        )
+        self.motor.amplitude_mm = protocol.amplitude_mm if scene_info(protocol.rig).stage else None
+        self.streams: list[Stream] = [self.motor, self.mocap, self.loadcells]
+        self._devices = [self.motor, self.mocap, self.loadcells]
+        self._hist: Trajectory | None = None
+        self._state = "new"
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="sim-prefetch") if prefetch else None
+        self._ahead: tuple[int, Future, tuple] | None = None  # (target ns, job, snapshot to undo it)
+        self._last_ns = 0
+        self._own_scene = scene is None  # segments need copies of the scene, built from the protocol
+        self._look: lookahead.Lookahead | None = None
+        self._look_info: dict[str, Any] | None = None
+        self._scenes: list[DrivenScene] = [self.scene]  # every scene built (segments), closed at the end
+        self._offset = {"x": 0.0, "theta": 0.0}  # added to the rows once a later segment's scene took over
+
+    def open(self) -> None:
+        if self._state != "new":
+            return
+        self.clock.reset()
+        self._hist = self.scene.advance_to(0.0)
+        for dev in self._devices:
+            dev.start()
+            dev.ingest(self._hist, 0.0)
+        self._state = "open"
+
+    def close(self) -> None:
+        if self._state == "closed":
+            return
+        try:
+            self.motor.idle()
+        finally:
+            if self._look is not None:
+                self._look.stop()
+                self._look = None
+            self._undo_ahead()
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+            for dev in self._devices:
+                dev.stop()
+            for scene in self._scenes:
+                scene.physics.close()
+            self._state = "closed"
+
+    # --- lookahead ------------------------------------------------------------------------------------
+    def anticipate(self, schedule: list[tuple[float, list[float]]]) -> None:
+        """The run's schedule (``Anticipates``): compute it ahead on worker threads (with prefetch only)."""
+        if self._state != "open" or self._pool is None or self._look is not None or not schedule:
+            return
+        self._undo_ahead()
+        calls = lookahead.script(schedule, self.clock.now_ns(), int(self.clock.max_chunk_s * 1e9))
+        segments = self.protocol.sim.segments if self._own_scene else 1
+        cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, getattr(self.scene, "step_cost", None))
+        clones = [build_scene(self.protocol) for _ in cuts]
+        self._scenes += clones
+        self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
+
+    def _drop_lookahead(self) -> None:
+        """The run left the script: stop the workers, continue from the state after the last call taken."""
+        look = self._look
+        if look is None:
+            return
+        self._look = None
+        snap = look.stop()
+        if look.scene is not self.scene:  # a later segment's scene holds the state now
+            self.scene = look.scene
+            self._offset = dict(look.offset)
+            self.motor.ramp = cast(VelocityRamp, _ShiftedRamp(self.scene.ramp, self._offset["theta"]))
+        self.scene.restore(snap if snap is not None else look.start)
+        if len(look.segments) > 1:
+            self._look_info = lookahead.info(look)
+
+    def after_run(self) -> dict[str, Any]:
+        """``sim_segments`` in ``/general`` when the sweep was cut into segments (``ReportsAfterRun``)."""
+        if self._look is not None and len(self._look.segments) > 1:
+            self._look_info = lookahead.info(self._look)
+        return {"sim_segments": self._look_info} if self._look_info else {}
+
+    # --- stepping -------------------------------------------------------------------------------------
+    def _command(self, hz: float) -> None:
+        """Motor → scene: a new crank-speed setpoint takes effect from the current time."""
+        if self._look is not None:
+            if self._look.expects("cmd", self.clock.now_ns(), hz):
+                self._look.take(self._hist)
+                return
+            self._drop_lookahead()
+        self._undo_ahead()
+        self.scene.set_frequency(hz)
+
+    def _undo_ahead(self) -> None:
+        if self._ahead is not None:
+            _, job, snap = self._ahead
+            self._ahead = None
+            job.result()
+            self.scene.restore(snap)
+
+    def _advance(self, now_ns: int) -> None:
+        if self._state != "open":
+            raise RuntimeError("sim rig: clock.wait() before open() or after close()")
+        now = now_ns * 1e-9
+        if self._look is not None and not self._look.expects("adv", now_ns):
+            self._drop_lookahead()
+        if self._look is not None:
+            new = self._look.take(self._hist)
+            assert new is not None
+        elif self._ahead is not None and self._ahead[0] == now_ns:
+            new = lookahead.shifted(self._ahead[1].result(), self._offset, 0)
+            self._ahead = None
+        else:
+            self._undo_ahead()
+            new = lookahead.shifted(self.scene.advance_to(now), self._offset, 0)
+        if len(new):
+            old = self._hist
+            keep = old.t >= new.t[0] - HISTORY_S if old is not None else None
+            self._hist = (
+                new
+                if old is None
+                else Trajectory.concat([Trajectory(old.t[keep], {k: v[keep] for k, v in old.channels.items()}), new])
+            )
+        assert self._hist is not None  # open() made the first rows
+        for dev in self._devices:
+            dev.ingest(self._hist, now)
+        step_ns, self._last_ns = now_ns - self._last_ns, now_ns
+        if self._pool is not None and step_ns > 0 and self._look is None:
+            target = now_ns + step_ns
+            snap = self.scene.snapshot()
+            self._ahead = (target, self._pool.submit(self.scene.advance_to, target * 1e-9), snap)
+
+    def check(self) -> None:
+        """The motor, then every stream (the simulated devices never go silent; the same call as on a rig)."""
+        for device in self.streams:
+            device.check()
+
+    def identity(self) -> dict[str, Any]:
+        sim = self.protocol.sim
+
+        def clock(c: ClockModel) -> dict[str, float]:
+            return c.model_dump()
+
+        return {
+            "backend": "sim",
+            "rig": self.protocol.rig,
+            "model": self.scene.identity(),
+            "mujoco_version": mujoco.__version__,
+            "seed": sim.seed,
+            "noise": sim.noise,
+            "devices": {
+                "motor": {
+                    "kind": "SimMotor (ODrive-like velocity ramp)",
+                    "rate_hz": MOTOR_RATE_HZ,
+                    "clock": clock(sim.motor_clock),
+                },
+                "mocap": {
+                    "kind": "SimMocap (Motive-like labeled markers)",
+                    "rate_hz": MOCAP_RATE_HZ,
+                    "markers": list(self.scene.markers),
+                    "noise_m": self.mocap.noise_m,
+                    "clock": clock(sim.mocap_clock),
+                },
+                "loadcell": {
+                    "kind": "SimLoadCells (4 raw channels, boxcar over the sample period)",
+                    "rate_hz": LOADCELL_RATE_HZ,
+                    "noise_counts": self.loadcells.noise,
+                    "calibration": self.loadcells.cal.source,
+                    "clock": clock(sim.loadcell_clock),
+                    "plate": scene_info(self.protocol.rig).plate,
+                },
+            },
+        }
+
+
+class _ShiftedRamp:
+    """The motor's view of a later segment's ramp: its angle continues the first scene's (``SimMotor.idle``)."""
+
+    def __init__(self, ramp: Any, theta_offset: float) -> None:
+        self._ramp, self._dtheta = ramp, theta_offset
+
+    @property
+    def theta(self) -> float:
+        return float(self._ramp.theta) + self._dtheta
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._ramp, name)
+
+
+def build_sim_rig(protocol: Protocol, realtime: bool = False, prefetch: bool = True) -> SimRig:
+    """The sim backend's rig for ``protocol`` (contact rig or walker)."""
+    return SimRig(protocol, realtime=realtime, prefetch=prefetch)

@@ -1,0 +1,473 @@
+"""The search of ``beambench calibrate sim`` (:func:`calibrate`), the same for every calibratable rig:
+
+1. *coarse* (on the target frequencies thinned to ``coarse_step_hz``): 1-D lines over each free unknown from the
+   prior set's own values, the rig's most monotone unknown first (:func:`prior_lines`, up to ``line_share`` of
+   the budget); for rigs with ``landmarks`` (the contact rig's transitions), trust-region steps on a local
+   linear model of the landmarks fitted to every point so far (:mod:`.landmark_steps`; they make the diagonal
+   moves lines cannot, e.g. more preload with less friction); then, unless every landmark is within
+   ``landmark_tolerance``, differential evolution (Sobol start plus the best so far, deferred updating: one
+   generation = one parallel batch on the sweep executor) until ~55 % of the budget, a near-zero objective, or
+   a stall;
+2. *refine*: the best few coarse points re-evaluated on every target frequency, then a 1-D bracket of the rig's
+   most monotone unknown (contact rig: the preload, which shifts the whole map) around the best;
+3. *verify* (rigs that name how their written protocol runs, ``CalibratableRig.verify``): the best few distinct
+   refined points re-run with the protocol's own sweep, windows, noise and seed, and with a second noise seed;
+   the winner has the best worse-of-two objective. Rigs with ``run_written`` (the contact rig) write each
+   candidate's protocol into ``<out>/<name>_verify/`` and run it as the user will (``beambench run`` on the sim
+   backend, then the analysis: :mod:`.written_run`), so the winner's map (the protocol's seed) is the one a run
+   of the written protocol shows, label for label (otherwise: the winner's map on every target frequency).
+
+Every evaluation is appended to ``<out>/<name>.evals.jsonl`` as soon as it finishes; a restart reads it back and
+re-uses every point already evaluated (the search is seeded, so it replays the same proposals), which makes a
+killed calibration resumable. The search writes the calibrated protocol (and the verify stage's candidates)
+into ``out`` and nothing outside it; the report is :mod:`.report`'s (the command writes it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from beambench.studies.calibration.evaluate import (
+    EvalLog,
+    Evaluator,
+    Interrupted,
+    OutOfTime,
+    Point,
+    SearchSettings,
+    WrittenRun,
+    identifiability,
+    key,
+)
+from beambench.studies.calibration.landmark_steps import LandmarkPlan, landmark_steps, within
+from beambench.studies.calibration.rig import CalibratableRig, get_rig
+from beambench.studies.calibration.targets import CalibrationInputError, Targets
+from beambench.studies.executor import Pool
+from beambench.studies.unknowns import Unknown
+
+__all__ = ["Interrupted", "Result", "SearchSettings", "calibrate"]
+
+DEFAULT_SETTINGS = SearchSettings()
+
+
+@dataclass
+class Result:
+    """What :func:`calibrate` found (``protocol``: the calibrated protocol it wrote)."""
+
+    rig: str
+    values: dict[str, float]
+    j: float
+    steps: pd.DataFrame
+    extras: dict[str, Any]
+    protocol: Path
+    history: list[dict]
+    identifiability: dict[str, Any]
+    summary: dict[str, Any]
+    evaluations: int
+    reused: int
+    wall_s: float
+    free: tuple[Unknown, ...] = ()
+    settings: SearchSettings = field(default_factory=SearchSettings)
+
+
+def coarse_frequencies(targets: Targets, step_hz: float, lo: float) -> list[float]:
+    """The target frequencies thinned to about ``step_hz`` apart (at least ``lo`` Hz)."""
+    fs = sorted(f for f in targets.frequencies if f >= lo - 1e-9)
+    out: list[float] = []
+    for f in fs:
+        if not out or f - out[-1] >= step_hz - 1e-9:
+            out.append(float(f))
+    return out
+
+
+@dataclass(frozen=True)
+class Line:
+    """A 1-D search's plan: ``rounds`` rounds of ``n`` points on ``frequencies`` as ``stage``, recorded in the
+    history as ``label``, until ``stop()``."""
+
+    frequencies: list[float]
+    stage: str
+    rounds: int
+    n: int
+    label: str
+    stop: Callable[[], bool] = lambda: False
+
+
+class Search:
+    """One calibration's state: the evaluator, the free and fixed unknowns, each stage's frequencies, the
+    history (one row per batch) and the clock."""
+
+    def __init__(
+        self, rig: CalibratableRig, targets: Targets, log: EvalLog, settings: SearchSettings, progress: Any = None
+    ) -> None:
+        self.t_start = time.perf_counter()
+        self.rig, self.targets, self.log, self.settings = rig, targets, log, settings
+        self.base = rig.base(targets)
+        self.free, self.fixed = free_unknowns(rig, settings)
+        self.coarse = coarse_frequencies(targets, settings.coarse_step_hz, rig.min_frequency_hz)
+        self.fine = [float(f) for f in sorted(targets.frequencies) if f >= rig.min_frequency_hz - 1e-9]
+        self.history: list[dict] = []
+        self.best: Point | None = None  # the best newly evaluated point (progress; the coarse stage's early stop)
+        self.progress = progress
+        self.task = progress.add_task("calibrating", total=None) if progress is not None else None
+        self.bracketed = next((u for u in self.free if u.name == rig.bracket), None)
+
+    def start(self, pool: Pool) -> None:
+        self.pool = pool
+        self.ev = Evaluator(pool, self.rig, self.base, self.targets, self.log, self.settings, self._on_eval)
+
+    def _on_eval(self, p: Point) -> None:
+        if self.best is None or p.j < self.best.j:
+            self.best = p
+        if self.progress is not None:
+            self.progress.update(
+                self.task,
+                advance=1,
+                description=f"{p.stage} gen {self.ev.generation}: best J {self.best.j:.3f} "
+                f"({self.log.new} run, {self.log.reused} reused)",
+            )
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.t_start
+
+    def values_of(self, x: np.ndarray) -> dict[str, float]:
+        return {**self.fixed, **{u.name: u.value(float(v)) for u, v in zip(self.free, x)}}
+
+    def record(self, label: str, pts: list[Point], **extra: float) -> None:
+        """One history row for a batch (its generation number, best and median objective)."""
+        js = [p.j for p in pts] or [math.inf]
+        self.ev.generation += 1
+        self.history.append(
+            {
+                "generation": self.ev.generation - 1,
+                "stage": label,
+                "best": float(np.min(js)),
+                "median": float(np.median(js)),
+                "n": len(pts),
+                "elapsed_s": self.elapsed(),
+                **extra,
+            }
+        )
+
+    def over(self, share: float) -> Callable[[], bool]:
+        """A stop test: more than ``share`` of the budget spent."""
+        return lambda: self.elapsed() > share * self.settings.budget_s
+
+
+def calibrate(
+    targets: Targets,
+    out_dir: Path,
+    name: str,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    settings: SearchSettings = DEFAULT_SETTINGS,
+    progress: Any = None,
+) -> Result:
+    """Fit the twin of ``targets.rig`` to ``targets``; write ``out_dir/<name>.yaml`` (runnable protocol) and its
+    parameter set. ``progress``: a rich Progress (or None). The report: :func:`.report.write_report`."""
+    from beambench.studies.executor import make_executor
+
+    rig = get_rig(targets.rig)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    s = Search(rig, targets, EvalLog(out_dir / f"{name}.evals.jsonl"), settings, progress)
+    with make_executor(workers, scheduler) as pool:
+        s.start(pool)
+        init = initial_population(s.free, settings)
+        reached = _lines_and_landmarks(s, init)
+        _evolution(s, init, reached)
+        winner = _refine(s)
+        if rig.verify is not None and settings.verify_top > 0:
+            winner = _verify(s, winner, out_dir, name)
+        elif winner.stage != "fine":  # out of time before the fine stage: still report the map on every frequency
+            winner = s.ev.batch([winner.values], s.fine, "fine")[0]
+        ident = identifiability([p for p in s.ev.points if p.stage == "coarse"], s.free)
+        fine_pts = [p for p in s.ev.points if p.stage == "fine"]
+        if len(fine_pts) > 1:  # the refine/bracket points: on every frequency, so their spread is the sharper one
+            ident["fine_spread"] = identifiability(fine_pts, s.free).get("spread", {})
+    summary = rig.summary(winner.steps)
+    wall = s.elapsed()
+    protocol = rig.write(s.base, winner.values, winner.extras, targets, out_dir, name)
+    return Result(
+        rig.name,
+        winner.values,
+        winner.j,
+        winner.steps,
+        winner.extras,
+        protocol,
+        s.history,
+        ident,
+        summary,
+        s.log.new,
+        s.log.reused,
+        wall,
+        tuple(s.free),
+        settings,
+    )
+
+
+def free_unknowns(rig: CalibratableRig, settings: SearchSettings) -> tuple[list[Unknown], dict[str, float]]:
+    """The fitted unknowns (``settings.free``, else the rig's default set; ``settings.bounds`` narrow their
+    boxes, never widen them) and the values of the others (:func:`fixed_values`; ``settings.fixed`` inside the
+    unknowns' bounds)."""
+    unknowns = {u.name: u for u in rig.unknowns}
+    rig_unknowns = dict(unknowns)
+    names = settings.free or rig.default_free or tuple(unknowns)
+    bad = [n for n in (*names, *settings.bounds) if n not in unknowns]
+    if bad:
+        raise CalibrationInputError(
+            f"unknown {bad[0]!r}: the {rig.name} rig's unknowns are {', '.join(u.name for u in rig.unknowns)}"
+        )
+    for k, (lo, hi) in settings.bounds.items():
+        try:
+            unknowns[k] = unknowns[k].within(lo, hi)
+        except ValueError as exc:
+            raise CalibrationInputError(f"bounds: {exc}") from None
+    for k, v in settings.fixed.items():
+        u = rig_unknowns.get(k)
+        if u is None or not u.lo <= v <= u.hi:
+            where = f"outside its bounds [{u.lo:g}, {u.hi:g}]" if u is not None else "not an unknown of the rig"
+            raise CalibrationInputError(f"fixed: {k} = {v:g} is {where}")
+    free = [unknowns[n] for n in names]
+    return free, fixed_values(unknowns, free, settings)
+
+
+def _lines_and_landmarks(s: Search, init: np.ndarray) -> bool:
+    """The prior's lines (1-D brackets of each unknown from the prior, the monotone one — e.g. the preload —
+    first), then the landmark steps; their best point joins the initial population (``init``, in place).
+    Returns whether every landmark is within tolerance (the evolution is then skipped)."""
+    rig, settings, br = s.rig, s.settings, s.bracketed
+    if br is None or settings.prior_rounds <= 0:
+        return False
+    own = rig.prior(s.base) if rig.prior is not None else {}
+    centre = {
+        u.name: float(
+            np.clip(own[u.name], u.lo, u.hi)
+            if u.name in own
+            else (1.0 if u.log and u.lo <= 1.0 <= u.hi else _default(u))
+        )
+        for u in s.free
+    }
+    order = [br, *(u for u in s.free if u is not br)]
+    best = prior_lines(s, {**s.fixed, **centre}, order, s.coarse, max(4, 2 * s.pool.workers))
+    reached = False
+    if rig.landmarks is not None and settings.landmark_rounds > 0:
+        marks = rig.landmarks
+        plan = LandmarkPlan(
+            s.coarse,
+            "coarse",
+            settings.landmark_rounds,
+            max(2, 2 * s.pool.workers),
+            settings.good_enough,
+            stop=s.over(settings.landmark_share),
+        )
+        best = landmark_steps(
+            s.ev.batch,
+            s.ev.points,
+            best,
+            s.free,
+            lambda steps: marks(steps, s.targets),
+            plan,
+            on_round=lambda pts, radius: s.record("landmark step", pts, radius=radius),
+        )
+        reached = within(marks(best.steps, s.targets), settings.landmark_tolerance)
+    init[-1] = [u.coord(best.values[u.name]) for u in s.free]
+    return reached
+
+
+def _evolution(s: Search, init: np.ndarray, reached: bool) -> None:
+    """Differential evolution over the free unknowns, one generation per parallel batch, until ~55 % of the
+    budget, ``good_enough`` or a stall (skipped when the lines and landmark steps reached the targets)."""
+    from scipy.optimize import differential_evolution
+
+    settings = s.settings
+    late = s.over(0.55)
+
+    def mapper(_func: Any, xs: Any) -> list[float]:
+        if s.history and s.history[-1]["stage"] == "coarse" and late():
+            raise OutOfTime  # a generation would overrun the coarse stage's share of the budget
+        pts = s.ev.batch([s.values_of(np.asarray(x)) for x in xs], s.coarse, "coarse")
+        s.record("coarse", pts)
+        return [p.j for p in pts]
+
+    stall = {"best": math.inf, "since": 0}
+
+    def stop(intermediate_result: Any) -> bool:
+        j = float(intermediate_result.fun)
+        if j < stall["best"] - 1e-9:
+            stall.update(best=j, since=0)
+        else:
+            stall["since"] += 1
+        return bool(j <= settings.good_enough or late() or stall["since"] >= settings.stall_generations)
+
+    with contextlib.suppress(OutOfTime):
+        if reached or (s.best is not None and s.best.j <= settings.good_enough):
+            raise OutOfTime  # the lines and landmark steps already reached the targets
+        differential_evolution(
+            lambda x: 0.0,  # never called: the mapper evaluates
+            [u.bounds for u in s.free],
+            maxiter=settings.max_generations,
+            init=init,
+            rng=settings.seed,
+            updating="deferred",
+            workers=mapper,
+            polish=False,
+            tol=0.0,
+            mutation=(0.5, 1.0),
+            recombination=0.7,
+            callback=stop,
+        )
+
+
+def _refine(s: Search) -> Point:
+    """The best distinct coarse points on every target frequency, then a bracket of the monotone unknown."""
+    settings, br = s.settings, s.bracketed
+    ranked = sorted((p for p in s.ev.points if p.stage == "coarse"), key=lambda p: p.j)
+    picks: list[dict[str, float]] = []
+    for p in ranked:
+        if all(_distance(p.values, q, s.free) > 0.02 for q in picks):
+            picks.append(p.values)
+        if len(picks) >= settings.refine_top:
+            break
+    late = s.over(0.85)
+    finals = s.ev.batch(picks, s.fine, "fine") if not late() else []
+    s.record("fine", finals)
+    winner = min(finals, key=lambda p: p.j) if finals else ranked[0]
+    if br is not None and finals and settings.bracket_rounds > 0 and not late():
+        c = br.coord(winner.values[br.name])
+        half = 0.06 * (br.bounds[1] - br.bounds[0])
+        line = Line(s.fine, "fine", settings.bracket_rounds, max(2, 2 * s.pool.workers), "bracket", s.over(0.9))
+        winner = min(winner, bracket(s, winner.values, br, (c - half, c + half), line), key=lambda p: p.j)
+    return winner
+
+
+def _verify(s: Search, winner: Point, out_dir: Path, name: str) -> Point:
+    """The best distinct refined points run as the written protocol will run (its sweep, windows, noise and
+    seed), each also with a second noise realisation: a label that flips with the noise (a stray ½ or ⅓ at the
+    continuous edge) would move a "lowest" transition in the user's run; the worse of the two counts. The
+    winner is the best of these maps, which is what the user will see."""
+    rig, base = s.rig, s.base
+    assert rig.verify is not None
+    vfreqs, vsim = rig.verify(base)
+    refined = sorted((p for p in s.ev.points if p.stage == "fine"), key=lambda p: p.j) or [winner]
+    cands: list[Point] = []
+    for p in [winner, *refined]:
+        if all(_distance(p.values, q.values, s.free) > 1e-6 for q in cands):
+            cands.append(p)
+        if len(cands) >= s.settings.verify_top:
+            break
+    seed = int(vsim.seed)
+    values = [c.values for c in cands]
+    if rig.run_written is not None:  # the candidates' protocols, written and run as the user will run them
+        vdir = out_dir / f"{name}_verify"
+        vdir.mkdir(exist_ok=True)
+        paths = [
+            str(
+                rig.write(
+                    base, c.values, c.extras, s.targets, vdir, f"{name}_{key(rig.name, {}, c.values, [], {})[:8]}"
+                )
+            )
+            for c in cands
+        ]
+        checked = s.ev.batch(values, vfreqs, "verify", runs=[WrittenRun(p) for p in paths])
+        again = s.ev.batch(values, vfreqs, "verify", runs=[WrittenRun(p, seed + 1) for p in paths])
+    else:
+        checked = s.ev.batch(values, vfreqs, "verify", runs=vsim)
+        again = s.ev.batch(values, vfreqs, "verify", runs=vsim.replace(seed=seed + 1))
+    worst = [max(a.j, b.j) for a, b in zip(checked, again)]
+    s.record("verify", checked + again)
+    ib = int(np.argmin(worst))
+    return replace(checked[ib], j=float(worst[ib]), extras={**cands[ib].extras, **checked[ib].extras})
+
+
+def prior_lines(s: Search, start: dict[str, float], order: list[Unknown], freqs: list[float], n: int) -> Point:
+    """Coordinate lines from the prior: a 1-D :func:`bracket` of each unknown in ``order`` (the monotone one
+    first, over its whole range) at the best point so far, for ``line_cycles`` passes (later passes over ± 15 %
+    of each range), until ``line_share`` of the budget. Each unknown of the contact rig moves mainly one landmark
+    of the map (the preload all of them, the friction the continuous edge, the damping ⅓ against ½), so lines
+    reach a good region in a few dozen maps where the evolution's first generations (one map per point of a
+    box-filling design) do not."""
+    settings = s.settings
+    done = s.over(settings.line_share)
+    best: Point | None = None
+    cur = dict(start)
+    for cycle in range(max(1, settings.line_cycles)):
+        for k, u in enumerate(order):
+            if best is not None and done():
+                return best
+            lo, hi = u.bounds
+            if cycle > 0:
+                c, half = u.coord(cur[u.name]), 0.15 * (hi - lo)
+                lo, hi = c - half, c + half
+            rounds = settings.prior_rounds if k == 0 and cycle == 0 else max(1, settings.prior_rounds - 1)
+            p = bracket(s, cur, u, (lo, hi), Line(freqs, "coarse", rounds, n, "prior line", done))
+            if best is None or p.j < best.j:
+                best, cur = p, dict(p.values)
+    assert best is not None
+    return best
+
+
+def bracket(s: Search, start: dict[str, float], u: Unknown, interval: tuple[float, float], line: Line) -> Point:
+    """A parallel 1-D search of ``u`` (others as in ``start``) inside its bounds: ``line.n`` points spread over
+    the interval per round, then the interval shrinks to ± one spacing around the best (the middle of a tie: the
+    objective is flat between map changes). Returns the best point seen."""
+    lo, hi = max(interval[0], u.bounds[0]), min(interval[1], u.bounds[1])
+    n = line.n
+    best: Point | None = None
+    for _ in range(line.rounds):
+        if best is not None and line.stop():
+            break
+        xs = lo + (np.arange(n) + 0.5) / n * (hi - lo)
+        pts = s.ev.batch([{**start, u.name: u.value(float(x))} for x in xs], line.frequencies, line.stage)
+        s.record(line.label, pts)
+        js = np.array([p.j for p in pts])
+        ties = np.flatnonzero(js <= js.min() + 1e-9)
+        i = int(ties[len(ties) // 2])
+        if best is None or pts[i].j <= best.j:
+            best = pts[i]
+        step = (hi - lo) / n
+        c = float(xs[i])
+        lo, hi = max(u.bounds[0], c - step), min(u.bounds[1], c + step)
+    assert best is not None
+    return best
+
+
+def initial_population(free: list[Unknown], settings: SearchSettings) -> np.ndarray:
+    """Generation 0: a scrambled Sobol design over the box (``popsize`` points)."""
+    from scipy.stats import qmc
+
+    lo = np.array([u.bounds[0] for u in free])
+    hi = np.array([u.bounds[1] for u in free])
+    n = max(5, settings.popsize)
+    pts = qmc.Sobol(len(free), scramble=True, seed=settings.seed).random(2 ** math.ceil(math.log2(n)))[:n]
+    return lo + pts * (hi - lo)
+
+
+def fixed_values(unknowns: dict[str, Unknown], free: list[Unknown], settings: SearchSettings) -> dict[str, float]:
+    """The values of the unknowns that are not fitted: ``settings.fixed``, else their default — except opt-in
+    unknowns, which are left out (the prior parameter set keeps its own value) unless ``settings.fixed`` names
+    them."""
+    return {
+        n: float(settings.fixed.get(n, _default(u)))
+        for n, u in unknowns.items()
+        if u not in free and (not u.opt_in or n in settings.fixed)
+    }
+
+
+def _default(u: Unknown) -> float:
+    if u.default is not None:
+        return u.default
+    return math.sqrt(u.lo * u.hi) if u.log else 0.5 * (u.lo + u.hi)
+
+
+def _distance(a: dict[str, float], b: dict[str, float], free: list[Unknown]) -> float:
+    d = [(u.coord(a[u.name]) - u.coord(b[u.name])) / (u.bounds[1] - u.bounds[0]) for u in free]
+    return float(np.sqrt(np.sum(np.square(d))))

@@ -1,0 +1,155 @@
+"""The walker in ``beambench calibrate sim`` (registers itself, as :mod:`.contact` does; :mod:`.rig`).
+
+Targets: ``rig: walker`` with ``speed_mm_s: {f: v}`` (any number of frequencies; e.g.
+``calibration/paper_walker_targets.yaml``) or a walker session (speeds from :mod:`beambench.analysis`).
+
+Unknowns (``benchmarks/bench_walker.py`` sensitivity: one at a time, 23 / 65 Hz): the foot mass moves 65 Hz by
+×12 between 20 g and 2 g, the friction turns 23 Hz from +21 to −60 mm/s between 0.3 and 0.8 (with a cliff: two
+gaits near 20 Hz between 0.475 and 0.525); rotor inertia, cart and clamp offset move nothing. Leg rake and foot
+length also move the speed but are geometry one can measure on the robot, so they stay fixed.
+
+Objective: the mean over the target frequencies of |v − v*| / max(|v*|, 20 mm/s) — absolute (L1) relative
+errors, so that the friction cliff's overshoot does not dominate, floored at 20 mm/s so a near-zero target does
+not. Each evaluation runs every target frequency as one batch from a settled robot
+(:func:`beambench.sim.scenes.walker_batch.steady_speeds`: settle 3 s, record 1.5 s); the coarse stage at
+dt 1.5e-4 (1.25× cheaper; the contact time constant is then at MuJoCo's 2-step floor), the fine stages at the
+scene's converged default (1.2e-4 with a 0.3 ms contact).
+
+Output: ``<name>_params.yaml`` (the prior set with ``rig: {foot_mass, friction}``) and ``<name>.yaml`` (the
+session's protocol, else the shipped walker sweep, with ``sim.params`` pointing at it).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from beambench.sim.settings import SimSettings
+from beambench.studies.calibration.protocol_out import CalibratedSet, write_calibrated_protocol
+from beambench.studies.calibration.rig import CalibratableRig, CalibrationBase, register_rig
+from beambench.studies.calibration.targets import CalibrationInputError, Targets
+from beambench.studies.unknowns import Override, Unknown, apply_values
+
+if TYPE_CHECKING:
+    from beambench.sim.models.params import BeamParams
+
+SPEED_FLOOR_MM_S = 20.0
+WALKER_UNKNOWNS = (  # the rig block's foot_mass and friction (beambench.sim.scenes.walker.WalkerParams)
+    Unknown(
+        "foot_mass",
+        0.001,
+        0.008,
+        unit="kg",
+        doc="point mass at each sole (the foot's load)",
+        effect=Override(("rig.foot_mass",)),
+    ),
+    Unknown("friction", 0.35, 0.60, doc="sole–floor Coulomb friction", effect=Override(("rig.friction",))),
+)
+STAGES: dict[str, dict[str, Any]] = {
+    "coarse": {"settle_s": 3.0, "record_s": 1.5, "timestep": 1.5e-4},
+    "fine": {"settle_s": 3.0, "record_s": 1.5, "timestep": None},  # the scene's timestep
+}
+
+
+def walker_stage_sim(stage: str, sim: SimSettings) -> SimSettings:
+    """The walker's window per stage (the search's settle/record are for the contact rig's maps)."""
+    return sim.replace(**STAGES["coarse" if stage == "coarse" else "fine"])
+
+
+def walker_objective(steps: pd.DataFrame, targets: Targets) -> tuple[float, dict[str, float]]:
+    """Mean floored relative error over the target frequencies (module docstring); a missing or diverged
+    frequency counts 10."""
+    want = targets.scalars["speed_mm_s"]
+    got = dict(zip(steps["frequency_hz"].astype(float), steps["body_speed_mm_s"].astype(float)))
+    parts: dict[str, float] = {}
+    for f, v in want.items():
+        g = got.get(float(f), math.nan)
+        parts[f"{float(f):g} Hz"] = abs(g - v) / max(abs(v), SPEED_FLOOR_MM_S) if math.isfinite(g) else 10.0
+    return float(np.mean(list(parts.values()))), parts
+
+
+def walker_base(targets: Targets) -> CalibrationBase:
+    """The fixed part: the prior parameter set, leg model and twist of the session's protocol (else the shipped
+    walker sweep)."""
+    from beambench.acquisition.config import parse_protocol
+    from beambench.common.resources import shipped_dir
+
+    text = targets.protocol_text or (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
+    try:
+        proto = parse_protocol(text, targets.source)
+    except ValueError as exc:
+        raise CalibrationInputError(str(exc)) from None
+    model = "prb3" if proto.sim.model == "auto" else proto.sim.model
+    return CalibrationBase(model, str(proto.sim.params), SimSettings(twist_deg=float(proto.sim.twist_deg)))
+
+
+def _prior(base: CalibrationBase) -> BeamParams:
+    from beambench.sim.models.params import load_params
+    from beambench.sim.models.registry import model_family
+
+    return load_params(base.params, model=model_family(base.model))
+
+
+def simulate_walker(
+    base: CalibrationBase, values: dict[str, float], frequencies: list[float], sim: SimSettings
+) -> dict:
+    """Steady body speeds at ``frequencies`` for the fitted ``values`` (runs in a worker)."""
+    from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scenes.walker_batch import steady_speeds
+
+    params = apply_values(_prior(base), WALKER_UNKNOWNS, values)
+    beam = make_beam_model(base.model, params)
+    wp = WalkerParams.with_overrides(params.rig)
+    speed, height = steady_speeds(beam, frequencies, wp, settings=sim.replace(nthread=1))  # one thread per worker
+    steps = [
+        {"frequency_hz": float(f), "body_speed_mm_s": float(v), "body_height_mm": float(z)}
+        for f, v, z in zip(frequencies, speed, height)
+    ]
+    return {"steps": steps, "extras": {}}
+
+
+def walker_summary(steps: pd.DataFrame) -> dict:
+    return {
+        "speed_mm_s": {float(f): round(float(v), 1) for f, v in zip(steps["frequency_hz"], steps["body_speed_mm_s"])}
+    }
+
+
+def write_walker_protocol(
+    base: CalibrationBase, values: dict[str, float], extras: dict[str, Any], targets: Targets, out_dir: Path, name: str
+) -> Path:
+    """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring), through
+    :func:`.protocol_out.write_calibrated_protocol`; the rig block carries foot mass and friction."""
+    p = _prior(base)
+    cal = CalibratedSet(
+        params=p,
+        rig_block={**p.rig, **{k: round(float(v), 7) for k, v in values.items()}},
+        values=values,
+        prior=base.params,
+        model=base.model,
+        shipped_protocol="walker_sweep.yaml",
+        params_note="; the rig block\n# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).",
+        protocol_note="sim.params points at the calibrated parameter set (foot mass and friction in its rig block).",
+        rig_label="walker",
+    )
+    return write_calibrated_protocol(cal, targets, out_dir, name)
+
+
+WALKER = register_rig(
+    CalibratableRig(
+        name="walker",
+        unknowns=WALKER_UNKNOWNS,
+        simulate=simulate_walker,
+        objective=walker_objective,
+        base=walker_base,
+        write=write_walker_protocol,
+        summary=walker_summary,
+        bracket="foot_mass",
+        min_frequency_hz=1.0,
+        stage_sim=walker_stage_sim,
+    )
+)
