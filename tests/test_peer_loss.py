@@ -90,12 +90,12 @@ def test_peers_killed_during_start_up_are_one_line_and_exit_1(tmp_path, delay):
     said = [line for line in err.replace("\r", "\n").splitlines() if "beambench:" in line or "warning" in line]
     assert len(said) == 1, said
     assert "errors persist" not in said[0], said
-    assert re.search(r"lost|gone|killed|ended|no heartbeat|silent|no .* for", said[0]), said
+    assert re.search(r"lost|gone|killed|ended|no heartbeat|silent|no .* for|port .* failed|did not start", said[0]), (
+        said
+    )
     if path.exists() and "no session written" not in said[0]:
-        s = read_session(path)
-        motor = s.streams["motor"]
-        if len(motor):
-            assert motor.columns["velocity_setpoint"][-1] == 0.0
+        s = read_session(path)  # the ODrive is gone, so no telemetry shows the stop: the idle command is logged
+        assert "idle" in list(s.events["kind"]), list(s.events["kind"])
         assert s.events["kind"].iloc[-1] in ("fault", "error"), list(s.events["kind"])
 
 

@@ -656,10 +656,14 @@ class OdriveCanMotor(TelemetryStream):
             self._raise_if_lost(sent, "the calibration request")
             raise DeviceFault(f"ODrive node {self.node_id} did not start calibrating")
         if hb.axis_error == 0:
-            t = time.monotonic_ns()
-            hb = self._wait_heartbeat(
-                lambda h: h.axis_state == AxisState.IDLE or h.axis_error != 0, self.calibration_timeout_s, t
-            )
+            deadline = time.monotonic() + self.calibration_timeout_s
+            hb = None
+            while hb is None and time.monotonic() < deadline:  # in heartbeat timeouts: a lost ODrive is said at once
+                t = time.monotonic_ns()
+                wait = min(max(0.5, self.heartbeat_timeout_s), max(0.0, deadline - time.monotonic()))
+                hb = self._wait_heartbeat(lambda h: h.axis_state == AxisState.IDLE or h.axis_error != 0, wait, t)
+                if hb is None:
+                    self._raise_if_lost(t, "the calibration started")
             if hb is None:
                 raise DeviceFault(
                     f"ODrive node {self.node_id} calibration did not finish in {self.calibration_timeout_s:g} s"
