@@ -38,10 +38,10 @@ def test_objective_is_the_mean_floored_relative_error():
 def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
     """One short evaluation (the speeds come back per frequency), then the written protocol builds a walker
     scene with the fitted foot mass and friction."""
+    from dataclasses import replace
+
     from beambench.acquisition.config import load_protocol
     from beambench.backends.sim import build_scene
-
-    from dataclasses import replace
 
     rig = get_rig("walker")
     # the effective walker (PRB3 legs): the physical set's rod legs buckle under this robot (docs/contact-twin.md)
