@@ -5,7 +5,7 @@
 
 Every candidate is the shipped bounded set (``sim_backend/rod_physical.yaml``, model ``rod5g``) with a few
 numbers changed (each inside its bounds unless the row says "paper PRB3"), run from rest at 1–40 Hz in one
-batched :func:`beambench.sim.scenes.contact_sweep.regime_map` (regimes from the plate's normal force only, noise
+batched :func:`beambench.sim.scenes.contact_regimes.regime_map` (regimes from the plate's normal force only, noise
 off). Columns: the static sag of the foot (from the unloaded shape) and the preload (sag − h'); the map (C
 continuous, 1, h = 1/2, t = 1/3, q = 1/4, 2, 3, . irregular, - none); the continuous edge, the lowest 1/2 and 1/3;
 the tangential-force sign at 26 and 40 Hz; the self-crossings of the foot's phase-averaged path in the x–z plane
@@ -27,8 +27,10 @@ import pandas as pd
 from beambench.analysis.trajectory import mean_path
 from beambench.sim.models.params import BeamParams, load_params
 from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scenes.contact_regimes import ContactTwin, regime_map, transitions
 from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
-from beambench.sim.scenes.contact_sweep import contact_sweep, regime_map, transitions
+from beambench.sim.scenes.contact_sweep import contact_sweep
+from beambench.sim.settings import SimSettings
 
 CODE = {
     "continuous": "C",
@@ -128,14 +130,13 @@ def measure(name: str, model: str, params: BeamParams, settle: float, record: fl
     bm = make_beam_model(model, params)
     rig = RigParams.with_overrides(params.rig)
     sag = settled_sag(bm, rig)
-    df = regime_map(FREQS, model=model, params=params, settle_s=settle, record_s=record, nthread=nthread)
+    sim = SimSettings(settle_s=settle, record_s=record, nthread=nthread)
+    df = regime_map(FREQS, sim, ContactTwin(model=model, params=params))
     lab = dict(zip(df.frequency_hz, df.regime))
     sign = dict(zip(df.frequency_hz, df.tangential_sign))
     tr = transitions(df.frequency_hz, df.regime)
     # the foot's path and forces at 26 and 40 Hz (the same runs from rest)
-    sw = contact_sweep(
-        bm, [26.0, 40.0], None, gap_m=rig.plate_gap, settle_s=settle, record_s=record, rig=rig, nthread=nthread
-    )
+    sw = contact_sweep(bm, [26.0, 40.0], sim, gap_m=rig.plate_gap, rig=rig)
     k = {"1/2": 2, "1/3": 3, "1/4": 4}.get(lab[26.0], 1)
     path = mean_path(sw.t, sw.foot[0][:, [0, 2]] * 1e3, k / 26.0, bins=40 * k)
     ratio = 0.0

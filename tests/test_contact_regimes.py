@@ -119,7 +119,7 @@ def test_physical_default_map_from_rest():
     ``CCCCCCCCCCCCCC1111.111111.hh...hhth.t...`` (docs/contact-twin.md): continuous at 5 and 12 Hz, one contact
     per cycle at 20, 1/2 at 27 and 28, and the tangential force of the foot on the plate + at 26 Hz, − at 40 Hz."""
     freqs = [5.0, 12.0, 20.0, 26.0, 27.0, 28.0, 40.0]
-    df = regime_map(freqs, model="rod5g", params="physical", settle_s=2.0, record_s=2.0)
+    df = regime_map(freqs, SimSettings(settle_s=2.0, record_s=2.0), ContactTwin(model="rod5g", params="physical"))
     lab, sign = dict(zip(freqs, df.regime)), dict(zip(freqs, df.tangential_sign))
     assert lab[5.0] == lab[12.0] == "continuous", lab
     assert lab[20.0] == "1" and lab[27.0] == lab[28.0] == "1/2", lab

@@ -187,6 +187,8 @@ def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParam
     beam = dict(beam_block)
     known = {f.name for f in fields(BeamParams)}
     mat = beam.pop("material", None) or {}
+    # a set written from ``BeamParams.to_dict()`` (e.g. a calibration's) may carry these inside its beam block
+    nested_walker, nested_bounds = beam.pop("walker", None) or {}, beam.pop("bounds", None) or {}
     if not isinstance(mat, dict):
         raise ParamsError(f"{where}: beam.material: expected a mapping of material fields")
     unknown = set(beam) - (known - {"name", "model", "source", "rig", "walker", "bounds", "material"})
@@ -203,7 +205,7 @@ def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParam
     rig = data.get("rig") or {}
     if not isinstance(rig, dict):
         raise ParamsError(f"{where}: rig: expected a mapping of rig overrides")
-    walker = data.get("walker") or {}
+    walker = data.get("walker") or nested_walker
     if not isinstance(walker, dict):
         raise ParamsError(f"{where}: walker: expected a mapping of walker overrides")
     return BeamParams(
@@ -213,7 +215,7 @@ def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParam
         material=material,
         rig=dict(rig),
         walker=dict(walker),
-        bounds=_bounds(data.get("bounds") or {}, where),
+        bounds=_bounds(data.get("bounds") or nested_bounds, where),
         **values,
     )
 
