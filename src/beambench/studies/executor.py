@@ -108,8 +108,30 @@ def make_executor(
     )
     try:
         yield Pool(pool, n, f"local process pool, {n} workers")
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
+    except BaseException:  # Ctrl-C, a stop signal, an error: do not wait minutes for a running evaluation
+        _stop_workers(pool)
+        # the pool is broken now; its manager thread fails the pending futures itself (cancelling them as well
+        # races it on Python 3.11: InvalidStateError in that thread)
+        pool.shutdown(wait=True)
+        raise
+    pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _stop_workers(pool: ProcessPoolExecutor, timeout_s: float = 5.0) -> None:
+    """Terminate the pool's worker processes (SIGTERM, then SIGKILL after ``timeout_s``): a worker inside a long
+    native simulation call would otherwise finish it before the pool could shut down."""
+    if hasattr(pool, "terminate_workers"):  # Python >= 3.14
+        pool.terminate_workers()
+        return
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    for proc in procs:
+        if proc.is_alive():
+            proc.terminate()
+    for proc in procs:
+        proc.join(timeout_s)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(timeout_s)
 
 
 def _die_with_parent() -> None:
