@@ -26,7 +26,12 @@ class Step:
 
 
 def plan(protocol: Protocol) -> list[Step]:
-    """The steps of a protocol, in order."""
+    """The steps of a protocol, in order. With ``track:`` one step per segment: its frequency (0 here) is chosen
+    by the speed controller during the run, the settle window is ``track.settle_s``, the record window the rest."""
+    if protocol.track is not None:
+        settle = protocol.track.settle_s
+        return [Step(i, 0.0, settle, seg.hold_s - settle) for i, seg in enumerate(protocol.track.segments)]
+    assert protocol.sweep is not None  # the model requires one without track:
     return [Step(i, f, protocol.settle_s, protocol.record_s) for i, f in enumerate(protocol.sweep.values())]
 
 
@@ -60,6 +65,7 @@ def summary(protocol: Protocol, backend: str) -> dict[str, object]:
         "max_frequency_hz": max(freqs),
         "amplitude_mm": protocol.amplitude_mm,
         "limits": protocol.limits.model_dump(),
+        "targets_mm_s": [seg.speed_mm_s for seg in protocol.track.segments] if protocol.track else None,
     }
 
 

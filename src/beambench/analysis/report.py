@@ -21,6 +21,8 @@ import yaml
 from beambench.analysis.contact import REGIME_ORDER
 from beambench.analysis.session import SessionAnalysis, StepResult
 from beambench.analysis.trajectory import mean_path
+from beambench.analysis.track_figure import KEY as TRACK_KEY
+from beambench.analysis.track_figure import fig_tracking
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -964,6 +966,7 @@ def make_report(
         ("ellipse", lambda p: fig_ellipse(analyses, p)),
         ("frequency", lambda p: fig_frequency(analyses, p)),
         ("sync", lambda p: fig_sync(analyses, p)),
+        (TRACK_KEY, lambda p: fig_tracking(analyses, p)),  # track: sessions only (analysis/track_figure.py)
     ]
     figures: dict[str, Path] = {}
     for key, job in jobs:

@@ -46,6 +46,7 @@ from beambench.analysis.trajectory import (
     relative_trajectory,
     stage_frame,
 )
+from beambench.analysis.tracking import TrackResult, track_result
 from beambench.analysis.walking import body_speed
 
 
@@ -101,6 +102,7 @@ class SessionAnalysis:
     residual_t_s: dict[str, np.ndarray] = field(default_factory=dict)
     edge_check: EdgeCheck | None = None
     name: str = ""
+    track: TrackResult | None = None  # speed tracking (track: sessions), beambench.analysis.tracking
 
     @property
     def sync_table(self) -> pd.DataFrame:
@@ -346,7 +348,10 @@ def analyze_session(
         if progress is not None:
             progress(k + 1, n_steps)
     table = pd.DataFrame([r.row for r in results])
-    return SessionAnalysis(
+    track = track_result(session.streams.get("track"), steps_df, mt, body, forward)
+    if track is not None and track.segments:  # per-segment target, error, settling and direction times
+        table = table.merge(pd.DataFrame(track.segments), on="step", how="left")
+    analysis = SessionAnalysis(
         Path(session.path) if getattr(session, "path", None) is not None else None,
         rig,
         backend,
@@ -361,7 +366,9 @@ def analyze_session(
         residuals,
         residual_t,
         edge,
+        track=track,
     )
+    return analysis
 
 
 def _guess_up(drive: np.ndarray) -> np.ndarray:

@@ -25,6 +25,7 @@ from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_
 from beambench.backends.build import build_rig
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
+from beambench.session.track_map import track_setup
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
 
@@ -64,6 +65,7 @@ def _run_session(
     stop: StopSignal,
 ) -> RunResult:
     check_protocol(protocol, "<protocol>", backend, can_log)
+    tracking = track_setup(protocol, path, show_progress) if protocol.track is not None else None
     if rerun_mode == "save":
         _reserve(path.with_suffix(".rrd"))
     rig = build_rig(protocol, cast(Backend, backend), realtime=realtime, rig_file=rig_file, can_log=can_log)
@@ -80,6 +82,9 @@ def _run_session(
             **provenance(),
         }
         specs = [s.describe() for s in rig.streams]
+        if tracking is not None:  # the controller's decisions are a stream; it reads the mocap as a sink
+            specs.append(tracking.spec)
+            general["track_map"] = tracking.map_info
         frames = [s.frame for s in specs if s.frame is not None]
         if frames:  # the mocap's world axes, which analysis needs (Motive: y up)
             general["geometry"] = frames[0].as_dict()
@@ -88,6 +93,8 @@ def _run_session(
         silence = rig.silence_timeouts() if isinstance(rig, HasSilenceTimeouts) else None
         monitors = build_monitors(protocol, [s.name for s in specs], silence)
         sinks += monitors
+        if tracking is not None:
+            sinks.append(tracking.controller)
         if rerun_mode != "off":
             from beambench.sinks.rerun_view import RerunSink
 
@@ -125,7 +132,8 @@ def _run_session(
         # (each poll's HDF5 appends and flush cost ~10 ms; the data do not depend on the poll: the sim clock advances
         # the physics in its own chunks of at most 0.5 s either way).
         poll_s = 1.0 if backend == "sim" and not realtime else 0.1
-        runner = Runner(
+        runner = tracking.runner(rig, hub, steps, on_progress, stop) if tracking is not None else None
+        runner = runner or Runner(
             rig,
             hub,
             steps,
