@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -91,9 +92,9 @@ class SpeedMap:
     @classmethod
     def from_points(
         cls,
-        freqs_hz: Sequence[float],
-        speeds_mm_s: Sequence[float],
-        stderr_mm_s: Sequence[float] | None = None,
+        freqs_hz: Sequence[float] | Any,
+        speeds_mm_s: Sequence[float] | Any,
+        stderr_mm_s: Sequence[float] | Any | None = None,
         regimes: Sequence[str] | None = None,
         source: str = "",
     ) -> SpeedMap:
@@ -187,7 +188,10 @@ class SpeedMap:
             if v != 0 and self.band_for(v, max_frequency_hz) is None:
                 if (back, fwd) == (0.0, 0.0):
                     return i, f"the speed map has no usable band{limit}"
-                return i, f"out of reach of the speed map{limit}: forward 0..{fwd:+.1f} mm/s, backward {back:+.1f}..0 mm/s"
+                return (
+                    i,
+                    f"out of reach of the speed map{limit}: forward 0..{fwd:+.1f} mm/s, backward {back:+.1f}..0 mm/s",
+                )
         return None
 
 

@@ -50,7 +50,9 @@ class TrackRunner(Runner):
     def _check_steps(self) -> None:
         for s, v in zip(self.steps, self.targets):
             if v != 0 and self.controller.map.band_for(v, self.limits.max_frequency_hz) is None:
-                raise DeviceFault(f"segment {s.index}: {v:g} mm/s is out of reach below {self.limits.max_frequency_hz} Hz")
+                raise DeviceFault(
+                    f"segment {s.index}: {v:g} mm/s is out of reach below {self.limits.max_frequency_hz} Hz"
+                )
 
     def _run_step(self, step: Step) -> None:
         clock, ctl = self.rig.clock, self.controller
@@ -60,7 +62,9 @@ class TrackRunner(Runner):
         self._current = rec
         self.hub.step(rec)
         band = "stand (0 Hz)" if ctl.band is None else f"band {ctl.band.index} {ctl.band.describe()}"
-        self.hub.event(rec.t_start_ns, "step", f"segment {step.index}: {target:+g} mm/s, {band}, feed-forward {ff:.2f} Hz")
+        self.hub.event(
+            rec.t_start_ns, "step", f"segment {step.index}: {target:+g} mm/s, {band}, feed-forward {ff:.2f} Hz"
+        )
         self._ticks(step.settle_s, step)
         rec.t_settled_ns = clock.now_ns()
         self._ticks(step.record_s, step)
@@ -88,7 +92,11 @@ class TrackRunner(Runner):
     def _note_mode(self, mode: int, now: int, step: Step) -> None:
         """Events when the mocap is lost (pause), the walker stood for it, and the mocap returned (resume)."""
         if mode == self._mode:
-            if mode in (HOLDING, LOST) and self._lost_at is not None and (now - self._lost_at) * 1e-9 > self.max_pause_s:
+            if (
+                mode in (HOLDING, LOST)
+                and self._lost_at is not None
+                and (now - self._lost_at) * 1e-9 > self.max_pause_s
+            ):
                 raise DeviceFault(f"mocap lost for longer than monitors.max_pause_s = {self.max_pause_s:g} s")
             return
         if mode in (HOLDING, LOST) and self._mode not in (HOLDING, LOST):
@@ -101,4 +109,3 @@ class TrackRunner(Runner):
             self.hub.event(now, "resume", f"segment {step.index}: mocap back after {gone:.2f} s")
             self._lost_at = None
         self._mode = mode
-

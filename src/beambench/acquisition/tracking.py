@@ -218,9 +218,7 @@ class TrackController:
             mode = TRACKING
             self.f_cmd = self._rate_limited(self._desired(measured, dt), dt)
         band = -1 if self.band is None else self.band.index
-        return Decision(
-            now_ns, self.target, measured, ff, self.f_cmd, self.integral, band, mode, self.segment
-        )
+        return Decision(now_ns, self.target, measured, ff, self.f_cmd, self.integral, band, mode, self.segment)
 
     def _desired(self, measured: float, dt: float) -> float:
         band = self.band

@@ -20,9 +20,9 @@ import yaml
 
 from beambench.analysis.contact import REGIME_ORDER
 from beambench.analysis.session import SessionAnalysis, StepResult
-from beambench.analysis.trajectory import mean_path
 from beambench.analysis.track_figure import KEY as TRACK_KEY
 from beambench.analysis.track_figure import fig_tracking
+from beambench.analysis.trajectory import mean_path
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -37,6 +37,7 @@ from beambench.analysis.sync import (
     sync_edge_check,
     timeline,
 )
+from beambench.analysis.tracking import TrackResult, track_result
 from beambench.analysis.trajectory import (
     Ellipse,
     StageFrame,
@@ -46,7 +47,6 @@ from beambench.analysis.trajectory import (
     relative_trajectory,
     stage_frame,
 )
-from beambench.analysis.tracking import TrackResult, track_result
 from beambench.analysis.walking import body_speed
 
 

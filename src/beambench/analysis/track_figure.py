@@ -22,10 +22,10 @@ CAPTION = "Speed tracking: target and measured body speed (shaded: ±tolerance a
 
 def fig_tracking(analyses: list[SessionAnalysis], path: Path, titles: list[str] | None = None) -> Path | None:
     """Write the figure for the sessions that have tracking results; None if none has."""
-    items = [(a, a.track) for a in analyses if getattr(a, "track", None) is not None]
-    if not items:
+    results = [a.track for a in analyses if a.track is not None]
+    if not results:
         return None
-    return draw_tracking([r for _, r in items], titles or [a.label for a, _ in items], path)
+    return draw_tracking(results, titles or [a.label for a in analyses if a.track is not None], path)
 
 
 def draw_tracking(results: list[TrackResult], titles: list[str], path: Path) -> Path:

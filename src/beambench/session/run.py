@@ -132,17 +132,20 @@ def _run_session(
         # (each poll's HDF5 appends and flush cost ~10 ms; the data do not depend on the poll: the sim clock advances
         # the physics in its own chunks of at most 0.5 s either way).
         poll_s = 1.0 if backend == "sim" and not realtime else 0.1
-        runner = tracking.runner(rig, hub, steps, on_progress, stop) if tracking is not None else None
-        runner = runner or Runner(
-            rig,
-            hub,
-            steps,
-            motor_limits(protocol),
-            poll_s=poll_s,
-            on_progress=on_progress,
-            monitors=[*monitors],
-            max_pause_s=protocol.monitors.max_pause_s,
-            stop=stop,
+        runner: Runner = (
+            tracking.runner(rig, hub, steps, on_progress, stop)
+            if tracking is not None
+            else Runner(
+                rig,
+                hub,
+                steps,
+                motor_limits(protocol),
+                poll_s=poll_s,
+                on_progress=on_progress,
+                monitors=[*monitors],
+                max_pause_s=protocol.monitors.max_pause_s,
+                stop=stop,
+            )
         )
         result = runner.run()
     if isinstance(rig, ReportsAfterRun):

@@ -67,7 +67,9 @@ def load_map(spec: str) -> SpeedMap:
     """The map named by ``track.map`` (a session or a ``steps.csv``; ``twin`` is :func:`twin_map`)."""
     path = Path(spec)
     if not path.is_file():
-        raise ConfigError("<protocol>", "track.map", spec, "no such file (a walker session .h5, its steps.csv, or twin)")
+        raise ConfigError(
+            "<protocol>", "track.map", spec, "no such file (a walker session .h5, its steps.csv, or twin)"
+        )
     if path.suffix.lower() == ".csv":
         try:
             table = pd.read_csv(path)

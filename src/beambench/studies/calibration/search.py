@@ -1172,7 +1172,7 @@ CONTACT_RIG_UNKNOWNS = {"frame_mass_g": ("frame_mass", 1e-3), "mass_dx_mm": ("ma
 def contact_base(targets: Targets) -> dict:
     """The fixed part of the contact twin: the prior parameter set (the session's, else the protocol default),
     model, twist and amplitude (the session's protocol, else the shipped contact sweep)."""
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.config import Sweep, parse_protocol
     from beambench.common.resources import shipped_dir
 
     text = targets.protocol_text or (shipped_dir("protocols") / "contact_sweep.yaml").read_text()
@@ -1184,7 +1184,7 @@ def contact_base(targets: Targets) -> dict:
     params = targets.prior.get("params", proto.sim.params)
     sweep = extended_sweep(yaml.safe_load(text), targets).get("sweep", {})
     try:
-        freqs = type(proto.sweep).model_validate(sweep).values()
+        freqs = Sweep.model_validate(sweep).values()
     except ValueError as exc:
         raise CalibrationInputError(f"{targets.source}: sweep: {exc}") from None
     return {
