@@ -59,7 +59,7 @@ def summary(protocol: Protocol, backend: str) -> dict[str, object]:
         "backend": backend,
         "steps": len(steps),
         "frequencies_hz": freqs,
-        "settle_s": protocol.settle_s,
+        "settle_s": protocol.track.settle_s if protocol.track else protocol.settle_s,
         "record_s": protocol.record_s,
         "total_duration_s": sum(s.duration_s for s in steps),
         "max_frequency_hz": max(freqs),

@@ -151,16 +151,27 @@ def print_dry_run(s: dict, expected: str) -> None:
 
     t = Table(title=f"Dry run: {s['protocol']} on the {s['rig']} rig ({s['backend']} backend) — nothing moves")
     t.add_column("step", justify="right")
-    t.add_column("frequency (Hz)", justify="right")
-    t.add_column("settle + record (s)", justify="right")
-    for i, f in enumerate(s["frequencies_hz"]):
-        t.add_row(str(i), f"{f:g}", f"{s['settle_s']:g} + {s['record_s']:g}")
+    targets = s.get("targets_mm_s")
+    if targets:  # track: the controller picks the frequencies from the map during the run
+        t.add_column("target speed (mm/s)", justify="right")
+        for i, v in enumerate(targets):
+            t.add_row(str(i), f"{v:+g}")
+    else:
+        t.add_column("frequency (Hz)", justify="right")
+        t.add_column("settle + record (s)", justify="right")
+        for i, f in enumerate(s["frequencies_hz"]):
+            t.add_row(str(i), f"{f:g}", f"{s['settle_s']:g} + {s['record_s']:g}")
     con = Console(soft_wrap=True)  # the dry run's table is its result: stdout
     con.print(t)
     lim = s["limits"]
     con.print(
         f"steps: {s['steps']}   total duration: {s['total_duration_s']:g} s of rig time   "
-        f"max frequency: {s['max_frequency_hz']:g} Hz   amplitude: {s['amplitude_mm']:g} mm\n"
+        + (
+            f"max frequency: chosen by the speed controller, <= {lim['max_frequency_hz']:g} Hz   "
+            if targets
+            else f"max frequency: {s['max_frequency_hz']:g} Hz   "
+        )
+        + f"amplitude: {s['amplitude_mm']:g} mm\n"
         f"expected run time here: {expected}\n"
         f"limits: max_frequency_hz={lim['max_frequency_hz']:g}  max_current_a={lim['max_current_a']:g}  "
         f"max_amplitude_mm={lim['max_amplitude_mm']:g}"

@@ -61,6 +61,8 @@ def blueprint(specs: list[StreamSpec]) -> rrb.Blueprint:
         series.append(rrb.TimeSeriesView(origin="/loadcell", name="Load cells (raw counts)"))
     if "motor" in names:
         series.append(rrb.TimeSeriesView(origin="/motor", name="Motor"))
+    if "track" in names:  # speed tracking: target, measured speed, commanded frequency (acquisition.tracking)
+        series.append(rrb.TimeSeriesView(origin="/track", name="Speed tracking"))
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="/mocap", name="Markers (mm)"),
