@@ -67,7 +67,7 @@ def drive(ctl: TrackController, plant: Plant, profile: list[tuple[float, float]]
         ctl.set_target(target, seg)
         for _ in range(round(hold / dt)):
             ctl.write(plant.run(dt, seen=not (lost[0] <= plant.t < lost[1])))
-            d = ctl.update(int(round(plant.t * 1e9)))
+            d = ctl.update(round(plant.t * 1e9))
             plant.cmd = d.frequency_hz
             rows.append((plant.t, target, plant.v, d.frequency_hz, d.mode))
     return np.array(rows)
@@ -165,8 +165,8 @@ SIM = "sim: {model: prb3, params: paper, noise: true, seed: 0}\nlimits: {max_fre
 @pytest.fixture(scope="session")
 def twin_map_session(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SpeedMap]:
     """A small map of today's twin (its sweep, 7 frequencies): measured once per test session."""
-    from beambench.session.track_map import map_from_session
     from beambench.session.run import run_session
+    from beambench.session.track_map import map_from_session
 
     out = tmp_path_factory.mktemp("track_map")
     text = (

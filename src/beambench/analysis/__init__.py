@@ -10,8 +10,10 @@ Notebook use::
     df = resample_session(s, 1000)  # every stream on one host-clock timeline (raw data untouched)
 
 Modules: ``signals`` (sine fit), ``trajectory`` (stage frame, ellipses, sense of travel), ``contact`` (contact
-events, ratios, regimes), ``walking`` (body speed), ``session`` (per-step driver, ``/processing``), ``report``
-(figures and HTML; imports matplotlib), ``synthetic`` (sessions with a known truth for tests and demos).
+events, ratios, regimes), ``walking`` (body speed, foot stance), ``release`` (decay fit of a release test),
+``session`` (per-step driver, ``/processing``), ``figures`` (one module per report figure, registered by rig;
+imports matplotlib), ``report`` (the figures of a session's rig and the HTML), ``synthetic`` (sessions with a
+known truth for tests and demos).
 """
 
 from beambench.analysis.contact import (

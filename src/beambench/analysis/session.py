@@ -72,6 +72,7 @@ class StepResult:
     frequency_hz: float
     row: dict[str, Any]
     t_mocap: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    markers: dict[str, np.ndarray] = field(default_factory=dict)  # label → (n, 3) m, world, at t_mocap
     paths: dict[str, np.ndarray] = field(default_factory=dict)  # marker → (n, 2) mm in the stage frame
     ellipses: dict[str, Ellipse] = field(default_factory=dict)
     t_force: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -233,6 +234,133 @@ def _sign(x: float) -> int:
 # ---------------------------------------------------------------------------------------------- analysis
 
 
+@dataclass(frozen=True)
+class StepArrays:
+    """One step's record window of every stream on the host clock: times in s from the window start, marker
+    positions in m (world, NaN where occluded), motor speed in turn/s, plate force (normal, tangential) in N."""
+
+    t_mocap: np.ndarray
+    markers: dict[str, np.ndarray]
+    motor_velocity: np.ndarray
+    t_force: np.ndarray
+    force: np.ndarray
+
+    def marker(self, label: str) -> np.ndarray | None:
+        return self.markers.get(label)
+
+
+@dataclass(frozen=True)
+class HostStreams:
+    """The session's mocap, motor and load-cell streams on the host clock (ns, sorted), cut into steps by
+    :meth:`window`."""
+
+    mocap_t: np.ndarray
+    markers: dict[str, np.ndarray]  # label → (n, 3) m
+    motor_t: np.ndarray
+    motor_position: np.ndarray
+    motor_velocity: np.ndarray
+    force_t: np.ndarray
+    force: np.ndarray  # (n, 2) N
+
+    @property
+    def last_ns(self) -> int:
+        return max([int(a[-1]) for a in (self.mocap_t, self.force_t, self.motor_t) if len(a)], default=0)
+
+    def window(self, a: int, b: int) -> StepArrays:
+        wm, wl, wv = _window(self.mocap_t, a, b), _window(self.force_t, a, b), _window(self.motor_t, a, b)
+        return StepArrays(
+            (self.mocap_t[wm] - a) / NS,
+            {k: v[wm] for k, v in self.markers.items()},
+            self.motor_velocity[wv],
+            (self.force_t[wl] - a) / NS,
+            self.force[wl],
+        )
+
+
+@dataclass(frozen=True)
+class StepContext:
+    """What every step's analysis needs besides its arrays: the session's facts and the stage frame."""
+
+    rig: str
+    amplitude_mm: float
+    has_force: bool  # the session has load-cell data (contacts are then analysed in every step)
+    options: AnalysisOptions
+    frame: StageFrame | None
+    forward: str
+
+
+def host_streams(session: Any, fits: dict[str, ClockFit], cal: LoadCellCalibration) -> HostStreams:
+    """Mocap markers, motor position/speed and calibrated plate force of a session on the host clock."""
+    mocap = session.streams.get("mocap")
+    mt, markers = np.zeros(0, np.int64), {}
+    if mocap is not None and len(mocap.host_time_ns):
+        labels, pos = mocap_markers(mocap)
+        mt, pos = _sorted(stream_host_times(mocap, fits.get("mocap")), pos)
+        markers = {lbl: pos[:, i] for i, lbl in enumerate(labels)}
+    motor = session.streams.get("motor")
+    mot_t, mot_pos, mot_vel = np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    if motor is not None and len(motor.host_time_ns):
+        nan = np.full(len(motor.host_time_ns), np.nan)
+        mot_t, mot_pos, mot_vel = _sorted(
+            stream_host_times(motor, fits.get("motor")),
+            np.asarray(motor.columns.get("position", nan), float),
+            np.asarray(motor.columns.get("velocity", nan), float),
+        )
+    lc = session.streams.get("loadcell")
+    lc_t, force = np.zeros(0, np.int64), np.zeros((0, 2))
+    if lc is not None and len(lc.host_time_ns):
+        lc_t, force = _sorted(stream_host_times(lc, fits.get("loadcell")), cal.force_from_counts(lc.columns["data"]))
+    return HostStreams(mt, markers, mot_t, mot_pos, mot_vel, lc_t, force)
+
+
+def _session_frame(
+    general: dict[str, Any], options: AnalysisOptions, markers: dict[str, np.ndarray]
+) -> tuple[StageFrame | None, str]:
+    """The stage frame (drive, up) — from the stage marker, else the walker's forward axis — and the forward axis."""
+    stage, body = markers.get(options.stage_marker), markers.get(options.body_marker)
+    up = options.up or _geometry_axis(general, "up_axis")
+    forward = options.forward or _geometry_axis(general, "forward_axis") or "x"
+    ref = stage if stage is not None else body
+    if ref is None or np.isfinite(ref).all(axis=1).sum() < 3:
+        return None, forward
+    try:
+        if stage is not None:
+            hanging = markers.get(options.foot_marker)
+            return stage_frame(stage[:: max(1, len(stage) // 20000)], up, hanging_xyz=hanging), forward
+        d = axis_vector(forward)
+        u = axis_vector(up) if up else _guess_up(d)
+        u = u - (u @ d) * d
+        return StageFrame(d, u / np.linalg.norm(u)), forward
+    except ValueError:
+        return None, forward
+
+
+def _clock_residuals(session: Any, fits: dict[str, ClockFit]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """Each stream's receive delay above its clock fit (µs) and the sample times (s from the session's start)."""
+    residuals = {
+        n: fits[n].residuals_us(s.device_time, s.host_time_ns).astype(np.float32)
+        for n, s in session.streams.items()
+        if n in fits
+    }
+    t_first = min((int(s.host_time_ns.min()) for s in session.streams.values() if len(s.host_time_ns)), default=0)
+    residual_t = {n: ((session.streams[n].host_time_ns - t_first) / NS).astype(np.float32) for n in residuals}
+    return residuals, residual_t
+
+
+def _edge_check(session: Any, fits: dict[str, ClockFit]) -> EdgeCheck | None:
+    lc, mocap = session.streams.get("loadcell"), session.streams.get("mocap")
+    if lc is None or mocap is None or "sync_edges" not in lc.columns or "frame" not in mocap.columns:
+        return None
+    if not len(lc.host_time_ns):
+        return None
+    return sync_edge_check(
+        stream_host_times(lc, fits.get("loadcell")),
+        lc.columns["sync_edges"],
+        stream_host_times(mocap, fits.get("mocap")),
+        mocap.columns["frame"],
+    )
+
+
 def analyze_session(
     session: Any,
     options: AnalysisOptions = AnalysisOptions(),
@@ -247,111 +375,30 @@ def analyze_session(
     amplitude_mm = float(proto.get("amplitude_mm", np.nan)) if proto else float("nan")
     cal = session_calibration(general)
     fits = fit_session_clocks(session)
-    residuals = {
-        n: fits[n].residuals_us(s.device_time, s.host_time_ns).astype(np.float32)
-        for n, s in session.streams.items()
-        if n in fits
-    }
-    t_first = min((int(s.host_time_ns.min()) for s in session.streams.values() if len(s.host_time_ns)), default=0)
-    residual_t = {n: ((session.streams[n].host_time_ns - t_first) / NS).astype(np.float32) for n in residuals}
-
-    # --- mocap on the host clock --------------------------------------------------------------------
-    mocap = session.streams.get("mocap")
-    labels: list[str] = []
-    mt = np.zeros(0, np.int64)
-    pos = np.zeros((0, 0, 3))
-    if mocap is not None and len(mocap.host_time_ns):
-        labels, pos = mocap_markers(mocap)
-        mt, pos = _sorted(stream_host_times(mocap, fits.get("mocap")), pos)
-
-    def marker(label: str) -> np.ndarray | None:
-        return pos[:, labels.index(label)] if label in labels else None
-
-    stage, foot, tip, body = (
-        marker(options.stage_marker),
-        marker(options.foot_marker),
-        marker(options.tip_marker),
-        marker(options.body_marker),
-    )
-    up = options.up or _geometry_axis(general, "up_axis")
-    forward = options.forward or _geometry_axis(general, "forward_axis") or "x"
-    frame: StageFrame | None = None
-    ref = stage if stage is not None else body
-    if ref is not None and np.isfinite(ref).all(axis=1).sum() >= 3:
-        try:
-            if stage is not None:
-                frame = stage_frame(stage[:: max(1, len(stage) // 20000)], up, hanging_xyz=foot)
-            else:
-                d = axis_vector(forward)
-                u = axis_vector(up) if up else _guess_up(d)
-                u = u - (u @ d) * d
-                frame = StageFrame(d, u / np.linalg.norm(u))
-        except ValueError:
-            frame = None
-
-    # --- motor and load cells on the host clock ------------------------------------------------------
-    motor = session.streams.get("motor")
-    mot_t = np.zeros(0, np.int64)
-    mot_pos = mot_vel = np.zeros(0)
-    if motor is not None and len(motor.host_time_ns):
-        mot_t, mot_pos, mot_vel = _sorted(
-            stream_host_times(motor, fits.get("motor")),
-            np.asarray(motor.columns.get("position", np.full(len(motor.host_time_ns), np.nan)), float),
-            np.asarray(motor.columns.get("velocity", np.full(len(motor.host_time_ns), np.nan)), float),
-        )
-    lc = session.streams.get("loadcell")
-    lc_t = np.zeros(0, np.int64)
-    force = np.zeros((0, 2))
-    if lc is not None and len(lc.host_time_ns):
-        lc_t, force = _sorted(stream_host_times(lc, fits.get("loadcell")), cal.force_from_counts(lc.columns["data"]))
-
-    edge = None
-    if lc is not None and mocap is not None and "sync_edges" in lc.columns and "frame" in mocap.columns and len(lc_t):
-        edge = sync_edge_check(
-            stream_host_times(lc, fits.get("loadcell")),
-            lc.columns["sync_edges"],
-            stream_host_times(mocap, fits.get("mocap")),
-            mocap.columns["frame"],
-        )
-
+    residuals, residual_t = _clock_residuals(session, fits)
+    streams = host_streams(session, fits, cal)
+    frame, forward = _session_frame(general, options, streams.markers)
     delay = None
-    if stage is not None and frame is not None and len(mot_t) > 4:
+    stage = streams.markers.get(options.stage_marker)
+    if stage is not None and frame is not None and len(streams.motor_t) > 4:
         disp = (stage - np.nanmean(stage, axis=0)) @ frame.drive
-        delay = encoder_marker_delay(mot_t, mot_pos, mt, disp)
+        delay = encoder_marker_delay(streams.motor_t, streams.motor_position, streams.mocap_t, disp)
 
-    # --- steps ---------------------------------------------------------------------------------------
-    steps_df = session.steps
+    ctx = StepContext(rig, amplitude_mm, len(streams.force_t) > 0, options, frame, forward)
     results: list[StepResult] = []
-    n_steps = len(steps_df)
-    last_ns = max([int(a[-1]) for a in (mt, lc_t, mot_t) if len(a)], default=0)
-    for k, srow in enumerate(steps_df.itertuples(index=False)):
-        res = _analyze_step(
-            srow,
-            last_ns,
-            amplitude_mm,
-            rig,
-            options,
-            frame,
-            forward,
-            mt,
-            stage,
-            tip,
-            foot,
-            body,
-            {lbl: marker(lbl) for lbl in options.walker_feet},
-            mot_t,
-            mot_vel,
-            lc_t,
-            force,
-        )
-        results.append(res)
+    n_steps, last_ns = len(session.steps), streams.last_ns
+    for k, srow in enumerate(session.steps.itertuples(index=False)):
+        a = int(srow.t_settled_ns)
+        b = int(srow.t_end_ns) if int(srow.t_end_ns) > 0 else last_ns
+        results.append(_analyze_step(srow, a, b, streams.window(a, b) if 0 <= a < b else None, ctx))
         if progress is not None:
             progress(k + 1, n_steps)
     table = pd.DataFrame([r.row for r in results])
-    track = track_result(session.streams.get("track"), steps_df, mt, body, forward)
+    body = streams.markers.get(options.body_marker)
+    track = track_result(session.streams.get("track"), session.steps, streams.mocap_t, body, forward)
     if track is not None and track.segments:  # per-segment target, error, settling and direction times
         table = table.merge(pd.DataFrame(track.segments), on="step", how="left")
-    analysis = SessionAnalysis(
+    return SessionAnalysis(
         Path(session.path) if getattr(session, "path", None) is not None else None,
         rig,
         backend,
@@ -365,10 +412,9 @@ def analyze_session(
         cal.source,
         residuals,
         residual_t,
-        edge,
+        _edge_check(session, fits),
         track=track,
     )
-    return analysis
 
 
 def _guess_up(drive: np.ndarray) -> np.ndarray:
@@ -379,28 +425,9 @@ def _guess_up(drive: np.ndarray) -> np.ndarray:
     return axis_vector("z")
 
 
-def _analyze_step(
-    srow: Any,
-    last_ns: int,
-    amplitude_mm: float,
-    rig: str,
-    opt: AnalysisOptions,
-    frame: StageFrame | None,
-    forward: str,
-    mt: np.ndarray,
-    stage: np.ndarray | None,
-    tip: np.ndarray | None,
-    foot: np.ndarray | None,
-    body: np.ndarray | None,
-    feet: dict[str, np.ndarray | None],
-    mot_t: np.ndarray,
-    mot_vel: np.ndarray,
-    lc_t: np.ndarray,
-    force: np.ndarray,
-) -> StepResult:
+def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepContext) -> StepResult:
+    """One step's table row and figure arrays from its record window ``a``…``b`` (ns; ``arr`` None if empty)."""
     f_cmd = float(srow.frequency_hz)
-    a = int(srow.t_settled_ns)
-    b = int(srow.t_end_ns) if int(srow.t_end_ns) > 0 else last_ns
     row: dict[str, Any] = {
         "step": int(srow.index),
         "frequency_hz": f_cmd,
@@ -409,102 +436,108 @@ def _analyze_step(
         "record_s": (b - a) / NS if a >= 0 else np.nan,
     }
     res = StepResult(int(srow.index), f_cmd, row)
-    if a < 0 or b <= a:
+    if arr is None:
         row["regime"] = ""
         return res
+    res.t_mocap, res.markers = arr.t_mocap, arr.markers
+    f_use = _drive(row, arr, ctx, f_cmd)
+    _paths(res, arr, ctx, f_use)
+    if ctx.has_force:
+        _contacts(res, arr, ctx, f_use)
+    else:
+        row["regime"] = ""
+    body = arr.marker(ctx.options.body_marker)
+    if body is not None:  # walker: body speed
+        sp = body_speed(arr.t_mocap, body, ctx.forward)
+        row["body_speed_mm_s"] = sp.speed_mm_s
+        row["body_speed_stderr_mm_s"] = sp.stderr_mm_s
+        res.body_t = arr.t_mocap
+        res.body_x_mm = body @ axis_vector(ctx.forward) * 1e3
+    row["analysis_frequency_hz"] = f_use
+    return res
 
-    # motor speed (crank turn/s = Hz)
-    w = _window(mot_t, a, b)
-    v = mot_vel[w]
+
+def _drive(row: dict[str, Any], arr: StepArrays, ctx: StepContext, f_cmd: float) -> float:
+    """Motor speed (crank turn/s = Hz), the stage's measured frequency and amplitude; returns the frequency the
+    rest of the step is analysed at (measured, else the motor's, else the commanded)."""
+    v = arr.motor_velocity
     row["motor_frequency_hz"] = float(np.nanmean(np.abs(v))) if np.isfinite(v).any() else np.nan
-
-    # stage: measured drive frequency and amplitude
-    w = _window(mt, a, b)
-    t = (mt[w] - a) / NS
-    res.t_mocap = t
+    stage = arr.marker(ctx.options.stage_marker)
     sine = NAN_SINE
-    if stage is not None and frame is not None:
-        st = stage[w]
-        row["mocap_valid_fraction"] = float(np.isfinite(st).all(axis=1).mean()) if len(st) else 0.0
-        disp = (st - np.nanmean(st, axis=0)) @ frame.drive if len(st) else np.zeros(0)
-        sine = fit_sinusoid(t, disp, f_cmd if f_cmd > 0 else None)
+    if stage is not None and ctx.frame is not None:
+        row["mocap_valid_fraction"] = float(np.isfinite(stage).all(axis=1).mean()) if len(stage) else 0.0
+        disp = (stage - np.nanmean(stage, axis=0)) @ ctx.frame.drive if len(stage) else np.zeros(0)
+        sine = fit_sinusoid(arr.t_mocap, disp, f_cmd if f_cmd > 0 else None)
     row["measured_frequency_hz"] = sine.frequency_hz
     row["frequency_error_hz"] = sine.frequency_hz - f_cmd
     row["stage_amplitude_mm"] = sine.amplitude * 1e3
-    row["commanded_amplitude_mm"] = amplitude_mm if stage is not None else np.nan
+    row["commanded_amplitude_mm"] = ctx.amplitude_mm if stage is not None else np.nan
     f_use = sine.frequency_hz if np.isfinite(sine.frequency_hz) and sine.frequency_hz > 0 else row["motor_frequency_hz"]
-    if not (np.isfinite(f_use) and f_use > 0):
-        f_use = f_cmd
+    return float(f_use) if np.isfinite(f_use) and f_use > 0 else f_cmd
 
-    # trajectories in the stage frame (or relative to the body for the walker)
-    ref = stage if stage is not None else body
-    tracked = {"tip": tip, "foot": foot} if stage is not None else dict(feet)
-    if frame is not None and ref is not None:
-        for name, m in tracked.items():
-            if m is None:
-                continue
-            xy = relative_trajectory(m[w], ref[w], frame)
-            res.paths[name] = xy
-            e = fit_ellipse_harmonic(t, xy, f_use)
-            res.ellipses[name] = e
-            row[f"{name}_major_mm"] = e.major
-            row[f"{name}_minor_mm"] = e.minor
-            row[f"{name}_tilt_deg"] = e.tilt_deg
-            row[f"{name}_sense"] = _sense(e)
-            row[f"{name}_ellipse_r2"] = e.r2
-            row[f"{name}_area_mm2"] = area_per_cycle(t, xy, f_use)
 
-    # contacts from the calibrated normal force
-    if len(lc_t):
-        wl = _window(lc_t, a, b)
-        tf = (lc_t[wl] - a) / NS
-        fw = force[wl]
-        res.t_force, res.force = tf, fw
-        # the regime from the normal force alone, as the paper's: the mocap's 0.1 mm noise exceeds the foot's
-        # rise in a chattering contact, so a foot-height test would make the label depend on the noise
-        c, s = force_contacts(tf, fw[:, 0], f_use, opt.contact)
-        res.contacts = c
-        row.update(
-            n_contacts=s.n_contacts,
-            contact_frequency_hz=s.contact_frequency_hz,
-            contacts_per_cycle=s.contacts_per_cycle,
-            regime=s.regime,
-            in_contact_fraction=s.in_contact_fraction,
-            peak_normal_n=float(np.nanmax(fw[:, 0])) if len(fw) else np.nan,
-            contact_threshold_n=c.on_n,
-        )
-        ft_in = fw[c.mask, 1] if len(fw) else np.zeros(0)
-        mean_ft = float(np.nanmean(ft_in)) if np.isfinite(ft_in).any() else np.nan
-        row["mean_tangential_n"] = mean_ft
-        row["tangential_sign"] = _sign(mean_ft)
-        # direction of motion at touchdown: foot velocity along the drive axis, relative to the plate
-        td = c.touchdown_s
-        if foot is not None and frame is not None and len(td):
-            fx = foot[w] @ frame.drive * 1e3
-            fv = velocity(t, fx)
-            tv = touchdown_velocity(td, t, fv, 0.1 / f_use)
-            res.touchdown_v = tv
-            rel = res.paths.get("foot")
-            if rel is not None and len(t) > 1:
-                res.touchdown_xy = np.column_stack([np.interp(td, t, rel[:, 0]), np.interp(td, t, rel[:, 1])])
-            med = float(np.nanmedian(tv)) if np.isfinite(tv).any() else np.nan
-            row["touchdown_velocity_mm_s"] = med
-            row["touchdown_direction"] = _sign(med)
-        else:
-            row["touchdown_velocity_mm_s"] = np.nan
-            row["touchdown_direction"] = 0
-    else:
-        row["regime"] = ""
+def _paths(res: StepResult, arr: StepArrays, ctx: StepContext, f_use: float) -> None:
+    """Tip and foot paths in the stage frame (the walker's feet relative to the body) and their ellipses."""
+    opt, t, row = ctx.options, arr.t_mocap, res.row
+    stage = arr.marker(opt.stage_marker)
+    ref = stage if stage is not None else arr.marker(opt.body_marker)
+    if ctx.frame is None or ref is None:
+        return
+    tracked = {"tip": opt.tip_marker, "foot": opt.foot_marker} if stage is not None else {f: f for f in opt.walker_feet}
+    for name, label in tracked.items():
+        m = arr.marker(label)
+        if m is None:
+            continue
+        xy = relative_trajectory(m, ref, ctx.frame)
+        res.paths[name] = xy
+        e = fit_ellipse_harmonic(t, xy, f_use)
+        res.ellipses[name] = e
+        row[f"{name}_major_mm"] = e.major
+        row[f"{name}_minor_mm"] = e.minor
+        row[f"{name}_tilt_deg"] = e.tilt_deg
+        row[f"{name}_sense"] = _sense(e)
+        row[f"{name}_ellipse_r2"] = e.r2
+        row[f"{name}_area_mm2"] = area_per_cycle(t, xy, f_use)
 
-    # walker: body speed
-    if body is not None:
-        sp = body_speed(t, body[w], forward)
-        row["body_speed_mm_s"] = sp.speed_mm_s
-        row["body_speed_stderr_mm_s"] = sp.stderr_mm_s
-        res.body_t = t
-        res.body_x_mm = body[w] @ axis_vector(forward) * 1e3
-    row["analysis_frequency_hz"] = f_use
-    return res
+
+def _contacts(res: StepResult, arr: StepArrays, ctx: StepContext, f_use: float) -> None:
+    """Contacts from the calibrated normal force, the tangential force in contact, the foot's direction at
+    touchdown."""
+    tf, fw, row = arr.t_force, arr.force, res.row
+    res.t_force, res.force = tf, fw
+    # the regime from the normal force alone, as the paper's: the mocap's 0.1 mm noise exceeds the foot's
+    # rise in a chattering contact, so a foot-height test would make the label depend on the noise
+    c, s = force_contacts(tf, fw[:, 0], f_use, ctx.options.contact)
+    res.contacts = c
+    row.update(
+        n_contacts=s.n_contacts,
+        contact_frequency_hz=s.contact_frequency_hz,
+        contacts_per_cycle=s.contacts_per_cycle,
+        regime=s.regime,
+        in_contact_fraction=s.in_contact_fraction,
+        peak_normal_n=float(np.nanmax(fw[:, 0])) if len(fw) else np.nan,
+        contact_threshold_n=c.on_n,
+    )
+    ft_in = fw[c.mask, 1] if len(fw) else np.zeros(0)
+    mean_ft = float(np.nanmean(ft_in)) if np.isfinite(ft_in).any() else np.nan
+    row["mean_tangential_n"] = mean_ft
+    row["tangential_sign"] = _sign(mean_ft)
+    # direction of motion at touchdown: foot velocity along the drive axis, relative to the plate
+    td, t = c.touchdown_s, arr.t_mocap
+    foot = arr.marker(ctx.options.foot_marker)
+    if foot is None or ctx.frame is None or not len(td):
+        row["touchdown_velocity_mm_s"] = np.nan
+        row["touchdown_direction"] = 0
+        return
+    fv = velocity(t, foot @ ctx.frame.drive * 1e3)
+    tv = touchdown_velocity(td, t, fv, 0.1 / f_use)
+    res.touchdown_v = tv
+    rel = res.paths.get("foot")
+    if rel is not None and len(t) > 1:
+        res.touchdown_xy = np.column_stack([np.interp(td, t, rel[:, 0]), np.interp(td, t, rel[:, 1])])
+    med = float(np.nanmedian(tv)) if np.isfinite(tv).any() else np.nan
+    row["touchdown_velocity_mm_s"] = med
+    row["touchdown_direction"] = _sign(med)
 
 
 # ------------------------------------------------------------------------------------- storing / notebooks

@@ -65,9 +65,9 @@ def _load(path: Path, options: AnalysisOptions, progress, write: bool) -> Sessio
 
 
 def _report(analyses: list[SessionAnalysis], out: Path, force_at: list[float] | None, progress) -> Path:
-    from beambench.analysis.report import make_report
+    from beambench.analysis.report import figures_of, make_report
 
-    task = progress.add_task("figures", total=8)
+    task = progress.add_task("figures", total=len(figures_of(analyses)))
     return make_report(
         analyses, out, force_at, lambda key: progress.update(task, advance=1, description=f"figure: {key}")
     )

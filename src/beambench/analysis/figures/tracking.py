@@ -1,7 +1,7 @@
-"""The tracking figure: target and measured speed vs time, the commanded frequency below (``track:`` sessions).
+"""Speed tracking (``track:`` sessions): target and measured speed vs time, the commanded frequency below.
 
-Self-contained (its own matplotlib ``Figure``, no pyplot): :func:`fig_tracking` draws one or more sessions side
-by side (e.g. feed-forward alone vs with feedback), each a column of two panels.
+:func:`draw` (registered as ``tracking``) draws every session that has tracking results side by side (e.g.
+feed-forward alone vs with feedback, with ``beambench compare``), each a column of two panels.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.tracking import TrackResult
 
 if TYPE_CHECKING:
@@ -20,12 +21,13 @@ KEY = "tracking"
 CAPTION = "Speed tracking: target and measured body speed (shaded: ±tolerance after settling), commanded frequency"
 
 
-def fig_tracking(analyses: list[SessionAnalysis], path: Path, titles: list[str] | None = None) -> Path | None:
-    """Write the figure for the sessions that have tracking results; None if none has."""
+@FIGURES.add(KEY, rigs=("walker",), caption=CAPTION)
+def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
+    """The figure for the sessions that have tracking results; None if none has (a sweep)."""
     results = [a.track for a in analyses if a.track is not None]
     if not results:
         return None
-    return draw_tracking(results, titles or [a.label for a in analyses if a.track is not None], path)
+    return draw_tracking(results, [a.label for a in analyses if a.track is not None], path)
 
 
 def draw_tracking(results: list[TrackResult], titles: list[str], path: Path) -> Path:

@@ -1,0 +1,99 @@
+"""First-harmonic ellipse of the tip (walker: foot) path against frequency: axis lengths, tilt and sense of travel
+(paper Fig. 2e). The tilt of an axis is defined modulo 180°; it is unwrapped along the sweep so a path turning
+through vertical reads as one curve, not a jump from +90° to −90°."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from beambench.analysis.figures.registry import FIGURES, ReportOptions
+from beambench.analysis.figures.style import (
+    R2_SENSE_MIN,
+    SESSION_COLORS,
+    UNCERTAIN,
+    by_frequency,
+    legend_below,
+    marker_name,
+    new_figure,
+    primary_marker,
+)
+
+if TYPE_CHECKING:
+    from beambench.analysis.session import SessionAnalysis
+
+SENSE_NAMES = {"ccw": "counter-clockwise", "cw": "clockwise", "": "line (no sense)"}
+
+
+@FIGURES.add(
+    "ellipse",
+    rigs=("contact", "walker"),
+    caption="First-harmonic ellipse of the tip path (walker: the left foot relative to the body): full axis "
+    "lengths, tilt of the major axis (unwrapped along the sweep from its lowest well-fitted frequency: an "
+    "axis turning through vertical continues past ±90° instead of jumping by 180°) and sense of travel (paper Fig. 2e). The walker's foot path is relative to the "
+    "body: where the body rocks on its slider while the feet stay put, the major axis is the body's swing.",
+)
+def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
+    fig = new_figure((12, 4.3))
+    axes = fig.subplots(1, 2)
+    anything = False
+    for si, a in enumerate(analyses):
+        t = by_frequency(a)
+        m = "tip" if "tip_major_mm" in t else (primary_marker(a) or "")
+        if f"{m}_major_mm" not in t:
+            continue
+        anything = True
+        c = SESSION_COLORS[si % 4]
+        sfx = f" ({a.label})" if len(analyses) > 1 else ""
+        f = t["frequency_hz"]
+        lw = 2.4 if len(analyses) > 1 and si == 0 else 1.2
+        alpha = 0.5 if len(analyses) > 1 and si == 0 else 1.0
+        name = marker_name(m)
+        axes[0].plot(f, t[f"{m}_major_mm"], "-", color=c, lw=lw, alpha=alpha, label=f"{name} major axis{sfx}")
+        axes[0].plot(f, t[f"{m}_minor_mm"], "--", color=c, lw=lw, alpha=alpha, label=f"{name} minor axis{sfx}")
+        sense = t[f"{m}_sense"].fillna("").astype(str)
+        r2 = t.get(f"{m}_ellipse_r2", pd.Series(np.nan, index=t.index)).astype(float)
+        sure = r2 >= R2_SENSE_MIN
+        tilt = unwrapped_tilt(t[f"{m}_tilt_deg"], sure)
+        size = 60 if len(analyses) > 1 and si == 0 else 28
+        axes[1].plot(f, tilt, "-", color=c, lw=0.6, alpha=0.4)
+        for s, style in (
+            ("ccw", dict(marker="o", facecolors=c, edgecolors=c)),
+            ("cw", dict(marker="o", facecolors="none", edgecolors=c)),
+            ("", dict(marker="x", c=c)),
+        ):
+            sel = (sense == s) & (sure | (s == ""))
+            if sel.any():
+                axes[1].scatter(f[sel], tilt[sel], s=size, label=f"{SENSE_NAMES[s]}{sfx}", **style)
+        unsure = (sense != "") & ~sure
+        if unsure.any():
+            label = f"sense uncertain (ellipse R² < {R2_SENSE_MIN:g}){sfx}"
+            axes[1].scatter(f[unsure], tilt[unsure], s=size * 1.6, marker="$?$", c=UNCERTAIN, label=label)
+    if not anything:
+        return None
+    axes[0].set(xlabel="drive frequency (Hz)", ylabel="axis length (mm)", title="First-harmonic ellipse: axes")
+    axes[1].set(
+        xlabel="drive frequency (Hz)",
+        ylabel="tilt of major axis from drive axis (deg)",
+        title="Tilt (unwrapped) and sense of travel",
+    )
+    axes[1].axhline(0, color="0.6", lw=0.8)
+    legend_below(fig, axes, ncol=4)
+    fig.savefig(path)
+    return path
+
+
+def unwrapped_tilt(tilt_deg: pd.Series, sure: pd.Series | None = None) -> pd.Series:
+    """The tilt of an axis (defined modulo 180°) unwrapped along the rows (frequency order), its first ``sure``
+    row (else its first row) kept within ±90°; NaN rows stay NaN."""
+    v = tilt_deg.astype(float).to_numpy().copy()
+    ok = np.isfinite(v)
+    if ok.sum() > 1:
+        u = np.unwrap(v[ok], period=180.0)
+        anchor = np.flatnonzero(sure.to_numpy()[ok]) if sure is not None else np.zeros(0, int)
+        k = int(anchor[0]) if len(anchor) else 0
+        v[ok] = u - 180.0 * np.round(u[k] / 180.0)
+    return pd.Series(v, index=tilt_deg.index)
