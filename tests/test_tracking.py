@@ -25,6 +25,11 @@ def _map_curve(f: np.ndarray) -> np.ndarray:
     return np.where(f < 15, -50 * (f - 10) / 5, np.where(f < 25, -50 + 50 * (f - 15) / 10, 150 * (f - 25) / 25))
 
 
+def _speed(f: float) -> float:
+    """:func:`_map_curve` at one frequency (plain floats: the plant steps 360 times a second)."""
+    return -50 * (f - 10) / 5 if f < 15 else (-50 + 50 * (f - 15) / 10 if f < 25 else 150 * (f - 25) / 25)
+
+
 def synthetic_map(irregular_above: float = 52.0) -> SpeedMap:
     f = np.arange(10.0, 61.0, 1.0)
     v = _map_curve(f)
@@ -48,7 +53,7 @@ class Plant:
         t, x = np.empty(n), np.empty(n)
         for i in range(n):
             self.f += float(np.clip(self.cmd - self.f, -50 * h, 50 * h))
-            steady = self.gain * float(_map_curve(np.array([self.f]))[0]) + self.offset if self.f >= 10 else 0.0
+            steady = self.gain * _speed(self.f) + self.offset if self.f >= 10 else 0.0
             self.v += (steady - self.v) * h / self.tau
             self.x_mm += self.v * h
             self.t += h
@@ -141,6 +146,17 @@ def test_losing_mocap_holds_then_stands_and_recovers():
     assert (f[held] == f[held][0]).all() and f[held][0] > 25  # holds the last frequency ...
     assert (mode[(t > 2.3) & (t < 3.0)] == LOST).all() and (f[(t > 2.3) & (t < 3.0)] == 0).all()  # ... then stands
     assert mode[-1] == TRACKING and f[-1] > 25  # and walks again when the body is seen
+
+
+def test_the_speed_comes_from_the_mocap_timestamps_not_the_receive_times():
+    from beambench.acquisition.tracking import SpeedEstimator
+
+    est = SpeedEstimator(1.0)
+    dev = np.arange(180) / 360.0  # half a second at 360 Hz, walking 40 mm/s
+    host = ((dev + np.random.default_rng(0).uniform(0, 0.03, dev.size)) * 1e9).astype(np.int64)  # 0-30 ms late
+    est.add(np.maximum.accumulate(host), dev * 0.040, dev)
+    assert est.speed(int(host.max()), 0.4) == pytest.approx(40.0, rel=1e-9)
+    assert math.isnan(est.speed(int(host.max()) + int(2e9), 0.4))  # nothing received in the window
 
 
 def test_track_protocol_checks():

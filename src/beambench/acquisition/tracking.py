@@ -15,7 +15,7 @@ Each control tick (``control.control_s`` of rig time) :meth:`TrackController.upd
   than ``integrate_within`` × |target| + 10 mm/s): anti-windup.
 - **rate limit**: the commanded frequency moves by at most ``rate_hz_s`` per second (the motor's ramp follows).
 - **measured speed**: least-squares slope of the body marker along the forward axis over the last
-  ``window_periods`` drive periods (within ``min_window_s``..``max_window_s``).
+  ``window_periods`` drive periods (within ``min_window_s``..``max_window_s``), against the mocap's own timestamps.
 - **mocap lost** (no body sample for a tick): the frequency is held and the integrator frozen; after
   ``mocap_lost_s`` without data the walker stands (0 Hz) until the body is seen again.
 
@@ -72,20 +72,28 @@ def _axis(name: str) -> np.ndarray:
 
 
 class SpeedEstimator:
-    """The body's forward position as it arrives; :meth:`speed` fits the slope over a recent window."""
+    """The body's forward position as it arrives; :meth:`speed` fits the slope over a recent window.
+
+    Samples are chosen by host receive time (what "recent" means to the controller) and fitted against the mocap's
+    own timestamps (``device_time``: exposure times at a steady 360 Hz), so receive jitter on a busy host or network
+    does not enter the speed."""
 
     def __init__(self, keep_s: float) -> None:
         self.keep_ns = int(keep_s * 1e9)
         self._t: deque[int] = deque()
+        self._d: deque[float] = deque()
         self._x: deque[float] = deque()
 
-    def add(self, t_ns: np.ndarray, x_m: np.ndarray) -> None:
-        for t, x in zip(t_ns.tolist(), x_m.tolist()):
-            if math.isfinite(x) and (not self._t or t > self._t[-1]):
+    def add(self, t_ns: np.ndarray, x_m: np.ndarray, device_s: np.ndarray | None = None) -> None:
+        dev = (t_ns * 1e-9) if device_s is None else device_s
+        for t, d, x in zip(t_ns.tolist(), np.asarray(dev, float).tolist(), x_m.tolist()):
+            if math.isfinite(x) and math.isfinite(d) and (not self._t or t >= self._t[-1]):
                 self._t.append(int(t))
+                self._d.append(float(d))
                 self._x.append(float(x))
         while self._t and self._t[-1] - self._t[0] > self.keep_ns:
             self._t.popleft()
+            self._d.popleft()
             self._x.popleft()
 
     @property
@@ -93,19 +101,18 @@ class SpeedEstimator:
         return self._t[-1] if self._t else None
 
     def speed(self, now_ns: int, window_s: float) -> float:
-        """Slope (mm/s) over the samples of the last ``window_s`` before ``now_ns``; NaN if they cover less than
-        80 % of it."""
+        """Slope (mm/s) over the samples received in the last ``window_s`` before ``now_ns``; NaN if their
+        timestamps cover less than 80 % of it."""
         if not self._t:
             return math.nan
         t = np.asarray(self._t, np.int64)
-        a = now_ns - int(window_s * 1e9)
-        k = t >= a
-        if k.sum() < 3 or (t[k][-1] - t[k][0]) < 0.8 * window_s * 1e9:
+        k = t >= now_ns - int(window_s * 1e9)
+        d = np.asarray(self._d)[k]
+        if k.sum() < 3 or np.ptp(d) < 0.8 * window_s:
             return math.nan
-        ts = (t[k] - t[k][0]) * 1e-9
         xs = np.asarray(self._x)[k] * 1e3
-        tc = ts - ts.mean()
-        return float(tc @ (xs - xs.mean()) / (tc @ tc))
+        dc = d - d.mean()
+        return float(dc @ (xs - xs.mean()) / (dc @ dc))
 
 
 @dataclass
@@ -165,7 +172,7 @@ class TrackController:
         occ = batch.columns.get("occluded")
         if occ is not None:
             x = np.where(np.asarray(occ)[:, self._body], np.nan, x)
-        self.est.add(np.asarray(batch.host_time_ns, np.int64), x)
+        self.est.add(np.asarray(batch.host_time_ns, np.int64), x, np.asarray(batch.device_time, float))
 
     def event(self, host_time_ns: int, kind: str, message: str) -> None:
         pass
