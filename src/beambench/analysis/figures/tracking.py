@@ -35,7 +35,7 @@ def draw_tracking(results: list[TrackResult], titles: list[str], path: Path) -> 
     from matplotlib.figure import Figure
 
     n = len(results)
-    fig = Figure(figsize=(5.2 * n + 0.6, 5.2), dpi=110, layout="constrained")
+    fig = Figure(figsize=(5.2 * n + 0.6, 5.6), dpi=110, layout="constrained")
     axes = fig.subplots(2, n, sharex="col", height_ratios=[2.2, 1], squeeze=False)
     for j, (r, title) in enumerate(zip(results, titles)):
         ax, axf = axes[0, j], axes[1, j]
@@ -68,8 +68,10 @@ def draw_tracking(results: list[TrackResult], titles: list[str], path: Path) -> 
         axf.plot(r.t, r.feedforward, color="0.4", lw=0.8, ls="--", label="feed-forward")
         axf.set_ylabel("drive (Hz)")
         axf.set_xlabel("time (s)")
-        if j == 0:
-            ax.legend(loc="lower left", fontsize=7, ncol=2)
-            axf.legend(loc="lower left", fontsize=7, ncol=2)
+    seen: dict[str, object] = {}
+    for a in axes[:, 0]:  # one legend below the panels (inside, it hides the traces)
+        for h, label in zip(*a.get_legend_handles_labels()):
+            seen.setdefault(label, h)
+    fig.legend(list(seen.values()), list(seen), loc="outside lower center", ncol=min(3 * n, len(seen)), fontsize=8)
     fig.savefig(path)
     return path
