@@ -7,7 +7,7 @@ feed-forward alone vs with feedback, with ``beambench compare``), each a column 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -68,7 +68,7 @@ def draw_tracking(results: list[TrackResult], titles: list[str], path: Path) -> 
         axf.plot(r.t, r.feedforward, color="0.4", lw=0.8, ls="--", label="feed-forward")
         axf.set_ylabel("drive (Hz)")
         axf.set_xlabel("time (s)")
-    seen: dict[str, object] = {}
+    seen: dict[str, Any] = {}
     for a in axes[:, 0]:  # one legend below the panels (inside, it hides the traces)
         for h, label in zip(*a.get_legend_handles_labels()):
             seen.setdefault(label, h)

@@ -87,6 +87,7 @@ def simulate_walker(base: dict, values: dict[str, float], frequencies: list[floa
     from beambench.sim.models.registry import make_beam_model
     from beambench.sim.scenes.walker import WalkerParams
     from beambench.sim.scenes.walker_batch import steady_speeds
+    from beambench.sim.settings import SimSettings
 
     params = _prior(base)
     beam = make_beam_model(base["model"], params)
@@ -95,10 +96,13 @@ def simulate_walker(base: dict, values: dict[str, float], frequencies: list[floa
         beam,
         frequencies,
         wp,
-        twist_deg=base["twist_deg"],
-        timestep=sim.get("timestep"),
-        settle_s=sim["settle_s"],
-        record_s=sim["record_s"],
+        settings=SimSettings(
+            settle_s=sim["settle_s"],
+            record_s=sim["record_s"],
+            twist_deg=base["twist_deg"],
+            timestep=sim.get("timestep"),
+            nthread=1,
+        ),
     )
     steps = [
         {"frequency_hz": float(f), "body_speed_mm_s": float(v), "body_height_mm": float(z)}
