@@ -269,3 +269,26 @@ def test_target_out_of_reach_is_refused_before_anything_moves(twin_map_session, 
     assert "\n" not in line and "track.segments[0].speed_mm_s" in line and "out of reach" in line
     assert "forward 0..+" in line and "backward -" in line
     assert not list(tmp_path.glob("*.h5"))
+
+
+def test_the_same_controller_drives_the_emulated_walker_through_the_real_drivers(twin_map_session, tmp_path):
+    """Real time: NatNet over UDP (y up, as Motive) and the ODrive over CAN; the controller cannot tell."""
+    from beambench.session.run import run_session
+    from beambench.sinks.hdf5 import read_session
+
+    map_path, speed_map = twin_map_session
+    target = 0.5 * speed_map.reach(60)[1]
+    text = _track_text(map_path, [(target, 4.0), (0.0, 1.5)])
+    path = tmp_path / "emu.h5"
+    assert run_session(parse_protocol(text), text, "emulated", path, show_progress=False).status == "completed"
+    s = read_session(path)
+    assert s.general["geometry"]["up_axis"] == "y"
+    tr, motor = s.streams["track"], s.streams["motor"]
+    t = (tr.host_time_ns - tr.host_time_ns[0]) * 1e-9
+    late = (t > 3.0) & (t < 4.0)  # (room for a receive stall of this busy host: hold, stand, walk again)
+    assert np.nanmean(tr.columns["measured_mm_s"][late]) > 0.3 * target, s.events  # forward along +x, y up
+    mt = (motor.host_time_ns - tr.host_time_ns[0]) * 1e-9
+    cmd = np.interp(mt, t, tr.columns["frequency_hz"])
+    k = (mt > 3.0) & (mt < 4.0)
+    assert np.median(np.abs(motor.columns["velocity_setpoint"][k] - cmd[k])) < 0.5  # the ODrive got each command
+    assert motor.columns["velocity_setpoint"][-1] == 0 and "idle" in set(s.events["kind"])
