@@ -86,9 +86,8 @@ def loadcells(
 
     The result goes to --out or to the per-user folder; the package's shipped calibration is never changed.
     """
-    from rich.console import Console
-
     from beambench.acquisition.capabilities import DeviceFault
+    from beambench.common.console import stderr_console
     from beambench.devices.loadcell.driver import DEFAULT_BAUDRATE, SerialLoadCells
 
     try:
@@ -104,7 +103,7 @@ def loadcells(
     if not emulate and port is None:
         port, baudrate, out = _wired_port(rig, baudrate, out)
     out = out or default_out(emulate)
-    console = Console(stderr=True)
+    console = stderr_console()
     ask = _asker(console, unattended=yes and load_list is not None)
     mcu = _emulated_mcu(console) if emulate else None
     if mcu is not None:

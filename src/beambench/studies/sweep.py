@@ -290,23 +290,16 @@ def make_tasks(spec: SweepSpec, jobs: list[Job], size: int) -> list[dict[str, An
 
 # ------------------------------------------------------------------------------------------- simulation
 def _beam(point: dict[str, Any]):
-    """The beam model of a point, with its stiffness/damping overrides applied."""
-    from dataclasses import replace
-
+    """The beam model of a point, with its stiffness/damping overrides applied (the beam's own overrides,
+    :data:`beambench.studies.unknowns.BEAM_OVERRIDES`, as the fit applies them)."""
     from beambench.sim.models.registry import default_params, is_rod, make_beam_model
+    from beambench.studies.unknowns import BEAM_OVERRIDES
 
     name = point["model"]
     params = default_params(name, point["params"])
-    if not is_rod(name):
-        if point.get("k") is not None:
-            params = replace(params, k=point["k"], k_twist=point["k"])
-        if point.get("b") is not None:
-            params = replace(params, b=point["b"], b_twist=point["b"])
-    else:
-        if point.get("youngs_modulus") is not None:
-            params = replace(params, material=replace(params.material, youngs_modulus=point["youngs_modulus"]))
-        if point.get("beta") is not None:
-            params = replace(params, beta=point["beta"])
+    for key in ("youngs_modulus", "beta") if is_rod(name) else ("k", "b"):
+        if point.get(key) is not None:
+            params = BEAM_OVERRIDES[key](params, point[key])
     return make_beam_model(name, params)
 
 
@@ -375,6 +368,7 @@ def _run_free_beam(task: dict[str, Any]) -> list[dict[str, Any]]:
 @_runs(CONTACT)
 def _run_contact(task: dict[str, Any]) -> list[dict[str, Any]]:
     from beambench.sim.scenes.contact_sweep import contact_sweep
+    from beambench.sim.settings import SimSettings
 
     rows: dict[int, dict[str, Any]] = {}
     groups: dict[str, list[tuple]] = {}
@@ -384,19 +378,16 @@ def _run_contact(task: dict[str, Any]) -> list[dict[str, Any]]:
     for key, jobs in groups.items():
         point = json.loads(key)
         freqs = [j[3] for j in jobs]
-        r = contact_sweep(
-            _beam(point),
-            freqs,
-            point["timestep"],
-            twist_deg=point["twist_deg"] * point["chirality"],
-            gap_m=point["gap_mm"] * 1e-3,
-            amplitude=point["amplitude_mm"] * 1e-3,
+        sim = SimSettings(
             settle_s=task["settle_s"],
             record_s=task["record_s"],
+            twist_deg=point["twist_deg"] * point["chirality"],
+            amplitude_m=point["amplitude_mm"] * 1e-3,
             integrator=point["integrator"],
-            sample_dt=task["sample_dt"],
+            timestep=point["timestep"],
             nthread=1,
         )
+        r = contact_sweep(_beam(point), freqs, sim, gap_m=point["gap_mm"] * 1e-3, sample_dt=task["sample_dt"])
         for i, (index, jid, p, f) in enumerate(jobs):
             ok = bool(r.ok[i])
             metrics = _contact_metrics(r, i, f, point["amplitude_mm"] * 1e-3) if ok else {}
