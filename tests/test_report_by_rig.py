@@ -24,7 +24,7 @@ from beambench.cli import app
 runner = CliRunner()
 PROTOCOLS = Path(__file__).resolve().parents[1] / "protocols"
 CONTACT_ONLY = {"contact_frequency", "forces", "contact_direction"}
-WALKER_ONLY = {"walking_speed", "body_trajectory", "gait"}
+WALKER_ONLY = {"walking_speed", "body_trajectory", "gait", "tracking"}
 
 
 def _short(name: str, tmp, **changes: object) -> str:
@@ -92,7 +92,7 @@ def test_a_registry_refuses_unknown_rigs_and_a_second_figure_of_the_same_name():
 
 def test_walker_report_has_walker_figures_and_no_contact_rig_figure(sessions, tmp_path):
     pngs, html = _report(sessions["walker"], tmp_path)
-    assert WALKER_ONLY | {"trajectories", "ellipse", "frequency"} <= pngs
+    assert (WALKER_ONLY - {"tracking"}) | {"trajectories", "ellipse", "frequency"} <= pngs  # tracking: track: runs
     assert not pngs & (CONTACT_ONLY | {"release_decay", "sync"})  # sync: the sim's clock residuals are flat
     assert "No contact anywhere" not in html and "contact regime" not in html
     assert "body speed (mm/s)" in html

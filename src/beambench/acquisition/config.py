@@ -167,6 +167,48 @@ class Monitors(_Model):
     max_pause_s: float = Field(30.0, gt=0, le=3600)  # a longer pause stops the run (motor idle, data saved)
 
 
+class TrackSegment(_Model):
+    """One segment of a speed profile: a target speed along the forward axis (mm/s; the sign is the direction,
+    0 stands the walker) held for ``hold_s``."""
+
+    speed_mm_s: float = Field(ge=-1000, le=1000)
+    hold_s: float = Field(gt=0, le=3600)
+
+
+class TrackControl(_Model):
+    """The speed controller's settings (:mod:`beambench.acquisition.tracking`); the defaults suit the walker."""
+
+    feedback: bool = True  # false: feed-forward from the map alone
+    kp: float = Field(1.5, ge=0, le=10)  # proportional gain on the speed error (mm/s per mm/s)
+    ki_per_s: float = Field(2.0, ge=0, le=50)  # integral gain (1/s)
+    # the integrator runs only while |error| <= integrate_within × |target| + 10 mm/s (not during big transients)
+    integrate_within: float = Field(0.25, ge=0, le=10)
+    rate_hz_s: float = Field(45.0, gt=0, le=1000)  # frequency rate limit (Hz/s): the ODrive ramps at 50 turn/s²
+    control_s: float = Field(0.05, ge=0.005, le=1)  # control period (rig time)
+    window_periods: float = Field(4.0, gt=0, le=100)  # measured speed: slope over this many drive periods
+    min_window_s: float = Field(0.15, gt=0, le=10)
+    max_window_s: float = Field(0.5, gt=0, le=10)
+
+
+class Track(_Model):
+    """``track:``: walk a speed profile from a speed map. ``map``: a walker session (``.h5``), its ``steps.csv``,
+    or ``twin`` (run this protocol's ``sweep`` on the sim first and use its speeds)."""
+
+    map: str = Field(min_length=1, max_length=4096)
+    segments: list[TrackSegment] = Field(min_length=1, max_length=MAX_STEPS)
+    settle_s: float = Field(1.0, ge=0, le=60)  # each segment's settling time before its record window (analysis)
+    control: TrackControl = TrackControl()
+
+    @model_validator(mode="after")
+    def _holds_exceed_settling(self) -> Track:
+        for i, seg in enumerate(self.segments):
+            if seg.hold_s <= self.settle_s:
+                raise ValueError(f"segments[{i}].hold_s = {seg.hold_s:g} s must exceed settle_s = {self.settle_s:g} s")
+        if self.control.min_window_s > self.control.max_window_s:
+            raise ValueError("control.min_window_s must be <= control.max_window_s")
+        return self
+
+
 class Output(_Model):
     """Session file naming; ``name`` is a template with ``{protocol}``, ``{rig}``, ``{backend}``, ``{date}``."""
 
@@ -195,7 +237,7 @@ class Protocol(_Model):
     description: str = Field("", max_length=20_000)
     rig: RigKind = "contact"
     backend: Backend = "sim"
-    sweep: Sweep
+    sweep: Sweep | None = None  # required, except with track: and a map file (track: map: twin sweeps it)
     settle_s: float = Field(2.0, ge=0, le=600)
     record_s: float = Field(5.0, gt=0, le=3600)
     amplitude_mm: float = Field(2.0, gt=0, le=1000)
@@ -205,10 +247,18 @@ class Protocol(_Model):
     monitors: Monitors = Monitors()
     output: Output = Output()
     rig_file: str | None = Field(None, max_length=4096)
+    track: Track | None = None  # walk a speed profile instead of sweeping (rig: walker)
 
     @model_validator(mode="after")
     def _driven_rigs_need_frequencies(self) -> Protocol:
-        if scene_info(self.rig).driven and min(self.sweep.values()) <= 0:
+        if self.track is not None:
+            if self.rig != "walker":
+                raise ValueError(f"track: applies to rig: walker only (this protocol is rig: {self.rig})")
+            if self.track.map == "twin" and self.sweep is None:
+                raise ValueError("track: map: twin needs a sweep: (the twin's own speed map is measured on it)")
+        elif self.sweep is None:
+            raise ValueError("sweep: Field required (or a track: section with a map file)")
+        if self.sweep is not None and scene_info(self.rig).driven and min(self.sweep.values()) <= 0:
             undriven = " or ".join(n for n in runnable_names() if not scene_info(n).driven)
             raise ValueError(f"sweep: frequencies must be > 0 Hz on the {self.rig} rig (0 is for rig: {undriven})")
         return self
@@ -216,7 +266,7 @@ class Protocol(_Model):
     def limit_violations(self) -> list[tuple[str, Any, str]]:
         """(field, value, reason) for every commanded value over its limit."""
         out: list[tuple[str, Any, str]] = []
-        fmax = max(self.sweep.values())
+        fmax = max(self.sweep.values()) if self.sweep is not None else 0.0
         if fmax > self.limits.max_frequency_hz:
             out.append(("sweep", fmax, f"exceeds limits.max_frequency_hz = {self.limits.max_frequency_hz:g} Hz"))
         if self.amplitude_mm > self.limits.max_amplitude_mm:
@@ -244,12 +294,24 @@ def _not_a_sweep_file(data: Any, file: str) -> None:
         )
 
 
+def _sweep_or_track(data: Any, file: str) -> None:
+    """The one-line errors of a missing ``sweep:`` (the model's own check would name the top level instead)."""
+    if not isinstance(data, dict) or "sweep" in data:
+        return
+    track = data.get("track")
+    if not isinstance(track, dict):
+        raise ConfigError(file, "sweep", _MISSING, "Field required (or a track: section with a map file)")
+    if track.get("map") == "twin":
+        raise ConfigError(file, "sweep", _MISSING, "Field required: track: map: twin measures its map on this sweep")
+
+
 def parse_protocol(text: str, file: str = "<protocol>") -> Protocol:
     """Parse and validate protocol YAML text; raise :class:`ConfigError` naming the first problem."""
     data = parse_yaml(text, file)
     if not isinstance(data, dict):
         raise ConfigError(file, "(top level)", _MISSING, "expected a mapping of protocol fields")
     _not_a_sweep_file(data, file)
+    _sweep_or_track(data, file)
     return validate(Protocol, data, file, what="protocol fields")
 
 
@@ -257,6 +319,7 @@ def load_protocol(path: str | Path) -> tuple[Protocol, str]:
     """Read a protocol file; returns the validated model and its text (stored verbatim in the session)."""
     data, text = load_yaml_file(path)
     _not_a_sweep_file(data, str(path))
+    _sweep_or_track(data, str(path))
     return validate(Protocol, data, str(path), what="protocol fields"), text
 
 

@@ -26,7 +26,12 @@ class Step:
 
 
 def plan(protocol: Protocol) -> list[Step]:
-    """The steps of a protocol, in order."""
+    """The steps of a protocol, in order. With ``track:`` one step per segment: its frequency (0 here) is chosen
+    by the speed controller during the run, the settle window is ``track.settle_s``, the record window the rest."""
+    if protocol.track is not None:
+        settle = protocol.track.settle_s
+        return [Step(i, 0.0, settle, seg.hold_s - settle) for i, seg in enumerate(protocol.track.segments)]
+    assert protocol.sweep is not None  # the model requires one without track:
     return [Step(i, f, protocol.settle_s, protocol.record_s) for i, f in enumerate(protocol.sweep.values())]
 
 
@@ -54,13 +59,14 @@ def summary(protocol: Protocol, backend: str) -> dict[str, object]:
         "backend": backend,
         "steps": len(steps),
         "frequencies_hz": freqs,
-        "settle_s": protocol.settle_s,
+        "settle_s": protocol.track.settle_s if protocol.track else protocol.settle_s,
         "record_s": protocol.record_s,
         "total_duration_s": sum(s.duration_s for s in steps),
         "max_frequency_hz": max(freqs),
         "amplitude_mm": protocol.amplitude_mm,
         "release_load_g": protocol.release.load_g,
         "limits": protocol.limits.model_dump(),
+        "targets_mm_s": [seg.speed_mm_s for seg in protocol.track.segments] if protocol.track else None,
     }
 
 

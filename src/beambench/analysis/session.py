@@ -38,6 +38,7 @@ from beambench.analysis.sync import (
     sync_edge_check,
     timeline,
 )
+from beambench.analysis.tracking import TrackResult, track_result
 from beambench.analysis.trajectory import (
     Ellipse,
     StageFrame,
@@ -104,6 +105,7 @@ class SessionAnalysis:
     residual_t_s: dict[str, np.ndarray] = field(default_factory=dict)
     edge_check: EdgeCheck | None = None
     name: str = ""
+    track: TrackResult | None = None  # speed tracking (track: sessions), beambench.analysis.tracking
 
     @property
     def sync_table(self) -> pd.DataFrame:
@@ -393,6 +395,11 @@ def analyze_session(
         results.append(_analyze_step(srow, a, b, streams.window(a, b) if 0 <= a < b else None, ctx))
         if progress is not None:
             progress(k + 1, n_steps)
+    table = pd.DataFrame([r.row for r in results])
+    body = streams.markers.get(options.body_marker)
+    track = track_result(session.streams.get("track"), session.steps, streams.mocap_t, body, forward)
+    if track is not None and track.segments:  # per-segment target, error, settling and direction times
+        table = table.merge(pd.DataFrame(track.segments), on="step", how="left")
     return SessionAnalysis(
         Path(session.path) if getattr(session, "path", None) is not None else None,
         rig,
@@ -402,12 +409,13 @@ def analyze_session(
         fits,
         delay,
         frame,
-        pd.DataFrame([r.row for r in results]),
+        table,
         results,
         cal.source,
         residuals,
         residual_t,
         _edge_check(session, fits),
+        track=track,
     )
 
 

@@ -21,7 +21,8 @@ def build_rig(
     if backend == "sim":
         from beambench.backends.sim import build_sim_rig
 
-        return build_sim_rig(protocol, realtime=realtime)
+        # closed-loop tracking commands every few ms: a chunk computed ahead would only be undone
+        return build_sim_rig(protocol, realtime=realtime, prefetch=protocol.track is None)
     if backend == "emulated":
         from beambench.backends.emulated import build_emulated_rig
 

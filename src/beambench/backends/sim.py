@@ -106,7 +106,8 @@ def _contact_plan(protocol: Protocol):
     else:
         models, integrators = [sim.model], [sim.integrator]
     try:
-        return select.plan_sweep(protocol.rig, tol, protocol.sweep.values(), models=models, integrators=integrators)
+        freqs = protocol.sweep.values() if protocol.sweep is not None else []
+        return select.plan_sweep(protocol.rig, tol, freqs, models=models, integrators=integrators)
     except select.SelectionError as exc:
         if auto:
             raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None

@@ -199,15 +199,24 @@ def print_dry_run(s: dict, expected: str) -> None:
 
     t = Table(title=f"Dry run: {s['protocol']} on the {s['rig']} rig ({s['backend']} backend) — nothing moves")
     t.add_column("step", justify="right")
-    t.add_column("frequency (Hz)", justify="right")
-    t.add_column("settle + record (s)", justify="right")
-    for i, f in enumerate(s["frequencies_hz"]):
-        t.add_row(str(i), f"{f:g}", f"{s['settle_s']:g} + {s['record_s']:g}")
+    targets = s.get("targets_mm_s")
+    if targets:  # track: the controller picks the frequencies from the map during the run
+        t.add_column("target speed (mm/s)", justify="right")
+        for i, v in enumerate(targets):
+            t.add_row(str(i), f"{v:+g}")
+    else:
+        t.add_column("frequency (Hz)", justify="right")
+        t.add_column("settle + record (s)", justify="right")
+        for i, f in enumerate(s["frequencies_hz"]):
+            t.add_row(str(i), f"{f:g}", f"{s['settle_s']:g} + {s['record_s']:g}")
     con = Console(soft_wrap=True)  # the dry run's table is its result: stdout
     con.print(t)
     lim = s["limits"]
     if s["rig"] == "release":  # the release test drives nothing: its load is what it is about
         drive = f"no drive: a {s['release_load_g']:g} g tip load released"
+    elif targets:
+        drive = f"max frequency: chosen by the speed controller, <= {lim['max_frequency_hz']:g} Hz   "
+        drive += f"amplitude: {s['amplitude_mm']:g} mm"
     else:
         drive = f"max frequency: {s['max_frequency_hz']:g} Hz   amplitude: {s['amplitude_mm']:g} mm"
     con.print(

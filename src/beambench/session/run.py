@@ -28,6 +28,7 @@ from beambench.common.console import stderr_console
 from beambench.common.errors import BeambenchError
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
+from beambench.session.track_map import track_setup
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
 
@@ -92,6 +93,7 @@ def _open_rig(req: RunRequest) -> Rig:
 def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     protocol, path, backend = req.protocol, req.path, req.backend
     check_protocol(protocol, "<protocol>", backend, req.can_log)
+    tracking = track_setup(protocol, path, req.show_progress) if protocol.track is not None else None
     if req.rerun_mode == "save":
         _reserve(path.with_suffix(".rrd"))
     rig = _open_rig(req)
@@ -107,6 +109,9 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
             **provenance(),
         }
         specs = [s.describe() for s in rig.streams]
+        if tracking is not None:  # the controller's decisions are a stream; it reads the mocap as a sink
+            specs.append(tracking.spec)
+            general["track_map"] = tracking.map_info
         frames = [s.frame for s in specs if s.frame is not None]
         if frames:  # the mocap's world axes, which analysis needs (Motive: y up)
             general["geometry"] = frames[0].as_dict()
@@ -115,6 +120,8 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         silence = rig.silence_timeouts() if isinstance(rig, HasSilenceTimeouts) else None
         monitors = build_monitors(protocol, [s.name for s in specs], silence)
         sinks += monitors
+        if tracking is not None:
+            sinks.append(tracking.controller)
         if req.rerun_mode != "off":
             from beambench.sinks.rerun_view import RerunSink
 
@@ -145,16 +152,20 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         # (each poll's HDF5 appends and flush cost ~10 ms; the data do not depend on the poll: the sim clock advances
         # the physics in its own chunks of at most 0.5 s either way).
         poll_s = 1.0 if backend == "sim" and not req.realtime else 0.1
-        runner = Runner(
-            rig,
-            hub,
-            steps,
-            motor_limits(protocol),
-            poll_s=poll_s,
-            on_progress=on_progress,
-            monitors=[*monitors],
-            max_pause_s=protocol.monitors.max_pause_s,
-            stop=stop,
+        runner: Runner = (
+            tracking.runner(rig, hub, steps, on_progress, stop)
+            if tracking is not None
+            else Runner(
+                rig,
+                hub,
+                steps,
+                motor_limits(protocol),
+                poll_s=poll_s,
+                on_progress=on_progress,
+                monitors=[*monitors],
+                max_pause_s=protocol.monitors.max_pause_s,
+                stop=stop,
+            )
         )
         result = runner.run()
     if isinstance(rig, ReportsAfterRun) and result.status != "failed":

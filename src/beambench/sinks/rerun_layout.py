@@ -22,6 +22,7 @@ TIMELINE = "session_time"
 FORCE_WINDOW_S = 2.0  # 1 kHz plate forces: 2 s holds a few cycles of a slow step and stays readable at 40 Hz
 LOADCELL_WINDOW_S = 2.0
 DRIVE_WINDOW_S = 60.0  # the staircase of the last several steps
+TRACK_WINDOW_S = 30.0  # the speed controller: several control windows of the walker's body speed
 CURRENT_WINDOW_S = 10.0
 BODY_WINDOW_S = 30.0
 
@@ -59,6 +60,7 @@ class RigLayout:
     loadcell_channels: tuple[str, ...]
     motor: bool
     mocap_rate_hz: float = 360.0
+    track: bool = False  # a speed-tracking run (beambench.acquisition.tracking): target, measured, commanded
 
     @property
     def panels(self) -> tuple[Panel, ...]:
@@ -92,6 +94,27 @@ class RigLayout:
                     FORCE_WINDOW_S,
                 )
             )
+        if self.track:
+            out.append(
+                Panel(
+                    "Speed tracking (mm/s): target vs measured",
+                    (
+                        Series("track/target_mm_s", "target (mm/s)", (150, 150, 150)),
+                        Series("track/measured_mm_s", "measured (mm/s)", (60, 200, 90)),
+                    ),
+                    TRACK_WINDOW_S,
+                )
+            )
+            out.append(
+                Panel(
+                    "Commanded drive frequency (Hz)",
+                    (
+                        Series("track/feedforward_hz", "map's frequency (Hz)", (150, 150, 150)),
+                        Series("track/frequency_hz", "commanded (Hz)", (255, 140, 0)),
+                    ),
+                    TRACK_WINDOW_S,
+                )
+            )
         if self.motor:
             out.append(
                 Panel("Motor current (A)", (Series("motor/iq_measured", "Iq (A)", (200, 120, 255)),), CURRENT_WINDOW_S)
@@ -115,6 +138,8 @@ class RigLayout:
             return self.plate and column == "data"
         if stream == "motor":
             return column in ("velocity", "velocity_setpoint", "iq_measured")
+        if stream == "track":
+            return self.track and column in ("target_mm_s", "measured_mm_s", "feedforward_hz", "frequency_hz")
         return False
 
     def up_vector(self) -> np.ndarray:
@@ -169,6 +194,7 @@ def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
         loadcell_channels=channels,
         motor="motor" in by_name,
         mocap_rate_hz=mocap.rate_hz if mocap is not None and mocap.rate_hz > 0 else 360.0,
+        track="track" in by_name,
     )
 
 

@@ -13,6 +13,7 @@ from beambench.analysis.figures import (  # noqa: F401  (each module registers i
     gait,
     release_decay,
     sync,
+    tracking,
     trajectories,
     walking_speed,
 )

@@ -133,7 +133,7 @@ def contact_base(targets: Targets) -> CalibrationBase:
     """The fixed part of the contact twin: the prior parameter set (the session's, else the protocol default),
     model, and the session's protocol (else the shipped contact sweep): its twist, amplitude, integrator,
     windows, noise and seed, and its sweep extended to the targets (how the written protocol runs)."""
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.config import Sweep, parse_protocol
     from beambench.common.resources import shipped_dir
 
     text = targets.protocol_text or (shipped_dir("protocols") / "contact_sweep.yaml").read_text()
@@ -145,7 +145,7 @@ def contact_base(targets: Targets) -> CalibrationBase:
     params = targets.prior.get("params", proto.sim.params)
     sweep = extended_sweep(yaml.safe_load(text), targets).get("sweep", {})
     try:
-        freqs = type(proto.sweep).model_validate(sweep).values()
+        freqs = Sweep.model_validate(sweep).values()
     except ValueError as exc:
         raise CalibrationInputError(f"{targets.source}: sweep: {exc}") from None
     sim = SimSettings(

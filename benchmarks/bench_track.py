@@ -1,0 +1,117 @@
+"""Benchmark: speed tracking on the sim walker against issue 25's goals, each from one run.
+
+    python benchmarks/bench_track.py [--out DIR] [--mismatch foot_mass=0.0033]
+
+1. ``protocols/walker_track.yaml`` as shipped (``map: twin``: its own sweep first, then the profile).
+2. A map from a *different* twin (``--mismatch``: a walker parameter changed, default the foot 10 % heavier): its
+   sweep (the shipped protocol's) with that parameter set, then the same profile on the calibrated twin with
+   feed-forward alone and with feedback.
+
+Per run and segment: target, mean speed, RMS error after ``track.settle_s`` against its tolerance (15 % of
+|target|, 10 mm/s below 60 mm/s), settling and direction times, highest frequency; a verdict per goal. Writes
+``tracking.png`` (run 1) and ``tracking_ff_vs_fb.png`` (run 2) into ``--out`` (default: a temporary folder).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _run(text: str, path: Path):
+    from beambench.acquisition.config import parse_protocol
+    from beambench.analysis.session import analyze_session
+    from beambench.session.run import run_session
+    from beambench.sinks.hdf5 import read_session
+
+    t0 = time.perf_counter()
+    result = run_session(parse_protocol(text), text, "sim", path, show_progress=False)
+    wall = time.perf_counter() - t0
+    if result.status != "completed":
+        raise SystemExit(f"{path.name}: run {result.status}: {result.message}")
+    return analyze_session(read_session(path)).track, wall
+
+
+def _verdict(name: str, track, limit_hz: float, wall: float) -> bool:
+    print(f"\n{name}  ({wall:.0f} s wall)")
+    print(" seg  target   mean    RMS  tol  settle  direction  max Hz  goal")
+    ok_all = True
+    for s in track.segments:
+        ok = s["speed_error_rms_mm_s"] <= s["tolerance_mm_s"] and s["max_frequency_hz"] <= limit_hz
+        if s["target_speed_mm_s"] != 0:
+            ok &= s["direction_s"] <= 1.5 if math.isfinite(s["direction_s"]) else False
+        ok_all &= ok
+        print(
+            f" {s['step']:3d} {s['target_speed_mm_s']:+7.1f} {s['mean_speed_mm_s']:+7.1f} {s['speed_error_rms_mm_s']:6.1f} "
+            f"{s['tolerance_mm_s']:4.0f} {s['settling_s']:7.2f} {s['direction_s']:10.2f} {s['max_frequency_hz']:7.1f}  "
+            f"{'met' if ok else 'MISSED'}"
+        )
+    print(
+        f" goals (RMS <= tolerance after settling, direction <= 1.5 s, <= {limit_hz:g} Hz): {'met' if ok_all else 'MISSED'}"
+    )
+    return ok_all
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--mismatch", default="foot_mass=0.0033", help="walker parameter of the other twin, NAME=VALUE")
+    args = ap.parse_args()
+    sys.path.insert(0, str(ROOT / "src"))
+    out = args.out or Path(tempfile.mkdtemp(prefix="bench_track_"))
+    out.mkdir(parents=True, exist_ok=True)
+    user = out / "user"
+    (user / "sim_backend").mkdir(parents=True, exist_ok=True)
+    os.environ["BEAMBENCH_USER_DIR"] = str(user)  # the other twin's parameter set lives here
+    from beambench.analysis.figures.tracking import draw_tracking
+    from beambench.session.track_map import map_from_session
+
+    shipped = yaml.safe_load((ROOT / "protocols" / "walker_track.yaml").read_text())
+    limit = float(shipped["limits"]["max_frequency_hz"])
+    own, wall = _run(yaml.safe_dump(shipped), out / "own.h5")
+    ok = _verdict("walker_track as shipped (map: twin)", own, limit, wall)
+    draw_tracking([own], ["beambench run walker_track (map: twin)"], out / "tracking.png")
+
+    name, value = args.mismatch.split("=")
+    params = yaml.safe_load((ROOT / "sim_backend" / "prb3_paper.yaml").read_text())
+    params.update(name="other_twin", rig={name: float(value)})
+    (user / "sim_backend" / "prb3_other_twin.yaml").write_text(yaml.safe_dump(params))
+    sweep = {k: v for k, v in shipped.items() if k != "track"}
+    sweep["sim"] = {**shipped["sim"], "params": "other_twin"}
+    from beambench.acquisition.config import parse_protocol
+    from beambench.session.run import run_session
+
+    text = yaml.safe_dump(sweep)
+    if run_session(parse_protocol(text), text, "sim", out / "other_map.h5", show_progress=False).status != "completed":
+        raise SystemExit("the other twin's sweep did not complete")
+    other = map_from_session(out / "other_map.h5")
+    print(f"\nother twin ({args.mismatch}) map reach: {other.reach(limit)}")
+    results = []
+    for feedback in (False, True):
+        p = {**shipped, "track": {**shipped["track"], "map": str(out / "other_map.h5")}}
+        p["track"]["control"] = {**shipped["track"].get("control", {}), "feedback": feedback}
+        track, wall = _run(yaml.safe_dump(p), out / f"other_{'fb' if feedback else 'ff'}.h5")
+        label = "with feedback" if feedback else "feed-forward alone"
+        ok_run = _verdict(f"map from the other twin, {label}", track, limit, wall)
+        ok &= ok_run if feedback else True
+        results.append(track)
+    draw_tracking(
+        results,
+        [f"map from a twin with {args.mismatch}: feed-forward alone", "same map: with feedback"],
+        out / "tracking_ff_vs_fb.png",
+    )
+    print(f"\nfigures: {out / 'tracking.png'}, {out / 'tracking_ff_vs_fb.png'}")
+    print(f"verdict: {'goals met' if ok else 'goals MISSED'} (own map with feedback; other map with feedback)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,260 @@
+"""Closed-loop walking speed: feed-forward from a speed map, feedback from the mocap body speed (backend-free).
+
+Each control tick (``control.control_s`` of rig time) :meth:`TrackController.update` decides the drive frequency:
+
+- **band**: the map's band that reaches the target (:mod:`beambench.acquisition.speed_map`), kept while it does;
+  a target of the other sign switches band (and resets the integrator). A target of 0 stands the walker at a
+  frequency whose speed is ~0: the zero crossing of the map's run through zero that holds the band in use (the
+  walker keeps stepping in place; feedback holds it there); from rest (no band yet) it stands at 0 Hz (the motor
+  holds the crank still).
+- **feed-forward**: the band's frequency whose measured speed is the target.
+- **feedback** (PI, in speed units): ``u = target + kp·e + I`` with ``e = target − measured``, then the band's
+  frequency for ``u``. Working in speed and inverting through the map keeps the loop gain near ``kp`` however
+  steep the map is locally. ``u`` is clipped to the band's speeds (its frequency edges); the integrator does not
+  grow while clipped, while the rate limit holds the frequency back, or while the error is a transient's (larger
+  than ``integrate_within`` × |target| + 10 mm/s): anti-windup.
+- **rate limit**: the commanded frequency moves by at most ``rate_hz_s`` per second (the motor's ramp follows).
+- **measured speed**: least-squares slope of the body marker along the forward axis over the last
+  ``window_periods`` drive periods (within ``min_window_s``..``max_window_s``), against the mocap's own timestamps.
+- **mocap lost** (no body sample for a tick): the frequency is held and the integrator frozen; after
+  ``mocap_lost_s`` without data the walker stands (0 Hz) until the body is seen again.
+
+Every decision is a row of the ``track`` stream (:func:`track_spec`), which the hub hands to the session file and
+the live view like any other stream. The controller is itself a hub sink: it reads the mocap batches going by.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
+from beambench.acquisition.config import TrackControl
+from beambench.acquisition.speed_map import Band, SpeedMap
+from beambench.acquisition.streams import MOCAP
+
+TRACK = "track"
+INTEGRATE_ABS_MM_S = 10.0  # the integrator's error band: control.integrate_within × |target| + this
+BODY_MARKER = "body"
+
+# modes (the ``mode`` column)
+TRACKING, HOLDING, STANDING, LOST = 0, 1, 2, 3
+MODES = {TRACKING: "tracking", HOLDING: "mocap lost: holding", STANDING: "standing", LOST: "mocap lost: standing"}
+
+
+def track_spec(control_s: float) -> StreamSpec:
+    """The controller's decisions, one row per control tick."""
+    f = "float64"
+    return StreamSpec(
+        TRACK,
+        1.0 / control_s,
+        {
+            "target_mm_s": ColumnSpec((), f, "mm/s", (), "target speed along the forward axis"),
+            "measured_mm_s": ColumnSpec((), f, "mm/s", (), "windowed body speed (NaN: none)"),
+            "feedforward_hz": ColumnSpec((), f, "Hz", (), "the map's frequency for the target"),
+            "frequency_hz": ColumnSpec((), f, "Hz", (), "commanded drive frequency"),
+            "integral_mm_s": ColumnSpec((), f, "mm/s", (), "feedback integrator"),
+            "band": ColumnSpec((), "int32", "", (), "band index in the map (-1: none, standing)"),
+            "mode": ColumnSpec((), "int32", "", (), "0 tracking, 1 mocap lost (holding), 2 standing, 3 lost (stand)"),
+            "segment": ColumnSpec((), "int32", "", (), "profile segment"),
+        },
+        description="speed controller decisions",
+    )
+
+
+def _axis(name: str) -> np.ndarray:
+    v = np.zeros(3)
+    v["xyz".index(name.lstrip("+-"))] = -1.0 if name.startswith("-") else 1.0
+    return v
+
+
+class SpeedEstimator:
+    """The body's forward position as it arrives; :meth:`speed` fits the slope over a recent window.
+
+    Samples are chosen by host receive time (what "recent" means to the controller) and fitted against the mocap's
+    own timestamps (``device_time``: exposure times at a steady 360 Hz), so receive jitter on a busy host or network
+    does not enter the speed."""
+
+    def __init__(self, keep_s: float) -> None:
+        self.keep_ns = int(keep_s * 1e9)
+        self._t: deque[int] = deque()
+        self._d: deque[float] = deque()
+        self._x: deque[float] = deque()
+
+    def add(self, t_ns: np.ndarray, x_m: np.ndarray, device_s: np.ndarray | None = None) -> None:
+        dev = (t_ns * 1e-9) if device_s is None else device_s
+        for t, d, x in zip(t_ns.tolist(), np.asarray(dev, float).tolist(), x_m.tolist()):
+            if math.isfinite(x) and math.isfinite(d) and (not self._t or t >= self._t[-1]):
+                self._t.append(int(t))
+                self._d.append(float(d))
+                self._x.append(float(x))
+        while self._t and self._t[-1] - self._t[0] > self.keep_ns:
+            self._t.popleft()
+            self._d.popleft()
+            self._x.popleft()
+
+    @property
+    def last_ns(self) -> int | None:
+        return self._t[-1] if self._t else None
+
+    def speed(self, now_ns: int, window_s: float) -> float:
+        """Slope (mm/s) over the samples received in the last ``window_s`` before ``now_ns``; NaN if their
+        timestamps cover less than 80 % of it."""
+        if not self._t:
+            return math.nan
+        t = np.asarray(self._t, np.int64)
+        k = t >= now_ns - int(window_s * 1e9)
+        d = np.asarray(self._d)[k]
+        if k.sum() < 3 or np.ptp(d) < 0.8 * window_s:
+            return math.nan
+        xs = np.asarray(self._x)[k] * 1e3
+        dc = d - d.mean()
+        return float(dc @ (xs - xs.mean()) / (dc @ dc))
+
+
+@dataclass
+class Decision:
+    """One control tick's outcome (a row of the ``track`` stream)."""
+
+    t_ns: int
+    target_mm_s: float
+    measured_mm_s: float
+    feedforward_hz: float
+    frequency_hz: float
+    integral_mm_s: float
+    band: int
+    mode: int
+    segment: int
+
+
+class TrackController:
+    """Speed → frequency, every tick (see the module docstring); a hub sink that reads the mocap's body marker."""
+
+    name = "track_controller"
+
+    def __init__(
+        self, speed_map: SpeedMap, control: TrackControl, max_frequency_hz: float, mocap_lost_s: float
+    ) -> None:
+        self.map, self.c = speed_map, control
+        self.max_hz = max_frequency_hz
+        self.lost_ns = int(mocap_lost_s * 1e9)
+        self.est = SpeedEstimator(control.max_window_s + 0.5)
+        self._body: int | None = None
+        self._fwd = _axis("x")
+        self.target = 0.0
+        self.segment = -1
+        self.band: Band | None = None
+        self.integral = 0.0
+        self.f_cmd = 0.0
+        self._last_tick_ns: int | None = None
+        self._lost_since: int | None = None
+
+    # --- sink -----------------------------------------------------------------------------------------
+    def open(self, specs: list[StreamSpec]) -> None:
+        mocap = next((s for s in specs if s.name == MOCAP), None)
+        if mocap is None:
+            raise ValueError("speed tracking needs a mocap stream")
+        labels = mocap.columns["data"].labels
+        if BODY_MARKER not in labels:
+            raise ValueError(f"speed tracking needs a {BODY_MARKER!r} marker (mocap has {', '.join(labels)})")
+        self._body = labels.index(BODY_MARKER)
+        if mocap.frame is not None:
+            self._fwd = _axis(mocap.frame.forward_axis)
+
+    def write(self, batch: Batch) -> None:
+        if batch.stream != MOCAP or not len(batch) or self._body is None:
+            return
+        pos = np.asarray(batch.columns["data"], float)[:, self._body]
+        x = pos @ self._fwd
+        occ = batch.columns.get("occluded")
+        if occ is not None:
+            x = np.where(np.asarray(occ)[:, self._body], np.nan, x)
+        self.est.add(np.asarray(batch.host_time_ns, np.int64), x, np.asarray(batch.device_time, float))
+
+    def event(self, host_time_ns: int, kind: str, message: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    # --- control --------------------------------------------------------------------------------------
+    def set_target(self, speed_mm_s: float, segment: int) -> float:
+        """A new segment: choose its band (a sign change switches band and resets the integrator); returns the
+        feed-forward frequency (0 to stand)."""
+        if speed_mm_s == 0:
+            band = self.map.stand_band(self.band, self.max_hz)
+        else:
+            band = self.map.band_for(speed_mm_s, self.max_hz, self.band)
+        if band is None and speed_mm_s != 0:
+            raise ValueError(f"target {speed_mm_s:g} mm/s: out of reach of the speed map")
+        if band is None or self.band is None or band.index != self.band.index:
+            self.integral = 0.0
+        self.band, self.target, self.segment = band, float(speed_mm_s), segment
+        return self.feedforward()
+
+    def feedforward(self) -> float:
+        return 0.0 if self.band is None else min(self.band.frequency_for(self.target), self.max_hz)
+
+    def window_s(self) -> float:
+        f = max(self.f_cmd, 1e-6)
+        return min(max(self.c.window_periods / f, self.c.min_window_s), self.c.max_window_s)
+
+    def update(self, now_ns: int) -> Decision:
+        """One tick at rig time ``now_ns``: the next commanded frequency (also in :attr:`f_cmd`)."""
+        dt = self.c.control_s if self._last_tick_ns is None else max((now_ns - self._last_tick_ns) * 1e-9, 0.0)
+        self._last_tick_ns = now_ns
+        ff = self.feedforward()
+        measured = self.est.speed(now_ns, self.window_s())
+        last = self.est.last_ns
+        fresh = last is not None and now_ns - last <= max(int(2 * self.c.control_s * 1e9), int(0.05e9))
+        if fresh:
+            self._lost_since = None
+        elif self._lost_since is None:
+            self._lost_since = last if last is not None else now_ns
+        lost_for = 0 if self._lost_since is None else now_ns - self._lost_since
+        if not fresh and lost_for > self.lost_ns:
+            self.f_cmd, mode = 0.0, LOST  # stand: never drive blind
+        elif not fresh:
+            mode = HOLDING  # hold the last frequency, the integrator frozen
+        elif self.band is None:
+            self.f_cmd, mode = self._rate_limited(0.0, dt), STANDING
+        else:
+            mode = TRACKING
+            self.f_cmd = self._rate_limited(self._desired(measured, dt), dt)
+        band = -1 if self.band is None else self.band.index
+        return Decision(now_ns, self.target, measured, ff, self.f_cmd, self.integral, band, mode, self.segment)
+
+    def _desired(self, measured: float, dt: float) -> float:
+        band = self.band
+        assert band is not None
+        if not self.c.feedback or not math.isfinite(measured):
+            return min(band.frequency_for(self.target + self.integral), self.max_hz)
+        e = self.target - measured
+        u = self.target + self.c.kp * e + self.integral
+        clipped = band.clip(u)
+        f_des = min(band.frequency_for(clipped), self.max_hz)
+        held_back = abs(f_des - self.f_cmd) > self.c.rate_hz_s * dt + 1e-9
+        saturated = (u > clipped and e > 0) or (u < clipped and e < 0) or (f_des >= self.max_hz and e * band.sign > 0)
+        transient = abs(e) > self.c.integrate_within * abs(self.target) + INTEGRATE_ABS_MM_S
+        if not (saturated or held_back or transient):
+            self.integral += self.c.ki_per_s * e * dt
+            self.integral = band.clip(self.target + self.integral) - self.target  # never beyond the band
+        return f_des
+
+    def _rate_limited(self, f_des: float, dt: float) -> float:
+        step = self.c.rate_hz_s * dt
+        return float(min(max(f_des, self.f_cmd - step), self.f_cmd + step, self.max_hz))
+
+
+def decisions_batch(rows: list[Decision]) -> Batch:
+    """Rows of the ``track`` stream as one batch (device time = host time, s: the controller runs on the host)."""
+    t = np.array([r.t_ns for r in rows], np.int64)
+    col = {
+        name: np.array([getattr(r, name) for r in rows], np.float64)
+        for name in ("target_mm_s", "measured_mm_s", "feedforward_hz", "frequency_hz", "integral_mm_s")
+    }
+    col.update({name: np.array([getattr(r, name) for r in rows], np.int32) for name in ("band", "mode", "segment")})
+    return Batch(TRACK, t, t * 1e-9, col)

@@ -1,0 +1,294 @@
+"""Speed tracking (issue 25): the speed map's bands, the controller against a known synthetic plant, the
+protocol's checks, and end to end on the sim walker (its own small twin map, measured once per test session)."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from beambench.acquisition.batch import Batch, Frame
+from beambench.acquisition.config import ConfigError, TrackControl, parse_protocol
+from beambench.acquisition.speed_map import SpeedMap
+from beambench.acquisition.streams import WALKER_MARKERS, mocap_spec
+from beambench.acquisition.tracking import LOST, TRACKING, TrackController, track_spec
+
+MAX_HZ = 60.0
+
+
+def _map_curve(f: np.ndarray) -> np.ndarray:
+    """Backward below 25 Hz (a minimum of -50 at 15 Hz), forward above, rising to +150 at 50 Hz."""
+    return np.where(f < 15, -50 * (f - 10) / 5, np.where(f < 25, -50 + 50 * (f - 15) / 10, 150 * (f - 25) / 25))
+
+
+def _speed(f: float) -> float:
+    """:func:`_map_curve` at one frequency (plain floats: the plant steps 360 times a second)."""
+    return -50 * (f - 10) / 5 if f < 15 else (-50 + 50 * (f - 15) / 10 if f < 25 else 150 * (f - 25) / 25)
+
+
+def synthetic_map(irregular_above: float = 52.0) -> SpeedMap:
+    f = np.arange(10.0, 61.0, 1.0)
+    v = _map_curve(f)
+    v[f > 50] = 150 - (f[f > 50] - 50)  # a falling plateau: not in the forward band
+    stderr = np.where(f > irregular_above, 1.0, 0.1)
+    return SpeedMap.from_points(f, v, stderr, source="synthetic")
+
+
+class Plant:
+    """A walker: its steady speed is ``gain × map + offset`` at the drive frequency, reached with a first-order
+    lag; the drive follows the command at a 50 Hz/s ramp; the body marker's forward position, sampled at 360 Hz."""
+
+    def __init__(self, gain: float = 1.0, offset: float = 0.0, tau: float = 0.5) -> None:
+        self.gain, self.offset, self.tau = gain, offset, tau
+        self.f = self.cmd = self.v = self.x_mm = 0.0
+        self.t = 0.0
+
+    def run(self, seconds: float, seen: bool = True) -> Batch:
+        n = round(seconds * 360)
+        h = 1 / 360
+        t, x = np.empty(n), np.empty(n)
+        for i in range(n):
+            self.f += float(np.clip(self.cmd - self.f, -50 * h, 50 * h))
+            steady = self.gain * _speed(self.f) + self.offset if self.f >= 10 else 0.0
+            self.v += (steady - self.v) * h / self.tau
+            self.x_mm += self.v * h
+            self.t += h
+            t[i], x[i] = self.t, self.x_mm
+        pos = np.zeros((n, 3, 3))
+        pos[:, 0, 0] = x * 1e-3
+        occ = np.full((n, 3), not seen)
+        return Batch("mocap", (t * 1e9).astype(np.int64), t, {"data": pos, "frame": np.arange(n), "occluded": occ})
+
+
+def drive(ctl: TrackController, plant: Plant, profile: list[tuple[float, float]], lost: tuple[float, float] = (0, 0)):
+    """Run a profile (target, hold s); rows (t, target, plant speed, commanded Hz, mode)."""
+    rows = []
+    dt = ctl.c.control_s
+    for seg, (target, hold) in enumerate(profile):
+        ctl.set_target(target, seg)
+        for _ in range(round(hold / dt)):
+            ctl.write(plant.run(dt, seen=not (lost[0] <= plant.t < lost[1])))
+            d = ctl.update(round(plant.t * 1e9))
+            plant.cmd = d.frequency_hz
+            rows.append((plant.t, target, plant.v, d.frequency_hz, d.mode))
+    return np.array(rows)
+
+
+def controller(speed_map: SpeedMap, feedback: bool = True) -> TrackController:
+    ctl = TrackController(speed_map, TrackControl(feedback=feedback), MAX_HZ, mocap_lost_s=0.25)
+    ctl.open([mocap_spec(WALKER_MARKERS, frame=Frame("z", "x")), track_spec(0.05)])
+    return ctl
+
+
+PROFILE = [(80.0, 4.0), (-30.0, 4.0), (0.0, 3.0), (120.0, 4.0), (-10.0, 4.0)]
+
+
+def segment_errors(rows: np.ndarray, settle_s: float = 1.0) -> list[float]:
+    """RMS error after ``settle_s`` of each segment, over its tolerance (≤ 1 meets the goal)."""
+    out, t0 = [], 0.0
+    for target, hold in PROFILE:
+        k = (rows[:, 0] > t0 + settle_s) & (rows[:, 0] <= t0 + hold)
+        tol = 10.0 if abs(target) < 60 else 0.15 * abs(target)
+        out.append(math.sqrt(np.mean((rows[k, 2] - target) ** 2)) / tol)
+        t0 += hold
+    return out
+
+
+def test_bands_split_at_the_sign_change_the_turning_point_and_irregular_points():
+    m = synthetic_map()
+    signed = [(b.sign, round(b.f_lo, 2), round(b.f_hi, 2)) for b in m.bands(MAX_HZ) if b.sign != 0]
+    assert (-1, 10.0, 15.0) in signed and (-1, 15.0, 25.0) in signed and (1, 25.0, 50.0) in signed
+    assert all(b.f_hi <= 52 for b in m.bands(MAX_HZ))  # 53-60 Hz flagged irregular (stderr 10x the median)
+    assert m.reach(MAX_HZ) == pytest.approx((-50.0, 150.0))
+    back = m.band_for(-30, MAX_HZ)
+    assert back is not None and (back.f_lo, back.f_hi) == (15.0, 25.0)  # wider in frequency than 10-15 Hz
+    assert back.frequency_for(-30) == pytest.approx(19.0)
+    assert m.check_targets([80, 151], MAX_HZ) == (
+        1,
+        "out of reach of the speed map up to 60 Hz: forward 0..+150.0 mm/s, backward -50.0..0 mm/s",
+    )
+    assert m.check_targets([100], 40.0)[1].startswith("out of reach of the speed map up to 40 Hz: forward 0..+90.0")
+
+
+def test_feedback_tracks_a_plant_unlike_its_map_where_feed_forward_alone_does_not():
+    plant_gain, plant_offset = 0.8, 8.0  # the walker is 20 % slower than its map and drifts forward
+    fb = drive(controller(synthetic_map()), Plant(plant_gain, plant_offset), PROFILE)
+    ff = drive(controller(synthetic_map(), feedback=False), Plant(plant_gain, plant_offset), PROFILE)
+    assert max(segment_errors(fb)) <= 1.0, segment_errors(fb)
+    assert max(segment_errors(ff)) > 1.2, segment_errors(ff)
+    assert fb[:, 3].max() <= MAX_HZ
+    steps = np.diff(fb[:, 3])
+    assert np.abs(steps).max() <= 45.0 * 0.05 + 1e-9  # the rate limit
+    t0 = 0.0
+    for target, hold in PROFILE:  # the direction is right within 1.5 s of each change
+        k = (fb[:, 0] > t0 + 1.5) & (fb[:, 0] <= t0 + hold)
+        if target:
+            assert (np.sign(fb[k, 2]) == np.sign(target)).all()
+        t0 += hold
+
+
+def test_a_known_plant_is_tracked_to_its_map_exactly():
+    rows = drive(controller(synthetic_map()), Plant(), PROFILE)
+    late = [(rows[:, 0] > t - 0.5) & (rows[:, 0] <= t) for t in np.cumsum([h for _, h in PROFILE])]
+    for (target, _), k in zip(PROFILE, late):
+        assert abs(rows[k, 2].mean() - target) < 2.0
+
+
+def test_losing_mocap_holds_then_stands_and_recovers():
+    ctl = controller(synthetic_map())
+    rows = drive(ctl, Plant(), [(80.0, 4.0)], lost=(2.0, 3.0))
+    t, f, mode = rows[:, 0], rows[:, 3], rows[:, 4]
+    held = (t > 2.06) & (t < 2.2)
+    assert (f[held] == f[held][0]).all() and f[held][0] > 25  # holds the last frequency ...
+    assert (mode[(t > 2.3) & (t < 3.0)] == LOST).all() and (f[(t > 2.3) & (t < 3.0)] == 0).all()  # ... then stands
+    assert mode[-1] == TRACKING and f[-1] > 25  # and walks again when the body is seen
+
+
+def test_the_speed_comes_from_the_mocap_timestamps_not_the_receive_times():
+    from beambench.acquisition.tracking import SpeedEstimator
+
+    est = SpeedEstimator(1.0)
+    dev = np.arange(180) / 360.0  # half a second at 360 Hz, walking 40 mm/s
+    host = ((dev + np.random.default_rng(0).uniform(0, 0.03, dev.size)) * 1e9).astype(np.int64)  # 0-30 ms late
+    est.add(np.maximum.accumulate(host), dev * 0.040, dev)
+    assert est.speed(int(host.max()), 0.4) == pytest.approx(40.0, rel=1e-9)
+    assert math.isnan(est.speed(int(host.max()) + int(2e9), 0.4))  # nothing received in the window
+
+
+def test_track_protocol_checks():
+    base = "rig: walker\ntrack: {map: m.csv, segments: [{speed_mm_s: 50, hold_s: 3}]}\n"
+    p = parse_protocol(base)
+    assert p.sweep is None and p.track is not None and p.track.settle_s == 1.0
+    bad = {
+        base.replace("hold_s: 3", "hold_s: 1"): "must exceed settle_s = 1 s",
+        base.replace("rig: walker", "rig: contact"): "applies to rig: walker only",
+        base.replace("m.csv", "twin"): "sweep: Field required: track: map: twin",
+        "rig: walker\n": "sweep: Field required",
+    }
+    for text, words in bad.items():
+        with pytest.raises(ConfigError, match=words):
+            parse_protocol(text, "p.yaml")
+
+
+# --- the sim walker, end to end ---------------------------------------------------------------------------
+SIM = "sim: {model: prb3, params: paper, noise: true, seed: 0}\nlimits: {max_frequency_hz: 60, max_current_a: 6}\n"
+
+
+@pytest.fixture(scope="session")
+def twin_map_session(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SpeedMap]:
+    """A small map of today's twin (its sweep, 7 frequencies): measured once per test session."""
+    from beambench.session.run import run_session
+    from beambench.session.track_map import map_from_session
+
+    out = tmp_path_factory.mktemp("track_map")
+    text = (
+        f"name: map\nrig: walker\nsweep: {{frequencies: [16, 20, 24, 28, 34, 40, 46]}}\nsettle_s: 1\nrecord_s: 1\n{SIM}"
+    )
+    path = out / "map.h5"
+    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    return path, map_from_session(path)
+
+
+def _track_text(map_path: Path, segments: list[tuple[float, float]], extra: str = "") -> str:
+    segs = ", ".join(f"{{speed_mm_s: {v:.1f}, hold_s: {h}}}" for v, h in segments)
+    return f"name: t\nrig: walker\n{SIM}{extra}track: {{map: {map_path}, segments: [{segs}]}}\n"
+
+
+def test_walker_follows_a_short_profile_on_the_sim(twin_map_session, tmp_path):
+    from beambench.analysis.session import analyze_session
+    from beambench.session.run import run_session
+    from beambench.sinks.hdf5 import read_session
+
+    map_path, speed_map = twin_map_session
+    back, fwd = speed_map.reach(60)
+    assert back < -10 and fwd > 40, "the twin walks both ways"
+    profile = [(0.5 * fwd, 3.0), (0.5 * back, 3.0)]
+    text = _track_text(map_path, profile)
+    path = tmp_path / "track.h5"
+    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    s = read_session(path)
+    a = analyze_session(s)
+    assert a.track is not None and len(a.track.segments) == 2
+    for (target, _), seg in zip(profile, a.track.segments):
+        assert seg["target_speed_mm_s"] == pytest.approx(target, abs=0.06)
+        assert abs(seg["mean_speed_mm_s"] - target) <= seg["tolerance_mm_s"], seg
+        assert seg["max_frequency_hz"] <= 60
+    assert a.track.segments[1]["direction_s"] <= 1.5
+    assert {"target_speed_mm_s", "speed_error_rms_mm_s", "settling_s"} <= set(a.table.columns)
+    kinds = list(s.events["kind"])
+    assert kinds.index("idle") > kinds.index("step") and s.streams["motor"].columns["velocity_setpoint"][-1] == 0
+
+
+def test_losing_mocap_stands_the_sim_walker(twin_map_session, tmp_path, monkeypatch):
+    from beambench.backends import sim_devices
+    from beambench.session.run import run_session
+    from beambench.sinks.hdf5 import read_session
+
+    map_path, speed_map = twin_map_session
+    sample = sim_devices.SimMocap.sample
+
+    def hidden_after_1_5_s(self, hist, t, index):  # the body marker hidden from 1.5 s on (a person in the way)
+        out = sample(self, hist, t, index)
+        out["occluded"][np.asarray(t) > 1.5, 0] = True
+        return out
+
+    monkeypatch.setattr(sim_devices.SimMocap, "sample", hidden_after_1_5_s)
+    text = _track_text(
+        map_path, [(0.5 * speed_map.reach(60)[1], 3.0)], "monitors: {mocap_lost_s: 0.3, max_pause_s: 30}\n"
+    )
+    path = tmp_path / "lost.h5"
+    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    s = read_session(path)
+    tr = s.streams["track"]
+    t = (tr.host_time_ns - tr.host_time_ns[0]) * 1e-9
+    f, mode = tr.columns["frequency_hz"], tr.columns["mode"]
+    assert (f[t < 1.4] > 0).any() and (f[t > 2.0] == 0).all() and (mode[t > 2.0] == LOST).all()
+    motor = s.streams["motor"]
+    mt = (motor.host_time_ns - tr.host_time_ns[0]) * 1e-9
+    assert (motor.columns["velocity_setpoint"][mt > 2.2] == 0).all()  # the motor was told to stand
+    assert {"pause", "stand"} <= set(s.events["kind"])
+
+
+def test_target_out_of_reach_is_refused_before_anything_moves(twin_map_session, tmp_path):
+    map_path, speed_map = twin_map_session
+    too_fast = speed_map.reach(60)[1] + 50
+    proto = tmp_path / "far.yaml"
+    proto.write_text(_track_text(map_path, [(too_fast, 2.0)]))
+    r = subprocess.run(
+        [sys.executable, "-m", "beambench.cli", "run", str(proto), "--out", str(tmp_path), "--rerun", "off"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert r.returncode == 2, r.stderr
+    line = r.stderr.strip()
+    assert "\n" not in line and "track.segments[0].speed_mm_s" in line and "out of reach" in line
+    assert "forward 0..+" in line and "backward -" in line
+    assert not list(tmp_path.glob("*.h5"))
+
+
+def test_the_same_controller_drives_the_emulated_walker_through_the_real_drivers(twin_map_session, tmp_path):
+    """Real time: NatNet over UDP (y up, as Motive) and the ODrive over CAN; the controller cannot tell."""
+    from beambench.session.run import run_session
+    from beambench.sinks.hdf5 import read_session
+
+    map_path, speed_map = twin_map_session
+    target = 0.5 * speed_map.reach(60)[1]
+    text = _track_text(map_path, [(target, 4.0), (0.0, 1.5)])
+    path = tmp_path / "emu.h5"
+    assert run_session(parse_protocol(text), text, "emulated", path, show_progress=False).status == "completed"
+    s = read_session(path)
+    assert s.general["geometry"]["up_axis"] == "y"
+    tr, motor = s.streams["track"], s.streams["motor"]
+    t = (tr.host_time_ns - tr.host_time_ns[0]) * 1e-9
+    late = (t > 3.0) & (t < 4.0)  # (room for a receive stall of this busy host: hold, stand, walk again)
+    assert np.nanmean(tr.columns["measured_mm_s"][late]) > 0.3 * target, s.events  # forward along +x, y up
+    mt = (motor.host_time_ns - tr.host_time_ns[0]) * 1e-9
+    cmd = np.interp(mt, t, tr.columns["frequency_hz"])
+    k = (mt > 3.0) & (mt < 4.0)
+    assert np.median(np.abs(motor.columns["velocity_setpoint"][k] - cmd[k])) < 0.5  # the ODrive got each command
+    assert motor.columns["velocity_setpoint"][-1] == 0 and "idle" in set(s.events["kind"])
