@@ -68,7 +68,7 @@ def test_every_kind_is_found_by_name_file_name_and_shipped_path_from_any_folder(
 
 
 def test_the_kinds_do_not_mix_and_an_unknown_name_lists_the_shipped_ones():
-    assert set(shipped_files("protocol")) == {"contact_sweep", "release_test", "walker_sweep"}
+    assert set(shipped_files("protocol")) == {"contact_sweep", "release_test", "walker_sweep", "walker_track"}
     assert set(shipped_files("sweep")) == {"chirality_sweep", "twist_sweep"}
     assert set(shipped_files("targets")) == {"paper_contact_targets", "paper_walker_targets"}
     with pytest.raises(ShippedFileError, match=r"a shipped sweep file, not a protocol.*beambench sweep twist_sweep"):

@@ -190,7 +190,7 @@ def run_tasks(
 ) -> list[R]:
     """Submit ``fn(task)`` for every task; call ``on_done(task, result)`` in the calling thread as each
     finishes (in completion order); return the results in task order. The first exception is re-raised after
-    the pending tasks are cancelled."""
+    the pending tasks are cancelled (on a local process pool, :func:`make_executor` ends them)."""
     tasks = list(tasks)
     futures: dict[Future, int] = {executor.submit(fn, t): i for i, t in enumerate(tasks)}
     results: list[Any] = [None] * len(tasks)
@@ -201,7 +201,8 @@ def run_tasks(
             if on_done is not None:
                 on_done(tasks[i], results[i])
     except BaseException:
-        for fut in futures:
-            fut.cancel()
+        if not isinstance(executor, ProcessPoolExecutor):  # a local pool: make_executor stops its workers, and
+            for fut in futures:  # its manager thread fails these futures (a cancelled one makes it raise on 3.11)
+                fut.cancel()
         raise
     return results
