@@ -2,13 +2,15 @@
 #   make run    create .venv on first use (reused after), install beambench, run the contact sweep on the sim
 #   make test   the same venv with the dev extra; lint, format, type and import-layer checks, then the tests
 # Variables: PYTHON (python3), VENV (.venv), OUT (data), RUN_ARGS (extra `beambench run` flags),
-# PYTEST_ARGS (e.g. tests/test_run_sim.py). `make clean-venv` removes the venv.
+# PYTEST_ARGS (e.g. tests/test_run_sim.py), PYTEST_WORKERS (2; 0 runs in one process). `make clean-venv` removes the venv.
 
 PYTHON ?= python3
 VENV ?= .venv
 OUT ?= data
 RUN_ARGS ?=
 PYTEST_ARGS ?=
+# pytest-xdist workers: half the suite waits on real-time rigs and subprocesses, so 2 workers on 2 cores halve it
+PYTEST_WORKERS ?= 2
 BIN := $(VENV)/bin
 RUN_STAMP := $(VENV)/.beambench-run
 DEV_STAMP := $(VENV)/.beambench-dev
@@ -23,7 +25,7 @@ test: $(DEV_STAMP)
 	for check in "ruff check src tests benchmarks" "ruff format --check src tests benchmarks" "mypy" "lint-imports"; do \
 	  echo "== $$check"; $(BIN)/$$check || status=1; \
 	done; \
-	echo "== pytest"; $(BIN)/python -m pytest -q $(PYTEST_ARGS); rc=$$?; \
+	echo "== pytest"; $(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests — that is a failure for this project" >&2; rc=1; fi; \
 	if [ $$status -ne 0 ]; then echo "lint, format, type or import checks failed (see above)" >&2; fi; \
 	[ $$rc -eq 0 ] && [ $$status -eq 0 ]
