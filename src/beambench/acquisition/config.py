@@ -48,12 +48,21 @@ def check_name(name: str, what: str) -> str:
 
 
 class Sweep(_Model):
-    """Frequencies in Hz: ``start``/``stop``/``step`` (inclusive) or an explicit ``frequencies`` list."""
+    """Frequencies in Hz: ``start``/``stop``/``step`` (inclusive) or an explicit ``frequencies`` list.
+
+    ``direction``: ``up`` runs them in the order given (start → stop, or the list as written), ``down`` in reverse,
+    ``both`` up then back down in one session (the turning frequency once). ``repeats``: each frequency K times,
+    ``interleaved`` (default: the whole sweep K times, so a slow drift spreads over every frequency alike) or in
+    ``blocks`` (each frequency K times in a row).
+    """
 
     start: float | None = Field(None, gt=0)
     stop: float | None = Field(None, gt=0)
     step: float | None = Field(None, gt=0)
     frequencies: list[float] | None = Field(None, max_length=MAX_STEPS)
+    direction: Literal["up", "down", "both"] = "up"
+    repeats: int = Field(1, ge=1, le=100)
+    repeat_order: Literal["interleaved", "blocks"] = "interleaved"
 
     @model_validator(mode="after")
     def _one_form(self) -> Sweep:
@@ -86,6 +95,14 @@ class Sweep(_Model):
             raise ValueError(f"{n + 1} steps: more than {MAX_STEPS}")
         vals = [round(self.start + i * self.step, 9) for i in range(n + 1)]  # type: ignore[operator]
         return [v for v in vals if v <= self.stop + 1e-9]  # type: ignore[operator]
+
+
+class Reference(_Model):
+    """A reference step at ``frequency_hz`` first, after every ``every_steps`` sweep steps, and last: its drift
+    over the session tells a slow change of the rig (e.g. a beam warming up) from a frequency effect."""
+
+    frequency_hz: float = Field(gt=0)
+    every_steps: int = Field(gt=0, le=MAX_STEPS)
 
 
 class Limits(_Model):
@@ -169,6 +186,7 @@ class Protocol(_Model):
     rig: RigKind = "contact"
     backend: Backend = "sim"
     sweep: Sweep
+    reference: Reference | None = None
     settle_s: float = Field(2.0, ge=0, le=600)
     record_s: float = Field(5.0, gt=0, le=3600)
     amplitude_mm: float = Field(2.0, gt=0, le=1000)
@@ -183,12 +201,27 @@ class Protocol(_Model):
     def _driven_rigs_need_frequencies(self) -> Protocol:
         if self.rig != "release" and min(self.sweep.values()) <= 0:
             raise ValueError(f"sweep: frequencies must be > 0 Hz on the {self.rig} rig (0 is for rig: release)")
+        if self.rig == "release" and (self.reference is not None or self.sweep.direction != "up"):
+            raise ValueError("reference and sweep.direction are for driven rigs (contact, walker), not release")
+        n = self.n_planned_steps()
+        if n > MAX_STEPS:
+            raise ValueError(f"sweep: {n:.3g} steps with direction, repeats and reference: more than {MAX_STEPS}")
         return self
+
+    def n_planned_steps(self) -> float:
+        """Steps the run makes: the sweep (both directions, repeats) plus reference steps."""
+        n = self.sweep.n_steps()
+        if self.sweep.direction == "both":
+            n = 2 * n - 1
+        n *= self.sweep.repeats
+        if self.reference is not None and math.isfinite(n):
+            n += math.ceil(n / self.reference.every_steps) + 1
+        return n
 
     def limit_violations(self) -> list[tuple[str, Any, str]]:
         """(field, value, reason) for every commanded value over its limit."""
         out: list[tuple[str, Any, str]] = []
-        fmax = max(self.sweep.values())
+        fmax = max(self.sweep.values() + ([self.reference.frequency_hz] if self.reference else []))
         if fmax > self.limits.max_frequency_hz:
             out.append(("sweep", fmax, f"exceeds limits.max_frequency_hz = {self.limits.max_frequency_hz:g} Hz"))
         if self.amplitude_mm > self.limits.max_amplitude_mm:

@@ -17,6 +17,7 @@ import pandas as pd
 import yaml
 
 from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
+from beambench.analysis.branches import annotate_branches, step_labels
 from beambench.analysis.contact import (
     ContactParams,
     Contacts,
@@ -400,7 +401,7 @@ def analyze_session(
         fits,
         delay,
         frame,
-        pd.DataFrame([r.row for r in results]),
+        annotate_branches(pd.DataFrame([r.row for r in results])),
         results,
         cal.source,
         residuals,
@@ -424,6 +425,7 @@ def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepCo
         "step": int(srow.index),
         "frequency_hz": f_cmd,
         "status": str(srow.status),
+        **step_labels(srow),
         "t_settled_s": a / NS if a >= 0 else np.nan,
         "record_s": (b - a) / NS if a >= 0 else np.nan,
     }

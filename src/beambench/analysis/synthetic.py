@@ -40,6 +40,9 @@ class SynthStep:
     touchdown_velocity_sign: int = 1
     tangential_n: float = 0.2
     body_speed_mm_s: float = 0.0
+    direction: str = "up"  # as recorded in /steps
+    kind: str = "sweep"
+    repeat: int = 0
 
 
 @dataclass(frozen=True)
@@ -309,9 +312,9 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
                     )
             for i, (s0, s1, s2) in enumerate(sched):
                 if lo <= s2 * NS < hi:
-                    writer.step(
-                        StepRecord(i, cfg.steps[i].frequency_hz, int(s0 * NS), int(s1 * NS), int(s2 * NS), "done")
-                    )
+                    st = cfg.steps[i]
+                    times = (int(s0 * NS), int(s1 * NS), int(s2 * NS))
+                    writer.step(StepRecord(i, st.frequency_hz, *times, "done", st.direction, st.kind, st.repeat))
         writer.event(int(t_end * NS), "stop", "synthetic session complete")
     finally:
         writer.close()
