@@ -9,8 +9,9 @@ recorded before these existed read as up, sweep, 0). Sweep steps of one frequenc
 - **Noise of contacts per cycle** (``contacts_per_cycle_noise``): σ = √((1/N)² + s²/n), with N the drive cycles
   in a record window (one touchdown more or less in the window changes contacts per cycle by 1/N) and s the
   repeats' std over n repeats (0 for one repeat).
-- **Hysteresis** (when a frequency has both branches): ``hysteresis`` is true where the branches' most common
-  regimes differ, or their mean contacts per cycle differ by more than 2·√(σ_up² + σ_down²) (``hysteresis_limit``);
+- **Repeatability**: ``repeats_agree`` is false where a group's repeats do not all share one regime.
+- **Hysteresis** (when a frequency has both branches): ``hysteresis`` is true where no regime occurs on both
+  branches, or their mean contacts per cycle differ by more than 2·√(σ_up² + σ_down²) (``hysteresis_limit``);
   ``hysteresis_delta`` = down − up contacts per cycle; ``hysteresis_why`` says which test fired.
 """
 
@@ -83,12 +84,13 @@ def _hysteresis(t: pd.DataFrame, sweep: pd.Series) -> pd.DataFrame:
         if up.empty or down.empty:
             continue
         ru, rd = most_common(up["regime"]), most_common(down["regime"])
+        shared = set(up["regime"].astype(str)) & set(down["regime"].astype(str))
         delta = float(down["contacts_per_cycle"].mean() - up["contacts_per_cycle"].mean())
         sig_u = float(up["contacts_per_cycle_noise"].iloc[0])
         sig_d = float(down["contacts_per_cycle_noise"].iloc[0])
         limit = COVERAGE * float(np.hypot(sig_u, sig_d))
         why = []
-        if ru != rd:
+        if not shared:
             why.append(f"regime {ru or '?'} up, {rd or '?'} down")
         if np.isfinite(delta) and np.isfinite(limit) and abs(delta) > limit:
             why.append(f"contacts/cycle differ by {delta:+.3f} (> {limit:.3f})")
@@ -113,6 +115,9 @@ def annotate_branches(table: pd.DataFrame) -> pd.DataFrame:
     if int(t[sweep].groupby(by).size().max()) > 1:
         sub = _spread(t[sweep].copy(), t[sweep].groupby(by))
         t = t.join(sub[[c for c in sub.columns if c not in t.columns]])
+    if "regime" in t:
+        n_regimes = t[sweep].groupby(by)["regime"].transform(lambda r: r.astype(str).nunique())
+        t.loc[sweep, "repeats_agree"] = n_regimes == 1
     if "contacts_per_cycle" in t:
         s = t[sweep]
         t.loc[sweep, "contacts_per_cycle_noise"] = _noise(s, s.groupby(by))

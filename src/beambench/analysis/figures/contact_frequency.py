@@ -8,7 +8,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from beambench.analysis.branches import most_common
 from beambench.analysis.contact import REGIME_ORDER
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import (
@@ -30,7 +29,8 @@ if TYPE_CHECKING:
     rigs=("contact",),
     caption="Touchdowns per second against the drive frequency (paper Fig. 1b). Guides at f, f/2, f/3. "
     "Hollow points at 0: continuous contact or none. A sweep both ways: ▲ up, ▼ down, red bands where the branches "
-    "differ (hysteresis: regime, or contacts per cycle beyond noise); repeats: the mean with ±1 std error bars; "
+    "differ (hysteresis: regime, or contacts per cycle beyond noise); repeats: every repeat a point, "
+    "their mean ± 1 std as a bar; "
     "× reference steps.",
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
@@ -79,7 +79,8 @@ def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) ->
 
 
 def _branches(ax: Any, t: pd.DataFrame) -> None:
-    """One session: points coloured by regime, ▲/▼ by sweep direction, a repeated frequency's mean ± std,
+    """One session: every step a point coloured by its regime, ▲/▼ by sweep direction, a repeated frequency's
+    mean ± std,
     hysteresis bands, reference steps as ×."""
     kind = t["kind"] if "kind" in t else pd.Series("sweep", index=t.index)
     direction = t["direction"] if "direction" in t else pd.Series("up", index=t.index)
@@ -94,25 +95,21 @@ def _branches(ax: Any, t: pd.DataFrame) -> None:
             ax.axvspan(f - half, f + half, color="#d62728", alpha=0.12, lw=0, label="hysteresis" if i == 0 else None)
     seen: set[str] = set()
     for d, g in sweep.groupby("direction", sort=False):
-        stat = g.groupby("frequency_hz").agg(
-            y=("y", "mean"), std=("y", "std"), n=("y", "size"), regime=("regime", most_common)
-        )
+        stat = g.groupby("frequency_hz")["y"].agg(["mean", "std", "size"])
         if both:
-            ax.plot(stat.index, stat["y"], color="0.55", lw=0.8, ls="-" if d == "up" else "--", zorder=2)
+            ax.plot(stat.index, stat["mean"], color="0.55", lw=0.8, ls="-" if d == "up" else "--", zorder=2)
         marker = ("^" if d == "up" else "v") if both else "o"
-        if (stat["n"] > 1).any():
-            ax.errorbar(
-                stat.index, stat["y"], yerr=stat["std"].fillna(0.0), fmt="none", ecolor="0.3", lw=0.9, capsize=2
-            )
-        present = [r for r in REGIME_ORDER if r in set(stat["regime"])] + sorted(
-            set(stat["regime"]) - set(REGIME_ORDER)
-        )
+        if (stat["size"] > 1).any():  # repeats: the mean ± 1 std as a bar; every repeat its own point
+            rep = stat[stat["size"] > 1]
+            ax.errorbar(rep.index, rep["mean"], yerr=rep["std"], fmt="_", ms=10, color="0.25", lw=0.9, capsize=2)
+        regimes = set(g["regime"].astype(str))
+        present = [r for r in REGIME_ORDER if r in regimes] + sorted(regimes - set(REGIME_ORDER))
         for regime in present:
-            sub = stat[stat["regime"] == regime]
+            sub = g[g["regime"].astype(str) == regime]
             hollow = regime in ("none", "continuous", "")
             color = REGIME_COLORS.get(regime, "0.5")
             ax.scatter(
-                sub.index,
+                sub["frequency_hz"],
                 sub["y"],
                 s=36,
                 marker=marker,
