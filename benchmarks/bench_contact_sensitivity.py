@@ -10,9 +10,10 @@ the stage travel, and the clamp orientation (section turned 90° at the clamp); 
 and the load frame's own mass at the same interference (sag − gap), the load's offset along y, a stuck foot
 (friction 6) and a compliant sole (``--only 'compliant sole,friction'`` runs a subset; ``_match_sag`` rows move
 the gap with the sag so the interference stays the base's). For each: the continuous
-edge (highest frequency up to which every step is ``continuous``), the lowest ``1/2``, the lowest ``1/3`` and
+edge (the lowest step that is not ``continuous``, when the map starts continuous:
+:func:`~beambench.sim.scenes.contact_regimes.transitions`), the lowest ``1/2``, the lowest ``1/3`` and
 the map as a string (C continuous, 1, h = 1/2, t = 1/3, q = 1/4, 2, 3, . irregular, - none). Regimes come
-from the plate's normal force only (:func:`beambench.sim.scenes.contact_sweep.regime_map`).
+from the plate's normal force only (:func:`beambench.sim.scenes.contact_regimes.regime_map`).
 
 Writes ``sensitivity.csv`` and ``sensitivity.md`` (a Markdown table) to ``--out`` and prints the table.
 """
@@ -20,6 +21,7 @@ Writes ``sensitivity.csv`` and ``sensitivity.md`` (a Markdown table) to ``--out`
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from dataclasses import replace
@@ -113,8 +115,9 @@ def main() -> None:
 
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scenes.contact_regimes import ContactTwin, regime_map, static_sag, transitions
     from beambench.sim.scenes.contact_rig import RigParams
-    from beambench.sim.scenes.contact_sweep import regime_map, static_sag, transitions
+    from beambench.sim.settings import SimSettings
 
     base = load_params(args.params, "prb3")
     base_rig = RigParams.with_overrides(base.rig)
@@ -138,16 +141,10 @@ def main() -> None:
             sag = static_sag(make_beam_model("prb3", p), RigParams.with_overrides({**base.rig, **over}))
             over["plate_gap"] = base_rig.plate_gap + (sag - sag0)
         t0 = time.perf_counter()
-        df = regime_map(
-            freqs,
-            params=p,
-            rig_overrides=over,
-            settle_s=args.settle,
-            record_s=args.record,
-            noise=args.noise,
-            nthread=args.nthread,
-        )
-        tr = transitions(df.frequency_hz, df.regime)
+        sim = SimSettings(settle_s=args.settle, record_s=args.record, noise=args.noise, nthread=args.nthread)
+        df = regime_map(freqs, sim, ContactTwin(params=p, rig_overrides=over))
+        # the continuous edge: the lowest step that is not continuous (NaN: the map does not start continuous)
+        tr = {k: math.nan if v is None else v for k, v in transitions(df.frequency_hz, df.regime).items()}
         rows.append(
             {
                 "unknown": unknown,

@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT / "src"))
 from beambench.sim.models import cosserat
 from beambench.sim.models.registry import beam_model
 from beambench.sim.scenes.free_beam import frequency_sweep
+from beambench.sim.settings import SimSettings
 
 SAMPLE_DT = 1e-4
 
@@ -56,9 +57,8 @@ def mujoco_run(
     """A MuJoCo sweep on one thread; wall per simulated second = median over ``repeats``."""
     walls, res = [], None
     for _ in range(repeats):
-        res = frequency_sweep(
-            name, freqs, twist, settle_s=settle, record_s=record, timestep=dt, sample_dt=max(dt, SAMPLE_DT), nthread=1
-        )
+        settings = SimSettings(settle_s=settle, record_s=record, twist_deg=twist, timestep=dt, nthread=1)
+        res = frequency_sweep(name, freqs, settings, sample_dt=max(dt, SAMPLE_DT))
         walls.append(res.wall_s)
     sim_s = len(freqs) * (settle + record)
     return {

@@ -36,6 +36,7 @@ from beambench.sim.models.registry import make_beam_model
 from beambench.sim.scenes.release import G, release_batch, release_models
 from beambench.studies.fit import (
     PAPER_MAE_MM,
+    FitOptions,
     ParamSpace,
     default_base,
     fit_release,
@@ -61,7 +62,7 @@ def acceptance(repeats: int) -> dict:
     for seed in range(repeats):
         data = synthetic_release(truth, noise_m=3e-4, seed=seed + 1)
         t0 = time.perf_counter()
-        r = fit_release(data, "prb3", seed=seed)
+        r = fit_release(data, "prb3", FitOptions(seed=seed))
         wall = time.perf_counter() - t0
         errs = {k: r.values[k] / v - 1 for k, v in TRUTH.items()}
         runs.append(

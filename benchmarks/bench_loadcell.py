@@ -43,7 +43,7 @@ def main() -> None:
     sys.path.insert(0, str(ROOT / "src"))
     import math
 
-    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults
 
     def force(t: float) -> tuple[float, float]:
         return (1 + math.sin(40 * t), 0.3 * math.cos(40 * t))
@@ -51,7 +51,7 @@ def main() -> None:
     cases = {
         "clean": EmulatedLoadCellMCU(force, noise_counts=20.0, seed=1),
         "faulty": EmulatedLoadCellMCU(
-            force, noise_counts=20.0, crc_error_prob=0.02, drop_prob=0.02, garbage_prob=0.03, seed=1
+            force, noise_counts=20.0, faults=LinkFaults(crc_error_prob=0.02, drop_prob=0.02, garbage_prob=0.03), seed=1
         ),
     }
     for name, mcu in cases.items():

@@ -84,7 +84,7 @@ def ladder_part(out: Path, ship: bool) -> dict:
 
 
 def contact_part(out: Path, ship: bool, timing_only: bool = False, model: str = "prb3") -> dict:
-    from beambench.sim.scenes.contact_sweep import bench_contact, time_contact_goals
+    from beambench.studies.contact_table import bench_contact, time_contact_goals
 
     if timing_only:  # the goals on the shipped table, without re-measuring it
         import pandas as pd

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from beambench.acquisition.capabilities import MotorLimits
 from beambench.devices.odrive import cansimple as cs
-from beambench.devices.odrive.can_motor import OdriveCanMotor
+from beambench.devices.odrive.can_motor import CanMotorTiming, OdriveCanMotor
 from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
 
 DBC = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "odrive" / "odrive-cansimple.dbc"
@@ -65,7 +65,7 @@ def bench_bus(reps: int = 15) -> None:
     cfg = OdriveEmulatorConfig(node_id=1, calibrated=True, vel_ramp_rate=1000.0)
     with (
         EmulatedOdrive(channel=channel, config=cfg),
-        OdriveCanMotor(channel, "virtual", 1, calibrate=False, poll_period_s=10.0) as motor,
+        OdriveCanMotor(channel, "virtual", 1, timing=CanMotorTiming(calibrate=False, poll_period_s=10.0)) as motor,
     ):
         motor.arm(MotorLimits(30.0, 10.0, 2.0))
         # RTR round trip

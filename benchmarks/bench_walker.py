@@ -75,11 +75,11 @@ VARIANTS: list[tuple[str, dict[str, float]]] = [
 def _speed(beam, f: float, settle: float, record: float, **overrides: float) -> tuple[float, float]:
     """(steady forward speed mm/s from a settled robot, wall s per simulated s)."""
     from beambench.sim.scenes.walker import WalkerParams
-    from beambench.sim.scenes.walker_batch import RAMP_RATE, steady_speeds
+    from beambench.sim.scenes.walker_batch import RAMP_RATE, STEADY_SETTINGS, steady_speeds
 
     wp = replace(WalkerParams(), **overrides)
     t0 = time.perf_counter()
-    v, _ = steady_speeds(beam, [f], wp, settle_s=settle, record_s=record)
+    v, _ = steady_speeds(beam, [f], wp, settings=STEADY_SETTINGS.replace(settle_s=settle, record_s=record))
     sim_s = f / RAMP_RATE + settle + record + wp.preroll_s
     return float(v[0]), (time.perf_counter() - t0) / sim_s
 

@@ -12,16 +12,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from beambench.studies.calibration.search import (
+from beambench.sim.settings import SimSettings
+from beambench.studies.calibration import (
     RIGS,
+    CalibrationBase,
     Interrupted,
     SearchSettings,
     calibrate,
-    contact_objective,
     get_rig,
-    regime_level,
-    simulate_contact,
+    write_report,
 )
+from beambench.studies.calibration.contact import simulate_contact
+from beambench.studies.calibration.contact_objective import contact_objective, regime_level
 from beambench.studies.calibration.targets import (
     CalibrationInputError,
     Targets,
@@ -119,20 +121,22 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path):
 def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     """frame_mass_g / mass_dx_mm are the contact rig's opt-in unknowns: not fitted unless named, neutral (0) when
     not, and a fitted value lands in the parameter set's rig block (SI) — the scene the map is computed on."""
-    from beambench.studies.calibration.search import calibrated_params
+    from dataclasses import replace
+
+    from beambench.studies.calibration.contact import calibrated_params
 
     rig = get_rig("contact")
     assert rig.default_free == ("b_scale", "preload_mm", "friction_scale")
     names = {u.name: u for u in rig.unknowns}
     assert names["frame_mass_g"].default == 0.0 and names["mass_dx_mm"].default == 0.0
-    base = {"model": "prb3", "params": "contact_paper", "twist_deg": 90.0, "amplitude_m": 0.002}
+    base = CalibrationBase("prb3", "contact_paper")
     p = calibrated_params(base, {"k_scale": 1.0, "frame_mass_g": 4.0, "mass_dx_mm": 12.0})
     assert p.rig["frame_mass"] == pytest.approx(0.004) and p.rig["mass_dx"] == pytest.approx(0.012)
     assert p.rig["friction"] == 1.5  # the prior's rig block is kept
     plain = calibrated_params(base, {"k_scale": 1.0})
     assert "frame_mass" not in plain.rig and "mass_dx" not in plain.rig
     # not fitted, the prior's own value stays (the shipped default's frame mass is 10 g)
-    stuck = {**base, "params": "contact_stuck"}
+    stuck = replace(base, params="contact_stuck")
     assert calibrated_params(stuck, {"k_scale": 1.0}).rig["frame_mass"] == pytest.approx(0.010)
     assert names["frame_mass_g"].opt_in and names["mass_dx_mm"].opt_in
     # the search's fixed values leave the opt-in unknowns out unless they are fixed explicitly
@@ -146,14 +150,16 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     }
     assert fixed_values(names, free[:2], SearchSettings()) == {"k_scale": 1.0, "friction_scale": 1.0}
     # the search's first line starts at the prior set's own values
-    from beambench.studies.calibration.search import contact_prior
+    from beambench.studies.calibration.contact import contact_prior
 
     assert contact_prior(stuck) == pytest.approx(
         {"k_scale": 1.0, "b_scale": 1.0, "friction_scale": 1.0, "frame_mass_g": 10.0, "mass_dx_mm": 0.0}
     )
     # the friction is scaled from the prior's own (the stuck sole's 6, the scene's default 0.5 for the paper set)
     assert calibrated_params(stuck, {"friction_scale": 0.9}).rig["friction"] == pytest.approx(5.4)
-    assert calibrated_params(base | {"params": "paper"}, {"friction_scale": 0.9}).rig["friction"] == pytest.approx(0.45)
+    assert calibrated_params(replace(base, params="paper"), {"friction_scale": 0.9}).rig["friction"] == pytest.approx(
+        0.45
+    )
     assert calibrated_params(stuck, {"friction_scale": 0.9}).rig["frame_mass"] == pytest.approx(0.010)
 
 
@@ -200,8 +206,8 @@ def test_regime_levels_are_ordered_as_the_map_runs():
 
 
 FREQS = [float(f) for f in range(20, 46, 2)]
-FAST = {"settle_s": 0.6, "record_s": 1.0}
-BASE = {"model": "prb3", "params": "paper", "twist_deg": 90.0, "amplitude_m": 0.002}
+FAST = SimSettings(settle_s=0.6, record_s=1.0, integrator="implicitfast")
+BASE = CalibrationBase("prb3", "paper")
 TRUE_PRELOAD = 0.05  # mm: the paper set sags ~1.13 mm; gap ≈ 1.08 mm (½ and ⅓ inside 20–44 Hz)
 
 
@@ -215,7 +221,7 @@ def truth() -> tuple[Targets, dict]:
         "name: truth\nrig: contact\nbackend: sim\nsweep: {start: 20, stop: 44, step: 2}\nsettle_s: 0.6\n"
         "record_s: 1.0\nsim: {model: prb3, params: paper, noise: false}\n"
     )
-    targets = Targets("contact", "twin", steps[cols], protocol_text=proto, prior={"params": BASE["params"]})
+    targets = Targets("contact", "twin", steps[cols], protocol_text=proto, prior={"params": BASE.params})
     return targets, out["extras"]
 
 
@@ -243,7 +249,7 @@ def test_transitions_are_scored_beyond_the_per_step_levels():
     """A map that lacks the target's ⅓ band, or has a stray low ½ step, is a missed calibration (the goal is
     each transition within ± 2 Hz) although it differs from the target at only a few steps: the transition term
     makes it cost as much as a whole band of wrong steps."""
-    from beambench.studies.calibration.search import TRANSITION_WEIGHT, transition_misfit
+    from beambench.studies.calibration.contact_objective import TRANSITION_WEIGHT, transition_misfit
 
     targets = parse_targets({"rig": "contact", "continuous_below_hz": 15, "half_at_hz": 30, "third_at_hz": 42})
     exact = _steps({(1, 14): "continuous", (15, 29): "1", (30, 41): "1/2", (42, 46): "1/3"})
@@ -278,7 +284,8 @@ def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
     same protocol give (maps of every frequency from rest put the continuous edge several Hz lower than the run:
     calibrations fitted on them missed their targets once run)."""
     from beambench.analysis.session import analyze_session
-    from beambench.sim.scenes.contact_sweep import stepped_regime_map
+    from beambench.sim.scenes.contact_regimes import ContactTwin, stepped_regime_map
+    from beambench.sim.settings import SimSettings
     from beambench.sinks.hdf5 import read_session
 
     freqs = [16, 20, 24, 28, 32, 36]
@@ -290,7 +297,9 @@ def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
     res = _beambench("run", str(proto), "--out", str(tmp_path), "--name", "stepped", "--rerun", "off")
     assert res.returncode == 0, res.stderr
     run = analyze_session(read_session(Path(res.stdout.strip().splitlines()[-1]))).table
-    twin = stepped_regime_map(freqs, params="contact_stuck", settle_s=1.0, record_s=2.0)
+    twin = stepped_regime_map(
+        freqs, SimSettings(settle_s=1.0, record_s=2.0, integrator="implicitfast"), ContactTwin(params="contact_stuck")
+    )
     assert list(run["regime"]) == list(twin["regime"]), (list(run["regime"]), list(twin["regime"]))
     assert {"continuous", "1/2"} <= set(twin["regime"])  # a map with edges, not a row of one label
     assert list(run["tangential_sign"].astype(int)) == list(twin["tangential_sign"])
@@ -337,6 +346,7 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
     with log.open("a") as fh:
         fh.write('{"key": "cut by a kill')  # a half-written last line is skipped
     res = calibrate(targets, tmp_path, "tiny", workers=2, settings=settings)
+    write_report(res, targets, tmp_path, "tiny")  # the command writes the report beside the protocol
     assert res.reused >= 10  # the logged points were not run again
     distinct = {line.split('"key": "')[1][:40] for line in log.read_text().splitlines() if line.startswith('{"key": "')}
     assert res.evaluations == len(distinct) - 10
@@ -377,7 +387,7 @@ def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
 
 def test_the_written_sweep_reaches_the_targets_and_its_limit_starts_from_the_parsers_default():
     from beambench.acquisition.config import Limits
-    from beambench.studies.calibration.search import extended_sweep
+    from beambench.studies.calibration.protocol_out import extended_sweep
 
     targets = parse_targets({"rig": "contact", "half_at_hz": 30, "third_at_hz": 42})
     top = float(max(targets.frequencies))

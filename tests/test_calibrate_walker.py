@@ -7,7 +7,8 @@ import math
 import pandas as pd
 import pytest
 
-from beambench.studies.calibration.search import get_rig
+from beambench.sim.settings import SimSettings
+from beambench.studies.calibration import get_rig
 from beambench.studies.calibration.targets import parse_targets
 
 TARGETS = parse_targets({"rig": "walker", "speed_mm_s": {23: -35.7, 65: 156.3}}, "<test>")
@@ -17,7 +18,7 @@ def test_walker_is_calibratable_in_foot_mass_and_friction():
     rig = get_rig("walker")
     assert [u.name for u in rig.unknowns] == ["foot_mass", "friction"]
     assert rig.stage_sim is not None
-    assert rig.stage_sim("coarse", {})["settle_s"] >= 3.0  # the speed needs ~3 s from rest
+    assert rig.stage_sim("coarse", SimSettings()).settle_s >= 3.0  # the speed needs ~3 s from rest
 
 
 def test_objective_is_the_mean_floored_relative_error():
@@ -43,7 +44,7 @@ def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
     rig = get_rig("walker")
     base = rig.base(TARGETS)
     values = {"foot_mass": 0.004, "friction": 0.45}
-    out = rig.simulate(base, values, [23.0, 65.0], {"settle_s": 0.3, "record_s": 0.3, "timestep": 1e-4})
+    out = rig.simulate(base, values, [23.0, 65.0], base.sim.replace(settle_s=0.3, record_s=0.3, timestep=1e-4))
     steps = pd.DataFrame(out["steps"])
     assert list(steps["frequency_hz"]) == [23.0, 65.0]
     assert steps["body_speed_mm_s"].notna().all() and (steps["body_height_mm"] > 30).all()

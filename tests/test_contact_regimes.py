@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from beambench.analysis.contact import ContactParams, force_regime
-from beambench.sim.scenes.contact_sweep import REGIME_MAP_COLUMNS, regime_map, transitions
+from beambench.sim.scenes.contact_regimes import REGIME_MAP_COLUMNS, ContactTwin, regime_map, transitions
+from beambench.sim.settings import SimSettings
 
 FS = 1000.0
 
@@ -60,24 +61,28 @@ def test_noise_alone_is_no_contact_and_thresholds_scale_with_it():
 def test_transitions_of_a_map():
     f = [10, 16, 18, 20, 26, 30, 38, 40]
     lab = ["continuous", "continuous", "1", "1", "1/2", "1/2", "1/3", "irregular"]
-    assert transitions(f, lab) == {"continuous_below_hz": 16.0, "half_at_hz": 26.0, "third_at_hz": 38.0}
-    tr = transitions([5, 10], ["1", "continuous"])
-    assert tr["continuous_below_hz"] == 0.0 and np.isnan(tr["half_at_hz"])
+    # the continuous edge is the lowest step that is not continuous (the foot never leaves the plate below it)
+    assert transitions(f, lab) == {"continuous_below_hz": 18.0, "half_at_hz": 26.0, "third_at_hz": 38.0}
+    tr = transitions([5, 10], ["1", "continuous"])  # a map that does not start continuous has no edge
+    assert tr["continuous_below_hz"] is None and tr["half_at_hz"] is None
 
 
 def test_regime_map_columns_and_contact():
-    df = regime_map([3.0, 30.0], settle_s=0.5, record_s=0.5, rig_overrides={"plate_gap": 0.0005})
+    df = regime_map(
+        [3.0, 30.0], SimSettings(settle_s=0.5, record_s=0.5), ContactTwin(rig_overrides={"plate_gap": 0.0005})
+    )
     assert list(df.columns) == list(REGIME_MAP_COLUMNS)
     assert df.ok.all()
     assert set(df.regime) <= {"none", "continuous", "irregular", "1", "2", "3", "1/2", "1/3", "1/4"}
     assert (df.regime != "none").all()  # 0.5 mm below the unloaded foot: the sagging foot touches
     assert df.attrs["plate_gap_m"] == 0.0005
-    far = regime_map([3.0], settle_s=0.3, record_s=0.3, rig_overrides={"plate_gap": 0.02})
+    far = regime_map([3.0], SimSettings(settle_s=0.3, record_s=0.3), ContactTwin(rig_overrides={"plate_gap": 0.02}))
     assert far.regime.tolist() == ["none"] and far.tangential_sign.tolist() == [0]
 
 
 # ------------------------------------------------------------------------- the twin: noise and the default set
 
+WINDOW = SimSettings(settle_s=1.5, record_s=1.5)
 SWEEP = [3.0, 6.0, 16.0, 20.0, 22.0, 28.0, 30.0, 32.0, 38.0, 40.0]  # continuous, 2, 1, 1/2, 1/3 on the default
 
 
@@ -85,8 +90,9 @@ SWEEP = [3.0, 6.0, 16.0, 20.0, 22.0, 28.0, 30.0, 32.0, 38.0, 40.0]  # continuous
 def test_same_physics_same_labels_with_and_without_noise():
     """Load-cell noise (15 counts per channel) and mocap noise (0.1 mm) must not change a single label: the
     regime comes from the normal force with a noise-scaled threshold, and the foot height is not used."""
-    quiet = regime_map(SWEEP, params="contact_paper", settle_s=1.5, record_s=1.5, noise=False)
-    noisy = regime_map(SWEEP, params="contact_paper", settle_s=1.5, record_s=1.5, noise=True, seed=7)
+    sim, twin = SimSettings(settle_s=1.5, record_s=1.5), ContactTwin(params="contact_paper")
+    quiet = regime_map(SWEEP, sim.replace(noise=False), twin)
+    noisy = regime_map(SWEEP, sim.replace(noise=True, seed=7), twin)
     assert quiet.ok.all() and noisy.ok.all()
     assert noisy.regime.tolist() == quiet.regime.tolist()
     assert np.allclose(noisy.contacts_per_cycle, quiet.contacts_per_cycle, atol=0.05)
@@ -95,14 +101,14 @@ def test_same_physics_same_labels_with_and_without_noise():
 
 @pytest.mark.slow
 def test_default_set_is_continuous_at_low_frequency_and_halves_in_the_mid_twenties():
-    df = regime_map([3.0, 5.0, 22.0, 28.0, 30.0, 39.0], params="contact_paper", settle_s=1.5, record_s=1.5)
+    df = regime_map([3.0, 5.0, 22.0, 28.0, 30.0, 39.0], WINDOW, ContactTwin(params="contact_paper"))
     lab = dict(zip(df.frequency_hz, df.regime))
     assert lab[3.0] == lab[5.0] == "continuous"
     assert lab[22.0] == "1"
     assert lab[28.0] == lab[30.0] == "1/2"
     assert lab[39.0] == "1/3"
     # the paper's own PRB values never reach the plate at its 5.5 mm gap (issue 11)
-    paper = regime_map([5.0, 28.0], params="paper", settle_s=0.8, record_s=0.8)
+    paper = regime_map([5.0, 28.0], SimSettings(settle_s=0.8, record_s=0.8), ContactTwin(params="paper"))
     assert paper.regime.tolist() == ["none", "none"]
 
 
@@ -113,12 +119,10 @@ def test_shipped_default_keeps_the_foot_down_to_17_hz_where_a_sliding_sole_hops(
     1.5, the first calibration's value) loses the continuous contact at 12-16 Hz (the sole's sliding makes the
     force drop to zero twice a cycle; docs/contact-twin.md)."""
     freqs = [5.0, 12.0, 14.0, 16.0, 17.0, 22.0, 30.0]
-    lab = dict(zip(freqs, regime_map(freqs, params="contact_stuck", settle_s=1.5, record_s=1.5).regime))
+    lab = dict(zip(freqs, regime_map(freqs, WINDOW, ContactTwin(params="contact_stuck")).regime))
     assert all(lab[f] == "continuous" for f in (5.0, 12.0, 14.0, 16.0, 17.0)), lab
     assert lab[22.0] == "1" and lab[30.0] == "1/2", lab
-    sliding = regime_map(
-        freqs[1:4], params="contact_stuck", rig_overrides={"friction": 1.5}, settle_s=1.5, record_s=1.5
-    )
+    sliding = regime_map(freqs[1:4], WINDOW, ContactTwin(params="contact_stuck", rig_overrides={"friction": 1.5}))
     assert "continuous" not in set(sliding.regime), sliding.regime.tolist()
 
 

@@ -9,8 +9,8 @@ import pytest
 
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scenes.contact_regimes import static_sag
 from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
-from beambench.sim.scenes.contact_sweep import static_sag
 from beambench.sim.scenes.free_beam import equilibrium_qpos
 
 

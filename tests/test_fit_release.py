@@ -23,6 +23,7 @@ from beambench.sim.models.params import load_params
 from beambench.sinks.hdf5 import read_processing
 from beambench.studies.fit import (
     FitError,
+    FitOptions,
     ParamSpace,
     ReleaseObjective,
     default_base,
@@ -40,7 +41,7 @@ def test_prb3_fit_recovers_known_parameters():
     truth = replace(base, k=0.30, b=0.0035, k_twist=0.30, b_twist=0.0035, l2=0.027, l3=0.023)
     data = synthetic_release(truth, noise_m=NOISE, seed=1)
     t0 = time.perf_counter()
-    r = fit_release(data, "prb3", seed=0)
+    r = fit_release(data, "prb3", FitOptions(seed=0))
     wall = time.perf_counter() - t0
     print(
         f"\nPRB3 fit: {r.nfev} evaluations in {wall:.1f} s wall ({r.generations} generations), "
@@ -61,7 +62,7 @@ def test_rod_fit_recovers_modulus_and_damping():
     base = default_base("rod")
     truth = replace(base, material=replace(base.material, youngs_modulus=40e6), beta=1.5e-3)
     data = synthetic_release(truth, model="rod5", noise_m=NOISE, seed=2)
-    r = fit_release(data, "rod5", seed=0)
+    r = fit_release(data, "rod5", FitOptions(seed=0))
     assert r.values["youngs_modulus"] == pytest.approx(40e6, rel=0.05)
     assert r.values["beta"] == pytest.approx(1.5e-3, rel=0.15)
     assert r.rms_mm < 1.2 * NOISE * 1e3 * math.sqrt(3)

@@ -11,20 +11,20 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from beambench.studies.calibration.search import (
+from beambench.studies.calibration import (
     RIGS,
     CalibratableRig,
+    CalibrationBase,
     EvalLog,
     Evaluator,
     SearchSettings,
     Unknown,
-    contact_landmarks,
-    contact_objective,
     register_rig,
 )
+from beambench.studies.calibration.contact_objective import contact_landmarks, contact_objective
+from beambench.studies.calibration.landmark_steps import LandmarkPlan, fit_local_linear, landmark_steps, solve_step
 from beambench.studies.calibration.targets import parse_targets
 from beambench.studies.executor import Pool
-from beambench.studies.calibration.landmark_steps import fit_local_linear, landmark_steps, solve_step
 
 # ------------------------------------------------------------------------------------------------ the model
 
@@ -85,6 +85,7 @@ def test_the_contact_landmarks_skip_a_lone_stray_label():
 # ------------------------------------------------------------------------------------------------ the loop
 
 TOY_FREQS = [float(f) for f in range(3, 50)]
+TOY_BASE = CalibrationBase("toy", "none")
 TOY_UNKNOWNS = (Unknown("u", 0.0, 1.0), Unknown("v", 0.0, 1.0), Unknown("w", 0.5, 2.0, log=True))
 
 
@@ -94,7 +95,7 @@ def toy_edges(values: dict[str, float]) -> tuple[float, float, float]:
     return 10.0 + 14 * u + 10 * v - 20 * lw, 22.0 + 16 * u - 6 * v + 10 * lw, 34.0 + 10 * u + 12 * v + 25 * lw
 
 
-def toy_simulate(base: dict, values: dict[str, float], frequencies: list[float], sim: dict) -> dict:
+def toy_simulate(base: CalibrationBase, values: dict[str, float], frequencies: list[float], sim: object) -> dict:
     c, h, t = toy_edges(values)
     steps = []
     for f in frequencies:
@@ -110,7 +111,7 @@ def toy_rig():
         unknowns=TOY_UNKNOWNS,
         simulate=toy_simulate,
         objective=contact_objective,
-        base=lambda t: {},
+        base=lambda t: TOY_BASE,
         write=lambda *a: None,
         summary=lambda s: {},
         landmarks=contact_landmarks,
@@ -130,7 +131,9 @@ def test_the_steps_reach_transitions_no_single_unknown_reaches(toy_rig, tmp_path
     truth = np.linalg.solve(a, np.array(want) - [10.0, 22.0, 34.0])
     assert 0 <= truth[0] <= 1 and 0 <= truth[1] <= 1 and -0.3 <= truth[2] <= 0.3
     with ThreadPoolExecutor(2) as ex:
-        ev = Evaluator(Pool(ex, 2, "threads"), toy_rig, {}, targets, EvalLog(tmp_path / "e.jsonl"), SearchSettings())
+        ev = Evaluator(
+            Pool(ex, 2, "threads"), toy_rig, TOY_BASE, targets, EvalLog(tmp_path / "e.jsonl"), SearchSettings()
+        )
         # … a start and the points of three lines through it (what the calibrator's prior lines leave) …
         start = {"u": 0.5, "v": 0.5, "w": 1.0}
         design = [start] + [
@@ -144,18 +147,12 @@ def test_the_steps_reach_transitions_no_single_unknown_reaches(toy_rig, tmp_path
                 e = toy_edges({**start, u.name: u.value(float(x))})
                 assert max(abs(np.array(e) - want)) > 1.0
         best = landmark_steps(
-            ev,
+            ev.batch,
+            ev.points,
             best0,
             TOY_UNKNOWNS,
-            contact_landmarks,
-            TOY_FREQS,
-            "coarse",
-            rounds=12,
-            n=4,
-            history=[],
-            elapsed=lambda: 0.0,
-            stop=lambda: False,
-            good_enough=0.0,
+            lambda steps: contact_landmarks(steps, targets),
+            LandmarkPlan(TOY_FREQS, "coarse", rounds=12, n=4, good_enough=0.0),
         )
     got = toy_edges(best.values)
     assert max(abs(np.array(got) - want)) <= 1.0, (got, want, best.values)

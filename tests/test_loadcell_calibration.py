@@ -14,7 +14,8 @@ from beambench.acquisition.calibration import (
     fit_matrix,
     tare_counts,
 )
-from beambench.commands.calibrate import parse_loads, register, walkthrough
+from beambench.commands.calibrate import register
+from beambench.devices.loadcell.calibrate import emulated_plate, parse_loads, walkthrough
 from beambench.devices.loadcell.driver import SerialLoadCells
 from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
 
@@ -153,9 +154,7 @@ def test_cli_emulated_demo_with_answers_from_stdin(tmp_path):
     assert "RMS residual" in r.output and f"saved {out}" in r.output
     cal = LoadCellCalibration.load(out)
     probe = np.array([[1.0, 0.0], [0.3, 0.7]])
-    from beambench.commands.calibrate import _emulated_plate
-
-    np.testing.assert_allclose(cal.force_from_counts(_emulated_plate().counts_from_force(probe)), probe, atol=0.01)
+    np.testing.assert_allclose(cal.force_from_counts(emulated_plate().counts_from_force(probe)), probe, atol=0.01)
     assert "3 loads" in cal.source
 
 

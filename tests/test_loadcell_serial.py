@@ -11,7 +11,7 @@ from beambench.acquisition.calibration import LoadCellCalibration
 from beambench.acquisition.capabilities import DeviceFault, Stream
 from beambench.acquisition.streams import LOADCELL, loadcell_spec
 from beambench.devices.loadcell.driver import SerialLoadCells, Unwrap32
-from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock
 
 SENS = np.array([[20000.0, 1000.0], [21000.0, -800.0], [500.0, 19000.0], [-300.0, 20500.0]])
 PLATE = LoadCellCalibration(tare=np.array([1200.0, -800.0, 450.0, -300.0]), sensitivity=SENS)
@@ -79,11 +79,7 @@ def test_injected_faults_are_counted_exactly():
     mcu = EmulatedLoadCellMCU(
         force,
         PLATE,
-        crc_error_prob=0.02,
-        drop_prob=0.02,
-        max_drop=4,
-        garbage_prob=0.03,
-        max_garbage=60,
+        faults=LinkFaults(crc_error_prob=0.02, drop_prob=0.02, max_drop=4, garbage_prob=0.03, max_garbage=60),
         tx_buffer=BIG_TX,
         seed=11,
     )
@@ -113,7 +109,7 @@ def test_driver_opening_a_running_stream_counts_startup_bytes_not_errors():
 
 def test_mcu_clock_drift_shows_in_device_time():
     drift_ppm = 5000.0  # exaggerated, so host timing noise on a busy machine cannot hide it
-    mcu = EmulatedLoadCellMCU(force, PLATE, drift_ppm=drift_ppm, tx_buffer=BIG_TX, seed=2)
+    mcu = EmulatedLoadCellMCU(force, PLATE, clock=McuClock(drift_ppm=drift_ppm), tx_buffer=BIG_TX, seed=2)
     b, _ = acquire(mcu, 1.5)
     np.testing.assert_array_equal(np.rint(np.diff(b.device_time) * 1e6), 1000)  # the MCU thinks it is exact
     host_s = (b.host_time_ns - b.host_time_ns[0]) * 1e-9
@@ -128,7 +124,9 @@ def test_mcu_clock_drift_shows_in_device_time():
 
 def test_32_bit_microsecond_clock_wraps_into_a_continuous_device_time():
     start = 2**32 - 400_000  # wraps 0.4 s into the run
-    mcu = EmulatedLoadCellMCU(force, PLATE, clock_start_us=start, seq_start=2**32 - 300, tx_buffer=BIG_TX, seed=4)
+    mcu = EmulatedLoadCellMCU(
+        force, PLATE, clock=McuClock(clock_start_us=start, seq_start=2**32 - 300), tx_buffer=BIG_TX, seed=4
+    )
     b, lc = acquire(mcu, 1.0)
     assert len(b) > 600 and lc.stats()["lost_frames"] == 0
     np.testing.assert_allclose(np.diff(b.device_time), 1e-3, atol=1e-9)
@@ -170,7 +168,7 @@ def test_missing_port_is_a_device_fault():
 
 
 def test_ping_reports_version_and_rate():
-    with EmulatedLoadCellMCU(force, PLATE, drift_ppm=100.0) as mcu:
+    with EmulatedLoadCellMCU(force, PLATE, clock=McuClock(drift_ppm=100.0)) as mcu:
         mcu.start()
         found = SerialLoadCells(mcu.port).ping(0.3)
     assert found.ok and found.version == 1 and found.frames > 50

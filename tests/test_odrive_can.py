@@ -20,6 +20,7 @@ from beambench.devices.odrive import cansimple as cs
 from beambench.devices.odrive.can_motor import (
     MAX_VEL_LIMIT,
     RECEIVE_COALESCE_S,
+    CanMotorTiming,
     LimitError,
     OdriveCanMotor,
     ping,
@@ -355,7 +356,9 @@ def test_ping(channel, emu):
 
 
 def test_arm_without_odrive_raises(tmp_path):
-    with OdriveCanMotor(f"empty-{uuid.uuid4().hex}", "virtual", NODE, heartbeat_timeout_s=0.1) as m:
+    with OdriveCanMotor(
+        f"empty-{uuid.uuid4().hex}", "virtual", NODE, timing=CanMotorTiming(heartbeat_timeout_s=0.1)
+    ) as m:
         with pytest.raises(DeviceFault, match="no heartbeat"):
             m.arm(LIMITS)
         with pytest.raises(DeviceFault, match="no heartbeat"):

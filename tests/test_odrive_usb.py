@@ -22,7 +22,7 @@ from beambench.devices.odrive.cansimple import (
     ControlMode,
     InputMode,
 )
-from beambench.devices.odrive.usb_motor import OdriveUsbMotor, ping
+from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming, ping
 
 LIMITS = MotorLimits(max_frequency_hz=20.0, max_current_a=8.0, amplitude_mm=2.0)
 
@@ -142,7 +142,7 @@ def odrv():
 
 @pytest.fixture
 def motor(odrv):
-    m = OdriveUsbMotor(odrv=odrv, poll_period_s=0.005)
+    m = OdriveUsbMotor(odrv=odrv, timing=UsbMotorTiming(poll_period_s=0.005))
     yield m
     m.close()
 
@@ -222,7 +222,7 @@ def test_watchdog_fed_while_armed_and_telemetry(motor, odrv):
 
 
 def test_idle_on_close_restores_watchdog_and_never_raises(odrv):
-    with pytest.raises(RuntimeError), OdriveUsbMotor(odrv=odrv, poll_period_s=0.005) as m:
+    with pytest.raises(RuntimeError), OdriveUsbMotor(odrv=odrv, timing=UsbMotorTiming(poll_period_s=0.005)) as m:
         m.arm(LIMITS)
         m.set_frequency(5.0)
         raise RuntimeError("boom")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.sim.scenes.free_beam import frequency_sweep, orbit_axes, twist_sweep
+from beambench.sim.scenes.free_beam import FREE_BEAM_SETTINGS, frequency_sweep, orbit_axes, twist_sweep
 
 MIRROR = np.array([-1.0, 1.0, 1.0])  # x → −x: the plane of symmetry of the untwisted beam is y–z
 
@@ -14,9 +14,9 @@ MIRROR = np.array([-1.0, 1.0, 1.0])  # x → −x: the plane of symmetry of the 
 def test_mirrored_drive_gives_the_exact_mirror_image(model):
     """With the drive mirrored as well (A → −A), the −φ run is the +φ run reflected, sample by sample,
     transient included: the model is built symmetric to rounding error."""
-    kw = dict(frequencies=[20.0], settle_s=0.0, record_s=0.3, timestep=1e-4)
-    plus = frequency_sweep(model, twist_deg=90.0, amplitude=0.002, **kw)
-    minus = frequency_sweep(model, twist_deg=-90.0, amplitude=-0.002, **kw)
+    s = FREE_BEAM_SETTINGS.replace(settle_s=0.0, record_s=0.3, timestep=1e-4)
+    plus = frequency_sweep(model, [20.0], s.replace(twist_deg=90.0, amplitude_m=0.002))
+    minus = frequency_sweep(model, [20.0], s.replace(twist_deg=-90.0, amplitude_m=-0.002))
     assert np.ptp(plus.tip[0, :, 0]) > 2e-3  # a real motion
     assert np.abs(plus.tip[0] * MIRROR - minus.tip[0]).max() < 1e-9
 
@@ -27,7 +27,8 @@ def test_opposite_chirality_mirrors_the_orbit_and_reverses_its_sense(model):
     later, since the mirrored drive is the drive shifted by T/2), and it is travelled the other way round."""
     f = 20.0
     half = round(0.5 / f / 1e-4)  # T/2 in steps
-    r = twist_sweep(model, twists=[90.0, -90.0], frequency=f, settle_s=1.5, record_s=0.1 + 0.5 / f, timestep=1e-4)
+    s = FREE_BEAM_SETTINGS.replace(settle_s=1.5, record_s=0.1 + 0.5 / f, timestep=1e-4)
+    r = twist_sweep(model, twists=[90.0, -90.0], frequency=f, settings=s)
     plus, minus = r.tip[0], r.tip[1]
     n = len(plus) - half
     size = np.ptp(plus[:, 0])

@@ -7,14 +7,15 @@ import numpy as np
 import pytest
 
 from beambench.sim.scenes.contact_sweep import contact_ratio, contact_sweep
+from beambench.sim.settings import SimSettings
 
 
 def test_contacts_per_cycle_fall_from_one_to_a_half_with_frequency():
     """PRB3, 1 mm gap: one landing per drive cycle at 20 Hz, one every other cycle at 35 Hz — the same with a
     coarse (2e-4 s) and a fine (2.5e-5 s) timestep; the stage follows the sine exactly."""
-    kw = dict(gap_m=0.001, settle_s=0.8, record_s=0.6)
-    coarse = contact_sweep("prb3", [20.0, 35.0], 2e-4, **kw)
-    fine = contact_sweep("prb3", [20.0, 35.0], 2.5e-5, **kw)
+    sim = SimSettings(settle_s=0.8, record_s=0.6)
+    coarse = contact_sweep("prb3", [20.0, 35.0], sim.replace(timestep=2e-4), gap_m=0.001)
+    fine = contact_sweep("prb3", [20.0, 35.0], sim.replace(timestep=2.5e-5), gap_m=0.001)
     for r in (coarse, fine):
         assert r.ok.all()
         ratio = r.contacts_per_cycle()
@@ -26,7 +27,7 @@ def test_contacts_per_cycle_fall_from_one_to_a_half_with_frequency():
 
 
 def test_paper_gap_prb3_foot_never_touches():
-    r = contact_sweep("prb3", [10.0, 30.0], 1e-4, gap_m=0.0055, settle_s=0.5, record_s=0.3)
+    r = contact_sweep("prb3", [10.0, 30.0], SimSettings(settle_s=0.5, record_s=0.3, timestep=1e-4), gap_m=0.0055)
     assert r.ok.all()
     assert (r.normal == 0).all()
     assert np.isnan(r.contacts_per_cycle()).all()
@@ -46,9 +47,9 @@ def test_contact_ratio_counts_only_real_flights():
 def test_balanced_threads_give_the_same_runs_as_one_thread():
     """Mixed per-frequency timesteps split over two worker threads: bit-identical to one thread."""
     freqs, dts = [5.0, 12.0, 20.0, 33.0, 40.0], [2.5e-4, 1e-3 / 3, 2e-4, 1e-3 / 3, 5e-4]
-    kw = dict(settle_s=0.2, record_s=0.2, integrator="euler")
-    one = contact_sweep("prb3", freqs, dts, nthread=1, **kw)
-    two = contact_sweep("prb3", freqs, dts, nthread=2, **kw)
+    sim = SimSettings(settle_s=0.2, record_s=0.2, integrator="euler", timestep=tuple(dts))
+    one = contact_sweep("prb3", freqs, sim.replace(nthread=1))
+    two = contact_sweep("prb3", freqs, sim.replace(nthread=2))
     assert one.ok.all() and np.isfinite(one.foot).all()
     assert np.array_equal(one.foot, two.foot) and np.array_equal(one.normal, two.normal)
     assert all(np.array_equal(a[0], b[0]) for a, b in zip(one.contact, two.contact))
@@ -57,9 +58,9 @@ def test_balanced_threads_give_the_same_runs_as_one_thread():
 def test_euler_equals_implicitfast_on_the_contact_rig():
     """The scene's only velocity-dependent forces are joint damping, which Euler also treats implicitly: the
     two integrators give the same foot path (so the table may pick the cheaper one)."""
-    kw = dict(settle_s=0.3, record_s=0.2)
-    a = contact_sweep("prb3", [25.0], 2.5e-4, integrator="euler", **kw)
-    b = contact_sweep("prb3", [25.0], 2.5e-4, integrator="implicitfast", **kw)
+    sim = SimSettings(settle_s=0.3, record_s=0.2, timestep=2.5e-4)
+    a = contact_sweep("prb3", [25.0], sim.replace(integrator="euler"))
+    b = contact_sweep("prb3", [25.0], sim.replace(integrator="implicitfast"))
     assert np.abs(a.foot - b.foot).max() < 1e-9
 
 
@@ -67,7 +68,7 @@ def test_table_marks_timesteps_that_soften_the_contact():
     """dt above half the 1 ms contact time constant: MuJoCo's refsafe softens the contact to 2·dt, so the
     peak plate force drops — the table marks such rows solref_clamped and selection never picks them."""
     from beambench.sim import selection as select
-    from beambench.sim.scenes.contact_sweep import measure_contact_table
+    from beambench.studies.contact_table import measure_contact_table
 
     t = measure_contact_table(
         "prb3",
@@ -80,8 +81,9 @@ def test_table_marks_timesteps_that_soften_the_contact():
     )
     status = dict(zip(t.timestep, t.status))
     assert status[1e-3] == "solref_clamped" and status[2.5e-4] in ("ok", "wrong_contacts")
-    stiff = contact_sweep("prb3", [20.0], 2.5e-4, settle_s=0.3, record_s=0.3, integrator="euler")
-    soft = contact_sweep("prb3", [20.0], 1e-3, settle_s=0.3, record_s=0.3, integrator="euler")
+    sim = SimSettings(settle_s=0.3, record_s=0.3, integrator="euler")
+    stiff = contact_sweep("prb3", [20.0], sim.replace(timestep=2.5e-4))
+    soft = contact_sweep("prb3", [20.0], sim.replace(timestep=1e-3))
     assert max(x[0].max() for x in soft.contact) < 0.8 * max(x[0].max() for x in stiff.contact)
     plan = select.plan_sweep("contact", 10.0, [20.0], table=t)  # even a loose tolerance: never the clamped row
     assert plan.timestep(20.0) == 2.5e-4

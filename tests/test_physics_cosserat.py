@@ -60,7 +60,7 @@ def test_driven_twisted_rod_agrees_with_the_segmented_rod_off_resonance() -> Non
     """The cross-check proper: an independent formulation (Cosserat rod, PositionVerlet) and our MuJoCo rod10
     driven at 15 Hz with the 90° twist trace the same tip path to well under the mocap noise (0.1 mm), while
     the paper's PRB3 is a millimetre away (its model error, as the ladder measures)."""
-    from beambench.sim.scenes.free_beam import frequency_sweep
+    from beambench.sim.scenes.free_beam import FREE_BEAM_SETTINGS, frequency_sweep
 
     kw = dict(settle_s=0.5, record_s=0.2)
     ref = cosserat.frequency_sweep(
@@ -68,7 +68,7 @@ def test_driven_twisted_rod_agrees_with_the_segmented_rod_off_resonance() -> Non
     )
     rms = {}
     for name in ("rod10", "prb3"):
-        ours = frequency_sweep(name, [15.0], 90.0, timestep=1e-4, **kw)
+        ours = frequency_sweep(name, [15.0], FREE_BEAM_SETTINGS.replace(twist_deg=90.0, timestep=1e-4, **kw))
         assert np.allclose(ours.t, ref.t)
         rms[name] = float(np.sqrt(np.mean(np.sum((ours.tip[0] - ref.tip[0]) ** 2, axis=1)))) * 1e3
     motion = float(np.sqrt(np.mean(np.sum((ref.tip[0] - ref.tip[0].mean(axis=0)) ** 2, axis=1)))) * 1e3

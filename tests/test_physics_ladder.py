@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from beambench.sim import selection as select
-from beambench.sim.scenes.free_beam import frequency_sweep
+from beambench.sim.scenes.free_beam import FREE_BEAM_SETTINGS, frequency_sweep
 from beambench.studies.ladder import (
     LadderConfig,
     place_labels,
@@ -120,9 +120,9 @@ def test_selected_configuration_meets_its_tolerance_in_a_fresh_run():
         plan = select.plan_sweep("free_beam", 1.0, [15.0])
     except select.SelectionError as exc:
         pytest.skip(f"no shipped ladder table: {exc}")
-    kw = dict(frequencies=[15.0], settle_s=0.6, record_s=0.2)
-    chosen = frequency_sweep(plan.model, integrator=plan.integrator, timestep=plan.timestep(15.0), **kw)
-    fine = frequency_sweep("rod20", integrator="implicitfast", timestep=5e-5, **kw)
+    s = FREE_BEAM_SETTINGS.replace(settle_s=0.6, record_s=0.2)
+    chosen = frequency_sweep(plan.model, [15.0], s.replace(integrator=plan.integrator, timestep=plan.timestep(15.0)))
+    fine = frequency_sweep("rod20", [15.0], s.replace(integrator="implicitfast", timestep=5e-5))
     idx = np.rint(chosen.t / 5e-5).astype(int) - int(np.rint(fine.t[0] / 5e-5))  # chosen times on the fine grid
     assert np.allclose(fine.t[idx], chosen.t)
     err = np.sqrt(np.mean(np.sum((chosen.tip[0] - fine.tip[0, idx]) ** 2, axis=1))) * 1e3

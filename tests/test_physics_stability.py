@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from beambench.acquisition.config import parse_protocol
-from beambench.sim.scenes.free_beam import frequency_sweep
+from beambench.sim.scenes.free_beam import FREE_BEAM_SETTINGS, frequency_sweep
+from beambench.sim.settings import SimSettings
 
 FREQS = [1.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0]
 BAD = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQPOS)
@@ -17,7 +18,7 @@ BAD = (mujoco.mjtWarning.mjWARN_BADQACC, mujoco.mjtWarning.mjWARN_BADQVEL, mujoc
 def test_free_beam_defaults_stay_bounded(model):
     """Default integrator and timestep of the free-beam scene; the tip stays within a beam length of its
     rest position and keeps moving with the drive (a frozen, warned-out run would also fail)."""
-    r = frequency_sweep(model, FREQS, settle_s=0.5, record_s=0.1, sample_dt=1e-3)
+    r = frequency_sweep(model, FREQS, FREE_BEAM_SETTINGS.replace(settle_s=0.5, record_s=0.1), sample_dt=1e-3)
     assert r.ok.all()
     assert np.isfinite(r.tip).all()
     rest = np.array([0.0, 0.05, 0.0])
@@ -49,7 +50,8 @@ def test_recorded_rows_are_aligned_with_simulated_time(integrator):
     """Row k is the state at t = k·h: the stage sensor equals A·sin(2πft) at the row times to nanometres
     (a one-step lag between sensor and state rows would show as A·ω·h = 13 µm here)."""
     h = 1e-5 if integrator == "rk4" else 1e-4
-    r = frequency_sweep("prb3", [10.0, 40.0], settle_s=0.05, record_s=0.1, timestep=h, integrator=integrator)
+    s = SimSettings(settle_s=0.05, record_s=0.1, timestep=h, integrator=integrator)
+    r = frequency_sweep("prb3", [10.0, 40.0], s)
     assert r.ok.all()
     expected = 0.002 * np.sin(2 * np.pi * r.frequencies[:, None] * r.t[None, :])
     assert np.abs(r.stage - expected).max() < 1e-8
@@ -60,7 +62,7 @@ def test_a_diverging_batch_is_reported_not_logged_into_the_working_directory(tmp
     batch engine reports a diverged run in ``ok`` instead, and puts the user's handler back."""
     monkeypatch.chdir(tmp_path)
     before = mujoco.get_mju_user_warning()
-    r = frequency_sweep("rod10", [40.0], integrator="euler", timestep=2e-3, settle_s=0.2, record_s=0.1)
+    r = frequency_sweep("rod10", [40.0], SimSettings(settle_s=0.2, record_s=0.1, integrator="euler", timestep=2e-3))
     assert not r.ok[0]
     assert not list(tmp_path.iterdir())
     assert mujoco.get_mju_user_warning() is before

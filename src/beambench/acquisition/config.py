@@ -9,15 +9,27 @@ from __future__ import annotations
 import math
 import unicodedata
 from pathlib import Path
-from typing import Any, Literal, get_args
+from typing import Annotated, Any, Literal, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from beambench.acquisition.scenes import runnable_names, scene_info
 from beambench.common.yaml_config import MISSING as _MISSING
 from beambench.common.yaml_config import ConfigError, load_yaml_file, parse_yaml, validate
 
 Backend = Literal["sim", "emulated", "hardware"]
-RigKind = Literal["contact", "walker", "release"]
+
+
+def _runnable_scene(name: str) -> str:
+    known = runnable_names()
+    if name not in known:
+        choices = ", ".join(repr(n) for n in known[:-1]) + f" or {known[-1]!r}"
+        raise ValueError(f"Input should be {choices}")
+    return name
+
+
+# the scenes a protocol may run, as declared in beambench.acquisition.scenes (contact, walker, release)
+RigKind = Annotated[str, AfterValidator(_runnable_scene)]
 Integrator = Literal["euler", "implicitfast", "implicit", "rk4", "discrete"]
 BACKENDS: tuple[str, ...] = get_args(Backend)
 
@@ -199,10 +211,11 @@ class Protocol(_Model):
 
     @model_validator(mode="after")
     def _driven_rigs_need_frequencies(self) -> Protocol:
-        if self.rig != "release" and min(self.sweep.values()) <= 0:
-            raise ValueError(f"sweep: frequencies must be > 0 Hz on the {self.rig} rig (0 is for rig: release)")
-        if self.rig == "release" and (self.reference is not None or self.sweep.direction != "up"):
-            raise ValueError("reference and sweep.direction are for driven rigs (contact, walker), not release")
+        if scene_info(self.rig).driven and min(self.sweep.values()) <= 0:
+            undriven = " or ".join(n for n in runnable_names() if not scene_info(n).driven)
+            raise ValueError(f"sweep: frequencies must be > 0 Hz on the {self.rig} rig (0 is for rig: {undriven})")
+        if not scene_info(self.rig).driven and (self.reference is not None or self.sweep.direction != "up"):
+            raise ValueError(f"reference and sweep.direction are for driven rigs, not {self.rig}")
         n = self.n_planned_steps()
         if n > MAX_STEPS:
             raise ValueError(f"sweep: {n:.3g} steps with direction, repeats and reference: more than {MAX_STEPS}")

@@ -97,6 +97,7 @@ def summary(protocol: Protocol, backend: str) -> dict[str, object]:
         "total_duration_s": sum(s.duration_s for s in steps),
         "max_frequency_hz": max(freqs),
         "amplitude_mm": protocol.amplitude_mm,
+        "release_load_g": protocol.release.load_g,
         "limits": protocol.limits.model_dump(),
     }
 

@@ -34,6 +34,7 @@ from beambench.analysis.sync import (
     fit_clock,
     fit_echo,
     fits_table,
+    hold_previous,
     resample,
     sync_edge_check,
     timeline,
@@ -48,6 +49,7 @@ from beambench.analysis.trajectory import (
     stage_frame,
 )
 from beambench.analysis.walking import body_speed
+from beambench.sinks.session_frames import step_of
 
 
 @dataclass(frozen=True)
@@ -596,10 +598,15 @@ def resample_session(
     start_ns: int | None = None,
     end_ns: int | None = None,
 ) -> pd.DataFrame:
-    """Every stream's numeric columns on one uniform host-clock timeline (a DataFrame indexed by seconds).
+    """Every stream's numeric columns on one uniform host-clock timeline (a DataFrame indexed by ``t_s``, seconds
+    from the earliest sample), for notebooks.
 
-    Columns are named ``stream/column[/label][/axis]``; load cells also get calibrated ``loadcell/normal_n``
-    and ``loadcell/tangential_n``. The raw data are not modified.
+    Columns are named ``stream/column[/label][/axis]`` (``mocap/data/foot/x``, ``motor/axis_state``); load cells
+    also get calibrated ``loadcell/normal_n`` and ``loadcell/tangential_n``, and ``step`` is the protocol step
+    each row falls in (-1 between steps). Float columns are interpolated linearly (NaN where a stream has no data
+    or a gap); integer, boolean and enum columns (frame and sequence numbers, occlusion flags, the ODrive's
+    ``axis_state``) keep the last sample at or before each row (nullable ``Int64`` / ``boolean``, NA where there is
+    none), so a state never takes a value it was not in. The raw data are not modified.
     """
     fits = fits if fits is not None else fit_session_clocks(session)
     times = {n: stream_host_times(s, fits.get(n)) for n, s in session.streams.items() if len(s.host_time_ns)}
@@ -608,7 +615,7 @@ def resample_session(
     a = start_ns if start_ns is not None else min(int(t.min()) for t in times.values())
     b = end_ns if end_ns is not None else max(int(t.max()) for t in times.values())
     grid = timeline(a, b, rate_hz)
-    out: dict[str, np.ndarray] = {}
+    out: dict[str, Any] = {}
     cal = session_calibration(session.general)
     for name, t in times.items():
         s = session.streams[name]
@@ -626,11 +633,19 @@ def resample_session(
                 continue
             spec = getattr(s, "spec", None)
             labels = list(spec.columns[col].labels) if spec is not None and col in spec.columns else []
-            r = resample(t, arr.astype(float), grid)
-            flat = r.reshape(len(grid), -1)
             names = _column_names(name, col, arr.shape[1:], labels)
+            if arr.dtype.kind == "f":
+                flat = resample(t, arr, grid).reshape(len(grid), -1)
+                for i, nm in enumerate(names):
+                    out[nm] = flat[:, i]
+                continue
+            held, valid = hold_previous(t, arr, grid)
+            flat = held.reshape(len(grid), -1)
             for i, nm in enumerate(names):
-                out[nm] = flat[:, i]
+                held_i = pd.Series(flat[:, i])
+                typed = held_i.astype("boolean") if arr.dtype.kind == "b" else held_i.astype("Int64")
+                out[nm] = typed.mask(~valid).array
+    out["step"] = step_of(session, grid)[0]
     return pd.DataFrame(out, index=pd.Index((grid - a) / NS, name="t_s"))
 
 

@@ -343,6 +343,30 @@ def resample(
     return out.reshape(out_shape)
 
 
+def hold_previous(
+    t_ns: np.ndarray, values: np.ndarray, target_ns: np.ndarray, *, max_gap_s: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The last sample at or before each target time (a zero-order hold), for discrete columns (states, counters,
+    flags) that interpolation would turn into values never sent. Returns ``(values[target], valid)``, the values
+    in their own dtype; ``valid`` is False before the first sample and where the last sample is older than
+    ``max_gap_s`` (default: 5 median sample intervals)."""
+    t = np.asarray(t_ns, np.int64)
+    v = np.asarray(values)
+    tgt = np.asarray(target_ns, np.int64)
+    if len(t) == 0:
+        return np.zeros((len(tgt), *v.shape[1:]), v.dtype), np.zeros(len(tgt), bool)
+    order = np.argsort(t, kind="stable")
+    t, v = t[order], v[order]
+    if max_gap_s is None:
+        dt = np.diff(t)
+        max_gap_s = 5.0 * float(np.median(dt)) / NS if len(dt) else 0.0
+    i = np.searchsorted(t, tgt, side="right") - 1
+    valid = i >= 0
+    i = np.clip(i, 0, len(t) - 1)
+    valid &= (tgt - t[i]) <= max_gap_s * NS
+    return v[i], valid
+
+
 # ---------------------------------------------------------------------------------- encoder ↔ marker delay
 
 

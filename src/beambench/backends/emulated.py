@@ -32,6 +32,7 @@ from beambench.acquisition.config import (
     Protocol,
     RigFile,
 )
+from beambench.acquisition.scenes import scene_info
 from beambench.backends.hardware import DeviceRig
 
 
@@ -215,7 +216,7 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
     while running, and on ``stop`` stops everything and sends back what it injected (a report).
     """
     from beambench.emulators.canbus import LoopbackCanBus
-    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock
     from beambench.emulators.motive import EmulatorClock, MotiveEmulator, motive_frame
     from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
 
@@ -242,12 +243,14 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
     mcu = EmulatedLoadCellMCU(
         force=physics.force,
         calibration=spec["calibration"],
-        drift_ppm=sim.loadcell_clock.drift_ppm,
+        clock=McuClock(drift_ppm=sim.loadcell_clock.drift_ppm),
         noise_counts=50.0 if sim.noise else 0.0,
         seed=sim.seed,
-        crc_error_prob=inject.get("loadcell_crc", 0.0),
-        drop_prob=inject.get("loadcell_drop", 0.0),
-        garbage_prob=inject.get("loadcell_garbage", 0.0),
+        faults=LinkFaults(
+            crc_error_prob=inject.get("loadcell_crc", 0.0),
+            drop_prob=inject.get("loadcell_drop", 0.0),
+            garbage_prob=inject.get("loadcell_garbage", 0.0),
+        ),
         tx_buffer=1 << 22,  # frames the emulator sends late when its own process was starved are not lost
     )
     stop_mcu: threading.Timer | None = None
@@ -444,7 +447,7 @@ def odrive_config(protocol: Protocol, rig_file: Path | None, config_type: Any) -
     (default: the shipped ``calibration/rig.yaml``; pole pairs, Hall feedback, torque constant, rotor + offset-mass
     inertia); the emulator's default motor for the other rigs. ``vel_limit``/``current_lim`` come from the
     protocol's limits through Set_Limits, as on the bench."""
-    if protocol.rig != "walker":
+    if not scene_info(protocol.rig).own_motor:
         return config_type(calibration_s=0.2)
     from beambench.acquisition.config import load_rig_file
     from beambench.backends.hardware import DEFAULT_RIG_FILE
@@ -488,7 +491,7 @@ def build_emulated_rig(
         raise ValueError(f"unknown injections {unknown}; known: {list(INJECTIONS)}")
     from beambench.devices.loadcell.driver import SerialLoadCells
     from beambench.devices.natnet.client import NatNetConfig, NatNetMocap
-    from beambench.devices.odrive.can_motor import OdriveCanMotor
+    from beambench.devices.odrive.can_motor import CanMotorTiming, OdriveCanMotor
     from beambench.emulators.canbus import LoopbackCanBus, new_channel
     from beambench.emulators.motive import MOTIVE_GEOMETRY
 
@@ -525,8 +528,10 @@ def build_emulated_rig(
             bus=LoopbackCanBus(group, host_port, send_port=peer_port),  # the host's end
             own_bus=True,
             can_log=can_log,
-            heartbeat_timeout_s=wiring.odrive.heartbeat_timeout_s,
-            telemetry_timeout_s=wiring.odrive.telemetry_timeout_s,
+            timing=CanMotorTiming(
+                heartbeat_timeout_s=wiring.odrive.heartbeat_timeout_s,
+                telemetry_timeout_s=wiring.odrive.telemetry_timeout_s,
+            ),
         )
         loadcells = SerialLoadCells(ready["loadcell_port"], silence_timeout_s=wiring.loadcell.silence_timeout_s)
     except BaseException:

@@ -24,7 +24,7 @@ from beambench.acquisition.config import (
     Protocol,
     load_rig_file,
 )
-from beambench.acquisition.streams import CONTACT_MARKERS, WALKER_MARKERS
+from beambench.acquisition.scenes import scene_info
 from beambench.common.resources import shipped_dir
 
 DEFAULT_RIG_FILE = shipped_dir("calibration") / "rig.yaml"
@@ -154,7 +154,7 @@ class DeviceRig:
 
 
 def _markers(protocol: Protocol) -> tuple[str, ...]:
-    return WALKER_MARKERS if protocol.rig == "walker" else CONTACT_MARKERS
+    return scene_info(protocol.rig).wired_markers
 
 
 def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
@@ -162,7 +162,7 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
         from beambench.devices.odrive.usb_motor import OdriveUsbMotor
 
         return OdriveUsbMotor(serial_number=od.serial_number, axis=od.axis)
-    from beambench.devices.odrive.can_motor import OdriveCanMotor
+    from beambench.devices.odrive.can_motor import CanMotorTiming, OdriveCanMotor
 
     return OdriveCanMotor(
         od.channel,
@@ -170,8 +170,7 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
         od.node_id,
         bitrate=od.bitrate,
         can_log=can_log,
-        heartbeat_timeout_s=od.heartbeat_timeout_s,
-        telemetry_timeout_s=od.telemetry_timeout_s,
+        timing=CanMotorTiming(heartbeat_timeout_s=od.heartbeat_timeout_s, telemetry_timeout_s=od.telemetry_timeout_s),
         **can_kw,
     )
 

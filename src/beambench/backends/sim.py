@@ -21,7 +21,8 @@ import numpy as np
 
 from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import Stream
-from beambench.acquisition.config import ClockModel, ConfigError, Protocol
+from beambench.acquisition.config import ClockModel, ConfigError, Protocol, SimOptions
+from beambench.acquisition.scenes import SceneInfo, foreign_option, runnable_names, scene_info
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
 from beambench.backends import lookahead
 from beambench.backends.sim_devices import (
@@ -31,95 +32,81 @@ from beambench.backends.sim_devices import (
     SimMocap,
     SimMotor,
 )
+from beambench.sim import scenes
 from beambench.sim.engine.stepping import Trajectory
 from beambench.sim.models.params import has_params
 from beambench.sim.models.registry import UnknownModelError, beam_model, model_family
+from beambench.sim.scenes import SceneConfig
 from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
 
-CONTACT_ONLY = {"plate_gap_mm", "tolerance_mm"}  # sim options only the contact rig builds
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
 
 def build_scene(protocol: Protocol) -> DrivenScene:
-    """The MuJoCo scene for ``protocol.rig`` with the protocol's sim options."""
+    """The MuJoCo scene for ``protocol.rig`` (the scene registry's builder) with the protocol's sim options."""
     sim = protocol.sim
-    if protocol.rig != "contact":
-        if sim.model == "auto":
-            reason = "auto chooses from the measured contact-rig table (rig: contact); name a model (prb3, rod10 …)"
-            raise ConfigError("<protocol>", "sim.model", sim.model, reason)
-        for option in sorted(CONTACT_ONLY & sim.model_fields_set):
-            reason = f"applies to rig: contact only (the {protocol.rig} scene has no plate and no measured table)"
-            raise ConfigError("<protocol>", f"sim.{option}", getattr(sim, option), reason)
+    info = scene_info(protocol.rig)
+    _check_scene_options(info, sim)
     plan = _contact_plan(protocol)
     model_name = plan.model if plan else sim.model
     try:
         beam = beam_model(model_name, sim.params)
     except UnknownModelError as exc:
         raise ConfigError("<protocol>", "sim.model", sim.model, str(exc).split(": ", 1)[-1]) from None
-    if protocol.rig == "walker":
-        _check_walker_legs(model_name)
-    elif sim.segments > 1:
-        reason = "applies to rig: walker only (the other scenes do not settle into a steady gait)"
-        raise ConfigError("<protocol>", "sim.segments", sim.segments, reason)
-    if protocol.rig == "release":
-        from beambench.sim.scenes.release import ReleaseSim
-
-        return ReleaseSim.from_protocol(protocol, beam)
-    if protocol.rig == "walker":
-        from beambench.sim.scenes.walker import WalkerSim
-
-        return WalkerSim(beam, twist_deg=sim.twist_deg, integrator=sim.integrator, timestep=sim.timestep)
-    from beambench.sim.scenes.contact_rig import ContactRigSim
-
-    return ContactRigSim(
+    slice_ = SceneConfig(
         beam,
-        twist_deg=sim.twist_deg,
-        gap_m=None if sim.plate_gap_mm is None else sim.plate_gap_mm * 1e-3,  # None: the parameter set's gap
-        amplitude_m=protocol.amplitude_mm * 1e-3,
-        integrator=plan.integrator if plan else sim.integrator,
-        timestep=sim.timestep,
-        timestep_for=plan.timestep if plan else None,
-        selection=plan.describe() if plan else None,
+        sim,
+        amplitude_mm=protocol.amplitude_mm,
+        settle_s=protocol.settle_s,
+        record_s=protocol.record_s,
+        release=protocol.release,
+        plan=plan,
     )
+    return scenes.get(info.name).build(slice_)
 
 
-def _check_walker_legs(model_name: str) -> None:
-    """A leg model the walker cannot stand on is a ConfigError (one line) before anything is built."""
-    from beambench.acquisition.config import ConfigError
-    from beambench.sim.scenes.walker import WalkerLegError, check_leg_model
-
-    try:
-        check_leg_model(model_name)
-    except WalkerLegError as exc:
-        raise ConfigError("<protocol>", "sim.model", model_name, exc.reason) from None
+def _check_scene_options(info: SceneInfo, sim: SimOptions) -> None:
+    """``sim.model: auto`` needs a measured table; another scene's options (set to other than their default) are
+    refused with one line."""
+    if sim.model == "auto" and not info.measured_table:
+        tabled = " or ".join(n for n in runnable_names() if scene_info(n).measured_table)
+        reason = f"auto chooses from the measured {tabled}-rig table (rig: {tabled}); name a model (prb3, rod10 …)"
+        raise ConfigError("<protocol>", "sim.model", sim.model, reason)
+    defaults = SimOptions.model_fields
+    given = {k for k in sim.model_fields_set if getattr(sim, k) != defaults[k].default}
+    foreign = foreign_option(info.name, given, "rig")
+    if foreign is not None:
+        option, reason = foreign
+        raise ConfigError("<protocol>", f"sim.{option}", getattr(sim, option), reason)
 
 
 AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
 
 
 def _contact_plan(protocol: Protocol):
-    """The measured plan for the contact rig (:mod:`beambench.sim.selection`), within ``sim.tolerance_mm``:
+    """The measured plan of a scene with a measured table (the contact rig; :mod:`beambench.sim.selection`),
+    within ``sim.tolerance_mm``:
 
     - ``sim.model: auto``: the cheapest (model, integrator, timestep per frequency); a tolerance nothing
       meets is a ConfigError;
     - a named model without ``sim.timestep``: the timestep each frequency needs for that model and
       integrator, or None (the rig's fixed policy) when the table does not cover them.
 
-    None for rigs without a measured table and for a fixed ``sim.timestep``."""
+    None for scenes without a measured table and for a fixed ``sim.timestep``."""
     from beambench.sim import selection as select
 
     sim = protocol.sim
     auto = sim.model == "auto"
-    if protocol.rig != "contact" or (not auto and sim.timestep is not None):
+    if not scene_info(protocol.rig).measured_table or (not auto and sim.timestep is not None):
         return None
     tol = sim.tolerance_mm or AUTO_TOLERANCE_MM
     if auto:  # every model with a contact table whose family has the protocol's parameter set
-        found = [m for m in select.table_models("contact") if has_params(sim.params, model_family(m))]
+        found = [m for m in select.table_models(protocol.rig) if has_params(sim.params, model_family(m))]
         models, integrators = (found or None), None
     else:
         models, integrators = [sim.model], [sim.integrator]
     try:
-        return select.plan_sweep("contact", tol, protocol.sweep.values(), models=models, integrators=integrators)
+        return select.plan_sweep(protocol.rig, tol, protocol.sweep.values(), models=models, integrators=integrators)
     except select.SelectionError as exc:
         if auto:
             raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
@@ -159,7 +146,7 @@ class SimRig:
             noise=sim.noise,
             now=lambda: self.clock.now_ns() * 1e-9,
         )
-        self.motor.amplitude_mm = protocol.amplitude_mm if protocol.rig == "contact" else None
+        self.motor.amplitude_mm = protocol.amplitude_mm if scene_info(protocol.rig).stage else None
         self.streams: list[Stream] = [self.motor, self.mocap, self.loadcells]
         self._devices = [self.motor, self.mocap, self.loadcells]
         self._hist: Trajectory | None = None
@@ -322,7 +309,7 @@ class SimRig:
                     "noise_counts": self.loadcells.noise,
                     "calibration": self.loadcells.cal.source,
                     "clock": clock(sim.loadcell_clock),
-                    "plate": self.protocol.rig == "contact",
+                    "plate": scene_info(self.protocol.rig).plate,
                 },
             },
         }

@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NoReturn
+import dataclasses
+import functools
+import inspect
+import typing
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, NoReturn, TypeVar
 
 import typer
 
@@ -11,6 +16,29 @@ if TYPE_CHECKING:
 
 # Help as plain paragraphs, rewrapped to the terminal: flags show no type, sentences do not break mid-line.
 HELP_MARKUP = None
+
+
+A = TypeVar("A")
+
+
+def command_of(args_type: type[A], run: Callable[[A], None]) -> Callable[..., None]:
+    """A typer command whose arguments and options are the fields of the dataclass ``args_type`` (defaults:
+    ``typer.Argument(...)`` / ``typer.Option(...)``); it calls ``run(args_type(**given))``, so a command with many
+    options receives one value. Help text and name come from ``run``."""
+    hints = typing.get_type_hints(args_type)
+    params = [
+        inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default, annotation=hints[f.name])
+        for f in dataclasses.fields(args_type)  # type: ignore[arg-type]
+    ]
+
+    @functools.wraps(run)
+    def command(**given: Any) -> None:
+        run(args_type(**given))
+
+    del command.__wrapped__  # typer reads the signature below, not run's
+    command.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+    command.__annotations__ = {p.name: p.annotation for p in params} | {"return": None}
+    return command
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
@@ -26,6 +54,6 @@ def sub_app(help: str) -> typer.Typer:
 
 def chatter() -> Console:
     """The console for progress, tables and notes: stderr, so stdout carries only the command's result."""
-    from rich.console import Console
+    from beambench.common.console import stderr_console
 
-    return Console(stderr=True)
+    return stderr_console()

@@ -1,7 +1,8 @@
 """``beambench bench models``: the model-fidelity ladder (speed vs accuracy, stability map).
 
 Writes ``ladder_table.csv`` (model × integrator × timestep × frequency: tip error, status, wall time),
-``ladder_summary.csv``, ``speed_accuracy.png`` and ``stability_map.png`` into ``--out``.
+``ladder_summary.csv``, ``speed_accuracy.png`` and ``stability_map.png`` into ``--out`` (default: ``bench/models``
+in the per-user folder).
 """
 
 from __future__ import annotations
@@ -12,10 +13,14 @@ from pathlib import Path
 import typer
 
 from beambench.commands import fail, sub_app
+from beambench.common.resources import user_dir
 
 bench_app = sub_app("Benchmarks of the simulation: beam models, integrators, timesteps.")
 
-DEFAULT_OUT = Path("bench_out") / "models"
+
+def default_out() -> Path:
+    """The ladder's folder without ``--out``: ``bench/models`` in the per-user folder."""
+    return user_dir("bench") / "models"
 
 
 _MODELS_HELP = (
@@ -26,6 +31,9 @@ _MODELS_HELP = (
 )
 
 
+_OUT_HELP = f"Folder for the CSVs and the figures (default: {default_out()}, the per-user folder)."
+
+
 @bench_app.command("models", help=_MODELS_HELP)
 def models(
     quick: bool = typer.Option(
@@ -34,10 +42,16 @@ def models(
         help="A small ladder (3 models, 3 frequencies, short windows): "
         "under 2 minutes on 2 cores. Without it: the full ladder (tens of minutes).",
     ),
-    out: Path = typer.Option(DEFAULT_OUT, "--out", "-o", help="Folder for the CSVs and the figures."),
+    out: Path | None = typer.Option(
+        None,
+        "--out",
+        "-o",
+        help=_OUT_HELP,
+    ),
     threads: int = typer.Option(0, "--threads", help="Threads for the batched sweeps (0: all cores)."),
 ) -> None:
     """The fidelity ladder (see ``_MODELS_HELP``)."""
+    out = out or default_out()
     if out.exists() and not out.is_dir():
         fail(f"--out = {str(out)!r}: exists and is not a folder")
     if threads < 0:
@@ -58,6 +72,7 @@ def models(
         TimeRemainingColumn,
     )
 
+    from beambench.common.console import stderr_console
     from beambench.studies.ladder import (
         FULL,
         QUICK,
@@ -67,7 +82,7 @@ def models(
     )
 
     cfg = replace(QUICK if quick else FULL, nthread=threads or None)
-    console = Console(stderr=True)
+    console = stderr_console()
     t0 = time.perf_counter()
     with Progress(
         TextColumn("[bold]{task.description:<40}"),

@@ -1,9 +1,8 @@
 """``beambench calibrate sim [SESSION.h5] [--targets TARGETS.yaml]``: fit the twin to a measured sweep or to
-published numbers (:mod:`beambench.studies.calibration.search`). The last stdout line is the calibrated protocol's path."""
+published numbers (:mod:`beambench.studies.calibration`). The last stdout line is the calibrated protocol's path."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Annotated, NoReturn
 
@@ -16,10 +15,16 @@ def _fail(message: str) -> NoReturn:
 
 
 def default_out() -> Path:
-    """A per-user folder (``$XDG_DATA_HOME/beambench/calibration``, else ``~/.local/share/...``); never the
-    repository or the installed package."""
-    root = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
-    return Path(root) / "beambench" / "calibration"
+    """The per-user folder's ``calibration/`` (``$BEAMBENCH_USER_DIR`` if set); never the checkout or the package."""
+    from beambench.common.resources import user_dir
+
+    return user_dir("calibration")
+
+
+def _shipped_targets() -> str:
+    from beambench.common.resources import shipped_names
+
+    return shipped_names("targets")
 
 
 def sim(
@@ -29,7 +34,8 @@ def sim(
     targets: Annotated[
         Path | None,
         typer.Option(
-            "--targets", help="Targets YAML instead of a session, e.g. calibration/paper_contact_targets.yaml."
+            "--targets",
+            help=f"Targets YAML instead of a session, or the name of a shipped targets file: {_shipped_targets()}.",
         ),
     ] = None,
     out: Annotated[
@@ -37,8 +43,7 @@ def sim(
         typer.Option(
             "--out",
             "-o",
-            help="Output folder (default: a per-user folder, ~/.local/share/beambench/calibration). "
-            "Re-using it resumes a killed run.",
+            help=f"Output folder (default: {default_out()}, the per-user folder). Re-using it resumes a killed run.",
         ),
     ] = None,
     workers: Annotated[
@@ -65,11 +70,12 @@ def sim(
 ) -> None:
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
     runnable protocol carrying the calibrated parameters and a report beside it."""
-    from rich.console import Console
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+    from beambench.common.console import stderr_console
     from beambench.common.errors import BeambenchError
-    from beambench.studies.calibration.search import SearchSettings, calibrate, get_rig
+    from beambench.common.resources import resolve_file
+    from beambench.studies.calibration import SearchSettings, calibrate, get_rig, write_report
     from beambench.studies.calibration.targets import load_targets, session_targets
     from beambench.studies.executor import ExecutorError
 
@@ -80,7 +86,7 @@ def sim(
     if workers is not None and workers < 1:
         _fail(f"--workers = {workers}: must be >= 1")
     try:
-        tg = session_targets(session) if session is not None else load_targets(targets)  # type: ignore[arg-type]
+        tg = session_targets(session) if session is not None else load_targets(resolve_file("targets", targets))  # type: ignore[arg-type]
         get_rig(tg.rig)
     except BeambenchError as exc:
         _fail(str(exc))
@@ -102,7 +108,7 @@ def sim(
         if quick
         else SearchSettings(budget_s=budget_s, free=chosen)
     )
-    console = Console(stderr=True)
+    console = stderr_console()
     cols = (
         SpinnerColumn(),
         TextColumn("{task.description}"),
@@ -115,6 +121,7 @@ def sim(
             result = calibrate(
                 tg, out_dir, name, workers=workers, scheduler=scheduler, settings=settings, progress=progress
             )
+        report = write_report(result, tg, out_dir, name)
     except (BeambenchError, ExecutorError) as exc:
         _fail(str(exc))
     s = result.summary
@@ -123,7 +130,7 @@ def sim(
         + ", ".join(f"{k} {v:.4g}" for k, v in result.values.items())
         + "; twin "
         + ", ".join(f"{k} {v}" for k, v in s.items() if k != "map" and not isinstance(v, dict))
-        + f"; {result.evaluations} runs ({result.reused} re-used), {result.wall_s:.0f} s; report {result.report}",
+        + f"; {result.evaluations} runs ({result.reused} re-used), {result.wall_s:.0f} s; report {report}",
         soft_wrap=True,
     )
     typer.echo(str(result.protocol))

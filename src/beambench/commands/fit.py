@@ -4,31 +4,36 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import typer
 
-from beambench.commands import fail
+from beambench.commands import command_of, fail
 
 
-def fit(
+@dataclass(frozen=True)
+class FitArgs:
+    """``beambench fit``'s argument and options as one value (the command's signature is made of these fields)."""
+
     session: Path = typer.Argument(
         ...,
         metavar="SESSION",
         help="A release-test session (.h5), e.g. from `beambench run protocols/release_test.yaml`.",
-    ),
+    )
     out: Path = typer.Option(
         None,
         "--out",
         "-o",
         help="Folder for the figure and the JSON report (default: <session>_fit beside the session).",
-    ),
+    )
     model: str = typer.Option(
         "prb3", "--model", "-m", help="prb3, rod (= rod10), rodN, or a comma list such as prb3,rod10 to fit several."
-    ),
+    )
     free_l1: bool = typer.Option(
         False, "--free-l1", help="PRB3: fit l1 too (default l1 = 0, as the paper settled on; l3 = 50 mm − l1 − l2)."
-    ),
+    )
     name: str = typer.Option(
         None,
         "--name",
@@ -36,28 +41,30 @@ def fit(
         metavar="NAME",
         help="Name of the parameter set written (<model>_<name>.yaml; select it with `sim.params: <name>`). "
         "Default: the session name.",
-    ),
+    )
     params_dir: Path | None = typer.Option(
         None,
         "--params-dir",
         metavar="DIR",
         help="Where to write the parameter set (default: sim_backend/ in the per-user folder, where `sim.params` "
         "finds it; see README, 'Where files go').",
-    ),
-    no_write: bool = typer.Option(False, "--no-write", help="Do not write a parameter set or /processing."),
-    popsize: int = typer.Option(12, "--popsize", help="Differential-evolution population per variable."),
-    maxiter: int = typer.Option(60, "--maxiter", help="Maximum generations."),
-    seed: int = typer.Option(0, "--seed", help="Random seed of the optimizer."),
-    threads: int = typer.Option(0, "--threads", help="Simulation threads (0: all cores)."),
-    timestep: float = typer.Option(2e-4, "--timestep", help="Simulation timestep of the fit (s)."),
+    )
+    no_write: bool = typer.Option(False, "--no-write", help="Do not write a parameter set or /processing.")
+    popsize: int = typer.Option(12, "--popsize", help="Differential-evolution population per variable.")
+    maxiter: int = typer.Option(60, "--maxiter", help="Maximum generations.")
+    seed: int = typer.Option(0, "--seed", help="Random seed of the optimizer.")
+    threads: int = typer.Option(0, "--threads", help="Simulation threads (0: all cores).")
+    timestep: float = typer.Option(2e-4, "--timestep", help="Simulation timestep of the fit (s).")
     register: bool = typer.Option(
         None,
         "--register/--no-register",
         help="Map the mocap frame onto the model's "
         "(clamp at the origin, beam along +y, z up) from the rest pose. Default: on for "
         "sessions not made by the sim.",
-    ),
-) -> None:
+    )
+
+
+def fit(args: FitArgs) -> None:
     """Fit the PRB3 model (k, b, l2; optionally l1) and/or the segmented rod (E, damping) to a release test.
 
     Minimises the paper's objective — RMS distance between measured and simulated tip markers over all
@@ -65,89 +72,99 @@ def fit(
     values and the final error (mm), draws measured vs fitted tip paths, writes a JSON report, and saves each
     fit as a named parameter set in the per-user folder that protocols select with `sim.params`.
     """
+    from rich.console import Console
+
+    from beambench.common.console import stderr_console
+    from beambench.studies.fit import FitError, load_release_session, plot_fit
+
+    models = _checked(args)
+    session = args.session
+    name = args.name or re.sub(r"[^A-Za-z0-9_.-]", "_", session.stem)
+    out = args.out or session.with_name(session.stem + "_fit")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
+    console = stderr_console()
+    try:
+        data = load_release_session(session, register=args.register)
+    except FitError as exc:
+        fail(str(exc))
+    results = [_fit_one(data, m, args, console) for m in models]
+    _print_results(results, data, Console())
+    fig = plot_fit(results, out / f"fit_{session.stem}.png", title=f"Release test {session.name}: measured vs fitted")
+    _write_outputs(args, results, name, out, fig, console)
+
+
+def _checked(args: FitArgs) -> list[str]:
+    """The models to fit; one line and exit 2 for bad options."""
     from beambench.sim.models.registry import UnknownModelError, canonical_model
 
-    models = [m.strip() for m in model.split(",") if m.strip()]
+    models = [m.strip() for m in args.model.split(",") if m.strip()]
     for m in models:
         try:
             canonical_model(m)
         except UnknownModelError:
             fail(f"--model = {m[:40]!r}: prb3, rod, or rodN (e.g. rod10, rod5g)")
-    if free_l1 and "prb3" not in models:
+    if args.free_l1 and "prb3" not in models:
         fail("--free-l1 applies to the prb3 model")
-    if not session.is_file():
-        fail(f"{session}: no such session file")
+    if not args.session.is_file():
+        fail(f"{args.session}: no such session file")
     for opt, value, ok in (
-        ("--popsize", popsize, popsize >= 4),
-        ("--maxiter", maxiter, maxiter >= 1),
-        ("--threads", threads, threads >= 0),
-        ("--timestep", timestep, 0 < timestep <= 2e-3),
+        ("--popsize", args.popsize, args.popsize >= 4),
+        ("--maxiter", args.maxiter, args.maxiter >= 1),
+        ("--threads", args.threads, args.threads >= 0),
+        ("--timestep", args.timestep, 0 < args.timestep <= 2e-3),
     ):
         if not ok:
             fail(f"{opt} = {value}: out of range")
-    name = name or re.sub(r"[^A-Za-z0-9_.-]", "_", session.stem)
-    out = out or session.with_name(session.stem + "_fit")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
+    return models
 
-    from rich.console import Console
+
+def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
+    """One model's fit, with a progress bar."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from beambench.common.resources import user_dir
-    from beambench.studies.fit import (
-        FitError,
-        fit_release,
-        load_release_session,
-        plot_fit,
-        write_param_set,
+    from beambench.studies.fit import FitError, FitOptions, fit_release
+
+    options = FitOptions(
+        free_l1=args.free_l1 and m == "prb3",
+        popsize=args.popsize,
+        maxiter=args.maxiter,
+        seed=args.seed,
+        timestep=args.timestep,
+        nthread=args.threads or None,
     )
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        TextColumn("gen {task.completed:.0f}"),
+        TextColumn("{task.fields[err]}"),
+        TimeElapsedColumn(),
+        console=console,
+        transient=True,
+    ) as prog:
+        task = prog.add_task(f"fitting {m}", total=args.maxiter, err="")
 
-    console = Console(stderr=True)
-    try:
-        data = load_release_session(session, register=register)
-    except FitError as exc:
-        fail(str(exc))
-    results = []
-    for m in models:
-        with Progress(
-            TextColumn("[bold]{task.description}"),
-            BarColumn(),
-            TextColumn("gen {task.completed:.0f}"),
-            TextColumn("{task.fields[err]}"),
-            TimeElapsedColumn(),
-            console=console,
-            transient=True,
-        ) as prog:
-            task = prog.add_task(f"fitting {m}", total=maxiter, err="")
+        def progress(gen: int, best: float) -> None:
+            prog.update(task, completed=gen, err=f"best RMS {best * 1e3:.3f} mm")
 
-            def progress(gen: int, best: float, task=task, prog=prog) -> None:
-                prog.update(task, completed=gen, err=f"best RMS {best * 1e3:.3f} mm")
+        try:
+            return fit_release(data, m, options, progress=progress)
+        except FitError as exc:
+            fail(str(exc))
 
-            try:
-                results.append(
-                    fit_release(
-                        data,
-                        m,
-                        free_l1=free_l1 and m == "prb3",
-                        popsize=popsize,
-                        maxiter=maxiter,
-                        seed=seed,
-                        timestep=timestep,
-                        nthread=threads or None,
-                        progress=progress,
-                    )
-                )
-            except FitError as exc:
-                fail(str(exc))
-    _print_results(results, data, Console())
 
-    fig = plot_fit(results, out / f"fit_{session.stem}.png", title=f"Release test {session.name}: measured vs fitted")
+def _write_outputs(args: FitArgs, results: list, name: str, out: Path, fig: Path, console: Any) -> None:
+    """The parameter sets (and /processing), the JSON report; their paths on stdout."""
+    from beambench.common.resources import user_dir
+    from beambench.studies.fit import write_param_set
+
+    session = args.session
     report = {"session": str(session), "results": [r.summary() for r in results], "figure": str(fig)}
     written: list[Path] = []
-    if not no_write:
-        directory = params_dir or user_dir("sim_backend")
+    if not args.no_write:
+        directory = args.params_dir or user_dir("sim_backend")
         for r in results:
             try:
                 path = write_param_set(r, name, directory, source=f"beambench fit of {session.name} ({r.model})")
@@ -212,4 +229,4 @@ def _write_processing(session: Path, result, console) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("fit")(fit)
+    app.command("fit")(command_of(FitArgs, fit))

@@ -11,6 +11,7 @@ import typer
 
 from beambench.acquisition.config import BACKENDS, Backend, ConfigError
 from beambench.commands import fail
+from beambench.common.resources import shipped_names
 from beambench.sinks import RerunMode
 
 if TYPE_CHECKING:
@@ -27,23 +28,23 @@ def default_rerun_mode() -> RerunMode:
 
 def resolve_protocol(given: Path) -> Path:
     """``given`` if it is a file; else the shipped protocol of that name (``contact_sweep`` or
-    ``protocols/contact_sweep.yaml`` from any folder); else ``given`` (whose read then fails with one line)."""
-    if given.is_file():
-        return given
-    from beambench.common.resources import shipped_protocols
+    ``protocols/contact_sweep.yaml`` from any folder); else one line naming the shipped protocols, exit 2."""
+    from beambench.common.resources import ShippedFileError, resolve_file
 
-    shipped = shipped_protocols()
-    name = given.name.removesuffix(".yaml").removesuffix(".yml")
-    if given.suffix in ("", ".yaml", ".yml") and name in shipped and len(given.parts) <= 2:
-        return shipped[name]
-    return given
+    try:
+        return resolve_file("protocol", given)
+    except ShippedFileError as exc:
+        fail(str(exc))
+
+
+_PROTOCOL_HELP = f"Protocol YAML, or the name of a shipped protocol: {shipped_names('protocol')}."
 
 
 def run(
     protocol_file: Path = typer.Argument(
         ...,
         metavar="PROTOCOL",
-        help="Protocol YAML, or the name of a shipped protocol: contact_sweep, twist_sweep, release_test, …",
+        help=_PROTOCOL_HELP,
     ),
     backend: Backend | None = typer.Option(
         None, "--backend", "-b", help="Where to run (default: the protocol's backend, else sim)."
@@ -127,10 +128,19 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
         sim_plan = _contact_plan(protocol)
     except ConfigError:
         sim_plan = None
-    if sim_plan is None:
+    if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
+        from beambench.common.errors import BeambenchError
+        from beambench.session.estimate import probe_run_time
+
+        try:
+            est = probe_run_time(protocol)
+        except BeambenchError as exc:  # the run itself would say so; the dry run still prints its plan
+            return f"not estimated ({exc})"
+        parts = f"; {est.parallel} segments in parallel" if est.parallel > 1 else ""
         return (
-            f"not estimated: no timing table for the {protocol.rig} rig with these sim settings "
-            "(the sim runs as fast as it can)"
+            f"about {_duration(est.wall_s)} of stepping ({protocol.sim.model}; measured here: "
+            f"{est.wall_per_s * 1e3:.0f} ms per simulated second at {est.probe_hz:g} Hz{parts}), plus recording "
+            "overhead"
         )
     wall = sum(s.duration_s / 10.0 * sim_plan.wall_s_per_10s[s.frequency_hz] for s in steps)
     return (
@@ -140,6 +150,8 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
 
 
 def _duration(seconds: float) -> str:
+    if seconds < 1:
+        return "under 1 s"
     if seconds < 90:
         return f"{seconds:.0f} s"
     return f"{seconds / 60:.1f} min"
@@ -158,9 +170,12 @@ def print_dry_run(s: dict, expected: str) -> None:
     con = Console(soft_wrap=True)  # the dry run's table is its result: stdout
     con.print(t)
     lim = s["limits"]
+    if s["rig"] == "release":  # the release test drives nothing: its load is what it is about
+        drive = f"no drive: a {s['release_load_g']:g} g tip load released"
+    else:
+        drive = f"max frequency: {s['max_frequency_hz']:g} Hz   amplitude: {s['amplitude_mm']:g} mm"
     con.print(
-        f"steps: {s['steps']}   total duration: {s['total_duration_s']:g} s of rig time   "
-        f"max frequency: {s['max_frequency_hz']:g} Hz   amplitude: {s['amplitude_mm']:g} mm\n"
+        f"steps: {s['steps']}   total duration: {s['total_duration_s']:g} s of rig time   {drive}\n"
         f"expected run time here: {expected}\n"
         f"limits: max_frequency_hz={lim['max_frequency_hz']:g}  max_current_a={lim['max_current_a']:g}  "
         f"max_amplitude_mm={lim['max_amplitude_mm']:g}"

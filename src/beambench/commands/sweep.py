@@ -7,16 +7,28 @@ from pathlib import Path
 import typer
 
 from beambench.commands import fail
+from beambench.common.resources import shipped_names, user_dir
+
+
+def default_table(name: str) -> Path:
+    """Where a sweep's table goes without ``--out`` or the file's ``output``: the per-user folder's sweeps/."""
+    return user_dir("sweeps") / f"{name}.parquet"
+
+
+_SWEEP_HELP = f"Sweep YAML, or the name of a shipped sweep file: {shipped_names('sweep')}."
+_OUT_HELP = (
+    f"Results table (.parquet). Default: the file's `output`, else {default_table('<name>')} (the per-user "
+    "folder). An existing table is resumed."
+)
 
 
 def sweep(
-    sweep_file: Path = typer.Argument(..., metavar="SWEEP", help="Sweep YAML, e.g. protocols/twist_sweep.yaml."),
+    sweep_file: Path = typer.Argument(..., metavar="SWEEP", help=_SWEEP_HELP),
     out: Path = typer.Option(
         None,
         "--out",
         "-o",
-        help="Results table (.parquet). Default: the file's "
-        "`output`, else data/sweeps/<name>.parquet. An existing table is resumed.",
+        help=_OUT_HELP,
     ),
     workers: int = typer.Option(0, "--workers", "-w", help="Local worker processes (0: all cores)."),
     scheduler: str = typer.Option(
@@ -57,13 +69,14 @@ def sweep(
         fail("give either --scheduler or --cluster, not both")
     if cluster and cluster != "slurm":
         fail(f"--cluster = {cluster!r}: only 'slurm' is supported")
-    try:
-        spec = load_sweep(sweep_file)
-    except SweepError as exc:
-        fail(str(exc))
-    out = out or Path(spec.output or Path("data") / "sweeps" / f"{spec.name}.parquet")
+    from beambench.common.resources import ShippedFileError, resolve_file
 
-    from rich.console import Console
+    try:
+        spec = load_sweep(resolve_file("sweep", sweep_file))
+    except (SweepError, ShippedFileError) as exc:
+        fail(str(exc))
+    out = out or (Path(spec.output) if spec.output else default_table(spec.name))
+
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -73,10 +86,11 @@ def sweep(
         TimeRemainingColumn,
     )
 
+    from beambench.common.console import stderr_console
     from beambench.studies.executor import ExecutorError
     from beambench.studies.sweep import plot_sweep, run_sweep
 
-    console = Console(stderr=True)
+    console = stderr_console()
     if dry_run:
         try:
             jobs = plan(spec)

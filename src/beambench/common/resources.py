@@ -15,9 +15,12 @@ The one place that knows the layout; every module asks here instead of walking u
 from __future__ import annotations
 
 import os
+import re
 from importlib import resources
 from pathlib import Path
 from typing import Literal, get_args
+
+from beambench.common.errors import BeambenchError
 
 ShippedName = Literal["sim_backend", "calibration", "protocols"]
 SHIPPED: tuple[str, ...] = get_args(ShippedName)
@@ -59,5 +62,77 @@ def find_file(name: ShippedName, filename: str) -> Path | None:
 
 
 def shipped_protocols() -> dict[str, Path]:
-    """The protocols shipped with the package, by name (``contact_sweep`` → …/protocols/contact_sweep.yaml)."""
-    return {p.stem: p for p in sorted(shipped_dir("protocols").glob("*.yaml"))}
+    """The protocols shipped with the package, by name (``contact_sweep`` → …/protocols/contact_sweep.yaml);
+    not the sweep files beside them (:func:`shipped_files`)."""
+    return shipped_files("protocol")
+
+
+# ------------------------------------------------------------------------------------- shipped files by name
+FileKind = Literal["protocol", "sweep", "targets", "params"]
+FILE_KINDS: tuple[str, ...] = get_args(FileKind)
+_FOLDER: dict[str, ShippedName] = {
+    "protocol": "protocols",
+    "sweep": "protocols",
+    "targets": "calibration",
+    "params": "sim_backend",
+}
+_WHAT = {"protocol": "protocol", "sweep": "sweep file", "targets": "targets file", "params": "parameter set"}
+_USE = {"protocol": "beambench run", "sweep": "beambench sweep"}  # the commands of kinds that share a folder
+_SWEEP_KEY = re.compile(r"^(scene|grid|points):", re.MULTILINE)  # a sweep file's own top-level keys
+
+
+class ShippedFileError(BeambenchError):
+    """A file given by path or name that is neither a file nor a shipped file of the kind asked for."""
+
+
+def _kind_of(path: Path) -> str | None:
+    """The kind of the shipped file ``path`` (its folder and, in protocols/, its top-level keys), or None."""
+    folder = path.parent.name
+    if folder == "protocols":
+        return "sweep" if _SWEEP_KEY.search(path.read_text(errors="replace")) else "protocol"
+    if folder == "calibration":
+        return "targets" if path.stem.endswith("_targets") else None
+    if folder == "sim_backend":
+        return "params" if path.suffix == ".yaml" else None
+    return None
+
+
+def shipped_files(kind: FileKind) -> dict[str, Path]:
+    """The shipped files of ``kind`` by name, sorted (``sweep`` → ``{"chirality_sweep": …, "twist_sweep": …}``;
+    ``params`` → ``{"prb3_paper": …}``, the set ``paper`` of model ``prb3``)."""
+    if kind not in FILE_KINDS:
+        raise ValueError(f"{kind!r}: not a kind of shipped file (known: {', '.join(FILE_KINDS)})")
+    files = sorted(shipped_dir(_FOLDER[kind]).glob("*.yaml"))
+    return {p.stem: p for p in files if _kind_of(p) == kind}
+
+
+def resolve_file(kind: FileKind, given: str | Path) -> Path:
+    """The file meant by ``given``: itself if it is a file; else the shipped file of ``kind`` named by it, as a
+    name (``twist_sweep``), a file name (``twist_sweep.yaml``) or its shipped relative path
+    (``protocols/twist_sweep.yaml``, ``calibration/paper_contact_targets.yaml``), from any folder and any install.
+
+    Raises :class:`ShippedFileError` (one line) naming what is shipped of that kind, and the command that takes
+    ``given`` when it is a shipped file of another kind.
+    """
+    path = Path(given)
+    if path.is_file():
+        return path
+    shipped = shipped_files(kind)
+    parts = path.parts
+    name = path.name.removesuffix(".yaml").removesuffix(".yml")
+    in_folder = len(parts) == 1 or (len(parts) == 2 and parts[0] == _FOLDER[kind])
+    if in_folder and path.suffix in ("", ".yaml", ".yml") and name in shipped:
+        return shipped[name]
+    what = _WHAT[kind]
+    if in_folder:
+        for other in FILE_KINDS:
+            if other != kind and _FOLDER[other] == _FOLDER[kind] and name in shipped_files(other):  # type: ignore[arg-type]
+                hint = f" (use it with `{_USE[other]} {name}`)" if other in _USE else ""
+                raise ShippedFileError(f"{given}: a shipped {_WHAT[other]}, not a {what}{hint}")
+    names = ", ".join(shipped) or "none"
+    raise ShippedFileError(f"{given}: no such {what}, nor a shipped one of that name (shipped: {names})")
+
+
+def shipped_names(kind: FileKind) -> str:
+    """The shipped files of ``kind`` as a comma-separated list of names, for help texts."""
+    return ", ".join(shipped_files(kind))

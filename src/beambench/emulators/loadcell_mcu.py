@@ -64,6 +64,30 @@ class Injected:
         return asdict(self)
 
 
+@dataclass(frozen=True)
+class McuClock:
+    """The MCU's frame clock: nominal rate, drift, where its microsecond clock and sequence number start, and
+    the rate of the mocap sync pulses it counts."""
+
+    rate_hz: float = 1000.0
+    drift_ppm: float = 0.0
+    clock_start_us: int = 0
+    seq_start: int = 0
+    sync_rate_hz: float = 360.0
+
+
+@dataclass(frozen=True)
+class LinkFaults:
+    """Faults injected on the serial link, per frame: CRC errors, dropped bytes (up to ``max_drop``), bursts of
+    garbage before a frame (up to ``max_garbage`` bytes)."""
+
+    crc_error_prob: float = 0.0
+    drop_prob: float = 0.0
+    max_drop: int = 3
+    garbage_prob: float = 0.0
+    max_garbage: int = 40
+
+
 class EmulatedLoadCellMCU:
     """The load-cell MCU on a pty. Use as a context manager, or :meth:`open`, :meth:`start`, :meth:`close`."""
 
@@ -72,33 +96,25 @@ class EmulatedLoadCellMCU:
         force: ForceSource | None = None,
         calibration: LoadCellCalibration | None = None,
         *,
-        rate_hz: float = 1000.0,
-        drift_ppm: float = 0.0,
-        clock_start_us: int = 0,
-        seq_start: int = 0,
-        sync_rate_hz: float = 360.0,
+        clock: McuClock = McuClock(),
+        faults: LinkFaults = LinkFaults(),
         noise_counts: float = 0.0,
-        crc_error_prob: float = 0.0,
-        drop_prob: float = 0.0,
-        max_drop: int = 3,
-        garbage_prob: float = 0.0,
-        max_garbage: int = 40,
         tx_buffer: int = 8192,
         seed: int = 0,
     ) -> None:
         self.force: ForceSource = force or zero_force
         self.calibration = calibration or default_calibration()
-        self.rate_hz = rate_hz
-        self.drift_ppm = drift_ppm
-        self.clock_start_us = clock_start_us
-        self.seq_start = seq_start
-        self.sync_rate_hz = sync_rate_hz
+        self.rate_hz = clock.rate_hz
+        self.drift_ppm = clock.drift_ppm
+        self.clock_start_us = clock.clock_start_us
+        self.seq_start = clock.seq_start
+        self.sync_rate_hz = clock.sync_rate_hz
         self.noise_counts = noise_counts
-        self.crc_error_prob = crc_error_prob
-        self.drop_prob = drop_prob
-        self.max_drop = max(1, min(max_drop, FRAME_LEN - _HEADER - 1))
-        self.garbage_prob = garbage_prob
-        self.max_garbage = max(1, max_garbage)
+        self.crc_error_prob = faults.crc_error_prob
+        self.drop_prob = faults.drop_prob
+        self.max_drop = max(1, min(faults.max_drop, FRAME_LEN - _HEADER - 1))
+        self.garbage_prob = faults.garbage_prob
+        self.max_garbage = max(1, faults.max_garbage)
         self.tx_buffer = tx_buffer
         self.injected = Injected()
         self.broken_seqs: list[int] = []  # sequence numbers of frames sent with a CRC error or bytes dropped

@@ -6,7 +6,6 @@ import os
 from pathlib import Path
 from typing import cast
 
-from rich.console import Console
 from rich.progress import (
     BarColumn,
     Progress,
@@ -23,6 +22,7 @@ from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
+from beambench.common.console import stderr_console
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
@@ -112,7 +112,7 @@ def _run_session(
         TextColumn("{task.completed:.0f}/{task.total:.0f} s rig time"),
         TimeElapsedColumn(),
         TimeRemainingColumn(),
-        console=Console(stderr=True),  # progress is chatter: stdout carries only the command's result
+        console=stderr_console(),  # progress is chatter: stdout carries only the command's result
         disable=not show_progress,
         transient=False,
     ) as progress:

@@ -25,7 +25,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
@@ -33,6 +33,9 @@ import pandas as pd
 
 from beambench.acquisition.batch import Batch, ColumnSpec, Frame, StepRecord, StreamSpec
 from beambench.common.yaml_config import ConfigError
+
+if TYPE_CHECKING:
+    import xarray as xr
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 SESSION_GROUPS = ("general", "acquisition", "steps", "events")
@@ -392,6 +395,20 @@ class Session:
     def protocol_text(self) -> str:
         return str(self.general.get("protocol", ""))
 
+    def to_pandas(self, stream: str) -> pd.DataFrame:
+        """One stream as a DataFrame with named columns (``foot_x``, ``lc0``, ``axis_state`` …), ``step`` and
+        units in ``df.attrs["units"]`` (:func:`beambench.sinks.session_frames.stream_frame`)."""
+        from beambench.sinks.session_frames import stream_frame
+
+        return stream_frame(self, stream)
+
+    def to_xarray(self) -> xr.Dataset:
+        """The session as one xarray Dataset (dimensions time, marker, axis; attributes from ``/general``;
+        :func:`beambench.sinks.session_frames.session_dataset`)."""
+        from beambench.sinks.session_frames import session_dataset
+
+        return session_dataset(self)
+
 
 def _read_general(g: h5py.Group) -> dict[str, Any]:
     out: dict[str, Any] = {}
@@ -415,7 +432,8 @@ def _read_stream(name: str, g: h5py.Group, geometry: dict[str, Any] | None = Non
             continue
         cols[key] = ds[()]
         labels = tuple(str(x) for x in ds.attrs.get("labels", ()))
-        specs[key] = ColumnSpec(ds.shape[1:], ds.dtype.str, str(ds.attrs.get("unit", "")), labels)
+        unit, description = str(ds.attrs.get("unit", "")), str(ds.attrs.get("description", ""))
+        specs[key] = ColumnSpec(ds.shape[1:], ds.dtype.str, unit, labels, description)
     host = g["host_time_ns"][()]
     dev = g["device_time"][()]
     n = min([len(host), len(dev), *(len(c) for c in cols.values())])
@@ -476,6 +494,7 @@ def write_processing(path: str | Path, name: str, table: pd.DataFrame | dict[str
         if name in proc:
             del proc[name]
         g = proc.create_group(name)
+        g.attrs["columns"] = json.dumps(list(cols))  # HDF5 lists a group's members by name: keep the order
         for key, values in cols.items():
             arr = np.asarray(values)
             if arr.dtype.kind in "OUS":
@@ -485,11 +504,15 @@ def write_processing(path: str | Path, name: str, table: pd.DataFrame | dict[str
 
 
 def read_processing(path: str | Path, name: str) -> pd.DataFrame:
-    """Read ``/processing/<name>`` back as a DataFrame."""
+    """Read ``/processing/<name>`` back as a DataFrame, its columns in the order they were written (``steps``:
+    one row per protocol step, as ``beambench analyze`` wrote it)."""
     with _open_session(Path(path)) as f:
         g = f["processing"][name]
+        stored = json.loads(g.attrs["columns"]) if "columns" in g.attrs else []
+        order = [k for k in stored if k in g] + [k for k in g if k not in stored]
         data = {}
-        for key, ds in g.items():
+        for key in order:
+            ds = g[key]
             v = ds[()]
             if ds.dtype.kind == "O":
                 v = np.array([x.decode() if isinstance(x, bytes) else x for x in v])

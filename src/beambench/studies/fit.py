@@ -50,6 +50,7 @@ from beambench.sim.models.registry import (
     model_family,
 )
 from beambench.sim.scenes.release import G, release_batch, release_models
+from beambench.studies.unknowns import BEAM_OVERRIDES, Unknown
 
 NS = 1_000_000_000
 PAPER_MAE_MM = 3.49  # the paper's final error against its rig
@@ -203,46 +204,33 @@ def load_release_session(
 
 # ------------------------------------------------------------------------------------------ parameters
 @dataclass(frozen=True)
-class Variable:
-    name: str
-    lo: float
-    hi: float
-    log: bool = False
-    unit: str = ""
-
-    def bounds(self) -> tuple[float, float]:
-        return (math.log10(self.lo), math.log10(self.hi)) if self.log else (self.lo, self.hi)
-
-    def value(self, x: float) -> float:
-        return 10.0**x if self.log else float(x)
-
-
-@dataclass(frozen=True)
 class ParamSpace:
-    """The searched variables of one model family and how they map onto a :class:`BeamParams`."""
+    """The searched variables of one model family (:class:`~beambench.studies.unknowns.Unknown` s, as a
+    calibration's) and how they map onto a :class:`BeamParams` (the beam's own overrides,
+    :data:`~beambench.studies.unknowns.BEAM_OVERRIDES`; ``l2_share`` is resolved into l2 first)."""
 
     model: str  # prb3 | rodN…
-    variables: tuple[Variable, ...]
+    variables: tuple[Unknown, ...]
     base: BeamParams
     free_l1: bool = False
 
     @staticmethod
     def prb3(base: BeamParams, free_l1: bool = False) -> ParamSpace:
         L = base.length
-        v = [Variable("k", 0.1, 2.0, True, "N·m/rad"), Variable("b", 2e-4, 0.03, True, "N·m·s/rad")]
+        v = [Unknown("k", 0.1, 2.0, True, "N·m/rad"), Unknown("b", 2e-4, 0.03, True, "N·m·s/rad")]
         if free_l1:
-            v += [Variable("l1", 0.001, 0.4 * L, False, "m"), Variable("l2_share", 0.1, 0.9, False, "")]
+            v += [Unknown("l1", 0.001, 0.4 * L, False, "m"), Unknown("l2_share", 0.1, 0.9, False, "")]
         else:
-            v += [Variable("l2", 0.1 * L, 0.9 * L, False, "m")]
+            v += [Unknown("l2", 0.1 * L, 0.9 * L, False, "m")]
         return ParamSpace("prb3", tuple(v), base, free_l1)
 
     @staticmethod
     def rod(base: BeamParams, model: str = "rod10") -> ParamSpace:
-        v = (Variable("youngs_modulus", 8e6, 1.2e8, True, "Pa"), Variable("beta", 1e-5, 2e-2, True, "s"))
+        v = (Unknown("youngs_modulus", 8e6, 1.2e8, True, "Pa"), Unknown("beta", 1e-5, 2e-2, True, "s"))
         return ParamSpace(model, v, base)
 
     def bounds(self) -> list[tuple[float, float]]:
-        return [v.bounds() for v in self.variables]
+        return [v.bounds for v in self.variables]
 
     def values(self, x: Sequence[float]) -> dict[str, float]:
         """Physical values of a search vector (``l2_share`` resolved into l2)."""
@@ -258,22 +246,10 @@ class ParamSpace:
         return out
 
     def params(self, x: Sequence[float], name: str = "fit") -> BeamParams:
-        v = self.values(x)
-        if self.model == "prb3":
-            return replace(
-                self.base,
-                name=name,
-                model="prb3",
-                k=v["k"],
-                b=v["b"],
-                k_twist=v["k"],
-                b_twist=v["b"],
-                l1=v["l1"],
-                l2=v["l2"],
-                l3=v["l3"],
-            )
-        mat = replace(self.base.material, youngs_modulus=v["youngs_modulus"])
-        return replace(self.base, name=name, model="rod", material=mat, beta=v["beta"])
+        p = replace(self.base, name=name, model="prb3" if self.model == "prb3" else "rod")
+        for key, value in self.values(x).items():
+            p = BEAM_OVERRIDES[key](p, value)
+        return p
 
 
 # -------------------------------------------------------------------------------------------- objective
@@ -434,24 +410,36 @@ def default_integrator(model: str) -> str:
     return "discrete" if is_rod(model) else "implicitfast"
 
 
+@dataclass(frozen=True)
+class FitOptions:
+    """How a release fit runs: ``free_l1`` (PRB3: fit l1 too), the differential evolution's ``popsize``,
+    ``maxiter``, ``tol`` and ``seed``, the simulation's ``timestep``, ``integrator`` (None: the model's default)
+    and threads (``nthread``, None: all cores), and the release-time search window (None: the data's own
+    uncertainty)."""
+
+    free_l1: bool = False
+    popsize: int = 12
+    maxiter: int = 60
+    tol: float = 1e-3
+    seed: int = 0
+    timestep: float = 2e-4
+    integrator: str | None = None
+    nthread: int | None = None
+    shift_window_s: float | None = None
+
+
 def fit_release(
     data: ReleaseData,
     model: str = "prb3",
-    free_l1: bool = False,
+    options: FitOptions = FitOptions(),
     base: BeamParams | None = None,
-    popsize: int = 12,
-    maxiter: int = 60,
-    tol: float = 1e-3,
-    seed: int = 0,
-    timestep: float = 2e-4,
-    integrator: str | None = None,
-    nthread: int | None = None,
-    shift_window_s: float | None = None,
     progress: Callable[[int, float], None] | None = None,
 ) -> FitResult:
     """Fit ``model`` (``prb3`` or a rod ``rodN``; ``rod`` means ``rod10``) to a release test by differential
     evolution; every generation is one batched simulation of the whole population."""
     from scipy.optimize import differential_evolution
+
+    free_l1, timestep = options.free_l1, options.timestep
 
     try:
         model = canonical_model(model)
@@ -464,10 +452,11 @@ def fit_release(
     if abs(base.length - data.length) > 1e-6:
         base = replace(base, l2=data.length / 2, l3=data.length / 2) if rod else base
     space = ParamSpace.rod(base, model) if rod else ParamSpace.prb3(base, free_l1)
+    shift_window_s = options.shift_window_s
     if shift_window_s is None:
         shift_window_s = data.release_uncertainty_s
-    integrator = integrator or default_integrator(model)
-    obj = ReleaseObjective(data, space, timestep, integrator, nthread, shift_window_s)
+    integrator = options.integrator or default_integrator(model)
+    obj = ReleaseObjective(data, space, timestep, integrator, options.nthread, shift_window_s)
     history: list[float] = []
     t0 = time.perf_counter()
 
@@ -481,10 +470,10 @@ def fit_release(
             res = differential_evolution(
                 obj,
                 space.bounds(),
-                popsize=popsize,
-                maxiter=maxiter,
-                tol=tol,
-                rng=np.random.default_rng(seed),
+                popsize=options.popsize,
+                maxiter=options.maxiter,
+                tol=options.tol,
+                rng=np.random.default_rng(options.seed),
                 vectorized=True,
                 updating="deferred",
                 polish=False,
@@ -615,21 +604,26 @@ def plot_fit(results: Sequence[FitResult], path: str | Path, title: str = "") ->
 
 
 # ----------------------------------------------------------------------------------------- synthetic data
-def synthetic_release(
-    params: BeamParams,
-    model: str = "prb3",
-    noise_m: float = 3e-4,
-    twist_deg: float = 90.0,
-    load_g: float = 200.0,
-    rate_hz: float = 360.0,
-    pre_s: float = 0.05,
-    post_s: float = 0.35,
-    timestep: float = 1e-4,
-    seed: int = 0,
-) -> ReleaseData:
-    """A release test made by the sim from known parameters: the tip markers sampled at ``rate_hz`` with a
-    random phase to the release, plus Gaussian noise ``noise_m`` per coordinate."""
+@dataclass(frozen=True)
+class ReleaseTest:
+    """A synthetic release test's setup: twist, tip load, mocap rate, the window around the release and the
+    simulation's timestep."""
 
+    twist_deg: float = 90.0
+    load_g: float = 200.0
+    rate_hz: float = 360.0
+    pre_s: float = 0.05
+    post_s: float = 0.35
+    timestep: float = 1e-4
+
+
+def synthetic_release(
+    params: BeamParams, model: str = "prb3", noise_m: float = 3e-4, seed: int = 0, test: ReleaseTest = ReleaseTest()
+) -> ReleaseData:
+    """A release test made by the sim from known parameters: the tip markers sampled at ``test.rate_hz`` with a
+    random phase to the release, plus Gaussian noise ``noise_m`` per coordinate (``seed``)."""
+    twist_deg, load_g, rate_hz, pre_s, post_s = test.twist_deg, test.load_g, test.rate_hz, test.pre_s, test.post_s
+    timestep = test.timestep
     rng = np.random.default_rng(seed)
     m = release_models([make_beam_model(model, params)], twist_deg, "implicitfast", timestep)
     rb = release_batch(m, load_g * 1e-3 * G, post_s + 0.01, nthread=1)

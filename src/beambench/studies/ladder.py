@@ -39,6 +39,7 @@ from beambench.sim.scenes.free_beam import (
     frequency_sweep,
     stage_controls,
 )
+from beambench.sim.settings import SimSettings
 
 PAPER_PRB_S = 1.2  # paper: 10 s of the PRB model in 1.2 s (i7-7900K)
 PAPER_FEA_S = 82.5  # paper: 10 s of the FEA model in 82.5 s
@@ -147,17 +148,16 @@ def _sweep(model: str, integrator: str, h: float, cfg: LadderConfig) -> _Run:
 
 def _run_sweep(model: str, integrator: str, h: float, cfg: LadderConfig) -> _Run:
     bm = beam_model(model, cfg.params)
-    r = frequency_sweep(
-        bm,
-        cfg.frequencies,
-        cfg.twist_deg,
-        cfg.amplitude,
-        cfg.settle_s,
-        cfg.record_s,
-        integrator,
-        h,
+    settings = SimSettings(
+        settle_s=cfg.settle_s,
+        record_s=cfg.record_s,
+        twist_deg=cfg.twist_deg,
+        amplitude_m=cfg.amplitude,
+        integrator=integrator,
+        timestep=h,
         nthread=cfg.nthread,
     )
+    r = frequency_sweep(bm, cfg.frequencies, settings)
     h_ref = cfg.reference[2]
     idx = np.rint(r.t / h_ref).astype(np.int64)
     return _Run(idx, r.tip, r.ok, int(r.info["nv"]))

@@ -44,6 +44,7 @@ from typing import Annotated, Any, Literal
 import numpy as np
 import pandas as pd
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
@@ -52,6 +53,7 @@ from pydantic import (
     model_validator,
 )
 
+from beambench.acquisition.scenes import CONTACT, FREE_BEAM, SceneInfo, batched_names, foreign_option
 from beambench.common.figures import new_figure
 from beambench.common.yaml_config import ConfigError, load_yaml_file, validate
 
@@ -102,7 +104,17 @@ class Point(_Model):
 
 
 PARAMETERS = tuple(Point.model_fields)
-CONTACT_ONLY = ("gap_mm",)  # scene parameters only the contact rig builds
+
+
+def _batched_scene(name: str) -> str:
+    known = batched_names()
+    if name not in known:
+        raise ValueError("Input should be " + " or ".join(repr(n) for n in known))
+    return name
+
+
+# a scene with a batched engine (beambench.acquisition.scenes: free_beam, contact)
+SweepScene = Annotated[str, AfterValidator(_batched_scene)]
 
 
 class Range(_Model):
@@ -129,7 +141,7 @@ class SweepSpec(_Model):
 
     name: str = Field("sweep", min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
-    scene: Literal["free_beam", "contact"] = "free_beam"
+    scene: SweepScene = "free_beam"
     base: dict[str, Any] = Field(default_factory=dict)
     grid: dict[str, list[Any] | Range] = Field(default_factory=dict)
     points: list[dict[str, Any]] = Field(default_factory=list, max_length=MAX_JOBS)
@@ -154,9 +166,10 @@ class SweepSpec(_Model):
     def _one_form(self) -> SweepSpec:
         if self.grid and self.points:
             raise ValueError("give either grid (a cartesian product) or points (a list), not both")
-        contact_only = [k for k in CONTACT_ONLY if k in self.base or k in self.grid or any(k in p for p in self.points)]
-        if self.scene != "contact" and contact_only:
-            raise ValueError(f"{contact_only[0]} applies to scene: contact only (the {self.scene} scene has no plate)")
+        given = {*self.base, *self.grid, *(k for p in self.points for k in p)}
+        foreign = foreign_option(self.scene, given, "scene")
+        if foreign is not None:
+            raise ValueError(f"{foreign[0]} {foreign[1]}")
         if any(f <= 0 for f in self.frequency_values()):
             raise ValueError("frequencies must be > 0 Hz")
         n = len(self.frequency_values()) * (len(self.points) or 1)
@@ -277,33 +290,41 @@ def make_tasks(spec: SweepSpec, jobs: list[Job], size: int) -> list[dict[str, An
 
 # ------------------------------------------------------------------------------------------- simulation
 def _beam(point: dict[str, Any]):
-    """The beam model of a point, with its stiffness/damping overrides applied."""
-    from dataclasses import replace
-
+    """The beam model of a point, with its stiffness/damping overrides applied (the beam's own overrides,
+    :data:`beambench.studies.unknowns.BEAM_OVERRIDES`, as the fit applies them)."""
     from beambench.sim.models.registry import default_params, is_rod, make_beam_model
+    from beambench.studies.unknowns import BEAM_OVERRIDES
 
     name = point["model"]
     params = default_params(name, point["params"])
-    if not is_rod(name):
-        if point.get("k") is not None:
-            params = replace(params, k=point["k"], k_twist=point["k"])
-        if point.get("b") is not None:
-            params = replace(params, b=point["b"], b_twist=point["b"])
-    else:
-        if point.get("youngs_modulus") is not None:
-            params = replace(params, material=replace(params.material, youngs_modulus=point["youngs_modulus"]))
-        if point.get("beta") is not None:
-            params = replace(params, beta=point["beta"])
+    for key in ("youngs_modulus", "beta") if is_rod(name) else ("k", "b"):
+        if point.get(key) is not None:
+            params = BEAM_OVERRIDES[key](params, point[key])
     return make_beam_model(name, params)
 
 
 def run_task(task: dict[str, Any]) -> list[dict[str, Any]]:
     """Simulate one task's jobs (in this process, one thread) and return one result row per job."""
-    if task["scene"] == "free_beam":
-        return _run_free_beam(task)
-    return _run_contact(task)
+    return _RUNNERS[task["scene"]](task)
 
 
+TaskRunner = Callable[[dict[str, Any]], list[dict[str, Any]]]
+_RUNNERS: dict[str, TaskRunner] = {}  # scene name → how its batched engine runs a task
+
+
+def _runs(info: SceneInfo) -> Callable[[TaskRunner], TaskRunner]:
+    """Register the task runner of a scene with a batched engine (``info.batched``)."""
+
+    def add(run: TaskRunner) -> TaskRunner:
+        if not info.batched:
+            raise ValueError(f"{info.name} declares no batched engine")
+        _RUNNERS[info.name] = run
+        return run
+
+    return add
+
+
+@_runs(FREE_BEAM)
 def _run_free_beam(task: dict[str, Any]) -> list[dict[str, Any]]:
     from beambench.sim.scenes.free_beam import build_free_beam_spec, run_batch
 
@@ -339,14 +360,15 @@ def _run_free_beam(task: dict[str, Any]) -> list[dict[str, Any]]:
         )
         for j, i in enumerate(idx):
             index, jid, point, f = jobs[i]
-            rows[index] = _row(
-                index, jid, point, f, "free_beam", bool(ok[j]), _free_metrics(t, tip[j], stage[j], f) if ok[j] else {}
-            )
+            metrics = _free_metrics(t, tip[j], stage[j], f) if ok[j] else {}
+            rows[index] = _row(index, jid, point, f, FREE_BEAM.name, bool(ok[j]), metrics)
     return [rows[i] for i in sorted(rows)]
 
 
+@_runs(CONTACT)
 def _run_contact(task: dict[str, Any]) -> list[dict[str, Any]]:
     from beambench.sim.scenes.contact_sweep import contact_sweep
+    from beambench.sim.settings import SimSettings
 
     rows: dict[int, dict[str, Any]] = {}
     groups: dict[str, list[tuple]] = {}
@@ -356,24 +378,21 @@ def _run_contact(task: dict[str, Any]) -> list[dict[str, Any]]:
     for key, jobs in groups.items():
         point = json.loads(key)
         freqs = [j[3] for j in jobs]
-        r = contact_sweep(
-            _beam(point),
-            freqs,
-            point["timestep"],
-            twist_deg=point["twist_deg"] * point["chirality"],
-            gap_m=point["gap_mm"] * 1e-3,
-            amplitude=point["amplitude_mm"] * 1e-3,
+        sim = SimSettings(
             settle_s=task["settle_s"],
             record_s=task["record_s"],
+            twist_deg=point["twist_deg"] * point["chirality"],
+            amplitude_m=point["amplitude_mm"] * 1e-3,
             integrator=point["integrator"],
-            sample_dt=task["sample_dt"],
+            timestep=point["timestep"],
             nthread=1,
         )
+        r = contact_sweep(_beam(point), freqs, sim, gap_m=point["gap_mm"] * 1e-3, sample_dt=task["sample_dt"])
         for i, (index, jid, p, f) in enumerate(jobs):
             ok = bool(r.ok[i])
             metrics = _contact_metrics(r, i, f, point["amplitude_mm"] * 1e-3) if ok else {}
             metrics["timestep_s"] = float(r.timesteps[i])
-            rows[index] = _row(index, jid, p, f, "contact", ok, metrics)
+            rows[index] = _row(index, jid, p, f, CONTACT.name, ok, metrics)
     return [rows[i] for i in sorted(rows)]
 
 

@@ -47,6 +47,7 @@ import math
 import threading
 import time
 from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -192,11 +193,26 @@ def receive_ns(frame: can.Message, now_ns: int, mono_minus_real_ns: int) -> int:
     return now_ns
 
 
+@dataclass(frozen=True)
+class CanMotorTiming:
+    """How :class:`OdriveCanMotor` arms and watches the axis: calibration, the waits, the liveness timeouts and the
+    periods of its watchdog feeder and poller (seconds)."""
+
+    calibrate: bool = True  # run the full calibration sequence when arming
+    calibration_timeout_s: float = 30.0
+    closed_loop_timeout_s: float = 2.0
+    heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S  # no heartbeat this long: a fault
+    telemetry_timeout_s: float | None = 1.0  # no Encoder_Estimates this long while streaming: a fault (None: off)
+    feed_period_s: float = 0.05  # watchdog feed
+    poll_period_s: float = 0.05  # bus voltage / current requests
+
+
 class OdriveCanMotor(TelemetryStream):
     """One ODrive axis on a CAN bus (CAN Simple, firmware 0.5.x), satisfying the ``Motor`` protocol.
 
     ``interface``/``channel``/``bitrate`` are passed to ``can.Bus`` (``socketcan``/``can0`` on the rig,
-    ``virtual`` in tests); or pass an open ``bus`` (then it is not shut down by :meth:`close`).
+    ``virtual`` in tests); or pass an open ``bus`` (then it is not shut down by :meth:`close`). ``timing``: how it
+    arms and watches the axis (:class:`CanMotorTiming`).
     """
 
     name = MOTOR
@@ -211,13 +227,7 @@ class OdriveCanMotor(TelemetryStream):
         bus: can.BusABC | None = None,
         own_bus: bool | None = None,
         can_log: str | Path | None = None,
-        calibrate: bool = True,
-        calibration_timeout_s: float = 30.0,
-        closed_loop_timeout_s: float = 2.0,
-        heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S,
-        telemetry_timeout_s: float | None = 1.0,
-        feed_period_s: float = 0.05,
-        poll_period_s: float = 0.05,
+        timing: CanMotorTiming = CanMotorTiming(),
         extended_id: bool = False,
     ) -> None:
         cs.arbitration_id(node_id, 0, extended_id)  # validates the node id
@@ -226,14 +236,14 @@ class OdriveCanMotor(TelemetryStream):
         self.can_log = Path(can_log) if can_log is not None else None
         if self.can_log is not None and self.can_log.suffix.lower() not in LOG_SUFFIXES:
             raise ValueError(f"can_log {self.can_log}: unknown log format (use one of {', '.join(LOG_SUFFIXES)})")
-        self.calibrate = calibrate
-        self.calibration_timeout_s = calibration_timeout_s
-        self.closed_loop_timeout_s = closed_loop_timeout_s
-        self.heartbeat_timeout_s = heartbeat_timeout_s
-        self.feed_period_s = feed_period_s
-        self.poll_period_s = poll_period_s
-
-        self.telemetry_timeout_s = telemetry_timeout_s
+        self.timing = timing
+        self.calibrate = timing.calibrate
+        self.calibration_timeout_s = timing.calibration_timeout_s
+        self.closed_loop_timeout_s = timing.closed_loop_timeout_s
+        self.heartbeat_timeout_s = timing.heartbeat_timeout_s
+        self.feed_period_s = timing.feed_period_s
+        self.poll_period_s = timing.poll_period_s
+        self.telemetry_timeout_s = timing.telemetry_timeout_s
         self._bus = bus
         self._own_bus = bus is None if own_bus is None else own_bus
         self._receiver: threading.Thread | None = None

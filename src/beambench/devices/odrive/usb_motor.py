@@ -31,6 +31,7 @@ import math
 import threading
 import time
 from collections import deque
+from dataclasses import dataclass
 from typing import Any
 
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits
@@ -65,8 +66,22 @@ def find_odrive(serial_number: str | None = None, timeout_s: float = 10.0) -> An
         raise DeviceFault(f"cannot reach an ODrive on USB: {exc}") from exc
 
 
+@dataclass(frozen=True)
+class UsbMotorTiming:
+    """How :class:`OdriveUsbMotor` finds, arms and watches the axis (seconds)."""
+
+    find_timeout_s: float = 10.0
+    calibrate: bool | None = None  # None: only if motor or encoder is not calibrated
+    watchdog_timeout_s: float = 0.5  # the axis's own watchdog, fed by the poller
+    poll_period_s: float = 0.02
+    heartbeat_timeout_s: float = 0.3  # no successful poll this long: a fault
+    closed_loop_timeout_s: float = 2.0
+    calibration_timeout_s: float = 30.0
+
+
 class OdriveUsbMotor(TelemetryStream):
-    """One axis of an ODrive v3.6 reached over USB. ``odrv`` may be given (an already-found device)."""
+    """One axis of an ODrive v3.6 reached over USB. ``odrv`` may be given (an already-found device); ``timing``:
+    how it finds, arms and watches the axis (:class:`UsbMotorTiming`)."""
 
     name = MOTOR
 
@@ -76,26 +91,21 @@ class OdriveUsbMotor(TelemetryStream):
         axis: int = 0,
         *,
         odrv: Any = None,
-        find_timeout_s: float = 10.0,
-        calibrate: bool | None = None,
         vel_ramp_rate: float = 20.0,
-        watchdog_timeout_s: float = 0.5,
-        poll_period_s: float = 0.02,
-        heartbeat_timeout_s: float = 0.3,
-        closed_loop_timeout_s: float = 2.0,
-        calibration_timeout_s: float = 30.0,
+        timing: UsbMotorTiming = UsbMotorTiming(),
     ) -> None:
         if axis not in (0, 1):
             raise ValueError(f"axis must be 0 or 1 (ODrive v3.6 has two), got {axis}")
         self.serial_number, self.axis_index = serial_number, axis
-        self.find_timeout_s = find_timeout_s
-        self.calibrate = calibrate  # None: only if motor or encoder is not calibrated
+        self.timing = timing
+        self.find_timeout_s = timing.find_timeout_s
+        self.calibrate = timing.calibrate
         self.vel_ramp_rate = vel_ramp_rate
-        self.watchdog_timeout_s = watchdog_timeout_s
-        self.poll_period_s = poll_period_s
-        self.heartbeat_timeout_s = heartbeat_timeout_s
-        self.closed_loop_timeout_s = closed_loop_timeout_s
-        self.calibration_timeout_s = calibration_timeout_s
+        self.watchdog_timeout_s = timing.watchdog_timeout_s
+        self.poll_period_s = timing.poll_period_s
+        self.heartbeat_timeout_s = timing.heartbeat_timeout_s
+        self.closed_loop_timeout_s = timing.closed_loop_timeout_s
+        self.calibration_timeout_s = timing.calibration_timeout_s
         self._odrv = odrv
         self._ax: Any = None
         self._lock = threading.Lock()

@@ -16,7 +16,7 @@ from typing import Any
 
 import yaml
 
-from beambench.common.resources import search_path, shipped_dir
+from beambench.common.resources import ShippedFileError, resolve_file, search_path, shipped_dir
 from beambench.common.yaml_config import ConfigError, load_yaml_file, shorten
 
 SIM_BACKEND_DIR = shipped_dir("sim_backend")  # the shipped sets and measured tables (read-only)
@@ -90,7 +90,11 @@ def find_params(name: str, model: str = "prb3") -> Path | None:
 def has_params(name: str, model: str) -> bool:
     """Whether ``name`` (a set name or a YAML path) gives parameters for the model family ``model``."""
     path = Path(name)
-    if path.suffix in (".yaml", ".yml") and path.exists():
+    if path.suffix in (".yaml", ".yml"):
+        try:
+            path = resolve_file("params", path)
+        except ShippedFileError:
+            return False
         try:
             data = yaml.safe_load(path.read_text()) or {}
         except yaml.YAMLError:
@@ -102,8 +106,11 @@ def has_params(name: str, model: str) -> bool:
 def load_params(name: str = "paper", model: str = "prb3") -> BeamParams:
     """Load the named set ``name`` (``<model>_<name>.yaml`` in :func:`find_params`' folders) or a YAML file path."""
     given = Path(name)
-    if given.suffix in (".yaml", ".yml") and given.is_file():
-        path: Path | None = given
+    if given.suffix in (".yaml", ".yml"):  # a file, or a shipped set by its path (sim_backend/prb3_paper.yaml)
+        try:
+            path: Path | None = resolve_file("params", given)
+        except ShippedFileError as exc:
+            raise ParamsError(f"sim.params = {exc}") from None
     else:
         if "/" in name or "\\" in name or "\x00" in name or len(name) > 200:
             raise ParamsError(f"sim.params = {shorten(name)}: no such parameter file")

@@ -22,10 +22,12 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from beambench.acquisition.scenes import CONTACT
 from beambench.acquisition.streams import CONTACT_MARKERS
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
+from beambench.sim.scenes.registry import SceneConfig, register
 
 
 @dataclass(frozen=True)
@@ -339,3 +341,20 @@ class ContactRigSim(DrivenScene):
             "mujoco_version": mujoco.__version__,
             **({"selection": self.selection} if self.selection else {}),
         }
+
+
+# --- scene registration (beambench.sim.scenes.registry) --------------------------------------------------------
+@register(CONTACT)
+def build(cfg: SceneConfig) -> ContactRigSim:
+    """The contact rig of a protocol: its plate gap (None: the parameter set's), stage amplitude and measured plan."""
+    sim, plan = cfg.sim, cfg.plan
+    return ContactRigSim(
+        cfg.beam,
+        twist_deg=sim.twist_deg,
+        gap_m=None if sim.plate_gap_mm is None else sim.plate_gap_mm * 1e-3,
+        amplitude_m=cfg.amplitude_mm * 1e-3,
+        integrator=plan.integrator if plan else sim.integrator,
+        timestep=sim.timestep,
+        timestep_for=plan.timestep if plan else None,
+        selection=plan.describe() if plan else None,
+    )

@@ -25,6 +25,10 @@ from beambench.sim.engine.batch import rollout_batch, window
 from beambench.sim.engine.stepping import integrator_enum
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.models.registry import beam_model
+from beambench.sim.settings import SimSettings
+
+DEFAULT_INTEGRATOR = "implicitfast"
+DEFAULT_TIMESTEP = 1e-4  # s
 
 STAGE_ARMATURE = 1000.0  # kg
 TIP_DIVERGED_M = 0.5  # a tip this far from the clamp means the run blew up
@@ -186,22 +190,32 @@ def run_batch(
     return keep * h, tip, stage, ok, wall
 
 
+FREE_BEAM_SETTINGS = SimSettings(settle_s=1.0, record_s=0.5, integrator=DEFAULT_INTEGRATOR, timestep=DEFAULT_TIMESTEP)
+
+
+def _numerics(settings: SimSettings) -> tuple[str, float]:
+    """The settings' integrator and (one) timestep; None: the free beam's defaults."""
+    h = settings.timestep
+    if isinstance(h, tuple):
+        raise ValueError("the free beam takes one timestep for the whole sweep")
+    return settings.integrator or DEFAULT_INTEGRATOR, DEFAULT_TIMESTEP if h is None else float(h)
+
+
 def frequency_sweep(
     beam: BeamModel | str = "prb3",
     frequencies: Floats = tuple(range(1, 46)),
-    twist_deg: float = 90.0,
-    amplitude: float = 0.002,
-    settle_s: float = 1.0,
-    record_s: float = 0.5,
-    integrator: str = "implicitfast",
-    timestep: float = 1e-4,
+    settings: SimSettings = FREE_BEAM_SETTINGS,
     sample_dt: float | None = None,
     gravity: bool = True,
-    nthread: int | None = None,
 ) -> SweepResult:
-    """Steady-state tip trajectories over a frequency sweep (paper Fig. 2f/g), batched on all cores."""
+    """Steady-state tip trajectories over a frequency sweep (paper Fig. 2f/g), batched on all cores.
+
+    ``settings``: the window, twist, amplitude, integrator, timestep and threads (noise and seed do not apply)."""
     bm = beam_model(beam) if isinstance(beam, str) else beam
     freqs = np.asarray(frequencies, float)
+    integrator, timestep = _numerics(settings)
+    twist_deg, amplitude = settings.twist_deg, settings.amplitude_m
+    settle_s, record_s, nthread = settings.settle_s, settings.record_s, settings.nthread
     model = build_free_beam_spec(bm, twist_deg, integrator, timestep, gravity).compile()
     every = 1 if sample_dt is None else max(1, round(float(sample_dt / timestep)))
     t, tip, stage, ok, wall = run_batch(
@@ -226,20 +240,23 @@ def twist_sweep(
     beam: BeamModel | str = "prb3",
     twists: Floats = tuple(range(0, 181, 5)),
     frequency: float = 15.0,
-    amplitude: float = 0.002,
-    settle_s: float = 1.0,
-    record_s: float = 0.5,
-    integrator: str = "implicitfast",
-    timestep: float = 1e-4,
+    settings: SimSettings = FREE_BEAM_SETTINGS,
     sample_dt: float | None = None,
     gravity: bool = True,
-    nthread: int | None = None,
 ) -> SweepResult:
     """Tip trajectories over twist angles φ at one frequency (paper Fig. 2c–e), batched on all cores.
 
-    Models of different size (PRB3 merges a joint at φ = 0) run in separate batches."""
+    ``settings`` as for :func:`frequency_sweep` (its ``twist_deg`` is replaced by ``twists``). Models of different
+    size (PRB3 merges a joint at φ = 0) run in separate batches."""
     bm = beam_model(beam) if isinstance(beam, str) else beam
     tw = np.asarray(twists, float)
+    integrator, timestep = _numerics(settings)
+    amplitude, settle_s, record_s, nthread = (
+        settings.amplitude_m,
+        settings.settle_s,
+        settings.record_s,
+        settings.nthread,
+    )
     models = [build_free_beam_spec(bm, float(p), integrator, timestep, gravity).compile() for p in tw]
     every = 1 if sample_dt is None else max(1, round(float(sample_dt / timestep)))
     groups: dict[tuple[int, int], list[int]] = {}

@@ -28,16 +28,18 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
+from beambench.acquisition.scenes import RELEASE
 from beambench.sim.engine.stepping import Physics, integrator_enum, quiet_mujoco_warnings
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.models.params import BeamParams
 from beambench.sim.models.registry import default_params, make_beam_model
 from beambench.sim.scenes.contact_rig import RigParams
 from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
+from beambench.sim.scenes.registry import SceneConfig, register
 
 G = 9.81
-TIP_MARKERS = ("tip1", "tip2", "tip3")
-RELEASE_MARKERS = ("stage", *TIP_MARKERS)
+RELEASE_MARKERS = RELEASE.markers  # stage, tip1, tip2, tip3
+TIP_MARKERS = RELEASE_MARKERS[1:]
 MARKER_HALF_SPAN = 0.008  # m, tip1/tip2 from the section centre along the width
 MARKER_STANDOFF = 0.006  # m, tip3 from the section centre along the thickness normal
 DEFAULT_TIMESTEP = 1e-4
@@ -289,19 +291,6 @@ class ReleaseSim(DrivenScene):
         d.time = 0.0
         mujoco.mj_forward(model, d)
 
-    @classmethod
-    def from_protocol(cls, protocol: Any, beam: BeamModel) -> ReleaseSim:
-        sim = protocol.sim
-        return cls(
-            beam,
-            twist_deg=sim.twist_deg,
-            load_g=protocol.release.load_g,
-            markers=protocol.release.markers,
-            release_s=release_time(protocol.settle_s, protocol.record_s),
-            integrator=sim.integrator,
-            timestep=sim.timestep,
-        )
-
     def set_frequency(self, hz: float) -> None:
         self.ramp.setpoint = float(hz)
 
@@ -340,3 +329,19 @@ class ReleaseSim(DrivenScene):
             "rig_params": asdict(self.rig),
             "mujoco_version": mujoco.__version__,
         }
+
+
+# --- scene registration (beambench.sim.scenes.registry) --------------------------------------------------------
+@register(RELEASE)
+def build(cfg: SceneConfig) -> ReleaseSim:
+    """The release test of a protocol: its load and markers (``release:``), released early in the record window."""
+    sim = cfg.sim
+    return ReleaseSim(
+        cfg.beam,
+        twist_deg=sim.twist_deg,
+        load_g=cfg.release.load_g,
+        markers=cfg.release.markers,
+        release_s=release_time(cfg.settle_s, cfg.record_s),
+        integrator=sim.integrator,
+        timestep=sim.timestep,
+    )

@@ -62,11 +62,14 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from beambench.acquisition.config import ConfigError
+from beambench.acquisition.scenes import WALKER
 from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.common.errors import BeambenchError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, quat_y
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
+from beambench.sim.scenes.registry import SceneConfig, register
 
 
 # Where each number comes from: P = the paper (Sec. IV-B, Fig. 5a); D = Maxon EC 45 flat Ø42.9 mm 30 W datasheet
@@ -433,3 +436,14 @@ def measure_speed(
     body = tr.channels["markers"][sel, 0]
     vx, vy = (float(np.polyfit(tr.t[sel], body[:, k], 1)[0]) for k in (0, 1))
     return vx, vy
+
+
+# --- scene registration (beambench.sim.scenes.registry) --------------------------------------------------------
+@register(WALKER)
+def build(cfg: SceneConfig) -> WalkerSim:
+    """The walker of a protocol; a leg model it cannot stand on is a ConfigError (one line)."""
+    sim = cfg.sim
+    try:
+        return WalkerSim(cfg.beam, twist_deg=sim.twist_deg, integrator=sim.integrator, timestep=sim.timestep)
+    except WalkerLegError as exc:
+        raise ConfigError("<protocol>", "sim.model", exc.name, exc.reason) from None

@@ -12,6 +12,7 @@ The speed needs ~3 s from rest to reach its steady value (23 / 65 Hz, research12
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -22,11 +23,13 @@ from mujoco import rollout
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.scenes.drive import KinematicServo, VelocityRamp
 from beambench.sim.scenes.walker import WalkerParams, WalkerSim
+from beambench.sim.settings import SimSettings
 
 STEADY_SETTLE_S = 3.0  # s after the ramp before the speed is steady (see the module docstring)
 RECORD_S = 1.5
 RAMP_RATE = 200.0  # turn/s²: the steady speed does not depend on it (10–200 agree within 0.2 mm/s)
 CHUNK = 10_000  # steps per rollout call (bounds the state/sensor arrays)
+STEADY_SETTINGS = SimSettings(settle_s=STEADY_SETTLE_S, record_s=RECORD_S, nthread=1)
 
 
 def steady_speeds(
@@ -34,16 +37,23 @@ def steady_speeds(
     frequencies: Sequence[float],
     params: WalkerParams | None = None,
     *,
-    twist_deg: float = 90.0,
-    timestep: float | None = None,
-    settle_s: float = STEADY_SETTLE_S,
-    record_s: float = RECORD_S,
+    settings: SimSettings = STEADY_SETTINGS,
     ramp_rate: float = RAMP_RATE,
-    nthread: int = 1,
     stride: int = 10,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Forward body speed (mm/s) at each frequency and the mean body height (mm) over the record window; NaN
-    where a run diverged."""
+    where a run diverged. ``settings``: twist, timestep (None: the walker's), the settle time after the ramp,
+    the record window and threads (None: all cores); the integrator is the walker's, amplitude and noise do not
+    apply."""
+    twist_deg, timestep, settle_s, record_s = (
+        settings.twist_deg,
+        settings.timestep,
+        settings.settle_s,
+        settings.record_s,
+    )
+    if isinstance(timestep, tuple):
+        raise ValueError("the walker takes one timestep for all frequencies")
+    nthread = settings.nthread if settings.nthread is not None else (os.cpu_count() or 1)
     wp = replace(params or WalkerParams(), vel_ramp_rate=ramp_rate)
     sim = WalkerSim(beam, twist_deg, wp, timestep=timestep)
     m, d0 = sim.physics.model, sim.physics.data

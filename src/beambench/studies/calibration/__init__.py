@@ -1,1 +1,43 @@
-"""Calibration of a twin to measured or published results (``beambench calibrate sim``)."""
+"""``beambench calibrate sim``: fit a rig's twin to measured per-step results or to published numbers.
+
+- :mod:`.rig`: what the calibrator knows of a rig (:class:`CalibratableRig`: its :class:`Unknown` s with their
+  bounds, ``simulate``, ``objective``, how its values go into a protocol), the fixed part of its twin
+  (:class:`CalibrationBase`) and the registry;
+- :mod:`.contact`, :mod:`.walker`: one module per calibratable rig, each registering itself at import (this
+  package imports them, so every rig is known wherever the package is);
+- :mod:`.search`: the search (lines, landmark steps, evolution, refine, verify), the same for every rig;
+  :mod:`.evaluate`: the evaluation log, the evaluator, the settings; :mod:`.landmark_steps`;
+- :mod:`.report`, :mod:`.protocol_out`: what a calibration writes; :mod:`.targets`: what it fits to;
+  :mod:`.written_run`: running a written protocol as its user will.
+
+Plugging in a rig: a module that calls ``register_rig(CalibratableRig(name=..., unknowns=(...), simulate=...,
+objective=..., base=..., write=..., summary=...))``, imported below; ``simulate`` returns
+``{"steps": [{"frequency_hz": f, ...}, ...], "extras": {...}}`` and the objective compares them with
+``targets.table``. The CLI, the search, the log and the report are rig-agnostic.
+"""
+
+from beambench.studies.calibration import contact, walker
+from beambench.studies.calibration.evaluate import EvalLog, Evaluator, Interrupted, Point, SearchSettings
+from beambench.studies.calibration.report import write_report
+from beambench.studies.calibration.rig import RIGS, CalibratableRig, CalibrationBase, get_rig, register_rig
+from beambench.studies.calibration.search import Result, calibrate
+from beambench.studies.unknowns import Unknown
+
+__all__ = [
+    "RIGS",
+    "CalibratableRig",
+    "CalibrationBase",
+    "EvalLog",
+    "Evaluator",
+    "Interrupted",
+    "Point",
+    "Result",
+    "SearchSettings",
+    "Unknown",
+    "calibrate",
+    "contact",
+    "get_rig",
+    "register_rig",
+    "walker",
+    "write_report",
+]

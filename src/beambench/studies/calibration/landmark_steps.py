@@ -9,8 +9,8 @@ points near the best one (Gaussian weights in the unit box of the free unknowns)
 trust-region Gauss–Newton step solves it for the target landmarks. The step is evaluated at a few lengths along
 it; the trust region grows after a success and shrinks after a miss, as in any trust-region method.
 
-Pure functions (:func:`fit_local_linear`, :func:`solve_step`) and the loop (:func:`landmark_steps`), which
-evaluates through the calibrator's :class:`~beambench.studies.calibration.search.Evaluator`.
+Pure functions (:func:`fit_local_linear`, :func:`solve_step`) and the loop (:func:`landmark_steps`), which is
+handed a narrow ``evaluate(values, frequencies, stage) -> points`` and the points evaluated so far.
 """
 
 from __future__ import annotations
@@ -24,12 +24,11 @@ import numpy as np
 if TYPE_CHECKING:
     import pandas as pd
 
-    from beambench.studies.calibration.search import Evaluator, Point, Unknown
-    from beambench.studies.calibration.targets import Targets
+    from beambench.studies.calibration.evaluate import Point
+    from beambench.studies.unknowns import Unknown
 
-# landmarks(steps, targets) -> {name: (the map's value or None where it has none, the target's value)}, both in
-# the units the objective compares them in (the walker: speeds over their floor)
-Landmarks = Callable[["pd.DataFrame", "Targets"], dict[str, tuple[float | None, float]]]
+# evaluate(values, frequencies, stage) -> one evaluated point per values, in order
+Evaluate = Callable[[list[dict[str, float]], list[float], str], list["Point"]]
 
 MIN_WEIGHT_POINTS = 1.5  # effective points beyond the model's parameters (d + 1) a landmark needs to be fitted
 
@@ -119,46 +118,54 @@ class TrustRegion:
 STEP_FRACTIONS = (0.5, 1.0, 0.75, 1.25)  # the lengths along the step evaluated per round (the first n of them)
 
 
+@dataclass(frozen=True)
+class LandmarkPlan:
+    """How the landmark steps run: ``rounds`` trust-region steps, ``n`` points along each (evaluated on
+    ``frequencies`` as ``stage``), until the best objective is ``good_enough`` or ``stop()``."""
+
+    frequencies: list[float]
+    stage: str
+    rounds: int
+    n: int
+    good_enough: float
+    stop: Callable[[], bool] = lambda: False
+
+
 def landmark_steps(
-    ev: Evaluator,
+    evaluate: Evaluate,
+    seen: Sequence[Point],
     start: Point,
     free: Sequence[Unknown],
-    landmarks: Landmarks,
-    freqs: list[float],
-    stage: str,
-    rounds: int,
-    n: int,
-    history: list[dict],
-    elapsed: Callable[[], float],
-    stop: Callable[[], bool],
-    good_enough: float,
+    landmarks: Callable[[pd.DataFrame], dict[str, tuple[float | None, float]]],
+    plan: LandmarkPlan,
+    on_round: Callable[[list[Point], float], None] | None = None,
 ) -> Point:
-    """Up to ``rounds`` trust-region steps from ``start``, each ``n`` points along the model's step (evaluated
-    on ``freqs`` as ``stage``). The model is refitted each round over every point of that stage so far. Stops
-    early when the best point's objective is ``good_enough`` or every landmark is within half a unit of its
-    target, when the model has no landmark left to move, or when ``stop()``. Returns the best point seen."""
-    from beambench.studies.calibration.search import _gen
-
+    """Up to ``plan.rounds`` trust-region steps from ``start``, each ``plan.n`` points along the model's step.
+    The model is refitted each round over every point of ``seen`` (all evaluated so far, growing as the loop
+    evaluates) of the plan's stage. Stops early when the best point's objective is ``plan.good_enough`` or every
+    landmark is within half a unit of its target, when the model has no landmark left to move, or when
+    ``plan.stop()``. ``landmarks(steps)``: a map's landmarks against its targets; ``on_round(points, radius)``
+    after each round. Returns the best point seen."""
     lo = np.array([u.bounds[0] for u in free])
     span = np.array([u.bounds[1] - u.bounds[0] for u in free])
 
     def unit(p: Point) -> np.ndarray:
         return (np.array([u.coord(p.values[u.name]) for u in free]) - lo) / span
 
-    seen: dict[int, dict[str, tuple[float | None, float]]] = {}  # landmarks of each point, found once
+    found: dict[int, dict[str, tuple[float | None, float]]] = {}  # landmarks of each point, found once
 
     def of(p: Point) -> dict[str, tuple[float | None, float]]:
-        if id(p) not in seen:
-            seen[id(p)] = landmarks(p.steps, ev.targets)
-        return seen[id(p)]
+        if id(p) not in found:
+            found[id(p)] = landmarks(p.steps)
+        return found[id(p)]
 
     best, region = start, TrustRegion()
     names = list(of(start))
     target = np.array([of(start)[k][1] for k in names], float)
-    for _ in range(rounds):
-        if stop() or best.j <= good_enough or region.exhausted or within(of(best), 0.5):
+    for _ in range(plan.rounds):
+        if plan.stop() or best.j <= plan.good_enough or region.exhausted or within(of(best), 0.5):
             break
-        pts = [p for p in ev.points if p.stage == stage and len(p.steps) == len(best.steps)]
+        pts = [p for p in seen if p.stage == plan.stage and len(p.steps) == len(best.steps)]
         x = np.array([unit(p) for p in pts])
         y = np.array([[_nan(of(p)[k][0]) for k in names] for p in pts])
         x0 = unit(best)
@@ -166,13 +173,14 @@ def landmark_steps(
         step = solve_step(model, target, region.radius)
         if not model.fitted.any() or np.linalg.norm(step) < 1e-3:
             break
-        cands = [np.clip(x0 + f * step, 0.0, 1.0) for f in STEP_FRACTIONS[: max(1, n)]]
+        cands = [np.clip(x0 + f * step, 0.0, 1.0) for f in STEP_FRACTIONS[: max(1, plan.n)]]
         values = [
             {**best.values, **{u.name: u.value(float(lo[i] + c[i] * span[i])) for i, u in enumerate(free)}}
             for c in cands
         ]
-        got = ev.batch(values, freqs, stage)
-        history.append({**_gen(ev, stage, got, elapsed()), "stage": "landmark step", "radius": region.radius})
+        got = evaluate(values, plan.frequencies, plan.stage)
+        if on_round is not None:
+            on_round(got, region.radius)
         winner = min(got, key=lambda p: p.j)
         if winner.j < best.j - 1e-9:
             best = winner

@@ -34,8 +34,21 @@ import pandas as pd
 import yaml
 
 from beambench.common.errors import BeambenchError
+from beambench.sim.scenes.contact_regimes import CONTINUOUS, IRREGULAR, NONE, transitions
 
-CONTINUOUS, NONE, IRREGULAR = "continuous", "none", "irregular"
+__all__ = [
+    "CONTINUOUS",
+    "IRREGULAR",
+    "NONE",
+    "CalibrationInputError",
+    "Targets",
+    "contact_targets",
+    "load_targets",
+    "parse_targets",
+    "session_targets",
+    "target_map",
+    "transitions",
+]
 THIRD_SPAN_HZ = 4.0  # a targets file says nothing above third_at_hz + this: the ⅓ band's width is unknown
 
 
@@ -194,20 +207,6 @@ def load_targets(path: str | Path) -> Targets:
 
 
 # --------------------------------------------------------------------------------------------- session
-
-
-def transitions(freqs: np.ndarray, labels: list[str]) -> dict[str, float | None]:
-    """(continuous edge, lowest ½, lowest ⅓) of a per-step regime list (Hz; None where absent). The edge is the
-    lowest frequency that is not continuous, counted only when the map starts continuous."""
-    order = np.argsort(freqs)
-    f = np.asarray(freqs, float)[order]
-    lab = [labels[i] for i in order]
-    edge = None
-    if lab and lab[0] == CONTINUOUS:
-        edge = next((float(x) for x, s in zip(f, lab) if s != CONTINUOUS), float(f[-1]) + 1.0)
-    half = next((float(x) for x, s in zip(f, lab) if s == "1/2"), None)
-    third = next((float(x) for x, s in zip(f, lab) if s == "1/3"), None)
-    return {"continuous_below_hz": edge, "half_at_hz": half, "third_at_hz": third}
 
 
 def session_targets(path: str | Path) -> Targets:

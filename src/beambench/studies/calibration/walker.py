@@ -1,4 +1,4 @@
-"""The walker in ``beambench calibrate sim`` (a plugin of :mod:`beambench.studies.calibration.search`).
+"""The walker in ``beambench calibrate sim`` (registers itself, as :mod:`.contact` does; :mod:`.rig`).
 
 Targets: ``rig: walker`` with ``speed_mm_s: {f: v}`` (any number of frequencies; e.g.
 ``calibration/paper_walker_targets.yaml``) or a walker session (speeds from :mod:`beambench.analysis`).
@@ -22,30 +22,42 @@ session's protocol, else the shipped walker sweep, with ``sim.params`` pointing 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
-from beambench.studies.calibration.search import CalibratableRig, Unknown, register_rig, write_calibrated_protocol
+from beambench.sim.settings import SimSettings
+from beambench.studies.calibration.protocol_out import CalibratedSet, write_calibrated_protocol
+from beambench.studies.calibration.rig import CalibratableRig, CalibrationBase, register_rig
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
+from beambench.studies.unknowns import Override, Unknown, apply_values
+
+if TYPE_CHECKING:
+    from beambench.sim.models.params import BeamParams
 
 SPEED_FLOOR_MM_S = 20.0
-WALKER_UNKNOWNS = (
-    Unknown("foot_mass", 0.001, 0.008, unit="kg", doc="point mass at each sole (the foot's load)"),
-    Unknown("friction", 0.35, 0.60, doc="sole–floor Coulomb friction"),
+WALKER_UNKNOWNS = (  # the rig block's foot_mass and friction (beambench.sim.scenes.walker.WalkerParams)
+    Unknown(
+        "foot_mass",
+        0.001,
+        0.008,
+        unit="kg",
+        doc="point mass at each sole (the foot's load)",
+        effect=Override(("rig.foot_mass",)),
+    ),
+    Unknown("friction", 0.35, 0.60, doc="sole–floor Coulomb friction", effect=Override(("rig.friction",))),
 )
-STAGES = {
+STAGES: dict[str, dict[str, Any]] = {
     "coarse": {"settle_s": 3.0, "record_s": 1.5, "timestep": 1.5e-4},
-    "fine": {"settle_s": 3.0, "record_s": 1.5},  # the scene's timestep
+    "fine": {"settle_s": 3.0, "record_s": 1.5, "timestep": None},  # the scene's timestep
 }
 
 
-def walker_stage_sim(stage: str, sim: dict[str, float]) -> dict[str, float]:
+def walker_stage_sim(stage: str, sim: SimSettings) -> SimSettings:
     """The walker's window per stage (the search's settle/record are for the contact rig's maps)."""
-    return dict(STAGES["coarse" if stage == "coarse" else "fine"])
+    return sim.replace(**STAGES["coarse" if stage == "coarse" else "fine"])
 
 
 def walker_objective(steps: pd.DataFrame, targets: Targets) -> tuple[float, dict[str, float]]:
@@ -60,7 +72,7 @@ def walker_objective(steps: pd.DataFrame, targets: Targets) -> tuple[float, dict
     return float(np.mean(list(parts.values()))), parts
 
 
-def walker_base(targets: Targets) -> dict:
+def walker_base(targets: Targets) -> CalibrationBase:
     """The fixed part: the prior parameter set, leg model and twist of the session's protocol (else the shipped
     walker sweep)."""
     from beambench.acquisition.config import parse_protocol
@@ -72,34 +84,28 @@ def walker_base(targets: Targets) -> dict:
     except ValueError as exc:
         raise CalibrationInputError(str(exc)) from None
     model = "prb3" if proto.sim.model == "auto" else proto.sim.model
-    return {"model": model, "params": str(proto.sim.params), "twist_deg": float(proto.sim.twist_deg)}
+    return CalibrationBase(model, str(proto.sim.params), SimSettings(twist_deg=float(proto.sim.twist_deg)))
 
 
-def _prior(base: dict) -> Any:
+def _prior(base: CalibrationBase) -> BeamParams:
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import model_family
 
-    return load_params(base["params"], model=model_family(base["model"]))
+    return load_params(base.params, model=model_family(base.model))
 
 
-def simulate_walker(base: dict, values: dict[str, float], frequencies: list[float], sim: dict) -> dict:
+def simulate_walker(
+    base: CalibrationBase, values: dict[str, float], frequencies: list[float], sim: SimSettings
+) -> dict:
     """Steady body speeds at ``frequencies`` for the fitted ``values`` (runs in a worker)."""
     from beambench.sim.models.registry import make_beam_model
     from beambench.sim.scenes.walker import WalkerParams
     from beambench.sim.scenes.walker_batch import steady_speeds
 
-    params = _prior(base)
-    beam = make_beam_model(base["model"], params)
-    wp = replace(WalkerParams.with_overrides(params.rig), **{k: float(v) for k, v in values.items()})
-    speed, height = steady_speeds(
-        beam,
-        frequencies,
-        wp,
-        twist_deg=base["twist_deg"],
-        timestep=sim.get("timestep"),
-        settle_s=sim["settle_s"],
-        record_s=sim["record_s"],
-    )
+    params = apply_values(_prior(base), WALKER_UNKNOWNS, values)
+    beam = make_beam_model(base.model, params)
+    wp = WalkerParams.with_overrides(params.rig)
+    speed, height = steady_speeds(beam, frequencies, wp, settings=sim.replace(nthread=1))  # one thread per worker
     steps = [
         {"frequency_hz": float(f), "body_speed_mm_s": float(v), "body_height_mm": float(z)}
         for f, v, z in zip(frequencies, speed, height)
@@ -114,28 +120,26 @@ def walker_summary(steps: pd.DataFrame) -> dict:
 
 
 def write_walker_protocol(
-    base: dict, values: dict[str, float], extras: dict, targets: Targets, out_dir: Path, name: str
+    base: CalibrationBase, values: dict[str, float], extras: dict[str, Any], targets: Targets, out_dir: Path, name: str
 ) -> Path:
-    """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring), through the calibrator's
-    :func:`~beambench.studies.calibration.search.write_calibrated_protocol`; the rig block carries foot mass and friction."""
+    """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring), through
+    :func:`.protocol_out.write_calibrated_protocol`; the rig block carries foot mass and friction."""
     p = _prior(base)
-    return write_calibrated_protocol(
+    cal = CalibratedSet(
         params=p,
         rig_block={**p.rig, **{k: round(float(v), 7) for k, v in values.items()}},
-        base=base,
         values=values,
-        targets=targets,
-        out_dir=out_dir,
-        name=name,
+        prior=base.params,
+        model=base.model,
         shipped_protocol="walker_sweep.yaml",
-        sim_extra={},
         params_note="; the rig block\n# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).",
         protocol_note="sim.params points at the calibrated parameter set (foot mass and friction in its rig block).",
         rig_label="walker",
     )
+    return write_calibrated_protocol(cal, targets, out_dir, name)
 
 
-register_rig(
+WALKER = register_rig(
     CalibratableRig(
         name="walker",
         unknowns=WALKER_UNKNOWNS,

@@ -1,0 +1,195 @@
+"""The load-cell plate's calibration procedure: tare, known loads, least-squares 2×4 matrix, residuals.
+
+:func:`walkthrough` is independent of the terminal: it takes a running load-cell
+:class:`~beambench.acquisition.capabilities.Stream`, the loads, an ``ask`` callable (a prompt that returns the answer)
+and an optional ``on_step`` hook called when a load should be on the plate, and prints its tables on a rich
+console. ``beambench calibrate loadcells`` (:mod:`beambench.commands.calibrate`) wires it to prompts on stdin, and
+with ``--emulate`` to an emulated MCU on a pty whose force follows the steps (:func:`emulated_plate`). The
+arithmetic (tare, fit, the saved file) is :mod:`beambench.acquisition.calibration`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
+    from rich.console import Console
+
+    from beambench.acquisition.calibration import LoadCellCalibration, MatrixFit
+    from beambench.acquisition.capabilities import Stream
+
+EMULATE_LOADS = [(1.0, 0.0), (2.0, 0.0), (0.0, 0.5), (0.0, 1.0), (1.5, 0.5), (1.0, -0.5)]
+
+
+class CalibrationAborted(Exception):
+    """The walkthrough cannot go on (no samples, no answer); the message is one line for the user."""
+
+
+@dataclass
+class Recording:
+    """Samples recorded for one step: their per-channel mean and standard deviation."""
+
+    samples: np.ndarray
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.samples.mean(axis=0)
+
+    @property
+    def std(self) -> np.ndarray:
+        return self.samples.std(axis=0)
+
+
+def parse_loads(values: list[str]) -> list[tuple[float, float]]:
+    """``["1,0", "0,0.5 2,0"]`` → ``[(1, 0), (0, 0.5), (2, 0)]``; ValueError naming the bad one."""
+    loads = []
+    for value in values:
+        for item in value.replace(";", " ").split():
+            parts = item.split(",")
+            try:
+                if len(parts) != 2:
+                    raise ValueError
+                loads.append((float(parts[0]), float(parts[1])))
+            except ValueError:
+                raise ValueError(f"--loads {item!r}: expected FN,FT in newtons, e.g. 1.0,0") from None
+    return loads
+
+
+def _noise_floor(std: np.ndarray) -> float:
+    """Noise level used to tell a load from no load: the largest channel std, at least one count."""
+    return max(float(std.max()), 1.0)
+
+
+def record(stream: Stream, settle_s: float, duration_s: float) -> Recording:
+    """Wait ``settle_s``, drop what came meanwhile, then collect ``duration_s`` of samples."""
+    import numpy as np
+
+    from beambench.acquisition.batch import Batch
+
+    time.sleep(settle_s)
+    stream.read()
+    batches = []
+    t_end = time.monotonic() + duration_s
+    while time.monotonic() < t_end:
+        time.sleep(min(0.05, max(0.0, t_end - time.monotonic())))
+        batches.append(stream.read())
+    b = Batch.concat(batches)
+    if len(b) == 0:
+        raise CalibrationAborted(f"no load-cell samples in {duration_s:g} s: is the MCU connected and running?")
+    return Recording(np.asarray(b.columns["data"], dtype=np.float64))
+
+
+def walkthrough(
+    stream: Stream,
+    loads: list[tuple[float, float]] | None,
+    ask: Callable[[str], str],
+    console: Console,
+    *,
+    settle_s: float = 0.5,
+    duration_s: float = 1.0,
+    gain: np.ndarray | None = None,
+    on_step: Callable[[tuple[float, float]], None] | None = None,
+    source: str = "",
+) -> tuple[LoadCellCalibration, MatrixFit]:
+    """Tare then known loads, fitted. ``loads=None`` asks the user for each load until a blank answer."""
+    import numpy as np
+    from rich.table import Table
+
+    from beambench.acquisition.calibration import (
+        LoadCellCalibration,
+        fit_matrix,
+        tare_counts,
+    )
+    from beambench.acquisition.streams import LOADCELL_CHANNELS
+
+    hook = on_step or (lambda load: None)
+    hook((0.0, 0.0))
+    ask("Remove every load from the plate, then press Enter to record the tare")
+    rec = record(stream, settle_s, duration_s)
+    tare = tare_counts(rec.samples)
+    tare_std = rec.std
+    t = Table(title=f"Tare ({len(rec.samples)} samples, mean over time per channel)")
+    for col in ("", *LOADCELL_CHANNELS):
+        t.add_column(col, justify="right")
+    t.add_row("mean [count]", *(f"{v:.1f}" for v in tare))
+    t.add_row("std [count]", *(f"{v:.1f}" for v in rec.std))
+    console.print(t)
+
+    known: list[tuple[float, float]] = []
+    means: list[np.ndarray] = []
+    k = 0
+    while loads is None or k < len(loads):
+        if loads is None:
+            answer = ask(f"Known load {k + 1} as FN,FT in N (blank to finish)").strip()
+            if not answer:
+                break
+            try:
+                parsed = parse_loads([answer])
+                if len(parsed) != 1:
+                    raise ValueError(f"{answer!r}: one load at a time, as FN,FT")
+            except ValueError as exc:
+                console.print(f"[red]{exc}[/red]", soft_wrap=True)
+                continue
+            load = parsed[0]
+        else:
+            load = loads[k]
+        hook(load)
+        ask(f"Apply load {k + 1}: Fn = {load[0]:g} N, Ft = {load[1]:g} N, then press Enter")
+        rec = record(stream, settle_s, duration_s)
+        known.append(load)
+        means.append(rec.mean)
+        console.print(f"  load {k + 1}: {len(rec.samples)} samples, std {np.array2string(rec.std, precision=1)} counts")
+        k += 1
+    hook((0.0, 0.0))
+    change = np.abs(np.array(means).reshape(-1, 4) - tare).max(initial=0.0)
+    if known and change < 5 * _noise_floor(tare_std):
+        raise CalibrationAborted(
+            f"the loads changed the counts by at most {change:.0f}, within the noise ({tare_std.max():.0f} std): "
+            "are the load cells connected and the weights on the plate?"
+        )
+    try:
+        fit = fit_matrix(np.array(means).reshape(-1, 4), np.array(known).reshape(-1, 2), tare, gain)
+    except ValueError as exc:
+        raise CalibrationAborted(str(exc)) from None
+    g = np.ones(4) if gain is None else np.asarray(gain, float)
+    cal = LoadCellCalibration(tare=tare, gain=g, matrix=fit.matrix, sensitivity=fit.sensitivity, source=source)
+    show_fit(console, fit)
+    return cal, fit
+
+
+def show_fit(console: Console, fit: MatrixFit) -> None:
+    from rich.table import Table
+
+    t = Table(title="Known loads and the fit (N)")
+    for col in ("#", "Fn", "Ft", "Fn fit", "Ft fit", "ΔFn", "ΔFt"):
+        t.add_column(col, justify="right")
+    for i, (f, g, r) in enumerate(zip(fit.loads, fit.fitted, fit.residuals)):
+        t.add_row(str(i + 1), *(f"{v:.4f}" for v in (*f, *g, *r)))
+    console.print(t)
+    m = Table(title=f"Matrix N per count (rank {fit.rank} of 4)")
+    for col in ("", "lc0", "lc1", "lc2", "lc3"):
+        m.add_column(col, justify="right")
+    for name, row in zip(("Fn", "Ft"), fit.matrix):
+        m.add_row(name, *(f"{v:.4e}" for v in row))
+    console.print(m)
+    console.print(f"RMS residual: Fn {fit.rms[0]:.4f} N, Ft {fit.rms[1]:.4f} N")
+
+
+def emulated_plate() -> LoadCellCalibration:
+    """A plate that differs from the shipped calibration (gains off by a few %, crosstalk, other offsets)."""
+    import numpy as np
+
+    from beambench.acquisition.calibration import (
+        LoadCellCalibration,
+        default_calibration,
+    )
+
+    nominal = default_calibration()
+    rng = np.random.default_rng(7)
+    sens = nominal.sensitivity * (1 + 0.05 * rng.standard_normal((4, 1))) + 400.0 * rng.standard_normal((4, 2))
+    tare = nominal.tare + rng.normal(0.0, 300.0, 4)
+    return LoadCellCalibration(tare=tare, sensitivity=sens, source="emulated plate")

@@ -1,0 +1,48 @@
+"""How long a sim run takes on this machine where no measured timing table covers it (walker, release test, a
+fixed ``sim.timestep``): build the run's scene and time a short stretch of its physics, here and now."""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass
+
+from beambench.acquisition.config import Protocol
+from beambench.acquisition.plan import plan
+
+PROBE_S = 0.2  # simulated seconds timed (after a short warm-up): ~0.03 s of wall time on the walker
+
+
+@dataclass(frozen=True)
+class ProbeEstimate:
+    """The stepping time of a whole run, extrapolated from ``wall_per_s`` (wall s per simulated s) at
+    ``probe_hz``, weighted by the scene's relative cost per frequency where it has one, over ``parallel``
+    segments computed at once."""
+
+    wall_s: float
+    wall_per_s: float
+    probe_hz: float
+    parallel: int
+
+
+def probe_run_time(protocol: Protocol) -> ProbeEstimate:
+    """Time :data:`PROBE_S` of ``protocol``'s scene at its highest frequency and extrapolate to every step."""
+    from beambench.backends.sim import build_scene
+
+    steps = plan(protocol)
+    scene = build_scene(protocol)
+    probe_hz = max(s.frequency_hz for s in steps)
+    scene.set_frequency(probe_hz)
+    warm = scene.physics.time + 0.02
+    scene.advance_to(warm)
+    t0 = time.perf_counter()
+    scene.advance_to(warm + PROBE_S)
+    wall_per_s = (time.perf_counter() - t0) / PROBE_S
+    cost = getattr(scene, "step_cost", None)
+
+    def relative(hz: float) -> float:
+        return float(cost(hz) / cost(probe_hz)) if cost is not None else 1.0
+
+    total = sum(s.duration_s * wall_per_s * relative(s.frequency_hz) for s in steps)
+    parallel = max(1, min(protocol.sim.segments, os.cpu_count() or 1))
+    return ProbeEstimate(total / parallel, wall_per_s, probe_hz, parallel)

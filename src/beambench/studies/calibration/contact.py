@@ -1,0 +1,255 @@
+"""The contact rig in ``beambench calibrate sim`` (registers itself; :mod:`.rig`).
+
+Targets: ``rig: contact`` transitions (``calibration/paper_contact_targets.yaml``) or a contact session.
+Unknowns (:data:`CONTACT_UNKNOWNS`, each with its bounds and how it goes into the prior parameter set): the
+stiffness and damping scales, the preload (the gap follows from the static sag), the sole's friction and, opt-in,
+the load frame's mass and the load's offset. The map is a stepped sweep as ``beambench run`` steps it
+(:func:`simulate_contact`), judged by :func:`~.contact_objective.contact_objective`; the verify stage runs the
+written protocol as the user will (:mod:`.written_run`).
+
+Adding an unknown is one entry of :data:`CONTACT_UNKNOWNS` (docs/extending.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import pandas as pd
+import yaml
+
+from beambench.sim.settings import SimSettings
+from beambench.studies.calibration.contact_objective import contact_landmarks, contact_objective
+from beambench.studies.calibration.protocol_out import CalibratedSet, extended_sweep, write_calibrated_protocol
+from beambench.studies.calibration.rig import CalibratableRig, CalibrationBase, register_rig
+from beambench.studies.calibration.targets import CalibrationInputError, Targets
+from beambench.studies.calibration.written_run import run_written_protocol
+from beambench.studies.unknowns import Override, Unknown, apply_values
+
+if TYPE_CHECKING:
+    from beambench.sim.models.params import BeamParams
+
+
+@dataclass(frozen=True)
+class RigValue:
+    """The prior set's own value of a rig parameter (its rig block, else the scene's default), in the unknown's
+    unit (``field / si``)."""
+
+    field: str
+    si: float = 1.0
+
+    def __call__(self, params: BeamParams) -> float:
+        from beambench.sim.scenes.contact_rig import RigParams
+
+        return float(getattr(RigParams.with_overrides(params.rig), self.field)) / self.si
+
+
+def neutral(params: BeamParams) -> float:
+    """The prior set's own value of a scale: 1."""
+    return 1.0
+
+
+def scale_friction(params: BeamParams, value: float) -> BeamParams:
+    """The sole's friction scaled from the prior's own (its rig block, else the scene's default)."""
+    from beambench.sim.scenes.contact_rig import RigParams
+
+    friction = float(RigParams.with_overrides(params.rig).friction) * float(value)
+    return replace(params, rig={**params.rig, "friction": friction})
+
+
+# Applied in this order; b before k so that beta (rods' damping, b = beta·k) becomes beta·b_scale/k_scale.
+CONTACT_UNKNOWNS = (
+    Unknown(
+        "b_scale",
+        0.25,
+        4.0,
+        log=True,
+        default=1.0,
+        doc="multiplies the prior set's b and b_twist",
+        effect=Override(("b", "b_twist", "beta"), scale=True),
+        own=neutral,
+    ),
+    # k alone moves no edge at a fixed interference (docs/contact-twin.md): fixed at 1 unless named
+    Unknown(
+        "k_scale",
+        0.05,
+        1.6,
+        log=True,
+        default=1.0,
+        doc="multiplies the prior set's k and k_twist",
+        effect=Override(("k", "k_twist"), scale=True, inverse=("beta",)),
+        own=neutral,
+        fitted_by_default=False,
+    ),
+    Unknown(
+        "preload_mm",
+        -0.3,
+        1.0,
+        unit="mm",
+        doc="static interference of the foot with the plate: sag under gravity − gap (the gap follows)",
+    ),
+    # opt-in (``--free``), when not fitted the prior set keeps its own value: the load frame's own mass and the
+    # load's offset along the stage travel (paper: the 20 g sits "at the lower left corner of the load frame";
+    # neither the frame's mass nor the offset is given)
+    Unknown(
+        "frame_mass_g",
+        0.0,
+        15.0,
+        unit="g",
+        default=0.0,
+        opt_in=True,
+        doc="the load frame's own mass (rig.frame_mass)",
+        effect=Override(("rig.frame_mass",), si=1e-3),
+        own=RigValue("frame_mass", 1e-3),
+    ),
+    Unknown(
+        "mass_dx_mm",
+        -5.0,
+        25.0,
+        unit="mm",
+        default=0.0,
+        opt_in=True,
+        doc="the 20 g load's offset along x (rig.mass_dx)",
+        effect=Override(("rig.mass_dx",), si=1e-3),
+        own=RigValue("mass_dx", 1e-3),
+    ),
+    Unknown(
+        "friction_scale",
+        0.7,
+        1.15,
+        log=True,
+        default=1.0,
+        doc="multiplies the sole's effective friction (rig.friction): with the preload the pair that decides how "
+        "far up the sole stays stuck (the continuous edge) with little effect on the ½ and ⅓ edges "
+        "(docs/contact-twin.md); above ~7 the foot can stick during the settle with too little force",
+        effect=scale_friction,
+        own=neutral,
+    ),
+)
+
+
+def contact_base(targets: Targets) -> CalibrationBase:
+    """The fixed part of the contact twin: the prior parameter set (the session's, else the protocol default),
+    model, and the session's protocol (else the shipped contact sweep): its twist, amplitude, integrator,
+    windows, noise and seed, and its sweep extended to the targets (how the written protocol runs)."""
+    from beambench.acquisition.config import parse_protocol
+    from beambench.common.resources import shipped_dir
+
+    text = targets.protocol_text or (shipped_dir("protocols") / "contact_sweep.yaml").read_text()
+    try:
+        proto = parse_protocol(text, targets.source)
+    except ValueError as exc:
+        raise CalibrationInputError(str(exc)) from None
+    model = proto.sim.model if proto.sim.model != "auto" else "prb3"
+    params = targets.prior.get("params", proto.sim.params)
+    sweep = extended_sweep(yaml.safe_load(text), targets).get("sweep", {})
+    try:
+        freqs = type(proto.sweep).model_validate(sweep).values()
+    except ValueError as exc:
+        raise CalibrationInputError(f"{targets.source}: sweep: {exc}") from None
+    sim = SimSettings(
+        settle_s=float(proto.settle_s),
+        record_s=float(proto.record_s),
+        twist_deg=float(proto.sim.twist_deg),
+        amplitude_m=float(proto.amplitude_mm) * 1e-3,
+        integrator=str(proto.sim.integrator),
+        noise=bool(proto.sim.noise),
+        seed=int(proto.sim.seed),
+    )
+    return CalibrationBase(model, str(params), sim, tuple(float(f) for f in freqs))
+
+
+def prior_params(base: CalibrationBase) -> BeamParams:
+    """The prior parameter set."""
+    from beambench.sim.models.params import load_params
+    from beambench.sim.models.registry import model_family
+
+    return load_params(base.params, model=model_family(base.model))
+
+
+def contact_prior(base: CalibrationBase) -> dict[str, float]:
+    """The prior set's own values of the contact unknowns (scales 1; its rig block, else the scene's defaults)."""
+    p = prior_params(base)
+    return {u.name: u.own(p) for u in CONTACT_UNKNOWNS if u.own is not None}
+
+
+def contact_verify(base: CalibrationBase) -> tuple[list[float], SimSettings]:
+    """The written protocol's sweep and windows (``CalibratableRig.verify``)."""
+    return list(base.frequencies), base.sim
+
+
+def calibrated_params(base: CalibrationBase, values: dict[str, float]) -> BeamParams:
+    """The prior :class:`BeamParams` with the fitted values applied."""
+    return apply_values(prior_params(base), CONTACT_UNKNOWNS, values)
+
+
+def simulate_contact(
+    base: CalibrationBase, values: dict[str, float], frequencies: list[float], sim: SimSettings
+) -> dict:
+    """The contact twin's regime map at ``frequencies`` for the fitted ``values`` (runs in a worker): the gap h'
+    is the static sag minus the preload; the map is a *stepped* sweep in rising frequency
+    (:func:`beambench.sim.scenes.contact_regimes.stepped_regime_map`: the scene, drive and timestep plan of
+    ``beambench run``, the state carried from step to step) classified from the normal force as ``beambench
+    analyze`` does; the load cells' noise (and seed) as ``sim`` says (a stage's settings keep the written
+    protocol's): with noise the contact threshold is 8σ instead of 20 mN, which moves labels at the continuous
+    edge. Maps of every frequency from rest (``regime_map``) put the continuous edge up to ~6 Hz lower than the
+    stepped run of the same protocol: a calibration fitted on them missed its targets once run
+    (bench_calibrate.py's history)."""
+    from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scenes.contact_regimes import ContactTwin, static_sag, stepped_regime_map
+    from beambench.sim.scenes.contact_rig import RigParams
+
+    params = calibrated_params(base, values)
+    beam = make_beam_model(base.model, params)
+    sag = static_sag(beam, RigParams.with_overrides(params.rig), sim.twist_deg)
+    gap = sag - values.get("preload_mm", 0.0) * 1e-3
+    table = stepped_regime_map(sorted(frequencies), sim, ContactTwin(base.model, params, {"plate_gap": gap}))
+    table = table.astype({"tangential_sign": float, "touchdown_direction": float})
+    return {"steps": table.to_dict("records"), "extras": {"gap_mm": gap * 1e3, "sag_mm": sag * 1e3}}
+
+
+def contact_summary(steps: pd.DataFrame) -> dict:
+    from beambench.sim.scenes.contact_regimes import transitions
+
+    tr = transitions(steps["frequency_hz"].to_numpy(float), list(steps["regime"].astype(str)))
+    return {**tr, "map": " ".join(f"{f:g}:{r}" for f, r in zip(steps["frequency_hz"], steps["regime"]))}
+
+
+def write_contact_protocol(
+    base: CalibrationBase, values: dict[str, float], extras: dict[str, Any], targets: Targets, out_dir: Path, name: str
+) -> Path:
+    """The contact rig's outputs (:func:`.protocol_out.write_calibrated_protocol`): its rig block and
+    ``sim.plate_gap_mm`` carry the fitted gap."""
+    p = calibrated_params(base, values)
+    gap_mm = float(extras["gap_mm"])
+    cal = CalibratedSet(
+        params=p,
+        rig_block={**p.rig, "plate_gap": round(gap_mm * 1e-3, 7)},
+        values=values,
+        prior=base.params,
+        model=base.model,
+        shipped_protocol="contact_sweep.yaml",
+        sim_extra={"plate_gap_mm": round(gap_mm, 4)},
+        params_note=".",
+        protocol_note="sim.params points at the calibrated parameter set; sim.plate_gap_mm is the fitted gap.",
+    )
+    return write_calibrated_protocol(cal, targets, out_dir, name)
+
+
+CONTACT = register_rig(
+    CalibratableRig(
+        name="contact",
+        unknowns=CONTACT_UNKNOWNS,
+        simulate=simulate_contact,
+        objective=contact_objective,
+        base=contact_base,
+        write=write_contact_protocol,
+        summary=contact_summary,
+        bracket="preload_mm",
+        verify=contact_verify,
+        run_written=run_written_protocol,
+        prior=contact_prior,
+        landmarks=contact_landmarks,
+    )
+)

@@ -1,0 +1,145 @@
+"""The report of a calibration (``beambench calibrate sim`` writes it beside the calibrated protocol): JSON and
+Markdown with the parameters, their identifiability, targets vs twin and the objective per generation, and two
+figures (the objective's history, the target and twin maps)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import pandas as pd
+
+from beambench.studies.calibration.contact_objective import CONTINUOUS_LEVEL, regime_level_of
+from beambench.studies.calibration.evaluate import json_default
+from beambench.studies.calibration.search import Result
+from beambench.studies.calibration.targets import Targets
+
+
+def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> Path:
+    """``<name>_report.json`` / ``.md``, ``<name>_objective.png`` and ``<name>_maps.png`` beside the protocol;
+    returns the Markdown report's path."""
+    meas = targets.table
+    twin = result.steps
+    rep = {
+        "rig": result.rig,
+        "targets": {"source": targets.source, **{k: v for k, v in targets.scalars.items()}},
+        "protocol": str(result.protocol),
+        "objective": result.j,
+        "parameters": result.values,
+        "extras": result.extras,
+        "twin_summary": result.summary,
+        "identifiability": result.identifiability,
+        "history": result.history,
+        "evaluations": {"new": result.evaluations, "reused_from_log": result.reused},
+        "wall_s": result.wall_s,
+        "settings": asdict(result.settings),
+    }
+    (out_dir / f"{name}_report.json").write_text(json.dumps(rep, indent=1, default=json_default))
+    _figures(result, meas, twin, out_dir, name)
+    lines = [
+        f"# Calibration of the {result.rig} twin: {name}",
+        "",
+        f"- targets: {targets.source}",
+        f"- protocol: `{result.protocol}`",
+        f"- objective: {result.j:.4f} after {result.evaluations} new "
+        f"evaluations ({result.reused} re-used from the log), {result.wall_s:.0f} s wall",
+        "",
+        "## Parameters",
+        "",
+        "| unknown | value | near-best range | unit |",
+        "|---|---|---|---|",
+    ]
+    spread = result.identifiability.get("fine_spread") or result.identifiability.get("spread", {})
+    for k, v in result.values.items():
+        s = spread.get(k)
+        rng = f"{s['min']:.4g} … {s['max']:.4g}" if s else "fixed"
+        unit = s["unit"] if s else ""
+        lines.append(f"| {k} | {v:.5g} | {rng} | {unit} |")
+    for k, v in result.extras.items():
+        lines.append(f"| {k} (derived) | {v:.5g} | | |" if isinstance(v, float) else f"| {k} | {v} | | |")
+    lines += ["", "## Targets vs twin", "", "| quantity | target | twin |", "|---|---|---|"]
+    for k, v in result.summary.items():
+        tv = targets.scalars.get(k)
+        if isinstance(v, dict) or isinstance(tv, dict):
+            continue
+        lines.append(f"| {k} | {tv} | {v} |")
+    dirs = result.identifiability.get("directions")
+    if dirs:
+        lines += ["", "## Identifiability", "", result.identifiability.get("method", ""), ""]
+        for d in dirs:
+            lines.append(f"- {json.dumps({k: v for k, v in d.items()}, default=json_default)}")
+    lines += [
+        "",
+        "## Objective per generation",
+        "",
+        "| gen | stage | best | median | points | elapsed s |",
+        "|---|---|---|---|---|---|",
+    ]
+    for h in result.history:
+        lines.append(
+            f"| {h['generation']} | {h['stage']} | {h['best']:.4f} | {h['median']:.4f} | {h['n']} | "
+            f"{h['elapsed_s']:.0f} |"
+        )
+    lines += ["", f"![maps]({name}_maps.png)", "", f"![objective]({name}_objective.png)", ""]
+    path = out_dir / f"{name}_report.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Path, name: str) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6, 3.2), layout="constrained")
+    ax = fig.add_subplot()
+    for stage, marker in (("prior line", "v"), ("coarse", "o"), ("fine", "s"), ("bracket", "^"), ("verify", "D")):
+        h = [x for x in result.history if x["stage"] == stage]
+        if h:
+            ax.plot([x["generation"] for x in h], [x["best"] for x in h], marker + "-", label=f"{stage} best")
+            ax.plot(
+                [x["generation"] for x in h],
+                [x["median"] for x in h],
+                marker,
+                alpha=0.4,
+                mfc="none",
+                label=f"{stage} median",
+            )
+    ax.set_yscale("symlog", linthresh=0.01)
+    ax.set_xlabel("generation")
+    ax.set_ylabel("objective J")
+    ax.legend(fontsize=7)
+    fig.savefig(out_dir / f"{name}_objective.png", dpi=110)
+
+    fig = Figure(figsize=(8, 3.6), layout="constrained")
+    ax = fig.add_subplot()
+    if "regime" in meas and meas["regime"].astype(str).ne("").any():
+        ax.plot(
+            meas["frequency_hz"],
+            [regime_level_of(r) for r in meas.to_dict("records")],
+            "o",
+            ms=7,
+            mfc="none",
+            label="measured / target",
+        )
+        ax.plot(
+            twin["frequency_hz"],
+            [regime_level_of(r) for r in twin.to_dict("records")],
+            "x",
+            ms=6,
+            label="calibrated twin",
+        )
+        ax.set_yticks(
+            [CONTINUOUS_LEVEL, -0.5, 0, 1, math.log2(3), 2, 3], ["continuous", "2+", "1", "1/2", "1/3", "1/4", "none"]
+        )
+        ax.set_ylabel("regime (contacts per cycle)")
+    else:  # e.g. the walker: plot the numeric targets the rig names
+        for col in [c for c in meas.columns if c not in ("frequency_hz", "regime")][:1]:
+            ax.plot(meas["frequency_hz"], meas[col], "o", mfc="none", label=f"target {col}")
+            if col in twin:
+                ax.plot(twin["frequency_hz"], twin[col], "x-", label=f"twin {col}")
+            ax.set_ylabel(col)
+    ax.set_xlabel("drive frequency (Hz)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.savefig(out_dir / f"{name}_maps.png", dpi=110)

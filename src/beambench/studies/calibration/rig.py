@@ -1,0 +1,102 @@
+"""What the calibrator knows of a rig (:class:`CalibratableRig`), the fixed part of its twin
+(:class:`CalibrationBase`) and the registry the rig modules register themselves in (:func:`register_rig`).
+
+A rig module (``contact.py``, ``walker.py``) builds one :class:`CalibratableRig` and registers it at import;
+the package imports every rig module, so ``get_rig(name)`` finds them — no module is loaded by a name string.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from beambench.sim.settings import SimSettings
+from beambench.studies.calibration.targets import CalibrationInputError, Targets
+from beambench.studies.unknowns import Unknown
+
+__all__ = ["RIGS", "CalibratableRig", "CalibrationBase", "Landmarks", "Unknown", "get_rig", "register_rig"]
+
+
+@dataclass(frozen=True)
+class CalibrationBase:
+    """The fixed part of a twin, sent with every evaluation to the workers (frozen, picklable, hashed into the
+    evaluation log's keys): the beam model, the prior parameter set (name or path), the simulation settings of
+    the protocol the calibration writes (twist, amplitude, integrator, its windows, noise and seed) and that
+    protocol's sweep (empty: the rig has no verify stage)."""
+
+    model: str
+    params: str
+    sim: SimSettings = field(default_factory=SimSettings)
+    frequencies: tuple[float, ...] = ()
+
+
+# landmarks(steps, targets) -> {name: (the map's value or None where it has none, the target's value)}, both in
+# the units the objective compares them in (the contact rig: Hz; the landmark steps move them to the targets')
+Landmarks = Callable[[pd.DataFrame, Targets], dict[str, tuple[float | None, float]]]
+Steps = dict[str, Any]  # {"steps": [row per frequency], "extras": {...}} (JSON-friendly: the log is JSON lines)
+
+
+@dataclass(frozen=True)
+class CalibratableRig:
+    """A rig the calibrator can fit.
+
+    - ``unknowns``: the fitted parameters with their bounds and effects; those with ``fitted_by_default`` (and
+      not ``opt_in``) are fitted unless the caller names others (:attr:`default_free`);
+    - ``simulate(base, values, frequencies, sim) -> {"steps": [...], "extras": {...}}``: a picklable
+      module-level function (it runs in executor workers);
+    - ``objective(steps, targets) -> (J, {term: value})``; ``base(targets) -> CalibrationBase``;
+    - ``write(base, values, extras, targets, out_dir, name) -> Path``: the calibrated protocol;
+    - ``summary(steps) -> dict`` for the report (transitions, speeds …);
+    - ``bracket``: the unknown refined last with a 1-D search (or None);
+    - ``stage_sim(stage, sim) -> sim``: the rig's own simulation settings per stage instead of the search's
+      windows (the walker's speed needs a longer settle and a timestep per stage);
+    - ``verify(base) -> (frequencies, sim)``: how the written protocol runs — the best candidates are re-run so
+      before the winner is chosen (None: no verify stage);
+    - ``run_written(path, seed) -> steps``: run a written protocol as the user will (``beambench run`` then
+      ``analyze``); the verify stage then judges the candidates on those maps;
+    - ``prior(base) -> {name: value}``: the prior parameter set's own values of the unknowns, the centre of the
+      search's first line (None: 1 for log unknowns whose bounds hold it, else their defaults);
+    - ``landmarks``: the map's landmarks the targets name (trust-region steps after the lines; None: none).
+    """
+
+    name: str
+    unknowns: tuple[Unknown, ...]
+    simulate: Callable[[CalibrationBase, dict[str, float], list[float], SimSettings], Steps]
+    objective: Callable[[pd.DataFrame, Targets], tuple[float, dict[str, float]]]
+    base: Callable[[Targets], CalibrationBase]
+    write: Callable[..., Path]
+    summary: Callable[[pd.DataFrame], dict]
+    bracket: str | None = None
+    min_frequency_hz: float = 3.0
+    stage_sim: Callable[[str, SimSettings], SimSettings] | None = None
+    verify: Callable[[CalibrationBase], tuple[list[float], SimSettings]] | None = None
+    run_written: Callable[[Path, int | None], Steps] | None = None
+    prior: Callable[[CalibrationBase], dict[str, float]] | None = None
+    landmarks: Landmarks | None = None
+
+    @property
+    def default_free(self) -> tuple[str, ...]:
+        """The unknowns fitted unless the caller names others, in their declared order."""
+        return tuple(u.name for u in self.unknowns if u.fitted_by_default and not u.opt_in)
+
+
+RIGS: dict[str, CalibratableRig] = {}
+
+
+def register_rig(rig: CalibratableRig) -> CalibratableRig:
+    """Add ``rig`` to the registry (a rig module calls this at import); returns it."""
+    RIGS[rig.name] = rig
+    return rig
+
+
+def get_rig(name: str) -> CalibratableRig:
+    """The registered rig ``name``; CalibrationInputError (one line) for a rig the calibrator does not know."""
+    if name not in RIGS:
+        raise CalibrationInputError(
+            f"rig: {name}: the calibrator does not know this rig yet (calibratable: {', '.join(sorted(RIGS))})"
+        )
+    return RIGS[name]
