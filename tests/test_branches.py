@@ -135,3 +135,10 @@ def test_old_sessions_read_as_up(tmp_path):
         f.create_dataset("steps", data=np.array(old.tolist(), dtype=old.dtype), maxshape=(None,))
     t = analyze_session(read_session(path)).table
     assert (t["direction"].iloc[0], t["kind"].iloc[0], t["repeat"].iloc[0]) == ("up", "sweep", 0)
+
+
+def test_synthetic_tip_ellipse_has_no_crossing(swept):
+    t = swept.table
+    assert (t["tip_crossings"] == 0).all()
+    assert set(t["tip_loop_sense"]) == {"cw"}  # SynthStep's default: clockwise
+    assert not t["tip_path_inverts"].any()

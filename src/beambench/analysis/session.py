@@ -24,6 +24,7 @@ from beambench.analysis.contact import (
     force_contacts,
     touchdown_velocity,
 )
+from beambench.analysis.path_shape import annotate_inversions, shape_columns
 from beambench.analysis.signals import NAN_SINE, fit_sinusoid, velocity
 from beambench.analysis.sync import (
     NS,
@@ -403,7 +404,7 @@ def analyze_session(
         fits,
         delay,
         frame,
-        annotate_branches(pd.DataFrame([r.row for r in results])),
+        annotate_inversions(annotate_branches(pd.DataFrame([r.row for r in results]))),
         results,
         cal.source,
         residuals,
@@ -442,6 +443,7 @@ def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepCo
         _contacts(res, arr, ctx, f_use)
     else:
         row["regime"] = ""
+    row.update(shape_columns(res.paths, arr.t_mocap, f_use, str(row["regime"])))
     body = arr.marker(ctx.options.body_marker)
     if body is not None:  # walker: body speed
         sp = body_speed(arr.t_mocap, body, ctx.forward)
