@@ -38,11 +38,14 @@ def test_objective_is_the_mean_floored_relative_error():
 def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
     """One short evaluation (the speeds come back per frequency), then the written protocol builds a walker
     scene with the fitted foot mass and friction."""
+    from dataclasses import replace
+
     from beambench.acquisition.config import load_protocol
     from beambench.backends.sim import build_scene
 
     rig = get_rig("walker")
-    base = rig.base(TARGETS)
+    # the effective walker (PRB3 legs): the physical set's rod legs buckle under this robot (docs/contact-twin.md)
+    base = replace(rig.base(TARGETS), model="prb3", params="paper")
     values = {"foot_mass": 0.004, "friction": 0.45}
     out = rig.simulate(base, values, [23.0, 65.0], base.sim.replace(settle_s=0.3, record_s=0.3, timestep=1e-4))
     steps = pd.DataFrame(out["steps"])
@@ -52,3 +55,21 @@ def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
     assert path.exists()
     scene = build_scene(load_protocol(path)[0])
     assert (scene.rig.foot_mass, scene.rig.friction) == (pytest.approx(0.004), pytest.approx(0.45))
+
+
+def test_on_the_physical_set_the_values_go_into_its_walker_block(tmp_path):
+    """The physical set's rig block is the contact rig's; the walker scene reads its walker block, so the fitted
+    foot mass and friction must land there, in the evaluation and in the written protocol alike."""
+    from beambench.acquisition.config import load_protocol
+    from beambench.backends.sim import build_scene
+    from beambench.sim.models.params import load_params
+
+    rig = get_rig("walker")
+    base = rig.base(TARGETS)
+    prior = load_params(base.params, model="rod")
+    assert prior.walker, "the shipped walker sweep runs the physical set, which has a walker block"
+    values = {"foot_mass": 0.0061, "friction": 0.37}
+    path = rig.write(base, values, {}, TARGETS, tmp_path, "cal")
+    scene = build_scene(load_protocol(path)[0])
+    assert (scene.rig.foot_mass, scene.rig.friction) == (pytest.approx(0.0061), pytest.approx(0.37))
+    assert scene.rig.foot_mass != pytest.approx(float(prior.walker.get("foot_mass", 0.0)))

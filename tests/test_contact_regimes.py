@@ -113,8 +113,23 @@ def test_default_set_is_continuous_at_low_frequency_and_halves_in_the_mid_twenti
 
 
 @pytest.mark.slow
-def test_shipped_default_keeps_the_foot_down_to_17_hz_where_a_sliding_sole_hops():
-    """The contact sweep's default (``contact_stuck``: a sole that does not slide) is continuous through 17 Hz,
+def test_physical_default_map_from_rest():
+    """The shipped default since issue 22 (rod5g, ``physical``: every number inside its physical range), each
+    frequency from rest (settle 2 s, record 2 s), pinned from the measured map
+    ``CCCCCCCCCCCCCC1111.111111.hh...hhth.t...`` (docs/contact-twin.md): continuous at 5 and 12 Hz, one contact
+    per cycle at 20, 1/2 at 27 and 28, and the tangential force of the foot on the plate + at 26 Hz, − at 40 Hz."""
+    freqs = [5.0, 12.0, 20.0, 26.0, 27.0, 28.0, 40.0]
+    df = regime_map(freqs, SimSettings(settle_s=2.0, record_s=2.0), ContactTwin(model="rod5g", params="physical"))
+    lab, sign = dict(zip(freqs, df.regime)), dict(zip(freqs, df.tangential_sign))
+    assert lab[5.0] == lab[12.0] == "continuous", lab
+    assert lab[20.0] == "1" and lab[27.0] == lab[28.0] == "1/2", lab
+    assert sign[26.0] == 1 and sign[40.0] == -1, sign
+
+
+@pytest.mark.slow
+def test_effective_stuck_set_keeps_the_foot_down_to_17_hz_where_a_sliding_sole_hops():
+    """The effective, non-physical set ``contact_stuck`` (the default before issue 22: a sole that does not slide,
+    friction 6) is continuous through 17 Hz,
     bounces once a cycle at 22 Hz and every other cycle at 30 Hz; the same beam with a sliding sole (friction
     1.5, the first calibration's value) loses the continuous contact at 12-16 Hz (the sole's sliding makes the
     force drop to zero twice a cycle; docs/contact-twin.md)."""

@@ -11,7 +11,7 @@ import pytest
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
-from beambench.sim.scenes.walker import WalkerLegError, WalkerParams, WalkerSim, measure_speed
+from beambench.sim.scenes.walker import WalkerLegError, WalkerParams, WalkerSim, check_leg_model, measure_speed
 from beambench.sim.scenes.walker_batch import steady_speeds
 
 BEAM = make_beam_model("prb3", load_params())
@@ -40,9 +40,16 @@ def test_standing_walker_rests_on_feet_and_wheels_with_its_weight():
     assert np.abs(body - body[0]).max() < 1e-3
 
 
-def test_walker_refuses_rod_legs_with_a_clear_error():
-    with pytest.raises(WalkerLegError, match="refused for the walker"):
-        WalkerSim(make_beam_model("rod3g", load_params(model="rod")), 90.0)
+def test_walker_builds_the_physical_rod_legs_and_refuses_unknown_models():
+    """Issue 22: the walker's legs are the contact rig's physical rod (rod5g, sim_backend/rod_physical.yaml), with
+    the set's walker block; a name no model family claims is a one-line WalkerLegError."""
+    physical = load_params("physical", model="rod")
+    sim = WalkerSim(make_beam_model("rod5g", physical), 90.0)
+    assert sim.rig == WalkerParams.with_overrides(physical.walker)
+    assert sum(1 for j in range(sim.physics.model.njnt) if sim.physics.model.joint(j).name.startswith("left_")) == 15
+    sim.physics.close()
+    with pytest.raises(WalkerLegError, match="unknown beam model"):
+        check_leg_model("beam7")
 
 
 def test_named_parameter_sets():
@@ -125,17 +132,21 @@ def test_default_walker_walks_backward_at_23_hz_and_forward_at_65_hz_like_the_pa
     assert v[1] == pytest.approx(156.3, rel=0.3)
 
 
-def test_protocol_selects_the_named_set_and_refuses_rod_legs():
-    """`sim.params: walker_paper_guesses` gives the walker the paper_guesses set; the shipped protocol the
-    calibrated defaults; a rod leg model is a one-line ConfigError before anything is built."""
+def test_protocol_selects_the_named_set_and_refuses_unknown_legs():
+    """The shipped protocol runs the physical set's walker block on rod5g legs (issue 22); `sim.model: prb3,
+    sim.params: paper` the effective (PRB3) calibrated defaults, `walker_paper_guesses` the paper_guesses set; an
+    unknown leg model is a one-line ConfigError before anything is built."""
     from beambench.acquisition.config import ConfigError, parse_protocol
     from beambench.backends.sim import build_scene
     from beambench.common.resources import shipped_dir
 
     text = (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
     shipped = build_scene(parse_protocol(text))
-    assert shipped.rig == WalkerParams.named("calibrated")
-    guesses = build_scene(parse_protocol(text.replace("params: paper", "params: walker_paper_guesses")))
+    assert shipped.beam.name == "rod5g" and shipped.beam.params.name == "physical"
+    assert shipped.rig == WalkerParams.with_overrides(load_params("physical", model="rod").walker)
+    effective = text.replace("model: rod5g", "model: prb3").replace("params: physical", "params: paper")
+    assert build_scene(parse_protocol(effective)).rig == WalkerParams.named("calibrated")
+    guesses = build_scene(parse_protocol(effective.replace("params: paper", "params: walker_paper_guesses")))
     assert guesses.rig == WalkerParams.named("paper_guesses")
-    with pytest.raises(ConfigError, match=r"sim.model = 'rod3g'.*refused for the walker"):
-        build_scene(parse_protocol(text.replace("model: prb3", "model: rod3g")))
+    with pytest.raises(ConfigError, match=r"sim.model"):
+        build_scene(parse_protocol(text.replace("model: rod5g", "model: beam7")))

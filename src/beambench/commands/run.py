@@ -193,16 +193,32 @@ def view(
         None,
         "--out",
         metavar="FILE.rrd",
-        help="With --rerun save: the .rrd to write (default: <session>_view.rrd beside the session, numbered "
-        "if taken). An existing file is never overwritten.",
+        help="With --rerun save or --screenshot: the .rrd to write (default with save: <session>_view.rrd beside "
+        "the session, numbered if taken; with --screenshot: a temporary one). An existing file is never overwritten.",
+    ),
+    screenshot: Path | None = typer.Option(
+        None,
+        "--screenshot",
+        metavar="FILE.png",
+        help="Save a picture of the real Rerun viewer showing the session (headless: no display needed, but a "
+        "Vulkan driver, e.g. Mesa's: apt-get install mesa-vulkan-drivers libvulkan1).",
+    ),
+    at: float | None = typer.Option(
+        None, "--at", metavar="SECONDS", help="With --screenshot: the session time shown (default: the end of step 0)."
     ),
 ) -> None:
-    """Replay a recorded session into the Rerun viewer (or into an .rrd file, whose path is printed)."""
+    """Replay a recorded session into the Rerun viewer (or into an .rrd file, whose path is printed), or save a
+    picture of the viewer showing it (--screenshot)."""
+    if not session.is_file():
+        fail(f"{session}: no such session file")
+    if screenshot is not None:
+        _screenshot(session, screenshot, at, out)
+        return
+    if at is not None:
+        fail("--at needs --screenshot")
     mode = rerun or default_rerun_mode()
     if mode == "off":
         fail("--rerun = 'off': view needs spawn, connect or save")
-    if not session.is_file():
-        fail(f"{session}: no such session file")
     rrd = None
     if mode == "save":
         rrd = out or free_path(session.with_name(f"{session.stem}_view.rrd"))
@@ -216,6 +232,28 @@ def view(
         fail(f"{session}: cannot read session ({exc})")
     if written is not None:
         typer.echo(str(written))
+
+
+def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) -> None:
+    """``view --screenshot``: the picture's path on stdout, or one line saying what is missing."""
+    from beambench.session.viewer import ViewerUnavailable, session_screenshot
+
+    if png.suffix.lower() != ".png":
+        fail(f"{png}: --screenshot writes a PNG (give FILE.png)")
+    if not png.parent.is_dir():
+        fail(f"{png.parent}: no such folder for the screenshot")
+    if rrd is not None and rrd.exists():
+        fail(f"{rrd}: exists; give another --out (view never overwrites a recording)")
+    try:
+        shown = session_screenshot(session, png, at, rrd)
+    except ViewerUnavailable as exc:
+        fail(f"cannot take a screenshot: {exc}")
+    except ValueError as exc:
+        fail(str(exc))
+    except OSError as exc:
+        fail(f"{session}: cannot read session ({exc})")
+    typer.echo(f"viewer at {shown:g} s of {session.name}", err=True)
+    typer.echo(str(png))
 
 
 def free_path(path: Path) -> Path:

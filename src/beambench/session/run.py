@@ -98,6 +98,8 @@ def _run_session(
                     path.with_suffix(".rrd"),
                     t0_ns=rig.clock.now_ns(),
                     calibration=default_calibration(),  # the one stored in /general: forces in N live
+                    rig=protocol.rig,
+                    total_steps=len(steps),
                 )
             )
         hub = Hub(sinks, critical=(writer,))

@@ -1,14 +1,19 @@
 """Live view in Rerun: batches go out with ``send_columns`` on a ``session_time`` timeline.
 
-Entities: ``mocap/<marker>`` (Points3D, one point per frame, millimetres), ``mocap/tip_trail`` (LineStrips3D of
-the recent tip path, once per batch), ``force/normal`` and ``force/tangential`` (Scalars, newtons, through the
-load-cell calibration), ``loadcell/<channel>`` (Scalars, raw counts), ``motor/<column>`` (Scalars), ``events``
-(TextLog). A default blueprint shows a 3-D view beside force and motor time series.
+Entities (millimetres in the mocap stream's frame): ``mocap/<marker>`` (labelled Points3D, one per frame),
+``mocap/beam/<end>`` (LineStrips3D through the markers, one per frame), ``mocap/trail/<foot>`` (a short fading
+trail), ``mocap/plate`` (Boxes3D, plate rigs), ``mocap/body_trail`` and ``mocap/floor`` (walker); ``body/forward``
+and ``body/speed`` (walker, mm and mm/s); ``force/normal`` and ``force/tangential`` (Scalars, newtons, through
+the load-cell calibration), ``loadcell/<channel>`` (raw counts), ``motor/velocity``, ``motor/velocity_setpoint``
+and ``motor/iq_measured``; ``step`` (TextDocument: step i of N, commanded and measured frequency, the last
+step's regime or speed) and ``events`` (TextLog). Counters, states and the motor position stay in the HDF5
+session. The blueprint is made per rig from the streams' specs (:mod:`beambench.sinks.rerun_layout`) and sent
+with the first mocap frame, which frames the camera.
 
 Chunking: a viewer (spawn/connect) gets every batch as it comes. A saved ``.rrd`` gets each entity's columns
-gathered to about :data:`SAVE_CHUNK_BYTES` per ``send_columns`` call, and the row-logged entities (trail,
-events) batched by Rerun's chunk batcher to the same size, so a recording comes out near the lower bound of
-chunks that ``rerun rrd stats`` computes (its object-store profile targets 2 MiB chunks) and needs no
+gathered to about :data:`SAVE_CHUNK_BYTES` per ``send_columns`` call, and the row-logged entities (trails,
+step, events) batched by Rerun's chunk batcher to the same size, so a recording comes out near the lower bound
+of chunks that ``rerun rrd stats`` computes (its object-store profile targets 2 MiB chunks) and needs no
 ``rerun rrd optimize``. No entity waits longer than :data:`SAVE_CHUNK_SECONDS` of session time, so a slow
 stream (100 Hz motor telemetry needs ~20 min to fill 2 MiB) neither holds memory for an hour-long run nor loses
 more than that to a killed one.
@@ -23,16 +28,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 
-from beambench.acquisition.batch import Batch, StreamSpec
+from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
 from beambench.sinks import RerunMode
+from beambench.sinks.rerun_layout import TIMELINE, RigLayout, blueprint, layout_of, series_styles
+from beambench.sinks.rerun_scene import Scene3D
+from beambench.sinks.rerun_step import StepPanel
 
 if TYPE_CHECKING:
     from beambench.acquisition.calibration import LoadCellCalibration
 
-TIMELINE = "session_time"
-TRAIL_POINTS = 360  # one second of tip path at 360 Hz
 SAVE_CHUNK_BYTES = 2 * 1024 * 1024  # per chunk in a saved .rrd (rerun's object-store chunk target)
 SAVE_CHUNK_SECONDS = 60.0  # longest span of session time an entity's columns wait before they are sent
 FORCE_LABELS = ("normal", "tangential")
@@ -53,29 +58,11 @@ def view_coordinates(up_axis: str) -> rr.components.ViewCoordinates:
     return _UP[up_axis.lstrip("+")]
 
 
-def blueprint(specs: list[StreamSpec]) -> rrb.Blueprint:
-    names = {s.name for s in specs}
-    series = []
-    if "loadcell" in names:
-        series.append(rrb.TimeSeriesView(origin="/force", name="Plate force (N)"))
-        series.append(rrb.TimeSeriesView(origin="/loadcell", name="Load cells (raw counts)"))
-    if "motor" in names:
-        series.append(rrb.TimeSeriesView(origin="/motor", name="Motor"))
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(origin="/mocap", name="Markers (mm)"),
-            rrb.Vertical(*series, rrb.TextLogView(origin="/events", name="Events")),
-            column_shares=[3, 2],
-        ),
-        collapse_panels=True,
-    )
-
-
 @dataclass
 class _Pending:
     """Columns of one entity waiting to go out in one ``send_columns`` call."""
 
-    kind: str  # "scalars" or "points"
+    kind: str  # "scalars", "points", "strips" (a line strip per row) or "segments" (several per row)
     times: list[np.ndarray] = field(default_factory=list)
     values: list[np.ndarray] = field(default_factory=list)
     nbytes: int = 0
@@ -85,7 +72,8 @@ class RerunSink:
     """A hub sink streaming to the Rerun viewer (spawn/connect) or to an ``.rrd`` file (save).
 
     ``calibration`` turns the load cells' raw counts into plate forces (N) shown beside them; without it only
-    the counts are shown."""
+    the counts are shown. ``rig`` (the session's rig name) and ``total_steps`` shape the layout and the step
+    panel; the layout itself comes from the streams' specs."""
 
     def __init__(
         self,
@@ -94,12 +82,15 @@ class RerunSink:
         rrd_path: Path | None = None,
         t0_ns: int = 0,
         calibration: LoadCellCalibration | None = None,
+        rig: str | None = None,
+        total_steps: int | None = None,
     ) -> None:
         if mode == "off":
             raise ValueError("mode 'off' needs no sink")
         if mode == "save" and rrd_path is None:
             raise ValueError("mode 'save' needs an .rrd path")
         self.mode, self.rrd_path, self.t0_ns, self.calibration = mode, rrd_path, t0_ns, calibration
+        self.rig, self.total_steps = rig, total_steps
         # A file is read after the run: gather big chunks. A viewer wants every batch now.
         self.chunk_bytes = SAVE_CHUNK_BYTES if mode == "save" else 0
         self.chunk_seconds = SAVE_CHUNK_SECONDS if mode == "save" else 0.0
@@ -110,12 +101,11 @@ class RerunSink:
         )
         self.rec = rr.RecordingStream("beambench", recording_id=recording_id, batcher_config=batcher)
         self._specs: dict[str, StreamSpec] = {}
-        self._trail = np.zeros((0, 3), np.float32)  # the tip's last TRAIL_POINTS positions (mm)
-        self._trail_new = 0  # positions added since the trail was last logged
-        # A viewer redraws the trail every batch; a saved file needs it once per TRAIL_POINTS positions (each
-        # logged trail is then a new second of path, not ten overlapping copies of it).
-        self._trail_every = TRAIL_POINTS if mode == "save" else 1
         self._pending: dict[str, _Pending] = {}
+        self.layout: RigLayout = layout_of([], rig)
+        self._scene: Scene3D | None = None
+        self._steps = StepPanel(self.rec, total_steps, t0_ns)
+        self._blueprint_sent = False
 
     def open(self, specs: list[StreamSpec]) -> None:
         if self.mode == "save":
@@ -125,10 +115,20 @@ class RerunSink:
         else:
             self.rec.connect_grpc()
         self._specs = {s.name: s for s in specs}
-        self.rec.send_blueprint(blueprint(specs))
-        mocap = self._specs.get("mocap")
-        up = mocap.frame.up_axis if mocap is not None and mocap.frame is not None else "z"
-        self.rec.log("mocap", view_coordinates(up), static=True)
+        self.layout = layout_of(specs, self.rig)
+        self.rec.log("mocap", view_coordinates(self.layout.up_axis), static=True)
+        for entity, style in series_styles(self.layout).items():
+            self.rec.log(entity, style, static=True)
+        if self.layout.markers:
+            self._scene = Scene3D(self.rec, self.layout, self._send, live=self.mode != "save")
+            self._scene.log_static()
+        else:  # nothing to frame the camera on: the layout now
+            self._send_blueprint(None)
+
+    def _send_blueprint(self, first_mm: np.ndarray | None) -> None:
+        camera = self._scene.camera(first_mm) if self._scene is not None and first_mm is not None else None
+        self.rec.send_blueprint(blueprint(self.layout, camera, live=self.mode != "save"))
+        self._blueprint_sent = True
 
     def write(self, batch: Batch) -> None:
         spec = self._specs.get(batch.stream)
@@ -136,33 +136,43 @@ class RerunSink:
             return
         t = (batch.host_time_ns - self.t0_ns) * 1e-9
         if batch.stream == "mocap":
-            self._write_mocap(batch, spec, t)
+            self._write_mocap(batch, t)
             return
         for name, col in batch.columns.items():
+            if not self.layout.logged(batch.stream, name):
+                continue
             cs = spec.columns[name]
-            if col.ndim == 1 and np.dtype(cs.dtype).kind != "b" and name not in ("seq", "frame"):
+            if col.ndim == 1:
                 self._send(f"{batch.stream}/{name}", "scalars", t, col.astype(float))
             elif col.ndim == 2 and cs.labels:
                 for j, label in enumerate(cs.labels):
                     self._send(f"{batch.stream}/{label}", "scalars", t, col[:, j].astype(float))
+        if batch.stream == "motor" and "velocity" in batch.columns:
+            self._steps.motor(t, batch.columns["velocity"])
         if batch.stream == "loadcell" and self.calibration is not None and "data" in batch.columns:
             force = self.calibration.force_from_counts(batch.columns["data"])
-            for j, label in enumerate(FORCE_LABELS):
-                self._send(f"force/{label}", "scalars", t, force[:, j])
+            if self.layout.plate:
+                for j, label in enumerate(FORCE_LABELS):
+                    self._send(f"force/{label}", "scalars", t, force[:, j])
+                self._steps.force(t, force[:, 0])
+                if self._scene is not None:
+                    self._scene.contacts(t, force[:, 0])
 
-    def _write_mocap(self, batch: Batch, spec: StreamSpec, t: np.ndarray) -> None:
-        pos_mm = batch.columns["data"] * 1000.0
-        labels = spec.columns["data"].labels
-        for j, label in enumerate(labels):
-            self._send(f"mocap/{label}", "points", t, pos_mm[:, j, :].astype(np.float32))
-        if "tip" in labels or "foot" in labels:
-            j = labels.index("tip") if "tip" in labels else labels.index("foot")
-            self._trail = np.concatenate([self._trail, pos_mm[:, j, :].astype(np.float32)])[-TRAIL_POINTS:]
-            self._trail_new += len(t)
-            if self._trail_new >= self._trail_every:
-                self._trail_new = 0
-                self.rec.set_time(TIMELINE, duration=float(t[-1]))
-                self.rec.log("mocap/tip_trail", rr.LineStrips3D([self._trail], radii=0.05))
+    def _write_mocap(self, batch: Batch, t: np.ndarray) -> None:
+        pos_mm = (batch.columns["data"] * 1000.0).astype(np.float32)
+        if not self._blueprint_sent:
+            self._send_blueprint(pos_mm[0])
+        if self._scene is not None:
+            self._scene.write(t, pos_mm)
+        body = self.layout.body
+        if body is not None:
+            j = self.layout.markers.index(body)
+            self._steps.body(t, pos_mm[:, j, :] @ self.layout.forward_vector())
+
+    def step(self, record: StepRecord) -> None:
+        """A protocol step started or ended: the step panel (and, at its end, the step's regime or speed)."""
+        t_ns = record.t_start_ns if record.status == "running" else record.t_end_ns
+        self._steps.step(record, (t_ns - self.t0_ns) * 1e-9)
 
     def _send(self, entity: str, kind: str, t: np.ndarray, values: np.ndarray) -> None:
         """Queue one entity's columns; send them once about :attr:`chunk_bytes` are waiting."""
@@ -181,13 +191,19 @@ class RerunSink:
         values = np.concatenate(p.values)
         if p.kind == "points":
             self.rec.send_columns(entity, [times], rr.Points3D.columns(positions=values))
+        elif p.kind in ("strips", "segments"):  # (rows, points, 3): a strip a row; (rows, k, points, 3): k a row
+            per_row = 1 if p.kind == "strips" else values.shape[1]
+            flat = values.reshape(-1, values.shape[-2], 3)  # equal-length strips: Rerun's numpy path
+            strips = rr.LineStrips3D.columns(strips=flat).partition(np.full(len(values), per_row, np.int32))
+            self.rec.send_columns(entity, [times], strips)
         else:
             self.rec.send_columns(entity, [times], rr.Scalars.columns(scalars=values))
 
     def event(self, host_time_ns: int, kind: str, message: str) -> None:
         self.rec.set_time(TIMELINE, duration=(host_time_ns - self.t0_ns) * 1e-9)
         level = "ERROR" if kind in ("fault", "error") else "WARN" if kind == "interrupted" else "INFO"
-        self.rec.log("events", rr.TextLog(f"{kind}: {message}" if message else kind, level=level))
+        text = message if message.startswith(kind) else f"{kind}: {message}" if message else kind
+        self.rec.log("events", rr.TextLog(text, level=level))
 
     def close(self) -> None:
         for entity in list(self._pending):

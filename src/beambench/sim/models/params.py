@@ -36,6 +36,18 @@ class Material:
 
 
 @dataclass(frozen=True)
+class Bound:
+    """The physical range of one number of a parameter set (SI units) and where the range comes from."""
+
+    min: float
+    max: float
+    source: str = ""
+
+    def contains(self, value: float) -> bool:
+        return self.min <= value <= self.max
+
+
+@dataclass(frozen=True)
 class BeamParams:
     """One beam: geometry, joint spring/damper constants and mass.
 
@@ -63,6 +75,11 @@ class BeamParams:
     beta: float = 6e-4  # s, stiffness-proportional damping of continuum models (b = beta * k)
     material: Material = field(default_factory=Material)
     rig: dict[str, Any] = field(default_factory=dict)  # optional overrides of rig parameters (foot, contact)
+    # optional overrides of the walker's parameters (WalkerParams); a set without them gives the walker ``rig``
+    walker: dict[str, Any] = field(default_factory=dict)
+    # physical range of each number, keyed by its place in the file: ``beam.k``, ``beam.material.youngs_modulus``,
+    # ``rig.friction``, ``walker.foot_mass``, and ``beam.b/k`` for a damping-to-stiffness ratio (s)
+    bounds: dict[str, Bound] = field(default_factory=dict)
 
     @property
     def length(self) -> float:
@@ -70,6 +87,34 @@ class BeamParams:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def value(self, key: str) -> float | None:
+        """The number at ``key`` (as in :attr:`bounds`: ``beam.beta``, ``beam.material.youngs_modulus``,
+        ``rig.plate_gap``, ``walker.friction``, ratios ``beam.b/k``), or None where the set does not give it."""
+        block, _, name = key.partition(".")
+        if block in ("rig", "walker"):
+            v = getattr(self, block).get(name)
+            return None if v is None else float(v)
+        if block != "beam":
+            return None
+        if "/" in name:
+            num, den = (self.value(f"beam.{n}") for n in name.split("/", 1))
+            return None if num is None or not den else num / den
+        if name.startswith("material."):
+            return float(getattr(self.material, name.removeprefix("material."), math.nan))
+        v = getattr(self, name, None)
+        return float(v) if isinstance(v, (int, float)) else None
+
+    def out_of_bounds(self) -> list[str]:
+        """One line per bounded number outside its physical range (empty: every bounded number is inside)."""
+        bad = []
+        for key, b in self.bounds.items():
+            v = self.value(key)
+            if v is None:
+                bad.append(f"{key}: bounded but not given")
+            elif not b.contains(v):
+                bad.append(f"{key} = {v:g} outside [{b.min:g}, {b.max:g}] ({b.source})")
+        return bad
 
 
 def available(model: str = "prb3") -> list[str]:
@@ -142,9 +187,11 @@ def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParam
     beam = dict(beam_block)
     known = {f.name for f in fields(BeamParams)}
     mat = beam.pop("material", None) or {}
+    # a set written from ``BeamParams.to_dict()`` (e.g. a calibration's) may carry these inside its beam block
+    nested_walker, nested_bounds = beam.pop("walker", None) or {}, beam.pop("bounds", None) or {}
     if not isinstance(mat, dict):
         raise ParamsError(f"{where}: beam.material: expected a mapping of material fields")
-    unknown = set(beam) - (known - {"name", "model", "source", "rig", "material"})
+    unknown = set(beam) - (known - {"name", "model", "source", "rig", "walker", "bounds", "material"})
     if unknown:
         raise ParamsError(f"{where}: beam.{sorted(map(str, unknown))[0][:80]}: unknown field")
     unknown_mat = set(mat) - {f.name for f in fields(Material)}
@@ -158,11 +205,31 @@ def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParam
     rig = data.get("rig") or {}
     if not isinstance(rig, dict):
         raise ParamsError(f"{where}: rig: expected a mapping of rig overrides")
+    walker = data.get("walker") or nested_walker
+    if not isinstance(walker, dict):
+        raise ParamsError(f"{where}: walker: expected a mapping of walker overrides")
     return BeamParams(
         name=str(data.get("name", Path(where).stem)),
         model=str(data.get("model", "prb3")),
         source=str(data.get("source", "")),
         material=material,
         rig=dict(rig),
+        walker=dict(walker),
+        bounds=_bounds(data.get("bounds") or nested_bounds, where),
         **values,
     )
+
+
+def _bounds(block: Any, where: str) -> dict[str, Bound]:
+    """The ``bounds:`` block: ``<key>: {min: .., max: .., source: ..}`` per bounded number."""
+    if not isinstance(block, dict):
+        raise ParamsError(f"{where}: bounds: expected a mapping of <key>: {{min, max, source}}")
+    out = {}
+    for key, b in block.items():
+        if not isinstance(b, dict) or not {"min", "max"} <= set(b):
+            raise ParamsError(f"{where}: bounds.{shorten(key)}: expected {{min: .., max: .., source: ..}}")
+        lo, hi = _number(b["min"], where, f"bounds.{key}.min"), _number(b["max"], where, f"bounds.{key}.max")
+        if lo > hi:
+            raise ParamsError(f"{where}: bounds.{shorten(key)}: min {lo:g} > max {hi:g}")
+        out[str(key)] = Bound(lo, hi, str(b.get("source", "")))
+    return out

@@ -105,7 +105,8 @@ def build_contact_spec(
     integrator: str = "implicitfast",
     timestep: float = 1e-4,
 ) -> mujoco.MjSpec:
-    """The contact-rig scene as an ``MjSpec`` (compile it with ``spec.compile()``)."""
+    """The contact-rig scene as an ``MjSpec`` (compile it with ``spec.compile()``): plate, stage and clamp,
+    the beam, the foot on its tip, the sole–plate pair, the stage actuator and the sensors."""
     names = SceneNames()
     spec = mujoco.MjSpec()
     spec.modelname = "beambench_contact_rig"
@@ -113,10 +114,33 @@ def build_contact_spec(
     spec.option.integrator = INTEGRATORS[integrator]
     spec.option.gravity = [0, 0, -9.81]
     solref = [rig.contact_timeconst, rig.contact_dampratio]
+    _add_plate(spec, names, -(rig.foot_length + gap_m))
+    clamp = _add_stage(spec, names, rig)
+    sites = add_beam(clamp, beam, twist_deg)
+    _add_foot(spec, names, spec.body(sites.tip_body), rig, solref)
+    spec.add_pair(
+        name="sole_plate",
+        geomname1=names.sole,
+        geomname2=names.plate,
+        condim=3,
+        solref=solref,
+        friction=[rig.friction, rig.friction, 0.005, 0.0001, 0.0001],
+    )
+    spec.add_actuator(
+        name=names.actuator,
+        target=names.stage_joint,
+        trntype=mujoco.mjtTrn.mjTRN_JOINT,
+        gaintype=mujoco.mjtGain.mjGAIN_FIXED,
+        biastype=mujoco.mjtBias.mjBIAS_AFFINE,
+    )
+    _add_sensors(spec, names, sites.tip_site)
+    return spec
 
+
+def _add_plate(spec: mujoco.MjSpec, names: SceneNames, plate_top: float) -> None:
+    """The load-cell plate, its top at ``plate_top``. Only the sole can touch it: one explicit pair, so MuJoCo
+    skips the broad phase (contype 0)."""
     world = spec.worldbody
-    plate_top = -(rig.foot_length + gap_m)
-    # Only the sole can touch the plate: one explicit pair, so MuJoCo skips the broad phase (contype 0).
     world.add_geom(
         name=names.plate,
         type=mujoco.mjtGeom.mjGEOM_BOX,
@@ -128,7 +152,10 @@ def build_contact_spec(
     )
     world.add_site(name="plate_site", pos=[0, 0.05, plate_top], size=[0.002, 0, 0])
 
-    stage = world.add_body(name="stage")
+
+def _add_stage(spec: mujoco.MjSpec, names: SceneNames, rig: RigParams) -> mujoco.MjsBody:
+    """The stage on its slide and the clamp welded to it (turned by ``clamp_roll_deg`` about the beam axis)."""
+    stage = spec.worldbody.add_body(name="stage")
     stage.add_joint(
         name=names.stage_joint, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0], armature=rig.stage_armature
     )
@@ -145,99 +172,67 @@ def build_contact_spec(
     roll = np.radians(rig.clamp_roll_deg)
     clamp = stage.add_body(name="clamp", quat=[np.cos(roll / 2), 0, np.sin(roll / 2), 0])  # welded to the stage
     clamp.add_site(name="clamp", size=[0.001, 0, 0])  # a force sensor here reads the beam's pull on the stage
-    sites = add_beam(clamp, beam, twist_deg)
+    return clamp
 
-    # the foot is rigid on the tip body, whose frame is the clamp frame in the natural shape: place its
-    # parts at their world-aligned offsets rotated back by the clamp roll, so the foot hangs plumb
+
+def _add_foot(spec: mujoco.MjSpec, names: SceneNames, tip: mujoco.MjsBody, rig: RigParams, solref: list) -> None:
+    """The rigid foot on the tip body (whose frame is the clamp frame in the natural shape): the frame bar, the
+    sole (rigid, or on a compliant slide), the 20 g load at the sole or at the frame's corner, the foot site.
+    Parts are placed at their world-aligned offsets rotated back by the clamp roll, so the foot hangs plumb."""
+    roll = np.radians(rig.clamp_roll_deg)
     back = np.array([[np.cos(roll), 0, -np.sin(roll)], [0, 1, 0], [np.sin(roll), 0, np.cos(roll)]])
 
     def at(x: float, y: float, z: float) -> list[float]:
         return [float(v) for v in back @ np.array([x, y, z])]
 
-    tip = spec.body(sites.tip_body)
     r = rig.sole_radius
     offset = abs(rig.mass_dx) > 0 or abs(rig.mass_dy) > 0
+    invisible = dict(contype=0, conaffinity=0)
     tip.add_geom(
         type=mujoco.mjtGeom.mjGEOM_CAPSULE,
         fromto=at(0, 0, 0) + at(0, 0, -(rig.foot_length - 2 * r)),
         size=[0.002, 0, 0],
         mass=rig.frame_mass,
-        contype=0,
-        conaffinity=0,
         rgba=[0.9, 0.5, 0.1, 1],
+        **invisible,
     )
     sole_at = at(0, 0, -(rig.foot_length - r))
+    sphere = mujoco.mjtGeom.mjGEOM_SPHERE
     if rig.sole_stiffness > 0:  # a compliant sole: its own body on a damped slide along the foot axis
         if not offset:  # the load stays on the frame, at the sole
             tip.add_geom(
-                type=mujoco.mjtGeom.mjGEOM_SPHERE,
-                size=[0.004, 0, 0],
-                pos=sole_at,
-                mass=rig.foot_mass,
-                contype=0,
-                conaffinity=0,
-                rgba=[0.5, 0.5, 0.5, 1],
+                type=sphere, size=[0.004, 0, 0], pos=sole_at, mass=rig.foot_mass, rgba=[0.5, 0.5, 0.5, 1], **invisible
             )
         sole_body = tip.add_body(name="sole_pad", pos=sole_at)
+        stop = dict(limited=1, range=[-0.01, rig.sole_travel], solref_limit=solref) if rig.sole_travel > 0 else {}
         sole_body.add_joint(
             name="sole_slide",
             type=mujoco.mjtJoint.mjJNT_SLIDE,
             axis=at(0, 0, 1),
             stiffness=[rig.sole_stiffness, 0, 0],
             damping=[rig.sole_damping, 0, 0],
-            **(dict(limited=1, range=[-0.01, rig.sole_travel], solref_limit=solref) if rig.sole_travel > 0 else {}),
+            **stop,
         )
         sole_body.add_geom(
-            name=names.sole,
-            type=mujoco.mjtGeom.mjGEOM_SPHERE,
-            size=[r, 0, 0],
-            mass=rig.sole_mass,
-            contype=0,
-            conaffinity=0,
-            rgba=[0.9, 0.5, 0.1, 1],
+            name=names.sole, type=sphere, size=[r, 0, 0], mass=rig.sole_mass, rgba=[0.9, 0.5, 0.1, 1], **invisible
         )
     else:
+        mass = 1e-4 if offset else rig.foot_mass
         tip.add_geom(
-            name=names.sole,
-            type=mujoco.mjtGeom.mjGEOM_SPHERE,
-            size=[r, 0, 0],
-            pos=sole_at,
-            mass=1e-4 if offset else rig.foot_mass,
-            contype=0,
-            conaffinity=0,
-            rgba=[0.9, 0.5, 0.1, 1],
+            name=names.sole, type=sphere, size=[r, 0, 0], pos=sole_at, mass=mass, rgba=[0.9, 0.5, 0.1, 1], **invisible
         )
     if offset:  # the load at the frame's lower corner, mass_dx along the stage travel
+        corner = at(rig.mass_dx, rig.mass_dy, -(rig.foot_length - r))
         tip.add_geom(
-            type=mujoco.mjtGeom.mjGEOM_SPHERE,
-            size=[0.004, 0, 0],
-            pos=at(rig.mass_dx, rig.mass_dy, -(rig.foot_length - r)),
-            mass=rig.foot_mass,
-            contype=0,
-            conaffinity=0,
-            rgba=[0.5, 0.5, 0.5, 1],
+            type=sphere, size=[0.004, 0, 0], pos=corner, mass=rig.foot_mass, rgba=[0.5, 0.5, 0.5, 1], **invisible
         )
     tip.add_site(name="foot", pos=at(0, 0, -rig.foot_length), size=[0.002, 0, 0])
 
-    spec.add_pair(
-        name="sole_plate",
-        geomname1=names.sole,
-        geomname2=names.plate,
-        condim=3,
-        solref=solref,
-        friction=[rig.friction, rig.friction, 0.005, 0.0001, 0.0001],
-    )
 
-    spec.add_actuator(
-        name=names.actuator,
-        target=names.stage_joint,
-        trntype=mujoco.mjtTrn.mjTRN_JOINT,
-        gaintype=mujoco.mjtGain.mjGAIN_FIXED,
-        biastype=mujoco.mjtBias.mjBIAS_AFFINE,
-    )
-
+def _add_sensors(spec: mujoco.MjSpec, names: SceneNames, tip_site: str) -> None:
+    """Marker positions (stage, beam tip, foot), the clamp's force and the sole–plate contact force."""
     site = mujoco.mjtObj.mjOBJ_SITE
-    for marker, name in zip(CONTACT_MARKERS, ("stage", sites.tip_site, "foot")):
+    for marker, name in zip(CONTACT_MARKERS, ("stage", tip_site, "foot")):
         spec.add_sensor(name=marker, type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=site, objname=name)
     spec.add_sensor(name="clamp_force", type=mujoco.mjtSensor.mjSENS_FORCE, objtype=site, objname="clamp")
     # contact sensor: data = found + force (bits 0, 1), reduce = netforce (3), one slot; global frame
@@ -250,7 +245,6 @@ def build_contact_spec(
         refname=names.plate,
         intprm=[3, 3, 1],
     )
-    return spec
 
 
 class ContactRigSim(DrivenScene):

@@ -68,6 +68,7 @@ from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.common.errors import BeambenchError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, quat_y
+from beambench.sim.models.registry import UnknownModelError, model_family
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
 
@@ -137,7 +138,7 @@ PARAMETER_SETS: dict[str, dict[str, float]] = {
     "paper_guesses": {"foot_mass": 0.020, "rotor_inertia": 1.35e-5},
 }
 
-LEG_MODELS = ("prb3",)  # leg models that stand and walk; the segmented rods collapse when driven
+LEG_FAMILIES = ("prb3", "rod")  # leg model families the walker builds (the physical twin's legs are rods)
 
 
 class WalkerLegError(BeambenchError, ValueError):
@@ -149,14 +150,17 @@ class WalkerLegError(BeambenchError, ValueError):
 
 
 def check_leg_model(name: str) -> None:
-    """Refuse leg models that cannot carry the walker (research12, 3 g foot: rod3g, rod3gs, rod5g stand 17-25 mm
-    lower than prb3 and collapse when driven at 23 and 65 Hz, the body ~57 mm below the floor)."""
-    if name not in LEG_MODELS:
-        raise WalkerLegError(
-            name,
-            "refused for the walker: segmented-rod legs collapse under the drive (body ~57 mm below the floor "
-            f"at 23 and 65 Hz); use sim.model: {' or '.join(LEG_MODELS)}",
-        )
+    """Refuse leg models of a family the walker cannot build (every known family builds today: PRB3 and the
+    segmented rods; issue 22 puts the contact rig's physical rod on the walker, docs/contact-twin.md)."""
+    try:
+        family = model_family(name)
+    except UnknownModelError as exc:
+        raise WalkerLegError(name, str(exc).split(": ", 1)[-1]) from None
+    if family not in LEG_FAMILIES:
+        raise WalkerLegError(name, f"refused for the walker: use a leg model of {' or '.join(LEG_FAMILIES)}")
+
+
+WALKER_FRONT = 0.04  # m, the plate's front edge ahead of the leg clamps (the platform's length is counted from it)
 
 
 def build_walker_spec(
@@ -181,88 +185,9 @@ def build_walker_spec(
         conaffinity=0,
         rgba=[0.8, 0.8, 0.8, 1],
     )
-
     z0 = wp.foot_length + 0.002  # clamp height: feet just above the floor before settling
-    body = spec.worldbody.add_body(name="walker", pos=[0, 0, z0])
-    hinge, slide = mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE
-    dofs = [
-        ("x", slide, [1, 0, 0]),
-        ("y", slide, [0, 1, 0]),
-        ("z", slide, [0, 0, 1]),
-        ("roll", hinge, [1, 0, 0]),
-        ("pitch", hinge, [0, 1, 0]),
-    ]
-    for name, jtype, axis in dofs:
-        if name != "y" or wp.lateral_free:
-            body.add_joint(name=name, type=jtype, axis=axis)
-    front = 0.04
-    body.add_geom(
-        name="plate",
-        type=mujoco.mjtGeom.mjGEOM_BOX,
-        size=[front, 0.03, 0.0015],
-        mass=wp.plate_mass,
-        contype=0,
-        conaffinity=0,
-        rgba=[0.3, 0.3, 0.3, 1],
-    )
-    body.add_geom(
-        name="motor",
-        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-        size=[wp.motor_radius, 0.007, 0],
-        pos=[0, 0, wp.rotor_height],
-        quat=[1, 0, 0, 0] if wp.motor_flat else [math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0],
-        mass=wp.motor_mass,
-        contype=0,
-        conaffinity=0,
-        rgba=[0.2, 0.2, 0.2, 1],
-    )
-    body.add_site(name="body", pos=[0, 0, 0], size=[0.003, 0, 0])
-    rotor = body.add_body(name="rotor", pos=[0, 0, wp.rotor_height])
-    rotor.add_joint(name="rotor", type=hinge, axis=[0, 0, 1] if wp.motor_flat else [0, 1, 0], armature=wp.rotor_inertia)
-    rotor.add_geom(
-        type=mujoco.mjtGeom.mjGEOM_SPHERE,
-        size=[0.006, 0, 0],
-        pos=[wp.eccentric_radius, 0, 0],
-        mass=wp.eccentric_mass,
-        contype=0,
-        conaffinity=0,
-        rgba=[0.8, 0.1, 0.1, 1],
-    )
-    # cart rigidly at the tail, on two frictionless wheels
-    tail = front - wp.length
-    cart_x = tail + 0.02
-    wheel_z = -(z0 - wp.wheel_radius)
-    body.add_geom(
-        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-        fromto=[-front, 0, 0, cart_x, 0, 0],
-        size=[0.003, 0, 0],
-        mass=wp.frame_mass,
-        contype=0,
-        conaffinity=0,
-    )
-    body.add_geom(
-        name="cart",
-        type=mujoco.mjtGeom.mjGEOM_BOX,
-        size=[0.02, 0.03, 0.01],
-        pos=[cart_x, 0, 0],
-        mass=wp.cart_mass,
-        contype=0,
-        conaffinity=0,
-        rgba=[0.5, 0.4, 0.3, 1],
-    )
-    for side in (1, -1):
-        body.add_geom(
-            name=f"wheel_{'l' if side > 0 else 'r'}",
-            type=mujoco.mjtGeom.mjGEOM_SPHERE,
-            size=[wp.wheel_radius, 0, 0],
-            pos=[cart_x, side * 0.03, wheel_z],
-            mass=0.0,
-            contype=0,
-            conaffinity=0,
-            rgba=[0.1, 0.1, 0.1, 1],
-        )
-        # explicit pairs only (no broad phase): frictionless wheel on the floor
-        spec.add_pair(geomname1="floor", geomname2=f"wheel_{'l' if side > 0 else 'r'}", condim=1, solref=solref)
+    body = _add_body(spec, wp, z0)
+    _add_cart(spec, body, wp, z0, solref)
     # legs: left along +y with +φ, right along −y (frame turned 180° about z) with −φ: mirror images
     mount = quat_y(math.radians(wp.leg_mount_deg))
     for side, name, chir in ((1, "left", wp.left_chirality), (-1, "right", wp.right_chirality)):
@@ -272,34 +197,7 @@ def build_walker_spec(
         sites = add_beam(
             body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat.tolist(), prefix=f"{name}_"
         )
-        tip = spec.body(sites.tip_body)
-        r = wp.sole_radius
-        tip.add_geom(
-            type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-            fromto=[0, 0, 0, 0, 0, -(wp.foot_length - 2 * r)],
-            size=[0.002, 0, 0],
-            mass=wp.foot_bar_mass,
-            contype=0,
-            conaffinity=0,
-            rgba=[0.9, 0.5, 0.1, 1],
-        )
-        tip.add_geom(
-            name=f"sole_{name}",
-            type=mujoco.mjtGeom.mjGEOM_SPHERE,
-            size=[r, 0, 0],
-            pos=[0, 0, -(wp.foot_length - r)],
-            mass=wp.foot_mass,
-            contype=0,
-            conaffinity=0,
-        )
-        spec.add_pair(
-            geomname1="floor",
-            geomname2=f"sole_{name}",
-            condim=3 if wp.friction > 0 else 1,  # frictionless: normal-only (μ = 0 in a cone diverges)
-            solref=solref,
-            friction=[wp.friction, wp.friction, 0.005, 0.0001, 0.0001],
-        )
-        tip.add_site(name=f"foot_{name}", pos=[0, 0, -wp.foot_length], size=[0.002, 0, 0])
+        _add_foot(spec, spec.body(sites.tip_body), name, wp, solref)
     spec.add_actuator(
         name="rotor_servo",
         target="rotor",
@@ -317,6 +215,121 @@ def build_walker_spec(
         objname="rotor_servo",
     )
     return spec
+
+
+def _add_body(spec: mujoco.MjSpec, wp: WalkerParams, z0: float) -> mujoco.MjsBody:
+    """The walker's body at clamp height ``z0`` on its slides and hinges: the plate, the motor and the rotor
+    carrying the offset mass."""
+    body = spec.worldbody.add_body(name="walker", pos=[0, 0, z0])
+    hinge, slide = mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE
+    dofs = [
+        ("x", slide, [1, 0, 0]),
+        ("y", slide, [0, 1, 0]),
+        ("z", slide, [0, 0, 1]),
+        ("roll", hinge, [1, 0, 0]),
+        ("pitch", hinge, [0, 1, 0]),
+    ]
+    for name, jtype, axis in dofs:
+        if name != "y" or wp.lateral_free:
+            body.add_joint(name=name, type=jtype, axis=axis)
+    invisible = dict(contype=0, conaffinity=0)
+    body.add_geom(
+        name="plate",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[WALKER_FRONT, 0.03, 0.0015],
+        mass=wp.plate_mass,
+        rgba=[0.3, 0.3, 0.3, 1],
+        **invisible,
+    )
+    body.add_geom(
+        name="motor",
+        type=mujoco.mjtGeom.mjGEOM_CYLINDER,
+        size=[wp.motor_radius, 0.007, 0],
+        pos=[0, 0, wp.rotor_height],
+        quat=[1, 0, 0, 0] if wp.motor_flat else [math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0],
+        mass=wp.motor_mass,
+        rgba=[0.2, 0.2, 0.2, 1],
+        **invisible,
+    )
+    body.add_site(name="body", pos=[0, 0, 0], size=[0.003, 0, 0])
+    rotor = body.add_body(name="rotor", pos=[0, 0, wp.rotor_height])
+    rotor.add_joint(name="rotor", type=hinge, axis=[0, 0, 1] if wp.motor_flat else [0, 1, 0], armature=wp.rotor_inertia)
+    rotor.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[0.006, 0, 0],
+        pos=[wp.eccentric_radius, 0, 0],
+        mass=wp.eccentric_mass,
+        rgba=[0.8, 0.1, 0.1, 1],
+        **invisible,
+    )
+    return body
+
+
+def _add_cart(spec: mujoco.MjSpec, body: mujoco.MjsBody, wp: WalkerParams, z0: float, solref: list) -> None:
+    """The cart rigidly at the tail (its boom from the plate) on two frictionless wheels."""
+    invisible = dict(contype=0, conaffinity=0)
+    cart_x = WALKER_FRONT - wp.length + 0.02
+    wheel_z = -(z0 - wp.wheel_radius)
+    body.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+        fromto=[-WALKER_FRONT, 0, 0, cart_x, 0, 0],
+        size=[0.003, 0, 0],
+        mass=wp.frame_mass,
+        **invisible,
+    )
+    body.add_geom(
+        name="cart",
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        size=[0.02, 0.03, 0.01],
+        pos=[cart_x, 0, 0],
+        mass=wp.cart_mass,
+        rgba=[0.5, 0.4, 0.3, 1],
+        **invisible,
+    )
+    for side in (1, -1):
+        wheel = f"wheel_{'l' if side > 0 else 'r'}"
+        body.add_geom(
+            name=wheel,
+            type=mujoco.mjtGeom.mjGEOM_SPHERE,
+            size=[wp.wheel_radius, 0, 0],
+            pos=[cart_x, side * 0.03, wheel_z],
+            mass=0.0,
+            rgba=[0.1, 0.1, 0.1, 1],
+            **invisible,
+        )
+        # explicit pairs only (no broad phase): frictionless wheel on the floor
+        spec.add_pair(geomname1="floor", geomname2=wheel, condim=1, solref=solref)
+
+
+def _add_foot(spec: mujoco.MjSpec, tip: mujoco.MjsBody, name: str, wp: WalkerParams, solref: list) -> None:
+    """A rigid foot on a leg's tip body: the bar, the sole with its mass, its floor pair and the foot marker."""
+    r = wp.sole_radius
+    tip.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+        fromto=[0, 0, 0, 0, 0, -(wp.foot_length - 2 * r)],
+        size=[0.002, 0, 0],
+        mass=wp.foot_bar_mass,
+        contype=0,
+        conaffinity=0,
+        rgba=[0.9, 0.5, 0.1, 1],
+    )
+    tip.add_geom(
+        name=f"sole_{name}",
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[r, 0, 0],
+        pos=[0, 0, -(wp.foot_length - r)],
+        mass=wp.foot_mass,
+        contype=0,
+        conaffinity=0,
+    )
+    spec.add_pair(
+        geomname1="floor",
+        geomname2=f"sole_{name}",
+        condim=3 if wp.friction > 0 else 1,  # frictionless: normal-only (μ = 0 in a cone diverges)
+        solref=solref,
+        friction=[wp.friction, wp.friction, 0.005, 0.0001, 0.0001],
+    )
+    tip.add_site(name=f"foot_{name}", pos=[0, 0, -wp.foot_length], size=[0.002, 0, 0])
 
 
 QUENCH_S = 0.001  # s, velocity-quench interval of the damped preroll
@@ -340,7 +353,7 @@ class WalkerSim(DrivenScene):
     ) -> None:
         check_leg_model(beam.name)
         self.beam, self.twist_deg = beam, twist_deg
-        self.rig = params or WalkerParams.with_overrides(beam.params.rig)
+        self.rig = params or WalkerParams.with_overrides(beam.params.walker or beam.params.rig)
         self.integrator = integrator
         h = timestep or self.rig.timestep
         self.spec = build_walker_spec(beam, twist_deg, self.rig, integrator, h)

@@ -22,6 +22,7 @@ session's protocol, else the shipped walker sweep, with ``sim.params`` pointing 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -87,6 +88,14 @@ def walker_base(targets: Targets) -> CalibrationBase:
     return CalibrationBase(model, str(proto.sim.params), SimSettings(twist_deg=float(proto.sim.twist_deg)))
 
 
+def _with_values(params: BeamParams, values: dict[str, float]) -> BeamParams:
+    """``params`` with the fitted ``values`` in the block the walker scene reads: the set's walker block where
+    it has one (the physical set, whose rig block is the contact rig's), else its rig block."""
+    if params.walker:
+        return replace(params, walker={**params.walker, **{k: float(v) for k, v in values.items()}})
+    return apply_values(params, WALKER_UNKNOWNS, values)
+
+
 def _prior(base: CalibrationBase) -> BeamParams:
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import model_family
@@ -102,9 +111,9 @@ def simulate_walker(
     from beambench.sim.scenes.walker import WalkerParams
     from beambench.sim.scenes.walker_batch import steady_speeds
 
-    params = apply_values(_prior(base), WALKER_UNKNOWNS, values)
+    params = _with_values(_prior(base), values)
     beam = make_beam_model(base.model, params)
-    wp = WalkerParams.with_overrides(params.rig)
+    wp = WalkerParams.with_overrides(params.walker or params.rig)
     speed, height = steady_speeds(beam, frequencies, wp, settings=sim.replace(nthread=1))  # one thread per worker
     steps = [
         {"frequency_hz": float(f), "body_speed_mm_s": float(v), "body_height_mm": float(z)}
@@ -125,9 +134,10 @@ def write_walker_protocol(
     """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring), through
     :func:`.protocol_out.write_calibrated_protocol`; the rig block carries foot mass and friction."""
     p = _prior(base)
+    rounded = {k: round(float(v), 7) for k, v in values.items()}
     cal = CalibratedSet(
-        params=p,
-        rig_block={**p.rig, **{k: round(float(v), 7) for k, v in values.items()}},
+        params=_with_values(p, rounded) if p.walker else p,
+        rig_block=dict(p.rig) if p.walker else {**p.rig, **rounded},
         values=values,
         prior=base.params,
         model=base.model,
