@@ -134,6 +134,18 @@ class ClockModel(_Model):
     latency_s: float = Field(0.0005, ge=0, le=10)
 
 
+class ThermalDrift(_Model):
+    """The contact twin's thermal drift (``sim.thermal_drift``; model, parameter ranges and sources:
+    :mod:`beambench.sim.models.thermal`): the beam warms with the drive power and its stiffness falls by
+    ``alpha_per_k`` per kelvin, relaxing with ``tau_s``. Off when absent."""
+
+    alpha_per_k: float = Field(0.01, gt=0, le=0.2)  # relative stiffness fall per K (TPU: 0.005-0.02)
+    tau_s: float = Field(100.0, gt=0, le=86_400)  # cooling time constant (0.5 mm strip in still air: 40-130 s)
+    # J/K; None: the beam's mass x 1.8 kJ/(kg K) (TPU); smaller compresses a long run's warming into seconds
+    heat_capacity_j_per_k: float | None = Field(None, gt=0, le=10_000)
+    heated_fraction: float = Field(1.0, gt=0, le=1)  # share of the drive power into the beam that heats it
+
+
 class SimOptions(_Model):
     """Options of the MuJoCo backend."""
 
@@ -153,6 +165,7 @@ class SimOptions(_Model):
     mocap_clock: ClockModel = ClockModel()
     loadcell_clock: ClockModel = ClockModel()
     motor_clock: ClockModel = ClockModel()
+    thermal_drift: ThermalDrift | None = None  # contact rig only
 
 
 class Release(_Model):
