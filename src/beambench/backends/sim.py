@@ -77,7 +77,9 @@ def _check_scene_options(info: SceneInfo, sim: SimOptions) -> None:
     foreign = foreign_option(info.name, given, "rig")
     if foreign is not None:
         option, reason = foreign
-        raise ConfigError("<protocol>", f"sim.{option}", getattr(sim, option), reason)
+        value = getattr(sim, option)
+        shown = value.model_dump(exclude_unset=True) if hasattr(value, "model_dump") else value  # a block as written
+        raise ConfigError("<protocol>", f"sim.{option}", shown, reason)
 
 
 AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
