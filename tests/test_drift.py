@@ -138,3 +138,37 @@ def test_thermal_drift_on_the_walker_is_one_line_and_exit_2(tmp_path):
     assert res.exit_code == 2, res.output
     assert "sim.thermal_drift = {'alpha_per_k': 0.01}" in res.output and "contact only" in res.output
     assert "Traceback" not in res.output
+
+
+def _drive(rig, calls, announce):
+    """Drive a sim rig as the runner does (arm, per step a command and its waits); the mocap samples and the
+    beam's final thermal state."""
+    from beambench.acquisition.capabilities import MotorLimits
+
+    rig.open()
+    rig.motor.arm(MotorLimits(max_frequency_hz=40, max_current_a=10, amplitude_mm=2.0))
+    if announce is not None:
+        rig.anticipate(announce)
+    batches = []
+    for hz, waits in calls:
+        rig.motor.set_frequency(hz)
+        for w in waits:
+            rig.clock.wait(w)
+            batches.append(rig.mocap.read().columns["data"])
+    state = rig.after_run()["sim_thermal_drift"]
+    rig.close()
+    return np.concatenate(batches), state
+
+
+def test_thermal_drift_gives_the_same_data_computed_ahead_or_on_demand():
+    from beambench.backends.sim import SimRig
+
+    proto = parse_protocol(
+        CONTACT + "sim: {model: prb3, seed: 4, thermal_drift: {alpha_per_k: 0.02, heat_capacity_j_per_k: 0.01}}\n"
+    )
+    announced = [(10.0, [0.2, 0.2]), (14.0, [0.2, 0.2])]
+    actual = [(10.0, [0.2, 0.2]), (14.0, [0.2, 0.1, 0.1])]  # leaves the schedule: the lookahead is undone
+    ahead, state_ahead = _drive(SimRig(proto), actual, announce=announced)
+    on_demand, state = _drive(SimRig(proto, prefetch=False), actual, announce=None)
+    np.testing.assert_array_equal(ahead, on_demand)
+    assert state_ahead == state and state["stiffness_factor"] < 0.995
