@@ -84,8 +84,18 @@ def test_with_drift_off_no_reference_trend_is_significant(sessions):
     from beambench.analysis.drift import drift_table
     from beambench.sinks.hdf5 import read_session
 
-    table = drift_table(analyze_session(read_session(sessions["off"])).table)
+    from beambench.analysis.figures.trajectories import shape_note
+
+    a = analyze_session(read_session(sessions["off"]))
+    table = drift_table(a.table)
     assert len(table) == 5 and (table["n_reference"] == 7).all()
     assert not table["significant"].any(), table[["metric", "trend_per_h", "t_stat", "t_crit"]]
     with h5py.File(sessions["off"], "r") as f:
         assert "sim_thermal_drift" not in f["general"]
+
+    # the trajectory panels' titles carry the path metrics of steps.csv
+    for r in a.steps:
+        row = a.table[a.table["step"] == r.index].iloc[0]
+        note = shape_note(a, r, "foot")
+        assert ("figure-8" in note) == (row["foot_crossings"] == 1)
+        assert ("inverts" in note) == bool(row["foot_path_inverts"])
