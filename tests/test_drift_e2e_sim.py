@@ -82,9 +82,8 @@ def test_with_drift_on_the_report_has_the_trend_and_every_new_column(sessions):
 def test_with_drift_off_no_reference_trend_is_significant(sessions):
     from beambench.analysis import analyze_session
     from beambench.analysis.drift import drift_table
-    from beambench.sinks.hdf5 import read_session
-
     from beambench.analysis.figures.trajectories import shape_note
+    from beambench.sinks.hdf5 import read_session
 
     a = analyze_session(read_session(sessions["off"]))
     table = drift_table(a.table)
