@@ -3,10 +3,12 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import pandas as pd
 
 from beambench.analysis.drift import DRIFT_METRICS, drift_table, reference_steps
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
@@ -42,35 +44,41 @@ def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) ->
         ax.set_visible(False)
     span_s = max(float(r["t_h"].max()) for _, r in refs) * 3600
     unit, per_s = ("s", 1.0) if span_s < 120 else (("min", 60.0) if span_s < 7200 else ("h", 3600.0))
+    verdicts: dict[str, list[tuple[str, bool]]] = {m: [] for m in metrics}
     for si, (a, ref) in enumerate(refs):
         trend = {str(row["metric"]): row for row in drift_table(a.table).to_dict("records")}
         color = SESSION_COLORS[si % len(SESSION_COLORS)]
         who = f" ({a.label})" if len(refs) > 1 else ""
         for ax, m in zip(axes, metrics):
-            if m not in ref or not ref[m].notna().any():
-                continue
-            tx = ref["t_h"].to_numpy(float) * 3600 / per_s
-            y = ref[m].to_numpy(float)
-            ax.plot(tx, y, "o", color=color, ms=5, label="reference steps" + who)
-            r = trend.get(m)
-            if r is not None and np.isfinite(float(r["trend_per_h"])):
-                tt = np.array([tx.min(), tx.max()])
-                t_mean = float(np.mean(tx[np.isfinite(y)])) * per_s / 3600
-                fit = float(r["mean"]) + float(r["trend_per_h"]) * (tt * per_s / 3600 - t_mean)
-                verdict = "drift" if bool(r["significant"]) else "within noise"
-                ax.plot(tt, fit, "-", color=color, lw=1.2, label="linear trend" + who)
-                ax.set_title(
-                    f"{DRIFT_METRICS[m]}\n{r['trend_per_h']:+.3g} ± {r['trend_se_per_h']:.2g} /h: {verdict}",
-                    color="#d62728" if bool(r["significant"]) else "0.2",
-                )
-            else:
-                ax.set_title(DRIFT_METRICS[m])
-            ax.set(xlabel=f"time since the first reference step ({unit})", ylabel=DRIFT_METRICS[m])
-    fig.suptitle(
-        "Reference steps at "
-        + ", ".join(f"{float(r['frequency_hz'].iloc[0]):g} Hz" for _, r in refs)
-        + " over the session"
-    )
+            if m in ref and ref[m].notna().any():
+                v = _panel(ax, ref, m, trend.get(m), per_s, color, who)
+                if v is not None:
+                    verdicts[m].append((f"{a.label}: {v[0]}" if who else v[0], v[1]))
+    for ax, m in zip(axes, metrics):
+        lines = [DRIFT_METRICS[m], *(text for text, _ in verdicts[m])]
+        ax.set_title("\n".join(lines), color="#d62728" if any(sig for _, sig in verdicts[m]) else "0.2")
+        ax.set(xlabel=f"time since the first reference step ({unit})", ylabel=DRIFT_METRICS[m])
+    freqs = sorted({float(r["frequency_hz"].iloc[0]) for _, r in refs})
+    fig.suptitle("Reference steps at " + ", ".join(f"{f:g} Hz" for f in freqs) + " over the session")
     legend_below(fig, axes[: len(metrics)], ncol=4)
     fig.savefig(path)
     return path
+
+
+def _panel(
+    ax: Any, ref: pd.DataFrame, m: str, r: Mapping[Any, Any] | None, per_s: float, color: str, who: str
+) -> tuple[str, bool] | None:
+    """One session's reference values of ``m`` and their trend line; returns the title's verdict (text,
+    significant), None without a trend."""
+    tx = ref["t_h"].to_numpy(float) * 3600 / per_s
+    y = ref[m].to_numpy(float)
+    ax.plot(tx, y, "o", color=color, ms=5, label="reference steps" + who)
+    if r is None or not np.isfinite(float(r["trend_per_h"])):
+        return None
+    tt = np.array([tx.min(), tx.max()])
+    t_mean = float(np.mean(tx[np.isfinite(y)])) * per_s / 3600
+    ax.plot(tt, float(r["mean"]) + float(r["trend_per_h"]) * (tt * per_s / 3600 - t_mean), "-", color=color, lw=1.2)
+    ax.lines[-1].set_label("linear trend" + who)
+    sig = bool(r["significant"])
+    verdict = "drift" if sig else "within noise"
+    return f"{float(r['trend_per_h']):+.3g} ± {float(r['trend_se_per_h']):.2g} /h: {verdict}", sig
