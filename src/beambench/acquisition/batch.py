@@ -101,3 +101,6 @@ class StepRecord:
     t_settled_ns: int = -1
     t_end_ns: int = -1
     status: str = "running"
+    direction: str = "up"  # the sweep branch: up or down
+    kind: str = "sweep"  # sweep or reference
+    repeat: int = 0  # which pass of this frequency and branch (reference steps: the reference's count)

@@ -60,12 +60,21 @@ def check_name(name: str, what: str) -> str:
 
 
 class Sweep(_Model):
-    """Frequencies in Hz: ``start``/``stop``/``step`` (inclusive) or an explicit ``frequencies`` list."""
+    """Frequencies in Hz: ``start``/``stop``/``step`` (inclusive) or an explicit ``frequencies`` list.
+
+    ``direction``: ``up`` runs them in the order given (start → stop, or the list as written), ``down`` in reverse,
+    ``both`` up then back down in one session (the turning frequency once). ``repeats``: each frequency K times,
+    ``interleaved`` (default: the whole sweep K times, so a slow drift spreads over every frequency alike) or in
+    ``blocks`` (each frequency K times in a row).
+    """
 
     start: float | None = Field(None, gt=0)
     stop: float | None = Field(None, gt=0)
     step: float | None = Field(None, gt=0)
     frequencies: list[float] | None = Field(None, max_length=MAX_STEPS)
+    direction: Literal["up", "down", "both"] = "up"
+    repeats: int = Field(1, ge=1, le=100)
+    repeat_order: Literal["interleaved", "blocks"] = "interleaved"
 
     @model_validator(mode="after")
     def _one_form(self) -> Sweep:
@@ -115,6 +124,14 @@ class Sweep(_Model):
         return [v for v in vals if v <= self.stop + 1e-9]  # type: ignore[operator]
 
 
+class Reference(_Model):
+    """A reference step at ``frequency_hz`` first, after every ``every_steps`` sweep steps, and last: its drift
+    over the session tells a slow change of the rig (e.g. a beam warming up) from a frequency effect."""
+
+    frequency_hz: float = Field(gt=0)
+    every_steps: int = Field(gt=0, le=MAX_STEPS)
+
+
 class Limits(_Model):
     """Hard limits checked before anything moves."""
 
@@ -130,6 +147,18 @@ class ClockModel(_Model):
     drift_ppm: float = Field(0.0, ge=-1e5, le=1e5)
     jitter_s: float = Field(0.0, ge=0, le=10)
     latency_s: float = Field(0.0005, ge=0, le=10)
+
+
+class ThermalDrift(_Model):
+    """The contact twin's thermal drift (``sim.thermal_drift``; model, parameter ranges and sources:
+    :mod:`beambench.sim.models.thermal`): the beam warms with the drive power and its stiffness falls by
+    ``alpha_per_k`` per kelvin, relaxing with ``tau_s``. Off when absent."""
+
+    alpha_per_k: float = Field(0.01, gt=0, le=0.2)  # relative stiffness fall per K (TPU: 0.005-0.02)
+    tau_s: float = Field(100.0, gt=0, le=86_400)  # cooling time constant (0.5 mm strip in still air: 40-130 s)
+    # J/K; None: the beam's mass x 1.8 kJ/(kg K) (TPU); smaller compresses a long run's warming into seconds
+    heat_capacity_j_per_k: float | None = Field(None, gt=0, le=10_000)
+    heated_fraction: float = Field(1.0, gt=0, le=1)  # share of the drive power into the beam that heats it
 
 
 class SimOptions(_Model):
@@ -151,6 +180,7 @@ class SimOptions(_Model):
     mocap_clock: ClockModel = ClockModel()
     loadcell_clock: ClockModel = ClockModel()
     motor_clock: ClockModel = ClockModel()
+    thermal_drift: ThermalDrift | None = None  # contact rig only
 
 
 class Release(_Model):
@@ -238,6 +268,7 @@ class Protocol(_Model):
     rig: RigKind = "contact"
     backend: Backend = "sim"
     sweep: Sweep | None = None  # required, except with track: and a map file (track: map: twin sweeps it)
+    reference: Reference | None = None
     settle_s: float = Field(2.0, ge=0, le=600)
     record_s: float = Field(5.0, gt=0, le=3600)
     amplitude_mm: float = Field(2.0, gt=0, le=1000)
@@ -261,12 +292,35 @@ class Protocol(_Model):
         if self.sweep is not None and scene_info(self.rig).driven and min(self.sweep.values()) <= 0:
             undriven = " or ".join(n for n in runnable_names() if not scene_info(n).driven)
             raise ValueError(f"sweep: frequencies must be > 0 Hz on the {self.rig} rig (0 is for rig: {undriven})")
+        if self.track is not None and self.reference is not None:
+            raise ValueError("reference: not with track: (a speed profile has no sweep to interleave)")
+        swept_down = self.sweep is not None and self.sweep.direction != "up"
+        if not scene_info(self.rig).driven and (self.reference is not None or swept_down):
+            raise ValueError(f"reference and sweep.direction are for driven rigs, not {self.rig}")
+        n = self.n_planned_steps()
+        if n > MAX_STEPS:
+            raise ValueError(f"sweep: {n:.3g} steps with direction, repeats and reference: more than {MAX_STEPS}")
         return self
+
+    def n_planned_steps(self) -> float:
+        """Steps the run makes: the sweep (both directions, repeats) plus reference steps."""
+        if self.track is not None or self.sweep is None:
+            return float(len(self.track.segments)) if self.track is not None else 0.0
+        n = self.sweep.n_steps()
+        if self.sweep.direction == "both":
+            n = 2 * n - 1
+        n *= self.sweep.repeats
+        if self.reference is not None and math.isfinite(n):
+            n += math.ceil(n / self.reference.every_steps) + 1
+        return n
 
     def limit_violations(self) -> list[tuple[str, Any, str]]:
         """(field, value, reason) for every commanded value over its limit."""
         out: list[tuple[str, Any, str]] = []
-        fmax = max(self.sweep.values()) if self.sweep is not None else 0.0
+        fmax = max(
+            (self.sweep.values() if self.sweep is not None else [0.0])
+            + ([self.reference.frequency_hz] if self.reference else [])
+        )
         if fmax > self.limits.max_frequency_hz:
             out.append(("sweep", fmax, f"exceeds limits.max_frequency_hz = {self.limits.max_frequency_hz:g} Hz"))
         if self.amplitude_mm > self.limits.max_amplitude_mm:

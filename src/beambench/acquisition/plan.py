@@ -13,26 +13,64 @@ from beambench.acquisition.config import ConfigError, Protocol, check_name, form
 
 @dataclass(frozen=True)
 class Step:
-    """Drive at ``frequency_hz``: wait ``settle_s`` for transients to decay, then record ``record_s``."""
+    """Drive at ``frequency_hz``: wait ``settle_s`` for transients to decay, then record ``record_s``.
+
+    ``direction``: the sweep branch (``up``/``down``); ``kind``: ``sweep`` or ``reference``; ``repeat``: which pass
+    of this frequency and branch it is (0, 1, …; for reference steps, the reference's count)."""
 
     index: int
     frequency_hz: float
     settle_s: float
     record_s: float
+    direction: str = "up"
+    kind: str = "sweep"
+    repeat: int = 0
 
     @property
     def duration_s(self) -> float:
         return self.settle_s + self.record_s
 
 
+def _branches(protocol: Protocol) -> list[tuple[float, str]]:
+    """One pass of the sweep: (frequency, direction) in order (``both``: up, then down without the turn twice)."""
+    assert protocol.sweep is not None  # the model requires one without track:
+    f = protocol.sweep.values()
+    d = protocol.sweep.direction
+    if d == "down":
+        return [(x, "down") for x in reversed(f)]
+    up = [(x, "up") for x in f]
+    return up + [(x, "down") for x in reversed(f[:-1])] if d == "both" else up
+
+
+def _sweep_steps(protocol: Protocol) -> list[tuple[float, str, int]]:
+    """(frequency, direction, repeat) of every sweep step, the repeats interleaved or in blocks."""
+    assert protocol.sweep is not None
+    one, k = _branches(protocol), protocol.sweep.repeats
+    if protocol.sweep.repeat_order == "blocks":
+        return [(f, d, r) for f, d in one for r in range(k)]
+    return [(f, d, r) for r in range(k) for f, d in one]
+
+
 def plan(protocol: Protocol) -> list[Step]:
-    """The steps of a protocol, in order. With ``track:`` one step per segment: its frequency (0 here) is chosen
-    by the speed controller during the run, the settle window is ``track.settle_s``, the record window the rest."""
+    """The steps of a protocol, in order: the sweep (direction, repeats) with reference steps first, after every
+    ``reference.every_steps`` sweep steps, and last. With ``track:`` one step per segment: its frequency (0 here) is
+    chosen by the speed controller during the run, the settle window is ``track.settle_s``, the record window the
+    rest."""
     if protocol.track is not None:
         settle = protocol.track.settle_s
         return [Step(i, 0.0, settle, seg.hold_s - settle) for i, seg in enumerate(protocol.track.segments)]
-    assert protocol.sweep is not None  # the model requires one without track:
-    return [Step(i, f, protocol.settle_s, protocol.record_s) for i, f in enumerate(protocol.sweep.values())]
+    ref = protocol.reference
+    out: list[tuple[float, str, str, int]] = []
+    n_ref = 0
+    sweep = _sweep_steps(protocol)
+    for j, (f, d, r) in enumerate(sweep):
+        if ref is not None and j % ref.every_steps == 0:
+            out.append((ref.frequency_hz, d, "reference", n_ref))
+            n_ref += 1
+        out.append((f, d, "sweep", r))
+    if ref is not None:
+        out.append((ref.frequency_hz, sweep[-1][1], "reference", n_ref))
+    return [Step(i, f, protocol.settle_s, protocol.record_s, d, kind, r) for i, (f, d, kind, r) in enumerate(out)]
 
 
 def motor_limits(protocol: Protocol) -> MotorLimits:
@@ -59,6 +97,8 @@ def summary(protocol: Protocol, backend: str) -> dict[str, object]:
         "backend": backend,
         "steps": len(steps),
         "frequencies_hz": freqs,
+        "directions": [s.direction for s in steps],
+        "reference_steps": sum(s.kind == "reference" for s in steps),
         "settle_s": protocol.track.settle_s if protocol.track else protocol.settle_s,
         "record_s": protocol.record_s,
         "total_duration_s": sum(s.duration_s for s in steps),

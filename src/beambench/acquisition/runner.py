@@ -283,7 +283,9 @@ class Runner:
     def _run_step(self, step: Step) -> None:
         clock = self.rig.clock
         self.rig.motor.set_frequency(step.frequency_hz)
-        rec = StepRecord(step.index, step.frequency_hz, clock.now_ns())
+        rec = StepRecord(
+            step.index, step.frequency_hz, clock.now_ns(), direction=step.direction, kind=step.kind, repeat=step.repeat
+        )
         self._current = rec
         self.hub.step(rec)
         self.hub.event(rec.t_start_ns, "step", f"step {step.index}: {step.frequency_hz:g} Hz")

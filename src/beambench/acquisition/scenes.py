@@ -114,6 +114,7 @@ CONTACT = declare(
             "plate_gap_mm": "has no plate",
             "tolerance_mm": "has no measured table",
             "gap_mm": "has no plate",
+            "thermal_drift": "has no thermal-drift model",
         },
         plate=True,
         stage=True,

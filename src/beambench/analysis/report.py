@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from beambench.analysis.drift import drift_table
 from beambench.analysis.figures import FIGURES, ReportOptions
 from beambench.analysis.figures.style import R2_SENSE_MIN, SESSION_COLORS
 from beambench.analysis.release import release_table
@@ -156,8 +157,14 @@ def _no_contact_notes(analyses: list[SessionAnalysis]) -> list[str]:
     return notes
 
 
-def write_html(analyses: list[SessionAnalysis], out: Path, figures: dict[str, tuple[Path, str]], csv_name: str) -> Path:
-    """``index.html`` with the figures, provenance, clock fits and the per-step table."""
+def write_html(
+    analyses: list[SessionAnalysis],
+    out: Path,
+    figures: dict[str, tuple[Path, str]],
+    csv_name: str,
+    drift: pd.DataFrame | None = None,
+) -> Path:
+    """``index.html`` with the figures, provenance, clock fits, the reference-step drift and the per-step table."""
     title = "beambench report — " + " vs ".join(html.escape(a.label) for a in analyses)
     parts = [
         "<!doctype html><html><head><meta charset='utf-8'>",
@@ -191,6 +198,7 @@ def write_html(analyses: list[SessionAnalysis], out: Path, figures: dict[str, tu
         parts.append(
             f"<figure><img src='{p.name}' alt='{key}'><figcaption>{html.escape(caption)}</figcaption></figure>"
         )
+    parts += _drift_html(drift if drift is not None else pd.DataFrame())
     parts.append("<h2>Clock fits</h2>")
     for a in analyses:
         cols = [
@@ -238,6 +246,9 @@ def make_report(
         table = table[["session", *[c for c in table.columns if c != "session"]]]
     csv_name = "steps.csv"
     table.to_csv(out / csv_name, index=False)
+    drift = drift_tables(analyses)
+    if len(drift):
+        drift.to_csv(out / DRIFT_CSV, index=False)
     options = ReportOptions(force_at)
     rigs = {a.rig for a in analyses}
     figures: dict[str, tuple[Path, str]] = {}
@@ -247,7 +258,31 @@ def make_report(
         p = spec.draw(analyses, out / f"{spec.key}.png", options)
         if p is not None:
             figures[spec.key] = (p, spec.caption_for(analyses[0].rig))
-    return write_html(analyses, out, figures, csv_name)
+    return write_html(analyses, out, figures, csv_name, drift)
+
+
+DRIFT_CSV = "drift.csv"
+
+
+def drift_tables(analyses: list[SessionAnalysis]) -> pd.DataFrame:
+    """The reference-step drift of every session with reference steps (a ``session`` column when several)."""
+    parts = [drift_table(a.table).assign(session=a.label) for a in analyses]
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        return pd.DataFrame()
+    t = pd.concat(parts, ignore_index=True)
+    return t[["session", *[c for c in t.columns if c != "session"]]] if len(analyses) > 1 else t.drop(columns="session")
+
+
+def _drift_html(drift: pd.DataFrame) -> list[str]:
+    if not len(drift):
+        return []
+    return [
+        "<h2>Drift at the reference steps</h2><p>Linear trend per hour of each reference-step result with its "
+        "standard error; <em>significant</em> where |trend|/SE exceeds the two-sided 5 % t value and the change "
+        f"over the session exceeds the analysis's resolution (<a href='{DRIFT_CSV}'>{DRIFT_CSV}</a>).</p>",
+        _html_table(drift),
+    ]
 
 
 def figures_of(analyses: list[SessionAnalysis]) -> list[str]:

@@ -17,12 +17,15 @@ import pandas as pd
 import yaml
 
 from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
+from beambench.analysis.branches import annotate_branches, step_labels
 from beambench.analysis.contact import (
     ContactParams,
     Contacts,
     force_contacts,
     touchdown_velocity,
 )
+from beambench.analysis.drift import drift_corrected
+from beambench.analysis.path_shape import annotate_inversions, shape_columns
 from beambench.analysis.signals import NAN_SINE, fit_sinusoid, velocity
 from beambench.analysis.sync import (
     NS,
@@ -64,6 +67,7 @@ class AnalysisOptions:
     foot_marker: str = "foot"
     body_marker: str = "body"
     walker_feet: tuple[str, ...] = ("foot_left", "foot_right")
+    drift_correct: bool = False  # add <metric>_drift_corrected columns (beambench.analysis.drift.drift_corrected)
 
 
 @dataclass
@@ -239,13 +243,15 @@ def _sign(x: float) -> int:
 @dataclass(frozen=True)
 class StepArrays:
     """One step's record window of every stream on the host clock: times in s from the window start, marker
-    positions in m (world, NaN where occluded), motor speed in turn/s, plate force (normal, tangential) in N."""
+    positions in m (world, NaN where occluded), motor speed in turn/s, plate force (normal, tangential) in N,
+    motor quadrature current in A (NaN where the motor does not report it)."""
 
     t_mocap: np.ndarray
     markers: dict[str, np.ndarray]
     motor_velocity: np.ndarray
     t_force: np.ndarray
     force: np.ndarray
+    motor_current: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def marker(self, label: str) -> np.ndarray | None:
         return self.markers.get(label)
@@ -263,6 +269,7 @@ class HostStreams:
     motor_velocity: np.ndarray
     force_t: np.ndarray
     force: np.ndarray  # (n, 2) N
+    motor_current: np.ndarray = field(default_factory=lambda: np.zeros(0))  # A, at motor_t
 
     @property
     def last_ns(self) -> int:
@@ -276,6 +283,7 @@ class HostStreams:
             self.motor_velocity[wv],
             (self.force_t[wl] - a) / NS,
             self.force[wl],
+            self.motor_current[wv] if len(self.motor_current) == len(self.motor_t) else np.zeros(0),
         )
 
 
@@ -300,19 +308,20 @@ def host_streams(session: Any, fits: dict[str, ClockFit], cal: LoadCellCalibrati
         mt, pos = _sorted(stream_host_times(mocap, fits.get("mocap")), pos)
         markers = {lbl: pos[:, i] for i, lbl in enumerate(labels)}
     motor = session.streams.get("motor")
-    mot_t, mot_pos, mot_vel = np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    mot_t, mot_pos, mot_vel, mot_iq = np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros(0)
     if motor is not None and len(motor.host_time_ns):
         nan = np.full(len(motor.host_time_ns), np.nan)
-        mot_t, mot_pos, mot_vel = _sorted(
+        mot_t, mot_pos, mot_vel, mot_iq = _sorted(
             stream_host_times(motor, fits.get("motor")),
             np.asarray(motor.columns.get("position", nan), float),
             np.asarray(motor.columns.get("velocity", nan), float),
+            np.asarray(motor.columns.get("iq_measured", nan), float),
         )
     lc = session.streams.get("loadcell")
     lc_t, force = np.zeros(0, np.int64), np.zeros((0, 2))
     if lc is not None and len(lc.host_time_ns):
         lc_t, force = _sorted(stream_host_times(lc, fits.get("loadcell")), cal.force_from_counts(lc.columns["data"]))
-    return HostStreams(mt, markers, mot_t, mot_pos, mot_vel, lc_t, force)
+    return HostStreams(mt, markers, mot_t, mot_pos, mot_vel, lc_t, force, mot_iq)
 
 
 def _session_frame(
@@ -409,7 +418,7 @@ def analyze_session(
         fits,
         delay,
         frame,
-        table,
+        _annotated(table, options),
         results,
         cal.source,
         residuals,
@@ -417,6 +426,12 @@ def analyze_session(
         _edge_check(session, fits),
         track=track,
     )
+
+
+def _annotated(table: pd.DataFrame, options: AnalysisOptions) -> pd.DataFrame:
+    """The per-step table with branches, repeats, path inversions and (on request) drift-corrected columns."""
+    t = annotate_inversions(annotate_branches(table))
+    return drift_corrected(t) if options.drift_correct else t
 
 
 def _guess_up(drive: np.ndarray) -> np.ndarray:
@@ -434,6 +449,7 @@ def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepCo
         "step": int(srow.index),
         "frequency_hz": f_cmd,
         "status": str(srow.status),
+        **step_labels(srow),
         "t_settled_s": a / NS if a >= 0 else np.nan,
         "record_s": (b - a) / NS if a >= 0 else np.nan,
     }
@@ -448,6 +464,7 @@ def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepCo
         _contacts(res, arr, ctx, f_use)
     else:
         row["regime"] = ""
+    row.update(shape_columns(res.paths, arr.t_mocap, f_use, str(row["regime"])))
     body = arr.marker(ctx.options.body_marker)
     if body is not None:  # walker: body speed
         sp = body_speed(arr.t_mocap, body, ctx.forward)
@@ -464,6 +481,8 @@ def _drive(row: dict[str, Any], arr: StepArrays, ctx: StepContext, f_cmd: float)
     rest of the step is analysed at (measured, else the motor's, else the commanded)."""
     v = arr.motor_velocity
     row["motor_frequency_hz"] = float(np.nanmean(np.abs(v))) if np.isfinite(v).any() else np.nan
+    iq = arr.motor_current
+    row["motor_current_rms_a"] = float(np.sqrt(np.nanmean(iq**2))) if np.isfinite(iq).any() else np.nan
     stage = arr.marker(ctx.options.stage_marker)
     sine = NAN_SINE
     if stage is not None and ctx.frame is not None:

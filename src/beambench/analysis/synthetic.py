@@ -40,6 +40,9 @@ class SynthStep:
     touchdown_velocity_sign: int = 1
     tangential_n: float = 0.2
     body_speed_mm_s: float = 0.0
+    direction: str = "up"  # as recorded in /steps
+    kind: str = "sweep"
+    repeat: int = 0
 
 
 @dataclass(frozen=True)
@@ -104,6 +107,12 @@ def _crank_turns(cfg: SynthSession, sched: list[tuple[float, float, float]], t: 
     return out
 
 
+def _step_turns(cfg: SynthSession, sched, turns: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Crank turns since the start of the active step (``turns`` before the first step)."""
+    starts = _crank_turns(cfg, sched, np.array([s[0] for s in sched]))
+    return turns - np.where(idx >= 0, starts[np.clip(idx, 0, None)], 0.0)
+
+
 def _contact_state(cfg: SynthSession, sched, t: np.ndarray, turns: np.ndarray):
     """Normal force, tangential force, foot lift (m) and foot tangential velocity sign at each true time."""
     idx = _truth_at(cfg, sched, t)
@@ -123,7 +132,7 @@ def _contact_state(cfg: SynthSession, sched, t: np.ndarray, turns: np.ndarray):
             ft[sel] = st.tangential_n
             continue
         # contact during phase [0, 0.3) of every k-th cycle, counted from the step start
-        local = turns[sel] - _crank_turns(cfg, sched, np.array([sched[i][0]]))[0]
+        local = _step_turns(cfg, sched, turns, idx)[sel]
         cyc = np.floor(local)
         ph = local - cyc
         on = (cyc % k == 0) & (ph < 0.3)
@@ -174,7 +183,9 @@ def markers(cfg: SynthSession, t: np.ndarray, rng: np.random.Generator) -> np.nd
         _, _, lift, _ = _contact_state(cfg, sched, t, turns)
         # foot: below the tip; touchdowns happen at cycle phase 0, where its x velocity (relative to the
         # plate) has the step's sign; its height is the lift above the plate
-        foot_x = 0.05 + 0.5e-3 * vx_sign * np.sin(2 * np.pi * turns)
+        # the phase counts from the step start, as the touchdowns do: a step starting at a non-integer turn
+        # (12.5 turns into a 5 Hz first step) must not flip the velocity sign
+        foot_x = 0.05 + 0.5e-3 * vx_sign * np.sin(2 * np.pi * _step_turns(cfg, sched, turns, idx))
         foot = np.stack([foot_x, np.full(n, 0.05), lift], 1)
         pos = np.stack([stage, tip, foot], 1)
     return pos + rng.normal(0, cfg.mocap_noise_m, pos.shape)
@@ -301,9 +312,9 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
                     )
             for i, (s0, s1, s2) in enumerate(sched):
                 if lo <= s2 * NS < hi:
-                    writer.step(
-                        StepRecord(i, cfg.steps[i].frequency_hz, int(s0 * NS), int(s1 * NS), int(s2 * NS), "done")
-                    )
+                    st = cfg.steps[i]
+                    times = (int(s0 * NS), int(s1 * NS), int(s2 * NS))
+                    writer.step(StepRecord(i, st.frequency_hz, *times, "done", st.direction, st.kind, st.repeat))
         writer.event(int(t_end * NS), "stop", "synthetic session complete")
     finally:
         writer.close()

@@ -77,7 +77,9 @@ def _check_scene_options(info: SceneInfo, sim: SimOptions) -> None:
     foreign = foreign_option(info.name, given, "rig")
     if foreign is not None:
         option, reason = foreign
-        raise ConfigError("<protocol>", f"sim.{option}", getattr(sim, option), reason)
+        value = getattr(sim, option)
+        shown = value.model_dump(exclude_unset=True) if hasattr(value, "model_dump") else value  # a block as written
+        raise ConfigError("<protocol>", f"sim.{option}", shown, reason)
 
 
 AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
@@ -218,10 +220,15 @@ class SimRig:
             self._look_info = lookahead.info(look)
 
     def after_run(self) -> dict[str, Any]:
-        """``sim_segments`` in ``/general`` when the sweep was cut into segments (``ReportsAfterRun``)."""
+        """``sim_segments`` in ``/general`` when the sweep was cut into segments, the beam's final thermal state
+        with ``sim.thermal_drift`` (``ReportsAfterRun``)."""
         if self._look is not None and len(self._look.segments) > 1:
             self._look_info = lookahead.info(self._look)
-        return {"sim_segments": self._look_info} if self._look_info else {}
+        out: dict[str, Any] = {"sim_segments": self._look_info} if self._look_info else {}
+        thermal = getattr(self.scene, "thermal", None)
+        if thermal is not None:
+            out["sim_thermal_drift"] = thermal.now()
+        return out
 
     # --- stepping -------------------------------------------------------------------------------------
     def _command(self, hz: float) -> None:

@@ -25,7 +25,7 @@ def _frequencies(text: str | None) -> list[float] | None:
     return vals
 
 
-def _options(up: str | None, forward: str | None) -> AnalysisOptions:
+def _options(up: str | None, forward: str | None, drift_correct: bool = False) -> AnalysisOptions:
     from beambench.analysis.session import AnalysisOptions
     from beambench.analysis.trajectory import axis_vector
 
@@ -35,7 +35,7 @@ def _options(up: str | None, forward: str | None) -> AnalysisOptions:
                 axis_vector(value)
             except ValueError:
                 fail(f"{name} {value!r}: expected x, y or z with an optional sign, e.g. z or -y")
-    return AnalysisOptions(up=up, forward=forward)
+    return AnalysisOptions(up=up, forward=forward, drift_correct=drift_correct)
 
 
 def _load(path: Path, options: AnalysisOptions, progress, write: bool) -> SessionAnalysis:
@@ -133,6 +133,12 @@ def register(app: typer.Typer) -> None:
         no_write: bool = typer.Option(
             False, "--no-write", help="Do not store the results in the session's /processing group."
         ),
+        drift_correct: bool = typer.Option(
+            False,
+            "--drift-correct",
+            help="Add <metric>_drift_corrected columns: each step less the reference steps' drift, linearly "
+            "interpolated between the references that bracket it (needs a protocol with reference:).",
+        ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:
         """Analyse every step of a session and write a report folder.
@@ -146,7 +152,7 @@ def register(app: typer.Typer) -> None:
         session's /processing group and prints the path of index.html.
         """
         freqs = _frequencies(force_at)
-        opts = _options(up, forward)
+        opts = _options(up, forward, drift_correct)
         folder = out or session.with_name(f"{session.stem}_report")
         _check_outputs(folder, [] if no_write else [session])
         with _progress(quiet) as progress:

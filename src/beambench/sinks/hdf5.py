@@ -64,6 +64,9 @@ STEP_DTYPE = np.dtype(
         ("t_settled_ns", "<i8"),
         ("t_end_ns", "<i8"),
         ("status", "S16"),
+        ("direction", "S8"),  # up/down; sessions written before these three columns read as up, sweep, 0
+        ("kind", "S12"),
+        ("repeat", "<i4"),
     ]
 )
 EVENT_DTYPE = np.dtype([("host_time_ns", "<i8"), ("kind", "S32"), ("message", f"S{EVENT_TEXT}")])
@@ -73,7 +76,20 @@ def _step_row(record: StepRecord) -> np.ndarray:
     """``record`` as one row of the ``/steps`` table."""
     r = record
     return np.array(
-        [(r.index, r.frequency_hz, r.t_start_ns, r.t_settled_ns, r.t_end_ns, r.status.encode())], dtype=STEP_DTYPE
+        [
+            (
+                r.index,
+                r.frequency_hz,
+                r.t_start_ns,
+                r.t_settled_ns,
+                r.t_end_ns,
+                r.status.encode(),
+                r.direction.encode(),
+                r.kind.encode(),
+                r.repeat,
+            )
+        ],
+        dtype=STEP_DTYPE,
     )
 
 
@@ -654,8 +670,9 @@ def read_session(path: str | Path) -> Session:
             step_rows, event_rows = f["steps"][()], f["events"][()]
             # rows the file extended but never received (see real_rows): a step always has a status, an event a kind
             steps = pd.DataFrame(step_rows[step_rows["status"] != b""])
-            if len(steps):
-                steps["status"] = steps["status"].str.decode("utf-8")
+            for c in ("status", "direction", "kind"):
+                if len(steps) and c in steps:
+                    steps[c] = steps[c].str.decode("utf-8")
             events = pd.DataFrame(event_rows[event_rows["kind"] != b""])
             for c in ("kind", "message"):
                 if len(events):

@@ -7,6 +7,7 @@ from beambench.analysis.figures import (  # noqa: F401  (each module registers i
     body_trajectory,
     contact_direction,
     contact_frequency,
+    drift,
     ellipse,
     forces,
     frequency,

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import pandas as pd
 
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import (
@@ -47,11 +48,14 @@ BOX = 0.8  # panel height / width
         "thin, the last cycles of the record window; bold, the mean path over the contact period with an arrow for "
         "its sense of travel (grey with '?' where the first-harmonic ellipse explains less than half of the path, "
         "R² < 0.5, so the sense is uncertain); brown, the plate (the foot's height at touchdown); orange, the foot's "
-        "direction of motion along the plate at touchdown, drawn on the plate line.",
+        "direction of motion along the plate at touchdown, drawn on the plate line. Each title: the mean path's loop "
+        "sense (cw/ccw), or 'figure-8' / 'n crossings' where it crosses itself, and 'inverts' where its sense "
+        "flipped from the previous frequency (steps.csv: foot_crossings, foot_loop_sense, foot_path_inverts).",
         "walker": "Both feet relative to the body in the (forward, up) plane, each step drawn about its own mean "
         "position: thin, the last cycles of the record window; bold, the mean path over one drive cycle with an "
         "arrow for its sense of travel (grey with '?' where the first-harmonic ellipse explains less than half of "
-        "the path). The title says which steps are shown when there are more than fit.",
+        "the path). The title says which steps are shown when there are more than fit; each panel's title the left "
+        "foot's loop sense, 'figure-8' / 'n crossings' and 'inverts' as in steps.csv.",
     },
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
@@ -70,6 +74,26 @@ class _Marks:
 
     def extend(self, x: float, y: float) -> None:
         self.xh, self.yh = max(self.xh, x), max(self.yh, y)
+
+
+def shape_note(a: SessionAnalysis, r: StepResult, marker: str) -> str:
+    """The panel title's path metrics (beambench.analysis.path_shape) of ``marker`` in step ``r``: its loop sense
+    or "figure-8" (one self-crossing) / "n crossings", and "inverts" where the sense flipped from the previous
+    frequency of the same branch."""
+    t = a.table
+    rows = t[t["step"] == r.index] if "step" in t else t.iloc[0:0]
+    if rows.empty or f"{marker}_crossings" not in rows:
+        return ""
+    row = rows.iloc[0]
+    n, sense = row.get(f"{marker}_crossings"), str(row.get(f"{marker}_loop_sense", "") or "")
+    parts = []
+    if pd.notna(n) and int(n) > 0:
+        parts.append("figure-8" if int(n) == 1 else f"{int(n)} crossings")
+    elif sense in ("cw", "ccw"):
+        parts.append(sense)
+    if bool(row.get(f"{marker}_path_inverts", False)):
+        parts.append("inverts")
+    return "".join(f" · {p}" for p in parts)
 
 
 def _markers(a: SessionAnalysis, single: bool) -> list[str]:
@@ -112,11 +136,13 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
     marks = _Marks()
     for k, f in enumerate(freqs):
         ax = axes[k // ncol][k % ncol]
+        note = ""
         for si, a in enumerate(analyses):
             r = next((r for r in a.steps if r.frequency_hz == f and set(markers[id(a)]) & set(r.paths)), None)
             if r is not None:
                 _draw_step(ax, r, markers[id(a)], None if single else si, plate_up.get(id(a)), marks, walker)
-        ax.set_title(f"{f:g} Hz", pad=2, y=1.0)  # a fixed y skips measuring tick labels (slow)
+                note = shape_note(a, r, markers[id(a)][0]) if single else ""
+        ax.set_title(f"{f:g} Hz{note}", pad=2, y=1.0)  # a fixed y skips measuring tick labels (slow)
     exaggeration = _limits(marks)
     _draw_marks(marks)
     for k in range(len(freqs), len(axes) * ncol):

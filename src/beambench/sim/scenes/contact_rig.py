@@ -24,8 +24,9 @@ import numpy as np
 
 from beambench.acquisition.scenes import CONTACT
 from beambench.acquisition.streams import CONTACT_MARKERS
-from beambench.sim.engine.stepping import INTEGRATORS, Physics
+from beambench.sim.engine.stepping import INTEGRATORS, Physics, Trajectory
 from beambench.sim.models.beam import BeamModel, add_beam
+from beambench.sim.models.thermal import CP_TPU, ThermalParams, ThermalState, stage_power, thermal_state
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
 
@@ -252,6 +253,7 @@ class ContactRigSim(DrivenScene):
     [n, 2] (plate normal, tangential-x, N), and the motor's ``theta``/``omega``/``setpoint``/``torque``."""
 
     rig: RigParams
+    thermal: ThermalState | None = None  # sim.thermal_drift: the beam softens as it warms (sim.models.thermal)
 
     markers = CONTACT_MARKERS
 
@@ -293,7 +295,25 @@ class ContactRigSim(DrivenScene):
         if self.fixed_timestep is None:
             self.physics.set_timestep(self.timestep_for(max(abs(hz), abs(self.ramp.omega))))
 
+    def enable_thermal(self, params: ThermalParams) -> None:
+        """Thermal drift from now on, starting cold (ΔT = 0)."""
+        self.thermal = thermal_state(self.physics.model, params)
+
     # --- stepping -------------------------------------------------------------------------------------
+    def advance_to(self, t_target: float) -> Trajectory:
+        """The rows up to ``t_target``; with thermal drift, at the stiffness of the beam's temperature before the
+        chunk, which then warms by the chunk's drive power."""
+        th = self.thermal
+        if th is None:
+            return super().advance_to(t_target)
+        th.apply(self.physics.model)
+        traj = super().advance_to(t_target)
+        if len(traj):
+            ch = traj.channels
+            power = stage_power(traj.t, ch["markers"][:, 0, 0], ch["pull_x"])
+            th.heat(power, len(traj) * self.physics.timestep)
+        return traj
+
     def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         omega, theta = self.ramp.plan(n, h)
         ref = self.amplitude * np.sin(theta)  # rows 0..n
@@ -334,6 +354,7 @@ class ContactRigSim(DrivenScene):
             "nv": int(m.nv),
             "mujoco_version": mujoco.__version__,
             **({"selection": self.selection} if self.selection else {}),
+            **({"thermal_drift": self.thermal.describe()} if self.thermal is not None else {}),
         }
 
 
@@ -342,7 +363,7 @@ class ContactRigSim(DrivenScene):
 def build(cfg: SceneConfig) -> ContactRigSim:
     """The contact rig of a protocol: its plate gap (None: the parameter set's), stage amplitude and measured plan."""
     sim, plan = cfg.sim, cfg.plan
-    return ContactRigSim(
+    scene = ContactRigSim(
         cfg.beam,
         twist_deg=sim.twist_deg,
         gap_m=None if sim.plate_gap_mm is None else sim.plate_gap_mm * 1e-3,
@@ -352,3 +373,8 @@ def build(cfg: SceneConfig) -> ContactRigSim:
         timestep_for=plan.timestep if plan else None,
         selection=plan.describe() if plan else None,
     )
+    td = sim.thermal_drift
+    if td is not None:
+        c = td.heat_capacity_j_per_k or cfg.beam.params.mass * CP_TPU
+        scene.enable_thermal(ThermalParams(td.alpha_per_k, td.tau_s, c, td.heated_fraction))
+    return scene

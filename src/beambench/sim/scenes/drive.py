@@ -113,7 +113,11 @@ class DrivenScene:
 
     def snapshot(self) -> tuple:
         """State to undo a chunk computed ahead of time (physics, motor ramp, servo)."""
-        extra = {name: dict(vars(getattr(self, name))) for name in ("ramp", "servo") if hasattr(self, name)}
+        extra = {
+            name: dict(vars(getattr(self, name)))
+            for name in ("ramp", "servo", "thermal")
+            if getattr(self, name, None) is not None
+        }
         return self.physics.snapshot(), extra
 
     def restore(self, snap: tuple) -> None:
