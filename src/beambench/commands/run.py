@@ -103,21 +103,12 @@ def run(
         path = session_path(protocol, chosen, out, name)
     except ConfigError as exc:
         fail(str(exc))
-    from beambench.session.run import RigStartError, run_session
+    from beambench.session.run import RigStartError, RunRequest, run_request
 
+    request = RunRequest(protocol, text, chosen, path, mode, realtime, rig_file, can_log)
     try:
-        result = run_session(
-            protocol,
-            text,
-            chosen,
-            path,
-            rerun_mode=mode,
-            realtime=realtime,
-            rig_file=rig_file,
-            can_log=can_log,
-            # the run is over: a late signal must not kill the process before its result (the real command only)
-            then_ignore_signals=STANDALONE["process"],
-        )
+        # the run is over: a late signal must not kill the process before its result (the real command only)
+        result = run_request(request, then_ignore_signals=STANDALONE["process"])
     except ConfigError as exc:
         fail(str(exc))
     except RigStartError as exc:

@@ -62,9 +62,16 @@ def run_session(
     rig_file: Path | None = None,
     can_log: Path | None = None,
     show_progress: bool = True,
-    then_ignore_signals: bool = False,
 ) -> RunResult:
-    """Run ``protocol`` on ``backend`` and save the session at ``path`` (and ``.rrd`` beside it with save).
+    """Run ``protocol`` on ``backend`` and save the session at ``path`` (and ``.rrd`` beside it with save): the
+    :class:`RunRequest` of these arguments, through :func:`run_request`."""
+    return run_request(
+        RunRequest(protocol, protocol_text, backend, path, rerun_mode, realtime, rig_file, can_log, show_progress)
+    )
+
+
+def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunResult:
+    """Run one :class:`RunRequest`.
 
     From the first line on, every stop signal (:data:`beambench.acquisition.runner.STOP_SIGNALS`: SIGINT, SIGTERM,
     SIGHUP, SIGQUIT, …) only requests a stop: a signal while the rig opens still yields a session that ends
@@ -72,7 +79,6 @@ def run_session(
     that cannot be created or written at the start, :class:`~beambench.acquisition.hub.SinkFailure`.
     ``then_ignore_signals``: the stop signals stay ignored after the run (for a command about to exit).
     """
-    request = RunRequest(protocol, protocol_text, backend, path, rerun_mode, realtime, rig_file, can_log, show_progress)
     with stop_on_signals(then_ignore=then_ignore_signals) as stop:
         return _run_session(request, stop)
 
