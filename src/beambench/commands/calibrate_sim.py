@@ -1,12 +1,23 @@
 """``beambench calibrate sim [SESSION.h5] [--targets TARGETS.yaml]``: fit the twin to a measured sweep or to
-published numbers (:mod:`beambench.studies.calibration`). The last stdout line is the calibrated protocol's path."""
+published numbers (:mod:`beambench.studies.calibration`). The last stdout line is the calibrated protocol's path;
+the last stderr line the verdict (every target met, or the misses with what limits them): :data:`EPILOG`."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
+
+EXIT_MISSED = 3
+EPILOG = (
+    "Exit status: 0 written, every target met within its tolerance; 2 bad input (one line, nothing written); "
+    "3 written, but not within tolerance (the last line names each missed target, the twin's value and the "
+    "unknown that limits it: one at its bound, or no unknown moves it far enough); 130 interrupted (Ctrl-C: "
+    "the evaluation log is kept, the same command with the same --out resumes). Tolerances: the targets file's "
+    "tolerance_hz (transitions, default ± 2 Hz) or tolerance_fraction (walker speeds, default ± 30 %); a "
+    "tangential sign must match."
+)
 
 
 def _fail(message: str) -> NoReturn:
@@ -69,7 +80,8 @@ def sim(
     ] = None,
 ) -> None:
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
-    runnable protocol carrying the calibrated parameters and a report beside it."""
+    runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
+    whether the twin reached it."""
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from beambench.common.console import stderr_console
@@ -103,6 +115,9 @@ def sim(
         bad = [n for n in chosen if n not in known]
         if not chosen or bad:
             _fail(f"--free {free}: {tg.rig} rig unknowns are {', '.join(sorted(known))}")
+        twice = sorted({n for n in chosen if chosen.count(n) > 1})
+        if twice:
+            _fail(f"--free {free}: {twice[0]} is named twice")
     settings = (
         SearchSettings.quick(budget_s=min(budget_s, 150.0), free=chosen)
         if quick
@@ -124,18 +139,35 @@ def sim(
         report = write_report(result, tg, out_dir, name)
     except (BeambenchError, ExecutorError) as exc:
         _fail(str(exc))
+    except KeyboardInterrupt:
+        log = out_dir / f"{name}.evals.jsonl"
+        typer.echo(f"beambench: interrupted; {log} keeps every finished evaluation: the same command resumes", err=True)
+        raise typer.Exit(130) from None
+    _finish(result, report)
+
+
+def _finish(result: Any, report: Path) -> None:
+    """The summary and one line per target (stderr), the protocol's path (stdout), then the verdict as the last
+    line (stderr); exit 3 when a target is missed."""
+    from beambench.studies.calibration.verdict import all_met, closing_line
+
     s = result.summary
-    console.print(
-        f"objective {result.j:.4f}; "
+    typer.echo(
+        f"objective J {result.j:.4f} ({result.j_stage}); "
         + ", ".join(f"{k} {v:.4g}" for k, v in result.values.items())
         + "; twin "
         + ", ".join(f"{k} {v}" for k, v in s.items() if k != "map" and not isinstance(v, dict))
         + f"; {result.evaluations} runs ({result.reused} re-used), {result.wall_s:.0f} s; report {report}",
-        soft_wrap=True,
+        err=True,
     )
+    for v in result.verdicts:
+        typer.echo(f"  {v.line()}", err=True)
     typer.echo(str(result.protocol))
+    typer.echo(f"beambench: {closing_line(result.verdicts)}", err=True)
+    if not all_met(result.verdicts):
+        raise typer.Exit(EXIT_MISSED)
 
 
 def register_sim(sub: typer.Typer) -> None:
     """Add ``beambench calibrate sim`` to the ``calibrate`` sub-app."""
-    sub.command("sim")(sim)
+    sub.command("sim", epilog=EPILOG)(sim)
