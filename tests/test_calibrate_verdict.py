@@ -140,7 +140,9 @@ def test_an_unreachable_target_is_named_with_its_limiting_unknown_and_exits_3(to
     assert by["tangential_sign at 65 Hz"]["twin"] == 1.0 and by["tangential_sign at 65 Hz"]["met"]
     assert rep["parameters"]["w"] >= 2.0 * 10 ** (-AT_BOUND_FRACTION * math.log10(4.0))
     md = (out / "t_calibrated_report.md").read_text()
-    assert re.search(r"\| third_at_hz \| 66 Hz \| 61 Hz \| ± 2 Hz \| \*\*missed\*\* \| w at its upper bound", md)
+    assert re.search(
+        r"\| third_at_hz \| 66 Hz \| 61 Hz \| [^|]* \| ± 2 Hz \| \*\*missed\*\* \| w at its upper bound", md
+    )
     assert "| tangential_sign at 35 Hz | -1 | -1 |" in md and "| tangential_sign at 65 Hz | 1 | 1 |" in md
     # the search pushed against w's bound and never left the box
     _assert_inside_bounds(out / "t_calibrated.evals.jsonl")
@@ -161,6 +163,11 @@ def test_reachable_targets_are_each_met_and_exit_0(toy, tmp_path):
     rep = json.loads((out / "t_calibrated_report.json").read_text())
     assert rep["objective"] == pytest.approx(j, abs=5e-5) and rep["objective_stage"].startswith("fine")
     assert all(v["tolerance"] == 1.5 and v["met"] for v in rep["verdict"]["targets"])
+    # intervals from the landmarks' Jacobian, tolerance = 2σ: u moves the edge 30 Hz and ½ 5 Hz per unit, so
+    # σ_u = 0.75 / √(30² + 5²) and the ± 2σ interval is 4σ_u wide (the map's 1 Hz steps blur the fitted slope)
+    iv = rep["identifiability"]["intervals"]["unknowns"]
+    assert iv["u"]["pinned"] and iv["u"]["lo"] < rep["parameters"]["u"] < iv["u"]["hi"]
+    assert iv["u"]["hi"] - iv["u"]["lo"] == pytest.approx(4 * 0.75 / math.sqrt(925.0), rel=0.25)
     _assert_inside_bounds(out / "t_calibrated.evals.jsonl")
 
 
@@ -224,3 +231,21 @@ def test_walker_speeds_within_30_percent_with_the_floor():
     # one point does not pin a slope: the unknown at its bound is named as such
     assert verdicts[0].limited_by == "foot_mass at its upper bound 0.008 kg"
     assert closing_line(verdicts).startswith("not within tolerance: 1 of 3 targets missed: speed at 23 Hz twin -20")
+
+
+def test_a_sessions_signed_steps_are_one_agreement_row():
+    from beambench.studies.calibration.targets import Targets
+
+    table = pd.DataFrame(
+        {
+            "frequency_hz": [20.0, 21.0, 22.0, 23.0],
+            "regime": ["continuous", "1", "1", "1/2"],
+            "tangential_sign": [float("nan"), -1.0, -1.0, 1.0],
+        }
+    )
+    t = Targets("contact", "s.h5", table, {"continuous_below_hz": 21.0, "half_at_hz": 23.0, "third_at_hz": None})
+    checks = contact_checks(t)
+    assert [c.name for c in checks] == ["continuous_below_hz", "half_at_hz", "tangential_sign of 3 steps"]
+    twin = table.assign(tangential_sign=[1.0, -1.0, 1.0, 1.0])
+    assert checks[2].measure(twin) == pytest.approx(2 / 3) and not checks[2].met(2 / 3)
+    assert checks[2].met(checks[2].measure(table))

@@ -53,15 +53,21 @@ def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> 
         "",
         "## Parameters",
         "",
-        "| unknown | value | near-best range | unit |",
-        "|---|---|---|---|",
+        "| unknown | value | near-best range | interval (± 2σ, landmarks) | unit |",
+        "|---|---|---|---|---|",
     ]
     spread = result.identifiability.get("fine_spread") or result.identifiability.get("spread", {})
+    ivals = (result.identifiability.get("intervals") or {}).get("unknowns", {})
     for k, v in result.values.items():
         s = spread.get(k)
         rng = f"{s['min']:.4g} … {s['max']:.4g}" if s else "fixed"
         unit = s["unit"] if s else ""
-        lines.append(f"| {k} | {v:.5g} | {rng} | {unit} |")
+        iv = ivals.get(k)
+        ci = "" if iv is None else f"{iv['lo']:.4g} … {iv['hi']:.4g}" + ("" if iv["pinned"] else " (not pinned)")
+        lines.append(f"| {k} | {v:.5g} | {rng} | {ci} | {unit} |")
+    method = (result.identifiability.get("intervals") or {}).get("method")
+    if method:
+        lines += ["", f"Intervals: {method}."]
     for k, v in result.extras.items():
         lines.append(f"| {k} (derived) | {v:.5g} | | |" if isinstance(v, float) else f"| {k} | {v} | | |")
     lines += ["", "## Targets vs twin", "", *_targets_table(result, targets)]
@@ -97,10 +103,16 @@ def _targets_table(result: Result, targets: Targets) -> list[str]:
             if not (isinstance(v, dict) or isinstance(tv, dict)):
                 rows.append(f"| {k} | {tv} | {v} |")
         return rows
-    rows = ["| target | wanted | twin | tolerance | verdict | limited by |", "|---|---|---|---|---|---|"]
+    rows = [
+        "| target | wanted | twin | near-best twins | tolerance | verdict | limited by |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    spread = result.identifiability.get("landmark_spread", {})
     for v in result.verdicts:
+        sp = spread.get(v.target)
+        near = f"{sp['min']:.4g} … {sp['max']:.4g} ({sp['n']})" if sp else ""
         rows.append(
-            f"| {v.target} | {v.wanted_text()} | {v.twin_text()} | {v.tolerance_text} | "
+            f"| {v.target} | {v.wanted_text()} | {v.twin_text()} | {near} | {v.tolerance_text} | "
             f"{'met' if v.met else '**missed**'} | {v.limited_by or ''} |"
         )
     return rows

@@ -47,6 +47,7 @@ from beambench.studies.calibration.evaluate import (
     identifiability,
     key,
 )
+from beambench.studies.calibration.intervals import intervals, landmark_spread
 from beambench.studies.calibration.landmark_steps import LandmarkPlan, landmark_steps, within
 from beambench.studies.calibration.rig import CalibratableRig, get_rig
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
@@ -212,7 +213,7 @@ def calibrate(
             ident["fine_spread"] = identifiability(fine_pts, s.free).get("spread", {})
         s.finish(winner, label)
     summary = rig.summary(winner.steps)
-    verdicts = judge(rig.checks(targets), winner, s.ev.points, s.free) if rig.checks is not None else []
+    verdicts = _judge(s, winner, ident)
     wall = s.elapsed()
     protocol = rig.write(s.base, winner.values, winner.extras, targets, out_dir, name)
     for path in (protocol, out_dir / f"{name}_params.yaml"):
@@ -235,6 +236,21 @@ def calibrate(
         verdicts,
         label,
     )
+
+
+def _judge(s: Search, winner: Point, ident: dict[str, Any]) -> list[Verdict]:
+    """The verdict per target (:mod:`.verdict`); into ``ident`` the unknowns' intervals and the landmarks' spread
+    over the near-best refined points (:mod:`.intervals`)."""
+    if s.rig.checks is None:
+        return []
+    checks = s.rig.checks(s.targets)
+    pts = s.ev.points
+    ident["intervals"] = intervals(checks, winner, pts, s.free)
+    fine = [p for p in pts if p.stage == "fine"] or [p for p in pts if p.stage == "coarse"]
+    if fine:
+        jb = min(p.j for p in fine)
+        ident["landmark_spread"] = landmark_spread(checks, [p for p in fine if p.j <= jb + max(0.05, 0.25 * jb)])
+    return judge(checks, winner, pts, s.free)
 
 
 def free_unknowns(rig: CalibratableRig, settings: SearchSettings) -> tuple[list[Unknown], dict[str, float]]:
