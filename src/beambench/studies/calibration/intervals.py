@@ -6,8 +6,9 @@ speeds; not the signs). A weighted linear fit of each over the evaluated points 
 (:func:`~.landmark_steps.fit_local_linear`, unit coordinates of the free unknowns) gives the Jacobian ``J``;
 reading each target's tolerance as 2σ, ``C = (Jᵀ W J)⁻¹`` (``W = diag(1/σ²)``) is the linearised covariance of
 the unknowns that keep the landmarks where the winner has them, and ± 2√C_ii (clipped to the bounds) each
-unknown's interval. A direction no landmark sees leaves the unknowns along it *not pinned* (the whole box).
-No extra simulation: only the points the search evaluated.
+unknown's interval. A direction no landmark sees, or an interval that spans the bounds on both sides (a valley
+the landmarks leave open: two unknowns that move them alike), leaves the unknown *not pinned*. No extra
+simulation: only the maps the search evaluated (not the verify stage's, which run other windows and noise).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ def intervals(
     def unit(values: dict[str, float]) -> np.ndarray:
         return (np.array([u.coord(values[u.name]) for u in free]) - lo) / span
 
+    points = [p for p in points if p.stage != "verify"] or list(points)  # one kind of map: the search's own
     x = np.array([unit(p.values) for p in points])
     y = np.array([[_nan(c.measure(p.steps)) for c in marks] for p in points])
     x0 = unit(winner.values)
@@ -61,7 +63,8 @@ def intervals(
             continue
         half = 2.0 * float(np.sqrt(max(cov[i, i], 0.0)))
         a, b = (max(0.0, x0[i] - half), min(1.0, x0[i] + half))
-        out[u.name] = {"lo": u.value(lo[i] + a * span[i]), "hi": u.value(lo[i] + b * span[i]), "pinned": True}
+        pinned = not (a == 0.0 and b == 1.0)  # an interval that spans the box: a valley the landmarks leave open
+        out[u.name] = {"lo": u.value(lo[i] + a * span[i]), "hi": u.value(lo[i] + b * span[i]), "pinned": pinned}
     return {
         "method": "local Jacobian of the landmarks ("
         + ", ".join(c.name for c, ok in zip(marks, model.fitted) if ok)

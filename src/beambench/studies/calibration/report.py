@@ -65,11 +65,11 @@ def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> 
         iv = ivals.get(k)
         ci = "" if iv is None else f"{iv['lo']:.4g} … {iv['hi']:.4g}" + ("" if iv["pinned"] else " (not pinned)")
         lines.append(f"| {k} | {v:.5g} | {rng} | {ci} | {unit} |")
+    for k, v in result.extras.items():
+        lines.append(f"| {k} (derived) | {v:.5g} | | | |" if isinstance(v, float) else f"| {k} | {v} | | | |")
     method = (result.identifiability.get("intervals") or {}).get("method")
     if method:
-        lines += ["", f"Intervals: {method}."]
-    for k, v in result.extras.items():
-        lines.append(f"| {k} (derived) | {v:.5g} | | |" if isinstance(v, float) else f"| {k} | {v} | | |")
+        lines += ["", f"Intervals: {method}; not pinned: the landmarks leave the unknown anywhere in its bounds."]
     lines += ["", "## Targets vs twin", "", *_targets_table(result, targets)]
     dirs = result.identifiability.get("directions")
     if dirs:
