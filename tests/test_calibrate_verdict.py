@@ -249,3 +249,14 @@ def test_a_sessions_signed_steps_are_one_agreement_row():
     twin = table.assign(tangential_sign=[1.0, -1.0, 1.0, 1.0])
     assert checks[2].measure(twin) == pytest.approx(2 / 3) and not checks[2].met(2 / 3)
     assert checks[2].met(checks[2].measure(table))
+
+
+def test_the_maps_figure_places_each_step_at_its_label_as_the_table_reads_it():
+    """Issue 23: the figure disagreed with the table at 17 Hz (a '1' step drawn near continuous by its in-contact
+    fraction, a '1/2' step off its tick by its measured ratio)."""
+    from beambench.studies.calibration.contact_objective import regime_level
+    from beambench.studies.calibration.report import _label_level
+
+    assert _label_level({"regime": "1", "contacts_per_cycle": 1.0, "in_contact_fraction": 0.9}) == regime_level("1")
+    assert _label_level({"regime": "1/2", "contacts_per_cycle": 0.55}) == regime_level("1/2") == 1.0
+    assert _label_level({"regime": "irregular", "contacts_per_cycle": 0.6}) == regime_level("irregular", 0.6)

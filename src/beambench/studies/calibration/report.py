@@ -15,7 +15,7 @@ import pandas as pd
 from beambench.studies.calibration.contact_objective import CONTINUOUS_LEVEL, regime_level
 from beambench.studies.calibration.evaluate import json_default
 from beambench.studies.calibration.search import Result
-from beambench.studies.calibration.targets import Targets
+from beambench.studies.calibration.targets import IRREGULAR, Targets
 from beambench.studies.calibration.verdict import all_met, closing_line
 
 
@@ -119,10 +119,12 @@ def _targets_table(result: Result, targets: Targets) -> list[str]:
 
 
 def _label_level(row: dict) -> float:
-    """A step's level from its label (and contacts per cycle), as the table's transitions read it: not pulled
-    toward continuous by the in-contact fraction as the objective's level is (the figure must agree with the
-    table)."""
-    return regime_level(str(row.get("regime", "")), float(row.get("contacts_per_cycle", math.nan)))
+    """A step's level from its label as the table's transitions read it (an irregular step's from its contacts
+    per cycle): not moved by the measured ratio or pulled toward continuous by the in-contact fraction as the
+    objective's level is (the figure must agree with the table)."""
+    label = str(row.get("regime", ""))
+    ratio = float(row.get("contacts_per_cycle", math.nan)) if label == IRREGULAR else math.nan
+    return regime_level(label, ratio)
 
 
 def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Path, name: str) -> None:
