@@ -151,12 +151,11 @@ def _finish(result: Any, report: Path) -> None:
     line (stderr); exit 3 when a target is missed."""
     from beambench.studies.calibration.verdict import all_met, closing_line
 
-    s = result.summary
+    twin = ", ".join(f"{k} {v}" for k, v in result.summary.items() if k != "map" and not isinstance(v, dict))
     typer.echo(
         f"objective J {result.j:.4f} ({result.j_stage}); "
         + ", ".join(f"{k} {v:.4g}" for k, v in result.values.items())
-        + "; twin "
-        + ", ".join(f"{k} {v}" for k, v in s.items() if k != "map" and not isinstance(v, dict))
+        + (f"; twin {twin}" if twin else "")
         + f"; {result.evaluations} runs ({result.reused} re-used), {result.wall_s:.0f} s; report {report}",
         err=True,
     )
