@@ -101,12 +101,14 @@ sim: {{model: prb3, params: paper, plate_gap_mm: {gap}, twist_deg: 90, noise: tr
 
 
 def sh(*args: str, timeout: float = 3600) -> tuple[subprocess.CompletedProcess, float]:
+    """``beambench ARGS`` in a subprocess; a failure raises (``calibrate sim``'s exit 3, written but a target
+    missed, is a result: its report's verdict says which)."""
     t0 = time.perf_counter()
     res = subprocess.run(
         [sys.executable, "-m", "beambench.cli", *args], capture_output=True, text=True, timeout=timeout
     )
     wall = time.perf_counter() - t0
-    if res.returncode != 0:
+    if res.returncode != 0 and not (args[:2] == ("calibrate", "sim") and res.returncode == 3):
         raise RuntimeError(f"beambench {' '.join(args)} failed ({res.returncode}): {res.stderr[-2000:]}")
     return res, wall
 
@@ -156,6 +158,7 @@ def run_case(
         "target": target,
         "twin_transitions": got,
         "check": check(target, got),
+        "verdict": report.get("verdict"),  # the calibrator's own, on its winner's map
         "twin_map": " ".join(f"{f:g}:{r}" for f, r in zip(steps["frequency_hz"], steps["regime"].fillna(""))),
     }
 

@@ -1,12 +1,24 @@
 """``beambench calibrate sim [SESSION.h5] [--targets TARGETS.yaml]``: fit the twin to a measured sweep or to
-published numbers (:mod:`beambench.studies.calibration`). The last stdout line is the calibrated protocol's path."""
+published numbers (:mod:`beambench.studies.calibration`). The last stdout line is the calibrated protocol's path;
+the last stderr line the verdict (every target met, or the misses with what limits them): :data:`EPILOG`."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
+
+EXIT_MISSED = 3
+EXIT_INTERRUPTED = 130  # Ctrl-C or another stop signal; the evaluations so far are kept and reused
+EPILOG = (
+    "Exit status: 0 written, every target met within its tolerance; 2 bad input (one line, nothing written); "
+    "3 written, but not within tolerance (the last line names each missed target, the twin's value and the "
+    "unknown that limits it: one at its bound, or no unknown moves it far enough); 130 interrupted (Ctrl-C: "
+    "the evaluation log is kept, the same command with the same --out resumes). Tolerances: the targets file's "
+    "tolerance_hz (transitions, default ± 2 Hz) or tolerance_fraction (walker speeds, default ± 30 %); a "
+    "tangential sign must match."
+)
 
 
 def _fail(message: str) -> NoReturn:
@@ -15,11 +27,10 @@ def _fail(message: str) -> NoReturn:
 
 
 def _interrupted(log: Path) -> NoReturn:
-    """One line saying where the finished evaluations are and how to resume; exit 3 (stopped)."""
+    """One line saying where the finished evaluations are and how to resume; exit 130 (interrupted: 3 is taken
+    by "written, but not within tolerance")."""
     import shlex
     import sys
-
-    from beambench.commands import EXIT_STOPPED
 
     kept = sum(1 for _ in log.open("rb")) if log.is_file() else 0
     again = shlex.join(["beambench", *sys.argv[1:]]) if sys.argv[1:2] == ["calibrate"] else "the same command"
@@ -28,7 +39,7 @@ def _interrupted(log: Path) -> NoReturn:
         "again (same --out and --name): they are reused",
         err=True,
     )
-    raise typer.Exit(EXIT_STOPPED)
+    raise typer.Exit(EXIT_INTERRUPTED)
 
 
 def default_out() -> Path:
@@ -86,7 +97,8 @@ def sim(
     ] = None,
 ) -> None:
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
-    runnable protocol carrying the calibrated parameters and a report beside it."""
+    runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
+    whether the twin reached it."""
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from beambench.common.console import stderr_console
@@ -120,6 +132,9 @@ def sim(
         bad = [n for n in chosen if n not in known]
         if not chosen or bad:
             _fail(f"--free {free}: {tg.rig} rig unknowns are {', '.join(sorted(known))}")
+        twice = sorted({n for n in chosen if chosen.count(n) > 1})
+        if twice:
+            _fail(f"--free {free}: {twice[0]} is named twice")
     settings = (
         SearchSettings.quick(budget_s=min(budget_s, 150.0), free=chosen)
         if quick
@@ -143,18 +158,30 @@ def sim(
         _fail(str(exc))
     except KeyboardInterrupt:  # Ctrl-C: every finished evaluation is in the log, which a rerun reuses
         _interrupted(out_dir / f"{name}.evals.jsonl")
-    s = result.summary
-    console.print(
-        f"objective {result.j:.4f}; "
+    _finish(result, report)
+
+
+def _finish(result: Any, report: Path) -> None:
+    """The summary and one line per target (stderr), the protocol's path (stdout), then the verdict as the last
+    line (stderr); exit 3 when a target is missed."""
+    from beambench.studies.calibration.verdict import all_met, closing_line
+
+    twin = ", ".join(f"{k} {v}" for k, v in result.summary.items() if k != "map" and not isinstance(v, dict))
+    typer.echo(
+        f"objective J {result.j:.4f} ({result.j_stage}); "
         + ", ".join(f"{k} {v:.4g}" for k, v in result.values.items())
-        + "; twin "
-        + ", ".join(f"{k} {v}" for k, v in s.items() if k != "map" and not isinstance(v, dict))
+        + (f"; twin {twin}" if twin else "")
         + f"; {result.evaluations} runs ({result.reused} re-used), {result.wall_s:.0f} s; report {report}",
-        soft_wrap=True,
+        err=True,
     )
+    for v in result.verdicts:
+        typer.echo(f"  {v.line()}", err=True)
     typer.echo(str(result.protocol))
+    typer.echo(f"beambench: {closing_line(result.verdicts)}", err=True)
+    if not all_met(result.verdicts):
+        raise typer.Exit(EXIT_MISSED)
 
 
 def register_sim(sub: typer.Typer) -> None:
     """Add ``beambench calibrate sim`` to the ``calibrate`` sub-app."""
-    sub.command("sim")(sim)
+    sub.command("sim", epilog=EPILOG)(sim)

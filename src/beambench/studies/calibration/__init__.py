@@ -7,11 +7,13 @@
   package imports them, so every rig is known wherever the package is);
 - :mod:`.search`: the search (lines, landmark steps, evolution, refine, verify), the same for every rig;
   :mod:`.evaluate`: the evaluation log, the evaluator, the settings; :mod:`.landmark_steps`;
+- :mod:`.checks`, :mod:`.verdict`: each target with its tolerance, and after the search whether the twin met it
+  and what limits a miss (the command exits 3 then); :mod:`.intervals`: the unknowns' intervals;
 - :mod:`.report`, :mod:`.protocol_out`: what a calibration writes; :mod:`.targets`: what it fits to;
   :mod:`.written_run`: running a written protocol as its user will.
 
 Plugging in a rig: a module that calls ``register_rig(CalibratableRig(name=..., unknowns=(...), simulate=...,
-objective=..., base=..., write=..., summary=...))``, imported below; ``simulate`` returns
+objective=..., base=..., write=..., summary=..., checks=...))``, imported below; ``simulate`` returns
 ``{"steps": [{"frequency_hz": f, ...}, ...], "extras": {...}}`` and the objective compares them with
 ``targets.table``. The CLI, the search, the log and the report are rig-agnostic.
 """

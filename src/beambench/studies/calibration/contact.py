@@ -20,7 +20,7 @@ import pandas as pd
 import yaml
 
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration.contact_objective import contact_landmarks, contact_objective
+from beambench.studies.calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
 from beambench.studies.calibration.protocol_out import CalibratedSet, extended_sweep, write_calibrated_protocol
 from beambench.studies.calibration.rig import CalibratableRig, CalibrationBase, register_rig
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
@@ -251,5 +251,6 @@ CONTACT = register_rig(
         run_written=run_written_protocol,
         prior=contact_prior,
         landmarks=contact_landmarks,
+        checks=contact_checks,
     )
 )

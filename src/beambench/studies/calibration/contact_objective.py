@@ -1,15 +1,18 @@
 """How far a contact twin's regime map is from its targets: the per-step regime levels, the transitions' misfit,
 the tangential signs (:func:`contact_objective`), and the map's landmarks for the landmark steps
-(:func:`contact_landmarks`). Transitions as :func:`beambench.sim.scenes.contact_regimes.transitions` defines them."""
+(:func:`contact_landmarks`), and its targets for the verdict (:func:`contact_checks`). Transitions as
+:func:`beambench.sim.scenes.contact_regimes.transitions` defines them."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pandas as pd
 
 from beambench.sim.scenes.contact_regimes import CONTINUOUS, NONE, transitions
+from beambench.studies.calibration.checks import SIGN_AGREEMENT, TRANSITION_TOLERANCE_HZ, TargetCheck
 from beambench.studies.calibration.targets import Targets
 
 CONTINUOUS_LEVEL = -1.0  # one level below 1:1 (as ½ is one above); -2 was tried: see the bench notes
@@ -141,4 +144,71 @@ def contact_landmarks(steps: pd.DataFrame, targets: Targets) -> dict[str, tuple[
             None,
         )
         out[key] = (held, float(want))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ verdict
+
+
+def _transition(key: str) -> Callable[[pd.DataFrame], float | None]:
+    def measure(steps: pd.DataFrame) -> float | None:
+        if steps.empty or "regime" not in steps:
+            return None
+        return transitions(steps["frequency_hz"].to_numpy(float), list(steps["regime"].fillna("").astype(str)))[key]
+
+    return measure
+
+
+def _sign_at(f: float) -> Callable[[pd.DataFrame], float | None]:
+    def measure(steps: pd.DataFrame) -> float | None:
+        if steps.empty or "tangential_sign" not in steps:
+            return None
+        tf = steps["frequency_hz"].to_numpy(float)
+        i = int(np.argmin(np.abs(tf - f)))
+        s = float(steps["tangential_sign"].iloc[i])
+        return float(np.sign(s)) if abs(tf[i] - f) <= 0.5 and math.isfinite(s) and s != 0 else None
+
+    return measure
+
+
+def _sign_agreement(want: pd.DataFrame) -> Callable[[pd.DataFrame], float | None]:
+    def measure(steps: pd.DataFrame) -> float | None:
+        got = [_sign_at(float(f))(steps) for f in want["frequency_hz"]]
+        return float(np.mean([g == s for g, s in zip(got, want["tangential_sign"])]))
+
+    return measure
+
+
+def contact_checks(targets: Targets) -> list[TargetCheck]:
+    """The contact rig's targets (:mod:`.verdict`): each transition the targets name (a session's: those its
+    map has) within ``tolerance_hz`` (default ± 2 Hz), the twin's as the user's map shows it (the plain lowest
+    step, :func:`transitions`); each ``tangential_sign`` of a targets file (the same sign at that frequency, the
+    nearest step within 0.5 Hz); a session's signed steps as one agreement row."""
+    tol = float(targets.tolerance.get("tolerance_hz", TRANSITION_TOLERANCE_HZ))
+    out = [
+        TargetCheck(k, "transition", float(v), tol, "Hz", f"± {tol:g} Hz", _transition(k))
+        for k in ("continuous_below_hz", "half_at_hz", "third_at_hz")
+        if (v := targets.scalars.get(k)) is not None
+    ]
+    signs = targets.scalars.get("tangential_sign")
+    if isinstance(signs, dict) and signs:
+        out += [
+            TargetCheck(f"tangential_sign at {f:g} Hz", "sign", float(s), 0.0, "", "(same sign)", _sign_at(float(f)))
+            for f, s in sorted(signs.items())
+        ]
+    elif "tangential_sign" in targets.table:
+        signed = targets.table[targets.table["tangential_sign"].notna()][["frequency_hz", "tangential_sign"]]
+        signed = signed[signed["tangential_sign"].ne(0)]
+        if len(signed):
+            out.append(
+                TargetCheck(
+                    f"tangential_sign of {len(signed)} steps",
+                    "sign agreement",
+                    1.0,
+                    1.0 - SIGN_AGREEMENT,
+                    "",
+                    f"(share agreeing, ≥ {SIGN_AGREEMENT:g})",
+                    _sign_agreement(signed),
+                )
+            )
     return out

@@ -1,5 +1,6 @@
 """The report of a calibration (``beambench calibrate sim`` writes it beside the calibrated protocol): JSON and
-Markdown with the parameters, their identifiability, targets vs twin and the objective per generation, and two
+Markdown with the parameters, their identifiability, every target against the twin with its verdict (met within
+its tolerance or missed, and what limits a miss: :mod:`.verdict`), the objective per generation, and two
 figures (the objective's history, the target and twin maps)."""
 
 from __future__ import annotations
@@ -11,10 +12,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from beambench.studies.calibration.contact_objective import CONTINUOUS_LEVEL, regime_level_of
+from beambench.studies.calibration.contact_objective import CONTINUOUS_LEVEL, regime_level
 from beambench.studies.calibration.evaluate import json_default
 from beambench.studies.calibration.search import Result
-from beambench.studies.calibration.targets import Targets
+from beambench.studies.calibration.targets import IRREGULAR, Targets
+from beambench.studies.calibration.verdict import all_met, closing_line
 
 
 def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> Path:
@@ -27,6 +29,8 @@ def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> 
         "targets": {"source": targets.source, **{k: v for k, v in targets.scalars.items()}},
         "protocol": str(result.protocol),
         "objective": result.j,
+        "objective_stage": result.j_stage,
+        "verdict": {"all_met": all_met(result.verdicts), "targets": [v.to_dict() for v in result.verdicts]},
         "parameters": result.values,
         "extras": result.extras,
         "twin_summary": result.summary,
@@ -43,28 +47,30 @@ def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> 
         "",
         f"- targets: {targets.source}",
         f"- protocol: `{result.protocol}`",
-        f"- objective: {result.j:.4f} after {result.evaluations} new "
+        f"- objective J: {result.j:.4f} ({result.j_stage}) after {result.evaluations} new "
         f"evaluations ({result.reused} re-used from the log), {result.wall_s:.0f} s wall",
+        f"- verdict: {closing_line(result.verdicts)}",
         "",
         "## Parameters",
         "",
-        "| unknown | value | near-best range | unit |",
-        "|---|---|---|---|",
+        "| unknown | value | near-best range | interval (± 2σ, landmarks) | unit |",
+        "|---|---|---|---|---|",
     ]
     spread = result.identifiability.get("fine_spread") or result.identifiability.get("spread", {})
+    ivals = (result.identifiability.get("intervals") or {}).get("unknowns", {})
     for k, v in result.values.items():
         s = spread.get(k)
         rng = f"{s['min']:.4g} … {s['max']:.4g}" if s else "fixed"
         unit = s["unit"] if s else ""
-        lines.append(f"| {k} | {v:.5g} | {rng} | {unit} |")
+        iv = ivals.get(k)
+        ci = "" if iv is None else f"{iv['lo']:.4g} … {iv['hi']:.4g}" + ("" if iv["pinned"] else " (not pinned)")
+        lines.append(f"| {k} | {v:.5g} | {rng} | {ci} | {unit} |")
     for k, v in result.extras.items():
-        lines.append(f"| {k} (derived) | {v:.5g} | | |" if isinstance(v, float) else f"| {k} | {v} | | |")
-    lines += ["", "## Targets vs twin", "", "| quantity | target | twin |", "|---|---|---|"]
-    for k, v in result.summary.items():
-        tv = targets.scalars.get(k)
-        if isinstance(v, dict) or isinstance(tv, dict):
-            continue
-        lines.append(f"| {k} | {tv} | {v} |")
+        lines.append(f"| {k} (derived) | {v:.5g} | | | |" if isinstance(v, float) else f"| {k} | {v} | | | |")
+    method = (result.identifiability.get("intervals") or {}).get("method")
+    if method:
+        lines += ["", f"Intervals: {method}; not pinned: the landmarks leave the unknown anywhere in its bounds."]
+    lines += ["", "## Targets vs twin", "", *_targets_table(result, targets)]
     dirs = result.identifiability.get("directions")
     if dirs:
         lines += ["", "## Identifiability", "", result.identifiability.get("method", ""), ""]
@@ -88,12 +94,53 @@ def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> 
     return path
 
 
+def _targets_table(result: Result, targets: Targets) -> list[str]:
+    """One row per target with its tolerance and verdict (:mod:`.verdict`); a rig without checks: the summary."""
+    if not result.verdicts:
+        rows = ["| quantity | target | twin |", "|---|---|---|"]
+        for k, v in result.summary.items():
+            tv = targets.scalars.get(k)
+            if not (isinstance(v, dict) or isinstance(tv, dict)):
+                rows.append(f"| {k} | {tv} | {v} |")
+        return rows
+    rows = [
+        "| target | wanted | twin | near-best twins | tolerance | verdict | limited by |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    spread = result.identifiability.get("landmark_spread", {})
+    for v in result.verdicts:
+        sp = spread.get(v.target)
+        near = f"{sp['min']:.4g} … {sp['max']:.4g} ({sp['n']})" if sp else ""
+        rows.append(
+            f"| {v.target} | {v.wanted_text()} | {v.twin_text()} | {near} | {v.tolerance_text} | "
+            f"{'met' if v.met else '**missed**'} | {v.limited_by or ''} |"
+        )
+    return rows
+
+
+def _label_level(row: dict) -> float:
+    """A step's level from its label as the table's transitions read it (an irregular step's from its contacts
+    per cycle): not moved by the measured ratio or pulled toward continuous by the in-contact fraction as the
+    objective's level is (the figure must agree with the table)."""
+    label = str(row.get("regime", ""))
+    ratio = float(row.get("contacts_per_cycle", math.nan)) if label == IRREGULAR else math.nan
+    return regime_level(label, ratio)
+
+
 def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Path, name: str) -> None:
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(6, 3.2), layout="constrained")
+    fig = Figure(figsize=(7.5, 3.2), layout="constrained")
     ax = fig.add_subplot()
-    for stage, marker in (("prior line", "v"), ("coarse", "o"), ("fine", "s"), ("bracket", "^"), ("verify", "D")):
+    stages = (
+        ("prior line", "v"),
+        ("landmark step", "P"),
+        ("coarse", "o"),
+        ("fine", "s"),
+        ("bracket", "^"),
+        ("verify", "D"),
+    )
+    for stage, marker in stages:  # every stage the history records, so no generation is left out
         h = [x for x in result.history if x["stage"] == stage]
         if h:
             ax.plot([x["generation"] for x in h], [x["best"] for x in h], marker + "-", label=f"{stage} best")
@@ -107,8 +154,8 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
             )
     ax.set_yscale("symlog", linthresh=0.01)
     ax.set_xlabel("generation")
-    ax.set_ylabel("objective J")
-    ax.legend(fontsize=7)
+    ax.set_ylabel("objective J (each stage on its own maps)")
+    fig.legend(fontsize=7, loc="outside right upper")  # beside the axes, never over the data
     fig.savefig(out_dir / f"{name}_objective.png", dpi=110)
 
     fig = Figure(figsize=(8, 3.6), layout="constrained")
@@ -116,7 +163,7 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
     if "regime" in meas and meas["regime"].astype(str).ne("").any():
         ax.plot(
             meas["frequency_hz"],
-            [regime_level_of(r) for r in meas.to_dict("records")],
+            [_label_level(r) for r in meas.to_dict("records")],
             "o",
             ms=7,
             mfc="none",
@@ -124,7 +171,7 @@ def _figures(result: Result, meas: pd.DataFrame, twin: pd.DataFrame, out_dir: Pa
         )
         ax.plot(
             twin["frequency_hz"],
-            [regime_level_of(r) for r in twin.to_dict("records")],
+            [_label_level(r) for r in twin.to_dict("records")],
             "x",
             ms=6,
             label="calibrated twin",

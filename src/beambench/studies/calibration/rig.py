@@ -15,6 +15,7 @@ from typing import Any
 import pandas as pd
 
 from beambench.sim.settings import SimSettings
+from beambench.studies.calibration.checks import TargetCheck
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
 from beambench.studies.unknowns import Unknown
 
@@ -60,7 +61,9 @@ class CalibratableRig:
       ``analyze``); the verify stage then judges the candidates on those maps;
     - ``prior(base) -> {name: value}``: the prior parameter set's own values of the unknowns, the centre of the
       search's first line (None: 1 for log unknowns whose bounds hold it, else their defaults);
-    - ``landmarks``: the map's landmarks the targets name (trust-region steps after the lines; None: none).
+    - ``landmarks``: the map's landmarks the targets name (trust-region steps after the lines; None: none);
+    - ``checks(targets) -> [TargetCheck]``: each target with its tolerance, for the verdict after the search
+      (:mod:`.verdict`; None: no verdict, the command cannot say whether a target was met).
     """
 
     name: str
@@ -77,6 +80,7 @@ class CalibratableRig:
     run_written: Callable[[Path, int | None], Steps] | None = None
     prior: Callable[[CalibrationBase], dict[str, float]] | None = None
     landmarks: Landmarks | None = None
+    checks: Callable[[Targets], list[TargetCheck]] | None = None
 
     @property
     def default_free(self) -> tuple[str, ...]:

@@ -47,9 +47,11 @@ from beambench.studies.calibration.evaluate import (
     identifiability,
     key,
 )
+from beambench.studies.calibration.intervals import intervals, landmark_spread
 from beambench.studies.calibration.landmark_steps import LandmarkPlan, landmark_steps, within
 from beambench.studies.calibration.rig import CalibratableRig, get_rig
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
+from beambench.studies.calibration.verdict import Verdict, annotate_yaml, judge
 from beambench.studies.executor import Pool
 from beambench.studies.unknowns import Unknown
 
@@ -76,6 +78,8 @@ class Result:
     wall_s: float
     free: tuple[Unknown, ...] = ()
     settings: SearchSettings = field(default_factory=SearchSettings)
+    verdicts: list[Verdict] = field(default_factory=list)  # one per target (:mod:`.verdict`)
+    j_stage: str = ""  # which objective ``j`` is (the winner's stage: "verify, worse of two noise seeds" …)
 
 
 def coarse_frequencies(targets: Targets, step_hz: float, lo: float) -> list[float]:
@@ -115,7 +119,8 @@ class Search:
         self.coarse = coarse_frequencies(targets, settings.coarse_step_hz, rig.min_frequency_hz)
         self.fine = [float(f) for f in sorted(targets.frequencies) if f >= rig.min_frequency_hz - 1e-9]
         self.history: list[dict] = []
-        self.best: Point | None = None  # the best newly evaluated point (progress; the coarse stage's early stop)
+        self.best: Point | None = None  # the best newly evaluated point (the coarse stage's early stop)
+        self.stage_best: dict[str, float] = {}  # per stage: its objectives are comparable only within it
         self.progress = progress
         self.task = progress.add_task("calibrating", total=None) if progress is not None else None
         self.bracketed = next((u for u in self.free if u.name == rig.bracket), None)
@@ -125,14 +130,24 @@ class Search:
         self.ev = Evaluator(pool, self.rig, self.base, self.targets, self.log, self.settings, self._on_eval)
 
     def _on_eval(self, p: Point) -> None:
+        """Progress: the best objective *of the point's stage* (a coarse map's J is not a verify map's)."""
         if self.best is None or p.j < self.best.j:
             self.best = p
+        self.stage_best[p.stage] = min(p.j, self.stage_best.get(p.stage, math.inf))
         if self.progress is not None:
             self.progress.update(
                 self.task,
                 advance=1,
-                description=f"{p.stage} gen {self.ev.generation}: best J {self.best.j:.3f} "
+                description=f"{p.stage} gen {self.ev.generation}: best {p.stage} J {self.stage_best[p.stage]:.3f} "
                 f"({self.log.new} run, {self.log.reused} reused)",
+            )
+
+    def finish(self, winner: Point, label: str) -> None:
+        """The progress line's last state: the winner's objective, as the command's final line reports it."""
+        if self.progress is not None:
+            self.progress.update(
+                self.task,
+                description=f"done: J {winner.j:.3f} ({label}) ({self.log.new} run, {self.log.reused} reused)",
             )
 
     def elapsed(self) -> float:
@@ -187,15 +202,22 @@ def calibrate(
         winner = _refine(s)
         if rig.verify is not None and settings.verify_top > 0:
             winner = _verify(s, winner, out_dir, name)
-        elif winner.stage != "fine":  # out of time before the fine stage: still report the map on every frequency
-            winner = s.ev.batch([winner.values], s.fine, "fine")[0]
+            label = "verify: the written protocol's map, worse of two noise seeds"
+        else:
+            if winner.stage != "fine":  # out of time before the fine stage: still the map on every frequency
+                winner = s.ev.batch([winner.values], s.fine, "fine")[0]
+            label = "fine: every target frequency"
         ident = identifiability([p for p in s.ev.points if p.stage == "coarse"], s.free)
         fine_pts = [p for p in s.ev.points if p.stage == "fine"]
         if len(fine_pts) > 1:  # the refine/bracket points: on every frequency, so their spread is the sharper one
             ident["fine_spread"] = identifiability(fine_pts, s.free).get("spread", {})
+        s.finish(winner, label)
     summary = rig.summary(winner.steps)
+    verdicts = _judge(s, winner, ident)
     wall = s.elapsed()
     protocol = rig.write(s.base, winner.values, winner.extras, targets, out_dir, name)
+    for path in (protocol, out_dir / f"{name}_params.yaml"):
+        annotate_yaml(Path(path), verdicts)
     return Result(
         rig.name,
         winner.values,
@@ -211,7 +233,24 @@ def calibrate(
         wall,
         tuple(s.free),
         settings,
+        verdicts,
+        label,
     )
+
+
+def _judge(s: Search, winner: Point, ident: dict[str, Any]) -> list[Verdict]:
+    """The verdict per target (:mod:`.verdict`); into ``ident`` the unknowns' intervals and the landmarks' spread
+    over the near-best refined points (:mod:`.intervals`)."""
+    if s.rig.checks is None:
+        return []
+    checks = s.rig.checks(s.targets)
+    pts = s.ev.points
+    ident["intervals"] = intervals(checks, winner, pts, s.free)
+    fine = [p for p in pts if p.stage == "fine"] or [p for p in pts if p.stage == "coarse"]
+    if fine:
+        jb = min(p.j for p in fine)
+        ident["landmark_spread"] = landmark_spread(checks, [p for p in fine if p.j <= jb + max(0.05, 0.25 * jb)])
+    return judge(checks, winner, pts, s.free)
 
 
 def free_unknowns(rig: CalibratableRig, settings: SearchSettings) -> tuple[list[Unknown], dict[str, float]]:
@@ -226,6 +265,9 @@ def free_unknowns(rig: CalibratableRig, settings: SearchSettings) -> tuple[list[
         raise CalibrationInputError(
             f"unknown {bad[0]!r}: the {rig.name} rig's unknowns are {', '.join(u.name for u in rig.unknowns)}"
         )
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise CalibrationInputError(f"free: {twice[0]} is named twice")
     for k, (lo, hi) in settings.bounds.items():
         try:
             unknowns[k] = unknowns[k].within(lo, hi)

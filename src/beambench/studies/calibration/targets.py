@@ -7,6 +7,7 @@ Targets file (``--targets``), contact rig::
     half_at_hz: 26            # lowest frequency with one contact every two drive cycles
     third_at_hz: 38           # lowest frequency with one contact every three drive cycles
     tangential_sign: {26: -1, 40: 1}   # optional
+    tolerance_hz: 2           # optional: how close each transition must come (default ± 2 Hz)
 
 Every transition is optional, but at least one is needed, and they must be ordered
 (continuous edge ≤ ½ < ⅓). ``tangential_sign`` uses the sign convention of ``steps.csv``: the sign of the mean
@@ -16,7 +17,9 @@ Walker (registered by the walker rig's calibrator)::
 
     rig: walker
     speed_mm_s: {23: -35.7, 65: 156.3}
+    tolerance_fraction: 0.3   # optional: each speed within ± 30 % (default; at least 30 % of 20 mm/s)
 
+The tolerances decide the calibration's per-target verdict (:mod:`.verdict`), not the objective.
 Either source becomes a :class:`Targets`: a per-step *target map* (frequency → regime label and, where measured,
 contacts per cycle and in-contact fraction) plus the scalar targets it came from, so the objective compares
 per-frequency vectors whatever the source.
@@ -74,6 +77,7 @@ class Targets:
     scalars: dict[str, Any] = field(default_factory=dict)
     protocol_text: str | None = None
     prior: dict[str, Any] = field(default_factory=dict)
+    tolerance: dict[str, float] = field(default_factory=dict)  # the file's tolerance_hz / tolerance_fraction
 
     @property
     def frequencies(self) -> np.ndarray:
@@ -109,7 +113,29 @@ def _freq_map(where: str, key: str, value: Any, signs: bool = False) -> dict[flo
     return out
 
 
-CONTACT_KEYS = ("rig", "continuous_below_hz", "half_at_hz", "third_at_hz", "tangential_sign", "name", "description")
+CONTACT_KEYS = (
+    "rig",
+    "continuous_below_hz",
+    "half_at_hz",
+    "third_at_hz",
+    "tangential_sign",
+    "tolerance_hz",
+    "name",
+    "description",
+)
+
+
+def _tolerance(where: str, data: dict[str, Any], key: str) -> dict[str, float]:
+    """``{key: value}`` of an optional tolerance (a number > 0), else ``{}``."""
+    if key not in data:
+        return {}
+    try:
+        x = float(data[key])
+    except (TypeError, ValueError):
+        raise CalibrationInputError(f"{where}: {key} = {data[key]!r}: expected a number") from None
+    if not math.isfinite(x) or x <= 0:
+        raise CalibrationInputError(f"{where}: {key} = {data[key]!r}: expected a tolerance > 0")
+    return {key: x}
 
 
 def parse_targets(data: Any, where: str = "<targets>") -> Targets:
@@ -124,12 +150,13 @@ def parse_targets(data: Any, where: str = "<targets>") -> Targets:
         return contact_targets(data, where)
     if rig == "walker":
         speeds = _freq_map(where, "speed_mm_s", data.get("speed_mm_s"))
-        unknown = set(data) - {"rig", "speed_mm_s", "name", "description"}
+        unknown = set(data) - {"rig", "speed_mm_s", "tolerance_fraction", "name", "description"}
         if unknown:
             raise CalibrationInputError(f"{where}: {sorted(unknown)[0]}: unknown field for rig: walker")
         table = pd.DataFrame({"frequency_hz": sorted(speeds), "body_speed_mm_s": [speeds[f] for f in sorted(speeds)]})
         table["regime"] = ""
-        return Targets("walker", where, table, {"speed_mm_s": speeds})
+        tol = _tolerance(where, data, "tolerance_fraction")
+        return Targets("walker", where, table, {"speed_mm_s": speeds}, tolerance=tol)
     raise CalibrationInputError(f"{where}: rig = {rig!r}: unknown rig (contact or walker)")
 
 
@@ -156,7 +183,7 @@ def contact_targets(data: dict[str, Any], where: str) -> Targets:
     )
     scalars = {"continuous_below_hz": cont, "half_at_hz": half, "third_at_hz": third, "tangential_sign": signs}
     table = target_map(scalars)
-    return Targets("contact", where, table, scalars)
+    return Targets("contact", where, table, scalars, tolerance=_tolerance(where, data, "tolerance_hz"))
 
 
 def target_map(scalars: dict[str, Any], step_hz: float = 1.0) -> pd.DataFrame:

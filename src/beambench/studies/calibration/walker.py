@@ -22,6 +22,7 @@ session's protocol, else the shipped walker sweep, with ``sim.params`` pointing 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -30,6 +31,7 @@ import numpy as np
 import pandas as pd
 
 from beambench.sim.settings import SimSettings
+from beambench.studies.calibration.checks import SPEED_TOLERANCE_FRACTION, TargetCheck
 from beambench.studies.calibration.protocol_out import CalibratedSet, write_calibrated_protocol
 from beambench.studies.calibration.rig import CalibratableRig, CalibrationBase, register_rig
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
@@ -71,6 +73,29 @@ def walker_objective(steps: pd.DataFrame, targets: Targets) -> tuple[float, dict
         g = got.get(float(f), math.nan)
         parts[f"{float(f):g} Hz"] = abs(g - v) / max(abs(v), SPEED_FLOOR_MM_S) if math.isfinite(g) else 10.0
     return float(np.mean(list(parts.values()))), parts
+
+
+def _speed_at(f: float) -> Callable[[pd.DataFrame], float | None]:
+    def measure(steps: pd.DataFrame) -> float | None:
+        if steps.empty or "body_speed_mm_s" not in steps:
+            return None
+        tf = steps["frequency_hz"].to_numpy(float)
+        i = int(np.argmin(np.abs(tf - f)))
+        return float(steps["body_speed_mm_s"].iloc[i]) if abs(tf[i] - f) <= 1e-6 else None
+
+    return measure
+
+
+def walker_checks(targets: Targets) -> list[TargetCheck]:
+    """The speed at each target frequency within ± ``tolerance_fraction`` (default 30 %) of the target, at least
+    that share of the objective's 20 mm/s floor (:mod:`.verdict`)."""
+    frac = float(targets.tolerance.get("tolerance_fraction", SPEED_TOLERANCE_FRACTION))
+    out = []
+    for f, v in sorted(targets.scalars["speed_mm_s"].items()):
+        tol = frac * max(abs(v), SPEED_FLOOR_MM_S)
+        text = f"± {tol:.3g} mm/s ({100 * frac:g} %)"
+        out.append(TargetCheck(f"speed at {f:g} Hz", "speed", float(v), tol, "mm/s", text, _speed_at(float(f))))
+    return out
 
 
 def walker_base(targets: Targets) -> CalibrationBase:
@@ -161,5 +186,6 @@ WALKER = register_rig(
         bracket="foot_mass",
         min_frequency_hz=1.0,
         stage_sim=walker_stage_sim,
+        checks=walker_checks,
     )
 )
