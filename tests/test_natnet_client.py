@@ -157,6 +157,31 @@ def test_bitstream_version_can_be_requested_from_a_4_x_server():
         assert "Bitstream,3.0" in emu.requests
 
 
+def test_a_frame_encoded_before_a_bitstream_change_is_still_read_after_it():
+    """The server's stream thread may encode a frame in the old bitstream, then its command thread switches and
+    replies, then the older frame goes out: just after the change such a frame is decoded in the old version (a
+    parse error before). Later, only the new version counts."""
+    frame = nn.FrameOfData(
+        frame_number=99_999,
+        marker_sets=(nn.MarkerSetData("beam", ((0.1, 0.2, 0.3), (0.4, 0.5, 0.6))),),
+        labeled_markers=(nn.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.015625, 2, 0.0),),
+        timestamp=1.0,
+    )
+    old = nn.encode(frame, nn.V4_1)
+    with pytest.raises(nn.NatNetParseError):
+        nn.decode(old, nn.V3_0)  # the premise: in the new version this packet does not parse
+    with emulator("4.1", multicast=False) as emu, NatNetClient(config_for(emu, bitstream_version="3.0")) as client:
+        assert client.version == nn.V3_0
+        client.keep_frames = True
+        errors = client.stats.parse_errors
+        client._handle(old, time.monotonic_ns())  # as the receive thread hands it a datagram from the server
+        assert client.stats.parse_errors == errors
+        assert any(f.frame_number == 99_999 for _, f in list(client.frames))
+        client._previous_bitstream = (nn.V4_1, time.monotonic_ns() - 1)  # the grace is over
+        client._handle(old, time.monotonic_ns())
+        assert client.stats.parse_errors == errors + 1
+
+
 @pytest.mark.parametrize("keep_raw", [False, True], ids=["decoded", "raw"])
 def test_frames_in_the_new_bitstream_that_beat_the_reply_are_decoded_in_it(keep_raw):
     """A server may switch its stream before its reply to ``Bitstream`` goes out (here 80 ms before: ~29 frames
@@ -192,7 +217,10 @@ def test_echo_round_trips_give_a_clock_offset_by_minimum_rtt():
         cfg = config_for(emu, echo_interval_s=0.02, initial_echoes=10)
         with NatNetClient(cfg) as client:
             client.keep_frames = True
+            deadline = time.monotonic() + 5.0  # 0.4 s unloaded; a loaded machine (parallel tests) may take longer
             time.sleep(0.4)
+            while (len(client.echoes) < 15 or len(client.frames) <= 50) and time.monotonic() < deadline:
+                time.sleep(0.05)
             echoes = list(client.echoes)
             best = client.best_echo()
             table = client.echo_table()

@@ -44,6 +44,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_MULTICAST = "239.255.42.99"
 DEFAULT_DATA_PORT = 1511
+BITSTREAM_GRACE_NS = 500_000_000  # after a bitstream change, frames encoded before it may arrive for this long
 CLIENT_VERSION = nn.Version(0, 1, 0, 0)
 # After a wake-up the receive thread waits this long, so that one pass reads ~7 frames at 360 Hz: waking up per
 # frame costs more CPU than decoding it (receive thread 8.0 % of a core at 4 ms, 4.8 % at 20 ms, with the
@@ -145,6 +146,8 @@ class NatNetClient:
         self._sel: selectors.DefaultSelector | None = None
         self._stamped = False  # the kernel stamps received datagrams (see receive_time)
         self._pending_bitstream: nn.Version | None = None  # asked for, not yet confirmed
+        # after a bitstream change: the version before it and until when (monotonic ns) a frame may still be in it
+        self._previous_bitstream: tuple[nn.Version, int] | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._serverinfo_evt = threading.Event()
@@ -323,7 +326,8 @@ class NatNetClient:
         if code != 0:
             raise NatNetError(f"NatNet: server refused bitstream {want} (code {code})")
         with self._lock:
-            self.version = want
+            if self.version != want:
+                self._switch_bitstream(want)
 
     def send_echo(self) -> None:
         stamp = time.monotonic_ns()
@@ -441,6 +445,8 @@ class NatNetClient:
             version = self.version
             if mid == nn.MessageId.FRAMEOFDATA and self._pending_bitstream is not None:
                 version = self._transition_version(data)
+            elif mid == nn.MessageId.FRAMEOFDATA and self._previous_bitstream is not None:
+                version = self._after_switch_version(data)
             if mid == nn.MessageId.FRAMEOFDATA and self.keep_raw:
                 raw = self.raw_frames
                 if len(raw) == raw.maxlen:
@@ -494,6 +500,29 @@ class NatNetClient:
                 return want
         return self.version
 
+    def _after_switch_version(self, data: bytes) -> nn.Version | None:
+        """Just after a bitstream change, a frame the server encoded before it may still arrive (its stream thread
+        encodes, the command thread switches and replies, then the older frame goes out): a frame that does not
+        decode in the new version but does in the previous one, within :data:`BITSTREAM_GRACE_NS`, is in that."""
+        assert self._previous_bitstream is not None
+        previous, until_ns = self._previous_bitstream
+        if time.monotonic_ns() > until_ns:
+            self._previous_bitstream = None
+            return self.version
+        try:
+            nn.decode(data, self.version)
+        except nn.NatNetParseError:
+            with contextlib.suppress(nn.NatNetParseError):
+                nn.decode(data, previous)
+                return previous
+        return self.version
+
+    def _switch_bitstream(self, want: nn.Version) -> None:
+        """Decode with ``want`` from now on, keeping the old version for frames already on their way (lock held)."""
+        if self.version is not None and self.version != want:
+            self._previous_bitstream = (self.version, time.monotonic_ns() + BITSTREAM_GRACE_NS)
+        self.version = want
+
     def _accept_bitstream(self, reply: nn.Response) -> None:
         """The server's yes to a bitstream change: decode with the new version from the next packet on (the
         server sends the reply, then frames in the new version; the requesting thread would switch too late)."""
@@ -503,7 +532,7 @@ class NatNetClient:
                 return
             with contextlib.suppress(ValueError, nn.NatNetParseError):
                 if reply.as_int() == 0:
-                    self.version = want
+                    self._switch_bitstream(want)
                     self._pending_bitstream = None
 
     def _on_frame(self, host_ns: int, frame: nn.FrameOfData) -> None:
