@@ -210,3 +210,25 @@ def test_rows_the_file_extended_but_never_received_are_not_data(tmp_path):
     s = read_session(tmp_path / "z.h5")
     assert len(s.streams["motor"]) == 3 and s.streams["motor"].columns["v"].tolist() == [1.0, 2.0, 3.0]
     assert list(s.events["kind"]) == ["start"]
+
+
+def test_after_a_failed_write_the_close_rewrites_every_step_row_from_memory(tmp_path):
+    """A flush that failed can keep a row's extent but lose its data (the rollback trusts the last flush): a soak
+    found a session closed after a full disk with no step row at all. At a close after a failure, the writer
+    writes /steps again from the records it was given."""
+    from beambench.acquisition.batch import StepRecord
+    from beambench.sinks.hdf5 import SessionWriter
+
+    w = SessionWriter(tmp_path / "s.h5", {"protocol": "x"})
+    w.open([])
+    w.step(StepRecord(0, 5.0, 100, status="running"))
+    w.step(StepRecord(0, 5.0, 100, 200, 300, status="done"))
+    w.step(StepRecord(1, 6.0, 400, status="running"))
+    steps = w._tables["steps"]
+    steps.overwrite(0, np.zeros(2, dtype=steps.dtype))  # the rows' data lost, their extent kept
+    w.failed = "No space left on device"  # as the first failed write leaves it (the reserve freed)
+    w.step(StepRecord(1, 6.0, 400, 450, 500, status="interrupted"))
+    w.close()
+    s = read_session(tmp_path / "s.h5")
+    assert list(s.steps["status"]) == ["done", "interrupted"]
+    assert list(s.steps["frequency_hz"]) == [5.0, 6.0] and list(s.steps["t_end_ns"]) == [300, 500]

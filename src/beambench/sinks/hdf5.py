@@ -181,6 +181,7 @@ class SessionWriter:
         self._reserve: _SpaceReserve | None = None
         self.failed: str | None = None  # the first failure's reason
         self._dead = False  # a second failure: nothing more is written
+        self._step_rows: dict[int, np.ndarray] = {}  # every step's latest row, rewritten at a close after a failure
 
     # --- Sink -------------------------------------------------------------------------------------------
     def open(self, specs: list[StreamSpec]) -> None:
@@ -269,11 +270,26 @@ class SessionWriter:
 
     def _step(self, record: StepRecord) -> None:
         steps = self._tables["steps"]
+        row = _step_row(record)
+        self._step_rows[record.index] = row
         if record.index < steps.n:
-            steps.overwrite(record.index, _step_row(record))
+            steps.overwrite(record.index, row)
         else:
-            steps.append(_step_row(record))
+            steps.append(row)
         self._flush()
+
+    def _rewrite_steps(self) -> None:
+        """After a failed write: the whole /steps table again from memory, in the freed reserve. A flush that
+        failed may have kept a row's extent but not its data, which the rollback cannot see (a soak found a
+        session closed after a full disk with no step row at all)."""
+        if sorted(self._step_rows) != list(range(len(self._step_rows))):  # none, or not the run's own 0, 1, …
+            return
+        steps = self._tables["steps"]
+        rows = np.concatenate([self._step_rows[i] for i in sorted(self._step_rows)])
+        if steps.n < len(rows):
+            steps.dsid.set_extent((len(rows), *steps.row_shape))
+            steps.n = len(rows)
+        steps.overwrite(0, rows)
 
     def close(self) -> None:
         """Flush and close the file, releasing every h5py object here, in the writer's thread.
@@ -286,6 +302,9 @@ class SessionWriter:
         if f is None:
             return
         why = None
+        if self.failed is not None and not self._dead:
+            with contextlib.suppress(OSError, RuntimeError, ValueError, KeyError):
+                self._rewrite_steps()
         if not self._dead:
             try:
                 f.flush()
