@@ -26,7 +26,8 @@ class Override:
     """Sets ``fields`` of a :class:`BeamParams` to ``value × si`` — or, with ``scale``, multiplies them by the
     value and divides the ``inverse`` fields by it. A field is an attribute (``k``), a nested one
     (``material.youngs_modulus``) or a key of the rig block (``rig.frame_mass``; scaling one needs the key in
-    the block — the scene's default is the scene's to know, e.g. ``contact.scale_friction``)."""
+    the block — the scene's default is the scene's to know, e.g. ``contact.scale_friction``) or of the walker's
+    (``walker.foot_mass``: the set's walker block, else its rig block, as the walker scene reads them)."""
 
     fields: tuple[str, ...]
     scale: bool = False
@@ -46,10 +47,15 @@ class Override:
 def _set(params: BeamParams, path: str, new: Callable[[float], float], reads: bool) -> BeamParams:
     """``params`` with the field at ``path`` set to ``new(old value)`` (``reads``: ``new`` needs the old one)."""
     head, _, rest = path.partition(".")
-    if head == "rig":
-        if reads and rest not in params.rig:
-            raise ValueError(f"{path}: the parameter set's rig block has no {rest} to scale (use a function)")
-        return replace(params, rig={**params.rig, rest: new(params.rig.get(rest, math.nan))})
+    if head in ("rig", "walker"):
+        # walker.x: the block the walker scene reads — the set's walker block where it has one (the physical set,
+        # whose rig block is the contact rig's), else its rig block
+        block = "walker" if head == "walker" and params.walker else "rig"
+        values = getattr(params, block)
+        if reads and rest not in values:
+            raise ValueError(f"{path}: the parameter set's {block} block has no {rest} to scale (use a function)")
+        updated = {**values, rest: new(values.get(rest, math.nan))}
+        return replace(params, walker=updated) if block == "walker" else replace(params, rig=updated)
     changes: dict[str, Any]
     if rest:
         inner = getattr(params, head)

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -41,16 +40,16 @@ if TYPE_CHECKING:
     from beambench.sim.models.params import BeamParams
 
 SPEED_FLOOR_MM_S = 20.0
-WALKER_UNKNOWNS = (  # the rig block's foot_mass and friction (beambench.sim.scenes.walker.WalkerParams)
+WALKER_UNKNOWNS = (  # the walker's foot_mass and friction (beambench.sim.scenes.walker.WalkerParams)
     Unknown(
         "foot_mass",
         0.001,
         0.008,
         unit="kg",
         doc="point mass at each sole (the foot's load)",
-        effect=Override(("rig.foot_mass",)),
+        effect=Override(("walker.foot_mass",)),
     ),
-    Unknown("friction", 0.35, 0.60, doc="sole–floor Coulomb friction", effect=Override(("rig.friction",))),
+    Unknown("friction", 0.35, 0.60, doc="sole–floor Coulomb friction", effect=Override(("walker.friction",))),
 )
 STAGES: dict[str, dict[str, Any]] = {
     "coarse": {"settle_s": 3.0, "record_s": 1.5, "timestep": 1.5e-4},
@@ -113,14 +112,6 @@ def walker_base(targets: Targets) -> CalibrationBase:
     return CalibrationBase(model, str(proto.sim.params), SimSettings(twist_deg=float(proto.sim.twist_deg)))
 
 
-def _with_values(params: BeamParams, values: dict[str, float]) -> BeamParams:
-    """``params`` with the fitted ``values`` in the block the walker scene reads: the set's walker block where
-    it has one (the physical set, whose rig block is the contact rig's), else its rig block."""
-    if params.walker:
-        return replace(params, walker={**params.walker, **{k: float(v) for k, v in values.items()}})
-    return apply_values(params, WALKER_UNKNOWNS, values)
-
-
 def _prior(base: CalibrationBase) -> BeamParams:
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import model_family
@@ -136,7 +127,7 @@ def simulate_walker(
     from beambench.sim.scenes.walker import WalkerParams
     from beambench.sim.scenes.walker_batch import steady_speeds
 
-    params = _with_values(_prior(base), values)
+    params = apply_values(_prior(base), WALKER_UNKNOWNS, values)
     beam = make_beam_model(base.model, params)
     wp = WalkerParams.with_overrides(params.walker or params.rig)
     speed, height = steady_speeds(beam, frequencies, wp, settings=sim.replace(nthread=1))  # one thread per worker
@@ -157,18 +148,19 @@ def write_walker_protocol(
     base: CalibrationBase, values: dict[str, float], extras: dict[str, Any], targets: Targets, out_dir: Path, name: str
 ) -> Path:
     """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring), through
-    :func:`.protocol_out.write_calibrated_protocol`; the rig block carries foot mass and friction."""
-    p = _prior(base)
-    rounded = {k: round(float(v), 7) for k, v in values.items()}
+    :func:`.protocol_out.write_calibrated_protocol`; the walker's block (its walker block, else its rig
+    block) carries foot mass and friction."""
+    p = apply_values(_prior(base), WALKER_UNKNOWNS, {k: round(float(v), 7) for k, v in values.items()})
+    block = "walker" if p.walker else "rig"
     cal = CalibratedSet(
-        params=_with_values(p, rounded) if p.walker else p,
-        rig_block=dict(p.rig) if p.walker else {**p.rig, **rounded},
+        params=p,
+        rig_block=dict(p.rig),
         values=values,
         prior=base.params,
         model=base.model,
         shipped_protocol="walker_sweep.yaml",
-        params_note="; the rig block\n# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).",
-        protocol_note="sim.params points at the calibrated parameter set (foot mass and friction in its rig block).",
+        params_note=f"; the {block} block\n# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).",
+        protocol_note=f"sim.params points at the calibrated parameter set (foot mass and friction in its {block} block).",
         rig_label="walker",
     )
     return write_calibrated_protocol(cal, targets, out_dir, name)
