@@ -492,13 +492,7 @@ class NatNetClient:
         want = self._pending_bitstream
         if want is None or self.version is None:
             return self.version
-        try:
-            nn.decode(data, self.version)
-        except nn.NatNetParseError:
-            with contextlib.suppress(nn.NatNetParseError):
-                nn.decode(data, want)
-                return want
-        return self.version
+        return self._version_decoding(data, want)
 
     def _after_switch_version(self, data: bytes) -> nn.Version | None:
         """Just after a bitstream change, a frame the server encoded before it may still arrive (its stream thread
@@ -509,12 +503,16 @@ class NatNetClient:
         if time.monotonic_ns() > until_ns:
             self._previous_bitstream = None
             return self.version
+        return self._version_decoding(data, previous)
+
+    def _version_decoding(self, data: bytes, other: nn.Version) -> nn.Version | None:
+        """The current version, unless ``data`` does not decode in it but does in ``other``."""
         try:
             nn.decode(data, self.version)
         except nn.NatNetParseError:
             with contextlib.suppress(nn.NatNetParseError):
-                nn.decode(data, previous)
-                return previous
+                nn.decode(data, other)
+                return other
         return self.version
 
     def _switch_bitstream(self, want: nn.Version) -> None:
