@@ -286,13 +286,21 @@ class Runner:
         rec = StepRecord(
             step.index, step.frequency_hz, clock.now_ns(), direction=step.direction, kind=step.kind, repeat=step.repeat
         )
-        self._current = rec
-        self.hub.step(rec)
-        self.hub.event(rec.t_start_ns, "step", f"step {step.index}: {step.frequency_hz:g} Hz")
+        self._begin_step(rec, f"step {step.index}: {step.frequency_hz:g} Hz")
         self._wait(step.settle_s, step)
         rec.t_settled_ns = clock.now_ns()
         self._record(step)
-        rec.t_end_ns = clock.now_ns()
+        self._end_step(rec)
+
+    def _begin_step(self, rec: StepRecord, message: str) -> None:
+        """A step starts: it is the one an abort closes, the sinks get its row and a ``step`` event."""
+        self._current = rec
+        self.hub.step(rec)
+        self.hub.event(rec.t_start_ns, "step", message)
+
+    def _end_step(self, rec: StepRecord) -> None:
+        """A step ran to its end: its row is closed ``done``."""
+        rec.t_end_ns = self.rig.clock.now_ns()
         rec.status = "done"
         self.hub.step(rec)
         self._current = None

@@ -59,20 +59,12 @@ class TrackRunner(Runner):
         target = self.targets[step.index]
         ff = ctl.set_target(target, step.index)
         rec = StepRecord(step.index, ff, clock.now_ns())
-        self._current = rec
-        self.hub.step(rec)
         band = "stand (0 Hz)" if ctl.band is None else f"band {ctl.band.index} {ctl.band.describe()}"
-        self.hub.event(
-            rec.t_start_ns, "step", f"segment {step.index}: {target:+g} mm/s, {band}, feed-forward {ff:.2f} Hz"
-        )
+        self._begin_step(rec, f"segment {step.index}: {target:+g} mm/s, {band}, feed-forward {ff:.2f} Hz")
         self._ticks(step.settle_s, step)
         rec.t_settled_ns = clock.now_ns()
         self._ticks(step.record_s, step)
-        rec.t_end_ns = clock.now_ns()
-        rec.status = "done"
-        self.hub.step(rec)
-        self._current = None
-        self.steps_done += 1
+        self._end_step(rec)
 
     def _ticks(self, seconds: float, step: Step) -> None:
         """Control ticks for ``seconds`` of rig time: run, read, decide, command, log."""
