@@ -111,8 +111,10 @@ class WalkerParams:
     right_chirality: float = 1.0  # P
     motor_radius: float = 0.02145  # P footnote / D: Ø42.9 mm
     rotor_height: float = 0.023  # G: motor axis above the leg clamps: plate half-thickness + motor radius
+    motor_x: float = 0.0  # G: the motor's axis along the body, + ahead of the leg clamps (toward the cart: −)
     motor_flat: float = 0.0  # G: 1 = motor axis vertical (offset mass turns in the x–y plane) instead of along y
     leg_mount_deg: float = 0.0  # G: leg rake about the lateral axis; + = soles toward the cart
+    leg_droop_deg: float = 0.0  # G: the legs' angle below the horizontal at the clamp (0 sideways, 90 hanging down)
     lateral_free: float = 0.0  # P: 1 = let the body slide sideways (the paper's slider holds it; see above)
     torque_constant: float = 0.0255  # D line 12: 25.5 mN·m/A (12 V winding 200142; the walker's winding is unknown)
     bus_voltage: float = 24.0  # G: ODrive bus
@@ -185,19 +187,27 @@ def build_walker_spec(
         conaffinity=0,
         rgba=[0.8, 0.8, 0.8, 1],
     )
-    z0 = wp.foot_length + 0.002  # clamp height: feet just above the floor before settling
+    droop = math.radians(wp.leg_droop_deg)
+    z0 = beam.params.length * math.sin(droop) + wp.foot_length + 0.002  # clamp height: soles just above the floor
     body = _add_body(spec, wp, z0)
     _add_cart(spec, body, wp, z0, solref)
-    # legs: left along +y with +φ, right along −y (frame turned 180° about z) with −φ: mirror images
+    # legs: left along +y with +φ, right along −y (frame turned 180° about z) with −φ: mirror images; each
+    # drooped by leg_droop_deg about the body's x axis (toward −z), its foot hanging along the raked vertical
     mount = quat_y(math.radians(wp.leg_mount_deg))
+    foot_world = np.empty(3)
+    mujoco.mju_rotVecQuat(foot_world, np.array([0.0, 0, -1]), mount)
     for side, name, chir in ((1, "left", wp.left_chirality), (-1, "right", wp.right_chirality)):
-        quat = mount.copy()
+        quat = np.empty(4)
+        mujoco.mju_mulQuat(quat, _quat_x(-side * droop), mount)
         if side < 0:
-            mujoco.mju_mulQuat(quat, mount, np.array([0.0, 0, 0, 1]))
+            mujoco.mju_mulQuat(quat, quat.copy(), np.array([0.0, 0, 0, 1]))
         sites = add_beam(
             body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat.tolist(), prefix=f"{name}_"
         )
-        _add_foot(spec, spec.body(sites.tip_body), name, wp, solref)
+        inverse, down = np.empty(4), np.empty(3)
+        mujoco.mju_negQuat(inverse, quat)
+        mujoco.mju_rotVecQuat(down, foot_world, inverse)
+        _add_foot(spec, spec.body(sites.tip_body), name, wp, solref, down)
     spec.add_actuator(
         name="rotor_servo",
         target="rotor",
@@ -245,14 +255,14 @@ def _add_body(spec: mujoco.MjSpec, wp: WalkerParams, z0: float) -> mujoco.MjsBod
         name="motor",
         type=mujoco.mjtGeom.mjGEOM_CYLINDER,
         size=[wp.motor_radius, 0.007, 0],
-        pos=[0, 0, wp.rotor_height],
+        pos=[wp.motor_x, 0, wp.rotor_height],
         quat=[1, 0, 0, 0] if wp.motor_flat else [math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0],
         mass=wp.motor_mass,
         rgba=[0.2, 0.2, 0.2, 1],
         **invisible,
     )
     body.add_site(name="body", pos=[0, 0, 0], size=[0.003, 0, 0])
-    rotor = body.add_body(name="rotor", pos=[0, 0, wp.rotor_height])
+    rotor = body.add_body(name="rotor", pos=[wp.motor_x, 0, wp.rotor_height])
     rotor.add_joint(name="rotor", type=hinge, axis=[0, 0, 1] if wp.motor_flat else [0, 1, 0], armature=wp.rotor_inertia)
     rotor.add_geom(
         type=mujoco.mjtGeom.mjGEOM_SPHERE,
@@ -301,12 +311,20 @@ def _add_cart(spec: mujoco.MjSpec, body: mujoco.MjsBody, wp: WalkerParams, z0: f
         spec.add_pair(geomname1="floor", geomname2=wheel, condim=1, solref=solref)
 
 
-def _add_foot(spec: mujoco.MjSpec, tip: mujoco.MjsBody, name: str, wp: WalkerParams, solref: list) -> None:
-    """A rigid foot on a leg's tip body: the bar, the sole with its mass, its floor pair and the foot marker."""
+def _quat_x(angle_rad: float) -> np.ndarray:
+    """Quaternion (w, x, y, z) of a rotation by ``angle_rad`` about +x."""
+    return np.array([math.cos(angle_rad / 2), math.sin(angle_rad / 2), 0.0, 0.0])
+
+
+def _add_foot(
+    spec: mujoco.MjSpec, tip: mujoco.MjsBody, name: str, wp: WalkerParams, solref: list, down: np.ndarray
+) -> None:
+    """A rigid foot on a leg's tip body along ``down`` (a unit vector in the tip frame): the bar, the sole with
+    its mass, its floor pair and the foot marker."""
     r = wp.sole_radius
     tip.add_geom(
         type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-        fromto=[0, 0, 0, 0, 0, -(wp.foot_length - 2 * r)],
+        fromto=[0, 0, 0, *(down * (wp.foot_length - 2 * r))],
         size=[0.002, 0, 0],
         mass=wp.foot_bar_mass,
         contype=0,
@@ -317,7 +335,7 @@ def _add_foot(spec: mujoco.MjSpec, tip: mujoco.MjsBody, name: str, wp: WalkerPar
         name=f"sole_{name}",
         type=mujoco.mjtGeom.mjGEOM_SPHERE,
         size=[r, 0, 0],
-        pos=[0, 0, -(wp.foot_length - r)],
+        pos=(down * (wp.foot_length - r)).tolist(),
         mass=wp.foot_mass,
         contype=0,
         conaffinity=0,
@@ -329,7 +347,7 @@ def _add_foot(spec: mujoco.MjSpec, tip: mujoco.MjsBody, name: str, wp: WalkerPar
         solref=solref,
         friction=[wp.friction, wp.friction, 0.005, 0.0001, 0.0001],
     )
-    tip.add_site(name=f"foot_{name}", pos=[0, 0, -wp.foot_length], size=[0.002, 0, 0])
+    tip.add_site(name=f"foot_{name}", pos=(down * wp.foot_length).tolist(), size=[0.002, 0, 0])
 
 
 QUENCH_S = 0.001  # s, velocity-quench interval of the damped preroll

@@ -1,0 +1,112 @@
+"""Can strip legs carry the walker? Statics of the physical twin's walker (issue 22) against hand calculations.
+
+The physical set's legs are the contact rig's 20 × 3 × 50 mm TPU strip (sim_backend/rod_physical.yaml). Two hand
+results decide whether the walker stands:
+
+- the load split between the soles and the cart's wheels is a moment balance about the wheel line;
+- a sole pushed up by the floor a foot length ``l`` below a sideways leg's tip is an inverted pendulum on the
+  strip's torsion: it stands only while ``F · l < GJ / L`` (a rigid foot on a torsion spring ``GJ/L``).
+
+A leg hanging straight down (``leg_droop_deg = 90``) carries its sole load along the strip instead.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from beambench.sim.models.params import load_params
+from beambench.sim.models.registry import make_beam_model
+from beambench.sim.models.rod import RodParams
+from beambench.sim.scenes.walker import WalkerParams, WalkerSim
+
+PHYSICAL = load_params("physical", model="rod")
+BEAM = make_beam_model("rod5g", PHYSICAL)
+G = 9.81
+
+
+def _walker(**overrides: float) -> WalkerSim:
+    return WalkerSim(BEAM, 90.0, WalkerParams.with_overrides({**PHYSICAL.walker, **overrides}))
+
+
+def _normal_forces(sim: WalkerSim) -> dict[str, float]:
+    m, d = sim.physics.model, sim.physics.data
+    mujoco.mj_forward(m, d)
+    out = {"sole": 0.0, "wheel": 0.0}
+    f6 = np.zeros(6)
+    for i in range(d.ncon):
+        c = d.contact[i]
+        mujoco.mj_contactForce(m, d, i, f6)
+        name = m.geom(c.geom2 if m.geom(c.geom1).name == "floor" else c.geom1).name
+        out[name.split("_")[0]] += float(f6[0])
+    return out
+
+
+def _hand_sole_share(sim: WalkerSim) -> float:
+    """Moment balance about the wheels' contact line (pitch axis): the soles' share of the weight."""
+    m, d = sim.physics.model, sim.physics.data
+    x_com = float(d.subtree_com[m.body("walker").id][0])
+    x_wheel = float(d.geom("wheel_l").xpos[0])
+    x_sole = 0.5 * float(d.geom("sole_left").xpos[0] + d.geom("sole_right").xpos[0])
+    return (x_com - x_wheel) / (x_sole - x_wheel)
+
+
+@pytest.mark.parametrize("motor_x", [0.0, -0.12])
+def test_hanging_legs_stand_and_share_the_weight_by_the_moment_balance(motor_x):
+    """Legs hanging down stand (the body stays at its clamp height within 1 mm for 1 s, motor off), the contacts
+    carry the whole weight, and the soles' share is the moment balance's within 3 %; moving the motor toward the
+    cart moves weight onto the wheels."""
+    sim = _walker(leg_droop_deg=90.0, foot_length=0.010, motor_x=motor_x)
+    try:
+        z_nominal = PHYSICAL.length + 0.010
+        body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
+        assert np.abs(body - z_nominal).max() < 1e-3, (body.min(), body.max(), z_nominal)
+        forces = _normal_forces(sim)
+        weight = float(sim.physics.model.body_subtreemass[sim.physics.model.body("walker").id]) * G
+        assert forces["sole"] + forces["wheel"] == pytest.approx(weight, rel=0.02)
+        share = _hand_sole_share(sim)
+        assert forces["sole"] / weight == pytest.approx(share, abs=0.03)
+        if motor_x < 0:
+            assert share < 0.6  # the motor and offset mass (150 g) halfway to the cart: the wheels carry more
+        else:
+            assert share > 0.65
+    finally:
+        sim.physics.close()
+
+
+def test_sideways_strip_legs_fold_in_torsion_under_the_walkers_weight():
+    """The shipped physical walker (sideways legs, the contact rig's 66.5 mm foot): each sole carries ~5× the
+    torsional limit GJ/(L·l) of the strip, and the body falls through the floor (no body collision) within 1 s —
+    the measured reason the physical walker cannot walk (docs/contact-twin.md)."""
+    rod = RodParams.from_beam(PHYSICAL)
+    sim = _walker()
+    try:
+        wp = sim.rig
+        weight = float(sim.physics.model.body_subtreemass[sim.physics.model.body("walker").id]) * G
+        per_sole = 0.5 * weight * _hand_sole_share(sim)
+        limit = rod.gj / (rod.length * wp.foot_length)
+        assert 3.0 < per_sole / limit < 10.0, (per_sole, limit)
+        body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
+        clamp = wp.foot_length + 0.002
+        assert body[-1] < clamp - wp.foot_length, (body[-1], clamp)  # below the floor: the feet folded under
+    finally:
+        sim.physics.close()
+
+
+def test_a_light_body_on_sideways_legs_stands_below_the_torsional_limit():
+    """The same legs and foot under a body light enough that F·l < GJ/L (motor, offset mass and plate nearly
+    massless, cart as shipped): the legs hold, the body sinks only by the strip's bending sag (< 5 mm)."""
+    rod = RodParams.from_beam(PHYSICAL)
+    sim = _walker(motor_mass=0.002, eccentric_mass=0.001, plate_mass=0.002, foot_mass=0.002)
+    try:
+        wp = sim.rig
+        weight = float(sim.physics.model.body_subtreemass[sim.physics.model.body("walker").id]) * G
+        per_sole = 0.5 * weight * _hand_sole_share(sim)
+        assert per_sole < 0.6 * rod.gj / (rod.length * wp.foot_length), per_sole
+        body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
+        clamp = wp.foot_length + 0.002
+        assert clamp - body[-1] < 5e-3, (clamp, body[-1])
+        assert np.abs(np.diff(body[-200:])).max() < 1e-4  # at rest, not falling
+    finally:
+        sim.physics.close()
