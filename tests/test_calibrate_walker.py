@@ -73,3 +73,41 @@ def test_on_the_physical_set_the_values_go_into_its_walker_block(tmp_path):
     scene = build_scene(load_protocol(path)[0])
     assert (scene.rig.foot_mass, scene.rig.friction) == (pytest.approx(0.0061), pytest.approx(0.37))
     assert scene.rig.foot_mass != pytest.approx(float(prior.walker.get("foot_mass", 0.0)))
+
+
+def test_landmark_targets_add_their_grid_and_are_scored_and_judged():
+    """`reverses_at_hz` / `peak_at_hz`: the calibrator runs a 2 Hz grid ± 8 Hz around each; the objective scores a
+    landmark at its tolerance as a speed at its ± 30 % (0.3), a missing one as MISSING_LANDMARK; the verdict judges
+    each landmark ± tolerance_hz."""
+    from beambench.studies.calibration.targets import CalibrationInputError
+    from beambench.studies.calibration.walker import MISSING_LANDMARK, walker_checks
+
+    t = parse_targets(
+        {"rig": "walker", "speed_mm_s": {23: -35.7}, "reverses_at_hz": 27, "peak_at_hz": 62, "tolerance_hz": 3},
+        "<test>",
+    )
+    freqs = set(t.frequencies)
+    assert {19.0, 27.0, 35.0, 54.0, 62.0, 70.0, 23.0} <= freqs and 18.0 not in freqs and 72.0 not in freqs
+    assert t.table.set_index("frequency_hz").loc[27.0, "body_speed_mm_s"] != t.table.set_index("frequency_hz").loc[
+        27.0, "body_speed_mm_s"
+    ]  # NaN: a grid row is not a speed target
+    rig = get_rig("walker")
+    f = t.frequencies
+    # a twin curve reversing at 30 Hz (3 Hz = the tolerance off) and peaking at 62; -35.7 at 23 Hz exactly
+    v = [(-35.7 / (23 - 30)) * (x - 30) if x < 46 else 150 - 0.5 * (x - 62) ** 2 for x in f]
+    steps = pd.DataFrame({"frequency_hz": f, "body_speed_mm_s": v})
+    j, parts = rig.objective(steps, t)
+    assert parts["23 Hz"] == pytest.approx(0.0, abs=1e-9)
+    assert parts["reverses_at_hz"] == pytest.approx(0.3)
+    assert parts["peak_at_hz"] == pytest.approx(0.0, abs=1e-6)
+    backward = pd.DataFrame({"frequency_hz": f, "body_speed_mm_s": [-50.0] * len(f)})
+    _, parts = rig.objective(backward, t)
+    assert parts["reverses_at_hz"] == MISSING_LANDMARK and parts["peak_at_hz"] == MISSING_LANDMARK
+    checks = {c.name: c for c in walker_checks(t)}
+    rev = checks["speed reverses (backward → forward)"]
+    assert rev.tolerance == 3.0 and rev.met(rev.measure(steps))  # 3 Hz off: at the tolerance
+    assert not rev.met(rev.measure(backward))
+    with pytest.raises(CalibrationInputError, match="speed_mm_s: missing"):
+        parse_targets({"rig": "walker"}, "<test>")
+    with pytest.raises(CalibrationInputError, match="reverses_at_hz"):
+        parse_targets({"rig": "walker", "reverses_at_hz": "soon"}, "<test>")

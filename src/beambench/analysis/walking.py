@@ -4,6 +4,7 @@ stance (ground contact from the foot's height), the gait timing the mocap shows.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 
@@ -72,3 +73,53 @@ def foot_stance(t_s: np.ndarray, height_mm: np.ndarray, ground_mm: float, within
     duty = float(mask.sum() / ok.sum()) if ok.any() else float("nan")
     starts = np.flatnonzero(mask[1:] & ~mask[:-1]) + 1
     return Stance(mask, duty, np.asarray(t_s, float)[starts])
+
+
+SPEED_DEADBAND_MM_S = 5.0  # speeds closer to 0 have no direction: a stand-still's jitter is not a reversal
+
+
+@dataclass(frozen=True)
+class SpeedCurveShape:
+    """Landmarks of a speed-vs-frequency curve (Hz, None where the curve has none): ``reverses_at_hz`` the lowest
+    frequency where the walker turns from backward to forward, ``peak_at_hz`` where it walks forward fastest."""
+
+    reverses_at_hz: float | None
+    peak_at_hz: float | None
+
+
+def speed_curve_shape(
+    frequency_hz: np.ndarray, speed_mm_s: np.ndarray, deadband_mm_s: float = SPEED_DEADBAND_MM_S
+) -> SpeedCurveShape:
+    """Where a walker's speed curve changes sign and where it peaks.
+
+    Parameters
+    ----------
+    frequency_hz, speed_mm_s
+        The curve (any order; NaN speeds are dropped).
+    deadband_mm_s
+        Speeds within ± this have no direction. The reversal is the zero crossing, by linear interpolation,
+        between the first backward point (≤ −deadband) followed by a forward one (≥ +deadband) with only
+        dead-band points between them. The peak is the fastest forward point (≥ +deadband) refined by the
+        parabola through it and its two neighbours (kept between them).
+    """
+    f = np.asarray(frequency_hz, float)
+    v = np.asarray(speed_mm_s, float)
+    keep = np.isfinite(f) & np.isfinite(v)
+    order = np.argsort(f[keep])
+    f, v = f[keep][order], v[keep][order]
+    signed = [(fi, vi) for fi, vi in zip(f, v) if abs(vi) >= deadband_mm_s]
+    reverses = None
+    for (f0, v0), (f1, v1) in pairwise(signed):
+        if v0 < 0 < v1:
+            reverses = float(f0 + (f1 - f0) * (-v0) / (v1 - v0))
+            break
+    peak = None
+    if len(v) and np.nanmax(v) >= deadband_mm_s:
+        i = int(np.argmax(v))
+        peak = float(f[i])
+        if 0 < i < len(v) - 1:
+            x, y = f[i - 1 : i + 2], v[i - 1 : i + 2]
+            a, b, _ = np.polyfit(x, y, 2)
+            if a < 0:
+                peak = float(np.clip(-b / (2 * a), x[0], x[-1]))
+    return SpeedCurveShape(reverses, peak)

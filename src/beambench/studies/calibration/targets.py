@@ -17,7 +17,14 @@ Walker (registered by the walker rig's calibrator)::
 
     rig: walker
     speed_mm_s: {23: -35.7, 65: 156.3}
+    reverses_at_hz: 27        # optional: lowest frequency where it turns from backward to forward
+    peak_at_hz: 62            # optional: where it walks forward fastest
     tolerance_fraction: 0.3   # optional: each speed within ± 30 % (default; at least 30 % of 20 mm/s)
+    tolerance_hz: 2           # optional: each landmark within ± 2 Hz (default)
+
+At least a speed or a landmark is needed. The landmarks are the curve's shape
+(:func:`beambench.analysis.walking.speed_curve_shape`); a targets file adds a 2 Hz grid ± 8 Hz around each to the
+frequencies the calibrator runs, a walker session's own curve gives both (where it has them) on its own steps.
 
 The tolerances decide the calibration's per-target verdict (:mod:`.verdict`), not the objective.
 Either source becomes a :class:`Targets`: a per-step *target map* (frequency → regime label and, where measured,
@@ -149,15 +156,49 @@ def parse_targets(data: Any, where: str = "<targets>") -> Targets:
     if rig == "contact":
         return contact_targets(data, where)
     if rig == "walker":
-        speeds = _freq_map(where, "speed_mm_s", data.get("speed_mm_s"))
-        unknown = set(data) - {"rig", "speed_mm_s", "tolerance_fraction", "name", "description"}
-        if unknown:
-            raise CalibrationInputError(f"{where}: {sorted(unknown)[0]}: unknown field for rig: walker")
-        table = pd.DataFrame({"frequency_hz": sorted(speeds), "body_speed_mm_s": [speeds[f] for f in sorted(speeds)]})
-        table["regime"] = ""
-        tol = _tolerance(where, data, "tolerance_fraction")
-        return Targets("walker", where, table, {"speed_mm_s": speeds}, tolerance=tol)
+        return walker_targets(data, where)
     raise CalibrationInputError(f"{where}: rig = {rig!r}: unknown rig (contact or walker)")
+
+
+WALKER_LANDMARKS = ("reverses_at_hz", "peak_at_hz")  # beambench.analysis.walking.SpeedCurveShape's fields
+WALKER_KEYS = ("rig", "speed_mm_s", *WALKER_LANDMARKS, "tolerance_fraction", "tolerance_hz", "name", "description")
+LANDMARK_GRID_HZ = 2.0  # a landmark from a targets file is measured on this grid ...
+LANDMARK_SPAN_HZ = 8.0  # ... over ± this around the target
+
+
+def walker_targets(data: dict[str, Any], where: str) -> Targets:
+    """A walker's targets file (module docstring): speeds at frequencies and the curve's landmarks."""
+    unknown = set(data) - set(WALKER_KEYS)
+    if unknown:
+        raise CalibrationInputError(f"{where}: {sorted(unknown)[0]}: unknown field for rig: walker")
+    speeds = _freq_map(where, "speed_mm_s", data["speed_mm_s"]) if data.get("speed_mm_s") is not None else {}
+    landmarks = {k: _number(where, k, data[k]) for k in WALKER_LANDMARKS if data.get(k) is not None}
+    if not speeds and not landmarks:
+        raise CalibrationInputError(f"{where}: speed_mm_s: missing (or give reverses_at_hz / peak_at_hz)")
+    grid = {
+        float(f)
+        for hz in landmarks.values()
+        for f in np.round(hz + np.arange(-LANDMARK_SPAN_HZ, LANDMARK_SPAN_HZ + 1e-9, LANDMARK_GRID_HZ))
+        if f >= 1.0
+    }
+    tol = {**_tolerance(where, data, "tolerance_fraction"), **_tolerance(where, data, "tolerance_hz")}
+    return _walker(where, speeds, landmarks, sorted(set(speeds) | grid), tolerance=tol)
+
+
+def _walker(
+    where: str,
+    speeds: dict[float, float],
+    landmarks: dict[str, float],
+    frequencies: list[float],
+    protocol_text: str | None = None,
+    tolerance: dict[str, float] | None = None,
+) -> Targets:
+    table = pd.DataFrame(
+        {"frequency_hz": frequencies, "body_speed_mm_s": [speeds.get(f, math.nan) for f in frequencies]}
+    )
+    table["regime"] = ""
+    scalars: dict[str, Any] = {"speed_mm_s": speeds, **landmarks}
+    return Targets("walker", where, table, scalars, protocol_text, tolerance=tolerance or {})
 
 
 def contact_targets(data: dict[str, Any], where: str) -> Targets:
@@ -323,7 +364,10 @@ def _walker_session(p: Path, session: Any, general: dict[str, Any]) -> Targets:
     t = analysis.table
     if "body_speed_mm_s" not in t or not t["body_speed_mm_s"].notna().any():
         raise CalibrationInputError(f"{p}: no body speed in any step: is the body marker tracked?")
+    from beambench.analysis.walking import speed_curve_shape
+
     table = t[["frequency_hz", "body_speed_mm_s"]].dropna().reset_index(drop=True)
-    table["regime"] = ""
     speeds = dict(zip(table["frequency_hz"].astype(float), table["body_speed_mm_s"].astype(float)))
-    return Targets("walker", str(p), table, {"speed_mm_s": speeds}, str(general.get("protocol", "")) or None)
+    shape = speed_curve_shape(table["frequency_hz"].to_numpy(float), table["body_speed_mm_s"].to_numpy(float))
+    landmarks = {k: float(v) for k in WALKER_LANDMARKS if (v := getattr(shape, k)) is not None}
+    return _walker(str(p), speeds, landmarks, sorted(speeds), str(general.get("protocol", "")) or None)

@@ -10,7 +10,10 @@ length also move the speed but are geometry one can measure on the robot, so the
 
 Objective: the mean over the target frequencies of |v − v*| / max(|v*|, 20 mm/s) — absolute (L1) relative
 errors, so that the friction cliff's overshoot does not dominate, floored at 20 mm/s so a near-zero target does
-not. Each evaluation runs every target frequency as one batch from a settled robot
+not — and over the curve's landmarks (``reverses_at_hz``, ``peak_at_hz``: where the speed turns from backward to
+forward, where it peaks; :func:`beambench.analysis.walking.speed_curve_shape`) of 0.3·|f − f*| / tolerance_hz,
+so that a landmark at its tolerance weighs what a speed at its ± 30 % does (a twin curve without the landmark
+counts :data:`MISSING_LANDMARK`). Each evaluation runs every target frequency as one batch from a settled robot
 (:func:`beambench.sim.scenes.walker_batch.steady_speeds`: settle 3 s, record 1.5 s); the coarse stage at
 dt 1.5e-4 (1.25× cheaper; the contact time constant is then at MuJoCo's 2-step floor), the fine stages at the
 scene's converged default (1.2e-4 with a 0.3 ms contact).
@@ -29,10 +32,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from beambench.analysis.walking import SpeedCurveShape, speed_curve_shape
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration.checks import SPEED_TOLERANCE_FRACTION, TargetCheck
+from beambench.studies.calibration.checks import SPEED_TOLERANCE_FRACTION, TRANSITION_TOLERANCE_HZ, TargetCheck
 from beambench.studies.calibration.protocol_out import CalibratedSet, write_calibrated_protocol
 from beambench.studies.calibration.rig import CalibratableRig, CalibrationBase, register_rig
+from beambench.studies.calibration.targets import WALKER_LANDMARKS as LANDMARKS
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
 from beambench.studies.unknowns import Override, Unknown, apply_values
 
@@ -40,6 +45,8 @@ if TYPE_CHECKING:
     from beambench.sim.models.params import BeamParams
 
 SPEED_FLOOR_MM_S = 20.0
+MISSING_LANDMARK = 3.0  # objective share of a landmark the twin's curve does not have (no reversal, no forward peak)
+LANDMARK_NAMES = {"reverses_at_hz": "speed reverses (backward → forward)", "peak_at_hz": "fastest forward at"}
 WALKER_UNKNOWNS = (  # the walker's foot_mass and friction (beambench.sim.scenes.walker.WalkerParams)
     Unknown(
         "foot_mass",
@@ -71,7 +78,30 @@ def walker_objective(steps: pd.DataFrame, targets: Targets) -> tuple[float, dict
     for f, v in want.items():
         g = got.get(float(f), math.nan)
         parts[f"{float(f):g} Hz"] = abs(g - v) / max(abs(v), SPEED_FLOOR_MM_S) if math.isfinite(g) else 10.0
+    tol_hz = float(targets.tolerance.get("tolerance_hz", TRANSITION_TOLERANCE_HZ))
+    shape = _shape(steps)
+    for key in LANDMARKS:
+        if key in targets.scalars:
+            g = getattr(shape, key)
+            err = (
+                SPEED_TOLERANCE_FRACTION * abs(g - targets.scalars[key]) / tol_hz if g is not None else MISSING_LANDMARK
+            )
+            parts[key] = err
     return float(np.mean(list(parts.values()))), parts
+
+
+def _shape(steps: pd.DataFrame) -> SpeedCurveShape:
+    if steps.empty or "body_speed_mm_s" not in steps:
+        return SpeedCurveShape(None, None)
+    return speed_curve_shape(steps["frequency_hz"].to_numpy(float), steps["body_speed_mm_s"].to_numpy(float))
+
+
+def _landmark(key: str) -> Callable[[pd.DataFrame], float | None]:
+    def measure(steps: pd.DataFrame) -> float | None:
+        value: float | None = getattr(_shape(steps), key)
+        return value
+
+    return measure
 
 
 def _speed_at(f: float) -> Callable[[pd.DataFrame], float | None]:
@@ -94,6 +124,13 @@ def walker_checks(targets: Targets) -> list[TargetCheck]:
         tol = frac * max(abs(v), SPEED_FLOOR_MM_S)
         text = f"± {tol:.3g} mm/s ({100 * frac:g} %)"
         out.append(TargetCheck(f"speed at {f:g} Hz", "speed", float(v), tol, "mm/s", text, _speed_at(float(f))))
+    tol_hz = float(targets.tolerance.get("tolerance_hz", TRANSITION_TOLERANCE_HZ))
+    for key in LANDMARKS:
+        if key in targets.scalars:
+            want = float(targets.scalars[key])
+            out.append(
+                TargetCheck(LANDMARK_NAMES[key], "transition", want, tol_hz, "Hz", f"± {tol_hz:g} Hz", _landmark(key))
+            )
     return out
 
 
@@ -139,9 +176,10 @@ def simulate_walker(
 
 
 def walker_summary(steps: pd.DataFrame) -> dict:
-    return {
-        "speed_mm_s": {float(f): round(float(v), 1) for f, v in zip(steps["frequency_hz"], steps["body_speed_mm_s"])}
-    }
+    shape = _shape(steps)
+    landmarks = {k: None if (v := getattr(shape, k)) is None else round(v, 1) for k in LANDMARKS}
+    speeds = {float(f): round(float(v), 1) for f, v in zip(steps["frequency_hz"], steps["body_speed_mm_s"])}
+    return {"speed_mm_s": speeds, **landmarks}
 
 
 def write_walker_protocol(
