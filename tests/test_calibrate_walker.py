@@ -88,9 +88,10 @@ def test_landmark_targets_add_their_grid_and_are_scored_and_judged():
     )
     freqs = set(t.frequencies)
     assert {19.0, 27.0, 35.0, 54.0, 62.0, 70.0, 23.0} <= freqs and 18.0 not in freqs and 72.0 not in freqs
-    assert t.table.set_index("frequency_hz").loc[27.0, "body_speed_mm_s"] != t.table.set_index("frequency_hz").loc[
-        27.0, "body_speed_mm_s"
-    ]  # NaN: a grid row is not a speed target
+    assert (
+        t.table.set_index("frequency_hz").loc[27.0, "body_speed_mm_s"]
+        != t.table.set_index("frequency_hz").loc[27.0, "body_speed_mm_s"]
+    )  # NaN: a grid row is not a speed target
     rig = get_rig("walker")
     f = t.frequencies
     # a twin curve reversing at 30 Hz (3 Hz = the tolerance off) and peaking at 62; -35.7 at 23 Hz exactly
@@ -100,6 +101,7 @@ def test_landmark_targets_add_their_grid_and_are_scored_and_judged():
     assert parts["23 Hz"] == pytest.approx(0.0, abs=1e-9)
     assert parts["reverses_at_hz"] == pytest.approx(0.3)
     assert parts["peak_at_hz"] == pytest.approx(0.0, abs=1e-6)
+    assert j == pytest.approx(0.1, abs=1e-6)  # the mean of the three parts
     backward = pd.DataFrame({"frequency_hz": f, "body_speed_mm_s": [-50.0] * len(f)})
     _, parts = rig.objective(backward, t)
     assert parts["reverses_at_hz"] == MISSING_LANDMARK and parts["peak_at_hz"] == MISSING_LANDMARK

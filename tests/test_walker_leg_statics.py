@@ -110,3 +110,28 @@ def test_a_light_body_on_sideways_legs_stands_below_the_torsional_limit():
         assert np.abs(np.diff(body[-200:])).max() < 1e-4  # at rest, not falling
     finally:
         sim.physics.close()
+
+
+def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
+    """``leg_fold`` (the run's and the dry run's warning) names the shipped physical walker, whose sole load beats
+    the torsional limit; not the effective PRB3 walker (twist springs 11x the strip's: it stands), nor legs hanging
+    down. Its sole load is the standing PRB3 walker's measured contact force per sole within 3 %."""
+    from beambench.sim.scenes.walker import leg_fold, sole_load
+
+    sim = _walker()
+    try:
+        assert sim.model_warnings() and "legs fold" in sim.model_warnings()[0]
+    finally:
+        sim.physics.close()
+    hanging = _walker(leg_droop_deg=90.0, foot_length=0.010)
+    try:
+        assert hanging.model_warnings() == []
+    finally:
+        hanging.physics.close()
+    prb3 = WalkerSim(make_beam_model("prb3", load_params()), 90.0)
+    try:
+        assert leg_fold(prb3.physics.model, prb3.beam, prb3.rig) is None
+        measured = 0.5 * _normal_forces(prb3)["sole"]
+        assert sole_load(prb3.physics.model) == pytest.approx(measured, rel=0.03)
+    finally:
+        prb3.physics.close()

@@ -172,6 +172,14 @@ class ReportsAfterRun(Protocol):
 
 
 @runtime_checkable
+class WarnsOfModel(Protocol):
+    """A simulated rig or scene that knows, before it runs, that its model cannot stand for the real thing (the
+    physical twin's walker on legs that fold): one sentence each, said with the run's result and by the dry run."""
+
+    def model_warnings(self) -> list[str]: ...
+
+
+@runtime_checkable
 class Connectable(Protocol):
     """A device with a connection to open before use and close after (a CAN bus, a USB handle)."""
 

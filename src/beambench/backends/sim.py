@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.calibration import default_calibration
-from beambench.acquisition.capabilities import Stream
+from beambench.acquisition.capabilities import Stream, WarnsOfModel
 from beambench.acquisition.config import ClockModel, ConfigError, Protocol, SimOptions
 from beambench.acquisition.scenes import SceneInfo, foreign_option, runnable_names, scene_info
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
@@ -218,6 +218,10 @@ class SimRig:
         self.scene.restore(snap if snap is not None else look.start)
         if len(look.segments) > 1:
             self._look_info = lookahead.info(look)
+
+    def model_warnings(self) -> list[str]:
+        """The scene's own (``WarnsOfModel``): e.g. the physical twin's walker on legs that fold."""
+        return self.scene.model_warnings() if isinstance(self.scene, WarnsOfModel) else []
 
     def after_run(self) -> dict[str, Any]:
         """``sim_segments`` in ``/general`` when the sweep was cut into segments, the beam's final thermal state

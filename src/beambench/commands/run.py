@@ -164,10 +164,11 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
         except BeambenchError as exc:  # the run itself would say so; the dry run still prints its plan
             return f"not estimated ({exc})"
         parts = f"; {est.parallel} segments in parallel" if est.parallel > 1 else ""
+        warn = "".join(f"\nwarning: {w}" for w in est.warnings)
         return (
             f"about {_duration(est.wall_s)} of stepping ({protocol.sim.model}; measured here: "
             f"{est.wall_per_s * 1e3:.0f} ms per simulated second at {est.probe_hz:g} Hz{parts}), plus recording "
-            "overhead"
+            f"overhead{warn}"
         )
     wall = sum(s.duration_s / 10.0 * sim_plan.wall_s_per_10s[s.frequency_hz] for s in steps)
     return (

@@ -7,6 +7,7 @@ import os
 import time
 from dataclasses import dataclass
 
+from beambench.acquisition.capabilities import WarnsOfModel
 from beambench.acquisition.config import Protocol
 from beambench.acquisition.plan import plan
 
@@ -23,6 +24,7 @@ class ProbeEstimate:
     wall_per_s: float
     probe_hz: float
     parallel: int
+    warnings: tuple[str, ...] = ()  # the scene's own (``WarnsOfModel``), e.g. legs that fold
 
 
 def probe_run_time(protocol: Protocol) -> ProbeEstimate:
@@ -45,4 +47,5 @@ def probe_run_time(protocol: Protocol) -> ProbeEstimate:
 
     total = sum(s.duration_s * wall_per_s * relative(s.frequency_hz) for s in steps)
     parallel = max(1, min(protocol.sim.segments, os.cpu_count() or 1))
-    return ProbeEstimate(total / parallel, wall_per_s, probe_hz, parallel)
+    warnings = tuple(scene.model_warnings()) if isinstance(scene, WarnsOfModel) else ()
+    return ProbeEstimate(total / parallel, wall_per_s, probe_hz, parallel, warnings)

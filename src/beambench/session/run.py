@@ -17,7 +17,7 @@ from rich.progress import (
 )
 
 from beambench.acquisition.calibration import default_calibration
-from beambench.acquisition.capabilities import DeviceFault, HasSilenceTimeouts, ReportsAfterRun, Rig
+from beambench.acquisition.capabilities import DeviceFault, HasSilenceTimeouts, ReportsAfterRun, Rig, WarnsOfModel
 from beambench.acquisition.config import Backend, ConfigError, Protocol
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
@@ -181,6 +181,8 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                 append_general(path, extra)
             except OSError as exc:
                 hub.errors.append(f"{writer.label}: /general not completed ({exc.strerror or exc})")
+    if isinstance(rig, WarnsOfModel):  # the model's own word on what it cannot stand for (e.g. folding legs)
+        result.warnings += rig.model_warnings()
     result.warnings += hub.errors  # the command says them (one line with the result when the run failed)
     return result
 

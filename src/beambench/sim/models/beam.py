@@ -58,6 +58,10 @@ class BeamModel(ABC):
         """Model name and parameters, for the session's ``/general/identity``."""
         return {"model": self.name, "params": self.params.to_dict()}
 
+    @abstractmethod
+    def torsion_stiffness(self) -> float:
+        """The whole beam's twist stiffness about its axis, tip against clamp (N·m/rad)."""
+
     # Shared helpers for subclasses ------------------------------------------------------------------
     def _link_geom(self, body: mujoco.MjsBody, length: float, mass: float, name: str) -> None:
         """A box of the beam's section over ``[0, length]`` along +y, visual only (no collisions)."""
@@ -85,6 +89,10 @@ class PRB3(BeamModel):
     """
 
     name = "prb3"
+
+    def torsion_stiffness(self) -> float:
+        """R4 and R5 in series: k_twist / 2."""
+        return self.params.k_twist / 2.0
 
     def build(
         self,

@@ -267,6 +267,10 @@ class RodModel(BeamModel):
     ) -> BeamSites:
         return add_rod(parent, self.rod, twist_deg, pos, quat, prefix)
 
+    def torsion_stiffness(self) -> float:
+        """Saint-Venant: GJ / L."""
+        return self.rod.gj / self.rod.length
+
     def describe(self) -> dict[str, Any]:
         r = self.rod
         return {

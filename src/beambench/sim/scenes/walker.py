@@ -350,6 +350,38 @@ def _add_foot(
     tip.add_site(name=f"foot_{name}", pos=(down * wp.foot_length).tolist(), size=[0.002, 0, 0])
 
 
+FOLD_DROOP_DEG = 45.0  # legs closer to sideways than this carry the sole's push on their torsion
+
+
+def sole_load(model: mujoco.MjModel) -> float:
+    """Static load per sole (N) of the walker in its natural shape: the soles' share of the weight by the moment
+    balance about the wheels' line (pitch axis), halved."""
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    body = model.body("walker").id
+    weight = float(model.body_subtreemass[body]) * -float(model.opt.gravity[2])
+    x_com, x_wheel = float(data.subtree_com[body][0]), float(data.geom("wheel_l").xpos[0])
+    x_sole = 0.5 * float(data.geom("sole_left").xpos[0] + data.geom("sole_right").xpos[0])
+    return 0.5 * weight * (x_com - x_wheel) / (x_sole - x_wheel)
+
+
+def leg_fold(model: mujoco.MjModel, beam: BeamModel, wp: WalkerParams) -> str | None:
+    """A sentence when the legs cannot carry the walker, else None: a sole pushed up by the floor a foot length
+    below a sideways leg's tip is an inverted pendulum on the leg's twist stiffness k, standing only while its
+    load F · foot length < k (``tests/test_walker_leg_statics.py``; docs/contact-twin.md)."""
+    if wp.leg_droop_deg >= FOLD_DROOP_DEG or wp.foot_length <= 0:
+        return None
+    k = beam.torsion_stiffness()
+    load, limit = sole_load(model), k / wp.foot_length
+    if load <= limit:
+        return None
+    return (
+        f"the walker's {beam.name} legs fold: each sole carries {load:.2f} N, {load / limit:.1f}x the {limit:.2f} N "
+        f"that a {1e3 * wp.foot_length:g} mm foot stands on the legs' twist stiffness ({k:.3g} N·m/rad), so its "
+        "speeds are no walking robot's (docs/contact-twin.md; a walker that stands: sim.model: prb3, sim.params: paper)"
+    )
+
+
 QUENCH_S = 0.001  # s, velocity-quench interval of the damped preroll
 
 
@@ -401,6 +433,11 @@ class WalkerSim(DrivenScene):
 
     def set_frequency(self, hz: float) -> None:
         self.ramp.setpoint = float(hz)
+
+    def model_warnings(self) -> list[str]:
+        """What makes this walker no robot (``WarnsOfModel``): legs whose feet fold under it (:func:`leg_fold`)."""
+        fold = leg_fold(self.physics.model, self.beam, self.rig)
+        return [fold] if fold else []
 
     @staticmethod
     def step_cost(hz: float) -> float:
