@@ -135,3 +135,21 @@ def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
         assert sole_load(prb3.physics.model) == pytest.approx(measured, rel=0.03)
     finally:
         prb3.physics.close()
+
+
+def test_a_run_of_the_physical_walker_ends_with_the_fold_warning(tmp_path):
+    """The run's result (stderr) carries the model's warning; the session is written as usual (exit 0)."""
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+
+    proto = tmp_path / "w.yaml"
+    proto.write_text(
+        "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
+        "sim: {model: rod5g, params: physical, noise: false}\n"
+    )
+    res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
+    assert res.exit_code == 0, res.output
+    assert "beambench: warning: the walker's rod5g legs fold" in res.stderr, res.stderr
+    session = res.stdout.strip().splitlines()[-1]
+    assert session.endswith(".h5") and (tmp_path / session).is_file(), res.stdout
