@@ -50,7 +50,7 @@ from beambench.sim.models.registry import (
     model_family,
 )
 from beambench.sim.scenes.release import G, release_batch, release_models
-from beambench.studies.fit_sysid import CONFIDENCE, SHIFT, ReleaseResidual, SysidFit
+from beambench.studies.fit_sysid import CONFIDENCE, SHIFT, UNITS, ReleaseResidual, SysidFit
 from beambench.studies.unknowns import BEAM_OVERRIDES, Unknown
 
 NS = 1_000_000_000
@@ -616,6 +616,27 @@ def _physical_intervals(space: ParamSpace, fit: SysidFit) -> dict[str, tuple[flo
 
 
 # ------------------------------------------------------------------------------------------------ output
+def value_with_interval(result: FitResult, key: str) -> str:
+    """``key``'s fitted value ± the half-width of its interval, in the report's unit (``20.01 ± 0.027 MPa``); an
+    asymmetric interval (l2 derived from its share) as ``[lo, hi]``."""
+    shift = key == "release_shift_s"
+    value = result.shift_s if shift else result.values[key]
+    scale, unit = UNITS.get(SHIFT if shift else key, (1.0, ""))
+    v, text = value * scale, f"{value * scale:.5g}"
+    if key in result.intervals:
+        lo, hi = (x * scale for x in result.intervals[key])
+        symmetric = math.isclose(hi - v, v - lo, rel_tol=1e-3, abs_tol=1e-12)
+        text += f" ± {(hi - lo) / 2:.2g}" if symmetric else f" [{lo:.5g}, {hi:.5g}]"
+    return f"{text} {unit}".strip()
+
+
+def interval_summary(result: FitResult) -> str:
+    """One line: every fitted value ± its interval, the confidence level and where it comes from."""
+    keys = [k for k in result.intervals if k in result.values or k == "release_shift_s"]
+    parts = [f"{k} = {value_with_interval(result, k)}" for k in keys]
+    return f"{', '.join(parts)} ({result.confidence:.0%} confidence, mujoco.sysid.calculate_intervals)"
+
+
 def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
     """The YAML document of a fitted parameter set (same layout as ``sim_backend/prb3_paper.yaml``)."""
     p = result.params
@@ -650,6 +671,10 @@ def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
             "nfev": result.nfev,
             "wall_s": round(result.wall_s, 2),
             "date": datetime.now().isoformat(timespec="seconds"),
+            "method": result.method,
+            "confidence": result.confidence,
+            "intervals": {k: [float(lo), float(hi)] for k, (lo, hi) in result.intervals.items()},  # SI
+            "notes": interval_summary(result),
         },
     }
 
@@ -658,10 +683,11 @@ def write_param_set(result: FitResult, name: str, directory: str | Path = SIM_BA
     """Save the fit as ``<directory>/<family>_<name>.yaml``; it loads back with ``load_params(name)``."""
     family = model_family(result.model)
     path = Path(directory) / f"{family}_{name}.yaml"
-    doc = param_set_dict(result, name, source or f"beambench fit ({result.model}): RMS {result.rms_mm:.3f} mm")
+    source = source or f"beambench fit ({result.model})"
+    doc = param_set_dict(result, name, f"{source}: RMS {result.rms_mm:.3f} mm; {interval_summary(result)}")
     header = (
-        f"# Fitted by `beambench fit` to a release test ({result.model}; RMS {result.rms_mm:.3f} mm, "
-        f"mean marker error {result.mae_mm:.3f} mm). SI units.\n"
+        f"# Fitted by `beambench fit` to a release test ({result.model}, {result.method}; RMS {result.rms_mm:.3f} mm, "
+        f"mean marker error {result.mae_mm:.3f} mm). SI units; intervals under fit:.\n"
     )
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(header + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))
