@@ -5,18 +5,25 @@ the PRB3 variables by differential evolution, minimising the RMS marker error ov
 
     min sqrt( Σ_j Σ_i |M_i(j) − M̂_i(j)|² / (3n) )        (i: the three tip markers, j: the n samples)
 
-Here the same objective is minimised with :func:`scipy.optimize.differential_evolution` (``vectorized=True``):
-each generation's population is one batch of release simulations (:func:`beambench.sim.scenes.release.release_batch`,
-one compiled model per member, stepped together by ``mujoco.rollout`` on all cores), never one Python loop per
-member. Fitted variables (:class:`ParamSpace`):
+The objective is a sum of squares over a time series, so by default it is minimised as one
+(``method="sysid"``, :mod:`beambench.studies.fit_sysid`): MuJoCo's ``mujoco.sysid`` Levenberg–Marquardt, each
+finite-difference Jacobian one batched rollout, started from the best of one batch screening the bounds (the
+set's own values and a Latin hypercube), then ``mujoco.sysid.calculate_intervals`` gives each value's 95 %
+interval. The paper's :func:`scipy.optimize.differential_evolution` stays (``method="de"``; ``"de+sysid"`` uses a
+coarse DE as the global start for a bad initial guess): each generation's population is one batch of release
+simulations (:func:`beambench.sim.scenes.release.release_batch`, one compiled model per member, stepped together
+by ``mujoco.rollout`` on all cores), never one Python loop per member. Fitted variables (:class:`ParamSpace`),
+each inside its physical bounds:
 
 - **PRB3**: k, b (both on the bending and the twist joints, as in the paper), l2 with l1 = 0 and
   l3 = L − l2; with ``free_l1`` also l1 (l3 = L − l1 − l2). k and b are searched on a log scale.
-- **Segmented rod** (``rodN``): Young's modulus E and the stiffness-proportional damping β (b = β·k).
+- **Segmented rod** (``rodN``): Young's modulus E and the stiffness-proportional damping β (b = β·k), within the
+  physical set's bounds (printed TPU 95A: 12–30 MPa, 0.4–10 ms).
 
 The release instant of measured data is known only to a sample or so (and the sim's mocap samples arrive
 with a receive latency), so every candidate is compared at the best of a small grid of time shifts
-(``shift_window_s``): a nuisance parameter minimised inside the objective at no extra simulation.
+(``shift_window_s``): a nuisance parameter minimised inside the objective at no extra simulation. The least
+squares fits it as a bounded parameter instead (its interval is reported with the others).
 
 :func:`load_release_session` turns a ``rig: release`` session into :class:`ReleaseData`; :func:`fit_release`
 runs the fit; :func:`write_param_set` saves the result as ``sim_backend/<model>_<name>.yaml`` (selectable with
@@ -433,13 +440,14 @@ def default_integrator(model: str) -> str:
 
 
 METHODS = ("sysid", "de", "de+sysid")
+COARSE_DE_TOL = 0.05  # de+sysid: the DE only finds the basin (population spread 5 % of its mean), sysid refines
 
 
 @dataclass(frozen=True)
 class FitOptions:
     """How a release fit runs: ``method`` — ``sysid`` (a one-batch screen of the box for the start, then
     ``mujoco.sysid`` least squares; :mod:`beambench.studies.fit_sysid`), ``de`` (differential evolution, the
-    paper's optimizer) or ``de+sysid`` (DE as the global start, sysid refining); ``free_l1`` (PRB3: fit l1
+    paper's optimizer) or ``de+sysid`` (a coarse DE, stopped at a 5 % population spread, as the global start; sysid refining); ``free_l1`` (PRB3: fit l1
     too); the differential evolution's ``popsize``, ``maxiter``, ``tol`` and ``seed``; the least squares'
     ``max_iters`` and the screen's size (``screen`` × the number of variables, plus the set's own values);
     the simulation's ``timestep``, ``integrator`` (None: the model's default) and threads (``nthread``,
@@ -590,7 +598,7 @@ def _differential_evolution(
         space.bounds(),
         popsize=options.popsize,
         maxiter=options.maxiter,
-        tol=options.tol,
+        tol=options.tol if options.method == "de" else max(options.tol, COARSE_DE_TOL),
         rng=np.random.default_rng(options.seed),
         vectorized=True,
         updating="deferred",
