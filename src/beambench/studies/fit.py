@@ -440,18 +440,19 @@ def default_integrator(model: str) -> str:
 
 
 METHODS = ("sysid", "de", "de+sysid")
-COARSE_DE_TOL = 0.05  # de+sysid: the DE only finds the basin (population spread 5 % of its mean), sysid refines
+COARSE_DE_TOL = 0.05  # de+sysid: the DE only finds the basin (errors' spread 5 % of their mean), sysid refines
 
 
 @dataclass(frozen=True)
 class FitOptions:
     """How a release fit runs: ``method`` — ``sysid`` (a one-batch screen of the box for the start, then
     ``mujoco.sysid`` least squares; :mod:`beambench.studies.fit_sysid`), ``de`` (differential evolution, the
-    paper's optimizer) or ``de+sysid`` (a coarse DE, stopped at a 5 % population spread, as the global start; sysid refining); ``free_l1`` (PRB3: fit l1
-    too); the differential evolution's ``popsize``, ``maxiter``, ``tol`` and ``seed``; the least squares'
-    ``max_iters`` and the screen's size (``screen`` × the number of variables, plus the set's own values);
-    the simulation's ``timestep``, ``integrator`` (None: the model's default) and threads (``nthread``,
-    None: all cores), and the release-time search window (None: the data's own uncertainty)."""
+    paper's optimizer) or ``de+sysid`` (a coarse DE, stopped at a 5 % spread of its population's errors, as the
+    global start; sysid refining); ``free_l1`` (PRB3: fit l1 too); the differential evolution's ``popsize``,
+    ``maxiter``, ``tol`` and ``seed``; the least squares' ``max_iters`` and the screen's size (``screen`` × the
+    number of variables, plus the set's own values); the simulation's ``timestep``, ``integrator`` (None: the
+    model's default) and threads (``nthread``, None: all cores), and the release-time search window (None: the
+    data's own uncertainty)."""
 
     method: str = "sysid"
     free_l1: bool = False
@@ -502,7 +503,6 @@ def fit_release(
         if progress is not None:
             progress(len(history), best)
 
-    sysid_fit: SysidFit | None = None
     try:
         with quiet_mujoco_warnings() as warned:
             if options.method == "sysid":
@@ -511,7 +511,10 @@ def fit_release(
                 x, message, converged = _differential_evolution(obj, space, options, step)
             _, shift, _ = obj.evaluate(np.asarray(x)[None])
             threads = options.nthread or os.cpu_count() or 1
-            lsq = ReleaseResidual(data, space, options.timestep, integrator, threads, window)
+            try:
+                lsq = ReleaseResidual(data, space, options.timestep, integrator, threads, window)
+            except ValueError as exc:
+                raise FitError(f"{data.source or 'release data'}: {exc}") from None
             if options.method == "de":  # the intervals at the DE optimum: one Jacobian, no refinement
                 sysid_fit = lsq.fit(x, float(shift[0]), max_iters=0)
             else:
@@ -612,7 +615,8 @@ def _differential_evolution(
 
 
 def _physical_intervals(space: ParamSpace, fit: SysidFit) -> dict[str, tuple[float, float]]:
-    """The sysid intervals by the names :meth:`ParamSpace.values` reports (``l2_share`` → l2 by its share)."""
+    """The sysid intervals by the names :meth:`ParamSpace.values` reports (``l2_share`` → l2 at the fitted l1;
+    l1's own uncertainty is not carried into it)."""
     out = dict(fit.intervals)
     if "l2_share" in out:
         rest = space.base.length - space.values(fit.x)["l1"]

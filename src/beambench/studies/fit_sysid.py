@@ -97,6 +97,8 @@ class ReleaseResidual:
         self.valid = np.isfinite(data.markers).all(axis=2)  # [n, M]
         if not self.valid.any():
             raise ValueError("no valid marker sample to fit")
+        if np.any(np.diff(data.t) <= 0):
+            raise ValueError("the marker samples' times do not increase strictly (repeated time stamps)")
         self.rollouts = 0
         self.sim_wall = 0.0
         spec = self._spec(space.params([v.coord(_mid(v.lo, v.hi, v.log)) for v in space.variables]))
