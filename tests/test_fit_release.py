@@ -39,6 +39,7 @@ from beambench.studies.fit import (
     ReleaseTest,
     default_base,
     fit_release,
+    interval_summary,
     load_release_session,
     synthetic_release,
 )
@@ -236,6 +237,15 @@ def test_fit_command_end_to_end(session, tmp_path):
     # and the result is in the session's /processing
     table = read_processing(session, "fit_prb3")
     assert dict(zip(table["parameter"], table["value"]))["k"] == pytest.approx(p.k)
+
+
+def test_a_fit_that_needs_an_unphysical_value_says_so(session):
+    """The paper's PRB3 release is stiffer than any printed-TPU rod: the rod's E ends at its 30 MPa bound (the
+    error stays at millimetres), and the result names it instead of passing the interval off as a confidence."""
+    r = fit_release(load_release_session(session), "rod5", FitOptions(nthread=2))
+    assert r.at_bounds.get("youngs_modulus", "").startswith("upper bound 3e+07")
+    assert r.values["youngs_modulus"] == pytest.approx(30e6, rel=0.02) and r.rms_mm > 1.0
+    assert "at its bound" in interval_summary(r)
 
 
 def test_session_loader_uses_the_recorded_release(session):

@@ -236,6 +236,12 @@ def _print_results(results, data, console) -> None:
         t.add_row(r.model, "method", f"{r.method}: {r.nfev} rollouts, {r.generations} steps", "", "")
         t.add_row(r.model, "wall time (s)", f"{r.wall_s:.1f}", "", "", end_section=True)
     console.print(t)
+    for r in results:
+        for key, where in r.at_bounds.items():
+            console.print(
+                f"[yellow]{r.model}: {key} ended at its {where}: the release test asks for a value outside the "
+                "physical range; its interval is not a confidence interval"
+            )
 
 
 def _write_processing(session: Path, result, console) -> None:

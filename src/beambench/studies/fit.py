@@ -398,6 +398,9 @@ class FitResult:
     # CONFIDENCE intervals (SI) of the fitted values by name, ``release_shift`` (s) too where it was fitted
     intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
     confidence: float = CONFIDENCE
+    # searched variables that ended within AT_BOUND of a bound (on their search axis): the data asks for a value
+    # the physical box does not allow, and their interval is not a confidence interval (a constrained optimum)
+    at_bounds: dict[str, str] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         return {
@@ -407,6 +410,7 @@ class FitResult:
             "intervals": {k: list(v) for k, v in self.intervals.items()},
             "confidence": self.confidence,
             "rollouts": self.nfev,
+            "at_bounds": self.at_bounds,
             "rms_mm": self.rms_mm,
             "mae_mm": self.mae_mm,
             "max_mm": self.max_mm,
@@ -440,6 +444,7 @@ def default_integrator(model: str) -> str:
 
 
 METHODS = ("sysid", "de", "de+sysid")
+AT_BOUND = 0.01  # a fitted value this close to a bound (share of its search range) is reported as at it
 COARSE_DE_TOL = 0.05  # de+sysid: the DE only finds the basin (errors' spread 5 % of their mean), sysid refines
 
 
@@ -554,7 +559,20 @@ def fit_release(
         options.method,
         intervals,
         CONFIDENCE,
+        _at_bounds(space, x),
     )
+
+
+def _at_bounds(space: ParamSpace, x: Sequence[float] | np.ndarray) -> dict[str, str]:
+    """The variables at (within :data:`AT_BOUND` of) a bound: name → "lower/upper bound <value>"."""
+    out = {}
+    for var, xi in zip(space.variables, x):
+        lo, hi = var.bounds
+        if xi - lo <= AT_BOUND * (hi - lo):
+            out[var.name] = f"lower bound {var.lo:g} {var.unit}".strip()
+        elif hi - xi <= AT_BOUND * (hi - lo):
+            out[var.name] = f"upper bound {var.hi:g} {var.unit}".strip()
+    return out
 
 
 def _screen(obj: ReleaseObjective, space: ParamSpace, n: int, seed: int) -> tuple[np.ndarray, str, bool]:
@@ -646,7 +664,12 @@ def interval_summary(result: FitResult) -> str:
     """One line: every fitted value ± its interval, the confidence level and where it comes from."""
     keys = [k for k in result.intervals if k in result.values or k == "release_shift_s"]
     parts = [f"{k} = {value_with_interval(result, k)}" for k in keys]
-    return f"{', '.join(parts)} ({result.confidence:.0%} confidence, mujoco.sysid.calculate_intervals)"
+    text = f"{', '.join(parts)} ({result.confidence:.0%} confidence, mujoco.sysid.calculate_intervals)"
+    if result.at_bounds:
+        text += "; at its bound, no confidence interval: " + ", ".join(
+            f"{k} ({w})" for k, w in result.at_bounds.items()
+        )
+    return text
 
 
 def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
