@@ -91,6 +91,25 @@ def test_static_equilibrium_balances_forces():
     assert np.abs(q).max() > 0.1  # and it is a real deflection
 
 
+def test_loaded_equilibrium_of_a_soft_rod_is_continuous_in_its_modulus():
+    """A soft rod under the 200 g load has several equilibria (bent down, or twisted up sideways); the load hung
+    in increments follows one branch, so moduli 0.1 % apart give tips 0.1 % apart — one Newton solve from the
+    straight beam gave tips 20 mm apart here, and a fit's objective jumping 0.4 → 22 mm."""
+    base = load_params("paper", model="rod")
+    tips = []
+    for e in (19.90e6, 19.92e6, 19.94e6):
+        p = replace(base, material=replace(base.material, youngs_modulus=e), beta=1.5e-3)
+        m = release_models([make_beam_model("rod5", p)], 90.0, "implicitfast", 2e-4)[0]
+        d = mujoco.MjData(m)
+        d.qpos[:] = static_equilibrium(m, 0.2 * G)
+        d.ctrl[:] = 0.2 * G
+        mujoco.mj_forward(m, d)
+        assert np.abs(d.qacc).max() < 1e-4
+        tips.append(d.sensor("tip1").data.copy())
+    assert tips[0][2] < -0.02  # bent down by the weight (2–3 cm), not twisted up
+    assert np.abs(np.diff(tips, axis=0)).max() < 1e-4  # m
+
+
 @pytest.mark.parametrize("b", [0.0029, 0.0008])
 def test_energy_lost_equals_damper_dissipation(b):
     """E_pot(loaded shape) − E_pot(rest) = ∫ Σ b·q̇² dt: the decay is the dampers' doing, nothing else."""

@@ -5,18 +5,25 @@ the PRB3 variables by differential evolution, minimising the RMS marker error ov
 
     min sqrt( Σ_j Σ_i |M_i(j) − M̂_i(j)|² / (3n) )        (i: the three tip markers, j: the n samples)
 
-Here the same objective is minimised with :func:`scipy.optimize.differential_evolution` (``vectorized=True``):
-each generation's population is one batch of release simulations (:func:`beambench.sim.scenes.release.release_batch`,
-one compiled model per member, stepped together by ``mujoco.rollout`` on all cores), never one Python loop per
-member. Fitted variables (:class:`ParamSpace`):
+The objective is a sum of squares over a time series, so by default it is minimised as one
+(``method="sysid"``, :mod:`beambench.studies.fit_sysid`): MuJoCo's ``mujoco.sysid`` Levenberg–Marquardt, each
+finite-difference Jacobian one batched rollout, started from the best of one batch screening the bounds (the
+set's own values and a Latin hypercube), then ``mujoco.sysid.calculate_intervals`` gives each value's 95 %
+interval. The paper's :func:`scipy.optimize.differential_evolution` stays (``method="de"``; ``"de+sysid"`` uses a
+coarse DE as the global start for a bad initial guess): each generation's population is one batch of release
+simulations (:func:`beambench.sim.scenes.release.release_batch`, one compiled model per member, stepped together
+by ``mujoco.rollout`` on all cores), never one Python loop per member. Fitted variables (:class:`ParamSpace`),
+each inside its physical bounds:
 
 - **PRB3**: k, b (both on the bending and the twist joints, as in the paper), l2 with l1 = 0 and
   l3 = L − l2; with ``free_l1`` also l1 (l3 = L − l1 − l2). k and b are searched on a log scale.
-- **Segmented rod** (``rodN``): Young's modulus E and the stiffness-proportional damping β (b = β·k).
+- **Segmented rod** (``rodN``): Young's modulus E and the stiffness-proportional damping β (b = β·k), within the
+  physical set's bounds (printed TPU 95A: 12–30 MPa, 0.4–10 ms).
 
 The release instant of measured data is known only to a sample or so (and the sim's mocap samples arrive
 with a receive latency), so every candidate is compared at the best of a small grid of time shifts
-(``shift_window_s``): a nuisance parameter minimised inside the objective at no extra simulation.
+(``shift_window_s``): a nuisance parameter minimised inside the objective at no extra simulation. The least
+squares fits it as a bounded parameter instead (its interval is reported with the others).
 
 :func:`load_release_session` turns a ``rig: release`` session into :class:`ReleaseData`; :func:`fit_release`
 runs the fit; :func:`write_param_set` saves the result as ``sim_backend/<model>_<name>.yaml`` (selectable with
@@ -50,6 +57,7 @@ from beambench.sim.models.registry import (
     model_family,
 )
 from beambench.sim.scenes.release import G, release_batch, release_models
+from beambench.studies.fit_sysid import CONFIDENCE, SHIFT, UNITS, ReleaseResidual, SysidFit
 from beambench.studies.unknowns import BEAM_OVERRIDES, Unknown
 
 NS = 1_000_000_000
@@ -226,13 +234,23 @@ class ParamSpace:
 
     @staticmethod
     def rod(base: BeamParams, model: str = "rod10") -> ParamSpace:
-        v = (Unknown("youngs_modulus", 8e6, 1.2e8, True, "Pa"), Unknown("beta", 1e-5, 2e-2, True, "s"))
+        """E and β within their physical ranges: the set's own ``bounds:`` where it has them, else those of the
+        shipped physical set (``sim_backend/rod_physical.yaml``: printed TPU 95A 12–30 MPa, β 0.4–10 ms)."""
+        keys = {"youngs_modulus": "beam.material.youngs_modulus", "beta": "beam.beta"}
+        physical = (
+            base.bounds if all(k in base.bounds for k in keys.values()) else default_params(model, "physical").bounds
+        )
+        b = {name: physical[key] for name, key in keys.items()}
+        v = (
+            Unknown("youngs_modulus", b["youngs_modulus"].min, b["youngs_modulus"].max, True, "Pa"),
+            Unknown("beta", b["beta"].min, b["beta"].max, True, "s"),
+        )
         return ParamSpace(model, v, base)
 
     def bounds(self) -> list[tuple[float, float]]:
         return [v.bounds for v in self.variables]
 
-    def values(self, x: Sequence[float]) -> dict[str, float]:
+    def values(self, x: Sequence[float] | np.ndarray) -> dict[str, float]:
         """Physical values of a search vector (``l2_share`` resolved into l2)."""
         out = {v.name: v.value(xi) for v, xi in zip(self.variables, x)}
         if self.model == "prb3":
@@ -245,7 +263,7 @@ class ParamSpace:
             out = {k: out[k] for k in ("k", "b", "l1", "l2", "l3")}
         return out
 
-    def params(self, x: Sequence[float], name: str = "fit") -> BeamParams:
+    def params(self, x: Sequence[float] | np.ndarray, name: str = "fit") -> BeamParams:
         p = replace(self.base, name=name, model="prb3" if self.model == "prb3" else "rod")
         for key, value in self.values(x).items():
             p = BEAM_OVERRIDES[key](p, value)
@@ -376,11 +394,23 @@ class FitResult:
     timestep: float = 0.0
     diverged: int = 0  # candidates whose simulation blew up (scored as 1 m)
     mujoco_warnings: int = 0
+    method: str = "de"
+    # CONFIDENCE intervals (SI) of the fitted values by name, ``release_shift`` (s) too where it was fitted
+    intervals: dict[str, tuple[float, float]] = field(default_factory=dict)
+    confidence: float = CONFIDENCE
+    # searched variables that ended within AT_BOUND of a bound (on their search axis): the data asks for a value
+    # the physical box does not allow, and their interval is not a confidence interval (a constrained optimum)
+    at_bounds: dict[str, str] = field(default_factory=dict)
 
     def summary(self) -> dict[str, Any]:
         return {
             "model": self.model,
+            "method": self.method,
             "values": self.values,
+            "intervals": {k: list(v) for k, v in self.intervals.items()},
+            "confidence": self.confidence,
+            "rollouts": self.nfev,
+            "at_bounds": self.at_bounds,
             "rms_mm": self.rms_mm,
             "mae_mm": self.mae_mm,
             "max_mm": self.max_mm,
@@ -405,18 +435,31 @@ def default_base(model: str) -> BeamParams:
 
 
 def default_integrator(model: str) -> str:
-    """PRB3: the scene's implicitfast. Rods: ``discrete`` (implicit in the springs), which stays stable over
-    the whole search box at dt = 2e-4 — implicitfast diverges there for stiff, lightly damped candidates."""
-    return "discrete" if is_rod(model) else "implicitfast"
+    """implicitfast, the scenes' own, for every family. Over the rods' physical box (E 12–30 MPa, β ≥ 0.4 ms) it
+    is stable at dt = 2e-4 and 0.02–0.36 mm RMS from a dt = 2.5e-5 reference, where ``discrete`` (used while the
+    box reached 120 MPa and β = 0.01 ms, where implicitfast diverged) is 0.03–3.6 mm off: its numerical damping
+    made a least-squares fit read β 13 % low."""
+    del model
+    return "implicitfast"
+
+
+METHODS = ("sysid", "de", "de+sysid")
+AT_BOUND = 0.01  # a fitted value this close to a bound (share of its search range) is reported as at it
+COARSE_DE_TOL = 0.05  # de+sysid: the DE only finds the basin (errors' spread 5 % of their mean), sysid refines
 
 
 @dataclass(frozen=True)
 class FitOptions:
-    """How a release fit runs: ``free_l1`` (PRB3: fit l1 too), the differential evolution's ``popsize``,
-    ``maxiter``, ``tol`` and ``seed``, the simulation's ``timestep``, ``integrator`` (None: the model's default)
-    and threads (``nthread``, None: all cores), and the release-time search window (None: the data's own
-    uncertainty)."""
+    """How a release fit runs: ``method`` — ``sysid`` (a one-batch screen of the box for the start, then
+    ``mujoco.sysid`` least squares; :mod:`beambench.studies.fit_sysid`), ``de`` (differential evolution, the
+    paper's optimizer) or ``de+sysid`` (a coarse DE, stopped at a 5 % spread of its population's errors, as the
+    global start; sysid refining); ``free_l1`` (PRB3: fit l1 too); the differential evolution's ``popsize``,
+    ``maxiter``, ``tol`` and ``seed``; the least squares' ``max_iters`` and the screen's size (``screen`` × the
+    number of variables, plus the set's own values); the simulation's ``timestep``, ``integrator`` (None: the
+    model's default) and threads (``nthread``, None: all cores), and the release-time search window (None: the
+    data's own uncertainty)."""
 
+    method: str = "sysid"
     free_l1: bool = False
     popsize: int = 12
     maxiter: int = 60
@@ -426,6 +469,8 @@ class FitOptions:
     integrator: str | None = None
     nthread: int | None = None
     shift_window_s: float | None = None
+    max_iters: int = 40
+    screen: int = 4
 
 
 def fit_release(
@@ -435,88 +480,198 @@ def fit_release(
     base: BeamParams | None = None,
     progress: Callable[[int, float], None] | None = None,
 ) -> FitResult:
-    """Fit ``model`` (``prb3`` or a rod ``rodN``; ``rod`` means ``rod10``) to a release test by differential
-    evolution; every generation is one batched simulation of the whole population."""
-    from scipy.optimize import differential_evolution
-
-    free_l1, timestep = options.free_l1, options.timestep
-
+    """Fit ``model`` (``prb3`` or a rod ``rodN``; ``rod`` means ``rod10``) to a release test by ``options.method``
+    (see :class:`FitOptions`); every step evaluates its candidates in one batched simulation. ``progress`` is
+    called with (generation or iteration, best RMS in m). The result carries each value's interval from
+    ``mujoco.sysid.calculate_intervals`` at the optimum (for ``de`` too: one Jacobian there)."""
+    if options.method not in METHODS:
+        raise FitError(f"--method = {options.method!r}: one of {', '.join(METHODS)}")
     try:
         model = canonical_model(model)
     except UnknownModelError:
         raise FitError(f"--model = {model!r}: prb3 or rod (rod10, rod5, rod3g …)") from None
     rod = is_rod(model)
-    if rod and free_l1:
+    if rod and options.free_l1:
         raise FitError("--free-l1 applies to prb3 only")
     base = base or default_base(model)
     if abs(base.length - data.length) > 1e-6:
         base = replace(base, l2=data.length / 2, l3=data.length / 2) if rod else base
-    space = ParamSpace.rod(base, model) if rod else ParamSpace.prb3(base, free_l1)
-    shift_window_s = options.shift_window_s
-    if shift_window_s is None:
-        shift_window_s = data.release_uncertainty_s
+    space = ParamSpace.rod(base, model) if rod else ParamSpace.prb3(base, options.free_l1)
+    window = data.release_uncertainty_s if options.shift_window_s is None else options.shift_window_s
     integrator = options.integrator or default_integrator(model)
-    obj = ReleaseObjective(data, space, timestep, integrator, options.nthread, shift_window_s)
+    obj = ReleaseObjective(data, space, options.timestep, integrator, options.nthread, window)
     history: list[float] = []
     t0 = time.perf_counter()
 
-    def callback(intermediate_result: Any) -> None:
-        history.append(float(intermediate_result.fun))
+    def step(k: int, best: float) -> None:
+        history.append(best)
         if progress is not None:
-            progress(len(history), float(intermediate_result.fun))
+            progress(len(history), best)
 
     try:
         with quiet_mujoco_warnings() as warned:
-            res = differential_evolution(
-                obj,
-                space.bounds(),
-                popsize=options.popsize,
-                maxiter=options.maxiter,
-                tol=options.tol,
-                rng=np.random.default_rng(options.seed),
-                vectorized=True,
-                updating="deferred",
-                polish=False,
-                init="latinhypercube",
-                mutation=(0.5, 1.0),
-                recombination=0.7,
-                callback=callback,
-            )
-            err, shift, pred = obj.evaluate(res.x[None])
+            if options.method == "sysid":
+                x, message, converged = _screen(obj, space, options.screen * len(space.variables), options.seed)
+            else:
+                x, message, converged = _differential_evolution(obj, space, options, step)
+            _, shift, _ = obj.evaluate(np.asarray(x)[None])
+            threads = options.nthread or os.cpu_count() or 1
+            try:
+                lsq = ReleaseResidual(data, space, options.timestep, integrator, threads, window)
+            except ValueError as exc:
+                raise FitError(f"{data.source or 'release data'}: {exc}") from None
+            if options.method == "de":  # the intervals at the DE optimum: one Jacobian, no refinement
+                sysid_fit = lsq.fit(x, float(shift[0]), max_iters=0)
+            else:
+                sysid_fit = lsq.fit(x, float(shift[0]), options.max_iters, progress=step)
+                message = f"{message}; {sysid_fit.status}"
+                converged = sysid_fit.converged
     finally:
         obj.close()
     wall = time.perf_counter() - t0
-    valid = obj.valid
-    dist = np.linalg.norm(pred[0] - data.markers, axis=-1)[valid]
-    values = space.values(res.x)
+    x, shift_s, pred = sysid_fit.x, sysid_fit.shift_s, sysid_fit.fitted
+    dist = np.linalg.norm(pred - data.markers, axis=-1)[obj.valid]
+    intervals = _physical_intervals(space, sysid_fit)
     return FitResult(
         model,
-        values,
-        space.params(res.x),
-        float(err[0]) * 1e3,
+        space.values(x),
+        space.params(x),
+        sysid_fit.rms_mm,
         float(np.mean(dist)) * 1e3,
         float(np.max(dist)) * 1e3,
-        float(shift[0]),
-        obj.nfev,
+        shift_s,
+        obj.nfev + sysid_fit.rollouts,
         len(history),
         wall,
-        obj.sim_wall,
-        bool(res.success),
-        str(res.message),
+        obj.sim_wall + sysid_fit.sim_wall_s,
+        converged,
+        message,
         data.t,
         data.markers,
-        pred[0],
+        pred,
         data.names,
         history,
         data.truth,
         integrator,
-        timestep,
+        options.timestep,
         obj.diverged,
         len(warned),
+        options.method,
+        intervals,
+        CONFIDENCE,
+        _at_bounds(space, x),
     )
 
 
+def _at_bounds(space: ParamSpace, x: Sequence[float] | np.ndarray) -> dict[str, str]:
+    """The variables at (within :data:`AT_BOUND` of) a bound: name → "lower/upper bound <value>"."""
+    out = {}
+    for var, xi in zip(space.variables, x):
+        lo, hi = var.bounds
+        if xi - lo <= AT_BOUND * (hi - lo):
+            out[var.name] = f"lower bound {var.lo:g} {var.unit}".strip()
+        elif hi - xi <= AT_BOUND * (hi - lo):
+            out[var.name] = f"upper bound {var.hi:g} {var.unit}".strip()
+    return out
+
+
+def _screen(obj: ReleaseObjective, space: ParamSpace, n: int, seed: int) -> tuple[np.ndarray, str, bool]:
+    """The least squares' start: the best of the set's own values and ``n`` Latin-hypercube points over the
+    bounds, evaluated in one batch (the release shift profiled as in DE)."""
+    from scipy.stats import qmc
+
+    lo, hi = np.array(space.bounds()).T
+    own = np.clip([v.coord(_own_value(space, v.name)) for v in space.variables], lo, hi)
+    pts = qmc.scale(qmc.LatinHypercube(d=len(lo), seed=seed).random(n), lo, hi) if n > 0 else np.empty((0, len(lo)))
+    xs = np.vstack([own, pts])
+    err, _, _ = obj.evaluate(xs)
+    best = int(np.argmin(err))
+    where = "the set's own values" if best == 0 else f"screen point {best} of {n}"
+    return xs[best], f"start: {where} ({err[best] * 1e3:.3f} mm, {len(xs)} screened)", True
+
+
+def _own_value(space: ParamSpace, name: str) -> float:
+    """The base set's own value of a search variable (``l2_share``: l2 of what l1 leaves)."""
+    p = space.base
+    own = {
+        "k": p.k,
+        "b": p.b,
+        "l1": max(p.l1, 0.001),
+        "l2": p.l2,
+        "l2_share": p.l2 / max(p.length - max(p.l1, 0.001), 1e-9),
+        "youngs_modulus": p.material.youngs_modulus,
+        "beta": p.beta,
+    }
+    return float(own[name])
+
+
+def _differential_evolution(
+    obj: ReleaseObjective, space: ParamSpace, options: FitOptions, step: Callable[[int, float], None]
+) -> tuple[np.ndarray, str, bool]:
+    """The paper's optimizer, each generation one batch (``vectorized``)."""
+    from scipy.optimize import differential_evolution
+
+    def callback(intermediate_result: Any) -> None:  # scipy passes the best so far by this parameter's name
+        step(0, float(intermediate_result.fun))
+
+    res = differential_evolution(
+        obj,
+        space.bounds(),
+        popsize=options.popsize,
+        maxiter=options.maxiter,
+        tol=options.tol if options.method == "de" else max(options.tol, COARSE_DE_TOL),
+        rng=np.random.default_rng(options.seed),
+        vectorized=True,
+        updating="deferred",
+        polish=False,
+        init="latinhypercube",
+        mutation=(0.5, 1.0),
+        recombination=0.7,
+        callback=callback,
+    )
+    return res.x, str(res.message), bool(res.success)
+
+
+def _physical_intervals(space: ParamSpace, fit: SysidFit) -> dict[str, tuple[float, float]]:
+    """The sysid intervals by the names :meth:`ParamSpace.values` reports (``l2_share`` → l2 at the fitted l1;
+    l1's own uncertainty is not carried into it)."""
+    out = dict(fit.intervals)
+    if "l2_share" in out:
+        rest = space.base.length - space.values(fit.x)["l1"]
+        lo, hi = out.pop("l2_share")
+        out["l2"] = (lo * rest, hi * rest)
+    if SHIFT in out:
+        out["release_shift_s"] = out.pop(SHIFT)
+    return out
+
+
 # ------------------------------------------------------------------------------------------------ output
+def value_with_interval(result: FitResult, key: str) -> str:
+    """``key``'s fitted value ± the half-width of its interval, in the report's unit (``20.01 ± 0.027 MPa``); an
+    asymmetric interval (l2 derived from its share) as ``[lo, hi]``."""
+    shift = key == "release_shift_s"
+    value = result.shift_s if shift else result.values[key]
+    scale, unit = UNITS.get(SHIFT if shift else key, (1.0, ""))
+    v, text = value * scale, f"{value * scale:.5g}"
+    if key in result.intervals:
+        lo, hi = (x * scale for x in result.intervals[key])
+        symmetric = math.isclose(hi - v, v - lo, rel_tol=1e-3, abs_tol=1e-12)
+        text += f" ± {(hi - lo) / 2:.2g}" if symmetric else f" [{lo:.5g}, {hi:.5g}]"
+    return f"{text} {unit}".strip()
+
+
+def interval_summary(result: FitResult) -> str:
+    """One line: every fitted value ± its interval, the confidence level and where it comes from."""
+    keys = [k for k in result.intervals if k in result.values or k == "release_shift_s"]
+    parts = [f"{k} = {value_with_interval(result, k)}" for k in keys]
+    text = f"{', '.join(parts)} ({result.confidence:.0%} confidence, mujoco.sysid.calculate_intervals)"
+    if result.at_bounds:
+        text += "; at its bound, no confidence interval: " + ", ".join(
+            f"{k} ({w})" for k, w in result.at_bounds.items()
+        )
+    return text
+
+
 def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
     """The YAML document of a fitted parameter set (same layout as ``sim_backend/prb3_paper.yaml``)."""
     p = result.params
@@ -551,6 +706,10 @@ def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
             "nfev": result.nfev,
             "wall_s": round(result.wall_s, 2),
             "date": datetime.now().isoformat(timespec="seconds"),
+            "method": result.method,
+            "confidence": result.confidence,
+            "intervals": {k: [float(lo), float(hi)] for k, (lo, hi) in result.intervals.items()},  # SI
+            "notes": interval_summary(result),
         },
     }
 
@@ -559,10 +718,11 @@ def write_param_set(result: FitResult, name: str, directory: str | Path = SIM_BA
     """Save the fit as ``<directory>/<family>_<name>.yaml``; it loads back with ``load_params(name)``."""
     family = model_family(result.model)
     path = Path(directory) / f"{family}_{name}.yaml"
-    doc = param_set_dict(result, name, source or f"beambench fit ({result.model}): RMS {result.rms_mm:.3f} mm")
+    source = source or f"beambench fit ({result.model})"
+    doc = param_set_dict(result, name, f"{source}: RMS {result.rms_mm:.3f} mm; {interval_summary(result)}")
     header = (
-        f"# Fitted by `beambench fit` to a release test ({result.model}; RMS {result.rms_mm:.3f} mm, "
-        f"mean marker error {result.mae_mm:.3f} mm). SI units.\n"
+        f"# Fitted by `beambench fit` to a release test ({result.model}, {result.method}; RMS {result.rms_mm:.3f} mm, "
+        f"mean marker error {result.mae_mm:.3f} mm). SI units; intervals under fit:.\n"
     )
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(header + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))

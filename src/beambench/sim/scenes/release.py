@@ -47,6 +47,7 @@ RELEASE_DELAY_S = 0.1  # the load is let go this long after the record window op
 MAX_CHUNK_STEPS = 20_000
 CHECK_S = 0.02  # release_batch checks every this much simulated time which runs have come to rest
 REST_TOL_M = 1e-7  # ... a run whose markers moved less than this over a whole check interval
+LOAD_STEPS = 4  # static_equilibrium hangs the load in this many increments (a soft rod has several equilibria)
 
 
 def marker_offsets(twist_deg: float) -> np.ndarray:
@@ -94,15 +95,32 @@ def build_release_spec(
 
 
 def static_equilibrium(
-    model: mujoco.MjModel, load_n: float, qpos: np.ndarray | None = None, tol: float = 1e-11, max_iter: int = 60
+    model: mujoco.MjModel,
+    load_n: float,
+    qpos: np.ndarray | None = None,
+    tol: float = 1e-11,
+    max_iter: int = 60,
+    load_steps: int = LOAD_STEPS,
 ) -> np.ndarray:
     """Joint positions where springs, gravity and the tip load balance (Newton with a finite-difference
-    Jacobian and backtracking; hinge-only models)."""
+    Jacobian and backtracking; hinge-only models), the load hung in ``load_steps`` equal increments, each solved
+    from the last. A soft rod under the 200 g load has several equilibria (bent down, or twisted up sideways):
+    one Newton solve from the straight beam lands on either, flipping between neighbouring moduli 0.1 % apart
+    (tip 20 mm apart); loading gradually follows the branch a hung weight takes, continuous in the parameters."""
     if model.nq != model.nv:
         raise ValueError("static_equilibrium: hinge/slide joints only (nq == nv)")
+    q = model.qpos0.copy() if qpos is None else np.array(qpos, float)
+    if qpos is None and load_steps > 1 and load_n != 0:
+        for fraction in np.arange(1, load_steps) / load_steps:
+            q = _newton_equilibrium(model, fraction * load_n, q, tol, max_iter)
+    return _newton_equilibrium(model, load_n, q, tol, max_iter)
+
+
+def _newton_equilibrium(model: mujoco.MjModel, load_n: float, q: np.ndarray, tol: float, max_iter: int) -> np.ndarray:
+    """One Newton solve of the static balance from ``q``."""
     d = mujoco.MjData(model)
     d.ctrl[:] = load_n
-    q = model.qpos0.copy() if qpos is None else np.array(qpos, float)
+    q = q.copy()
 
     def residual(x: np.ndarray) -> np.ndarray:
         d.qpos[:] = x
