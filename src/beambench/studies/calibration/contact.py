@@ -174,6 +174,44 @@ def contact_prior(base: CalibrationBase) -> dict[str, float]:
     return {u.name: u.own(p) for u in CONTACT_UNKNOWNS if u.own is not None}
 
 
+def contact_boxes(base: CalibrationBase) -> dict[str, tuple[float, float]]:
+    """The prior set's physical ranges (its ``bounds:``) as the unknowns' boxes (``CalibratableRig.boxes``): the
+    preload from h' (``rig.plate_gap``) at the prior's own static sag, the damping scale from ``beam.beta``, the
+    friction scale from ``rig.friction``, the frame mass and the load's offset from theirs. Empty for a set
+    without bounds. (The preload box is the gap's at the prior's sag; :func:`simulate_contact` keeps the gap
+    inside h' wherever the other unknowns move the sag.)"""
+    from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scenes.contact_regimes import static_sag
+    from beambench.sim.scenes.contact_rig import RigParams
+
+    p = prior_params(base)
+    b = p.bounds
+    if not b:
+        return {}
+    rig = RigParams.with_overrides(p.rig)
+    out: dict[str, tuple[float, float]] = {}
+    if "rig.plate_gap" in b:
+        sag = static_sag(make_beam_model(base.model, p), rig, base.sim.twist_deg)
+        gap = b["rig.plate_gap"]
+        out["preload_mm"] = (1e3 * (sag - gap.max), 1e3 * (sag - gap.min))
+    beta = p.value("beam.beta")
+    if "beam.beta" in b and beta:
+        out["b_scale"] = (b["beam.beta"].min / beta, b["beam.beta"].max / beta)
+    if "rig.friction" in b and rig.friction > 0:
+        out["friction_scale"] = (b["rig.friction"].min / rig.friction, b["rig.friction"].max / rig.friction)
+    if "rig.frame_mass" in b:
+        out["frame_mass_g"] = (1e3 * b["rig.frame_mass"].min, 1e3 * b["rig.frame_mass"].max)
+    if "rig.mass_dx" in b:
+        out["mass_dx_mm"] = (1e3 * b["rig.mass_dx"].min, 1e3 * b["rig.mass_dx"].max)
+    return out
+
+
+def physical_gap(params: BeamParams, gap: float) -> float:
+    """``gap`` kept inside the set's physical h' (``rig.plate_gap`` bounds; unchanged without them)."""
+    bound = params.bounds.get("rig.plate_gap")
+    return gap if bound is None else min(max(gap, bound.min), bound.max)
+
+
 def contact_verify(base: CalibrationBase) -> tuple[list[float], SimSettings]:
     """The written protocol's sweep and windows (``CalibratableRig.verify``)."""
     return list(base.frequencies), base.sim
@@ -203,7 +241,7 @@ def simulate_contact(
     params = calibrated_params(base, values)
     beam = make_beam_model(base.model, params)
     sag = static_sag(beam, RigParams.with_overrides(params.rig), sim.twist_deg)
-    gap = sag - values.get("preload_mm", 0.0) * 1e-3
+    gap = physical_gap(params, sag - values.get("preload_mm", 0.0) * 1e-3)
     table = stepped_regime_map(sorted(frequencies), sim, ContactTwin(base.model, params, {"plate_gap": gap}))
     table = table.astype({"tangential_sign": float, "touchdown_direction": float})
     return {"steps": table.to_dict("records"), "extras": {"gap_mm": gap * 1e3, "sag_mm": sag * 1e3}}
@@ -252,5 +290,6 @@ CONTACT = register_rig(
         prior=contact_prior,
         landmarks=contact_landmarks,
         checks=contact_checks,
+        boxes=contact_boxes,
     )
 )

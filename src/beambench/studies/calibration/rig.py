@@ -63,7 +63,10 @@ class CalibratableRig:
       search's first line (None: 1 for log unknowns whose bounds hold it, else their defaults);
     - ``landmarks``: the map's landmarks the targets name (trust-region steps after the lines; None: none);
     - ``checks(targets) -> [TargetCheck]``: each target with its tolerance, for the verdict after the search
-      (:mod:`.verdict`; None: no verdict, the command cannot say whether a target was met).
+      (:mod:`.verdict`; None: no verdict, the command cannot say whether a target was met);
+    - ``boxes(base) -> {name: (lo, hi)}``: the prior set's physical ranges (its ``bounds:`` block) as the
+      unknowns' boxes, in the unknowns' own units; they replace the unknowns' generic boxes (which stay for
+      sets without bounds: the documented effective sets), so the search never leaves a physical range.
     """
 
     name: str
@@ -81,6 +84,7 @@ class CalibratableRig:
     prior: Callable[[CalibrationBase], dict[str, float]] | None = None
     landmarks: Landmarks | None = None
     checks: Callable[[Targets], list[TargetCheck]] | None = None
+    boxes: Callable[[CalibrationBase], dict[str, tuple[float, float]]] | None = None
 
     @property
     def default_free(self) -> tuple[str, ...]:

@@ -115,7 +115,7 @@ class Search:
         self.t_start = time.perf_counter()
         self.rig, self.targets, self.log, self.settings = rig, targets, log, settings
         self.base = rig.base(targets)
-        self.free, self.fixed = free_unknowns(rig, settings)
+        self.free, self.fixed = free_unknowns(rig, settings, rig.boxes(self.base) if rig.boxes else None)
         self.coarse = coarse_frequencies(targets, settings.coarse_step_hz, rig.min_frequency_hz)
         self.fine = [float(f) for f in sorted(targets.frequencies) if f >= rig.min_frequency_hz - 1e-9]
         self.history: list[dict] = []
@@ -253,11 +253,13 @@ def _judge(s: Search, winner: Point, ident: dict[str, Any]) -> list[Verdict]:
     return judge(checks, winner, pts, s.free)
 
 
-def free_unknowns(rig: CalibratableRig, settings: SearchSettings) -> tuple[list[Unknown], dict[str, float]]:
-    """The fitted unknowns (``settings.free``, else the rig's default set; ``settings.bounds`` narrow their
-    boxes, never widen them) and the values of the others (:func:`fixed_values`; ``settings.fixed`` inside the
-    unknowns' bounds)."""
-    unknowns = {u.name: u for u in rig.unknowns}
+def free_unknowns(
+    rig: CalibratableRig, settings: SearchSettings, boxes: dict[str, tuple[float, float]] | None = None
+) -> tuple[list[Unknown], dict[str, float]]:
+    """The fitted unknowns (``settings.free``, else the rig's default set; the prior set's physical ``boxes``
+    replace their generic boxes, :func:`physical`; ``settings.bounds`` narrow them, never widen them) and the
+    values of the others (:func:`fixed_values`; ``settings.fixed`` inside the unknowns' bounds)."""
+    unknowns = {u.name: physical(u, (boxes or {}).get(u.name)) for u in rig.unknowns}
     rig_unknowns = dict(unknowns)
     names = settings.free or rig.default_free or tuple(unknowns)
     bad = [n for n in (*names, *settings.bounds) if n not in unknowns]
@@ -280,6 +282,17 @@ def free_unknowns(rig: CalibratableRig, settings: SearchSettings) -> tuple[list[
             raise CalibrationInputError(f"fixed: {k} = {v:g} is {where}")
     free = [unknowns[n] for n in names]
     return free, fixed_values(unknowns, free, settings)
+
+
+def physical(u: Unknown, box: tuple[float, float] | None) -> Unknown:
+    """``u`` searched over the physical ``box`` (None: its own box); its default moves into the box."""
+    if box is None:
+        return u
+    lo, hi = float(box[0]), float(box[1])
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi) or (u.log and lo <= 0):
+        raise CalibrationInputError(f"{u.name}: the prior set's physical range gives the box [{lo:g}, {hi:g}]")
+    default = None if u.default is None else min(max(u.default, lo), hi)
+    return replace(u, lo=lo, hi=hi, default=default)
 
 
 def _lines_and_landmarks(s: Search, init: np.ndarray) -> bool:

@@ -156,6 +156,18 @@ def _prior(base: CalibrationBase) -> BeamParams:
     return load_params(base.params, model=model_family(base.model))
 
 
+def walker_boxes(base: CalibrationBase) -> dict[str, tuple[float, float]]:
+    """The prior set's physical ranges of the walker's unknowns (``walker.foot_mass``, ``walker.friction`` in its
+    ``bounds:``) as their boxes (``CalibratableRig.boxes``); empty for a set without bounds."""
+    bounds = _prior(base).bounds
+    out = {}
+    for u in WALKER_UNKNOWNS:
+        b = bounds.get(f"walker.{u.name}")
+        if b is not None:
+            out[u.name] = (b.min, b.max)
+    return out
+
+
 def simulate_walker(
     base: CalibrationBase, values: dict[str, float], frequencies: list[float], sim: SimSettings
 ) -> dict:
@@ -217,5 +229,6 @@ WALKER = register_rig(
         min_frequency_hz=1.0,
         stage_sim=walker_stage_sim,
         checks=walker_checks,
+        boxes=walker_boxes,
     )
 )

@@ -1,0 +1,74 @@
+"""Issue 22 §2: on a prior set with physical bounds (sim_backend/rod_physical.yaml's ``bounds:``) the calibrator's
+unknowns are searched inside those ranges — every corner of the box is a physically possible rig — and the
+documented effective sets (no bounds) keep the generic boxes."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from beambench.sim.models.params import load_params
+from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scenes.contact_regimes import static_sag
+from beambench.sim.scenes.contact_rig import RigParams
+from beambench.sim.settings import SimSettings
+from beambench.studies.calibration import get_rig
+from beambench.studies.calibration.contact import calibrated_params, contact_boxes, physical_gap
+from beambench.studies.calibration.rig import CalibrationBase
+from beambench.studies.calibration.search import free_unknowns
+from beambench.studies.calibration.walker import walker_boxes
+
+PHYSICAL = CalibrationBase("rod5g", "physical", SimSettings(twist_deg=90.0))
+CORNER_UNKNOWNS = ("b_scale", "friction_scale", "frame_mass_g", "mass_dx_mm")
+
+
+def test_every_corner_of_the_contact_box_is_a_physical_rig():
+    """The search box of every contact unknown on the physical prior: applied at each corner (16 corners of
+    damping, friction, frame mass and load offset), the parameter set has nothing outside its bounds; the preload
+    box gives h' at its physical ends at the prior's own sag."""
+    boxes = contact_boxes(PHYSICAL)
+    assert set(boxes) == {"preload_mm", *CORNER_UNKNOWNS}
+    prior = load_params("physical", model="rod")
+    sag = static_sag(make_beam_model("rod5g", prior), RigParams.with_overrides(prior.rig), 90.0)
+    gap = prior.bounds["rig.plate_gap"]
+    assert boxes["preload_mm"] == pytest.approx((1e3 * (sag - gap.max), 1e3 * (sag - gap.min)))
+    assert boxes["b_scale"][0] == pytest.approx(1.0)  # the shipped beta is the physical minimum (0.4 ms)
+    for corner in itertools.product(*(boxes[n] for n in CORNER_UNKNOWNS)):
+        params = calibrated_params(PHYSICAL, dict(zip(CORNER_UNKNOWNS, corner)))
+        assert params.out_of_bounds() == [], (corner, params.out_of_bounds())
+    # the rig's generic boxes would have left the physical ranges: the damping scale down to 0.25 (beta 0.1 ms),
+    # the offset up to 25 mm, the frame up to 15 g, the preload no higher than 1 mm (h' above 6.5 mm here)
+    generic = {u.name: (u.lo, u.hi) for u in get_rig("contact").unknowns}
+    assert generic["b_scale"][0] < boxes["b_scale"][0] and generic["mass_dx_mm"][1] > boxes["mass_dx_mm"][1]
+    assert 1e3 * sag - generic["preload_mm"][1] > 1e3 * gap.max
+
+
+def test_the_search_uses_the_physical_boxes_and_keeps_the_gap_inside_h_prime():
+    rig = get_rig("contact")
+    free, _ = free_unknowns(rig, rig_settings(), contact_boxes(PHYSICAL))
+    boxes = contact_boxes(PHYSICAL)
+    for u in free:
+        assert (u.lo, u.hi) == pytest.approx(boxes[u.name]), u.name
+    prior = load_params("physical", model="rod")
+    assert physical_gap(prior, 0.0080) == pytest.approx(0.0065)
+    assert physical_gap(prior, 0.0030) == pytest.approx(0.0045)
+    assert physical_gap(prior, 0.0055) == pytest.approx(0.0055)
+    stuck = load_params("contact_stuck")  # an effective set: no bounds, no boxes, the gap as computed
+    assert physical_gap(stuck, 0.0092) == pytest.approx(0.0092)
+    assert contact_boxes(CalibrationBase("prb3", "contact_stuck")) == {}
+
+
+def test_the_walker_searches_its_physical_foot_and_friction_ranges():
+    physical = load_params("physical", model="rod")
+    assert walker_boxes(PHYSICAL) == {
+        "foot_mass": (physical.bounds["walker.foot_mass"].min, physical.bounds["walker.foot_mass"].max),
+        "friction": (physical.bounds["walker.friction"].min, physical.bounds["walker.friction"].max),
+    }
+    assert walker_boxes(CalibrationBase("prb3", "paper")) == {}
+
+
+def rig_settings():
+    from beambench.studies.calibration.evaluate import SearchSettings
+
+    return SearchSettings(free=("b_scale", "preload_mm", "friction_scale", "frame_mass_g", "mass_dx_mm"))
