@@ -66,7 +66,8 @@ def main() -> None:
     )
 
     # the mocap stream's path: the packets of one 100 ms poll (36 frames at 360 Hz) to a Batch
-    from beambench.devices.natnet.client import NatNetClient, NatNetMocap
+    from beambench.devices.natnet.client import NatNetClient
+    from beambench.devices.natnet.mocap import NatNetMocap
 
     names = [f"m{i}" for i in range(len(emu.marker_ids))]  # type: ignore[arg-type]
     mocap = NatNetMocap(names, marker_map=dict(zip(names, emu.marker_ids, strict=True)))  # type: ignore[arg-type]

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from beambench.devices.natnet import block as nb
 from beambench.devices.natnet import protocol as nn
-from beambench.devices.natnet.client import NatNetClient, NatNetMocap
+from beambench.devices.natnet.client import NatNetClient
+from beambench.devices.natnet.mocap import NatNetMocap
 from beambench.devices.natnet.pcap import read_udp
 from conftest import require_shared
 

@@ -15,14 +15,8 @@ import pytest
 from beambench.acquisition.capabilities import Stream
 from beambench.acquisition.streams import MOCAP
 from beambench.devices.natnet import protocol as nn
-from beambench.devices.natnet.client import (
-    MarkerSource,
-    NatNetClient,
-    NatNetConfig,
-    NatNetError,
-    NatNetMocap,
-    ping,
-)
+from beambench.devices.natnet.client import NatNetClient, NatNetConfig, NatNetError, ping
+from beambench.devices.natnet.mocap import MarkerSource, NatNetMocap
 from beambench.devices.receive_time import mono_minus_real_ns
 from beambench.emulators.motive import EmulatorClock, MotiveEmulator
 

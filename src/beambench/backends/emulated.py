@@ -524,7 +524,8 @@ def build_emulated_rig(
     if unknown:
         raise ValueError(f"unknown injections {unknown}; known: {list(INJECTIONS)}")
     from beambench.devices.loadcell.driver import SerialLoadCells
-    from beambench.devices.natnet.client import NatNetConfig, NatNetMocap
+    from beambench.devices.natnet.client import NatNetConfig
+    from beambench.devices.natnet.mocap import NatNetMocap
     from beambench.devices.odrive.can_motor import CanMotorTiming, OdriveCanMotor
     from beambench.emulators.canbus import LoopbackCanBus
     from beambench.emulators.motive import MOTIVE_GEOMETRY

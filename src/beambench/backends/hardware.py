@@ -181,7 +181,7 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
 
 
 def _make_mocap(nn: NatNetWiring, markers: tuple[str, ...], frame: Frame) -> Stream:
-    from beambench.devices.natnet.client import NatNetMocap
+    from beambench.devices.natnet.mocap import NatNetMocap
 
     section = nn.model_dump()
     silence = section.pop("silence_timeout_s", None)
