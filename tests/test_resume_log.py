@@ -65,14 +65,6 @@ def test_the_calibrators_log_keeps_the_evaluation_after_a_cut_line(tmp_path):
     assert set(EvalLog(path).cache) == {"a", "b", "c"}
 
 
-def _children(pid: int) -> list[int]:
-    """The process's child processes (Linux /proc; empty when it has none or has gone)."""
-    try:
-        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
-    except OSError:
-        return []
-
-
 @pytest.mark.slow
 def test_calibrate_sim_stopped_by_ctrl_c_says_how_to_resume(tmp_path):
     src = str(ROOT / "src")
@@ -84,14 +76,8 @@ def test_calibrate_sim_stopped_by_ctrl_c_says_how_to_resume(tmp_path):
     with err_path.open("wb") as err:
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env, start_new_session=True)
         try:
-            # imports done, the search and its worker started (a rich bar off a tty shows late): wait for the
-            # pool's worker process (spawned at the first evaluation) instead of a fixed 6 s
-            deadline = time.monotonic() + 60.0
-            while not _children(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
-                time.sleep(0.1)
+            time.sleep(6.0)  # imports done, the search and its worker started (a rich bar off a tty shows late)
             assert proc.poll() is None, err_path.read_text()[-2000:]
-            assert _children(proc.pid), "no worker process within 60 s"
-            time.sleep(0.5)  # the worker is past its start-up: Ctrl-C lands inside the search
             os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal sends: the whole process group
             proc.wait(timeout=60)
         finally:
