@@ -9,7 +9,10 @@ VENV ?= .venv
 OUT ?= data
 RUN_ARGS ?=
 PYTEST_ARGS ?=
-# pytest-xdist workers: half the suite waits on real-time rigs and subprocesses, so 2 workers on 2 cores halve it
+# pytest-xdist workers: half the suite waits on real-time rigs and subprocesses, so 2 workers on 2 cores halve it;
+# --dist worksteal: each worker starts on its half of the suite, in file order (a module's shared fixtures are made
+# once, not in both workers), and an idle worker takes pending tests from the other (no long test left queued
+# behind another at the end)
 PYTEST_WORKERS ?= 2
 BIN := $(VENV)/bin
 RUN_STAMP := $(VENV)/.beambench-run
@@ -25,7 +28,7 @@ test: $(DEV_STAMP)
 	for check in "ruff check src tests benchmarks" "ruff format --check src tests benchmarks" "mypy" "lint-imports"; do \
 	  echo "== $$check"; $(BIN)/$$check || status=1; \
 	done; \
-	echo "== pytest"; $(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) $(PYTEST_ARGS); rc=$$?; \
+	echo "== pytest"; $(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist worksteal $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests — that is a failure for this project" >&2; rc=1; fi; \
 	if [ $$status -ne 0 ]; then echo "lint, format, type or import checks failed (see above)" >&2; fi; \
 	[ $$rc -eq 0 ] && [ $$status -eq 0 ]

@@ -370,12 +370,33 @@ def test_tiny_calibration_recovers_the_gap_and_resumes_from_its_log(truth, tmp_p
         assert (tmp_path / name).is_file(), name
 
 
+def _short_default_twin_session(d: Path, name: str) -> Path:
+    """A 3-step session of the shipped default twin: the shipped contact sweep's protocol (its model, parameter
+    set, twist, amplitude, noise and seed) with a short sweep and short windows."""
+    import yaml
+
+    from beambench.common.resources import shipped_dir
+
+    doc = yaml.safe_load((shipped_dir("protocols") / "contact_sweep.yaml").read_text())
+    assert doc["sim"]["model"] == "rod5g"  # the default twin, not a cheaper stand-in
+    doc.update(sweep={"frequencies": [14, 26, 38]}, settle_s=0.5, record_s=1.0)
+    proto = d / f"{name}_protocol.yaml"
+    proto.write_text(yaml.safe_dump(doc, sort_keys=False))
+    res = _beambench("run", str(proto), "--out", str(d), "--name", name, "--rerun", "off")
+    assert res.returncode == 0, res.stderr
+    return Path(res.stdout.strip().splitlines()[-1])
+
+
 @pytest.mark.slow
 def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
-    t = tmp_path / "small.yaml"
-    t.write_text("rig: contact\nhalf_at_hz: 30\nthird_at_hz: 32\n")
+    """The command end to end on the shipped default twin (rod5g). Its input is a short session of that twin, not
+    a targets file: a targets file's written protocol is the shipped 1–40 Hz, 2 + 5 s sweep, which the verify
+    stage runs twice (about 2 × 280 s of simulated rig time, most of this test's minutes); a session's written
+    protocol is the session's own sweep (3 steps here). What a targets file makes of the shipped protocol:
+    test_a_targets_files_twin_is_the_shipped_protocol_extended_to_the_targets."""
+    session = _short_default_twin_session(tmp_path, "small")
     out = tmp_path / "out"
-    res = _beambench("calibrate", "sim", "--targets", str(t), "--out", str(out), "--quick", "--budget-s", "8")
+    res = _beambench("calibrate", "sim", str(session), "--out", str(out), "--quick", "--budget-s", "8")
     # written either way; 0 only when the report's verdict met every target, else 3 with the misses last
     met = json.loads((out / "small_calibrated_report.json").read_text())["verdict"]["all_met"]
     assert res.returncode == (0 if met else 3), res.stderr
@@ -391,6 +412,24 @@ def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
     text = last.read_text()
     assert "small_calibrated_params.yaml" in text and "plate_gap_mm" in text
     assert math.isfinite(float(np.loadtxt([text.split("plate_gap_mm:")[1].split()[0]])))
+
+
+def test_a_targets_files_twin_is_the_shipped_protocol_extended_to_the_targets():
+    """A targets file has no protocol: the twin, its windows and the written sweep are the shipped contact
+    sweep's, the sweep extended to the targets (what the verify stage runs and the written protocol holds)."""
+    import yaml
+
+    from beambench.common.resources import shipped_dir
+    from beambench.studies.calibration.contact import contact_base
+
+    shipped = yaml.safe_load((shipped_dir("protocols") / "contact_sweep.yaml").read_text())
+    base = contact_base(parse_targets({"rig": "contact", "half_at_hz": 30, "third_at_hz": 32}, "small.yaml"))
+    assert (base.model, base.params) == (shipped["sim"]["model"], shipped["sim"]["params"]) == ("rod5g", "physical")
+    assert (base.sim.settle_s, base.sim.record_s) == (shipped["settle_s"], shipped["record_s"])
+    assert (base.sim.noise, base.sim.seed, base.sim.twist_deg) == (True, 0, 90.0)
+    assert base.frequencies == tuple(float(f) for f in range(1, 41))  # ⅓ + 4 Hz = 36 Hz: the 1–40 Hz sweep
+    wide = contact_base(parse_targets({"rig": "contact", "half_at_hz": 30, "third_at_hz": 42}, "wide.yaml"))
+    assert wide.frequencies == tuple(float(f) for f in range(1, 47))  # extended to ⅓ + 4 Hz
 
 
 def test_the_written_sweep_reaches_the_targets_and_its_limit_starts_from_the_parsers_default():
