@@ -4,6 +4,7 @@ its evaluations are and how to resume."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -68,7 +69,7 @@ def test_the_calibrators_log_keeps_the_evaluation_after_a_cut_line(tmp_path):
 @pytest.mark.slow
 def test_calibrate_sim_stopped_by_ctrl_c_says_how_to_resume(tmp_path):
     src = str(ROOT / "src")
-    env = dict(os.environ, PYTHONPATH=os.environ.get("PYTHONPATH") or src, PYTHONUNBUFFERED="1")
+    env = dict(os.environ, PYTHONPATH=os.environ.get("PYTHONPATH") or src, PYTHONUNBUFFERED="1", PYTHONFAULTHANDLER="1")
     targets = ROOT / "calibration" / "paper_contact_targets.yaml"
     cmd = [sys.executable, "-m", "beambench.cli", "calibrate", "sim", "--targets", str(targets), "--quick"]
     cmd += ["--out", str(tmp_path), "--workers", "1", "--name", "c"]
@@ -79,11 +80,16 @@ def test_calibrate_sim_stopped_by_ctrl_c_says_how_to_resume(tmp_path):
             time.sleep(6.0)  # imports done, the search and its worker started (a rich bar off a tty shows late)
             assert proc.poll() is None, err_path.read_text()[-2000:]
             os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal sends: the whole process group
-            proc.wait(timeout=60)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                proc.wait(timeout=60)
         finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+            if proc.poll() is None:  # hung: every thread's stack into the log (faulthandler on SIGABRT), then fail
+                os.kill(proc.pid, signal.SIGABRT)
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    proc.wait(timeout=10)
+                if proc.poll() is None:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
     text = err_path.read_text(errors="replace")
     assert proc.returncode == 130, text[-2000:]  # interrupted (3: written, but a target missed)
     assert "Traceback" not in text, text[-3000:]
