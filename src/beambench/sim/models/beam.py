@@ -37,9 +37,28 @@ class BeamSites:
     bodies: tuple[str, ...]
 
 
+def quat_x(angle_rad: float) -> np.ndarray:
+    """Quaternion (w, x, y, z) of a rotation by ``angle_rad`` about +x."""
+    return np.array([math.cos(angle_rad / 2), math.sin(angle_rad / 2), 0.0, 0.0])
+
+
 def quat_y(angle_rad: float) -> np.ndarray:
     """Quaternion (w, x, y, z) of a rotation by ``angle_rad`` about +y."""
     return np.array([math.cos(angle_rad / 2), 0.0, math.sin(angle_rad / 2), 0.0])
+
+
+def qmul(a: Quat, b: Quat) -> np.ndarray:
+    """The quaternion product ``a ∘ b`` (b first, then a)."""
+    out = np.empty(4)
+    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
+    return out
+
+
+def qinv(a: Quat) -> np.ndarray:
+    """The inverse rotation of unit quaternion ``a``."""
+    out = np.empty(4)
+    mujoco.mju_negQuat(out, np.asarray(a, float))
+    return out
 
 
 class BeamModel(ABC):

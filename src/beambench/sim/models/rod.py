@@ -32,7 +32,7 @@ import mujoco
 import numpy as np
 
 from beambench.common.types import Floats
-from beambench.sim.models.beam import BeamModel, BeamSites
+from beambench.sim.models.beam import BeamModel, BeamSites, qinv, qmul, quat_x
 from beambench.sim.models.params import BeamParams, Material
 
 
@@ -142,22 +142,6 @@ class RodParams:
 _ROD_TO_CLAMP = (0.5, 0.5, 0.5, 0.5)
 
 
-def _quat_x(angle: float) -> np.ndarray:
-    return np.array([math.cos(angle / 2), math.sin(angle / 2), 0.0, 0.0])
-
-
-def _qmul(a: Floats, b: Floats) -> np.ndarray:
-    out = np.empty(4)
-    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
-    return out
-
-
-def _qinv(a: Floats) -> np.ndarray:
-    out = np.empty(4)
-    mujoco.mju_negQuat(out, np.asarray(a, float))
-    return out
-
-
 def add_rod(
     parent: mujoco.MjsBody,
     rod: RodParams,
@@ -181,7 +165,7 @@ def add_rod(
     phi = math.radians(twist_deg)
     hw, ht = rod.width / 2, rod.thickness / 2
     box = dict(type=mujoco.mjtGeom.mjGEOM_BOX, contype=0, conaffinity=0, rgba=list(rgba))
-    frame_quat = _qmul(quat, _ROD_TO_CLAMP)  # rod frame in the parent
+    frame_quat = qmul(quat, _ROD_TO_CLAMP)  # rod frame in the parent
     frame = parent.add_frame(pos=list(pos), quat=list(frame_quat))
 
     # the piece [0, s_0] before the first joint rides on the clamp (its mass goes to the parent)
@@ -199,7 +183,7 @@ def add_rod(
         seg = float(ends[k] - nodes[k])
         dphi = phi * weights[k] / rod.length  # the twist of the material this joint stands for
         offset = s0 if k == 0 else float(nodes[k] - nodes[k - 1])
-        b = body.add_body(name=f"{prefix}s{k}", pos=[offset, 0, 0], quat=list(_quat_x(dphi)))
+        b = body.add_body(name=f"{prefix}s{k}", pos=[offset, 0, 0], quat=list(quat_x(dphi)))
         if k == 0:
             b.set_frame(frame)
             first = b
@@ -231,10 +215,10 @@ def add_rod(
         body = b
     # root site: at the clamp point on the first moving segment, aligned with the clamp frame at rest
     dphi0 = phi * weights[0] / rod.length
-    root_quat = _qmul(_quat_x(-dphi0), _qinv(_ROD_TO_CLAMP))
+    root_quat = qmul(quat_x(-dphi0), qinv(_ROD_TO_CLAMP))
     first.add_site(name=f"{prefix}root", pos=[-s0, 0, 0], quat=list(root_quat), size=[0.002, 0, 0])
     # tip body: at the tip, aligned with the clamp frame in the natural shape
-    tip_quat = _qmul(_quat_x(-phi), _qinv(_ROD_TO_CLAMP))
+    tip_quat = qmul(quat_x(-phi), qinv(_ROD_TO_CLAMP))
     tip = body.add_body(name=f"{prefix}tip", pos=[float(rod.length - nodes[-1]), 0, 0], quat=list(tip_quat))
     tip.add_site(name=f"{prefix}tip_site", size=[0.002, 0, 0])
     bodies.append(tip.name)

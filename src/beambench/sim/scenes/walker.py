@@ -67,7 +67,7 @@ from beambench.acquisition.scenes import WALKER
 from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.common.errors import BeambenchError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
-from beambench.sim.models.beam import BeamModel, add_beam, quat_y
+from beambench.sim.models.beam import BeamModel, add_beam, qinv, qmul, quat_x, quat_y
 from beambench.sim.models.registry import UnknownModelError, model_family
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
@@ -197,16 +197,14 @@ def build_walker_spec(
     foot_world = np.empty(3)
     mujoco.mju_rotVecQuat(foot_world, np.array([0.0, 0, -1]), mount)
     for side, name, chir in ((1, "left", wp.left_chirality), (-1, "right", wp.right_chirality)):
-        quat = np.empty(4)
-        mujoco.mju_mulQuat(quat, _quat_x(-side * droop), mount)
+        quat = qmul(quat_x(-side * droop), mount)
         if side < 0:
-            mujoco.mju_mulQuat(quat, quat.copy(), np.array([0.0, 0, 0, 1]))
+            quat = qmul(quat, [0.0, 0, 0, 1])
         sites = add_beam(
             body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat.tolist(), prefix=f"{name}_"
         )
-        inverse, down = np.empty(4), np.empty(3)
-        mujoco.mju_negQuat(inverse, quat)
-        mujoco.mju_rotVecQuat(down, foot_world, inverse)
+        down = np.empty(3)
+        mujoco.mju_rotVecQuat(down, foot_world, qinv(quat))
         _add_foot(spec, spec.body(sites.tip_body), name, wp, solref, down)
     spec.add_actuator(
         name="rotor_servo",
@@ -309,11 +307,6 @@ def _add_cart(spec: mujoco.MjSpec, body: mujoco.MjsBody, wp: WalkerParams, z0: f
         )
         # explicit pairs only (no broad phase): frictionless wheel on the floor
         spec.add_pair(geomname1="floor", geomname2=wheel, condim=1, solref=solref)
-
-
-def _quat_x(angle_rad: float) -> np.ndarray:
-    """Quaternion (w, x, y, z) of a rotation by ``angle_rad`` about +x."""
-    return np.array([math.cos(angle_rad / 2), math.sin(angle_rad / 2), 0.0, 0.0])
 
 
 def _add_foot(
