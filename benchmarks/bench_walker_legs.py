@@ -34,12 +34,10 @@ sys.path.insert(0, str(ROOT / "src"))
 from beambench.common.resources import user_dir
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
-from beambench.sim.models.rod import RodParams
-from beambench.sim.scenes.walker import WalkerParams, WalkerSim
+from beambench.sim.scenes.walker import WalkerParams, WalkerSim, sole_load
 from beambench.sim.scenes.walker_batch import steady_speeds
 from beambench.sim.settings import SimSettings
 
-G = 9.81
 VARIANTS: list[tuple[str, dict[str, float]]] = [
     ("shipped: sideways, foot 66.5 mm, 20 g", {}),
     ("sideways, foot 10 mm", {"foot_length": 0.010}),
@@ -60,12 +58,7 @@ QUICK = [0, 1, 6]
 def _static(beam, wp: WalkerParams) -> dict[str, float]:
     sim = WalkerSim(beam, 90.0, wp)
     try:
-        m, d = sim.physics.model, sim.physics.data
-        weight = float(m.body_subtreemass[m.body("walker").id]) * G
-        x_com = float(d.subtree_com[m.body("walker").id][0])
-        x_wheel = float(d.geom("wheel_l").xpos[0])
-        x_sole = 0.5 * float(d.geom("sole_left").xpos[0] + d.geom("sole_right").xpos[0])
-        sole = 0.5 * weight * (x_com - x_wheel) / (x_sole - x_wheel)
+        sole = sole_load(sim.physics.model)
         body = sim.advance_to(2.0).channels["markers"][:, 0, 2]
     finally:
         sim.physics.close()
@@ -76,12 +69,11 @@ def measure(label: str, overrides: dict[str, float], half: bool) -> dict[str, ob
     params = load_params("physical", model="rod")
     beam = make_beam_model("rod5g", params)
     wp = WalkerParams.with_overrides({**params.walker, **overrides})
-    rod = RodParams.from_beam(params)
     t0 = time.perf_counter()
     row: dict[str, object] = {"variant": label}
-    row["clamp_mm"] = 1e3 * (rod.length * np.sin(np.radians(wp.leg_droop_deg)) + wp.foot_length)
+    row["clamp_mm"] = 1e3 * (params.length * np.sin(np.radians(wp.leg_droop_deg)) + wp.foot_length)
     row.update(_static(beam, wp))
-    row["torsion_limit_n"] = rod.gj / (rod.length * wp.foot_length)
+    row["torsion_limit_n"] = beam.torsion_stiffness() / wp.foot_length
     sim = SimSettings(settle_s=2.0, record_s=1.0, nthread=1)
     speed, height = steady_speeds(beam, (23.0, 65.0), wp, settings=sim)
     row.update(v23=speed[0], v65=speed[1], z23=height[0], z65=height[1])

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import mujoco
 import numpy as np
 import pytest
 
@@ -13,6 +12,7 @@ from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.scenes.walker import WalkerLegError, WalkerParams, WalkerSim, check_leg_model, measure_speed
 from beambench.sim.scenes.walker_batch import steady_speeds
+from test_walker_leg_statics import walker_normal_forces
 
 BEAM = make_beam_model("prb3", load_params())
 G = 9.81
@@ -24,16 +24,9 @@ def test_standing_walker_rests_on_feet_and_wheels_with_its_weight():
     stands: the body moves < 1 mm in the next 0.2 s. (It does not stand still: the soles creep outward through
     MuJoCo's soft friction and the body sinks ~2 mm/s, slowing to ~1 mm/s after 2 s.)"""
     sim = WalkerSim(BEAM, 90.0)
-    m, d = sim.physics.model, sim.physics.data
-    mujoco.mj_forward(m, d)
+    m = sim.physics.model
     total = float(m.body_subtreemass[m.body("walker").id])
-    normal = {"sole": 0.0, "wheel": 0.0}
-    f6 = np.zeros(6)
-    for i in range(d.ncon):
-        c = d.contact[i]
-        mujoco.mj_contactForce(m, d, i, f6)
-        name = m.geom(c.geom2 if m.geom(c.geom1).name == "floor" else c.geom1).name
-        normal[name.split("_")[0]] += f6[0]  # contact frame x = normal (floor z)
+    normal = walker_normal_forces(sim)
     assert normal["sole"] + normal["wheel"] == pytest.approx(total * G, rel=0.01)
     assert normal["wheel"] == pytest.approx(sim.rig.cart_mass * G, rel=0.05)
     body = sim.advance_to(0.2).channels["markers"][:, 0]

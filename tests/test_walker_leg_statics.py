@@ -19,7 +19,7 @@ import pytest
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.models.rod import RodParams
-from beambench.sim.scenes.walker import WalkerParams, WalkerSim
+from beambench.sim.scenes.walker import WalkerParams, WalkerSim, sole_load
 
 PHYSICAL = load_params("physical", model="rod")
 BEAM = make_beam_model("rod5g", PHYSICAL)
@@ -30,7 +30,9 @@ def _walker(**overrides: float) -> WalkerSim:
     return WalkerSim(BEAM, 90.0, WalkerParams.with_overrides({**PHYSICAL.walker, **overrides}))
 
 
-def _normal_forces(sim: WalkerSim) -> dict[str, float]:
+def walker_normal_forces(sim: WalkerSim) -> dict[str, float]:
+    """The floor's normal force (N) on the soles and on the wheels, summed over their contacts (contact frame x =
+    the floor's normal)."""
     m, d = sim.physics.model, sim.physics.data
     mujoco.mj_forward(m, d)
     out = {"sole": 0.0, "wheel": 0.0}
@@ -43,15 +45,6 @@ def _normal_forces(sim: WalkerSim) -> dict[str, float]:
     return out
 
 
-def _hand_sole_share(sim: WalkerSim) -> float:
-    """Moment balance about the wheels' contact line (pitch axis): the soles' share of the weight."""
-    m, d = sim.physics.model, sim.physics.data
-    x_com = float(d.subtree_com[m.body("walker").id][0])
-    x_wheel = float(d.geom("wheel_l").xpos[0])
-    x_sole = 0.5 * float(d.geom("sole_left").xpos[0] + d.geom("sole_right").xpos[0])
-    return (x_com - x_wheel) / (x_sole - x_wheel)
-
-
 @pytest.mark.parametrize("motor_x", [0.0, -0.12])
 def test_hanging_legs_stand_and_share_the_weight_by_the_moment_balance(motor_x):
     """Legs hanging down stand (the body stays at its clamp height within 1 mm for 1 s, motor off), the contacts
@@ -62,10 +55,10 @@ def test_hanging_legs_stand_and_share_the_weight_by_the_moment_balance(motor_x):
         z_nominal = PHYSICAL.length + 0.010
         body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
         assert np.abs(body - z_nominal).max() < 1e-3, (body.min(), body.max(), z_nominal)
-        forces = _normal_forces(sim)
+        forces = walker_normal_forces(sim)
         weight = float(sim.physics.model.body_subtreemass[sim.physics.model.body("walker").id]) * G
         assert forces["sole"] + forces["wheel"] == pytest.approx(weight, rel=0.02)
-        share = _hand_sole_share(sim)
+        share = 2.0 * sole_load(sim.physics.model) / weight  # the moment balance about the wheels
         assert forces["sole"] / weight == pytest.approx(share, abs=0.03)
         if motor_x < 0:
             assert share < 0.6  # the motor and offset mass (150 g) halfway to the cart: the wheels carry more
@@ -83,8 +76,7 @@ def test_sideways_strip_legs_fold_in_torsion_under_the_walkers_weight():
     sim = _walker()
     try:
         wp = sim.rig
-        weight = float(sim.physics.model.body_subtreemass[sim.physics.model.body("walker").id]) * G
-        per_sole = 0.5 * weight * _hand_sole_share(sim)
+        per_sole = sole_load(sim.physics.model)
         limit = rod.gj / (rod.length * wp.foot_length)
         assert 3.0 < per_sole / limit < 10.0, (per_sole, limit)
         body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
@@ -101,8 +93,7 @@ def test_a_light_body_on_sideways_legs_stands_below_the_torsional_limit():
     sim = _walker(motor_mass=0.002, eccentric_mass=0.001, plate_mass=0.002, foot_mass=0.002)
     try:
         wp = sim.rig
-        weight = float(sim.physics.model.body_subtreemass[sim.physics.model.body("walker").id]) * G
-        per_sole = 0.5 * weight * _hand_sole_share(sim)
+        per_sole = sole_load(sim.physics.model)
         assert per_sole < 0.6 * rod.gj / (rod.length * wp.foot_length), per_sole
         body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
         clamp = wp.foot_length + 0.002
@@ -116,7 +107,7 @@ def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
     """``leg_fold`` (the run's and the dry run's warning) names the shipped physical walker, whose sole load beats
     the torsional limit; not the effective PRB3 walker (twist springs 11x the strip's: it stands), nor legs hanging
     down. Its sole load is the standing PRB3 walker's measured contact force per sole within 3 %."""
-    from beambench.sim.scenes.walker import leg_fold, sole_load
+    from beambench.sim.scenes.walker import leg_fold
 
     sim = _walker()
     try:
@@ -131,7 +122,7 @@ def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
     prb3 = WalkerSim(make_beam_model("prb3", load_params()), 90.0)
     try:
         assert leg_fold(prb3.physics.model, prb3.beam, prb3.rig) is None
-        measured = 0.5 * _normal_forces(prb3)["sole"]
+        measured = 0.5 * walker_normal_forces(prb3)["sole"]
         assert sole_load(prb3.physics.model) == pytest.approx(measured, rel=0.03)
     finally:
         prb3.physics.close()
