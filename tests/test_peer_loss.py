@@ -77,6 +77,9 @@ def test_peers_killed_during_start_up_are_one_line_and_exit_1(tmp_path, delay):
             assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
             assert time.monotonic() < deadline, "no peers process"
             time.sleep(0.01)
+        # no GLFW version probe (a `python -c` child of the peers, which mujoco's import starts unless MUJOCO_GL
+        # says otherwise): killed with the peers, it printed a BrokenPipeError traceback on the run's stderr
+        assert b"MUJOCO_GL=disable" in Path(f"/proc/{peers}/environ").read_bytes().split(b"\0")
         time.sleep(delay)
         os.kill(peers, signal.SIGKILL)
         _, err_b = proc.communicate(timeout=60)
@@ -128,3 +131,21 @@ def test_a_run_killed_by_sigkill_leaves_the_emulated_odrive_to_its_watchdog(tmp_
     assert found, err[-2000:]
     assert float(found.group(1)) <= WATCHDOG_TIMEOUT_S + 0.25, found.group(0)
     assert "0x800" in err  # AxisError.WATCHDOG_TIMER_EXPIRED
+
+
+def test_no_command_imports_glfw():
+    """Importing mujoco imports GLFW unless ``MUJOCO_GL`` says otherwise, and GLFW's import starts a ``python -c``
+    probe of its library version (a process start per command; killed with its parent, a traceback on the run's
+    stderr). The CLI sets ``MUJOCO_GL=disable`` before anything imports mujoco, unless the user set it."""
+    env = {k: v for k, v in _env().items() if k != "MUJOCO_GL"}
+    code = (
+        "import os, sys, beambench.cli, beambench.backends.emulated, beambench.session.run, mujoco\n"
+        "print(os.environ['MUJOCO_GL'], 'glfw' in sys.modules)"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split() == ["disable", "False"], res.stdout
+    mine = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env={**env, "MUJOCO_GL": "egl"}, timeout=120
+    )
+    assert mine.stdout.split()[0] == "egl", (mine.stdout, mine.stderr)  # the user's choice wins

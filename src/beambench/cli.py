@@ -6,6 +6,12 @@ import contextlib
 import os
 import sys
 
+# beambench never draws with MuJoCo's OpenGL (its figures are matplotlib's, its live view Rerun's). Left unset,
+# importing mujoco imports GLFW, and GLFW's import starts a `python -c` probe of its library version: a process
+# start per command, and a probe that outlives a killed parent prints a BrokenPipeError traceback on the run's
+# stderr. Set before the commands import mujoco; a user's own MUJOCO_GL wins.
+os.environ.setdefault("MUJOCO_GL", "disable")
+
 import typer
 
 from beambench import __version__

@@ -377,6 +377,7 @@ class PeerProcess:
         env = dict(os.environ)
         src = str(Path(__file__).resolve().parents[2])  # this beambench, whichever checkout it is
         env["PYTHONPATH"] = os.pathsep.join([src, *filter(None, [env.get("PYTHONPATH")])])
+        env.setdefault("MUJOCO_GL", "disable")  # no GLFW probe process (see beambench.cli): the peers never draw
         self._proc = subprocess.Popen(
             [
                 sys.executable,
