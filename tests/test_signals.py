@@ -52,6 +52,7 @@ ZYGOTE = textwrap.dedent(
     """
     import json, os, signal, sys
     import beambench.cli, beambench.session.run  # the expensive imports, once
+    import beambench.backends.sim, beambench.backends.emulated  # (what a run imports on first use)
     for line in sys.stdin:
         req = json.loads(line)
         pid = os.fork()
@@ -198,7 +199,36 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3, backend: str = "sim") -> list[str]:
+class Zygotes:
+    """One zygote per lane, started on first use and kept for every test of this module in this worker: starting
+    one costs the imports (~1.7 s of CPU), and 13 signals x up to 3 lanes started 28 of them. A zygote only forks:
+    each run still starts from the same freshly imported state."""
+
+    def __init__(self) -> None:
+        self._lanes: dict[int, Zygote] = {}
+        self._lock = threading.Lock()
+
+    def lane(self, k: int) -> Zygote:
+        with self._lock:
+            if k not in self._lanes:
+                self._lanes[k] = Zygote()
+            return self._lanes[k]
+
+    def close(self) -> None:
+        for z in self._lanes.values():
+            z.close()
+
+
+@pytest.fixture(scope="module")
+def zygotes() -> Iterator[Zygotes]:
+    pool = Zygotes()
+    yield pool
+    pool.close()
+
+
+def _signal_runs(
+    tmp_path: Path, zygotes: Zygotes, sig: int, n: int, seed: int, lanes: int = 3, backend: str = "sim"
+) -> list[str]:
     """``n`` runs, each sent ``sig`` once at a random moment after its session file appears; failures listed."""
     emulated = backend == "emulated"
     proto = tmp_path / "endless.yaml"
@@ -209,38 +239,35 @@ def _signal_runs(tmp_path: Path, sig: int, n: int, seed: int, lanes: int = 3, ba
     failures: list[str] = []
 
     def lane(k: int) -> None:
-        z = Zygote()
-        try:
-            for i in range(k, n, lanes):
-                name = f"r{i}"
-                path, log = tmp_path / f"{name}.h5", tmp_path / f"{name}.log"
-                argv = ["run", str(proto), "--out", str(tmp_path), "--name", name, "--rerun", "off", "-b", backend]
-                can_log = tmp_path / f"{name}.asc" if emulated else None
-                if can_log is not None:
-                    argv += ["--can-log", str(can_log)]
-                pid = z.run(argv, log)
-                status_read = False
-                try:
-                    _wait_for_file(path, lambda pid=pid: _pid_alive(pid))
-                    time.sleep(delays[i])
-                    os.kill(pid, sig)
-                    if doubles[i]:
-                        time.sleep(rng.uniform(0, 0.05))
-                        with contextlib.suppress(ProcessLookupError):
-                            os.kill(pid, sig)
-                    code = z.status()
-                    status_read = True
-                    with _one_h5py_reader():
-                        _check_interrupted(path, code, log.read_text(), emulated, sig, can_log)
-                except Exception as exc:  # collect every failure, so one report shows how many failed
-                    failures.append(f"run {i} (delay {delays[i]:.2f} s, double={doubles[i]}): {exc}")
+        z = zygotes.lane(k)
+        for i in range(k, n, lanes):
+            name = f"r{i}"
+            path, log = tmp_path / f"{name}.h5", tmp_path / f"{name}.log"
+            argv = ["run", str(proto), "--out", str(tmp_path), "--name", name, "--rerun", "off", "-b", backend]
+            can_log = tmp_path / f"{name}.asc" if emulated else None
+            if can_log is not None:
+                argv += ["--can-log", str(can_log)]
+            pid = z.run(argv, log)
+            status_read = False
+            try:
+                _wait_for_file(path, lambda pid=pid: _pid_alive(pid))
+                time.sleep(delays[i])
+                os.kill(pid, sig)
+                if doubles[i]:
+                    time.sleep(rng.uniform(0, 0.05))
                     with contextlib.suppress(ProcessLookupError):
-                        os.kill(pid, signal.SIGKILL)
-                    if not status_read:
-                        code = z.status()
-                        failures[-1] += f" [exit {code}: {log.read_text()[-300:] if log.exists() else ''}]"
-        finally:
-            z.close()
+                        os.kill(pid, sig)
+                code = z.status()
+                status_read = True
+                with _one_h5py_reader():
+                    _check_interrupted(path, code, log.read_text(), emulated, sig, can_log)
+            except Exception as exc:  # collect every failure, so one report shows how many failed
+                failures.append(f"run {i} (delay {delays[i]:.2f} s, double={doubles[i]}): {exc}")
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+                if not status_read:
+                    code = z.status()
+                    failures[-1] += f" [exit {code}: {log.read_text()[-300:] if log.exists() else ''}]"
 
     threads = [threading.Thread(target=lane, args=(k,)) for k in range(lanes)]
     for t in threads:
@@ -277,9 +304,9 @@ SIGNAL_RUNS = [
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("name", "n"), [(name, n) for name, n, _ in SIGNAL_RUNS], ids=[s[0] for s in SIGNAL_RUNS])
-def test_every_signal_at_a_random_moment_stops_the_run_idles_and_saves(tmp_path, name, n):
+def test_every_signal_at_a_random_moment_stops_the_run_idles_and_saves(tmp_path, zygotes, name, n):
     sig, n = _sig(name), n * SCALE
-    failures = _signal_runs(tmp_path, sig, n, seed=sig * 1000 + 13, lanes=min(3, n))
+    failures = _signal_runs(tmp_path, zygotes, sig, n, seed=sig * 1000 + 13, lanes=min(3, n))
     assert not failures, f"{len(failures)} of {n} runs not stopped cleanly:\n" + "\n".join(failures)
 
 
@@ -287,9 +314,9 @@ def test_every_signal_at_a_random_moment_stops_the_run_idles_and_saves(tmp_path,
 @pytest.mark.parametrize(
     ("name", "n"), [(name, n) for name, _, n in SIGNAL_RUNS if n], ids=[s[0] for s in SIGNAL_RUNS if s[2]]
 )
-def test_every_signal_on_the_emulated_rig_leaves_the_odrive_idle(tmp_path, name, n):
+def test_every_signal_on_the_emulated_rig_leaves_the_odrive_idle(tmp_path, zygotes, name, n):
     sig, n = _sig(name), n * SCALE
-    failures = _signal_runs(tmp_path, sig, n, seed=sig * 1000 + 17, lanes=min(2, n), backend="emulated")
+    failures = _signal_runs(tmp_path, zygotes, sig, n, seed=sig * 1000 + 17, lanes=min(2, n), backend="emulated")
     assert not failures, f"{len(failures)} of {n} runs not stopped cleanly:\n" + "\n".join(failures)
 
 
