@@ -10,7 +10,7 @@ import json
 import math
 import re
 import subprocess
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
@@ -72,9 +72,9 @@ TOY = CalibratableRig(
 
 
 @contextmanager
-def _threads(workers: int | None = None, scheduler: str | None = None) -> Iterator[Pool]:
-    """The executor seam with threads: the toy rig is registered in this process only (spawned workers would
-    import the real contact rig)."""
+def _threads(workers: int | None = None, scheduler: str | None = None, preload: Sequence[str] = ()) -> Iterator[Pool]:
+    """The executor seam with threads: the toy rig is registered in this process only (forked or spawned workers
+    would import the real contact rig)."""
     with ThreadPoolExecutor(2) as ex:
         yield Pool(ex, 2, "threads")
 

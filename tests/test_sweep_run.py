@@ -163,12 +163,14 @@ def test_batch_sizes_balance_and_bound_tasks():
     assert [len(c) for c in chunks(list(range(23)), 10)] == [10, 10, 3]
 
 
-def _children(pid: int) -> list[int]:
-    """Child PIDs of ``pid`` (Linux /proc; empty elsewhere)."""
+def _descendants(pid: int) -> list[int]:
+    """PIDs of ``pid``'s children, their children and so on (Linux /proc; empty elsewhere): the pool's fork
+    server and resource tracker, and the workers the server forked."""
     out: list[int] = []
     for task in Path(f"/proc/{pid}/task").glob("*"):
         with contextlib.suppress(OSError):
-            out += [int(x) for x in (task / "children").read_text().split()]
+            for child in (int(x) for x in (task / "children").read_text().split()):
+                out += [child, *_descendants(child)]
     return out
 
 
@@ -211,10 +213,11 @@ def test_killed_sweep_resumes_from_task_files(tmp_path):
     deadline = _time.monotonic() + 60
     while _time.monotonic() < deadline and len(list(parts.glob("*.parquet"))) < 3:
         _time.sleep(0.05)
-    children = _children(proc.pid)
+    children = _descendants(proc.pid)
+    assert len(children) >= 2  # at least the worker and the process it was started from
     proc.kill()
     proc.wait()
-    # the sweep's worker processes die with it (no orphans left computing or waiting)
+    # the sweep's worker processes die with it, mid-task (no orphans left computing or waiting)
     deadline = _time.monotonic() + 10
     while _time.monotonic() < deadline and any(Path(f"/proc/{c}").exists() for c in children):
         _time.sleep(0.05)

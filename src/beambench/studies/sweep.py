@@ -587,7 +587,7 @@ def run_sweep(
             if progress is not None:
                 progress(done, len(todo))
 
-        with make_executor(workers, scheduler, cluster) as pool:
+        with make_executor(workers, scheduler, cluster, preload=(__name__,)) as pool:
             size = batch_size or spec.batch_size or auto_size(len(todo), pool.workers)
             tasks = make_tasks(spec, todo, size)
             n_tasks = len(tasks)

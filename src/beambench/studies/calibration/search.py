@@ -189,12 +189,13 @@ def calibrate(
 ) -> Result:
     """Fit the twin of ``targets.rig`` to ``targets``; write ``out_dir/<name>.yaml`` (runnable protocol) and its
     parameter set. ``progress``: a rich Progress (or None). The report: :func:`.report.write_report`."""
+    from beambench.studies.calibration import evaluate
     from beambench.studies.executor import make_executor
 
     rig = get_rig(targets.rig)
     out_dir.mkdir(parents=True, exist_ok=True)
     s = Search(rig, targets, EvalLog(out_dir / f"{name}.evals.jsonl"), settings, progress)
-    with make_executor(workers, scheduler) as pool:
+    with make_executor(workers, scheduler, preload=(evaluate.__name__,)) as pool:
         s.start(pool)
         init = initial_population(s.free, settings)
         reached = _lines_and_landmarks(s, init)

@@ -1,0 +1,100 @@
+"""The local process pool (:func:`beambench.studies.executor.make_executor`): workers forked from a fork server
+that imported the callers' task modules once and holds no thread, and that die with the pool's owner."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from beambench.studies.executor import make_executor
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "pidfd_open"), reason="the fork server pool needs os.pidfd_open")
+
+
+def _threads(pid: int) -> list[str]:
+    return [(t / "comm").read_text().strip() for t in Path(f"/proc/{pid}/task").iterdir()]
+
+
+def test_workers_come_from_one_single_threaded_server_that_preloaded_the_simulation():
+    with make_executor(2, preload=("beambench.sim.scenes",)) as pool:
+        servers = {f.result() for f in [pool.executor.submit(os.getppid) for _ in range(4)]}
+        workers = {f.result() for f in [pool.executor.submit(os.getpid) for _ in range(4)]}
+    with make_executor(1, preload=("beambench.sim.scenes",)) as pool:
+        again = pool.executor.submit(os.getppid).result()
+    assert len(servers) == 1 and servers == {again}  # a later pool reuses the server
+    (server,) = servers
+    assert server != os.getpid() and os.getpid() not in workers
+    assert _threads(server) == ["python"]  # no BLAS pool, no jemalloc purge thread: a clean fork
+    maps = Path(f"/proc/{server}/maps").read_text()
+    assert "mujoco" in maps  # MuJoCo was imported in the server, once, not in each worker
+
+
+def test_a_worker_mid_task_dies_with_the_pools_owner(tmp_path):
+    """SIGKILL the process owning a pool while its worker sleeps in a task: the worker, the server and the
+    resource tracker all end within seconds (the task would have run a minute)."""
+    code = textwrap.dedent(
+        """
+        import sys, time
+        from beambench.studies.executor import make_executor
+        with make_executor(1) as pool:
+            fut = pool.executor.submit(time.sleep, 60)
+            time.sleep(0.5)
+            print("running", flush=True)
+            fut.result()
+        """
+    )
+    owner = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert owner.stdout is not None and owner.stdout.readline().strip() == "running"
+        family = _descendants(owner.pid)
+        assert len(family) >= 3, family  # resource tracker, fork server, worker
+    finally:
+        owner.send_signal(signal.SIGKILL)
+        owner.wait()
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(_alive(p) for p in family):
+        time.sleep(0.05)
+    left = [p for p in family if _alive(p)]
+    for p in left:
+        os.kill(p, signal.SIGKILL)
+    assert not left
+
+
+def _descendants(pid: int) -> list[int]:
+    out: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            kids = [int(x) for x in (task / "children").read_text().split()]
+        except OSError:
+            continue
+        for kid in kids:
+            out += [kid, *_descendants(kid)]
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False
+    return state != "Z"
+
+
+def test_workers_see_the_owners_environment_and_folder_as_they_are_when_the_pool_starts(tmp_path, monkeypatch):
+    """As spawned workers would: a variable set (a per-user folder, say) or a folder changed into after the fork
+    server started reaches the next pool's workers."""
+    with make_executor(1) as pool:  # the server exists from here on
+        pool.executor.submit(os.getpid).result()
+    monkeypatch.setenv("BEAMBENCH_USER_DIR", str(tmp_path / "user"))
+    monkeypatch.chdir(tmp_path)
+    with make_executor(1) as pool:
+        env = pool.executor.submit(os.getenv, "BEAMBENCH_USER_DIR").result()
+        cwd = pool.executor.submit(os.getcwd).result()
+    assert env == str(tmp_path / "user") and Path(cwd) == tmp_path
