@@ -1,6 +1,7 @@
 # Two commands on a fresh clone (needs Python ≥ 3.11 and GNU make):
 #   make run    create .venv on first use (reused after), install beambench, run the contact sweep on the sim
 #   make test   the same venv with the dev extra; lint, format, type and import-layer checks, then the tests
+#   make soak   the soak tier only: more repetitions of the signal and peer-loss races (CI runs it after make test)
 # Variables: PYTHON (python3), VENV (.venv), OUT (data), RUN_ARGS (extra `beambench run` flags),
 # PYTEST_ARGS (e.g. tests/test_run_sim.py), PYTEST_WORKERS (2; 0 runs in one process). `make clean-venv` removes the venv.
 
@@ -21,7 +22,7 @@ BIN := $(VENV)/bin
 RUN_STAMP := $(VENV)/.beambench-run
 DEV_STAMP := $(VENV)/.beambench-dev
 
-.PHONY: run test lint clean-venv
+.PHONY: run test soak lint clean-venv
 
 run: $(RUN_STAMP)
 	$(BIN)/beambench run protocols/contact_sweep.yaml --out $(OUT) $(RUN_ARGS)
@@ -35,6 +36,9 @@ test: $(DEV_STAMP)
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests — that is a failure for this project" >&2; rc=1; fi; \
 	if [ $$status -ne 0 ]; then echo "lint, format, type or import checks failed (see above)" >&2; fi; \
 	[ $$rc -eq 0 ] && [ $$status -eq 0 ]
+
+soak: $(DEV_STAMP)
+	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist worksteal --soak -m soak $(PYTEST_ARGS)
 
 lint: $(DEV_STAMP)
 	$(BIN)/ruff check src tests benchmarks

@@ -5,6 +5,8 @@
   Every test that reads them goes through here and skips with the reason when they are absent.
 - Every test runs with ``$BEAMBENCH_USER_DIR`` pointing at a temporary folder, so nothing a test runs (calibrate,
   fit, …) writes into the real per-user folder.
+- The soak tier (``@pytest.mark.soak``): more repetitions of a race check, at other random moments, than the
+  default run's one or few. Deselected unless ``--soak`` is given (``make soak``; CI runs it after ``make test``).
 """
 
 from __future__ import annotations
@@ -38,6 +40,27 @@ def require_shared(*parts: str) -> Path:
     if not path.exists():
         pytest.skip(f"shared fixture {path} not found (set ${SHARED_ENV} or put the shared folder at ../shared)")
     return path
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption(
+        "--soak", action="store_true", help="also run the soak tier (@pytest.mark.soak): more race repetitions"
+    )
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if config.getoption("--soak"):
+        return
+    soak = [item for item in items if item.get_closest_marker("soak")]
+    if soak:
+        config.hook.pytest_deselected(items=soak)
+        items[:] = [item for item in items if not item.get_closest_marker("soak")]
+
+
+def pytest_report_header(config: pytest.Config) -> str:
+    if config.getoption("--soak"):
+        return "soak tier: on"
+    return "soak tier: off (more race repetitions; `make soak` or `pytest --soak -m soak` runs them, CI does)"
 
 
 @pytest.fixture(autouse=True, scope="session")

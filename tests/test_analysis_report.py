@@ -82,12 +82,18 @@ def test_analyze_writes_a_report_and_processing(sessions):
 
 
 def test_force_traces_at_chosen_frequencies_and_custom_out(sessions, tmp_path):
+    """Also ``--figures``: only the figure asked for is drawn, and the page shows just that one."""
     a, _, _ = sessions
-    res = runner.invoke(
-        app, ["analyze", str(a), "--out", str(tmp_path / "r"), "--force-at", "26,40", "--no-write", "-q"]
-    )
+    args = ["--force-at", "26,40", "--no-write", "-q", "--figures", "forces"]
+    res = runner.invoke(app, ["analyze", str(a), "--out", str(tmp_path / "r"), *args])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "r" / "forces.png").is_file()
+    assert sorted(p.name for p in (tmp_path / "r").glob("*.png")) == ["forces.png"]
+    assert _imgs((tmp_path / "r" / "index.html").read_text()) == ["forces.png"]
+    res = runner.invoke(app, ["analyze", str(a), "--out", str(tmp_path / "n"), "--no-write", "-q", "--figures", "none"])
+    assert res.exit_code == 0, res.output
+    assert not list((tmp_path / "n").glob("*.png")) and (tmp_path / "n" / "steps.csv").is_file()
+    assert _imgs((tmp_path / "n" / "index.html").read_text()) == []
 
 
 def test_compare_overlays_two_sessions(sessions, tmp_path):
@@ -106,7 +112,7 @@ def test_compare_overlays_two_sessions(sessions, tmp_path):
 
 def test_walker_report_has_walking_speed(sessions, tmp_path):
     _, _, w = sessions
-    res = runner.invoke(app, ["analyze", str(w), "--out", str(tmp_path / "w"), "-q"])
+    res = runner.invoke(app, ["analyze", str(w), "--out", str(tmp_path / "w"), "-q", "--figures", "walking_speed"])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "w" / "walking_speed.png").is_file()
     csv = pd.read_csv(tmp_path / "w" / "steps.csv")
@@ -120,6 +126,8 @@ def test_walker_report_has_walking_speed(sessions, tmp_path):
         (["analyze", "{bad}"], "not a beambench session"),
         (["analyze", "{good}", "--force-at", "abc"], "--force-at"),
         (["analyze", "{good}", "--up", "w"], "--up"),
+        (["analyze", "{good}", "--figures", "forces,bogus"], "not a figure: bogus"),
+        (["analyze", "{good}", "--figures", "walking_speed"], "walking_speed not drawn for contact sessions"),
         (["compare", "{good}", "/nonexistent/y.h5"], "no such file"),
     ],
 )

@@ -201,7 +201,7 @@ def test_analyze_gives_the_same_regimes_with_sim_noise_on_and_off(tmp_path):
         proto.write_text(SESSION % noise)
         res = runner.invoke(app, ["run", str(proto), "--rerun", "off", "--out", str(tmp_path), "--name", noise])
         assert res.exit_code == 0, res.output
-        res = runner.invoke(app, ["analyze", str(tmp_path / f"{noise}.h5"), "-q"])
+        res = runner.invoke(app, ["analyze", str(tmp_path / f"{noise}.h5"), "-q", "--figures", "none"])
         assert res.exit_code == 0, res.output
         labels[noise] = pd.read_csv(tmp_path / f"{noise}_report" / "steps.csv")["regime"].tolist()
     assert labels["true"] == labels["false"]

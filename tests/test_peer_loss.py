@@ -68,7 +68,16 @@ pytestmark = pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="fi
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("delay", [0.3, 0.8, 1.3, 1.5, 2.0, 3.0])
+@pytest.mark.parametrize(  # early, mid and late in the start-up by default; the soak tier (--soak, CI) adds three more
+    "delay",
+    [
+        0.3,
+        pytest.param(0.8, marks=pytest.mark.soak),
+        1.3,
+        *(pytest.param(d, marks=pytest.mark.soak) for d in (1.5, 2.0)),
+        3.0,
+    ],
+)
 def test_peers_killed_during_start_up_are_one_line_and_exit_1(tmp_path, delay):
     proc, path = _start(tmp_path, "p")
     try:

@@ -49,7 +49,9 @@ def _html_tables(html: str) -> list[str]:
 
 def test_per_step_table_is_a_readable_subset_with_units_and_links_the_full_csv(sessions, tmp_path):
     touching, _, _ = sessions
-    res = runner.invoke(app, ["analyze", str(touching), "--out", str(tmp_path / "r"), "--no-write", "-q"])
+    res = runner.invoke(
+        app, ["analyze", str(touching), "--out", str(tmp_path / "r"), "--no-write", "-q", "--figures", "none"]
+    )
     assert res.exit_code == 0, res.output
     html = (tmp_path / "r" / "index.html").read_text()
     full = pd.read_csv(tmp_path / "r" / "steps.csv")

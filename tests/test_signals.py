@@ -9,7 +9,9 @@ step is not ``running``, and whose motor telemetry ends at setpoint 0. On the em
 Set_Axis_State on the CAN bus (``--can-log``) requests IDLE, the emulated ODrive's last heartbeat says IDLE, and
 ``/general/devices`` holds the drivers' counters.
 
-``BEAMBENCH_SIGNAL_RUNS`` multiplies the number of runs (the soak loops of issue 21 ran it at 5-10).
+The default run makes one run per signal and backend; the soak tier (``pytest --soak``, ``make soak``, CI) the
+other 22 at other random moments. ``BEAMBENCH_SIGNAL_RUNS`` multiplies the number of runs of both (the soak loops
+of issue 21 ran it at 5-10).
 
 Starting ``python -m beambench.cli`` costs seconds of imports per run, so most runs are forked from a "zygote"
 process that imported beambench once: each child is ``beambench.cli.main()`` with the run's argv and Python's
@@ -284,7 +286,8 @@ def _sig(name: str) -> int:
 
 
 # (signal, runs on the sim, runs on the emulated backend): the hang-up and quit signals of issue 21 as often as
-# SIGINT/SIGTERM, the rarer ones a few times each
+# SIGINT/SIGTERM, the rarer ones a few times each. The default run makes the first run of each signal on each backend;
+# the soak tier (--soak, CI) the others, at other random moments.
 SIGNAL_RUNS = [
     ("SIGINT", 6, 1),
     ("SIGTERM", 6, 1),
@@ -300,24 +303,45 @@ SIGNAL_RUNS = [
     ("SIGPWR", 1, 0),
     ("SIGRTMIN+3", 1, 0),
 ]
+SIM_FIRST = [(name, 1) for name, sim, _ in SIGNAL_RUNS if sim]
+SIM_MORE = [(name, sim - 1) for name, sim, _ in SIGNAL_RUNS if sim > 1]
+EMULATED_FIRST = [(name, 1) for name, _, emulated in SIGNAL_RUNS if emulated]
+EMULATED_MORE = [(name, emulated - 1) for name, _, emulated in SIGNAL_RUNS if emulated > 1]
+
+
+def _ids(runs: list[tuple[str, int]]) -> list[str]:
+    return [name for name, _ in runs]
+
+
+def _assert_runs(tmp_path: Path, zygotes: Zygotes, name: str, n: int, seed: int, backend: str = "sim") -> None:
+    sig, n = _sig(name), n * SCALE
+    lanes = min(3 if backend == "sim" else 2, n)
+    failures = _signal_runs(tmp_path, zygotes, sig, n, seed=sig * 1000 + seed, lanes=lanes, backend=backend)
+    assert not failures, f"{len(failures)} of {n} runs not stopped cleanly:\n" + "\n".join(failures)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("name", "n"), [(name, n) for name, n, _ in SIGNAL_RUNS], ids=[s[0] for s in SIGNAL_RUNS])
+@pytest.mark.parametrize(("name", "n"), SIM_FIRST, ids=_ids(SIM_FIRST))
 def test_every_signal_at_a_random_moment_stops_the_run_idles_and_saves(tmp_path, zygotes, name, n):
-    sig, n = _sig(name), n * SCALE
-    failures = _signal_runs(tmp_path, zygotes, sig, n, seed=sig * 1000 + 13, lanes=min(3, n))
-    assert not failures, f"{len(failures)} of {n} runs not stopped cleanly:\n" + "\n".join(failures)
+    _assert_runs(tmp_path, zygotes, name, n, seed=13)
+
+
+@pytest.mark.soak
+@pytest.mark.parametrize(("name", "n"), SIM_MORE, ids=_ids(SIM_MORE))
+def test_every_signal_at_more_random_moments_stops_the_run_idles_and_saves(tmp_path, zygotes, name, n):
+    _assert_runs(tmp_path, zygotes, name, n, seed=14)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    ("name", "n"), [(name, n) for name, _, n in SIGNAL_RUNS if n], ids=[s[0] for s in SIGNAL_RUNS if s[2]]
-)
+@pytest.mark.parametrize(("name", "n"), EMULATED_FIRST, ids=_ids(EMULATED_FIRST))
 def test_every_signal_on_the_emulated_rig_leaves_the_odrive_idle(tmp_path, zygotes, name, n):
-    sig, n = _sig(name), n * SCALE
-    failures = _signal_runs(tmp_path, zygotes, sig, n, seed=sig * 1000 + 17, lanes=min(2, n), backend="emulated")
-    assert not failures, f"{len(failures)} of {n} runs not stopped cleanly:\n" + "\n".join(failures)
+    _assert_runs(tmp_path, zygotes, name, n, seed=17, backend="emulated")
+
+
+@pytest.mark.soak
+@pytest.mark.parametrize(("name", "n"), EMULATED_MORE, ids=_ids(EMULATED_MORE))
+def test_every_signal_at_more_moments_on_the_emulated_rig_leaves_the_odrive_idle(tmp_path, zygotes, name, n):
+    _assert_runs(tmp_path, zygotes, name, n, seed=18, backend="emulated")
 
 
 def test_the_runner_takes_every_signal_that_ends_a_process_by_default():
@@ -347,7 +371,11 @@ def test_the_runner_takes_every_signal_that_ends_a_process_by_default():
 @pytest.mark.slow
 @pytest.mark.parametrize(
     ("backend", "sig"),
-    [("sim", signal.SIGHUP), ("emulated", signal.SIGINT), ("emulated", signal.SIGQUIT)],
+    [
+        ("sim", signal.SIGHUP),
+        ("emulated", signal.SIGINT),
+        pytest.param("emulated", signal.SIGQUIT, marks=pytest.mark.soak),
+    ],
     ids=["sim-SIGHUP", "emulated-SIGINT", "emulated-SIGQUIT"],
 )
 def test_python_m_beambench_run_stops_on_a_signal(tmp_path, backend, sig):

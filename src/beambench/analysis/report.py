@@ -10,7 +10,7 @@ tip's hold, release and decay), plus the clock-sync diagnostics where there are 
 from __future__ import annotations
 
 import html
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 
 import numpy as np
@@ -234,9 +234,11 @@ def make_report(
     out: str | Path,
     force_at: list[float] | None = None,
     progress: Callable[[str], None] | None = None,
+    only: Collection[str] | None = None,
 ) -> Path:
-    """Write the figures of the sessions' rig, ``steps.csv`` and ``index.html`` into ``out``; returns the html
-    path. ``progress(key)`` is called before each figure (``len(figures_of(analyses))`` of them)."""
+    """Write the figures of the sessions' rig (those named in ``only``, if given), ``steps.csv`` and
+    ``index.html`` into ``out``; returns the html path. ``progress(key)`` is called before each figure
+    (``len(figures_of(analyses, only))`` of them)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     if len(analyses) == 1:
@@ -253,6 +255,8 @@ def make_report(
     rigs = {a.rig for a in analyses}
     figures: dict[str, tuple[Path, str]] = {}
     for spec in FIGURES.for_rigs(rigs):
+        if only is not None and spec.key not in only:
+            continue
         if progress is not None:
             progress(spec.key)
         p = spec.draw(analyses, out / f"{spec.key}.png", options)
@@ -285,6 +289,8 @@ def _drift_html(drift: pd.DataFrame) -> list[str]:
     ]
 
 
-def figures_of(analyses: list[SessionAnalysis]) -> list[str]:
-    """The keys of the figures a report on these sessions draws (some may have nothing to show)."""
-    return [spec.key for spec in FIGURES.for_rigs({a.rig for a in analyses})]
+def figures_of(analyses: list[SessionAnalysis], only: Collection[str] | None = None) -> list[str]:
+    """The keys of the figures a report on these sessions draws (some may have nothing to show), or of those
+    among them named in ``only``."""
+    keys = [spec.key for spec in FIGURES.for_rigs({a.rig for a in analyses})]
+    return keys if only is None else [k for k in keys if k in only]

@@ -25,6 +25,37 @@ def _frequencies(text: str | None) -> list[float] | None:
     return vals
 
 
+def _figure_names(text: str) -> list[str] | None:
+    """``--figures``: None for all, [] for none, else the named figure keys (each a registered figure)."""
+    from beambench.analysis.figures import FIGURES
+
+    words = [w.strip() for w in text.split(",") if w.strip()]
+    if words == ["all"]:
+        return None
+    if words == ["none"]:
+        return []
+    known = FIGURES.keys()
+    unknown = [w for w in words if w not in known]
+    if not words or unknown:
+        fail(
+            f"--figures {text!r}: expected all, none or figure names separated by commas"
+            + (f"; not a figure: {', '.join(unknown)}" if unknown else "")
+            + f" (figures: {', '.join(known)})"
+        )
+    return words
+
+
+def _check_figures(only: list[str] | None, analyses: list[SessionAnalysis]) -> None:
+    """Every figure named in ``--figures`` is one a report on these sessions draws."""
+    from beambench.analysis.report import figures_of
+
+    drawn = figures_of(analyses)
+    other = [k for k in only or [] if k not in drawn]
+    if other:
+        rigs = " and ".join(sorted({a.rig for a in analyses}))
+        fail(f"--figures: {', '.join(other)} not drawn for {rigs} sessions (theirs: {', '.join(drawn)})")
+
+
 def _options(up: str | None, forward: str | None, drift_correct: bool = False) -> AnalysisOptions:
     from beambench.analysis.session import AnalysisOptions
     from beambench.analysis.trajectory import axis_vector
@@ -78,13 +109,20 @@ def _check_outputs(folder: Path, sessions: list[Path]) -> None:
             fail(f"{problem}: the results go into the session (--no-write analyses without storing them)")
 
 
-def _report(analyses: list[SessionAnalysis], out: Path, force_at: list[float] | None, progress) -> Path:
+def _report(
+    analyses: list[SessionAnalysis], out: Path, force_at: list[float] | None, progress, only: list[str] | None
+) -> Path:
     from beambench.analysis.report import figures_of, make_report
 
-    task = progress.add_task("figures", total=len(figures_of(analyses)))
+    _check_figures(only, analyses)
+    task = progress.add_task("figures", total=len(figures_of(analyses, only)))
     try:
         return make_report(
-            analyses, out, force_at, lambda key: progress.update(task, advance=1, description=f"figure: {key}")
+            analyses,
+            out,
+            force_at,
+            lambda key: progress.update(task, advance=1, description=f"figure: {key}"),
+            only=only,
         )
     except OSError as exc:  # the folder changed under us (checked first): still one line
         fail(f"{out}: cannot write the report ({exc.strerror or exc})")
@@ -139,6 +177,12 @@ def register(app: typer.Typer) -> None:
             help="Add <metric>_drift_corrected columns: each step less the reference steps' drift, linearly "
             "interpolated between the references that bracket it (needs a protocol with reference:).",
         ),
+        figures: str = typer.Option(
+            "all",
+            "--figures",
+            help="Figures to draw: all (the session's rig's), none (steps.csv, index.html and the stored results "
+            "only: fast, for batches), or names separated by commas, e.g. trajectories,forces.",
+        ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:
         """Analyse every step of a session and write a report folder.
@@ -152,12 +196,13 @@ def register(app: typer.Typer) -> None:
         session's /processing group and prints the path of index.html.
         """
         freqs = _frequencies(force_at)
+        only = _figure_names(figures)
         opts = _options(up, forward, drift_correct)
         folder = out or session.with_name(f"{session.stem}_report")
         _check_outputs(folder, [] if no_write else [session])
         with _progress(quiet) as progress:
             a = _load(session, opts, progress, not no_write)
-            index = _report([a], folder, freqs, progress)
+            index = _report([a], folder, freqs, progress, only)
         typer.echo(str(index))
 
     @app.command()
@@ -177,6 +222,12 @@ def register(app: typer.Typer) -> None:
         no_write: bool = typer.Option(
             False, "--no-write", help="Do not store results in the sessions' /processing groups."
         ),
+        figures: str = typer.Option(
+            "all",
+            "--figures",
+            help="Figures to draw: all (the session's rig's), none (steps.csv, index.html and the stored results "
+            "only: fast, for batches), or names separated by commas, e.g. trajectories,forces.",
+        ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:
         """Overlay two sessions (sim vs rig, two models, two beams) on the same report figures.
@@ -186,6 +237,7 @@ def register(app: typer.Typer) -> None:
         prints the path of index.html.
         """
         freqs = _frequencies(force_at)
+        only = _figure_names(figures)
         opts = _options(up, forward)
         folder = out or a.with_name(f"{a.stem}_vs_{b.stem}_report")
         _check_outputs(folder, [] if no_write else [a, b])
@@ -194,5 +246,5 @@ def register(app: typer.Typer) -> None:
             if analyses[0].label == analyses[1].label:  # same file name in two folders: say which is which
                 for x in analyses:
                     x.name = f"{x.path.parent.name}/{x.path.stem}" if x.path else x.label
-            index = _report(analyses, folder, freqs, progress)
+            index = _report(analyses, folder, freqs, progress, only)
         typer.echo(str(index))
