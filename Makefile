@@ -3,18 +3,20 @@
 #   make test   the same venv with the dev extra; lint, format, type and import-layer checks, then the tests
 #   make soak   the soak tier only: more repetitions of the signal and peer-loss races (CI runs it after make test)
 # Variables: PYTHON (python3), VENV (.venv), OUT (data), RUN_ARGS (extra `beambench run` flags),
-# PYTEST_ARGS (e.g. tests/test_run_sim.py), PYTEST_WORKERS (2; 0 runs in one process). `make clean-venv` removes the venv.
+# PYTEST_ARGS (e.g. tests/test_run_sim.py), PYTEST_WORKERS (3; 0 runs in one process). `make clean-venv` removes the venv.
 
 PYTHON ?= python3
 VENV ?= .venv
 OUT ?= data
 RUN_ARGS ?=
 PYTEST_ARGS ?=
-# pytest-xdist workers: half the suite waits on real-time rigs and subprocesses, so 2 workers on 2 cores halve it;
-# --dist worksteal: each worker starts on its half of the suite, in file order (a module's shared fixtures are made
-# once, not in both workers), and an idle worker takes pending tests from the other (no long test left queued
-# behind another at the end)
-PYTEST_WORKERS ?= 2
+# pytest-xdist workers: a quarter of the suite's time is spent waiting (real-time emulated peers, CAN and NatNet
+# timeouts, subprocesses), so on 2 cores a third worker fills those waits (measured on this machine, same tree:
+# -n 2 294 s, -n 3 271 s; CPU use 76 % -> 85 %);
+# --dist worksteal: each worker starts on its share of the suite, in file order (a module's shared fixtures are
+# made once, not in every worker), and an idle worker takes pending tests from the others (no long test left
+# queued behind another at the end)
+PYTEST_WORKERS ?= 3
 # pytest runs with bytecode caching on even where the environment sets PYTHONDONTWRITEBYTECODE: without it each
 # worker re-rewrote every test module's asserts (collection 11 s -> 6 s of CPU) and every subprocess recompiled
 # beambench. The caches are __pycache__/ folders (git-ignored, never in the wheel).

@@ -7,6 +7,8 @@
   fit, …) writes into the real per-user folder.
 - The soak tier (``@pytest.mark.soak``): more repetitions of a race check, at other random moments, than the
   default run's one or few. Deselected unless ``--soak`` is given (``make soak``; CI runs it after ``make test``).
+  Every Hypothesis test belongs to it too: the default run makes a fifth of its examples (at least 50,
+  :func:`fuzz_examples`), the soak tier all of them.
 """
 
 from __future__ import annotations
@@ -42,14 +44,31 @@ def require_shared(*parts: str) -> Path:
     return path
 
 
+_SOAK = False
+
+
+def fuzz_examples(n: int) -> int:
+    """A Hypothesis test's example count: ``n`` in the soak tier, a fifth of it (at least 50) in the default run."""
+    return n if _SOAK else min(n, max(50, n // 5))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    global _SOAK
+    _SOAK = bool(config.getoption("--soak"))
+
+
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption(
         "--soak", action="store_true", help="also run the soak tier (@pytest.mark.soak): more race repetitions"
     )
 
 
+@pytest.hookimpl(tryfirst=True)  # before -m selects by marker
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     if config.getoption("--soak"):
+        for item in items:  # Hypothesis tests run again in the soak tier, at their full example counts
+            if getattr(getattr(item, "obj", None), "is_hypothesis_test", False):
+                item.add_marker(pytest.mark.soak)
         return
     soak = [item for item in items if item.get_closest_marker("soak")]
     if soak:

@@ -13,9 +13,12 @@ from beambench.devices.loadcell.protocol import (
     decode_frame,
     encode_frame,
 )
+from conftest import fuzz_examples
 
 # deadline: a time bound per example (a decoder that loops fails it); generous, speed is in benchmarks/
-FUZZ = settings(max_examples=200, deadline=timedelta(seconds=5), suppress_health_check=[HealthCheck.too_slow])
+FUZZ = settings(
+    max_examples=fuzz_examples(200), deadline=timedelta(seconds=5), suppress_health_check=[HealthCheck.too_slow]
+)
 u32 = st.integers(0, 2**32 - 1)
 i32 = st.integers(-(2**31), 2**31 - 1)
 frame_fields = st.tuples(u32, u32, st.tuples(i32, i32, i32, i32), u32)

@@ -15,7 +15,7 @@ from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet.client import NatNetClient
 from beambench.devices.natnet.mocap import NatNetMocap
 from beambench.devices.natnet.pcap import read_udp
-from conftest import require_shared
+from conftest import fuzz_examples, require_shared
 
 MARKERS = ("base", "tip", "body")
 MAP = {"base": "1:1", "tip": "1:2", "body": "rb:7"}
@@ -122,7 +122,7 @@ def test_the_real_motive_capture_decodes_the_same_in_blocks():
     assert decoded > 0.9 * len(frames)
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=fuzz_examples(300), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @example(edits=[(4149, 127)])  # a rigid body's y made NaN, read as NaN by both (found by hypothesis)
 @given(st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)), min_size=1, max_size=4))
 def test_a_damaged_packet_is_never_misread(edits):

@@ -22,7 +22,7 @@ from beambench.cli import app
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet.capture import decode_capture, frames_table
 from beambench.devices.natnet.pcap import CaptureError, read_udp
-from conftest import require_shared, shared_path
+from conftest import fuzz_examples, require_shared, shared_path
 
 FIXTURES = shared_path("fixtures", "natnet")
 CAPTURE = FIXTURES / "traffic.pcapng"
@@ -328,7 +328,9 @@ from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 PCAP_FUZZ = settings(  # a time bound per example (a loop that never ends fails it); generous, not a speed test
-    max_examples=150, deadline=timedelta(seconds=5), suppress_health_check=[HealthCheck.function_scoped_fixture]
+    max_examples=fuzz_examples(150),
+    deadline=timedelta(seconds=5),
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
 )
 
 

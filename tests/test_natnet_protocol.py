@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from beambench.devices.natnet import protocol as nn
-from conftest import require_shared
+from conftest import fuzz_examples, require_shared
 
 V30, V40, V41 = nn.V3_0, nn.V4_0, nn.V4_1
 
@@ -196,7 +196,7 @@ def as_sent(frame: nn.FrameOfData, v: nn.Version) -> nn.FrameOfData:
     return replace(frame, assets=(), precision_seconds=None, precision_fraction=None)
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=fuzz_examples(100), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(frames, st.sampled_from([V30, V40, V41]))
 def test_frames_round_trip_in_every_version(frame, v):
     packet = nn.encode(frame, v)
@@ -260,7 +260,7 @@ def desc_as_sent(d, v: nn.Version):  # type: ignore[no-untyped-def]
     return d
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=fuzz_examples(100), deadline=None)
 @given(st.lists(descriptions, max_size=4), st.sampled_from([V30, V40, V41]))
 def test_modeldef_round_trips_in_every_version(datasets, v):
     md = nn.ModelDef(tuple(datasets))
@@ -338,19 +338,19 @@ def check_only_parse_error(packet: bytes, version) -> None:  # type: ignore[no-u
         nn.decode(packet, version)
 
 
-@settings(max_examples=1500, deadline=BOUND)
+@settings(max_examples=fuzz_examples(1500), deadline=BOUND)
 @given(st.binary(max_size=600), VERSIONS)
 def test_fuzz_random_bytes(packet, version):
     check_only_parse_error(packet, version)
 
 
-@settings(max_examples=1500, deadline=BOUND)
+@settings(max_examples=fuzz_examples(1500), deadline=BOUND)
 @given(st.sampled_from(list(nn._MESSAGES)), st.binary(max_size=400), VERSIONS)
 def test_fuzz_every_message_id_with_random_payload(msg_id, payload, version):
     check_only_parse_error(struct.pack("<HH", msg_id, len(payload)) + payload, version)
 
 
-@settings(max_examples=150, deadline=BOUND, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=fuzz_examples(150), deadline=BOUND, suppress_health_check=[HealthCheck.too_slow])
 @given(frames, st.sampled_from([V30, V40, V41]), st.data())
 def test_fuzz_mutated_valid_frames(frame, v, data):
     packet = bytearray(nn.encode(frame, v))
@@ -362,7 +362,7 @@ def test_fuzz_mutated_valid_frames(frame, v, data):
     check_only_parse_error(bytes(packet), v)
 
 
-@settings(max_examples=120, deadline=BOUND)
+@settings(max_examples=fuzz_examples(120), deadline=BOUND)
 @given(st.lists(descriptions, max_size=3), st.sampled_from([V30, V40, V41]), st.data())
 def test_fuzz_mutated_modeldefs(datasets, v, data):
     packet = bytearray(nn.encode(nn.ModelDef(tuple(datasets)), v))

@@ -33,6 +33,7 @@ from beambench.emulators.odrive_can import (
     OdriveAxisModel,
     OdriveEmulatorConfig,
 )
+from conftest import fuzz_examples
 
 NODE = 3
 CAL_S = 0.25
@@ -371,7 +372,7 @@ def test_arm_without_odrive_raises(tmp_path):
             m.check()
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=fuzz_examples(500), deadline=None)
 @given(arb_id=st.integers(0, 0x7FF), data=st.binary(max_size=8), rtr=st.booleans())
 def test_fuzz_frames_never_crash_driver_or_emulator(arb_id, data, rtr):
     frame = can.Message(arbitration_id=arb_id, data=data, is_remote_frame=rtr, dlc=8 if rtr else len(data))

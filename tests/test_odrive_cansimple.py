@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from beambench.devices.odrive import cansimple as cs
-from conftest import require_shared
+from conftest import fuzz_examples, require_shared
 
 f32 = st.floats(width=32, allow_nan=False, allow_infinity=False)
 u32 = st.integers(0, 2**32 - 1)
@@ -77,7 +77,7 @@ def _ours(msg) -> dict[str, float | int]:
     }
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=fuzz_examples(300), deadline=None)
 @given(msg=messages, node_id=node)
 def test_everything_we_encode_decodes_identically_in_the_dbc(db, msg, node_id):
     frame = cs.to_can(node_id, msg)
@@ -88,7 +88,7 @@ def test_everything_we_encode_decodes_identically_in_the_dbc(db, msg, node_id):
     assert decoded == _ours(msg)
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=fuzz_examples(300), deadline=None)
 @given(msg=messages, node_id=node)
 def test_everything_cantools_encodes_we_decode_back(db, msg, node_id):
     name, _sigs = MAPPING[type(msg)]
@@ -175,7 +175,7 @@ def test_error_names():
     assert cs.error_names(0x1 | 0x1000_0000) == "INVALID_STATE|0x10000000"
 
 
-@settings(max_examples=1000, deadline=None)
+@settings(max_examples=fuzz_examples(1000), deadline=None)
 @given(
     arb_id=st.one_of(st.integers(0, 0x7FF), st.integers(-(2**31), 2**32)),
     data=st.binary(min_size=0, max_size=12),
@@ -192,7 +192,9 @@ def test_fuzz_decoder_raises_only_can_parse_error(arb_id, data, is_remote, is_ex
         assert repr(type(msg).decode(data)) == repr(msg)
 
 
-@settings(max_examples=2000, deadline=timedelta(seconds=5))  # a time bound per frame (generous: not a speed test)
+@settings(
+    max_examples=fuzz_examples(2000), deadline=timedelta(seconds=5)
+)  # a time bound per frame (generous: not a speed test)
 @given(
     arb_id=st.integers(0, 0x1FFFFFFF),
     data=st.binary(max_size=8),

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from beambench.acquisition.config import ConfigError, Protocol, parse_protocol
 from beambench.acquisition.plan import plan, summary
+from conftest import fuzz_examples
 
 VALID = """
 name: fuzz
@@ -71,19 +72,19 @@ def _outcome(text: str) -> None:
     assert time.perf_counter() - t0 < BOUND_S
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=fuzz_examples(150), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.text(max_size=400))
 def test_random_text(text):
     _outcome(text)
 
 
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=fuzz_examples(100), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.binary(max_size=300))
 def test_random_bytes_decoded_loosely(data):
     _outcome(data.decode("utf-8", "replace"))
 
 
-@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=fuzz_examples(200), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.sampled_from(FIELDS), st.data())
 def test_mutated_valid_protocol(field, data):
     doc = yaml.safe_load(VALID)
@@ -97,7 +98,7 @@ def test_mutated_valid_protocol(field, data):
     _outcome(yaml.safe_dump(doc))
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=fuzz_examples(150), deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.integers(min_value=0, max_value=len(VALID)), st.text(max_size=20))
 def test_spliced_text(pos, insert):
     _outcome(VALID[:pos] + insert + VALID[pos:])
