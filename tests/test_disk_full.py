@@ -132,7 +132,11 @@ def _check_failed_cleanly(code: int, err: str, took: float, path: Path, can_log:
     s = read_session(path)
     kinds = list(s.events["kind"])
     assert kinds[-1] == "failed" and "idle" in kinds, kinds  # the reserve paid for the closing records
-    assert s.steps["status"].iloc[-1] != "running"
+    # a step row for each step begun, none left running; under load the disk can fill while the emulated ODrive
+    # is still arming, before any step began (seen once in a 3-worker suite run): then there is no step row
+    assert len(s.steps) == kinds.count("step"), (len(s.steps), kinds)
+    if len(s.steps):
+        assert s.steps["status"].iloc[-1] != "running"
     if can_log is not None:
         assert _last_requested_state(can_log) == 1, "the last Set_Axis_State did not request IDLE"
 
