@@ -98,7 +98,10 @@ def test_force_traces_at_chosen_frequencies_and_custom_out(sessions, tmp_path):
 
 def test_compare_overlays_two_sessions(sessions, tmp_path):
     a, b, _ = sessions
-    res = runner.invoke(app, ["compare", str(a), str(b), "--out", str(tmp_path / "cmp"), "--no-write", "-q"])
+    figures = "trajectories,contact_frequency,forces"  # the ones checked below (compare draws all by default)
+    res = runner.invoke(
+        app, ["compare", str(a), str(b), "--out", str(tmp_path / "cmp"), "--no-write", "-q", "--figures", figures]
+    )
     assert res.exit_code == 0, res.output
     csv = pd.read_csv(tmp_path / "cmp" / "steps.csv")
     assert set(csv["session"]) == {"sim_like", "rig_like"}

@@ -48,7 +48,8 @@ def sessions(tmp_path_factory):
 
 def test_with_drift_on_the_report_has_the_trend_and_every_new_column(sessions):
     session = sessions["on"]
-    res = runner.invoke(app, ["analyze", str(session), "-q", "--no-write", "--drift-correct"])
+    args = ["-q", "--no-write", "--drift-correct", "--figures", "drift"]  # the drift figure is the one checked
+    res = runner.invoke(app, ["analyze", str(session), *args])
     assert res.exit_code == 0, res.output
     out = session.with_name("on_report")
     steps = pd.read_csv(out / "steps.csv")
