@@ -8,6 +8,7 @@ import socket
 import threading
 
 import numpy as np
+import pytest
 
 from beambench.acquisition.config import parse_protocol
 from beambench.acquisition.hub import Hub
@@ -56,9 +57,10 @@ def _forged_frame(number: int) -> bytes:
     return nn.encode(nn.FrameOfData(number, labeled_markers=markers, timestamp=number / 360), nn.V4_1)
 
 
-def test_forged_natnet_frames_are_dropped_and_counted(tmp_path):
-    """A forger on loopback streams valid frames (markers at 9 m) to the client's socket while the emulated
-    Motive streams: none lands in the session, and the driver counts every one (issue 13.5)."""
+@pytest.fixture(scope="module")
+def forged_and_dropped(tmp_path_factory):
+    """One run with a forger on loopback and three mocap frames dropped by the emulated Motive (the forger's
+    frames are rejected by source before any frame bookkeeping, so the two faults do not mix)."""
     sent = {"n": 0}
 
     def forge(rig, stop):  # 300 frames within the run (it lasts > 2 s), so every one reaches an open socket
@@ -68,7 +70,14 @@ def test_forged_natnet_frames_are_dropped_and_counted(tmp_path):
                 s.sendto(_forged_frame(10_000 + sent["n"]), target)
                 sent["n"] += 1
 
-    result, rig, s = _run(tmp_path, "forged.h5", during=forge)
+    tmp = tmp_path_factory.mktemp("forged")
+    return sent, _run(tmp, "forged.h5", inject={"mocap_drop": {300, 301, 302}}, during=forge)
+
+
+def test_forged_natnet_frames_are_dropped_and_counted(forged_and_dropped):
+    """A forger on loopback streams valid frames (markers at 9 m) to the client's socket while the emulated
+    Motive streams: none lands in the session, and the driver counts every one (issue 13.5)."""
+    sent, (result, rig, s) = forged_and_dropped
     assert result.status == "completed", result.message
     assert sent["n"] == 300
     data = s.streams["mocap"].columns["data"]
@@ -92,8 +101,8 @@ def test_a_silent_load_cell_board_is_a_fault_that_idles_and_saves(tmp_path):
     assert s.steps.iloc[0].status == "fault"
 
 
-def test_every_driver_reports_its_counters_into_the_session(tmp_path):
-    result, _rig, s = _run(tmp_path, "counters.h5", inject={"mocap_drop": {300, 301, 302}})
+def test_every_driver_reports_its_counters_into_the_session(forged_and_dropped):
+    _sent, (result, _rig, s) = forged_and_dropped
     assert result.status == "completed", result.message
     devices = s.general["devices"]
     assert set(devices) >= {"motor", "mocap", "loadcell"}

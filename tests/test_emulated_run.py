@@ -120,9 +120,20 @@ def test_motor_telemetry_and_idle(clean):
     assert all("dropped 0" in m for m in counters if m.startswith("loadcell"))
 
 
-def test_injected_mocap_drops_are_counted_exactly(tmp_path):
-    dropped = {200, 201, 350, 600}
-    _rig, s = _run(tmp_path, inject={"mocap_drop": dropped}, name="drops.h5")
+MOCAP_DROPPED = {200, 201, 350, 600}
+
+
+@pytest.fixture(scope="module")
+def injected(tmp_path_factory):
+    """One run with faults injected on two links at once (they are independent: the NatNet stream, the serial
+    link): mocap frames never sent; load-cell frames with a bad CRC, dropped, or garbage between frames."""
+    inject = {"mocap_drop": MOCAP_DROPPED, "loadcell_crc": 0.004, "loadcell_drop": 0.004, "loadcell_garbage": 0.01}
+    return _run(tmp_path_factory.mktemp("injected"), inject=inject, name="injected.h5")
+
+
+def test_injected_mocap_drops_are_counted_exactly(injected):
+    dropped = MOCAP_DROPPED
+    _rig, s = injected
     frames = s.streams["mocap"].columns["frame"]
     gaps = np.diff(frames) - 1
     assert gaps.sum() == len(dropped)
@@ -167,10 +178,8 @@ def test_natnet_echo_exchanges_are_kept_for_clock_sync(clean):
     assert fit.n >= 3
 
 
-def test_injected_load_cell_faults_are_exactly_the_lost_samples(tmp_path):
-    rig, s = _run(
-        tmp_path, inject={"loadcell_crc": 0.004, "loadcell_drop": 0.004, "loadcell_garbage": 0.01}, name="lc.h5"
-    )
+def test_injected_load_cell_faults_are_exactly_the_lost_samples(injected):
+    rig, s = injected
     mcu = rig.peers[0].mcu
     seq = s.streams["loadcell"].columns["seq"]
     lo, hi = int(seq[0]), int(seq[-1])
