@@ -396,7 +396,8 @@ def test_cli_last_stdout_line_is_a_runnable_protocol(tmp_path):
     test_a_targets_files_twin_is_the_shipped_protocol_extended_to_the_targets."""
     session = _short_default_twin_session(tmp_path, "small")
     out = tmp_path / "out"
-    res = _beambench("calibrate", "sim", str(session), "--out", str(out), "--quick", "--budget-s", "8")
+    # a 4 s search budget: what is checked is the command's outputs and exit code, not how close the fit gets
+    res = _beambench("calibrate", "sim", str(session), "--out", str(out), "--quick", "--budget-s", "4")
     # written either way; 0 only when the report's verdict met every target, else 3 with the misses last
     met = json.loads((out / "small_calibrated_report.json").read_text())["verdict"]["all_met"]
     assert res.returncode == (0 if met else 3), res.stderr
