@@ -9,9 +9,9 @@ step is not ``running``, and whose motor telemetry ends at setpoint 0. On the em
 Set_Axis_State on the CAN bus (``--can-log``) requests IDLE, the emulated ODrive's last heartbeat says IDLE, and
 ``/general/devices`` holds the drivers' counters.
 
-The default run makes one run per signal and backend; the soak tier (``pytest --soak``, ``make soak``, CI) the
-other 22 at other random moments. ``BEAMBENCH_SIGNAL_RUNS`` multiplies the number of runs of both (the soak loops
-of issue 21 ran it at 5-10).
+The default run makes one run per signal on the sim and one each of SIGINT, SIGTERM and SIGHUP on the emulated rig;
+the soak tier (``pytest --soak``, ``make soak``, CI) the other 24 at other random moments.
+``BEAMBENCH_SIGNAL_RUNS`` multiplies the number of runs of both (the soak loops of issue 21 ran it at 5-10).
 
 Starting ``python -m beambench.cli`` costs seconds of imports per run, so most runs are forked from a "zygote"
 process that imported beambench once: each child is ``beambench.cli.main()`` with the run's argv and Python's
@@ -286,8 +286,8 @@ def _sig(name: str) -> int:
 
 
 # (signal, runs on the sim, runs on the emulated backend): the hang-up and quit signals of issue 21 as often as
-# SIGINT/SIGTERM, the rarer ones a few times each. The default run makes the first run of each signal on each backend;
-# the soak tier (--soak, CI) the others, at other random moments.
+# SIGINT/SIGTERM, the rarer ones a few times each. The default run makes the first run of each signal on the sim and
+# of EMULATED_DEFAULT on the emulated rig; the soak tier (--soak, CI) the others, at other random moments.
 SIGNAL_RUNS = [
     ("SIGINT", 6, 1),
     ("SIGTERM", 6, 1),
@@ -303,10 +303,17 @@ SIGNAL_RUNS = [
     ("SIGPWR", 1, 0),
     ("SIGRTMIN+3", 1, 0),
 ]
+# the emulated ODrive in the default run: Ctrl-C, kill's default and a closed terminal (the others run on the sim
+# there, and on the emulated rig in the soak tier)
+EMULATED_DEFAULT = ("SIGINT", "SIGTERM", "SIGHUP")
 SIM_FIRST = [(name, 1) for name, sim, _ in SIGNAL_RUNS if sim]
 SIM_MORE = [(name, sim - 1) for name, sim, _ in SIGNAL_RUNS if sim > 1]
-EMULATED_FIRST = [(name, 1) for name, _, emulated in SIGNAL_RUNS if emulated]
-EMULATED_MORE = [(name, emulated - 1) for name, _, emulated in SIGNAL_RUNS if emulated > 1]
+EMULATED_FIRST = [(name, 1) for name, _, emulated in SIGNAL_RUNS if emulated and name in EMULATED_DEFAULT]
+EMULATED_MORE = [
+    (name, emulated - (name in EMULATED_DEFAULT))
+    for name, _, emulated in SIGNAL_RUNS
+    if emulated - (name in EMULATED_DEFAULT) > 0
+]
 
 
 def _ids(runs: list[tuple[str, int]]) -> list[str]:
