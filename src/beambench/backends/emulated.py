@@ -41,8 +41,10 @@ class RealtimePhysics:
     """Runs the sim scene at the wall clock in a thread; the emulators sample its latest rows.
 
     Every ``period_s`` it reads the emulated ODrive's crank speed, sets it as the scene's speed and advances
-    the physics to now, feeding the crank torque back to the ODrive model. ``sample()`` returns the newest
-    row no later than ``now - lag_s`` (the physics is always computed that far).
+    the physics to now, feeding the crank torque back to the ODrive model. The load cells sample the newest row
+    no later than ``now - lag_s`` (the physics is always computed that far); the mocap samples each frame at its
+    own exposure time less ``lag_s`` (:meth:`positions_at`), so a frame sent late (the emulator's thread was not
+    scheduled for tens of ms under load) still carries the markers of its timestamp.
     """
 
     def __init__(self, protocol: Protocol, odrive: Any, period_s: float = 0.005, lag_s: float = 0.03) -> None:
@@ -102,14 +104,21 @@ class RealtimePhysics:
         except BaseException as exc:  # reported through sample(), which the emulators call
             self.error = exc
 
-    def _row(self) -> int:
-        t_now = time.monotonic() - self._t0 - self.lag_s
-        i = int(np.searchsorted(self._t, t_now, side="right")) - 1
+    def _row(self, host_s: float | None = None) -> int:
+        """The newest row no later than ``host_s`` (host monotonic, default now) less ``lag_s``."""
+        t = (time.monotonic() if host_s is None else host_s) - self._t0 - self.lag_s
+        i = int(np.searchsorted(self._t, t, side="right")) - 1
         return max(0, min(i, len(self._t) - 1))
 
     def positions(self, t: float) -> np.ndarray:
+        """The markers now (less ``lag_s``); ``t`` is ignored."""
         with self._lock:
             return self._markers[self._row()].copy()
+
+    def positions_at(self, host_s: float) -> np.ndarray:
+        """The markers at host monotonic time ``host_s`` less ``lag_s`` (the newest row if not computed yet)."""
+        with self._lock:
+            return self._markers[self._row(host_s)].copy()
 
     def force(self, t: float) -> tuple[float, float]:
         with self._lock:
@@ -230,9 +239,16 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
     physics = RealtimePhysics(protocol, None)
     drop = inject.get("mocap_drop")
     outage = _Outage(None if isinstance(drop, float) else drop)
+    motive: MotiveEmulator | None = None
+
+    def exposed(t: float) -> np.ndarray:  # t: stream time of a frame, exposed at stream start + t
+        if motive is None or motive.t0 is None:  # not streaming yet (the model definition asks): now
+            return physics.positions(t)
+        return physics.positions_at(motive.t0 + t)
+
     motive = MotiveEmulator(
         marker_names=tuple(physics.scene.markers),
-        positions=motive_frame(physics.positions),
+        positions=motive_frame(exposed),
         command_port=0,
         multicast=False,
         clock=EmulatorClock.from_model(sim.mocap_clock),
