@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from beambench.studies.executor import make_executor
+from conftest import descendants, process_alive
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "pidfd_open"), reason="the fork server pool needs os.pidfd_open")
 
@@ -53,38 +54,18 @@ def test_a_worker_mid_task_dies_with_the_pools_owner(tmp_path):
     owner = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert owner.stdout is not None and owner.stdout.readline().strip() == "running"
-        family = _descendants(owner.pid)
+        family = descendants(owner.pid)
         assert len(family) >= 3, family  # resource tracker, fork server, worker
     finally:
         owner.send_signal(signal.SIGKILL)
         owner.wait()
     deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and any(_alive(p) for p in family):
+    while time.monotonic() < deadline and any(process_alive(p) for p in family):
         time.sleep(0.05)
-    left = [p for p in family if _alive(p)]
+    left = [p for p in family if process_alive(p)]
     for p in left:
         os.kill(p, signal.SIGKILL)
     assert not left
-
-
-def _descendants(pid: int) -> list[int]:
-    out: list[int] = []
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        try:
-            kids = [int(x) for x in (task / "children").read_text().split()]
-        except OSError:
-            continue
-        for kid in kids:
-            out += [kid, *_descendants(kid)]
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return False
-    return state != "Z"
 
 
 def test_workers_see_the_owners_environment_and_folder_as_they_are_when_the_pool_starts(tmp_path, monkeypatch):

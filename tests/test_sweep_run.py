@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import os
 import signal
 from pathlib import Path
@@ -24,6 +23,7 @@ from beambench.studies.sweep import (
     run_sweep,
     write_table,
 )
+from conftest import descendants, process_alive
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -163,24 +163,6 @@ def test_batch_sizes_balance_and_bound_tasks():
     assert [len(c) for c in chunks(list(range(23)), 10)] == [10, 10, 3]
 
 
-def _descendants(pid: int) -> list[int]:
-    """PIDs of ``pid``'s children, their children and so on (Linux /proc; empty elsewhere): the pool's fork
-    server and resource tracker, and the workers the server forked."""
-    out: list[int] = []
-    for task in Path(f"/proc/{pid}/task").glob("*"):
-        with contextlib.suppress(OSError):
-            for child in (int(x) for x in (task / "children").read_text().split()):
-                out += [child, *_descendants(child)]
-    return out
-
-
-def _state(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except (OSError, IndexError):
-        return ""
-
-
 def test_killed_sweep_resumes_from_task_files(tmp_path):
     """A sweep killed mid-run leaves finished tasks in <table>.parts/: the rerun merges them, computes the rest."""
     import subprocess
@@ -213,7 +195,7 @@ def test_killed_sweep_resumes_from_task_files(tmp_path):
     deadline = _time.monotonic() + 60
     while _time.monotonic() < deadline and len(list(parts.glob("*.parquet"))) < 3:
         _time.sleep(0.05)
-    children = _descendants(proc.pid)
+    children = descendants(proc.pid)
     assert len(children) >= 2  # at least the worker and the process it was started from
     proc.kill()
     proc.wait()
@@ -221,7 +203,7 @@ def test_killed_sweep_resumes_from_task_files(tmp_path):
     deadline = _time.monotonic() + 10
     while _time.monotonic() < deadline and any(Path(f"/proc/{c}").exists() for c in children):
         _time.sleep(0.05)
-    alive = [c for c in children if Path(f"/proc/{c}").exists() and _state(c) != "Z"]
+    alive = [c for c in children if process_alive(c)]
     for c in alive:  # do not leave them behind even when the assertion fails
         os.kill(c, signal.SIGKILL)
     assert not alive
