@@ -18,7 +18,7 @@ import pandas as pd
 import yaml
 
 from beambench.analysis.drift import drift_table
-from beambench.analysis.figures import FIGURES, ReportOptions
+from beambench.analysis.figures import FIGURES, FigureSpec, ReportOptions
 from beambench.analysis.figures.style import R2_SENSE_MIN, SESSION_COLORS
 from beambench.analysis.release import release_table
 from beambench.analysis.session import SessionAnalysis
@@ -252,11 +252,8 @@ def make_report(
     if len(drift):
         drift.to_csv(out / DRIFT_CSV, index=False)
     options = ReportOptions(force_at)
-    rigs = {a.rig for a in analyses}
     figures: dict[str, tuple[Path, str]] = {}
-    for spec in FIGURES.for_rigs(rigs):
-        if only is not None and spec.key not in only:
-            continue
+    for spec in _figure_specs(analyses, only):
         if progress is not None:
             progress(spec.key)
         p = spec.draw(analyses, out / f"{spec.key}.png", options)
@@ -289,8 +286,13 @@ def _drift_html(drift: pd.DataFrame) -> list[str]:
     ]
 
 
+def _figure_specs(analyses: list[SessionAnalysis], only: Collection[str] | None) -> list[FigureSpec]:
+    """The figures of the sessions' rig(s), or those among them named in ``only``."""
+    specs = FIGURES.for_rigs({a.rig for a in analyses})
+    return specs if only is None else [s for s in specs if s.key in only]
+
+
 def figures_of(analyses: list[SessionAnalysis], only: Collection[str] | None = None) -> list[str]:
     """The keys of the figures a report on these sessions draws (some may have nothing to show), or of those
     among them named in ``only``."""
-    keys = [spec.key for spec in FIGURES.for_rigs({a.rig for a in analyses})]
-    return keys if only is None else [k for k in keys if k in only]
+    return [spec.key for spec in _figure_specs(analyses, only)]

@@ -25,6 +25,12 @@ def _frequencies(text: str | None) -> list[float] | None:
     return vals
 
 
+FIGURES_HELP = (
+    "Figures to draw: all (the session's rig's), none (steps.csv, index.html and the stored results only: fast, "
+    "for batches), or names separated by commas, e.g. trajectories,forces."
+)
+
+
 def _figure_names(text: str) -> list[str] | None:
     """``--figures``: None for all, [] for none, else the named figure keys (each a registered figure)."""
     from beambench.analysis.figures import FIGURES
@@ -180,8 +186,7 @@ def register(app: typer.Typer) -> None:
         figures: str = typer.Option(
             "all",
             "--figures",
-            help="Figures to draw: all (the session's rig's), none (steps.csv, index.html and the stored results "
-            "only: fast, for batches), or names separated by commas, e.g. trajectories,forces.",
+            help=FIGURES_HELP,
         ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:
@@ -225,8 +230,7 @@ def register(app: typer.Typer) -> None:
         figures: str = typer.Option(
             "all",
             "--figures",
-            help="Figures to draw: all (the session's rig's), none (steps.csv, index.html and the stored results "
-            "only: fast, for batches), or names separated by commas, e.g. trajectories,forces.",
+            help=FIGURES_HELP,
         ),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> None:

@@ -170,7 +170,7 @@ def _worker_init(owner: int, environ: dict[str, str], cwd: str) -> None:
 
 
 def _die_with_owner(owner: int) -> None:
-    """Worker initializer: the worker ends when the process that owns its pool (``owner``) dies, so that a killed
+    """The worker ends when the process that owns its pool (``owner``) dies, so that a killed
     sweep or calibration leaves no orphaned workers computing. The kernel kills it when its parent dies
     (``PR_SET_PDEATHSIG``: the owner under ``spawn``, the fork server under ``forkserver``); forked from a fork
     server, it also watches the owner through a pidfd from a daemon thread (the server outlives the owner while a
