@@ -4,6 +4,7 @@
     python benchmarks/bench_analysis.py --synthetic     # 40-step synthetic session instead (no physics)
     python benchmarks/bench_analysis.py --session S.h5  # any session
     python benchmarks/bench_analysis.py --sync          # also: 5-minute sim run with 5 ms / 50 ppm / 0.4 ms clocks
+    python benchmarks/bench_analysis.py --figures none  # the same with analyze's --figures (default: all)
 
 Times the whole command in a fresh process (imports, reading, analysis, figures, HTML), ``--repeats`` times, and
 reports the median wall time and the CPU time of each run (the machine may be shared: CPU time is the steadier
@@ -87,14 +88,16 @@ def synthetic_session() -> Path:
     return path
 
 
-def time_analyze(session: Path, repeats: int) -> tuple[list[float], list[float]]:
+def time_analyze(session: Path, repeats: int, figures: str = "all") -> tuple[list[float], list[float]]:
     walls, cpus = [], []
     for i in range(repeats):
         with tempfile.TemporaryDirectory() as out:
             before = resource.getrusage(resource.RUSAGE_CHILDREN)
             t = time.perf_counter()
             subprocess.run(
-                ["beambench", "analyze", str(session), "--out", out, "-q"], check=True, stdout=subprocess.DEVNULL
+                ["beambench", "analyze", str(session), "--out", out, "-q", "--figures", figures],
+                check=True,
+                stdout=subprocess.DEVNULL,
             )
             walls.append(time.perf_counter() - t)
             after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -139,6 +142,7 @@ def main() -> int:
     ap.add_argument("--synthetic", action="store_true")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--sync", action="store_true", help="also run the 5-minute clock-sync accuracy check")
+    ap.add_argument("--figures", default="all", help="analyze's --figures: all, none or names (default: all)")
     args = ap.parse_args()
     session = args.session or (synthetic_session() if args.synthetic else run_protocol(SWEEP, "bench_contact_gap1"))
     import h5py
@@ -146,8 +150,8 @@ def main() -> int:
     with h5py.File(session, "r", libver="latest", swmr=True) as f:
         n_steps = f["steps"].shape[0]
         rows = {k: f["acquisition"][k]["host_time_ns"].shape[0] for k in f["acquisition"]}
-    print(f"beambench analyze {session.name}: {n_steps} steps, rows {rows}")
-    walls, cpus = time_analyze(session, args.repeats)
+    print(f"beambench analyze {session.name} --figures {args.figures}: {n_steps} steps, rows {rows}")
+    walls, cpus = time_analyze(session, args.repeats, args.figures)
     med = statistics.median(walls)
     print(
         f"median {med:.2f} s wall (min {min(walls):.2f}), median {statistics.median(cpus):.2f} s CPU; goal < {GOAL_S:.0f} s:"
