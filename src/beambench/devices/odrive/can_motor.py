@@ -205,6 +205,8 @@ class CanMotorTiming:
     telemetry_timeout_s: float | None = 1.0  # no Encoder_Estimates this long while streaming: a fault (None: off)
     feed_period_s: float = 0.05  # watchdog feed
     poll_period_s: float = 0.05  # bus voltage / current requests
+    watchdog_timeout_s: float | None = None  # the ODrive's own watchdog (set over USB; the rig file says it)
+    idle_confirm_s: float = 0.5  # how long the idle waits for a heartbeat saying AXIS_STATE_IDLE
 
 
 class OdriveCanMotor(TelemetryStream):
@@ -286,6 +288,12 @@ class OdriveCanMotor(TelemetryStream):
         self._feeder_stop = threading.Event()
         self._tx_paused = False
         self._closed = False
+        self._tick_ns: int | None = None  # the feeder's last wake-up: a longer gap than a heartbeat timeout is
+        self._stall_ns = 0  # the host's own stall (no CPU time: suspended, swapping), not the ODrive's silence
+        # the idle frames, built now: sending them must not need memory the run may have run out of
+        self._idle_frames = tuple(
+            cs.to_can(node_id, m, extended_id) for m in (cs.SetAxisState(AxisState.IDLE), cs.SetInputVel(0.0, 0.0))
+        )
 
     # ------------------------------------------------------------------ bus lifecycle
     def open(self) -> None:
@@ -456,6 +464,8 @@ class OdriveCanMotor(TelemetryStream):
                 continue
             now_ns = time.monotonic_ns()
             with self._cond:
+                self._note_stall_locked(now_ns)
+                self._tick_ns = now_ns
                 lost = self._heartbeat_lost_locked(now_ns)
                 armed, setpoint, hb = self._armed, self._setpoint, self._hb
                 if lost and armed and self._fault is None:
@@ -485,15 +495,33 @@ class OdriveCanMotor(TelemetryStream):
         self._tx_paused = False
 
     # ------------------------------------------------------------------ waiting on heartbeats
+    def _note_stall_locked(self, now_ns: int) -> None:
+        """The feeder wakes every few tens of ms: not waking for longer than a heartbeat timeout means this
+        process got no CPU time (SIGSTOP, a debugger, swapping), whatever the ODrive did meanwhile."""
+        gap = now_ns - self._tick_ns if self._tick_ns is not None else 0
+        if self._armed and gap > self.heartbeat_timeout_s * 1e9:
+            self._stall_ns = max(self._stall_ns, gap)
+
+    def _stall_text(self) -> str:
+        watchdog = self.timing.watchdog_timeout_s
+        then = f"; the ODrive's watchdog idles the axis after {watchdog:g} s without a frame" if watchdog else ""
+        return (
+            f"the host stalled for {self._stall_ns / 1e6:.0f} ms (this process got no CPU time: suspended or "
+            f"overloaded), so ODrive node {self.node_id} went unfed and unread{then}"
+        )
+
     def _heartbeat_lost_locked(self, now_ns: int) -> str | None:
         if self._opened_ns is None:
             return None
+        self._note_stall_locked(now_ns)
         limit_ns = int(self.heartbeat_timeout_s * 1e9)
         if self._hb_ns is None:
             if now_ns - self._opened_ns > limit_ns:
                 return f"no heartbeat from ODrive node {self.node_id} on {self.interface}:{self.channel}"
             return None
         age = now_ns - self._hb_ns
+        if age > limit_ns and self._stall_ns:
+            return self._stall_text()
         if age > limit_ns:
             limit_ms = self.heartbeat_timeout_s * 1e3
             return f"ODrive node {self.node_id} heartbeat lost for {age / 1e6:.0f} ms (> {limit_ms:.0f} ms)"
@@ -599,6 +627,7 @@ class OdriveCanMotor(TelemetryStream):
             raise DeviceFault(f"no heartbeat from ODrive node {self.node_id} on {self.interface}:{self.channel}")
         with self._cond:
             self._fault = None
+            self._stall_ns = 0
             self._limits = limits
             self._setpoint = 0.0
         self.vel_limit, self.current_limit = vel_limit, current
@@ -710,9 +739,11 @@ class OdriveCanMotor(TelemetryStream):
     def check(self) -> None:
         """Raise DeviceFault on axis errors, on leaving closed loop while armed, or on a lost heartbeat."""
         with self._cond:
+            lost = self._heartbeat_lost_locked(time.monotonic_ns())
+            if self._stall_ns and self._armed:  # whatever the ODrive says now follows from the host's stall
+                raise DeviceFault(self._stall_text())
             if self._fault is not None:
                 raise DeviceFault(self._fault)
-            lost = self._heartbeat_lost_locked(time.monotonic_ns())
             if lost is not None:
                 raise DeviceFault(lost)
             hb, armed = self._hb, self._armed

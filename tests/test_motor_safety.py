@@ -1,0 +1,93 @@
+"""The motor's exit paths under a host that stalls, runs out of memory or loses a sink: the motor is idled and
+the run says what happened in one line (docs/safety.md, "Motor idle" and "Sinks")."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from beambench.sinks.hdf5 import read_session
+
+SHORT = """
+name: short
+sweep: {start: 2, stop: 10, step: 2}
+settle_s: 1.0
+record_s: 1.0
+sim: {seed: 5}
+"""
+CLOSED_LOOP_REQUEST = re.compile(r"^ *(\d+\.\d+) +\d+ +7 +Tx +d 8 08 ", re.M)  # Set_Axis_State CLOSED_LOOP, node 0
+LOGGED_AT = re.compile(r"^ *(\d+\.\d+) ", re.M)
+
+
+def _env() -> dict[str, str]:
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    return dict(os.environ, PYTHONUNBUFFERED="1", PYTHONPATH=os.environ.get("PYTHONPATH") or src)
+
+
+def _start(tmp_path: Path, *extra: str) -> subprocess.Popen:
+    proto = tmp_path / "short.yaml"
+    proto.write_text(SHORT)
+    argv = ["run", str(proto), "-b", "emulated", "--out", str(tmp_path), "--name", "s", "--rerun", "off", *extra]
+    return subprocess.Popen(
+        [sys.executable, "-m", "beambench.cli", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=_env(),
+        start_new_session=True,
+    )
+
+
+def _wait_armed(proc: subprocess.Popen, can_log: Path, for_s: float = 0.5, timeout: float = 120.0) -> None:
+    """Until the CAN log shows the closed-loop request and ``for_s`` of traffic after it (the motor is armed)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()[1].decode(errors="replace")[-2000:]
+        text = can_log.read_text(errors="replace") if can_log.exists() else ""
+        armed = CLOSED_LOOP_REQUEST.search(text)
+        stamps = LOGGED_AT.findall(text[armed.end() :]) if armed else []
+        if armed and stamps and float(stamps[-1]) - float(armed.group(1)) >= for_s:
+            return
+        time.sleep(0.05)
+    raise AssertionError("the run never armed the motor")
+
+
+def _said(err: bytes) -> list[str]:
+    text = err.decode(errors="replace")
+    assert "Traceback" not in text, text[-3000:]
+    return [line for line in text.replace("\r", "\n").splitlines() if line.startswith("beambench:")]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "stall_s", [2.0, pytest.param(0.8, marks=pytest.mark.soak), pytest.param(5.0, marks=pytest.mark.soak)]
+)
+def test_a_stalled_host_is_said_to_be_the_host_not_the_odrive(tmp_path, stall_s):
+    """SIGSTOP of the armed run for longer than the heartbeat timeout: the ODrive's watchdog idles the axis; the
+    run ends as a fault that names the host's stall (its length), not a lost ODrive heartbeat."""
+    can_log = tmp_path / "s.asc"
+    proc = _start(tmp_path, "--can-log", str(can_log))
+    try:
+        _wait_armed(proc, can_log)
+        proc.send_signal(signal.SIGSTOP)
+        time.sleep(stall_s)  # the stall itself is what is tested: its length is the input
+        proc.send_signal(signal.SIGCONT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    said = _said(err)
+    assert proc.returncode == 1 and len(said) == 1, (proc.returncode, said)
+    assert "heartbeat lost" not in said[0], said
+    stalled = re.search(r"the host stalled for (\d+) ms", said[0])
+    assert stalled and int(stalled.group(1)) >= 1000, said  # > the 1 s heartbeat timeout; of the order of the stall
+    assert int(stalled.group(1)) <= stall_s * 1e3 + 5000, said
+    motor = read_session(tmp_path / "s.h5").streams["motor"]
+    assert motor.columns["axis_state"][-1] == 1  # AXIS_STATE_IDLE
