@@ -91,3 +91,41 @@ def test_a_stalled_host_is_said_to_be_the_host_not_the_odrive(tmp_path, stall_s)
     assert int(stalled.group(1)) <= stall_s * 1e3 + 5000, said
     motor = read_session(tmp_path / "s.h5").streams["motor"]
     assert motor.columns["axis_state"][-1] == 1  # AXIS_STATE_IDLE
+
+
+def _vm_size(pid: int) -> int:
+    status = Path(f"/proc/{pid}/status").read_text()
+    found = re.search(r"VmSize:\s+(\d+) kB", status)
+    assert found, status
+    return int(found.group(1)) * 1024
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="reads the run's size in /proc")
+@pytest.mark.parametrize(
+    "headroom_mb", [0, pytest.param(4, marks=pytest.mark.soak), pytest.param(32, marks=pytest.mark.soak)]
+)
+def test_memory_exhausted_mid_run_idles_the_motor_confirmed_in_one_line(tmp_path, headroom_mb):
+    """RLIMIT_AS set on the armed run at its size (+ headroom): the allocation that fails ends the run with one
+    line, no traceback; the idle frames (packed ahead) still go out and the ODrive confirms AXIS_STATE_IDLE."""
+    resource = pytest.importorskip("resource")
+    can_log = tmp_path / "s.asc"
+    proc = _start(tmp_path, "--can-log", str(can_log))
+    try:
+        _wait_armed(proc, can_log)
+        limit = _vm_size(proc.pid) + headroom_mb * 2**20
+        resource.prlimit(proc.pid, resource.RLIMIT_AS, (limit, resource.RLIM_INFINITY))
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    said = _said(err)
+    assert proc.returncode in (0, 1), (proc.returncode, said)
+    assert len(said) == (proc.returncode != 0), said
+    s = read_session(tmp_path / "s.h5")
+    idle = [m for k, m in zip(s.events["kind"], s.events["message"]) if k == "idle"]
+    assert idle == ["motor idle (ODrive node 0 confirms AXIS_STATE_IDLE)"], idle
+    if said:
+        assert "confirms AXIS_STATE_IDLE" in said[0], said
+    assert s.streams["motor"].columns["axis_state"][-1] == 1  # AXIS_STATE_IDLE, as the device reported it

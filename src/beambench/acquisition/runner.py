@@ -39,6 +39,7 @@ from beambench.acquisition.batch import StepRecord
 from beambench.acquisition.capabilities import (
     Anticipates,
     ChecksDevices,
+    ConfirmsIdle,
     DeviceFault,
     HasIdleTail,
     MotorLimits,
@@ -64,6 +65,7 @@ class RunResult:
     steps_done: int
     message: str = ""
     warnings: list[str] = field(default_factory=list)  # what went wrong besides (a live view or recording lost)
+    idle: str = "motor idled"  # what the motor's state is known to be at the end (confirmed by the device or not)
 
 
 ProgressCallback = Callable[[int, float, float], None]  # (step index, frequency, rig seconds just waited)
@@ -192,6 +194,11 @@ def stop_on_signals(stop: StopSignal | None = None, *, then_ignore: bool = False
             signal.signal(signum, signal.SIG_IGN if then_ignore else previous)
 
 
+def _thread_start_failed(exc: RuntimeError) -> bool:
+    """CPython's "can't start new thread" (no memory or no thread left for one): a resource, not a bug."""
+    return "can't start new thread" in str(exc)
+
+
 class Runner:
     """Runs ``steps`` on ``rig``, streaming every batch to ``hub`` every ``poll_s`` of rig time."""
 
@@ -246,6 +253,13 @@ class Runner:
                     result = RunResult("interrupted", self.steps_done, f"{self.stop.reason}; then {exc}")
                 else:
                     result = RunResult("fault", self.steps_done, f"device fault: {exc}")
+            except MemoryError:  # the shutdown below idles the motor without allocating; then one line
+                result = RunResult("error", self.steps_done, "out of memory (MemoryError)")
+            except RuntimeError as exc:
+                if not _thread_start_failed(exc):
+                    result = RunResult("error", self.steps_done, f"{type(exc).__name__}: {exc}")
+                    raise
+                result = RunResult("error", self.steps_done, f"out of resources: {exc}")
             except Exception as exc:
                 result = RunResult("error", self.steps_done, f"{type(exc).__name__}: {exc}")
                 raise
@@ -259,7 +273,7 @@ class Runner:
 
     def _log_event(self, now_ns: int, kind: str, message: str) -> None:
         """An event during the shutdown: a sink failing now is in ``hub.failure``, never raised."""
-        with contextlib.suppress(SinkFailure):
+        with contextlib.suppress(SinkFailure, MemoryError):
             self.hub.event(now_ns, kind, message)
 
     def _check_stop(self) -> None:
@@ -372,11 +386,14 @@ class Runner:
         the rig and the sinks are closed: a sink that fails now is only recorded (``hub.failure``)."""
         # Signals during shutdown only set the stop flag (see run()): they cannot skip the idle.
         try:
+            said = "motor commanded to idle"
             try:
                 self.rig.motor.idle()
+                if isinstance(self.rig.motor, ConfirmsIdle):
+                    said = result.idle = self.rig.motor.confirm_idle()
             except Exception as exc:  # the idle attempt must not hide the original problem
                 self._log_event(self.rig.clock.now_ns(), "error", f"idle failed: {exc}")
-            self._log_event(self.rig.clock.now_ns(), "idle", "motor commanded to idle")
+            self._log_event(self.rig.clock.now_ns(), "idle", said)
             try:
                 # real devices: record a short tail so the session shows the motor stopping
                 if isinstance(self.rig, HasIdleTail) and self.rig.idle_tail_s > 0:

@@ -55,7 +55,7 @@ import can
 import numpy as np
 
 from beambench.acquisition.batch import Batch, StreamSpec
-from beambench.acquisition.capabilities import DeviceFault, MotorLimits, RefusesForeign
+from beambench.acquisition.capabilities import DeviceFault, MotorLimits, PacksAhead, RefusesForeign
 from beambench.acquisition.streams import MOTOR, motor_spec
 from beambench.common.errors import BeambenchError
 from beambench.devices.odrive import cansimple as cs
@@ -70,6 +70,8 @@ from beambench.devices.receive_time import mono_minus_real_ns
 # watchdog (armed over USB, watchdog_timeout_s) is what idles the motor when the host stops. The rig file sets
 # it (odrive.heartbeat_timeout_s).
 HEARTBEAT_TIMEOUT_S = 1.0
+IDLE_SEND_TRIES = 5  # each idle frame is sent up to this many times (a full TX queue, no memory for a moment)
+IDLE_RETRY_S = 0.02
 VEL_HEADROOM = 1.1  # vel_limit = max_frequency_hz × this
 MAX_VEL_LIMIT = 250.0  # turn/s; never send more (the old script's 8000 disabled the limit)
 MAX_CURRENT_LIMIT = 60.0  # A, the ODrive v3.6 hardware maximum
@@ -291,6 +293,7 @@ class OdriveCanMotor(TelemetryStream):
         self._tick_ns: int | None = None  # the feeder's last wake-up: a longer gap than a heartbeat timeout is
         self._stall_ns = 0  # the host's own stall (no CPU time: suspended, swapping), not the ODrive's silence
         # the idle frames, built now: sending them must not need memory the run may have run out of
+        self._idle_sent_ns: int | None = None
         self._idle_frames = tuple(
             cs.to_can(node_id, m, extended_id) for m in (cs.SetAxisState(AxisState.IDLE), cs.SetInputVel(0.0, 0.0))
         )
@@ -310,6 +313,9 @@ class OdriveCanMotor(TelemetryStream):
                 self._bus = can.Bus(**kwargs)
             except (can.CanError, OSError, ValueError, ImportError) as exc:
                 raise DeviceFault(f"cannot open CAN bus {self.interface}:{self.channel}: {exc}") from exc
+        if isinstance(self._bus, PacksAhead):
+            for frame in self._idle_frames:
+                self._bus.keep_packed(frame)
         if self.can_log is not None:
             self._log = _TrafficLog(self.can_log)
         with self._cond:
@@ -396,7 +402,8 @@ class OdriveCanMotor(TelemetryStream):
             except Exception as exc:  # e.g. the bus closing under us: recorded, never a traceback
                 if stop.is_set():
                     return
-                self.rx_errors.append(f"{type(exc).__name__}: {exc}")
+                with contextlib.suppress(MemoryError):
+                    self.rx_errors.append(f"{type(exc).__name__}: {exc}")
                 time.sleep(0.01)  # a dead interface must not spin this thread; the heartbeat check reports it
 
     def _on_rx(self, frame: can.Message, host_ns: int | None = None) -> None:
@@ -714,17 +721,37 @@ class OdriveCanMotor(TelemetryStream):
         self.send(cs.SetInputVel(float(hz), 0.0))
 
     def idle(self) -> None:
-        """Input velocity 0 and AXIS_STATE_IDLE. Idempotent; never raises (errors kept in ``send_errors``)."""
+        """Set_Axis_State IDLE and input velocity 0, from frames built at construction (no allocation needed),
+        each tried ``IDLE_SEND_TRIES`` times. Idempotent; never raises (errors kept in ``send_errors``)."""
         with self._cond:
             self._armed = False
             self._setpoint = 0.0
         if self._bus is None or self._closed:
             return
-        for msg in (cs.SetAxisState(AxisState.IDLE), cs.SetInputVel(0.0, 0.0)):
-            try:
-                self.send(msg)
-            except Exception as exc:
-                self.send_errors.append(f"idle: {exc}")
+        self._idle_sent_ns = time.monotonic_ns()
+        for frame in self._idle_frames:
+            for attempt in range(IDLE_SEND_TRIES):
+                try:
+                    self._send(frame)
+                    break
+                except BaseException as exc:  # MemoryError included: the next try may find memory freed
+                    if attempt == IDLE_SEND_TRIES - 1:
+                        with contextlib.suppress(BaseException):
+                            self.send_errors.append(f"idle: {exc}")
+                    else:
+                        time.sleep(IDLE_RETRY_S)
+
+    def confirm_idle(self) -> str:
+        """After :meth:`idle`: "motor idle" once a heartbeat sent after it says AXIS_STATE_IDLE (waiting at most
+        ``timing.idle_confirm_s``); otherwise "idle NOT confirmed" and when the ODrive's watchdog idles it."""
+        sent = self._idle_sent_ns
+        if sent is not None and self._bus is not None:
+            hb = self._wait_heartbeat(lambda h: h.axis_state == AxisState.IDLE, self.timing.idle_confirm_s, sent)
+            if hb is not None:
+                return f"motor idle (ODrive node {self.node_id} confirms AXIS_STATE_IDLE)"
+        watchdog = self.timing.watchdog_timeout_s
+        within = f"within {watchdog:g} s" if watchdog else "if its watchdog is enabled"
+        return f"motor idle NOT confirmed; the ODrive watchdog idles it {within}"
 
     def estop(self) -> None:
         """Send Estop: the axis latches ESTOP_REQUESTED and goes idle until errors are cleared."""
