@@ -271,6 +271,15 @@ class Runner:
                     result.status, result.message = "failed", f"{failure}{before}"
             return result
 
+    def _say_lost(self, now_ns: int, health: dict[str, dict[str, Any]], result: RunResult) -> None:
+        """Frames a stream's device sent that never arrived: a ``lost`` event and a warning (said on stderr)."""
+        for stream, counts in sorted(health.items()):
+            lost, got = counts.get("dropped", 0), counts.get("received", 0)
+            if isinstance(lost, int) and isinstance(got, int) and lost > 0:
+                text = f"{stream}: {lost} frames lost of {lost + got} ({100 * lost / (lost + got):.1f} %)"
+                self._log_event(now_ns, "lost", text)
+                result.warnings.append(text)
+
     def _log_event(self, now_ns: int, kind: str, message: str) -> None:
         """An event during the shutdown: a sink failing now is in ``hub.failure``, never raised."""
         with contextlib.suppress(SinkFailure, MemoryError):
@@ -419,6 +428,7 @@ class Runner:
                 for stream, counts in sorted(health.items()):
                     listed = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
                     self._log_event(now, "devices", f"{stream}: {listed}")
+                self._say_lost(now, health, result)
             kind = {"completed": "stop"}.get(result.status, result.status)
             if result.status != "failed" and self.hub.failure is not None:
                 kind, result.message = "failed", f"{self.hub.failure}; the run had {result.status}: {result.message}"
