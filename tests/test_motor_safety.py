@@ -87,7 +87,7 @@ def test_a_stalled_host_is_said_to_be_the_host_not_the_odrive(tmp_path, stall_s)
     assert proc.returncode == 1 and len(said) == 1, (proc.returncode, said)
     assert "heartbeat lost" not in said[0], said
     stalled = re.search(r"the host stalled for (\d+) ms", said[0])
-    assert stalled and int(stalled.group(1)) >= 1000, said  # > the 1 s heartbeat timeout; of the order of the stall
+    assert stalled and int(stalled.group(1)) >= 500, said  # > the 0.5 s watchdog timeout; of the order of the stall
     assert int(stalled.group(1)) <= stall_s * 1e3 + 5000, said
     motor = read_session(tmp_path / "s.h5").streams["motor"]
     assert motor.columns["axis_state"][-1] == 1  # AXIS_STATE_IDLE

@@ -503,10 +503,12 @@ class OdriveCanMotor(TelemetryStream):
 
     # ------------------------------------------------------------------ waiting on heartbeats
     def _note_stall_locked(self, now_ns: int) -> None:
-        """The feeder wakes every few tens of ms: not waking for longer than a heartbeat timeout means this
-        process got no CPU time (SIGSTOP, a debugger, swapping), whatever the ODrive did meanwhile."""
+        """The feeder wakes every few tens of ms: not waking for longer than a heartbeat timeout (or the ODrive's
+        watchdog timeout, if shorter) means this process got no CPU time (SIGSTOP, a debugger, swapping),
+        whatever the ODrive did meanwhile."""
         gap = now_ns - self._tick_ns if self._tick_ns is not None else 0
-        if self._armed and gap > self.heartbeat_timeout_s * 1e9:
+        limit = min(self.heartbeat_timeout_s, self.timing.watchdog_timeout_s or math.inf)  # the watchdog idled it
+        if self._armed and gap > limit * 1e9:
             self._stall_ns = max(self._stall_ns, gap)
 
     def _stall_text(self) -> str:
