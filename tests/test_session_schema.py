@@ -293,6 +293,11 @@ def _edit(f: h5py.File, edit: tuple) -> None:
 
 def _edit_dataset(f: h5py.File, target: str, ds: h5py.Dataset, edit: tuple) -> None:
     op, k = edit[0], edit[2]
+    if op == "resize" and ds.maxshape and ds.maxshape[0] is None:
+        ds.resize((10 ** (k % 12), *ds.shape[1:]))
+        return
+    if ds.size * ds.dtype.itemsize > 1 << 26:  # resized by an earlier edit: not read here either
+        return
     data = np.asarray(ds[()])
     attrs = dict(ds.attrs)
     if op == "values" and data.size:
@@ -310,9 +315,6 @@ def _edit_dataset(f: h5py.File, target: str, ds: h5py.Dataset, edit: tuple) -> N
     if op == "shuffle" and data.ndim:
         np.random.default_rng(k).shuffle(data)
         ds[...] = data
-        return
-    if op == "resize" and ds.maxshape and ds.maxshape[0] is None:
-        ds.resize((10 ** (k % 12), *ds.shape[1:]))
         return
     if op == "drop_field" and ds.dtype.names:
         _drop_field(f, target, ds.dtype.names[k % len(ds.dtype.names)])
