@@ -48,9 +48,10 @@ def clean(tmp_path_factory):
 
 def test_same_layout_as_the_sim_backend(clean):
     from beambench.backends.sim import SimRig
+    from beambench.sim.protocol_slice import sim_slice
 
     _, s = clean
-    sim = SimRig(parse_protocol(PROTOCOL))
+    sim = SimRig(sim_slice(parse_protocol(PROTOCOL)))
     for stream in sim.streams:
         spec = stream.describe()
         got = s.streams[spec.name]

@@ -20,9 +20,10 @@ def build_rig(
     """The rig for ``backend``; drivers are imported lazily so the sim needs no hardware packages."""
     if backend == "sim":
         from beambench.backends.sim import build_sim_rig
+        from beambench.sim.protocol_slice import sim_slice
 
         # closed-loop tracking commands every few ms: a chunk computed ahead would only be undone
-        return build_sim_rig(protocol, realtime=realtime, prefetch=protocol.track is None)
+        return build_sim_rig(sim_slice(protocol), realtime=realtime, prefetch=protocol.track is None)
     if backend == "emulated":
         from beambench.backends.emulated import build_emulated_rig
 

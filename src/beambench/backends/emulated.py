@@ -49,8 +49,9 @@ class RealtimePhysics:
 
     def __init__(self, protocol: Protocol, odrive: Any, period_s: float = 0.005, lag_s: float = 0.03) -> None:
         from beambench.backends.sim import build_scene
+        from beambench.sim.protocol_slice import sim_slice
 
-        self.scene = build_scene(protocol)
+        self.scene = build_scene(sim_slice(protocol))
         self.odrive = odrive
         self.period_s, self.lag_s = period_s, lag_s
         self._lock = threading.Lock()

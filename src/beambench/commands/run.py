@@ -149,10 +149,10 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
     total = sum(s.duration_s for s in steps)
     if backend != "sim" or realtime:
         return f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
-    from beambench.backends.sim import _contact_plan
+    from beambench.sim.protocol_slice import sim_slice
 
     try:
-        sim_plan = _contact_plan(protocol)
+        sim_plan = sim_slice(protocol).plan
     except ConfigError:
         sim_plan = None
     if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
