@@ -1,0 +1,41 @@
+"""Report figures read as a lab user reads them: every mark on an axis means what the axis says, titles name the
+point they show and claim nothing the data does not hold. Each test checks the data a figure is built from
+(its axes, artists, labels and titles), drawn from synthetic sessions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from matplotlib.collections import PolyCollection
+
+from beambench.analysis.session import SessionAnalysis, analyze_session
+from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
+from beambench.sinks.hdf5 import read_session
+
+
+def _analysis(path) -> SessionAnalysis:
+    return analyze_session(read_session(path))
+
+
+@pytest.fixture(scope="module")
+def walker(tmp_path_factory) -> SessionAnalysis:
+    d = tmp_path_factory.mktemp("walker")
+    steps = [SynthStep(f, body_speed_mm_s=0.3 * f - 6) for f in (5, 10, 15, 23, 30, 40, 50, 65)]
+    cfg = SynthSession(steps, rig="walker", record_s=1.0, settle_s=0.2, seed=3)
+    return _analysis(write_synthetic_session(d / "walker.h5", cfg))
+
+
+def test_gait_stance_bars_are_not_drawn_on_the_height_axis(walker):
+    from beambench.analysis.figures.gait import gait_figure
+
+    fig = gait_figure([walker])
+    assert fig is not None
+    heights = [ax for ax in fig.axes if "height" in ax.get_ylabel()]
+    strips = [ax for ax in fig.axes if ax.get_title(loc="left") == "on the ground"]
+    assert len(heights) == len(strips) >= 2
+    for ax in heights:  # a height axis in mm carries heights only: no bar at a made-up negative height
+        assert not [c for c in ax.collections if isinstance(c, PolyCollection)]
+    for ax in strips:  # the bars live on their own strip, a row per foot, no mm scale
+        assert [t.get_text() for t in ax.get_yticklabels()] == ["left foot", "right foot"]
+        assert "mm" not in ax.get_ylabel()
+        assert any(isinstance(c, PolyCollection) for c in ax.collections)
