@@ -20,7 +20,7 @@ def _analysis(path) -> SessionAnalysis:
 @pytest.fixture(scope="module")
 def walker(tmp_path_factory) -> SessionAnalysis:
     d = tmp_path_factory.mktemp("walker")
-    steps = [SynthStep(f, body_speed_mm_s=0.3 * f - 6) for f in (5, 10, 15, 23, 30, 40, 50, 65)]
+    steps = [SynthStep(f, body_speed_mm_s=0.3 * f - 6) for f in (5, 10, 15, 20, 23, 30, 35, 40, 50, 57, 65)]
     cfg = SynthSession(steps, rig="walker", record_s=1.0, settle_s=0.2, seed=3)
     return _analysis(write_synthetic_session(d / "walker.h5", cfg))
 
@@ -39,3 +39,16 @@ def test_gait_stance_bars_are_not_drawn_on_the_height_axis(walker):
         assert [t.get_text() for t in ax.get_yticklabels()] == ["left foot", "right foot"]
         assert "mm" not in ax.get_ylabel()
         assert any(isinstance(c, PolyCollection) for c in ax.collections)
+
+
+def test_body_trajectory_shows_a_few_named_steps_with_the_paper_points(walker):
+    from beambench.analysis.figures.body_trajectory import MAX_LINES, body_figure
+
+    fig = body_figure([walker])
+    assert fig is not None
+    ax = fig.axes[0]
+    lines = [ln for ln in ax.get_lines() if len(ln.get_xdata()) > 2]
+    assert 3 <= len(lines) <= MAX_LINES < len(walker.steps)  # not one line per step
+    labels = [ln.get_label() for ln in lines]
+    assert any(s.startswith("23 Hz") for s in labels) and any(s.startswith("65 Hz") for s in labels)
+    assert f"{len(lines)} of {len(walker.steps)} steps" in ax.get_title()
