@@ -52,3 +52,30 @@ def test_body_trajectory_shows_a_few_named_steps_with_the_paper_points(walker):
     labels = [ln.get_label() for ln in lines]
     assert any(s.startswith("23 Hz") for s in labels) and any(s.startswith("65 Hz") for s in labels)
     assert f"{len(lines)} of {len(walker.steps)} steps" in ax.get_title()
+
+
+@pytest.fixture(scope="module")
+def contact(tmp_path_factory) -> SessionAnalysis:
+    """Contact sweep at the sim's 0.1 mm mocap noise: continuous contact (a flat foot path) at 3-9 Hz, one contact
+    per cycle above."""
+    d = tmp_path_factory.mktemp("contact")
+    steps = [SynthStep(f, contact_every=-1) for f in (3.0, 5.0, 7.0, 9.0)]
+    steps += [SynthStep(f, contact_every=1) for f in (16.0, 20.0)]
+    cfg = SynthSession(steps, record_s=2.0, settle_s=0.3, mocap_noise_m=1e-4, seed=5)
+    return _analysis(write_synthetic_session(d / "contact.h5", cfg))
+
+
+def test_flat_paths_have_no_crossings_counted_on_the_mocap_noise(contact):
+    from beambench.analysis.figures.trajectories import shape_note
+
+    t = contact.table.set_index("frequency_hz")
+    assert 0.1 < t["path_noise_mm"].iloc[0] < 0.2  # two markers' 0.1 mm noise per axis: √2 × 0.1 mm
+    flat = t.loc[[3.0, 5.0, 7.0, 9.0]]
+    assert (flat["foot_crossings"] == 0).all(), flat["foot_crossings"]
+    assert (flat["foot_loop_sense"] == "").all()
+    for r in contact.steps:
+        note = shape_note(contact, r, "foot")
+        assert "crossings" not in note
+        if r.frequency_hz < 10:
+            assert note == " · flat"
+    assert set(t.loc[[16.0, 20.0], "tip_loop_sense"]) <= {"cw", "ccw"}  # real loops keep their sense

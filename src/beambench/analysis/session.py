@@ -25,7 +25,7 @@ from beambench.analysis.contact import (
     touchdown_velocity,
 )
 from beambench.analysis.drift import drift_corrected
-from beambench.analysis.path_shape import annotate_inversions, shape_columns
+from beambench.analysis.path_shape import annotate_inversions, path_noise, shape_columns
 from beambench.analysis.signals import NAN_SINE, fit_sinusoid, velocity
 from beambench.analysis.sync import (
     NS,
@@ -404,6 +404,7 @@ def analyze_session(
         results.append(_analyze_step(srow, a, b, streams.window(a, b) if 0 <= a < b else None, ctx))
         if progress is not None:
             progress(k + 1, n_steps)
+    _shapes(results)
     table = pd.DataFrame([r.row for r in results])
     body = streams.markers.get(options.body_marker)
     track = track_result(session.streams.get("track"), session.steps, streams.mocap_t, body, forward)
@@ -426,6 +427,18 @@ def analyze_session(
         _edge_check(session, fits),
         track=track,
     )
+
+
+def _shapes(results: list[StepResult]) -> None:
+    """Each step's path shape (crossings, loop sense) above the session's mocap noise floor."""
+    tracked = [r for r in results if r.paths and np.isfinite(r.row.get("analysis_frequency_hz", np.nan))]
+    noise = path_noise([(r.paths, r.t_mocap, float(r.row["analysis_frequency_hz"])) for r in tracked])
+    for r in tracked:
+        f = float(r.row["analysis_frequency_hz"])
+        r.row.update(shape_columns(r.paths, r.t_mocap, f, str(r.row.get("regime", "")), noise))
+    if tracked:
+        for r in results:
+            r.row["path_noise_mm"] = noise
 
 
 def _annotated(table: pd.DataFrame, options: AnalysisOptions) -> pd.DataFrame:
@@ -464,7 +477,6 @@ def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepCo
         _contacts(res, arr, ctx, f_use)
     else:
         row["regime"] = ""
-    row.update(shape_columns(res.paths, arr.t_mocap, f_use, str(row["regime"])))
     body = arr.marker(ctx.options.body_marker)
     if body is not None:  # walker: body speed
         sp = body_speed(arr.t_mocap, body, ctx.forward)
