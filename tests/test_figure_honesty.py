@@ -79,3 +79,37 @@ def test_flat_paths_have_no_crossings_counted_on_the_mocap_noise(contact):
         if r.frequency_hz < 10:
             assert note == " · flat"
     assert set(t.loc[[16.0, 20.0], "tip_loop_sense"]) <= {"cw", "ccw"}  # real loops keep their sense
+
+
+def test_the_twist_sweep_title_names_the_tip_and_the_drive_frequency(tmp_path):
+    import pandas as pd
+    from matplotlib.figure import Figure
+
+    from beambench.studies.sweep import SweepSpec, plot_sweep
+
+    spec = SweepSpec.model_validate(
+        {
+            "name": "twist_sweep",
+            "scene": "free_beam",
+            "frequencies": [15],
+            "base": {"amplitude_mm": 2.0},
+            "grid": {"twist_deg": [0, 90, 180]},
+        }
+    )
+    df = pd.DataFrame(
+        {"twist_deg": [0.0, 90.0, 180.0], "tip_major_mm": [1.0, 2, 3], "tip_minor_mm": [0.1, 0.2, 0.3]}
+        | {"tip_tilt_deg": [0.0, 5, 10]}
+    )
+    titles: list[str] = []
+    original = Figure.savefig
+
+    def spy(self, *args, **kwargs):
+        titles.append(self.get_suptitle())
+        return original(self, *args, **kwargs)
+
+    Figure.savefig = spy  # type: ignore[method-assign]
+    try:
+        plot_sweep(df, spec, tmp_path / "twist.png")
+    finally:
+        Figure.savefig = original  # type: ignore[method-assign]
+    assert titles == ["twist_sweep: tip path ellipse vs twist angle φ at 15 Hz, A = 2 mm (free_beam)"]
