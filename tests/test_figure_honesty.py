@@ -113,3 +113,28 @@ def test_the_twist_sweep_title_names_the_tip_and_the_drive_frequency(tmp_path):
     finally:
         Figure.savefig = original  # type: ignore[method-assign]
     assert titles == ["twist_sweep: tip path ellipse vs twist angle φ at 15 Hz, A = 2 mm (free_beam)"]
+
+
+def test_ellipse_and_trajectory_titles_say_which_point_they_show(contact, tmp_path):
+    from beambench.analysis.figures import FIGURES
+    from beambench.analysis.figures.ellipse import ellipse_figure
+    from beambench.analysis.figures.registry import ReportOptions
+
+    fig = ellipse_figure([contact])
+    assert fig is not None and fig.get_suptitle().startswith("Tip path")
+    assert "foot" in fig.get_suptitle()  # and that the trajectory grid shows another point
+    from matplotlib.figure import Figure
+
+    titles: list[str] = []
+    original = Figure.savefig
+
+    def spy(self, *args, **kwargs):
+        titles.append(self.get_suptitle())
+        return original(self, *args, **kwargs)
+
+    Figure.savefig = spy  # type: ignore[method-assign]
+    try:
+        FIGURES["trajectories"].draw([contact], tmp_path / "t.png", ReportOptions())
+    finally:
+        Figure.savefig = original  # type: ignore[method-assign]
+    assert titles and titles[0].startswith("Foot paths (the beam's contact end, not the tip)")

@@ -66,9 +66,10 @@ def self_crossings(loop: np.ndarray, min_lobe: float = MIN_LOBE, floor: float = 
         x = _intersection(a[ii], d[ii], a[jj], d[jj])
         inner = np.vstack([x, p[ii + 1 : jj + 1], x])  # the lobe between the two crossing segments
         outer = np.vstack([x, p[jj + 1 :], p[1 : ii + 1], x])
-        if min(_gross_area(inner), _gross_area(outer)) >= min_lobe * hull and min(
-            thickness(inner), thickness(outer)
-        ) >= floor:
+        if (
+            min(_gross_area(inner), _gross_area(outer)) >= min_lobe * hull
+            and min(thickness(inner), thickness(outer)) >= floor
+        ):
             count += 1
     return count
 
@@ -85,9 +86,7 @@ def path_noise(steps: list[tuple[dict[str, np.ndarray], np.ndarray, float]]) -> 
     """The mocap noise σ (per axis, mm) of a session's paths: each (paths, t, frequency) step's per-axis scatter
     about its one-cycle phase means, the 5th percentile over steps and markers (a path that does not repeat
     scatters more than the noise; the steadiest steps scatter by the noise alone). 0 when nothing can tell."""
-    scatter = [
-        _fold_rms(t, xy, 1 / f) / np.sqrt(2) for paths, t, f in steps if f > 0 for xy in paths.values()
-    ]
+    scatter = [_fold_rms(t, xy, 1 / f) / np.sqrt(2) for paths, t, f in steps if f > 0 for xy in paths.values()]
     scatter = [s for s in scatter if np.isfinite(s)]
     return float(np.percentile(scatter, 5)) if scatter else 0.0
 
@@ -98,6 +97,7 @@ def mean_path_noise(noise: float, samples: int, points: int) -> float:
     if not (points > 0 and samples > 0):
         return 0.0
     return float(noise * np.sqrt(6 / 16 / (samples / points)))
+
 
 def _intersection(a1: np.ndarray, d1: np.ndarray, a2: np.ndarray, d2: np.ndarray) -> np.ndarray:
     den = d1[0] * d2[1] - d1[1] * d2[0]

@@ -114,9 +114,7 @@ def _chosen_steps(a: SessionAnalysis) -> list[StepResult]:
     return sorted(out, key=lambda r: r.frequency_hz)
 
 
-def _timing(
-    ax: Any, ax_s: Any, a: SessionAnalysis, r: StepResult, feet: list[str], ground: dict[str, float]
-) -> None:
+def _timing(ax: Any, ax_s: Any, a: SessionAnalysis, r: StepResult, feet: list[str], ground: dict[str, float]) -> None:
     """Foot heights over the last cycles of a step on ``ax`` (mm) and, on the strip ``ax_s`` under it, a stance
     bar per foot (a row per foot, no height scale: a bar is a time span, not a height)."""
     f = step_frequency(r)

@@ -169,8 +169,9 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
         row[0].set_ylabel("up (mm)")
     names = sorted({m for ms in markers.values() for m in ms})
     title = (
-        f"{' and '.join(marker_name(m) for m in names).capitalize()} paths relative to the {'body' if walker else 'stage'}; "
-        "each step drawn about its own mean position, same scale"
+        f"{' and '.join(marker_name(m) for m in names).capitalize()} paths"
+        + (" (the beam's contact end, not the tip)" if names == ["foot"] else "")
+        + f" relative to the {'body' if walker else 'stage'}; each step drawn about its own mean position, same scale"
     )
     if exaggeration >= 1.5:
         title += f" (vertical ×{exaggeration:.0f})"
