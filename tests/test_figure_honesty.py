@@ -138,3 +138,19 @@ def test_ellipse_and_trajectory_titles_say_which_point_they_show(contact, tmp_pa
     finally:
         Figure.savefig = original  # type: ignore[method-assign]
     assert titles and titles[0].startswith("Foot paths (the beam's contact end, not the tip)")
+
+
+def test_force_window_shows_contacts_spaced_as_the_regime_label_says():
+    from beambench.analysis.figures.forces import force_window
+
+    f = 32.0
+    # a 1/2 step whose first touchdowns are 1.8 and 3.7 cycles apart, then settles into every 2nd cycle
+    td = np.array([0.5, 2.3, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0]) / f
+    w = force_window(td, f, "1/2", cycles=6.0)
+    assert w.typical and w.gaps == pytest.approx([2.0, 2.0])
+    assert 5.0 / f <= w.start_s + 0.5 / f <= 10.0 / f  # the window starts at a touchdown of the regular part
+    # no window of this step is typical of its label: the title must say so
+    odd = np.array([0.5, 2.3, 6.0, 7.1, 11.0, 12.2]) / f
+    w = force_window(odd, f, "1/2", cycles=6.0)
+    assert not w.typical and w.gaps
+    assert force_window(td, f, "irregular", cycles=6.0).start_s == pytest.approx(td[0] - 0.5 / f)
