@@ -154,3 +154,37 @@ def test_force_window_shows_contacts_spaced_as_the_regime_label_says():
     w = force_window(odd, f, "1/2", cycles=6.0)
     assert not w.typical and w.gaps
     assert force_window(td, f, "irregular", cycles=6.0).start_s == pytest.approx(td[0] - 0.5 / f)
+
+
+def test_compare_title_fits_its_figure_with_long_session_names(contact):
+    import copy
+
+    from beambench.analysis.figures.contact_frequency import contact_frequency_figure
+
+    a, b = copy.copy(contact), copy.copy(contact)
+    a.name = "contact_sweep_sim_20261204-122837_seed0_long_name"
+    b.name = "contact_sweep_rig_20261204-153012_after_recalibration"
+    fig = contact_frequency_figure([a, b])
+    assert fig is not None
+    fig.canvas.draw()
+    box = fig.axes[0].title.get_window_extent()
+    assert box.x0 >= 0 and box.x1 <= fig.bbox.x1, (box, fig.bbox)
+    assert a.name[:20] in fig.axes[0].get_title().replace("\n", "")
+
+
+def test_compare_refuses_sessions_of_different_rigs(tmp_path):
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+
+    c = write_synthetic_session(tmp_path / "c.h5", SynthSession([SynthStep(20.0)], record_s=0.5, settle_s=0.2))
+    w = write_synthetic_session(
+        tmp_path / "w.h5", SynthSession([SynthStep(20.0)], rig="walker", record_s=0.5, settle_s=0.2)
+    )
+    before = {p: p.stat().st_mtime_ns for p in (c, w)}
+    res = CliRunner().invoke(app, ["compare", str(c), str(w), "-o", str(tmp_path / "r"), "-q"])
+    assert res.exit_code == 2, res.output
+    lines = [ln for ln in res.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "contact session" in lines[0] and "walker session" in lines[0]
+    assert "Traceback" not in res.output
+    assert not (tmp_path / "r").exists() and {p: p.stat().st_mtime_ns for p in (c, w)} == before

@@ -152,6 +152,11 @@ def _protocol_dict(general: dict[str, Any]) -> dict[str, Any]:
     return data if isinstance(data, dict) else {}
 
 
+def session_rig(general: dict[str, Any]) -> str:
+    """The rig a session was recorded on (its /general, else its protocol's; contact by default)."""
+    return _text(general.get("rig")) or str(_protocol_dict(general).get("rig", "contact"))
+
+
 def _geometry_axis(general: dict[str, Any], key: str) -> str | None:
     """An axis named in the session (``/general/<key>`` or ``/general/geometry/<key>``), if any."""
     for src in (general, general.get("geometry") if isinstance(general.get("geometry"), dict) else {}):
@@ -380,7 +385,7 @@ def analyze_session(
     """Analyse every step of a session (as returned by :func:`beambench.sinks.hdf5.read_session`)."""
     general = dict(session.general)
     proto = _protocol_dict(general)
-    rig = _text(general.get("rig")) or str(proto.get("rig", "contact"))
+    rig = session_rig(general)
     backend = _text(general.get("backend")) or str(proto.get("backend", ""))
     name = _text(general.get("protocol_name")) or str(proto.get("name", ""))
     amplitude_mm = float(proto.get("amplitude_mm", np.nan)) if proto else float("nan")
