@@ -17,8 +17,8 @@ from beambench.analysis.figures.style import (
     by_frequency,
     legend_below,
     new_figure,
-    wrapped,
     session_style,
+    wrapped,
 )
 
 if TYPE_CHECKING:

@@ -103,7 +103,6 @@ def wrapped(text: str, width_in: float, size_pt: float | None = None) -> str:
     import textwrap
 
     import matplotlib
-
     from matplotlib.font_manager import FontProperties
 
     size = size_pt or FontProperties(size=matplotlib.rcParams["axes.titlesize"]).get_size_in_points()
