@@ -645,6 +645,22 @@ def axis_label(column: str) -> str:
     return AXIS_LABELS.get(column, column.replace("_", " "))
 
 
+def sweep_title(spec: SweepSpec, shown: list[str]) -> str:
+    """The sweep chart's title: which point's ellipse, against what, and the settings held fixed (the drive
+    frequency when it does not vary, the amplitude), e.g. "twist_sweep: tip path ellipse vs twist angle φ at
+    15 Hz, A = 2 mm (free_beam)"."""
+    point = "tip path" if spec.scene == "free_beam" else "foot path relative to the stage"
+    held: list[str] = []
+    freqs = spec.frequency_values()
+    if "frequency_hz" not in shown and freqs:
+        held.append(f"{freqs[0]:g} Hz" if len(freqs) == 1 else f"{min(freqs):g}–{max(freqs):g} Hz")
+    amplitude = spec.base.get("amplitude_mm")
+    if amplitude is not None and "amplitude_mm" not in shown:
+        held.append(f"A = {float(amplitude):g} mm")
+    against = " vs " + axis_label(shown[0]).split(" (")[0] if shown else ""
+    return f"{spec.name}: {point} ellipse{against}" + (f" at {', '.join(held)}" if held else "") + f" ({spec.scene})"
+
+
 def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | None:
     """Metrics against the first swept parameter (free beam: tip major/minor axes, as the paper's Fig. 2e;
     contact: contacts per cycle and foot axes)."""
@@ -676,7 +692,7 @@ def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | No
         ax.grid(alpha=0.3)
     if series is not None:
         axs[0].legend(fontsize=7)
-    fig.suptitle(f"{spec.name} ({spec.scene})")
+    fig.suptitle(sweep_title(spec, [x, *([series] if series else [])]))
     path = Path(path)
     fig.savefig(path, dpi=120)
     return path

@@ -97,6 +97,19 @@ def fitting_columns(labels: list[str], width_in: float, ncol: int) -> int:
     return max(1, min(ncol, len(labels), int(width_in / column_in)))
 
 
+def wrapped(text: str, width_in: float, size_pt: float | None = None) -> str:
+    """``text`` with each line broken at spaces to fit ``width_in`` inches at the axes title's font size (a
+    title wider than its figure is cut at the edges; session names make compare's titles long)."""
+    import textwrap
+
+    import matplotlib
+    from matplotlib.font_manager import FontProperties
+
+    size = size_pt or FontProperties(size=matplotlib.rcParams["axes.titlesize"]).get_size_in_points()
+    chars = max(10, int(width_in * 72 / (0.6 * size)))
+    return "\n".join(textwrap.fill(line, chars, break_on_hyphens=False) for line in text.split("\n"))
+
+
 def session_style(si: int) -> dict[str, Any]:
     """Line style of session ``si`` in an overlay: the first broad and translucent, later ones thin and dashed
     on top, so identical traces (equal seeds) still show both."""
