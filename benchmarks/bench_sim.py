@@ -29,9 +29,9 @@ from beambench.acquisition.config import load_protocol, parse_protocol
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.backends.sim import build_sim_rig
 from beambench.backends.sim_devices import interp_rows
+from beambench.session.slices import sim_slice
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
-from beambench.sim.protocol_slice import sim_slice
 from beambench.sim.scenes.contact_rig import ContactRigSim, default_timestep
 
 

@@ -42,7 +42,7 @@ def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
 
     from beambench.acquisition.config import load_protocol
     from beambench.backends.sim import build_scene
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     rig = get_rig("walker")
     # the effective walker (PRB3 legs): the physical set's rod legs buckle under this robot (docs/contact-twin.md)
@@ -63,8 +63,8 @@ def test_on_the_physical_set_the_values_go_into_its_walker_block(tmp_path):
     foot mass and friction must land there, in the evaluation and in the written protocol alike."""
     from beambench.acquisition.config import load_protocol
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
     from beambench.sim.models.params import load_params
-    from beambench.sim.protocol_slice import sim_slice
 
     rig = get_rig("walker")
     base = rig.base(TARGETS)

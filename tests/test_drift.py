@@ -98,7 +98,7 @@ def test_the_beam_temperature_follows_the_first_order_solution():
 
 def test_the_contact_twin_softens_its_beam_hinges_as_it_warms_and_a_snapshot_undoes_it():
     from beambench.backends.sim import build_scene
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     proto = parse_protocol(
         CONTACT + "sim: {model: prb3, thermal_drift: {alpha_per_k: 0.02, tau_s: 500, heat_capacity_j_per_k: 0.01}}\n"
@@ -125,7 +125,7 @@ def test_the_contact_twin_softens_its_beam_hinges_as_it_warms_and_a_snapshot_und
 
 def test_thermal_drift_is_off_by_default_and_checked():
     from beambench.backends.sim import build_scene
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     assert build_scene(sim_slice(parse_protocol(CONTACT))).thermal is None
     with pytest.raises(ConfigError, match=r"sim.thermal_drift.alpha_per_k.*less than or equal to 0.2"):
@@ -165,7 +165,7 @@ def _drive(rig, calls, announce):
 
 def test_thermal_drift_gives_the_same_data_computed_ahead_or_on_demand():
     from beambench.backends.sim import SimRig
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     proto = parse_protocol(
         CONTACT + "sim: {model: prb3, seed: 4, thermal_drift: {alpha_per_k: 0.02, heat_capacity_j_per_k: 0.01}}\n"

@@ -147,7 +147,7 @@ def test_auto_model_picks_the_timestep_each_frequency_needs():
     scene's identity, and the timestep follows the frequency (not the worst case over the sweep)."""
     from beambench.acquisition.config import parse_protocol
     from beambench.backends.sim import build_scene
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     if not select.table_path("contact").exists():
         pytest.skip("no shipped contact table (benchmarks/bench_models.py --part contact --ship)")
@@ -186,7 +186,7 @@ def test_fixed_model_gets_the_timestep_each_frequency_needs_unless_one_is_given(
     table (recorded in the session); with ``sim.timestep`` that step is used throughout."""
     from beambench.acquisition.config import parse_protocol
     from beambench.backends.sim import build_scene
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     base = "rig: contact\nsweep: {frequencies: [2, 20, 40]}\nsim: {model: prb3, integrator: implicitfast%s}\n"
     planned = build_scene(sim_slice(parse_protocol(base % "")))

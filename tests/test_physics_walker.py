@@ -132,7 +132,7 @@ def test_protocol_selects_the_named_set_and_refuses_unknown_legs():
     from beambench.acquisition.config import ConfigError, parse_protocol
     from beambench.backends.sim import build_scene
     from beambench.common.resources import shipped_dir
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     text = (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
     shipped = build_scene(sim_slice(parse_protocol(text)))

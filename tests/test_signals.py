@@ -420,7 +420,7 @@ def _sim_runner(tmp_path: Path, stop=None, on_progress=None):
     from beambench.acquisition.plan import motor_limits, plan
     from beambench.acquisition.runner import Runner
     from beambench.backends.sim import SimRig
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
     from beambench.sinks.hdf5 import SessionWriter
 
     protocol = parse_protocol(ENDLESS)

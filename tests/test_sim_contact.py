@@ -11,7 +11,7 @@ from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.config import parse_protocol
 from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.backends.sim import build_sim_rig
-from beambench.sim.protocol_slice import sim_slice
+from beambench.session.slices import sim_slice
 
 
 def sweep(text: str, steps: list[tuple[float, float, float]]) -> tuple[list[dict[str, Batch]], object]:

@@ -15,7 +15,7 @@ from beambench.acquisition.streams import (
     motor_spec,
 )
 from beambench.backends.sim import build_sim_rig
-from beambench.sim.protocol_slice import sim_slice
+from beambench.session.slices import sim_slice
 
 BASE = "sweep: {frequencies: [10]}\nlimits: {max_frequency_hz: 40}\n"
 

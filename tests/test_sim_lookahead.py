@@ -13,7 +13,7 @@ from beambench.acquisition.runner import record_polls, wait_polls
 from beambench.backends.lookahead import cut_points, script
 from beambench.backends.sim import SimRig
 from beambench.cli import app
-from beambench.sim.protocol_slice import sim_slice
+from beambench.session.slices import sim_slice
 from beambench.sinks.hdf5 import read_session
 
 WALKER = """

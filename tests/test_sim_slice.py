@@ -9,7 +9,7 @@ import pytest
 from beambench.acquisition.config import ConfigError, parse_protocol
 from beambench.backends.sim import build_scene
 from beambench.common.resources import shipped_dir
-from beambench.sim.protocol_slice import sim_slice
+from beambench.session.slices import sim_slice
 from beambench.studies.calibration import get_rig
 from beambench.studies.calibration.targets import CalibrationInputError, Targets, parse_targets
 

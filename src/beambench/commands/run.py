@@ -165,7 +165,7 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
     total = sum(s.duration_s for s in steps)
     if backend != "sim" or realtime:
         return f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     try:
         sim_plan = sim_slice(protocol).plan

@@ -30,7 +30,7 @@ class ProbeEstimate:
 def probe_run_time(protocol: Protocol) -> ProbeEstimate:
     """Time :data:`PROBE_S` of ``protocol``'s scene at its highest frequency and extrapolate to every step."""
     from beambench.backends.sim import build_scene
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     steps = plan(protocol)
     scene = build_scene(sim_slice(protocol))

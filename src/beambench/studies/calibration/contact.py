@@ -136,7 +136,7 @@ def contact_base(targets: Targets) -> CalibrationBase:
     twist, amplitude, windows, noise and seed); the prior parameter set is the session's, else the protocol's."""
     from beambench.acquisition.config import Sweep, parse_protocol
     from beambench.common.resources import shipped_dir
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     text = targets.protocol_text or (shipped_dir("protocols") / "contact_sweep.yaml").read_text()
     try:

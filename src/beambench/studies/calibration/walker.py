@@ -140,7 +140,7 @@ def walker_base(targets: Targets) -> CalibrationBase:
     integrator, timestep); the stages set their own windows (:data:`STAGES`)."""
     from beambench.acquisition.config import parse_protocol
     from beambench.common.resources import shipped_dir
-    from beambench.sim.protocol_slice import sim_slice
+    from beambench.session.slices import sim_slice
 
     text = targets.protocol_text or (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
     try:
