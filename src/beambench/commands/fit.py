@@ -91,7 +91,8 @@ def fit(args: FitArgs) -> None:
     from rich.console import Console
 
     from beambench.common.console import stderr_console
-    from beambench.studies.fit import FitError, load_release_session, plot_fit
+    from beambench.studies.fit import FitError, load_release_session
+    from beambench.studies.fit_figure import plot_fit
 
     models = _checked(args)
     session = args.session

@@ -88,7 +88,8 @@ def sweep(
 
     from beambench.common.console import stderr_console
     from beambench.studies.executor import ExecutorError
-    from beambench.studies.sweep import plot_sweep, run_sweep
+    from beambench.studies.sweep import run_sweep
+    from beambench.studies.sweep_figure import plot_sweep
 
     console = stderr_console()
     if dry_run:
