@@ -98,15 +98,15 @@ def fit(args: FitArgs) -> None:
     session = args.session
     name = args.name or re.sub(r"[^A-Za-z0-9_.-]", "_", session.stem)
     out = args.out or session.with_name(session.stem + "_fit")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
     console = stderr_console()
     try:
         data = load_release_session(session, register=args.register)
     except FitError as exc:
         fail(str(exc))
+    try:  # after the session is read: a refused session leaves no folder behind
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
     results = [_fit_one(data, m, args, console) for m in models]
     _print_results(results, data, Console())
     fig = plot_fit(results, out / f"fit_{session.stem}.png", title=f"Release test {session.name}: measured vs fitted")

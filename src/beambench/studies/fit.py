@@ -149,10 +149,12 @@ def load_release_session(
         mocap_markers,
         stream_host_times,
     )
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.hdf5 import SessionFileError, read_session
 
     try:
         s = read_session(path)
+    except SessionFileError as exc:  # already one line naming the file
+        raise FitError(str(exc)) from None
     except (OSError, KeyError) as exc:
         raise FitError(f"{path}: cannot read session ({exc})") from None
     try:
