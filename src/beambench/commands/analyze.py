@@ -78,12 +78,14 @@ def _options(up: str | None, forward: str | None, drift_correct: bool = False) -
 def _load(path: Path, options: AnalysisOptions, progress, write: bool) -> SessionAnalysis:
     """Read and analyse one session, with a progress task; errors become one line and exit code 2."""
     from beambench.analysis.session import analyze_session, write_results
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.hdf5 import SessionFileError, read_session
 
     if not path.is_file():
         fail(f"{path}: no such file")
     try:
         session = read_session(path)
+    except SessionFileError as exc:  # already one line naming the file and what is wrong with it
+        fail(str(exc))
     except (OSError, KeyError) as exc:
         fail(f"{path}: not a beambench session file ({exc})")
     if len(session.steps) == 0:
@@ -138,12 +140,13 @@ def _progress(quiet: bool):
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
-        Progress,
         TextColumn,
         TimeElapsedColumn,
     )
 
-    return Progress(
+    from beambench.common.console import LogProgress
+
+    return LogProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
