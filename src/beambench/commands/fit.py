@@ -145,8 +145,9 @@ def _checked(args: FitArgs) -> list[str]:
 
 def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
     """One model's fit, with a progress bar."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 
+    from beambench.common.console import LogProgress
     from beambench.studies.fit import FitError, FitOptions, fit_release
 
     options = FitOptions(
@@ -159,7 +160,7 @@ def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
         timestep=args.timestep,
         nthread=args.threads or None,
     )
-    with Progress(
+    with LogProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         TextColumn("step {task.completed:.0f}"),
