@@ -115,9 +115,17 @@ def fit(args: FitArgs) -> None:
 
 def _checked(args: FitArgs) -> list[str]:
     """The models to fit; one line and exit 2 for bad options."""
+    from beambench.common.names import check_name
     from beambench.sim.models.registry import UnknownModelError, canonical_model
 
     models = [m.strip() for m in args.model.split(",") if m.strip()]
+    if not models:
+        fail(f"--model = {args.model[:40]!r}: name a model: prb3, rod, or rodN (e.g. rod10)")
+    if args.name is not None:
+        try:  # the parameter set is <model>_<name>.yaml in its folder: one path component
+            check_name(args.name, "--name")
+        except ValueError as exc:
+            fail(str(exc))
     for m in models:
         try:
             canonical_model(m)
