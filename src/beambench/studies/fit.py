@@ -207,6 +207,11 @@ def load_release_session(
         clamp_relative="stage" in labels,
         truth=truth,
     ).window(pre_s, post_s)
+    seen = int(np.isfinite(data.markers).all(axis=2).any(axis=1).sum()) if len(data.t) else 0
+    if seen < 20:  # a clock that runs backwards or a release outside the data (an edited session)
+        raise FitError(
+            f"{path}: {seen} mocap frames with a tip marker within -{pre_s:g} … +{post_s:g} s of the release"
+        )
     if register if register is not None else ident.get("backend") != "sim":
         data = register_to_model(data)[0]
     return data
