@@ -214,3 +214,73 @@ def test_calibrate_sim_workers_are_bounded(tmp_path):
     )
     one_line_error(code, res, "--workers", "256")
     assert tree(tmp_path) == []
+
+
+# --- parameter sets: validated like protocols, physics that diverges stops the run ---------------------------
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        ("beam: {k: 1e300}", "beam.k"),
+        ("beam: {k_twist: -1}", "beam.k_twist"),
+        ("beam: {b_twist: -0.1}", "beam.b_twist"),
+        ("beam: {material: {youngs_modulus: -5}}", "beam.material.youngs_modulus"),
+        ("beam: {material: {density: 0}}", "beam.material.density"),
+        ("beam: {material: {poisson: 0.9}}", "beam.material.poisson"),
+        ("beam: {twist_deg: 1e9}", "beam.twist_deg"),
+        ("rig: {friction: 'x'}", "rig.friction"),
+        ("rig: {friction: [1]}", "rig.friction"),
+        ("rig: {plate_gap: 1e300}", "rig.plate_gap"),
+        ("rig: {contact_timeconst: -1}", "rig.contact_timeconst"),
+        ("rig: {nosuch: 1}", "rig.nosuch"),
+        ("walker: {foot_mass: 'x'}", "walker.foot_mass"),
+        ("walker: {timestep: 1e-12}", "walker.timestep"),
+        ("walker: {nosuch: 1}", "walker.nosuch"),
+        ("nosuch: 1", "nosuch"),
+        ("name: [1]", "name"),
+    ],
+)
+def test_a_parameter_set_outside_physical_bounds_is_refused_dry_run_and_run(tmp_path, body, field):
+    params = tmp_path / "set.yaml"
+    params.write_text(f"model: prb3\n{body}\n")
+    proto = tmp_path / "p.yaml"
+    proto.write_text(BASE + f"sim: {{params: '{params}'}}\n")
+    out = tmp_path / "out"
+    for extra in (["--dry-run"], ["--out", str(out), "--rerun", "save"]):
+        code, res = cli("run", str(proto), *extra)
+        one_line_error(code, res, "sim.params", field)
+    assert not out.exists()
+
+
+def test_every_shipped_parameter_set_is_inside_the_physical_bounds():
+    from beambench.sim.models.params import SIM_BACKEND_DIR, load_params
+
+    shipped = sorted(SIM_BACKEND_DIR.glob("*.yaml"))
+    assert shipped
+    for f in shipped:
+        assert load_params(str(f), model=f.stem.split("_")[0]).length > 0
+
+
+def test_a_run_whose_physics_diverges_stops_with_one_line_motor_idle_session_saved(tmp_path):
+    """Stiff springs on a near-massless beam at a 10 ms explicit-Euler step: MuJoCo's bad-QACC reset."""
+    import h5py
+
+    from beambench.sinks.hdf5 import read_session
+
+    params = tmp_path / "stiff.yaml"
+    params.write_text("model: prb3\nbeam: {k: 100, k_twist: 100, b: 1.0e-6, b_twist: 0, mass: 1.0e-4}\n")
+    proto = tmp_path / "p.yaml"
+    proto.write_text(
+        "name: t\nsweep: {frequencies: [40, 40, 40]}\nsettle_s: 0.5\nrecord_s: 0.5\n"
+        f"sim: {{params: '{params}', timestep: 0.01, integrator: euler}}\n"
+    )
+    code, res = cli("run", str(proto), "--out", str(tmp_path / "out"), "--rerun", "off", "--name", "div")
+    assert code == 1, res
+    faults = [ln for ln in res.splitlines() if ln.startswith("beambench:")]
+    assert len(faults) == 1 and "diverged" in faults[0], res
+    assert "WARNING" not in res and "Nan" not in res.replace(faults[0], ""), res
+    session = read_session(tmp_path / "out" / "div.h5")
+    kinds = list(session.events["kind"])
+    assert "idle" in kinds and kinds.index("idle") > kinds.index("start"), kinds
+    assert len(session.steps) < 3
+    with h5py.File(tmp_path / "out" / "div.h5") as f:
+        assert "general" in f
