@@ -284,3 +284,104 @@ def test_a_run_whose_physics_diverges_stops_with_one_line_motor_idle_session_sav
     assert len(session.steps) < 3
     with h5py.File(tmp_path / "out" / "div.h5") as f:
         assert "general" in f
+
+
+# --- the Rerun viewer listens on loopback only ------------------------------------------------------------
+def _listening_addresses(pid: int) -> list[str]:
+    import psutil
+
+    return [c.laddr.ip for c in psutil.Process(pid).net_connections(kind="inet") if c.status == psutil.CONN_LISTEN]
+
+
+@pytest.fixture
+def xvfb_display(tmp_path):
+    """A private X server for a windowed viewer (no display on CI)."""
+    import shutil
+    import subprocess
+    import time
+
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed")
+    for n in range(140, 200):
+        if not Path(f"/tmp/.X11-unix/X{n}").exists() and not Path(f"/tmp/.X{n}-lock").exists():
+            break
+    proc = subprocess.Popen(
+        ["Xvfb", f":{n}", "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while not Path(f"/tmp/.X11-unix/X{n}").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "Xvfb did not start"
+            time.sleep(0.05)
+        yield f":{n}"
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_a_spawned_viewer_listens_on_loopback_only(xvfb_display, monkeypatch):
+    import socket
+
+    from beambench.sinks.rerun_spawn import rerun_binary, spawn_viewer
+
+    if rerun_binary() is None:
+        pytest.skip("the rerun viewer binary is missing")
+    monkeypatch.setenv("DISPLAY", xvfb_display)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = spawn_viewer(port)
+    assert proc is not None
+    try:
+        addresses = _listening_addresses(proc.pid)
+        assert addresses, "the viewer listens nowhere"
+        assert all(a in ("127.0.0.1", "::1") for a in addresses), addresses
+        assert spawn_viewer(port) is None  # a viewer already listening is reused, as rr.spawn does
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_the_headless_viewer_listens_on_loopback_only():
+    from beambench.session.viewer import HeadlessViewer, ViewerUnavailable, vulkan_available
+
+    if not vulkan_available():
+        pytest.skip("no Vulkan driver for the headless viewer")
+    try:
+        viewer = HeadlessViewer().__enter__()
+    except ViewerUnavailable as exc:
+        pytest.skip(str(exc))
+    try:
+        assert viewer._proc is not None
+        addresses = _listening_addresses(viewer._proc.pid)
+        assert addresses and all(a in ("127.0.0.1", "::1") for a in addresses), addresses
+    finally:
+        viewer.__exit__(None, None, None)
+
+
+def test_spawn_without_the_viewer_binary_is_one_line(tmp_path):
+    """A rerun_cli package without its binary and no ``rerun`` on PATH: one warning line, the run goes on."""
+    import os
+    import subprocess
+    import sys
+
+    fake = tmp_path / "site" / "rerun_cli"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("")
+    proto = tmp_path / "p.yaml"
+    proto.write_text("name: t\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.1\n")
+    path = os.pathsep.join(p for p in (str(tmp_path / "site"), os.environ.get("PYTHONPATH", "")) if p)
+    env = dict(os.environ, PATH="/usr/bin:/bin", PYTHONPATH=path)
+    env.pop("DISPLAY", None)
+    res = subprocess.run(
+        [sys.executable, "-m", "beambench", "run", str(proto), "--out", str(tmp_path / "o"), "--rerun", "spawn"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip() and "rig time" not in ln and "starting" not in ln]
+    assert len(lines) == 1 and "viewer binary was not found" in lines[0], res.stderr
