@@ -385,3 +385,38 @@ def test_spawn_without_the_viewer_binary_is_one_line(tmp_path):
     assert res.returncode == 0, res.stderr
     lines = [ln for ln in res.stderr.splitlines() if ln.strip() and "rig time" not in ln and "starting" not in ln]
     assert len(lines) == 1 and "viewer binary was not found" in lines[0], res.stderr
+
+
+# --- device text reaches the terminal without control sequences ---------------------------------------------
+HOSTILE = "Motive\x1b]52;c;cm0gLXJmIH4=\x07\x1b]0;pwned\x1b\\\x1b[2J\x9d0;t\x9c\u202etxt\x07\x7f"
+
+
+@pytest.mark.parametrize(
+    ("raw", "shown"),
+    [
+        (HOSTILE, "Motivetxt"),
+        ("a\x1b[31mred\x1b[0m b", "ared b"),
+        ("line\nbreak\ttab\rcr", "line break tab cr"),
+        ("ok é 中 ✓", "ok é 中 ✓"),
+        ("\x1bP1$r\x1b\\x\x1bc", "x"),
+    ],
+)
+def test_printable_strips_escape_sequences_and_controls(raw, shown):
+    from beambench.common.text import printable
+
+    assert printable(raw) == shown
+
+
+def test_natnet_decode_prints_no_escape_sequence_a_server_sent(tmp_path):
+    from beambench.devices.natnet import protocol as nn
+    from test_natnet_capture import write_pcap
+
+    sender = nn.Sender(HOSTILE, nn.Version(3, 1, 0, 0), nn.V4_1)
+    info = nn.ServerInfo(sender, 1_000_000, 1511, True, "239.255.42.99")
+    frame = nn.FrameOfData(7, timestamp=0.1, mid_exposure=1, data_received=2, transmit=3)
+    path = tmp_path / "hostile.pcap"
+    write_pcap(path, [(1.0, nn.encode(info), 1510, 50000), (1.1, nn.encode(frame, (4, 1)), 1511, 50000)])
+    code, out = cli("natnet", "decode", str(path), "--out", str(tmp_path / "f.csv"))
+    assert code == 0, out
+    assert "SERVERINFO: Motive" in out, out
+    assert not any(c in out for c in "\x1b\x07\x9d\x9c\x7f\u202e"), repr(out)
