@@ -99,9 +99,9 @@ def sim(
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
     runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
     whether the twin reached it."""
-    from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-    from beambench.common.console import stderr_console
+    from beambench.common.console import LogProgress, stderr_console
     from beambench.common.errors import BeambenchError
     from beambench.common.names import check_name
     from beambench.common.resources import resolve_file
@@ -153,7 +153,7 @@ def sim(
         TimeElapsedColumn(),
     )
     try:
-        with Progress(*cols, console=console, transient=False) as progress:
+        with LogProgress(*cols, console=console, transient=False) as progress:
             result = calibrate(
                 tg, out_dir, name, workers=workers, scheduler=scheduler, settings=settings, progress=progress
             )
