@@ -422,3 +422,66 @@ def test_natnet_decode_prints_no_escape_sequence_a_server_sent(tmp_path):
     assert code == 0, out
     assert "SERVERINFO: Motive" in out, out
     assert not any(c in out for c in "\x1b\x07\x9d\x9c\x7f\u202e"), repr(out)
+
+
+# --- numbers on the command line, output paths ---------------------------------------------------------------
+@pytest.fixture(scope="module")
+def short_session(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("session")
+    proto = folder / "p.yaml"
+    proto.write_text("name: t\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.2\n")
+    code, out = cli("run", str(proto), "--out", str(folder), "--name", "s", "--rerun", "off")
+    assert code == 0, out
+    proto.unlink()
+    return folder / "s.h5"
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "5,-inf", "1e-320x"])
+def test_analyze_force_at_must_be_finite(short_session, value):
+    before = tree(short_session.parent)
+    code, out = cli("analyze", str(short_session), "--force-at", value)
+    one_line_error(code, out, "--force-at")
+    assert tree(short_session.parent) == before
+
+
+@pytest.mark.parametrize("loads", ["nan,0", "1,inf", "0,-nan"])
+def test_calibrate_loadcells_loads_must_be_finite(tmp_path, loads):
+    code, out = cli("calibrate", "loadcells", "--emulate", "--yes", "--loads", loads, "--out", str(tmp_path / "c.yaml"))
+    one_line_error(code, out, "--loads")
+    assert tree(tmp_path) == []
+
+
+def _unwritable_folder(tmp_path: Path) -> Path:
+    """A folder no file can be created in: /proc/self even for root; chmod 500 for a normal user."""
+    import os
+
+    if os.geteuid() == 0:
+        return Path("/proc/self")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    return ro
+
+
+@pytest.mark.parametrize("where", ["missing", "unwritable"])
+def test_view_out_in_a_folder_that_takes_no_file_is_one_line(short_session, tmp_path, where):
+    folder = tmp_path / "nonexistent" if where == "missing" else _unwritable_folder(tmp_path)
+    before = tree(short_session.parent)
+    code, out = cli("view", str(short_session), "--rerun", "save", "--out", str(folder / "x.rrd"))
+    one_line_error(code, out, "--out")
+    code, out = cli("view", str(short_session), "--screenshot", str(folder / "x.png"))
+    one_line_error(code, out, "screenshot")
+    assert tree(short_session.parent) == before
+
+
+def test_a_dangling_symlink_named_like_the_session_leaves_no_empty_recording(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "s.h5").symlink_to(tmp_path / "nowhere.h5")
+    proto = tmp_path / "p.yaml"
+    proto.write_text("name: t\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.1\n")
+    code, res = cli("run", str(proto), "--out", str(out), "--name", "s", "--rerun", "save")
+    assert code == 0, res
+    assert not (out / "s.rrd").exists()
+    assert (out / "s_1.h5").is_file() and (out / "s_1.rrd").stat().st_size > 0
+    assert not (tmp_path / "nowhere.h5").exists()
