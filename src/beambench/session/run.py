@@ -101,9 +101,14 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     protocol, path, backend = req.protocol, req.path, req.backend
     check_protocol(protocol, "<protocol>", backend, req.can_log)
     tracking = track_setup(protocol, path, req.show_progress) if protocol.track is not None else None
-    if req.rerun_mode == "save":
-        _reserve(path.with_suffix(".rrd"))
-    rig = _open_rig(req)
+    reserved = path.with_suffix(".rrd") if req.rerun_mode == "save" else None
+    if reserved is not None:
+        _reserve(reserved)
+    try:
+        rig = _open_rig(req)
+    except BaseException:
+        _unreserve(reserved)
+        raise
     steps = plan(protocol)
     try:
         general = {
@@ -150,6 +155,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         hub.open(specs)
     except BaseException:
         rig.close()
+        _unreserve(reserved)  # the run never started: no empty recording left behind
         raise
     with _progress(req.show_progress) as progress:
         task = progress.add_task("starting", total=sum(s.duration_s for s in steps))
@@ -214,6 +220,13 @@ def _progress(show: bool) -> Iterator[LogProgress]:
     finally:
         with contextlib.suppress(OSError):
             progress.stop()
+
+
+def _unreserve(path: Path | None) -> None:
+    """Remove a recording reserved by :func:`_reserve` that is still empty (the run did not start)."""
+    with contextlib.suppress(OSError):
+        if path is not None and not path.is_symlink() and path.is_file() and path.stat().st_size == 0:
+            path.unlink()
 
 
 def _reserve(path: Path) -> None:

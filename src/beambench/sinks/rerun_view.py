@@ -35,6 +35,7 @@ from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
 from beambench.sinks import RerunMode
 from beambench.sinks.rerun_layout import TIMELINE, RigLayout, blueprint, layout_of, series_styles
 from beambench.sinks.rerun_scene import Scene3D
+from beambench.sinks.rerun_spawn import spawn_viewer, viewer_url
 from beambench.sinks.rerun_step import StepPanel
 
 if TYPE_CHECKING:
@@ -113,8 +114,9 @@ class RerunSink:
     def open(self, specs: list[StreamSpec]) -> None:
         if self.mode == "save":
             self.rec.save(str(self.rrd_path))
-        elif self.mode == "spawn":
-            self.rec.spawn()
+        elif self.mode == "spawn":  # on loopback only (rr.spawn's viewer listens on every interface)
+            spawn_viewer()
+            self.rec.connect_grpc(viewer_url())
         else:
             self.rec.connect_grpc()
         self._specs = {s.name: s for s in specs}
