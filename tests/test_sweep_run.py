@@ -155,6 +155,7 @@ def test_sweep_command_writes_table_and_figure(tmp_path):
     assert "3 computed" in res.output and out.exists() and out.with_suffix(".png").exists()
     res = CliRunner().invoke(app, ["sweep", str(f), "--out", str(out), "--workers", "1"])
     assert res.exit_code == 0 and "0 computed, 3 already done" in res.output
+    assert "s: all 3 points done before, nothing to compute" in res.stderr and " on nothing" not in res.stderr
 
 
 def test_batch_sizes_balance_and_bound_tasks():

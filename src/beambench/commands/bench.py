@@ -66,13 +66,12 @@ def models(
     from rich.console import Console
     from rich.progress import (
         BarColumn,
-        Progress,
         TextColumn,
         TimeElapsedColumn,
         TimeRemainingColumn,
     )
 
-    from beambench.common.console import stderr_console
+    from beambench.common.console import LogProgress, stderr_console
     from beambench.studies.ladder import (
         FULL,
         QUICK,
@@ -84,7 +83,7 @@ def models(
     cfg = replace(QUICK if quick else FULL, nthread=threads or None)
     console = stderr_console()
     t0 = time.perf_counter()
-    with Progress(
+    with LogProgress(
         TextColumn("[bold]{task.description:<40}"),
         BarColumn(),
         TextColumn("{task.percentage:>3.0f}%"),

@@ -45,6 +45,7 @@ import numpy as np
 import yaml
 
 from beambench.common.errors import BeambenchError
+from beambench.common.names import check_name
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.params import SIM_BACKEND_DIR, BeamParams
 from beambench.sim.models.registry import (
@@ -149,10 +150,12 @@ def load_release_session(
         mocap_markers,
         stream_host_times,
     )
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.hdf5 import SessionFileError, read_session
 
     try:
         s = read_session(path)
+    except SessionFileError as exc:  # already one line naming the file
+        raise FitError(str(exc)) from None
     except (OSError, KeyError) as exc:
         raise FitError(f"{path}: cannot read session ({exc})") from None
     try:
@@ -716,6 +719,7 @@ def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
 def write_param_set(result: FitResult, name: str, directory: str | Path = SIM_BACKEND_DIR, source: str = "") -> Path:
     """Save the fit as ``<directory>/<family>_<name>.yaml``; it loads back with ``load_params(name)``."""
     family = model_family(result.model)
+    check_name(name, "the parameter set name")  # one path component: never written outside ``directory``
     path = Path(directory) / f"{family}_{name}.yaml"
     source = source or f"beambench fit ({result.model})"
     doc = param_set_dict(result, name, f"{source}: RMS {result.rms_mm:.3f} mm; {interval_summary(result)}")

@@ -605,7 +605,7 @@ def run_sweep(
                 merge()
     else:
         if on_start is not None:
-            on_start(0, len(jobs), 0, "nothing to compute")
+            on_start(0, len(jobs), 0, "")  # no executor: nothing to compute
         if not out.exists() or part_dir.is_dir():
             merge()
     table = read_table(out)
