@@ -117,12 +117,12 @@ def test_processing_steps_come_back_in_stored_column_order(session_file):
 
 
 def test_the_readme_example_plots_one_step(session_file, tmp_path, monkeypatch):
-    """The README's "Reading a session in Python" example, run on the short session (its step 1)."""
+    """The README's notebook example ("Read it in a notebook"), run on the short session (its step 1)."""
     import matplotlib
 
     matplotlib.use("Agg")
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme.split("## Reading a session in Python", 1)[1]
+    section = readme.split("Read it in a notebook", 1)[1]
     code = section.split("```python\n", 1)[1].split("```", 1)[0]
     assert len(code.strip().splitlines()) <= 11
     path = code.split('read_session("', 1)[1].split('"', 1)[0]

@@ -59,10 +59,13 @@ def sweep(
     contacts per cycle, regime) go to one Parquet table, saved as each task finishes. Rerunning the
     same command skips finished points, so an interrupted sweep resumes where it stopped.
     """
+    from beambench.studies.executor import MAX_LOCAL_WORKERS
     from beambench.studies.sweep import SweepError, load_sweep, plan, read_table
 
     if workers < 0:
         fail(f"--workers = {workers}: must be >= 0")
+    if workers > MAX_LOCAL_WORKERS and cluster is None:
+        fail(f"--workers = {workers}: at most {MAX_LOCAL_WORKERS} local worker processes")
     if batch_size < 0:
         fail(f"--batch-size = {batch_size}: must be >= 0")
     if scheduler and cluster:
@@ -87,7 +90,8 @@ def sweep(
 
     from beambench.common.console import LogProgress, stderr_console
     from beambench.studies.executor import ExecutorError
-    from beambench.studies.sweep import plot_sweep, run_sweep
+    from beambench.studies.sweep import run_sweep
+    from beambench.studies.sweep_figure import plot_sweep
 
     console = stderr_console()
     if dry_run:

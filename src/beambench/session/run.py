@@ -27,6 +27,7 @@ from beambench.common.console import LogProgress, stderr_console
 from beambench.common.errors import BeambenchError
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
+from beambench.session.slices import rig_slices
 from beambench.session.track_map import track_setup
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
@@ -85,7 +86,8 @@ def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunRe
 def _open_rig(req: RunRequest) -> Rig:
     """Build and open the rig; a device or peer lost meanwhile is one :class:`RigStartError` (rig closed)."""
     try:
-        rig = build_rig(req.protocol, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
+        slices = rig_slices(req.protocol, req.backend)
+        rig = build_rig(slices, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
         rig.open()
     except (DeviceFault, OSError, EOFError) as exc:
         if isinstance(exc, ConfigError):

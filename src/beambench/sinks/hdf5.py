@@ -38,6 +38,7 @@ import pandas as pd
 from beambench.acquisition.batch import Batch, ColumnSpec, Frame, StepRecord, StreamSpec
 from beambench.common.inputs import check_input_file
 from beambench.common.yaml_config import ConfigError
+from beambench.sinks.session_schema import SessionSchemaError, check_schema
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -582,6 +583,15 @@ def _open_session(path: Path) -> h5py.File:
     if missing:
         f.close()
         raise SessionFileError(f"{path}: not a beambench session (no /{missing[0]} in the file)")
+    try:  # kinds, dtypes, shapes, times, text: one line naming the HDF5 path, before anything is read
+        check_schema(f, path.stat().st_size)
+    except SessionSchemaError as exc:
+        f.close()
+        raise SessionFileError(f"{path}: {exc}") from None
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
+        f.close()
+        why = str(exc).strip("'\"")[:120]
+        raise SessionFileError(f"{path}: damaged or not a beambench session ({type(exc).__name__}: {why})") from None
     return f
 
 

@@ -45,6 +45,7 @@ import yaml
 
 from beambench.common.errors import BeambenchError
 from beambench.common.inputs import read_input_bytes
+from beambench.common.yaml_config import ConfigError, parse_yaml
 from beambench.sim.scenes.contact_regimes import CONTINUOUS, IRREGULAR, NONE, transitions
 
 __all__ = [
@@ -269,9 +270,9 @@ def load_targets(path: str | Path) -> Targets:
     p = Path(path)
     text = read_input_bytes(p, "targets file", TARGETS_MAX_BYTES, CalibrationInputError).decode("utf-8", "replace")
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise CalibrationInputError(f"{p}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        data = parse_yaml(text, str(p))  # the project's one YAML reading: caps, duplicate keys refused
+    except ConfigError as exc:
+        raise CalibrationInputError(str(exc)) from None
     except OSError as exc:
         raise CalibrationInputError(f"{p}: {exc.strerror or exc}") from None
     return parse_targets(data, str(p))
@@ -291,7 +292,7 @@ def session_targets(path: str | Path) -> Targets:
         raise CalibrationInputError(f"{p}: no such session file")
     try:
         session = read_session(p)
-    except SessionFileError as exc:  # already one line naming the file and what is wrong with it
+    except SessionFileError as exc:  # already one line naming the file
         raise CalibrationInputError(str(exc)) from None
     except (OSError, KeyError) as exc:
         raise CalibrationInputError(f"{p}: not a beambench session file ({exc})") from None
