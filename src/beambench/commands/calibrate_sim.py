@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
 import typer
+from typer.core import TyperCommand, TyperOption
 
 EXIT_MISSED = 3
 EXIT_INTERRUPTED = 130  # Ctrl-C or another stop signal; the evaluations so far are kept and reused
@@ -19,6 +20,24 @@ EPILOG = (
     "tolerance_hz (transitions, default ± 2 Hz) or tolerance_fraction (walker speeds, default ± 30 %); a "
     "tangential sign must match."
 )
+
+
+FREE_HELP = (
+    "Comma-separated unknowns to fit instead of the rig's default set; the others stay at the prior set's values."
+)
+
+
+class _SimCommand(TyperCommand):
+    """``calibrate sim`` whose ``--free`` help lists each rig's unknowns from the calibration registry, imported
+    only when the help is shown (it costs seconds: every other command starts without it)."""
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:  # typer's own (vendored) click types
+        from beambench.studies.calibration import unknowns_help
+
+        for param in self.params:
+            if param.name == "free" and isinstance(param, TyperOption):
+                param.help = f"{FREE_HELP} Unknowns: {unknowns_help()}."
+        super().format_help(ctx, formatter)
 
 
 def _fail(message: str) -> NoReturn:
@@ -89,10 +108,7 @@ def sim(
         str | None,
         typer.Option(
             "--free",
-            help="Comma-separated unknowns to fit instead of the rig's default set (contact rig: "
-            "b_scale,preload_mm,friction_scale), e.g. b_scale,preload_mm,friction_scale,frame_mass_g "
-            "(contact rig unknowns: k_scale, b_scale, preload_mm, friction_scale, frame_mass_g, mass_dx_mm; "
-            "the others stay at the prior set's values).",
+            help=FREE_HELP,  # completed from the unknown registry when the help is shown (_SimCommand)
         ),
     ] = None,
 ) -> None:
@@ -188,4 +204,4 @@ def _finish(result: Any, report: Path) -> None:
 
 def register_sim(sub: typer.Typer) -> None:
     """Add ``beambench calibrate sim`` to the ``calibrate`` sub-app."""
-    sub.command("sim", epilog=EPILOG)(sim)
+    sub.command("sim", epilog=EPILOG, cls=_SimCommand)(sim)
