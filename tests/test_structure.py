@@ -62,3 +62,33 @@ def test_no_module_imports_another_packages_private_names() -> None:
                 private = [a.name for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
                 found += [f"{_name(path)}: {node.module}.{n}" for n in private if there != home]
     assert found == []
+
+
+PROBE_FREE = ("backends", "session")  # capabilities are checked with isinstance on a typing.Protocol here
+
+
+def test_capabilities_are_checked_by_protocol_not_by_probing_attribute_names() -> None:
+    found = []
+    for path in [*_modules(*PROBE_FREE), PACKAGE / "analysis" / "session.py"]:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and node.func.id in ("getattr", "hasattr")
+                and len(node.args) >= 2
+                and isinstance(node.args[1], ast.Constant)
+                and (node.func.id == "hasattr" or len(node.args) == 3)
+            ):
+                found.append(f"{_name(path)}:{node.lineno} {ast.unparse(node)}")
+    assert found == []
+
+
+def test_the_device_rig_reads_the_mocaps_echoes_through_its_protocol_not_its_client() -> None:
+    tree = ast.parse((PACKAGE / "backends" / "hardware.py").read_text())
+    reached = [
+        ast.unparse(n)
+        for n in ast.walk(tree)
+        if (isinstance(n, ast.Attribute) and n.attr == "client")
+        or (isinstance(n, ast.Constant) and n.value == "client")
+    ]
+    assert reached == []
