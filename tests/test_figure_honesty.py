@@ -85,7 +85,8 @@ def test_the_twist_sweep_title_names_the_tip_and_the_drive_frequency(tmp_path):
     import pandas as pd
     from matplotlib.figure import Figure
 
-    from beambench.studies.sweep import SweepSpec, plot_sweep
+    from beambench.studies.sweep import SweepSpec
+    from beambench.studies.sweep_figure import plot_sweep
 
     spec = SweepSpec.model_validate(
         {
@@ -188,3 +189,35 @@ def test_compare_refuses_sessions_of_different_rigs(tmp_path):
     assert len(lines) == 1 and "contact session" in lines[0] and "walker session" in lines[0]
     assert "Traceback" not in res.output
     assert not (tmp_path / "r").exists() and {p: p.stat().st_mtime_ns for p in (c, w)} == before
+
+
+def test_fit_figure_legend_sits_below_the_traces_in_the_report_style(tmp_path):
+    from matplotlib.figure import Figure
+
+    from beambench.studies import fit
+    from beambench.studies.fit_figure import plot_fit
+
+    t = np.linspace(0, 0.1, 40)
+    m = np.random.default_rng(0).random((40, 3, 3)) * 1e-3
+    r = fit.FitResult(
+        "prb3", {}, fit.default_base("prb3"), 1, 1, 1, 0, 1, 1, 1, 1, True, "", t, m, m, ("tip1", "tip2", "tip3")
+    )
+    seen: list[Figure] = []
+    original = Figure.savefig
+
+    def spy(self, *args, **kwargs):
+        seen.append(self)
+        return original(self, *args, **kwargs)
+
+    Figure.savefig = spy  # type: ignore[method-assign]
+    try:
+        plot_fit([r], tmp_path / "fit.png")
+    finally:
+        Figure.savefig = original  # type: ignore[method-assign]
+    fig = seen[0]
+    assert all(ax.get_legend() is None for ax in fig.axes)  # no legend over tip2's trace after the release
+    assert len(fig.legends) == 1
+    fig.canvas.draw()
+    legend_top = fig.legends[0].get_window_extent().y1
+    assert all(legend_top <= ax.get_window_extent().y0 for ax in fig.axes)  # below every panel
+    assert not fig.axes[0].spines["top"].get_visible()  # the report's style (common.figures.STYLE)

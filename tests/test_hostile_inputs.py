@@ -173,3 +173,44 @@ def test_the_rig_option_wins_over_the_protocols_rig_file(tmp_path):
     proto.write_text(BASE + "rig_file: nosuch.yaml\n")
     code, out = cli("run", str(proto), "--rig", str(tmp_path / "good.yaml"), "--dry-run")
     assert code == 0, out
+
+
+# --- names are one path component --------------------------------------------------------------------------
+BAD_NAMES = ["/abs/path", "../../escaped", "a\nb", "", "..", "a/b", "esc\x1b[31m"]
+
+
+@pytest.mark.parametrize("name", BAD_NAMES)
+def test_calibrate_sim_name_is_checked_before_anything_is_written(tmp_path, name):
+    out = tmp_path / "deep" / "out"
+    code, res = cli(
+        "calibrate", "sim", "--targets", "paper_contact_targets", "--out", str(out), "--name", name, "--quick"
+    )
+    one_line_error(code, res, "--name")
+    assert tree(tmp_path) == []
+
+
+@pytest.mark.parametrize("name", BAD_NAMES)
+def test_fit_name_is_checked_before_anything_is_written(tmp_path, name):
+    session = tmp_path / "s.h5"
+    session.write_bytes(b"not read")
+    params = tmp_path / "params"
+    code, res = cli("fit", str(session), "--name", name, "--params-dir", str(params))
+    one_line_error(code, res, "--name")
+    assert tree(tmp_path) == ["s.h5"]
+
+
+@pytest.mark.parametrize("model", ["", " , "])
+def test_fit_without_a_model_is_one_line(tmp_path, model):
+    session = tmp_path / "s.h5"
+    session.write_bytes(b"not read")
+    code, res = cli("fit", str(session), "--model", model)
+    one_line_error(code, res, "--model")
+    assert tree(tmp_path) == ["s.h5"]
+
+
+def test_calibrate_sim_workers_are_bounded(tmp_path):
+    code, res = cli(
+        "calibrate", "sim", "--targets", "paper_contact_targets", "--out", str(tmp_path / "o"), "--workers", "100000"
+    )
+    one_line_error(code, res, "--workers", "256")
+    assert tree(tmp_path) == []

@@ -9,13 +9,13 @@ from __future__ import annotations
 import math
 import re
 import string
-import unicodedata
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from beambench.acquisition.scenes import runnable_names, scene_info
+from beambench.common.names import MAX_NAME_BYTES, check_name
 from beambench.common.yaml_config import MISSING as _MISSING
 from beambench.common.yaml_config import ConfigError, load_yaml_file, parse_yaml, validate
 
@@ -39,7 +39,6 @@ BACKENDS: tuple[str, ...] = get_args(Backend)
 __all__ = ["BACKENDS", "ConfigError", "Protocol", "RigFile", "load_protocol", "load_rig_file", "parse_protocol"]
 
 MAX_STEPS = 10_000  # a sweep longer than this is a typo (1e-9 Hz steps), not a measurement
-MAX_NAME_BYTES = 200  # a session name (the file name without .h5)
 # the lowest drive frequency (Hz) other than 0: one period in 100 s; 1e-320 Hz is a typo, not a measurement
 MIN_FREQUENCY_HZ = 0.01
 # the finest sim.timestep (s): 25x finer than the contact rig's reference (2.5e-5 s); and the most physics steps a
@@ -51,20 +50,6 @@ MAX_SIM_STEPS = 10**10
 class _Model(BaseModel):
     # strict: YAML already types its values, so "5" is not 5 and true is not 1; and every float is finite
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
-
-
-def check_name(name: str, what: str) -> str:
-    """``name`` if it is a usable file name: no control characters, no path separators, <= 200 bytes, not ./.."""
-    if not name or name in (".", ".."):
-        raise ValueError(f"{what} must be a plain file name")
-    bad = next((c for c in name if unicodedata.category(c)[0] == "C"), None)
-    if bad is not None:
-        raise ValueError(f"{what} contains a control character ({bad!r})")
-    if "/" in name or "\\" in name:
-        raise ValueError(f"{what} must be a plain file name (no / or \\)")
-    if len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
-        raise ValueError(f"{what} is longer than {MAX_NAME_BYTES} bytes")
-    return name
 
 
 class Sweep(_Model):

@@ -53,7 +53,7 @@ from beambench.analysis.trajectory import (
 )
 from beambench.analysis.walking import body_speed
 from beambench.sinks.hdf5 import StreamData
-from beambench.sinks.session_frames import step_of
+from beambench.sinks.session_frames import flat_names, step_of
 
 
 @dataclass(frozen=True)
@@ -644,7 +644,8 @@ def resample_session(
     """Every stream's numeric columns on one uniform host-clock timeline (a DataFrame indexed by ``t_s``, seconds
     from the earliest sample), for notebooks.
 
-    Columns are named ``stream/column[/label][/axis]`` (``mocap/data/foot/x``, ``motor/axis_state``); load cells
+    Columns are named ``<stream>/<column>`` with the column names of ``Session.to_pandas`` (``mocap/foot_x``,
+    ``mocap/foot_occluded``, ``loadcell/lc0``, ``motor/axis_state``); load cells
     also get calibrated ``loadcell/normal_n`` and ``loadcell/tangential_n``, and ``step`` is the protocol step
     each row falls in (-1 between steps). Float columns are interpolated linearly (NaN where a stream has no data
     or a gap); integer, boolean and enum columns (frame and sequence numbers, occlusion flags, the ODrive's
@@ -692,11 +693,5 @@ def resample_session(
 
 
 def _column_names(stream: str, col: str, shape: tuple[int, ...], labels: list[str]) -> list[str]:
-    if not shape:
-        return [f"{stream}/{col}"]
-    if len(shape) == 1:
-        names = labels if len(labels) == shape[0] else [str(i) for i in range(shape[0])]
-        return [f"{stream}/{col}/{n}" for n in names]
-    first = labels if len(labels) == shape[0] else [str(i) for i in range(shape[0])]
-    axes = "xyz" if shape[-1] == 3 else [str(i) for i in range(shape[-1])]
-    return [f"{stream}/{col}/{m}/{ax}" for m in first for ax in axes]
+    """``<stream>/<name>`` with the names of ``Session.to_pandas`` (``mocap/foot_x``, ``loadcell/lc0``)."""
+    return [f"{stream}/{name}" for name in flat_names(stream, col, shape, tuple(labels))]

@@ -77,12 +77,14 @@ def _options(up: str | None, forward: str | None, drift_correct: bool = False) -
 
 def _read(path: Path) -> Any:
     """Read one session; a missing, foreign or empty file becomes one line and exit code 2."""
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.hdf5 import SessionFileError, read_session
 
     if not path.is_file():
         fail(f"{path}: no such file")
     try:
         session = read_session(path)
+    except SessionFileError as exc:  # already one line naming the file
+        fail(str(exc))
     except (OSError, KeyError) as exc:
         fail(f"{path}: not a beambench session file ({exc})")
     if len(session.steps) == 0:
@@ -158,12 +160,13 @@ def _progress(quiet: bool):
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
-        Progress,
         TextColumn,
         TimeElapsedColumn,
     )
 
-    return Progress(
+    from beambench.common.console import LogProgress
+
+    return LogProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),

@@ -278,9 +278,12 @@ def view(
         if rrd.exists():
             fail(f"{rrd}: exists; give another --out (view never overwrites a recording)")
     from beambench.session.replay import replay_session
+    from beambench.sinks.hdf5 import SessionFileError
 
     try:
         written = replay_session(session, mode, rrd)
+    except SessionFileError as exc:  # already one line naming the file
+        fail(str(exc))
     except OSError as exc:
         fail(f"{session}: cannot read session ({exc})")
     if written is not None:
@@ -290,6 +293,7 @@ def view(
 def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) -> None:
     """``view --screenshot``: the picture's path on stdout, or one line saying what is missing."""
     from beambench.session.viewer import ViewerUnavailable, session_screenshot
+    from beambench.sinks.hdf5 import SessionFileError
 
     if png.suffix.lower() != ".png":
         fail(f"{png}: --screenshot writes a PNG (give FILE.png)")
@@ -302,6 +306,8 @@ def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) ->
     except ViewerUnavailable as exc:
         fail(f"cannot take a screenshot: {exc}")
     except ValueError as exc:
+        fail(str(exc))
+    except SessionFileError as exc:  # already one line naming the file
         fail(str(exc))
     except OSError as exc:
         fail(f"{session}: cannot read session ({exc})")

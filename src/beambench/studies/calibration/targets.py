@@ -285,13 +285,15 @@ def session_targets(path: str | Path) -> Targets:
     """Per-step targets of a measured (or twin-made) session, analysed with :mod:`beambench.analysis.session`;
     the release-test fit it holds (``/processing/fit``) or the parameter set it ran with is the prior."""
     from beambench.analysis.session import analyze_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.hdf5 import SessionFileError, read_session
 
     p = Path(path)
     if not p.is_file():
         raise CalibrationInputError(f"{p}: no such session file")
     try:
         session = read_session(p)
+    except SessionFileError as exc:  # already one line naming the file
+        raise CalibrationInputError(str(exc)) from None
     except (OSError, KeyError) as exc:
         raise CalibrationInputError(f"{p}: not a beambench session file ({exc})") from None
     general = dict(session.general)
