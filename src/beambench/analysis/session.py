@@ -52,7 +52,7 @@ from beambench.analysis.trajectory import (
     stage_frame,
 )
 from beambench.analysis.walking import body_speed
-from beambench.sinks.hdf5 import StreamData
+from beambench.sinks.hdf5_read import StreamData
 from beambench.sinks.session_frames import flat_names, step_of
 
 
