@@ -4,6 +4,7 @@ not one burst at the end (``beambench.common.console.LogProgress``, used by ever
 from __future__ import annotations
 
 import io
+import itertools
 import os
 import re
 import subprocess
@@ -78,7 +79,7 @@ def test_a_run_on_a_pipe_prints_timestamped_progress_during_the_run(tmp_path):
     progress = [(t, line) for t, line in arrivals if STAMP.match(line) and " Hz: " in line]
     assert len(progress) >= 4, arrivals
     stamps = [int(h) * 3600 + int(m) * 60 + int(s) for h, m, s, _ in (STAMP.match(x).groups() for _, x in progress)]
-    assert max(b - a for a, b in zip(stamps, stamps[1:])) <= 10, stamps
+    assert max(b - a for a, b in itertools.pairwise(stamps)) <= 10, stamps
     # lines come while the run goes on: the first at least one interval before the last (not one burst at the end)
     assert progress[-1][0] - progress[0][0] >= 0.3, progress
     assert stdout[0].strip().endswith(".h5")
