@@ -410,7 +410,9 @@ def _refine(s: Search) -> Point:
     if br is not None and finals and settings.bracket_rounds > 0 and not late():
         c = br.coord(winner.values[br.name])
         half = 0.06 * (br.bounds[1] - br.bounds[0])
-        line = Line(s.fine, "fine", settings.bracket_rounds, max(2, 2 * s.pool.workers), "bracket", s.over(BRACKET_SHARE))
+        line = Line(
+            s.fine, "fine", settings.bracket_rounds, max(2, 2 * s.pool.workers), "bracket", s.over(BRACKET_SHARE)
+        )
         winner = min(winner, bracket(s, winner.values, br, (c - half, c + half), line), key=lambda p: p.j)
     return winner
 
