@@ -70,6 +70,12 @@ def run_session(
     )
 
 
+def _run_twin(sweep: Protocol, text: str, path: Path, show_progress: bool) -> tuple[str, str]:
+    """A ``track: map: twin`` run's sweep on the sim (:func:`beambench.session.track_map.twin_map`)."""
+    result = run_session(sweep, text, "sim", path, show_progress=show_progress)
+    return result.status, result.message
+
+
 def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunResult:
     """Run one :class:`RunRequest`.
 
@@ -100,7 +106,7 @@ def _open_rig(req: RunRequest) -> Rig:
 def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     protocol, path, backend = req.protocol, req.path, req.backend
     check_protocol(protocol, "<protocol>", backend, req.can_log)
-    tracking = track_setup(protocol, path, req.show_progress) if protocol.track is not None else None
+    tracking = track_setup(protocol, path, _run_twin, req.show_progress) if protocol.track is not None else None
     reserved = path.with_suffix(".rrd") if req.rerun_mode == "save" else None
     if reserved is not None:
         _reserve(reserved)
