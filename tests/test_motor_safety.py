@@ -129,3 +129,58 @@ def test_memory_exhausted_mid_run_idles_the_motor_confirmed_in_one_line(tmp_path
     if said:
         assert "confirms AXIS_STATE_IDLE" in said[0], said
     assert s.streams["motor"].columns["axis_state"][-1] == 1  # AXIS_STATE_IDLE, as the device reported it
+
+
+@pytest.mark.parametrize("kind", ["device", "existing", "under-a-file"])
+def test_a_can_log_that_cannot_be_a_new_file_is_bad_input_before_anything_moves(tmp_path, kind):
+    """``--can-log`` naming a device (a link to /dev/full), an existing file (never truncated) or a path under
+    a file: one line naming --can-log, exit 2, no session, and the existing file untouched."""
+    log = tmp_path / "bus.asc"
+    if kind == "device":
+        log.symlink_to("/dev/full")
+    elif kind == "existing":
+        log.write_text("keep me\n")
+    else:
+        (tmp_path / "afile").write_text("")
+        log = tmp_path / "afile" / "bus.asc"
+    proc = _start(tmp_path, "--can-log", str(log))
+    _, err = proc.communicate(timeout=120)
+    said = _said(err)
+    assert proc.returncode == 2 and len(said) == 1 and "--can-log" in said[0], (proc.returncode, said)
+    assert not (tmp_path / "s.h5").exists()
+    if kind == "existing":
+        assert log.read_text() == "keep me\n"
+
+
+@pytest.fixture
+def tiny_disk(tmp_path):
+    """A 64 KiB tmpfs at ``tmp_path/disk`` (root only), unmounted after the test."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    try:
+        res = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)], capture_output=True, text=True, timeout=10
+        )
+    except (OSError, subprocess.SubprocessError) as exc:
+        pytest.skip(f"cannot mount a tmpfs here ({exc})")
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here (root needed): {res.stderr.strip()[:120]}")
+    try:
+        yield disk
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], capture_output=True, timeout=10)
+
+
+@pytest.mark.slow
+def test_a_can_log_on_a_full_disk_fails_the_run_as_a_sink_motor_idle_first(tmp_path, tiny_disk):
+    """The CAN log fills its disk mid-run: one line naming the log and the full disk, exit 4, the motor idle
+    (confirmed by the ODrive) before the session closes."""
+    proc = _start(tmp_path, "--can-log", str(tiny_disk / "bus.asc"))
+    _, err = proc.communicate(timeout=180)
+    said = _said(err)
+    assert proc.returncode == 4 and len(said) == 1, (proc.returncode, said)
+    assert "CAN log" in said[0] and "No space left" in said[0], said
+    s = read_session(tmp_path / "s.h5")
+    idle = [m for k, m in zip(s.events["kind"], s.events["message"]) if k == "idle"]
+    assert idle == ["motor idle (ODrive node 0 confirms AXIS_STATE_IDLE)"], idle
+    assert s.streams["motor"].columns["axis_state"][-1] == 1

@@ -114,6 +114,13 @@ class ConfirmsIdle(Protocol):
 
 
 @runtime_checkable
+class ReportsSinkFailure(Protocol):
+    """A device that writes a file of its own (the CAN traffic log): why that file stopped early, or None."""
+
+    def sink_failure(self) -> str | None: ...
+
+
+@runtime_checkable
 class Rig(Protocol):
     """A set of devices built from a protocol and rig file: one motor, its streams and a clock."""
 

@@ -44,6 +44,7 @@ from beambench.acquisition.capabilities import (
     HasIdleTail,
     MotorLimits,
     ReportsDeviceHealth,
+    ReportsSinkFailure,
     Rig,
 )
 from beambench.acquisition.hub import Hub, SinkFailure
@@ -53,6 +54,10 @@ from beambench.acquisition.plan import Step
 
 class Terminated(BaseException):
     """Kept for callers that raise it themselves: treated like a SIGTERM (the run ends as interrupted)."""
+
+
+class _DeviceSinkFailed(Exception):
+    """A device's own file (the CAN log) failed: the run stops as a sink failure (exit 4), motor idle first."""
 
 
 class _Stopped(BaseException):
@@ -242,7 +247,7 @@ class Runner:
                 result = RunResult("completed", self.steps_done, "all steps done")
             except _Stopped:
                 result = RunResult("interrupted", self.steps_done, self.stop.reason)
-            except SinkFailure as exc:
+            except (SinkFailure, _DeviceSinkFailed) as exc:
                 result = RunResult("failed", self.steps_done, str(exc))
             except KeyboardInterrupt:  # raised by code outside our handlers (e.g. a caller's thread)
                 result = RunResult("interrupted", self.steps_done, "interrupted by user (SIGINT)")
@@ -265,8 +270,8 @@ class Runner:
                 raise
             finally:
                 self._shutdown(result)
-                failure = self.hub.failure
-                if failure is not None and result.status != "failed":  # the file failed while closing
+                failure = self.hub.failure or self._device_sink_failure()
+                if failure is not None and result.status != "failed":  # a file failed while closing
                     before = f"; the run had {result.status}: {result.message}" if result.status != "completed" else ""
                     result.status, result.message = "failed", f"{failure}{before}"
             return result
@@ -377,6 +382,13 @@ class Runner:
             self.rig.check()  # the motor, then every stream's liveness
         else:
             self.rig.motor.check()
+        failed = self._device_sink_failure()
+        if failed is not None:
+            raise _DeviceSinkFailed(failed)
+
+    def _device_sink_failure(self) -> str | None:
+        motor = self.rig.motor
+        return motor.sink_failure() if isinstance(motor, ReportsSinkFailure) else None
 
     def _problem(self) -> tuple[str | None, int]:
         """(the monitors' reasons joined, or None; the earliest time the data went bad)."""

@@ -42,7 +42,6 @@ other python-can formats work too), fed by the receive thread and the senders.
 from __future__ import annotations
 
 import contextlib
-import copy
 import math
 import threading
 import time
@@ -57,6 +56,7 @@ from beambench.acquisition.capabilities import DeviceFault, MotorLimits, PacksAh
 from beambench.acquisition.streams import MOTOR
 from beambench.common.oserrors import can_open_problem
 from beambench.devices.odrive import cansimple as cs
+from beambench.devices.odrive.can_log import TrafficLog
 from beambench.devices.odrive.cansimple import AxisState, ControlMode, InputMode
 from beambench.devices.odrive.telemetry import (
     MAX_BUFFERED_ROWS,
@@ -83,36 +83,6 @@ MAX_FRAMES_PER_WAKE = 1024  # a flood cannot keep the receive thread from checki
 
 
 _ERROR_REGISTERS = (cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR)
-
-
-class _TrafficLog:
-    """python-can's ``can.Logger`` shared by the receive thread (received) and senders (sent), locked."""
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._writer = can.Logger(str(self.path))
-        self._lock = threading.Lock()
-        self._closed = False
-
-    def on_message_received(self, msg: can.Message) -> None:
-        number = can.util.channel2int(msg.channel)
-        if msg.channel is not None and (number is None or not 0 <= number < 0xFFFF):
-            # .blf stores the channel as a 16-bit number read off the name's trailing digits; a name such as
-            # a virtual bus "odrive-…93817" would overflow it: log such frames on the file's default channel
-            msg = copy.copy(msg)
-            msg.channel = None
-        with self._lock:
-            if not self._closed:
-                self._writer.on_message_received(msg)
-
-    __call__ = on_message_received
-
-    def stop(self) -> None:
-        with self._lock:
-            if not self._closed:
-                self._closed = True
-                self._writer.stop()
 
 
 def receive_ns(frame: can.Message, now_ns: int, mono_minus_real_ns: int) -> int:
@@ -184,7 +154,7 @@ class OdriveCanMotor(TelemetryStream):
         self._own_bus = bus is None if own_bus is None else own_bus
         self._receiver: threading.Thread | None = None
         self._receiver_stop = threading.Event()
-        self._log: _TrafficLog | None = None
+        self._log: TrafficLog | None = None
         self._tx_lock = threading.Lock()
         self._cond = threading.Condition()  # guards everything below
         self._guard = self._cond
@@ -250,7 +220,7 @@ class OdriveCanMotor(TelemetryStream):
             for frame in self._idle_frames:
                 self._bus.keep_packed(frame)
         if self.can_log is not None:
-            self._log = _TrafficLog(self.can_log)
+            self._log = TrafficLog(self.can_log)
         with self._cond:
             self._opened_ns = time.monotonic_ns()
         self._receiver_stop.clear()
@@ -289,6 +259,11 @@ class OdriveCanMotor(TelemetryStream):
         self.close()
 
     # ------------------------------------------------------------------ sending
+    def sink_failure(self) -> str | None:
+        """Why the ``--can-log`` file stopped early (a full disk), or None."""
+        log = self._log
+        return log.failure if log is not None else None
+
     def _send(self, msg: can.Message) -> None:
         if self._bus is None:
             raise DeviceFault("CAN bus is not open")
