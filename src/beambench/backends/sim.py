@@ -38,7 +38,7 @@ from beambench.sim.engine.stepping import Trajectory, quiet_mujoco_warnings
 from beambench.sim.models.registry import UnknownModelError, beam_model
 from beambench.sim.protocol_slice import SimSlice
 from beambench.sim.scenes import SceneConfig
-from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
+from beambench.sim.scenes.drive import CostsByFrequency, DrivenScene, VelocityRamp, WarmsUp
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
@@ -144,7 +144,8 @@ class SimRig:
         self._undo_ahead()
         calls = lookahead.script(schedule, self.clock.now_ns(), int(self.clock.max_chunk_s * 1e9))
         segments = self.sim.segments if self._own_scene else 1
-        cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, getattr(self.scene, "step_cost", None))
+        cost = self.scene.step_cost if isinstance(self.scene, CostsByFrequency) else None
+        cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, cost)
         clones = [build_scene(self.sim) for _ in cuts]
         self._scenes += clones
         self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
@@ -174,9 +175,8 @@ class SimRig:
         if self._look is not None and len(self._look.segments) > 1:
             self._look_info = lookahead.info(self._look)
         out: dict[str, Any] = {"sim_segments": self._look_info} if self._look_info else {}
-        thermal = getattr(self.scene, "thermal", None)
-        if thermal is not None:
-            out["sim_thermal_drift"] = thermal.now()
+        if isinstance(self.scene, WarmsUp) and self.scene.thermal is not None:
+            out["sim_thermal_drift"] = self.scene.thermal.now()
         return out
 
     # --- stepping -------------------------------------------------------------------------------------

@@ -61,7 +61,7 @@ def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
     """Ping each device of a :class:`beambench.acquisition.config.RigFile`; never raises for a device that is absent."""
     from beambench.devices.loadcell import driver as loadcell
     from beambench.devices.natnet import client as natnet
-    from beambench.devices.odrive import can_motor as odrive_can
+    from beambench.devices.odrive import can_ping as odrive_can
 
     out: dict[str, dict[str, Any]] = {}
     nn = rig.natnet.model_dump(exclude={"markers"})

@@ -18,6 +18,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from beambench.common.vulkan import vulkan_devices
 from beambench.sinks.rerun_spawn import LOOPBACK, rerun_binary
 
 LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
@@ -33,11 +34,9 @@ class ViewerUnavailable(RuntimeError):
 
 
 def vulkan_available() -> bool:
-    """Whether a Vulkan loader and at least one driver manifest are installed (lavapipe counts)."""
-    loaders = ("/usr/lib/x86_64-linux-gnu/libvulkan.so.1", "/usr/lib/aarch64-linux-gnu/libvulkan.so.1")
-    icd_dirs = [Path("/usr/share/vulkan/icd.d"), Path("/etc/vulkan/icd.d")]
-    has_icd = any(d.is_dir() and any(d.glob("*.json")) for d in icd_dirs) or bool(os.environ.get("VK_ICD_FILENAMES"))
-    return any(Path(p).exists() for p in loaders) and has_icd
+    """Whether the Vulkan loader finds a device to render with (lavapipe counts): asked of the loader, wherever
+    it and its drivers are installed (:func:`beambench.common.vulkan.vulkan_devices`)."""
+    return vulkan_devices().usable
 
 
 def _free_port() -> int:
@@ -62,10 +61,11 @@ class HeadlessViewer:
         binary = rerun_binary()
         if binary is None:
             raise ViewerUnavailable("the rerun viewer binary was not found (it ships with the rerun-sdk wheel)")
-        if not vulkan_available():
+        vulkan = vulkan_devices()
+        if not vulkan.usable:
             raise ViewerUnavailable(
-                "the Rerun viewer needs a Vulkan driver and finds none: on Debian/Ubuntu "
-                "`apt-get install mesa-vulkan-drivers libvulkan1` (Mesa's software renderer; no GPU or display needed)"
+                f"the Rerun viewer needs a Vulkan driver: {vulkan.error}; on Debian/Ubuntu `apt-get install "
+                "mesa-vulkan-drivers libvulkan1` (Mesa's software renderer; no GPU or display needed)"
             )
         # RUST_LOG: the viewer shows its info and warning log lines as toasts over the views (in screenshots too)
         env = dict(os.environ, XDG_RUNTIME_DIR=self._tmp.name, MESA_VK_WSI_DEBUG="noshm", RUST_LOG="error")
