@@ -485,3 +485,16 @@ def test_a_dangling_symlink_named_like_the_session_leaves_no_empty_recording(tmp
     assert not (out / "s.rrd").exists()
     assert (out / "s_1.h5").is_file() and (out / "s_1.rrd").stat().st_size > 0
     assert not (tmp_path / "nowhere.h5").exists()
+
+
+def test_a_run_result_quoting_a_device_prints_no_escape_sequence(tmp_path, capsys):
+    import typer
+
+    from beambench.commands.run import report_run
+
+    with pytest.raises(typer.Exit) as stop:
+        report_run("fault", f"device fault: load cells said {HOSTILE}", tmp_path / "s.h5", False, [HOSTILE])
+    assert stop.value.exit_code == 1
+    err = capsys.readouterr().err
+    assert "load cells said Motivetxt" in err and "also Motivetxt" in err, err
+    assert not any(c in err for c in "\x1b\x07\x9d\x9c\x7f\u202e"), repr(err)
