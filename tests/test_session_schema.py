@@ -368,7 +368,7 @@ _BASE: dict[str, list[str]] = {}
 
 
 @settings(
-    max_examples=fuzz_examples(150, default=8),
+    max_examples=fuzz_examples(100, default=8),
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large],
 )
