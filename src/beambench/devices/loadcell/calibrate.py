@@ -10,6 +10,7 @@ arithmetic (tare, fit, the saved file) is :mod:`beambench.acquisition.calibratio
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -53,9 +54,12 @@ def parse_loads(values: list[str]) -> list[tuple[float, float]]:
             try:
                 if len(parts) != 2:
                     raise ValueError
-                loads.append((float(parts[0]), float(parts[1])))
+                fn, ft = float(parts[0]), float(parts[1])
+                if not (math.isfinite(fn) and math.isfinite(ft)):
+                    raise ValueError
+                loads.append((fn, ft))
             except ValueError:
-                raise ValueError(f"--loads {item!r}: expected FN,FT in newtons, e.g. 1.0,0") from None
+                raise ValueError(f"--loads {item!r}: expected FN,FT in newtons (finite numbers), e.g. 1.0,0") from None
     return loads
 
 
