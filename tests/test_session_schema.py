@@ -112,6 +112,13 @@ def _shuffle(f: h5py.File, path: str) -> None:
     ds[...] = values
 
 
+DAYS_6 = 6 * 86400 * 10**9
+
+
+def _shift(f: h5py.File, path: str, ns: int) -> None:
+    f[path][...] = f[path][()] + ns
+
+
 def _mocap(f: h5py.File, how: str) -> None:
     data = f["acquisition/mocap/data"][()]
     _replace(f, "acquisition/mocap/data", data.reshape(len(data), -1) if how == "reshape" else data.astype("S8"))
@@ -142,6 +149,11 @@ CASES: dict[str, tuple[Any, str]] = {  # name: (edit, what the one line names)
         lambda f: f["acquisition/mocap/host_time_ns"].__setitem__(-1, 2**62),
         "/acquisition/mocap/host_time_ns",
     ),
+    "host_time_spanning_a_week": (  # every row kept in order: view drew 600 000 one-second windows (78 s)
+        lambda f: f["acquisition/mocap/host_time_ns"].__setitem__(-1, f["acquisition/mocap/host_time_ns"][0] + DAYS_6),
+        "/acquisition/mocap/host_time_ns",
+    ),
+    "streams_days_apart": (lambda f: _shift(f, "acquisition/loadcell/host_time_ns", DAYS_6), "/acquisition:"),
     "host_time_shuffled": (lambda f: _shuffle(f, "acquisition/mocap/host_time_ns"), "host_time_ns"),
     "protocol_not_yaml": (lambda f: _text(f, "general/protocol", "a: [b\n  : c: {"), "/general/protocol"),
     "no_rig": (lambda f: f.__delitem__("general/rig"), "/general/rig"),
@@ -356,7 +368,7 @@ _BASE: dict[str, list[str]] = {}
 
 
 @settings(
-    max_examples=fuzz_examples(150, default=8),
+    max_examples=fuzz_examples(100, default=8),
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large],
 )
