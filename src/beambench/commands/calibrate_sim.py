@@ -91,7 +91,7 @@ def sim(
             "--free",
             help="Comma-separated unknowns to fit instead of the rig's default set (contact rig: "
             "b_scale,preload_mm,friction_scale), e.g. b_scale,preload_mm,friction_scale,frame_mass_g "
-            "(contact rig unknowns: k_scale, b_scale, preload_mm, friction_scale, frame_mass_g, mass_dx_mm; "
+            "(contact rig unknowns: k_scale, b_scale, preload_mm, friction_scale, frame_mass_g, mass_dx_mm, mass_dy_mm; "
             "the others stay at the prior set's values).",
         ),
     ] = None,
