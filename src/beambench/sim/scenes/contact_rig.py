@@ -84,7 +84,8 @@ class RigParams:
         if bad:
             raise ValueError(f"rig.{sorted(bad)[0]}: unknown rig parameter")
         flags = {f.name for f in fields(cls) if f.type in (bool, "bool")}
-        return cls(**{k: bool(v) if k in flags else float(v) for k, v in overrides.items()})
+        values: dict[str, Any] = {k: bool(v) if k in flags else float(v) for k, v in overrides.items()}
+        return cls(**values)
 
 
 TIMESTEP_POLICY = ((40.0, 2e-4), (80.0, 1e-4), (float("inf"), 5e-5))  # (up to Hz, dt)
