@@ -69,9 +69,12 @@ def process_alive(pid: int) -> bool:
 _SOAK = False
 
 
-def fuzz_examples(n: int) -> int:
-    """A Hypothesis test's example count: ``n`` in the soak tier, a fifth of it (at least 50) in the default run."""
-    return n if _SOAK else min(n, max(50, n // 5))
+def fuzz_examples(n: int, default: int | None = None) -> int:
+    """A Hypothesis test's example count: ``n`` in the soak tier; in the default run a fifth of it (at least 50),
+    or ``default`` for a test whose examples take seconds each."""
+    if _SOAK:
+        return n
+    return default if default is not None else min(n, max(50, n // 5))
 
 
 def pytest_configure(config: pytest.Config) -> None:

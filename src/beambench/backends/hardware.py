@@ -15,16 +15,22 @@ from pathlib import Path
 from typing import Any
 
 from beambench.acquisition.batch import Frame
-from beambench.acquisition.capabilities import Connectable, Motor, ReportsHealth, Stream
+from beambench.acquisition.capabilities import (
+    Connectable,
+    HasSilenceTimeout,
+    Identifies,
+    Motor,
+    ReportsEchoes,
+    ReportsHealth,
+    Stream,
+)
 from beambench.acquisition.config import (
     ConfigError,
     LoadCellWiring,
     NatNetWiring,
     OdriveWiring,
-    Protocol,
     load_rig_file,
 )
-from beambench.acquisition.scenes import scene_info
 from beambench.common.resources import shipped_dir
 
 DEFAULT_RIG_FILE = shipped_dir("calibration") / "rig.yaml"
@@ -117,9 +123,8 @@ class DeviceRig:
         """Each stream's silence timeout (s), for :func:`beambench.acquisition.monitors.build_monitors`."""
         out: dict[str, float] = {}
         for s in (self.mocap, self.loadcells):
-            timeout = getattr(s, "silence_timeout_s", None)
-            if timeout is not None:
-                out[s.name] = float(timeout)
+            if isinstance(s, HasSilenceTimeout) and s.silence_timeout_s is not None:
+                out[s.name] = float(s.silence_timeout_s)
         return out
 
     def device_health(self) -> dict[str, dict[str, Any]]:
@@ -132,12 +137,13 @@ class DeviceRig:
         return out
 
     def _keep_echoes(self) -> None:
-        client = getattr(self.mocap, "client", None)
-        if client is None or not getattr(client, "clock_frequency", None):
+        """The mocap's ECHO table (``ReportsEchoes``), kept before the driver stops, for the clock fit."""
+        if not isinstance(self.mocap, ReportsEchoes):
             return
         with contextlib.suppress(Exception):
-            table = {k: v.tolist() for k, v in client.echo_table().items()}
-            self._after_run = {"sync": {"natnet_echo": {**table, "clock_frequency": int(client.clock_frequency)}}}
+            sync = self.mocap.echo_sync()
+            if sync is not None:
+                self._after_run = {"sync": {"natnet_echo": sync}}
 
     def after_run(self) -> dict[str, Any]:
         """The NatNet ECHO table (for the clock fit) and every driver's counters (``devices``), known once the
@@ -147,14 +153,9 @@ class DeviceRig:
     def identity(self) -> dict[str, Any]:
         out: dict[str, Any] = {"backend": self.backend}
         for key, dev in (("motor", self.motor), ("mocap", self.mocap), ("loadcells", self.loadcells)):
-            ident = getattr(dev, "identity", None)
-            out[key] = ident() if callable(ident) else type(dev).__name__
+            out[key] = dev.identity() if isinstance(dev, Identifies) else type(dev).__name__
         out.update(self._extra)
         return out
-
-
-def _markers(protocol: Protocol) -> tuple[str, ...]:
-    return scene_info(protocol.rig).wired_markers
 
 
 def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
@@ -197,13 +198,14 @@ def _make_loadcells(lc: LoadCellWiring) -> Stream:
     return SerialLoadCells(lc.port, lc.baudrate, silence_timeout_s=lc.silence_timeout_s)
 
 
-def build_device_rig(protocol: Protocol, rig_file: Path | None = None, can_log: Path | None = None) -> DeviceRig:
-    """The rig of real drivers against the lab's devices, wired by ``rig_file`` (default: the shipped rig.yaml)."""
+def build_device_rig(markers: tuple[str, ...], rig_file: Path | None = None, can_log: Path | None = None) -> DeviceRig:
+    """The rig of real drivers against the lab's devices, wired by ``rig_file`` (default: the shipped rig.yaml);
+    ``markers``: the ones the mocap is wired to (the scene's)."""
     path = Path(rig_file) if rig_file else DEFAULT_RIG_FILE
     rig = load_rig_file(path)
     return DeviceRig(
         _make_motor(rig.odrive, can_log),
-        _make_mocap(rig.natnet, _markers(protocol), Frame(**rig.geometry.model_dump())),
+        _make_mocap(rig.natnet, markers, Frame(**rig.geometry.model_dump())),
         _make_loadcells(rig.loadcell),
         "hardware",
         extra_identity={"rig_file": path.read_text()},

@@ -72,7 +72,10 @@ def loadcells(
     duration: float = typer.Option(1.0, "--duration", help="Seconds recorded per step (at least 0.05)."),
     settle: float = typer.Option(0.5, "--settle", help="Seconds waited after Enter before recording."),
     emulate: bool = typer.Option(
-        False, "--emulate", help="Demo against an emulated MCU on a pty (loads applied for you)."
+        False,
+        "--emulate",
+        help=f"Demo against an emulated MCU on a pty (loads applied for you); saves {EMULATE_OUT_NAME}, not "
+        f"{OUT_NAME}, so a demo never replaces the lab's calibration.",
     ),
     yes: bool = typer.Option(
         False,
@@ -84,7 +87,8 @@ def loadcells(
 ) -> None:
     """Walk through a load-cell calibration: tare (per channel), known loads, least-squares 2×4 matrix, save.
 
-    The result goes to --out or to the per-user folder; the package's shipped calibration is never changed.
+    The result is saved to --out, or else in the per-user folder as calibration/loadcells.yaml (with --emulate:
+    calibration/loadcells-emulated.yaml); the package's shipped calibration is never changed.
     """
     from beambench.acquisition.capabilities import DeviceFault
     from beambench.common.console import stderr_console
@@ -184,12 +188,11 @@ def _emulated_mcu(console: Console) -> EmulatedLoadCellMCU:
     return mcu
 
 
-def _follow_steps(mcu: EmulatedLoadCellMCU) -> Callable[[tuple[float, float]], None]:
-    """The emulated plate carries each step's load."""
+def _follow_steps(mcu: EmulatedLoadCellMCU) -> Callable[[tuple[float, float]], int | None]:
+    """The emulated plate carries each step's load; returns the first frame that carries it."""
 
-    def apply_load(load: tuple[float, float]) -> None:
-        force = (float(load[0]), float(load[1]))
-        mcu.set_force(lambda t: force)
+    def apply_load(load: tuple[float, float]) -> int | None:
+        return mcu.switch_force((float(load[0]), float(load[1])))
 
     return apply_load
 

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
 import typer
+from typer.core import TyperCommand, TyperOption
 
 EXIT_MISSED = 3
 EXIT_INTERRUPTED = 130  # Ctrl-C or another stop signal; the evaluations so far are kept and reused
@@ -19,6 +20,24 @@ EPILOG = (
     "tolerance_hz (transitions, default ± 2 Hz) or tolerance_fraction (walker speeds, default ± 30 %); a "
     "tangential sign must match."
 )
+
+
+FREE_HELP = (
+    "Comma-separated unknowns to fit instead of the rig's default set; the others stay at the prior set's values."
+)
+
+
+class _SimCommand(TyperCommand):
+    """``calibrate sim`` whose ``--free`` help lists each rig's unknowns from the calibration registry, imported
+    only when the help is shown (it costs seconds: every other command starts without it)."""
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:  # typer's own (vendored) click types
+        from beambench.studies.calibration import unknowns_help
+
+        for param in self.params:
+            if param.name == "free" and isinstance(param, TyperOption):
+                param.help = f"{FREE_HELP} Unknowns: {unknowns_help()}."
+        super().format_help(ctx, formatter)
 
 
 def _fail(message: str) -> NoReturn:
@@ -89,52 +108,45 @@ def sim(
         str | None,
         typer.Option(
             "--free",
-            help="Comma-separated unknowns to fit instead of the rig's default set (contact rig: "
-            "b_scale,preload_mm,friction_scale), e.g. b_scale,preload_mm,friction_scale,frame_mass_g "
-            "(contact rig unknowns: k_scale, b_scale, preload_mm, friction_scale, frame_mass_g, mass_dx_mm, mass_dy_mm; "
-            "the others stay at the prior set's values).",
+            help=FREE_HELP,  # completed from the unknown registry when the help is shown (_SimCommand)
         ),
     ] = None,
 ) -> None:
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
     runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
     whether the twin reached it."""
-    from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-    from beambench.common.console import stderr_console
+    from beambench.common.console import LogProgress, stderr_console
     from beambench.common.errors import BeambenchError
+    from beambench.common.names import check_name
     from beambench.common.resources import resolve_file
     from beambench.studies.calibration import SearchSettings, calibrate, get_rig, write_report
     from beambench.studies.calibration.targets import load_targets, session_targets
-    from beambench.studies.executor import ExecutorError
+    from beambench.studies.executor import MAX_LOCAL_WORKERS, ExecutorError
 
     if (session is None) == (targets is None):
         _fail("give a SESSION file or --targets FILE (one of them)")
     if not budget_s > 0:
         _fail(f"--budget-s = {budget_s:g}: must be > 0")
-    if workers is not None and workers < 1:
-        _fail(f"--workers = {workers}: must be >= 1")
+    if workers is not None and not 1 <= workers <= MAX_LOCAL_WORKERS:
+        _fail(f"--workers = {workers}: must be 1 to {MAX_LOCAL_WORKERS} (local worker processes)")
     try:
         tg = session_targets(session) if session is not None else load_targets(resolve_file("targets", targets))  # type: ignore[arg-type]
         get_rig(tg.rig)
     except BeambenchError as exc:
         _fail(str(exc))
     stem = (session or targets).stem  # type: ignore[union-attr]
-    name = name or f"{stem}_calibrated"
+    try:  # before anything is written: the evaluation log, the parameter set and the protocol are named by it
+        name = check_name(name, "--name") if name is not None else check_name(f"{stem}_calibrated", "the output name")
+    except ValueError as exc:
+        _fail(str(exc))
     out_dir = out or default_out()
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         _fail(f"--out {out_dir}: cannot create ({exc.strerror or exc})")
-    chosen = tuple(n.strip() for n in free.split(",") if n.strip()) if free is not None else None
-    if chosen is not None:
-        known = {u.name for u in get_rig(tg.rig).unknowns}
-        bad = [n for n in chosen if n not in known]
-        if not chosen or bad:
-            _fail(f"--free {free}: {tg.rig} rig unknowns are {', '.join(sorted(known))}")
-        twice = sorted({n for n in chosen if chosen.count(n) > 1})
-        if twice:
-            _fail(f"--free {free}: {twice[0]} is named twice")
+    chosen = _free_unknowns(free, tg.rig)
     settings = (
         SearchSettings.quick(budget_s=min(budget_s, 150.0), free=chosen)
         if quick
@@ -149,7 +161,7 @@ def sim(
         TimeElapsedColumn(),
     )
     try:
-        with Progress(*cols, console=console, transient=False) as progress:
+        with LogProgress(*cols, console=console, transient=False) as progress:
             result = calibrate(
                 tg, out_dir, name, workers=workers, scheduler=scheduler, settings=settings, progress=progress
             )
@@ -159,6 +171,23 @@ def sim(
     except KeyboardInterrupt:  # Ctrl-C: every finished evaluation is in the log, which a rerun reuses
         _interrupted(out_dir / f"{name}.evals.jsonl")
     _finish(result, report)
+
+
+def _free_unknowns(free: str | None, rig: str) -> tuple[str, ...] | None:
+    """``--free`` as unknown names of ``rig`` (None: the rig's default set); one line and exit 2 if wrong."""
+    from beambench.studies.calibration import get_rig
+
+    if free is None:
+        return None
+    chosen = tuple(n.strip() for n in free.split(",") if n.strip())
+    known = {u.name for u in get_rig(rig).unknowns}
+    bad = [n for n in chosen if n not in known]
+    if not chosen or bad:
+        _fail(f"--free {free}: {rig} rig unknowns are {', '.join(sorted(known))}")
+    twice = sorted({n for n in chosen if chosen.count(n) > 1})
+    if twice:
+        _fail(f"--free {free}: {twice[0]} is named twice")
+    return chosen
 
 
 def _finish(result: Any, report: Path) -> None:
@@ -184,4 +213,4 @@ def _finish(result: Any, report: Path) -> None:
 
 def register_sim(sub: typer.Typer) -> None:
     """Add ``beambench calibrate sim`` to the ``calibrate`` sub-app."""
-    sub.command("sim", epilog=EPILOG)(sim)
+    sub.command("sim", epilog=EPILOG, cls=_SimCommand)(sim)

@@ -10,7 +10,6 @@ from pathlib import Path
 
 from rich.progress import (
     BarColumn,
-    Progress,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
@@ -24,10 +23,11 @@ from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
-from beambench.common.console import stderr_console
+from beambench.common.console import LogProgress, stderr_console
 from beambench.common.errors import BeambenchError
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
+from beambench.session.slices import rig_slices
 from beambench.session.track_map import track_setup
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
@@ -70,6 +70,12 @@ def run_session(
     )
 
 
+def _run_twin(sweep: Protocol, text: str, path: Path, show_progress: bool) -> tuple[str, str]:
+    """A ``track: map: twin`` run's sweep on the sim (:func:`beambench.session.track_map.twin_map`)."""
+    result = run_session(sweep, text, "sim", path, show_progress=show_progress)
+    return result.status, result.message
+
+
 def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunResult:
     """Run one :class:`RunRequest`.
 
@@ -86,7 +92,8 @@ def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunRe
 def _open_rig(req: RunRequest) -> Rig:
     """Build and open the rig; a device or peer lost meanwhile is one :class:`RigStartError` (rig closed)."""
     try:
-        rig = build_rig(req.protocol, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
+        slices = rig_slices(req.protocol, req.backend)
+        rig = build_rig(slices, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
         rig.open()
     except (DeviceFault, OSError, EOFError) as exc:
         if isinstance(exc, ConfigError):
@@ -99,10 +106,15 @@ def _open_rig(req: RunRequest) -> Rig:
 def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     protocol, path, backend = req.protocol, req.path, req.backend
     check_protocol(protocol, "<protocol>", backend, req.can_log)
-    tracking = track_setup(protocol, path, req.show_progress) if protocol.track is not None else None
-    if req.rerun_mode == "save":
-        _reserve(path.with_suffix(".rrd"))
-    rig = _open_rig(req)
+    tracking = track_setup(protocol, path, _run_twin, req.show_progress) if protocol.track is not None else None
+    reserved = path.with_suffix(".rrd") if req.rerun_mode == "save" else None
+    if reserved is not None:
+        _reserve(reserved)
+    try:
+        rig = _open_rig(req)
+    except BaseException:
+        _unreserve(reserved)
+        raise
     steps = plan(protocol)
     try:
         general = {
@@ -114,6 +126,9 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
             "calibration": {"loadcells": default_calibration().to_yaml()},
             **provenance(),
         }
+        model_warnings = rig.model_warnings() if isinstance(rig, WarnsOfModel) else []
+        if model_warnings:  # known before the first step: a killed run keeps them too
+            general["warnings"] = model_warnings
         specs = [s.describe() for s in rig.streams]
         if tracking is not None:  # the controller's decisions are a stream; it reads the mocap as a sink
             specs.append(tracking.spec)
@@ -146,6 +161,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         hub.open(specs)
     except BaseException:
         rig.close()
+        _unreserve(reserved)  # the run never started: no empty recording left behind
         raise
     with _progress(req.show_progress) as progress:
         task = progress.add_task("starting", total=sum(s.duration_s for s in steps))
@@ -174,23 +190,32 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
             )
         )
         result = runner.run()
+    _after_run(rig, path, result, hub, writer.label, model_warnings)
+    return result
+
+
+def _after_run(rig: Rig, path: Path, result: RunResult, hub: Hub, label: str, model_warnings: list[str]) -> None:
+    """What the rig reports once the run is over goes into /general; every warning the run gave goes into the
+    result (the command says them) and, when the run did not fail, into the session (report banners)."""
     if isinstance(rig, ReportsAfterRun) and result.status != "failed":
         extra = rig.after_run()
         if extra:
             try:
                 append_general(path, extra)
             except OSError as exc:
-                hub.errors.append(f"{writer.label}: /general not completed ({exc.strerror or exc})")
-    if isinstance(rig, WarnsOfModel):  # the model's own word on what it cannot stand for (e.g. folding legs)
-        result.warnings += rig.model_warnings()
-    result.warnings += hub.errors  # the command says them (one line with the result when the run failed)
-    return result
+                hub.errors.append(f"{label}: /general not completed ({exc.strerror or exc})")
+    # the model's own word on what it cannot stand for (e.g. folding legs), then what else went wrong
+    result.warnings += model_warnings
+    result.warnings += hub.errors
+    if hub.errors and result.status != "failed":
+        with contextlib.suppress(OSError):  # the session is as written; the command still says the warnings
+            append_general(path, {"warnings": result.warnings})
 
 
 @contextlib.contextmanager
-def _progress(show: bool) -> Iterator[Progress]:
+def _progress(show: bool) -> Iterator[LogProgress]:
     """The run's progress bar on stderr; a terminal gone (SIGHUP: writes fail with EIO) only ends the bar."""
-    progress = Progress(
+    progress = LogProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         TextColumn("{task.completed:.0f}/{task.total:.0f} s rig time"),
@@ -207,6 +232,13 @@ def _progress(show: bool) -> Iterator[Progress]:
     finally:
         with contextlib.suppress(OSError):
             progress.stop()
+
+
+def _unreserve(path: Path | None) -> None:
+    """Remove a recording reserved by :func:`_reserve` that is still empty (the run did not start)."""
+    with contextlib.suppress(OSError):
+        if path is not None and not path.is_symlink() and path.is_file() and path.stat().st_size == 0:
+            path.unlink()
 
 
 def _reserve(path: Path) -> None:

@@ -19,20 +19,30 @@ from beambench.studies.calibration.checks import TargetCheck
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
 from beambench.studies.unknowns import Unknown
 
-__all__ = ["RIGS", "CalibratableRig", "CalibrationBase", "Landmarks", "Unknown", "get_rig", "register_rig"]
+__all__ = [
+    "RIGS",
+    "CalibratableRig",
+    "CalibrationBase",
+    "Landmarks",
+    "Unknown",
+    "get_rig",
+    "register_rig",
+    "unknowns_help",
+]
 
 
 @dataclass(frozen=True)
 class CalibrationBase:
     """The fixed part of a twin, sent with every evaluation to the workers (frozen, picklable, hashed into the
     evaluation log's keys): the beam model, the prior parameter set (name or path), the simulation settings of
-    the protocol the calibration writes (twist, amplitude, integrator, its windows, noise and seed) and that
-    protocol's sweep (empty: the rig has no verify stage)."""
+    the protocol the calibration writes (twist, amplitude, integrator, its windows, noise and seed), that
+    protocol's sweep (empty: the rig has no verify stage) and the tolerance its timestep plan is chosen for."""
 
     model: str
     params: str
     sim: SimSettings = field(default_factory=SimSettings)
     frequencies: tuple[float, ...] = ()
+    tolerance_mm: float = 0.1  # the accuracy the run's measured timestep plan is chosen for (sim.tolerance_mm)
 
 
 # landmarks(steps, targets) -> {name: (the map's value or None where it has none, the target's value)}, both in
@@ -99,6 +109,17 @@ def register_rig(rig: CalibratableRig) -> CalibratableRig:
     """Add ``rig`` to the registry (a rig module calls this at import); returns it."""
     RIGS[rig.name] = rig
     return rig
+
+
+def unknowns_help() -> str:
+    """Every registered rig's unknowns in words, for ``calibrate sim --free``'s help: those fitted by default,
+    then the others (one registry: the help cannot drift from what the search fits)."""
+    parts = []
+    for rig in RIGS.values():
+        others = [u.name for u in rig.unknowns if u.name not in rig.default_free]
+        also = f"; also {', '.join(others)}" if others else ""
+        parts.append(f"{rig.name} rig: {', '.join(rig.default_free)} by default{also}")
+    return "; ".join(parts)
 
 
 def get_rig(name: str) -> CalibratableRig:

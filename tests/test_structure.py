@@ -1,0 +1,160 @@
+"""The code's shape, checked from its syntax trees: each layer gets its own slice of a protocol, no module
+reaches for another's private names."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import beambench
+
+PACKAGE = Path(beambench.__file__).parent
+# below session/: these receive slices (SimSlice, markers, settings), never the whole protocol; acquisition/ is the
+# protocol's own home (its schema and step plan)
+SLICED = ("backends", "sim", "emulators", "sinks", "devices", "analysis")
+
+
+def _modules(*packages: str) -> list[Path]:
+    roots = [PACKAGE / p for p in packages] if packages else [PACKAGE]
+    return sorted(p for root in roots for p in root.rglob("*.py"))
+
+
+def _name(path: Path) -> str:
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
+    return ".".join(parts)
+
+
+def _imports_protocol_model(tree: ast.Module) -> bool:
+    return any(
+        isinstance(node, ast.ImportFrom)
+        and node.module == "beambench.acquisition.config"
+        and any(a.name == "Protocol" for a in node.names)
+        for node in ast.walk(tree)
+    )
+
+
+def test_no_layer_below_session_takes_the_whole_protocol() -> None:
+    found = []
+    for path in _modules(*SLICED):
+        tree = ast.parse(path.read_text())
+        if not _imports_protocol_model(tree):
+            continue
+        for node in ast.walk(tree):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                args = [*node.args.posonlyargs, *node.args.args, *node.args.kwonlyargs]
+                found += [
+                    f"{_name(path)}.{node.name}({a.arg})"
+                    for a in args
+                    if a.annotation is not None and "Protocol" in ast.unparse(a.annotation).split(" | ")
+                ]
+    assert found == []
+
+
+def test_no_module_imports_another_packages_private_names() -> None:
+    """A leading underscore is private to its package (natnet's frame parsers share wire.py's readers)."""
+    found = []
+    for path in _modules():
+        home = _name(path).rsplit(".", 1)[0] if path.name != "__init__.py" else _name(path)
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("beambench"):
+                there = (node.module or "").rsplit(".", 1)[0]
+                private = [a.name for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+                found += [f"{_name(path)}: {node.module}.{n}" for n in private if there != home]
+    assert found == []
+
+
+PROBE_FREE = ("backends", "session")  # capabilities are checked with isinstance on a typing.Protocol here
+
+
+def test_capabilities_are_checked_by_protocol_not_by_probing_attribute_names() -> None:
+    found = []
+    for path in [*_modules(*PROBE_FREE), PACKAGE / "analysis" / "session.py"]:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and node.func.id in ("getattr", "hasattr")
+                and len(node.args) >= 2
+                and isinstance(node.args[1], ast.Constant)
+                and (node.func.id == "hasattr" or len(node.args) == 3)
+            ):
+                found.append(f"{_name(path)}:{node.lineno} {ast.unparse(node)}")
+    assert found == []
+
+
+def test_the_device_rig_reads_the_mocaps_echoes_through_its_protocol_not_its_client() -> None:
+    tree = ast.parse((PACKAGE / "backends" / "hardware.py").read_text())
+    reached = [
+        ast.unparse(n)
+        for n in ast.walk(tree)
+        if (isinstance(n, ast.Attribute) and n.attr == "client")
+        or (isinstance(n, ast.Constant) and n.value == "client")
+    ]
+    assert reached == []
+
+
+MAX_MODULE_LINES = 700
+MAX_FUNCTION_LINES = 100
+
+
+def test_no_import_cycle_of_any_size_even_inside_a_package() -> None:
+    """Strongly connected groups of the import graph (lazy and TYPE_CHECKING imports included): none."""
+    import grimp
+
+    graph = grimp.build_graph("beambench")
+    edges = {m: graph.find_modules_directly_imported_by(m) for m in graph.modules}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    groups: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in edges[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = [stack.pop()]
+            while group[-1] != v:
+                group.append(stack.pop())
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for module in sorted(graph.modules):
+        if module not in index:
+            visit(module)
+    assert groups == []
+
+
+def test_modules_and_functions_stay_small() -> None:
+    long_modules, long_functions = [], []
+    for path in _modules():
+        text = path.read_text()
+        if text.count("\n") > MAX_MODULE_LINES:
+            long_modules.append(f"{_name(path)}: {text.count(chr(10))} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = (node.end_lineno or node.lineno) - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    long_functions.append(f"{_name(path)}.{node.name}: {n} lines")
+    assert (long_modules, long_functions) == ([], [])
+
+
+def test_the_calibration_result_is_built_by_keyword_and_its_budget_shares_are_named() -> None:
+    import dataclasses
+
+    from beambench.studies.calibration.search import Result
+
+    assert all(f.kw_only for f in dataclasses.fields(Result))
+    tree = ast.parse((PACKAGE / "studies" / "calibration" / "search.py").read_text())
+    shares = [
+        ast.unparse(n)
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "over"
+    ]
+    assert shares and all(not isinstance(ast.parse(c).body[0].value.args[0], ast.Constant) for c in shares), shares  # type: ignore[attr-defined]
