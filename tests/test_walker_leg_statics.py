@@ -1,7 +1,8 @@
 """Can strip legs carry the walker? Statics of the physical twin's walker (issue 22) against hand calculations.
 
-The physical set's legs are the contact rig's 20 × 3 × 50 mm TPU strip (sim_backend/rod_physical.yaml). Two hand
-results decide whether the walker stands:
+The physical set's legs are the contact rig's 20 × 3 × 50 mm TPU strip (sim_backend/rod_physical.yaml). The fold
+cases use that strip softened to 14 MPa under the contact rig's 66.5 mm foot and 20 g load (a walker that folds;
+the shipped walker stands: tests/test_walker_twin.py). Two hand results decide whether the walker stands:
 
 - the load split between the soles and the cart's wheels is a moment balance about the wheel line;
 - a sole pushed up by the floor a foot length ``l`` below a sideways leg's tip is an inverted pendulum on the
@@ -12,22 +13,26 @@ A leg hanging straight down (``leg_droop_deg = 90``) carries its sole load along
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import mujoco
 import numpy as np
 import pytest
 
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
-from beambench.sim.models.rod import RodParams
 from beambench.sim.scenes.walker import WalkerParams, WalkerSim, sole_load
 
 PHYSICAL = load_params("physical", model="rod")
-BEAM = make_beam_model("rod5g", PHYSICAL)
+SOFT = replace(PHYSICAL, material=replace(PHYSICAL.material, youngs_modulus=14e6))  # a strip too soft to carry it
+BEAM = make_beam_model("rod5g", SOFT)
+# the contact rig's foot (66.5 mm, 20 g load) on sideways legs clamped width-vertical, unraked
+FOLDING = {"foot_length": 0.0665, "foot_mass": 0.020, "leg_mount_deg": 0.0, "leg_roll_deg": 0.0, "spin": -1.0}
 G = 9.81
 
 
 def _walker(**overrides: float) -> WalkerSim:
-    return WalkerSim(BEAM, 90.0, WalkerParams.with_overrides({**PHYSICAL.walker, **overrides}))
+    return WalkerSim(BEAM, 90.0, WalkerParams.with_overrides({**PHYSICAL.walker, **FOLDING, **overrides}))
 
 
 def walker_normal_forces(sim: WalkerSim) -> dict[str, float]:
@@ -69,16 +74,15 @@ def test_hanging_legs_stand_and_share_the_weight_by_the_moment_balance(motor_x):
 
 
 def test_sideways_strip_legs_fold_in_torsion_under_the_walkers_weight():
-    """The shipped physical walker (sideways legs, the contact rig's 66.5 mm foot): each sole carries ~5× the
-    torsional limit GJ/(L·l) of the strip, and the body falls through the floor (no body collision) within 1 s —
-    the measured reason the physical walker cannot walk (docs/contact-twin.md)."""
-    rod = RodParams.from_beam(PHYSICAL)
+    """A 14 MPa strip under the contact rig's 66.5 mm foot: each sole carries 2.5-6× the torsional limit
+    k/l (k the strip's twist stiffness), and the body falls through the floor (no body collision) within 1 s
+    (docs/walker-twin.md)."""
     sim = _walker()
     try:
         wp = sim.rig
         per_sole = sole_load(sim.physics.model)
-        limit = rod.gj / (rod.length * wp.foot_length)
-        assert 3.0 < per_sole / limit < 10.0, (per_sole, limit)
+        limit = BEAM.torsion_stiffness() / wp.foot_length
+        assert 2.0 < per_sole / limit < 10.0, (per_sole, limit)
         body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
         clamp = wp.foot_length + 0.002
         assert body[-1] < clamp - wp.foot_length, (body[-1], clamp)  # below the floor: the feet folded under
@@ -89,12 +93,11 @@ def test_sideways_strip_legs_fold_in_torsion_under_the_walkers_weight():
 def test_a_light_body_on_sideways_legs_stands_below_the_torsional_limit():
     """The same legs and foot under a body light enough that F·l < GJ/L (motor, offset mass and plate nearly
     massless, cart as shipped): the legs hold, the body sinks only by the strip's bending sag (< 5 mm)."""
-    rod = RodParams.from_beam(PHYSICAL)
     sim = _walker(motor_mass=0.002, eccentric_mass=0.001, plate_mass=0.002, foot_mass=0.002)
     try:
         wp = sim.rig
         per_sole = sole_load(sim.physics.model)
-        assert per_sole < 0.6 * rod.gj / (rod.length * wp.foot_length), per_sole
+        assert per_sole < 0.6 * BEAM.torsion_stiffness() / wp.foot_length, per_sole
         body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
         clamp = wp.foot_length + 0.002
         assert clamp - body[-1] < 5e-3, (clamp, body[-1])
@@ -104,7 +107,7 @@ def test_a_light_body_on_sideways_legs_stands_below_the_torsional_limit():
 
 
 def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
-    """``leg_fold`` (the run's and the dry run's warning) names the shipped physical walker, whose sole load beats
+    """``leg_fold`` (the run's and the dry run's warning) names the 14 MPa strip walker, whose sole load beats
     the torsional limit; not the effective PRB3 walker (twist springs 11x the strip's: it stands), nor legs hanging
     down. Its sole load is the standing PRB3 walker's measured contact force per sole within 3 %."""
     from beambench.sim.scenes.walker import leg_fold
@@ -128,16 +131,21 @@ def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
         prb3.physics.close()
 
 
-def test_a_run_of_the_physical_walker_ends_with_the_fold_warning(tmp_path):
-    """The run's result (stderr) carries the model's warning; the session is written as usual (exit 0)."""
+def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
+    """The run's result (stderr) carries the model's warning; the session is written as usual (exit 0). The set:
+    the 14 MPa strip walker above, as a parameter file (no bounds: the anchored beam's exclude 14 MPa)."""
+    import yaml
     from typer.testing import CliRunner
 
     from beambench.cli import app
 
+    data = {**SOFT.to_dict(), "name": "soft", "walker": {**PHYSICAL.walker, **FOLDING}}
+    data.pop("bounds")
+    (tmp_path / "soft.yaml").write_text(yaml.safe_dump(data))
     proto = tmp_path / "w.yaml"
     proto.write_text(
         "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-        "sim: {model: rod5g, params: physical, noise: false}\n"
+        f"sim: {{model: rod5g, params: {tmp_path / 'soft.yaml'}, noise: false}}\n"
     )
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
     assert res.exit_code == 0, res.output

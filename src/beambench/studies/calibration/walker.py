@@ -47,7 +47,7 @@ if TYPE_CHECKING:
 SPEED_FLOOR_MM_S = 20.0
 MISSING_LANDMARK = 3.0  # objective share of a landmark the twin's curve does not have (no reversal, no forward peak)
 LANDMARK_NAMES = {"reverses_at_hz": "speed reverses (backward → forward)", "peak_at_hz": "fastest forward at"}
-WALKER_UNKNOWNS = (  # the walker's foot_mass and friction (beambench.sim.scenes.walker.WalkerParams)
+WALKER_UNKNOWNS = (  # the walker's foot mass, friction, offset radius (beambench.sim.scenes.walker.WalkerParams)
     Unknown(
         "foot_mass",
         0.001,
@@ -57,6 +57,14 @@ WALKER_UNKNOWNS = (  # the walker's foot_mass and friction (beambench.sim.scenes
         effect=Override(("walker.foot_mass",)),
     ),
     Unknown("friction", 0.35, 0.60, doc="sole–floor Coulomb friction", effect=Override(("walker.friction",))),
+    Unknown(
+        "eccentric_radius",
+        0.003,
+        0.0215,
+        unit="m",
+        doc="radius of the 40 g offset mass on the rotor (the paper gives the mass, not the radius)",
+        effect=Override(("walker.eccentric_radius",)),
+    ),
 )
 STAGES: dict[str, dict[str, Any]] = {
     "coarse": {"settle_s": 3.0, "record_s": 1.5, "timestep": 1.5e-4},
