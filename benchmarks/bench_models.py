@@ -37,8 +37,8 @@ def ladder_part(out: Path, ship: bool) -> dict:
         pareto,
         run_ladder,
         summarize,
-        write_outputs,
     )
+    from beambench.studies.ladder_figures import write_outputs
 
     t0 = time.perf_counter()
     last = [0.0]

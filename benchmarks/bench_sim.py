@@ -29,6 +29,7 @@ from beambench.acquisition.config import load_protocol, parse_protocol
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.backends.sim import build_sim_rig
 from beambench.backends.sim_devices import interp_rows
+from beambench.session.slices import sim_slice
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.scenes.contact_rig import ContactRigSim, default_timestep
@@ -47,7 +48,9 @@ def timed(fn, repeats: int) -> tuple[float, float]:
 
 def rig_run(freq: float, gap_mm: float, seconds: float = 10.0, poll: float = 0.5) -> None:
     """The runner's pattern on the sim rig (0.5 s polls when not realtime): wait and read every stream."""
-    rig = build_sim_rig(parse_protocol(f"sweep: {{frequencies: [{freq}]}}\nsim: {{plate_gap_mm: {gap_mm}}}\n"))
+    rig = build_sim_rig(
+        sim_slice(parse_protocol(f"sweep: {{frequencies: [{freq}]}}\nsim: {{plate_gap_mm: {gap_mm}}}\n"))
+    )
     rig.open()
     rig.motor.arm(MotorLimits(80.0, 10.0, 2.0))
     rig.motor.set_frequency(freq)
@@ -68,7 +71,7 @@ def physics_run(freq: float, gap_mm: float, seconds: float = 10.0) -> None:
 def lab_sweep(prefetch: bool = True, poll: float = 0.5) -> dict[str, float]:
     """The 40-step × 7 s contact sweep through the sim rig, every stream read each ``poll`` s (no HDF5)."""
     protocol, _ = load_protocol(ROOT / "protocols" / "contact_sweep.yaml")
-    rig = build_sim_rig(protocol, prefetch=prefetch)
+    rig = build_sim_rig(sim_slice(protocol), prefetch=prefetch)
     rows = 0
     w0, c0 = time.perf_counter(), time.process_time()
     rig.open()

@@ -146,6 +146,7 @@ def main() -> None:
     from beambench.acquisition.plan import motor_limits, plan
     from beambench.acquisition.runner import Runner
     from beambench.backends.emulated import build_emulated_rig
+    from beambench.session.slices import sim_slice
     from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
     from beambench.sinks.rerun_view import RerunSink
 
@@ -167,7 +168,7 @@ def main() -> None:
     for p in (path, rrd):
         p.unlink(missing_ok=True)
 
-    rig = build_emulated_rig(protocol)
+    rig = build_emulated_rig(sim_slice(protocol))
     peers_pid = rig.peers[0].pid
     rig.open()
     writer = SessionWriter(path, {"protocol": text, "backend": "emulated"})

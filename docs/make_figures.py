@@ -1,102 +1,168 @@
-"""Render the README's pictures with beambench itself: ``python docs/make_figures.py`` (about a minute).
+"""Regenerate every picture in ``docs/img`` from the shipped defaults: ``python docs/make_figures.py``.
 
-1. Runs a short contact sweep on the sim (plate 1 mm below the foot, so it touches) with ``--rerun save``.
-2. ``docs/img/live_view.png``: what the live view shows, drawn from that run's ``.rrd`` as read back with
-   Rerun's own reader (markers in 3-D, plate forces in N, raw load-cell counts) — the viewer itself needs a GPU
-   and a display, so this is a rendering of the recording, not a screenshot of the viewer.
-3. ``docs/img/report_*.png``: figures of ``beambench analyze`` on that session.
+Each picture is made by beambench itself from shipped protocols run as a user would run them (sim backend,
+shipped parameter sets): the contact sweep, the walker sweep and the walker's speed tracking, their reports
+(``beambench analyze``), the real Rerun viewer's own screenshots (``beambench view --screenshot``, headless, needs
+a Vulkan driver) and the README's notebook example. Every PNG carries, in a PNG text chunk, a hash of the shipped
+files it was made from (the protocols and the parameter sets they name); ``tests/test_docs_images.py`` recomputes
+the hashes from the shipped files and fails when a picture was made from other defaults than those shipped.
+
+``--only NAME[,NAME]`` remakes the named pictures only (their runs are still made).
 """
 
 from __future__ import annotations
 
-import shutil
+import argparse
+import hashlib
+import os
 import subprocess
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
 IMG = HERE / "img"
-PROTOCOL = """
-name: readme_demo
-rig: contact
-sweep: {frequencies: [6, 10, 18, 26, 33, 40]}
-settle_s: 1.0
-record_s: 2.0
-amplitude_mm: 2.0
-limits: {max_frequency_hz: 40}
-sim: {model: prb3, params: paper, plate_gap_mm: 1.0, twist_deg: 90, noise: true, seed: 0}
-"""
+HASH_KEY = "beambench:inputs"
+MADE_BY_KEY = "beambench:made-by"
 
 
-def _beambench(*args: str) -> str:
-    res = subprocess.run([sys.executable, "-m", "beambench", *args], capture_output=True, text=True, check=True)
-    return res.stdout.strip().splitlines()[-1]
+@dataclass(frozen=True)
+class Picture:
+    """One documentation picture: the shipped protocols it is made from, and how."""
+
+    protocols: tuple[str, ...]
+    how: str
 
 
-def _columns(rrd: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """entity → (session time s, values) for every temporal entity of the recording."""
-    import rerun.chunk as rc
-
-    out: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
-    for chunk in rc.RrdReader(rrd).stream():
-        if chunk.is_static:
-            continue
-        batch = chunk.to_record_batch()
-        names = batch.schema.names
-        value_col = next((n for n in names if n.endswith((":scalars", ":positions"))), None)
-        if value_col is None or "session_time" not in names:
-            continue
-        t = np.asarray(batch.column("session_time").cast("int64").to_numpy(zero_copy_only=False)) * 1e-9
-        values = np.array([np.asarray(v, float).ravel() for v in batch.column(value_col).to_pylist()])
-        out.setdefault(chunk.entity_path, []).append((t, values))
-    return {k: (np.concatenate([t for t, _ in v]), np.concatenate([x for _, x in v])) for k, v in out.items()}
+PICTURES: dict[str, Picture] = {
+    "report_trajectories.png": Picture(("contact_sweep",), "beambench analyze: trajectories.png"),
+    "report_forces.png": Picture(("contact_sweep",), "beambench analyze: forces.png"),
+    "report_contact_frequency.png": Picture(("contact_sweep",), "beambench analyze: contact_frequency.png"),
+    "report_walking_speed.png": Picture(("walker_sweep",), "beambench analyze: walking_speed.png"),
+    "live_view_contact.png": Picture(("contact_sweep",), "beambench view --screenshot --at 140"),
+    "live_view_walker.png": Picture(("walker_sweep",), "beambench view --screenshot --at 150"),
+    "tracking.png": Picture(("walker_track",), "beambench analyze: tracking.png"),
+    "notebook_step.png": Picture(("contact_sweep",), "the README's notebook example"),
+}
 
 
-def live_view_picture(rrd: Path, path: Path, t0: float, span: float = 0.3) -> None:
-    from matplotlib.figure import Figure
+def shipped_inputs(protocol: str) -> list[Path]:
+    """The shipped files a run of ``protocol`` depends on: the protocol and the parameter set it names."""
+    import yaml
 
-    cols = _columns(rrd)
-    fig = Figure(figsize=(11, 4.6), dpi=110, layout="constrained")
-    grid = fig.add_gridspec(2, 2, width_ratios=[1.1, 1])
-    ax3 = fig.add_subplot(grid[:, 0], projection="3d")
-    for name, color in (("stage", "#2ca02c"), ("tip", "#1f77b4"), ("foot", "#d62728")):
-        t, p = cols[f"/mocap/{name}"]
-        sel = (t >= t0) & (t <= t0 + span)
-        ax3.plot(p[sel, 0], p[sel, 1], p[sel, 2], ".", ms=2, color=color, label=name)
-    ax3.set(xlabel="x (mm)", ylabel="y (mm)", zlabel="z (mm, up)", title="Markers (mm)")
-    ax3.legend(loc="upper left")
-    axf = fig.add_subplot(grid[0, 1])
-    for name, color in (("normal", "#d62728"), ("tangential", "#1f77b4")):
-        t, v = cols[f"/force/{name}"]
-        sel = (t >= t0) & (t <= t0 + span)
-        axf.plot(t[sel], v[sel, 0], lw=0.9, color=color, label=name)
-    axf.set(ylabel="force (N)", title="Plate force (N)")
-    axf.legend(loc="upper right", frameon=False)
-    axc = fig.add_subplot(grid[1, 1], sharex=axf)
-    for k in range(4):
-        t, v = cols[f"/loadcell/lc{k}"]
-        sel = (t >= t0) & (t <= t0 + span)
-        axc.plot(t[sel], v[sel, 0], lw=0.8, label=f"lc{k}")
-    axc.set(xlabel="session time (s)", ylabel="counts", title="Load cells (raw counts)")
-    axc.legend(loc="upper right", ncol=4, frameon=False, fontsize=8)
-    fig.suptitle("Live view content (Rerun recording of `beambench run --rerun save`, read back and drawn)")
-    fig.savefig(path)
+    from beambench.sim.models.params import find_params
+    from beambench.sim.models.registry import model_family
+
+    path = ROOT / "protocols" / f"{protocol}.yaml"
+    data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    sim = data.get("sim") or {}
+    files = [path]
+    model = str(sim.get("model", "prb3"))
+    params = str(sim.get("params", "paper"))
+    family = "prb3" if model == "auto" else model_family(model)
+    found = find_params(params, family)
+    if found is not None:
+        files.append(ROOT / "sim_backend" / found.name)
+    return files
 
 
-def main() -> None:
+def inputs_hash(name: str) -> str:
+    """SHA-256 of the shipped files picture ``name`` is made from (their repository paths and bytes)."""
+    digest = hashlib.sha256()
+    files = sorted({f for p in PICTURES[name].protocols for f in shipped_inputs(p)})
+    for f in files:
+        digest.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+def read_stamp(png: Path) -> str | None:
+    """The inputs hash stored in ``png``, or None."""
+    from PIL import Image
+
+    with Image.open(png) as im:
+        return im.text.get(HASH_KEY) if hasattr(im, "text") else None
+
+
+def stamp(src: Path, name: str) -> None:
+    """Copy ``src`` to ``docs/img/name`` with the inputs hash in a PNG text chunk."""
+    from PIL import Image, PngImagePlugin
+
+    info = PngImagePlugin.PngInfo()
+    info.add_text(HASH_KEY, inputs_hash(name))
+    info.add_text(MADE_BY_KEY, f"python docs/make_figures.py ({PICTURES[name].how})")
+    with Image.open(src) as im:
+        im.load()
+        im.save(IMG / name, pnginfo=info, optimize=True)
+    print(f"  {name}", file=sys.stderr)
+
+
+def _beambench(*args: str) -> Path:
+    """Run a beambench command; its last stdout line (a path)."""
+    env = {**os.environ, "MUJOCO_GL": "disable"}
+    res = subprocess.run([sys.executable, "-m", "beambench", *args], capture_output=True, text=True, env=env)
+    if res.returncode != 0:
+        raise SystemExit(f"beambench {' '.join(args)} failed ({res.returncode}):\n{res.stderr}")
+    return Path(res.stdout.strip().splitlines()[-1])
+
+
+def notebook_picture(session: Path, out: Path) -> None:
+    """The README's notebook example: the last 0.3 s of step 25, stage drive and plate force."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from beambench.analysis import resample_session
+    from beambench.sinks.hdf5 import read_session
+
+    s = read_session(session)
+    df = resample_session(s, 1000)
+    one = df[df.step == 25].iloc[-300:]
+    fig, ax = plt.subplots(2, sharex=True, figsize=(7, 4.2), layout="constrained")
+    ax[0].plot(one.index, one["mocap/data/stage/x"] * 1e3)
+    ax[0].set(ylabel="stage x (mm)")
+    ax[1].plot(one.index, one["loadcell/normal_n"])
+    ax[1].set(ylabel="plate force (N)", xlabel="t (s)")
+    fig.suptitle(f"step 25: {s.steps.frequency_hz[25]:g} Hz")
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", default="", help="comma-separated picture names (default: all)")
+    args = ap.parse_args(argv)
+    only = {n.strip() for n in args.only.split(",") if n.strip()} or set(PICTURES)
+    unknown = only - set(PICTURES)
+    if unknown:
+        raise SystemExit(f"unknown picture(s) {', '.join(sorted(unknown))}; known: {', '.join(PICTURES)}")
     IMG.mkdir(exist_ok=True)
-    with tempfile.TemporaryDirectory() as tmp:
-        tmpdir = Path(tmp)
-        proto = tmpdir / "readme_demo.yaml"
-        proto.write_text(PROTOCOL)
-        session = Path(_beambench("run", str(proto), "--rerun", "save", "--out", str(tmpdir), "--name", "demo"))
-        live_view_picture(session.with_suffix(".rrd"), IMG / "live_view.png", t0=16.0)
-        index = Path(_beambench("analyze", str(session), "--out", str(tmpdir / "report"), "--no-write", "-q"))
-        for name in ("trajectories", "forces", "contact_frequency"):
-            shutil.copy(index.parent / f"{name}.png", IMG / f"report_{name}.png")
+    with tempfile.TemporaryDirectory(prefix="beambench-docs-") as tmp:
+        out = Path(tmp)
+        os.environ["BEAMBENCH_USER_DIR"] = str(out / "user")
+        wanted = {p for n in only for p in PICTURES[n].protocols}
+        for protocol in ("contact_sweep", "walker_sweep", "walker_track"):
+            if protocol not in wanted:
+                continue
+            print(f"running {protocol} ...", file=sys.stderr)
+            session = _beambench("run", protocol, "--rerun", "off", "--out", str(out), "--name", protocol)
+            report = _beambench("analyze", str(session), "--out", str(out / f"{protocol}_report"), "--no-write", "-q")
+            for name in sorted(only):
+                pic = PICTURES[name]
+                if protocol not in pic.protocols:
+                    continue
+                if pic.how.startswith("beambench analyze: "):
+                    stamp(report.parent / pic.how.removeprefix("beambench analyze: "), name)
+                elif pic.how.startswith("beambench view"):
+                    at = pic.how.rsplit(" ", 1)[-1]
+                    shot = out / name
+                    _beambench("view", str(session), "--screenshot", str(shot), "--at", at)
+                    stamp(shot, name)
+                else:
+                    notebook_picture(session, out / name)
+                    stamp(out / name, name)
     print(f"wrote {IMG}")
 
 

@@ -69,9 +69,10 @@ def process_alive(pid: int) -> bool:
 _SOAK = False
 
 
-def fuzz_examples(n: int) -> int:
-    """A Hypothesis test's example count: ``n`` in the soak tier, a fifth of it (at least 50) in the default run."""
-    return n if _SOAK else min(n, max(50, n // 5))
+def fuzz_examples(n: int, least: int = 50) -> int:
+    """A Hypothesis test's example count: ``n`` in the soak tier, a fifth of it (at least ``least``, 50 unless a
+    test whose examples take seconds says fewer) in the default run."""
+    return n if _SOAK else min(n, max(least, n // 5))
 
 
 def pytest_configure(config: pytest.Config) -> None:

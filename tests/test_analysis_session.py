@@ -122,7 +122,7 @@ def test_results_are_stored_in_processing(contact_session, tmp_path):
 def test_resampled_notebook_frame(contact_session):
     _, session, _ = contact_session
     df = resample_session(session, rate_hz=500.0)
-    assert {"mocap/data/stage/x", "mocap/data/foot/z", "loadcell/normal_n", "motor/position"} <= set(df.columns)
+    assert {"mocap/stage_x", "mocap/foot_z", "loadcell/normal_n", "motor/position"} <= set(df.columns)
     dt = np.diff(df.index.to_numpy())
     assert np.allclose(dt, 1 / 500.0, atol=1e-9)
     assert df["loadcell/normal_n"].max() == pytest.approx(1.5, rel=0.05)

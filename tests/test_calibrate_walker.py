@@ -42,6 +42,7 @@ def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
 
     from beambench.acquisition.config import load_protocol
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
     rig = get_rig("walker")
     # the effective walker (PRB3 legs): the physical set's rod legs buckle under this robot (docs/contact-twin.md)
@@ -53,7 +54,7 @@ def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
     assert steps["body_speed_mm_s"].notna().all() and (steps["body_height_mm"] > 30).all()
     path = rig.write(base, values, out["extras"], TARGETS, tmp_path, "cal")
     assert path.exists()
-    scene = build_scene(load_protocol(path)[0])
+    scene = build_scene(sim_slice(load_protocol(path)[0]))
     assert (scene.rig.foot_mass, scene.rig.friction) == (pytest.approx(0.004), pytest.approx(0.45))
 
 
@@ -62,6 +63,7 @@ def test_on_the_physical_set_the_values_go_into_its_walker_block(tmp_path):
     foot mass and friction must land there, in the evaluation and in the written protocol alike."""
     from beambench.acquisition.config import load_protocol
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
     from beambench.sim.models.params import load_params
 
     rig = get_rig("walker")
@@ -70,7 +72,7 @@ def test_on_the_physical_set_the_values_go_into_its_walker_block(tmp_path):
     assert prior.walker, "the shipped walker sweep runs the physical set, which has a walker block"
     values = {"foot_mass": 0.0061, "friction": 0.37}
     path = rig.write(base, values, {}, TARGETS, tmp_path, "cal")
-    scene = build_scene(load_protocol(path)[0])
+    scene = build_scene(sim_slice(load_protocol(path)[0]))
     assert (scene.rig.foot_mass, scene.rig.friction) == (pytest.approx(0.0061), pytest.approx(0.37))
     assert scene.rig.foot_mass != pytest.approx(float(prior.walker.get("foot_mass", 0.0)))
 

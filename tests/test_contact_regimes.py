@@ -147,17 +147,21 @@ def test_effective_stuck_set_keeps_the_foot_down_to_17_hz_where_a_sliding_sole_h
 def test_the_gap_comes_from_the_parameter_set_unless_the_protocol_sets_it():
     from beambench.acquisition.config import parse_protocol
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
     base = "rig: contact\nsweep: {frequencies: [5]}\nsim: {model: %s, params: %s%s}\n"
-    assert build_scene(parse_protocol(base % ("prb3", "contact_paper", ""))).identity()["plate_gap_m"] == 0.0074
-    assert build_scene(parse_protocol(base % ("prb3", "paper", ""))).identity()["plate_gap_m"] == 0.0055
-    over = build_scene(parse_protocol(base % ("prb3", "contact_paper", ", plate_gap_mm: 6.0")))
+    assert (
+        build_scene(sim_slice(parse_protocol(base % ("prb3", "contact_paper", "")))).identity()["plate_gap_m"] == 0.0074
+    )
+    assert build_scene(sim_slice(parse_protocol(base % ("prb3", "paper", "")))).identity()["plate_gap_m"] == 0.0055
+    over = build_scene(sim_slice(parse_protocol(base % ("prb3", "contact_paper", ", plate_gap_mm: 6.0"))))
     assert over.identity()["plate_gap_m"] == pytest.approx(0.006)
 
 
 def test_auto_considers_every_model_with_a_contact_table_and_the_parameter_set():
     from beambench.acquisition.config import parse_protocol
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
     from beambench.sim import selection as select
     from beambench.sim.models.params import has_params
 
@@ -166,7 +170,9 @@ def test_auto_considers_every_model_with_a_contact_table_and_the_parameter_set()
     assert has_params("contact_paper", "prb3") and not has_params("contact_paper", "rod")
     assert has_params("paper", "rod")
     scene = build_scene(
-        parse_protocol("rig: contact\nsweep: {frequencies: [5, 30]}\nsim: {model: auto, params: contact_paper}\n")
+        sim_slice(
+            parse_protocol("rig: contact\nsweep: {frequencies: [5, 30]}\nsim: {model: auto, params: contact_paper}\n")
+        )
     )
     ident = scene.identity()
     assert ident["selection"]["model"] in models and ident["plate_gap_m"] == 0.0074

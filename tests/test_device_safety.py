@@ -17,6 +17,7 @@ from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.odrive.cansimple import AxisState
+from beambench.session.slices import sim_slice
 from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
 
 PROTOCOL = """
@@ -31,7 +32,7 @@ monitors: {mocap_lost_s: null}
 
 def _run(tmp_path, name, inject=None, during=None):
     protocol = parse_protocol(PROTOCOL)
-    rig = build_emulated_rig(protocol, inject=inject)
+    rig = build_emulated_rig(sim_slice(protocol), inject=inject)
     rig.open()
     path = tmp_path / name
     writer = SessionWriter(path, {"protocol": PROTOCOL, "backend": "emulated"})
@@ -122,7 +123,9 @@ def test_the_emulated_peers_run_in_their_own_process_and_the_heartbeat_timeout_i
     from beambench.backends.hardware import DEFAULT_RIG_FILE
 
     assert RigFile().odrive.heartbeat_timeout_s == load_rig_file(DEFAULT_RIG_FILE).odrive.heartbeat_timeout_s == 1.0
-    rig = build_emulated_rig(parse_protocol(PROTOCOL), wiring=RigFile(odrive=OdriveWiring(heartbeat_timeout_s=0.8)))
+    rig = build_emulated_rig(
+        sim_slice(parse_protocol(PROTOCOL)), wiring=RigFile(odrive=OdriveWiring(heartbeat_timeout_s=0.8))
+    )
     peers = rig.peers[0]
     try:
         assert peers.pid != os.getpid() and os.path.exists(f"/proc/{peers.pid}")

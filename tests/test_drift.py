@@ -98,11 +98,12 @@ def test_the_beam_temperature_follows_the_first_order_solution():
 
 def test_the_contact_twin_softens_its_beam_hinges_as_it_warms_and_a_snapshot_undoes_it():
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
     proto = parse_protocol(
         CONTACT + "sim: {model: prb3, thermal_drift: {alpha_per_k: 0.02, tau_s: 500, heat_capacity_j_per_k: 0.01}}\n"
     )
-    scene = build_scene(proto)
+    scene = build_scene(sim_slice(proto))
     th = scene.thermal
     assert th is not None and len(th.joints) == 5  # PRB3's hinges; the stage slider is not scaled
     k0 = scene.physics.model.jnt_stiffness[th.joints].copy()
@@ -124,8 +125,9 @@ def test_the_contact_twin_softens_its_beam_hinges_as_it_warms_and_a_snapshot_und
 
 def test_thermal_drift_is_off_by_default_and_checked():
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
-    assert build_scene(parse_protocol(CONTACT)).thermal is None
+    assert build_scene(sim_slice(parse_protocol(CONTACT))).thermal is None
     with pytest.raises(ConfigError, match=r"sim.thermal_drift.alpha_per_k.*less than or equal to 0.2"):
         parse_protocol(CONTACT + "sim: {thermal_drift: {alpha_per_k: 0.5}}\n", "p.yaml")
     with pytest.raises(ConfigError, match=r"sim.thermal_drift.tau.*unknown field"):
@@ -163,13 +165,14 @@ def _drive(rig, calls, announce):
 
 def test_thermal_drift_gives_the_same_data_computed_ahead_or_on_demand():
     from beambench.backends.sim import SimRig
+    from beambench.session.slices import sim_slice
 
     proto = parse_protocol(
         CONTACT + "sim: {model: prb3, seed: 4, thermal_drift: {alpha_per_k: 0.02, heat_capacity_j_per_k: 0.01}}\n"
     )
     announced = [(10.0, [0.2, 0.2]), (14.0, [0.2, 0.2])]
     actual = [(10.0, [0.2, 0.2]), (14.0, [0.2, 0.1, 0.1])]  # leaves the schedule: the lookahead is undone
-    ahead, state_ahead = _drive(SimRig(proto), actual, announce=announced)
-    on_demand, state = _drive(SimRig(proto, prefetch=False), actual, announce=None)
+    ahead, state_ahead = _drive(SimRig(sim_slice(proto)), actual, announce=announced)
+    on_demand, state = _drive(SimRig(sim_slice(proto), prefetch=False), actual, announce=None)
     np.testing.assert_array_equal(ahead, on_demand)
     assert state_ahead == state and state["stiffness_factor"] < 0.995

@@ -13,6 +13,7 @@ from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.session.run import run_session
+from beambench.session.slices import sim_slice
 from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
 
 PROTOCOL = """
@@ -26,7 +27,7 @@ sim: {seed: 1}
 
 def _run(tmp_path, inject=None, name="emu.h5"):
     protocol = parse_protocol(PROTOCOL)
-    rig = build_emulated_rig(protocol, inject=inject)
+    rig = build_emulated_rig(sim_slice(protocol), inject=inject)
     rig.open()
     path = tmp_path / name
     geometry = rig.mocap.describe().frame.as_dict()
@@ -48,9 +49,10 @@ def clean(tmp_path_factory):
 
 def test_same_layout_as_the_sim_backend(clean):
     from beambench.backends.sim import SimRig
+    from beambench.session.slices import sim_slice
 
     _, s = clean
-    sim = SimRig(parse_protocol(PROTOCOL))
+    sim = SimRig(sim_slice(parse_protocol(PROTOCOL)))
     for stream in sim.streams:
         spec = stream.describe()
         got = s.streams[spec.name]
@@ -232,7 +234,7 @@ def test_a_mocap_frame_carries_the_markers_of_its_exposure_time_however_late_it_
 
     from beambench.backends.emulated import RealtimePhysics
 
-    physics = RealtimePhysics(parse_protocol(PROTOCOL), None)
+    physics = RealtimePhysics(sim_slice(parse_protocol(PROTOCOL)), None)
     physics.advance(0.5)  # rows up to t = 0.5 s of scene time, computed by hand (no thread)
     physics._t0 = time.monotonic() - 0.5  # scene time 0.5 s is now
     exposed = physics._t0 + 0.3003 + physics.lag_s  # a frame exposed at scene time 0.3003 s (between rows)

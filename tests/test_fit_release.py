@@ -230,8 +230,9 @@ def test_fit_command_end_to_end(session, tmp_path):
     assert "k = 0.34" in p.source and "±" in p.source and "95% confidence" in p.source
     proto = parse_protocol(f"rig: release\nsweep: {{frequencies: [0]}}\nsim: {{params: {yaml_path}}}\n")
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
-    scene = build_scene(proto)
+    scene = build_scene(sim_slice(proto))
     assert scene.identity()["params"]["k"] == pytest.approx(p.k)
     scene.physics.close()
     # and the result is in the session's /processing

@@ -14,6 +14,7 @@ from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.odrive.cansimple import AxisState
+from beambench.session.slices import sim_slice
 from beambench.sinks.hdf5 import SessionWriter, read_session
 
 MS = 1_000_000
@@ -73,7 +74,7 @@ PROTOCOL = (
 
 def _run(tmp_path, outage_s: float, max_pause_s: float):
     protocol = parse_protocol(PROTOCOL % max_pause_s)
-    rig = build_emulated_rig(protocol)
+    rig = build_emulated_rig(sim_slice(protocol))
     rig.open()
     path = tmp_path / "mon.h5"
     monitors = build_monitors(protocol, [s.describe().name for s in rig.streams])

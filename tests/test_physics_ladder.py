@@ -11,13 +11,8 @@ from typer.testing import CliRunner
 
 from beambench.sim import selection as select
 from beambench.sim.scenes.free_beam import FREE_BEAM_SETTINGS, frequency_sweep
-from beambench.studies.ladder import (
-    LadderConfig,
-    place_labels,
-    run_ladder,
-    summarize,
-    write_outputs,
-)
+from beambench.studies.ladder import LadderConfig, run_ladder, summarize
+from beambench.studies.ladder_figures import place_labels, write_outputs
 
 TINY = LadderConfig(
     models=("prb3", "rod3g"),
@@ -147,11 +142,12 @@ def test_auto_model_picks_the_timestep_each_frequency_needs():
     scene's identity, and the timestep follows the frequency (not the worst case over the sweep)."""
     from beambench.acquisition.config import parse_protocol
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
     if not select.table_path("contact").exists():
         pytest.skip("no shipped contact table (benchmarks/bench_models.py --part contact --ship)")
     p = parse_protocol("rig: contact\nsweep: {start: 1, stop: 45, step: 1}\nsim: {model: auto, tolerance_mm: 0.1}\n")
-    scene = build_scene(p)
+    scene = build_scene(sim_slice(p))
     sel = scene.identity()["selection"]
     assert sel["tolerance_mm"] == 0.1 and sel["model"] == scene.beam.name
     steps = {float(f): dt for f, dt in sel["timesteps"].items()}
@@ -185,9 +181,10 @@ def test_fixed_model_gets_the_timestep_each_frequency_needs_unless_one_is_given(
     table (recorded in the session); with ``sim.timestep`` that step is used throughout."""
     from beambench.acquisition.config import parse_protocol
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
     base = "rig: contact\nsweep: {frequencies: [2, 20, 40]}\nsim: {model: prb3, integrator: implicitfast%s}\n"
-    planned = build_scene(parse_protocol(base % ""))
+    planned = build_scene(sim_slice(parse_protocol(base % "")))
     sel = planned.identity()["selection"]
     assert sel["model"] == "prb3" and sel["integrator"] == "implicitfast"
     table = select.load_table("contact")
@@ -198,7 +195,7 @@ def test_fixed_model_gets_the_timestep_each_frequency_needs_unless_one_is_given(
         rows = table[(table.model == "prb3") & (table.integrator == "implicitfast") & (table.frequency_hz == f)]
         finer = rows[rows.timestep <= dt + 1e-12]
         assert (finer.err_mm <= 0.1).all() and finer.status.isin(select.STABLE).all()
-    fixed = build_scene(parse_protocol(base % ", timestep: 1.0e-4"))
+    fixed = build_scene(sim_slice(parse_protocol(base % ", timestep: 1.0e-4")))
     assert "selection" not in fixed.identity()
     fixed.set_frequency(2.0)
     assert fixed.physics.timestep == 1e-4

@@ -31,8 +31,9 @@ def test_rig_scenes_at_their_defaults_stay_bounded(rig):
     """The protocol-driven scenes (the sim backend's default model, integrator and timestep policy), swept
     through 1–80 Hz in one run: no MuJoCo instability warning, finite and bounded marker paths."""
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
-    scene = build_scene(parse_protocol(f"rig: {rig}\nsweep: {{frequencies: [1]}}\n"))
+    scene = build_scene(sim_slice(parse_protocol(f"rig: {rig}\nsweep: {{frequencies: [1]}}\n")))
     t = scene.physics.time
     for f in FREQS:
         scene.set_frequency(f)

@@ -132,14 +132,15 @@ def test_protocol_selects_the_named_set_and_refuses_unknown_legs():
     from beambench.acquisition.config import ConfigError, parse_protocol
     from beambench.backends.sim import build_scene
     from beambench.common.resources import shipped_dir
+    from beambench.session.slices import sim_slice
 
     text = (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
-    shipped = build_scene(parse_protocol(text))
+    shipped = build_scene(sim_slice(parse_protocol(text)))
     assert shipped.beam.name == "rod5g" and shipped.beam.params.name == "physical"
     assert shipped.rig == WalkerParams.with_overrides(load_params("physical", model="rod").walker)
     effective = text.replace("model: rod5g", "model: prb3").replace("params: physical", "params: paper")
-    assert build_scene(parse_protocol(effective)).rig == WalkerParams.named("calibrated")
-    guesses = build_scene(parse_protocol(effective.replace("params: paper", "params: walker_paper_guesses")))
+    assert build_scene(sim_slice(parse_protocol(effective))).rig == WalkerParams.named("calibrated")
+    guesses = build_scene(sim_slice(parse_protocol(effective.replace("params: paper", "params: walker_paper_guesses"))))
     assert guesses.rig == WalkerParams.named("paper_guesses")
     with pytest.raises(ConfigError, match=r"sim.model"):
-        build_scene(parse_protocol(text.replace("model: rod5g", "model: beam7")))
+        build_scene(sim_slice(parse_protocol(text.replace("model: rod5g", "model: beam7"))))

@@ -420,10 +420,11 @@ def _sim_runner(tmp_path: Path, stop=None, on_progress=None):
     from beambench.acquisition.plan import motor_limits, plan
     from beambench.acquisition.runner import Runner
     from beambench.backends.sim import SimRig
+    from beambench.session.slices import sim_slice
     from beambench.sinks.hdf5 import SessionWriter
 
     protocol = parse_protocol(ENDLESS)
-    rig = SimRig(protocol)
+    rig = SimRig(sim_slice(protocol))
     rig.open()
     writer = SessionWriter(tmp_path / "s.h5", {"protocol": ENDLESS})
     hub = Hub([writer], critical=(writer,))

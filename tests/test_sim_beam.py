@@ -140,8 +140,9 @@ def test_segmented_rod_runs_in_the_contact_rig_and_mirrors_with_chirality():
     mirror image of the +φ one (this rod's response at 20 Hz is not periodic, so no half-period trick)."""
     from beambench.acquisition.config import parse_protocol
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
-    scene = build_scene(parse_protocol("sweep: {frequencies: [1]}\nsim: {model: rod5}\n"))
+    scene = build_scene(sim_slice(parse_protocol("sweep: {frequencies: [1]}\nsim: {model: rod5}\n")))
     assert scene.physics.model.nv == 1 + 3 * 5 and scene.identity()["model"] == "rod5"
     beam = make_beam_model("rod5", load_params("paper", model="rod"))
     paths = {}

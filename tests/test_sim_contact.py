@@ -11,11 +11,12 @@ from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.config import parse_protocol
 from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.backends.sim import build_sim_rig
+from beambench.session.slices import sim_slice
 
 
 def sweep(text: str, steps: list[tuple[float, float, float]]) -> tuple[list[dict[str, Batch]], object]:
     """Run (frequency, settle_s, record_s) steps; returns the recorded window of each step per stream."""
-    rig = build_sim_rig(parse_protocol(text))
+    rig = build_sim_rig(sim_slice(parse_protocol(text)))
     rig.open()
     rig.motor.arm(MotorLimits(80.0, 10.0, 2.0))
     windows = []

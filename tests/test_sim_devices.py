@@ -15,6 +15,7 @@ from beambench.acquisition.streams import (
     motor_spec,
 )
 from beambench.backends.sim import build_sim_rig
+from beambench.session.slices import sim_slice
 
 BASE = "sweep: {frequencies: [10]}\nlimits: {max_frequency_hz: 40}\n"
 
@@ -44,7 +45,7 @@ def run(rig, freq: float, seconds: float, poll: float = 0.1) -> dict[str, Batch]
 
 @pytest.fixture(scope="module")
 def two_seconds():
-    rig = build_sim_rig(protocol("seed: 7"))
+    rig = build_sim_rig(sim_slice(protocol("seed: 7")))
     rig.open()
     out = run(rig, 12.0, 2.0, poll=0.037)  # odd poll size on purpose
     again = {s.name: len(s.read()) for s in rig.streams}
@@ -111,7 +112,7 @@ def test_identity_names_model_params_timestep_integrator_version(two_seconds):
 
 def test_device_clocks_obey_offset_drift_latency_and_jitter():
     clk = "{offset_s: 2.5, drift_ppm: 80.0, latency_s: 0.001, jitter_s: 0.0002}"
-    rig = build_sim_rig(protocol(f"mocap_clock: {clk}, loadcell_clock: {{offset_s: -0.3, drift_ppm: -40}}"))
+    rig = build_sim_rig(sim_slice(protocol(f"mocap_clock: {clk}, loadcell_clock: {{offset_s: -0.3, drift_ppm: -40}}")))
     rig.open()
     out = run(rig, 5.0, 3.0)
     rig.close()
@@ -135,7 +136,7 @@ def test_device_clocks_obey_offset_drift_latency_and_jitter():
 
 def test_same_seed_same_data_other_seed_other_noise():
     def record(seed: int) -> dict[str, Batch]:
-        rig = build_sim_rig(protocol(f"seed: {seed}"))
+        rig = build_sim_rig(sim_slice(protocol(f"seed: {seed}")))
         rig.open()
         out = run(rig, 20.0, 0.5)
         rig.close()
@@ -153,7 +154,7 @@ def test_same_seed_same_data_other_seed_other_noise():
 
 
 def test_noise_off_gives_exact_tare_counts_without_contact():
-    rig = build_sim_rig(protocol("noise: false, plate_gap_mm: 5.5"))
+    rig = build_sim_rig(sim_slice(protocol("noise: false, plate_gap_mm: 5.5")))
     rig.open()
     out = run(rig, 25.0, 1.0)
     rig.close()
@@ -162,7 +163,7 @@ def test_noise_off_gives_exact_tare_counts_without_contact():
 
 
 def test_motor_refuses_out_of_limit_commands_and_idles():
-    rig = build_sim_rig(protocol())
+    rig = build_sim_rig(sim_slice(protocol()))
     rig.open()
     with pytest.raises(DeviceFault, match="before arm"):
         rig.motor.set_frequency(5.0)
@@ -189,7 +190,7 @@ def test_motor_refuses_out_of_limit_commands_and_idles():
 
 
 def test_current_limit_violation_faults_the_motor():
-    rig = build_sim_rig(protocol())
+    rig = build_sim_rig(sim_slice(protocol()))
     rig.open()
     rig.motor.arm(limits(imax=0.05))
     rig.motor.set_frequency(30.0)
@@ -208,7 +209,7 @@ def test_prefetching_the_next_chunk_changes_nothing():
     """The worker-thread prefetch is undone by commands and odd waits: data identical to plain stepping."""
 
     def record(prefetch: bool) -> dict[str, Batch]:
-        rig = build_sim_rig(protocol("seed: 5, plate_gap_mm: 1.0"), prefetch=prefetch)
+        rig = build_sim_rig(sim_slice(protocol("seed: 5, plate_gap_mm: 1.0")), prefetch=prefetch)
         rig.open()
         rig.motor.arm(limits())
         got: dict[str, list[Batch]] = {s.name: [] for s in rig.streams}

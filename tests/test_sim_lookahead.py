@@ -13,6 +13,7 @@ from beambench.acquisition.runner import record_polls, wait_polls
 from beambench.backends.lookahead import cut_points, script
 from beambench.backends.sim import SimRig
 from beambench.cli import app
+from beambench.session.slices import sim_slice
 from beambench.sinks.hdf5 import read_session
 
 WALKER = """
@@ -86,8 +87,8 @@ def test_script_and_cuts_follow_the_clock():
 
 def test_lookahead_gives_the_data_of_stepping_on_demand():
     plan = [(40.0, [0.3, 0.25, 0.25]), (50.0, [0.3, 0.4])]
-    ahead = drive(SimRig(walker()), plan, announce=plan)
-    on_demand = drive(SimRig(walker(), prefetch=False), plan, announce=None)
+    ahead = drive(SimRig(sim_slice(walker())), plan, announce=plan)
+    on_demand = drive(SimRig(sim_slice(walker()), prefetch=False), plan, announce=None)
     same(ahead, on_demand)
     assert len(ahead["mocap"]["t"]) > 500
 
@@ -95,8 +96,8 @@ def test_lookahead_gives_the_data_of_stepping_on_demand():
 def test_a_run_that_leaves_the_schedule_continues_from_where_it_left():
     announced = [(40.0, [0.3, 0.3]), (50.0, [0.3, 0.3]), (60.0, [0.3])]
     actual = [(40.0, [0.3, 0.3]), (50.0, [0.3, 0.1, 0.2]), (70.0, [0.3])]  # a shorter poll, then another frequency
-    ahead = drive(SimRig(walker("40, 50, 60")), actual, announce=announced)
-    on_demand = drive(SimRig(walker("40, 50, 60"), prefetch=False), actual, announce=None)
+    ahead = drive(SimRig(sim_slice(walker("40, 50, 60"))), actual, announce=announced)
+    on_demand = drive(SimRig(sim_slice(walker("40, 50, 60")), prefetch=False), actual, announce=None)
     same(ahead, on_demand)
 
 

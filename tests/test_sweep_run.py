@@ -155,6 +155,7 @@ def test_sweep_command_writes_table_and_figure(tmp_path):
     assert "3 computed" in res.output and out.exists() and out.with_suffix(".png").exists()
     res = CliRunner().invoke(app, ["sweep", str(f), "--out", str(out), "--workers", "1"])
     assert res.exit_code == 0 and "0 computed, 3 already done" in res.output
+    assert "s: all 3 points done before, nothing to compute" in res.stderr and " on nothing" not in res.stderr
 
 
 def test_batch_sizes_balance_and_bound_tasks():
@@ -241,18 +242,18 @@ import sys
 import matplotlib
 matplotlib.use("svg")  # a user's own choice (a notebook's inline backend, say) must survive
 import numpy as np, pandas as pd
-from beambench.studies import fit, ladder, sweep
+from beambench.studies import fit, fit_figure, ladder_figures, sweep, sweep_figure
 out = sys.argv[1]
 spec = sweep.SweepSpec.model_validate({"grid": {"twist_deg": [0, 90]}, "frequencies": [10, 15]})
 df = pd.DataFrame({"twist_deg": [0, 0, 90, 90], "frequency_hz": [10, 15, 10, 15], "tip_major_mm": [1, 2, 3, 4],
                    "tip_minor_mm": [1, 1, 1, 1], "tip_tilt_deg": [3, 4, 5, 6]})
-sweep.plot_sweep(df, spec, f"{out}/sweep.png")
+sweep_figure.plot_sweep(df, spec, f"{out}/sweep.png")
 t, m = np.linspace(0, 0.1, 20), np.random.default_rng(0).random((20, 3, 3))
 r = fit.FitResult("prb3", {}, fit.default_base("prb3"), 1, 1, 1, 0, 1, 1, 1, 1, True, "", t, m, m, ("a", "b", "c"))
-fit.plot_fit([r], f"{out}/fit.png")
+fit_figure.plot_fit([r], f"{out}/fit.png")
 table = pd.DataFrame({"model": ["prb3", "rod10"], "integrator": ["implicitfast", "euler"], "timestep": [1e-4, 1e-4],
                       "frequency_hz": [5, 5], "status": ["ok", "diverged"]})
-ladder.plot_stability_map(table, f"{out}/map.png")
+ladder_figures.plot_stability_map(table, f"{out}/map.png")
 print(matplotlib.get_backend(), "matplotlib.pyplot" in sys.modules)
 """
 

@@ -13,6 +13,7 @@ from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.backends.hardware import DEFAULT_RIG_FILE
+from beambench.session.slices import sim_slice
 from beambench.sinks.hdf5 import SessionWriter, read_session
 
 PROTOCOL = """
@@ -29,7 +30,7 @@ sim: {model: prb3, timestep: 0.0001, seed: 1}
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     protocol = parse_protocol(PROTOCOL)
-    rig = build_emulated_rig(protocol)
+    rig = build_emulated_rig(sim_slice(protocol))
     rig.open()
     path = tmp_path_factory.mktemp("walker_emu") / "walker.h5"
     general = {"protocol": PROTOCOL, "backend": "emulated", "identity": rig.identity()}

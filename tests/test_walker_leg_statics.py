@@ -152,3 +152,30 @@ def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
     assert "beambench: warning: the walker's rod5g legs fold" in res.stderr, res.stderr
     session = res.stdout.strip().splitlines()[-1]
     assert session.endswith(".h5") and (tmp_path / session).is_file(), res.stdout
+
+
+def test_the_fold_warning_is_kept_in_the_session_and_shown_atop_the_report(tmp_path):
+    """Every warning the run gave is in ``/general/warnings`` (read back as ``Session.warnings``) and is a banner
+    at the top of the report's index.html, before the figures."""
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+    from beambench.sinks.hdf5 import read_session
+
+    proto = tmp_path / "w.yaml"
+    proto.write_text(
+        "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
+        "sim: {model: rod5g, params: physical, noise: false}\n"
+    )
+    res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
+    assert res.exit_code == 0, res.output
+    session = tmp_path / res.stdout.strip().splitlines()[-1]
+    warnings = read_session(session).warnings
+    assert len(warnings) == 1 and "rod5g legs fold" in warnings[0], warnings
+    out = tmp_path / "report"
+    res = CliRunner().invoke(app, ["analyze", str(session), "--out", str(out), "--figures", "none"])
+    assert res.exit_code == 0, res.output
+    page = (out / "index.html").read_text()
+    banner = page.find("class='warn'")
+    assert banner != -1 and "rod5g legs fold" in page[banner : page.find("</p>", banner)], page[:2000]
+    assert banner < page.find("<h2>"), "the banner comes before the report's sections"

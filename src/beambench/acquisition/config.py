@@ -7,13 +7,15 @@ Files are read through :mod:`beambench.common.yaml_config` (size, nesting and al
 from __future__ import annotations
 
 import math
-import unicodedata
+import re
+import string
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from beambench.acquisition.scenes import runnable_names, scene_info
+from beambench.common.names import MAX_NAME_BYTES, check_name
 from beambench.common.yaml_config import MISSING as _MISSING
 from beambench.common.yaml_config import ConfigError, load_yaml_file, parse_yaml, validate
 
@@ -37,26 +39,17 @@ BACKENDS: tuple[str, ...] = get_args(Backend)
 __all__ = ["BACKENDS", "ConfigError", "Protocol", "RigFile", "load_protocol", "load_rig_file", "parse_protocol"]
 
 MAX_STEPS = 10_000  # a sweep longer than this is a typo (1e-9 Hz steps), not a measurement
-MAX_NAME_BYTES = 200  # a session name (the file name without .h5)
+# the lowest drive frequency (Hz) other than 0: one period in 100 s; 1e-320 Hz is a typo, not a measurement
+MIN_FREQUENCY_HZ = 0.01
+# the finest sim.timestep (s): 25x finer than the contact rig's reference (2.5e-5 s); and the most physics steps a
+# run may take at a given timestep (about a day of MuJoCo stepping): both bound what is allocated
+MIN_TIMESTEP_S = 1e-6
+MAX_SIM_STEPS = 10**10
 
 
 class _Model(BaseModel):
     # strict: YAML already types its values, so "5" is not 5 and true is not 1; and every float is finite
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
-
-
-def check_name(name: str, what: str) -> str:
-    """``name`` if it is a usable file name: no control characters, no path separators, <= 200 bytes, not ./.."""
-    if not name or name in (".", ".."):
-        raise ValueError(f"{what} must be a plain file name")
-    bad = next((c for c in name if unicodedata.category(c)[0] == "C"), None)
-    if bad is not None:
-        raise ValueError(f"{what} contains a control character ({bad!r})")
-    if "/" in name or "\\" in name:
-        raise ValueError(f"{what} must be a plain file name (no / or \\)")
-    if len(name.encode("utf-8", "surrogatepass")) > MAX_NAME_BYTES:
-        raise ValueError(f"{what} is longer than {MAX_NAME_BYTES} bytes")
-    return name
 
 
 class Sweep(_Model):
@@ -68,13 +61,21 @@ class Sweep(_Model):
     ``blocks`` (each frequency K times in a row).
     """
 
-    start: float | None = Field(None, gt=0)
-    stop: float | None = Field(None, gt=0)
+    start: float | None = Field(None, ge=MIN_FREQUENCY_HZ)
+    stop: float | None = Field(None, ge=MIN_FREQUENCY_HZ)
     step: float | None = Field(None, gt=0)
     frequencies: list[float] | None = Field(None, max_length=MAX_STEPS)
     direction: Literal["up", "down", "both"] = "up"
     repeats: int = Field(1, ge=1, le=100)
     repeat_order: Literal["interleaved", "blocks"] = "interleaved"
+
+    @field_validator("frequencies")
+    @classmethod
+    def _not_vanishing(cls, v: list[float] | None) -> list[float] | None:
+        tiny = next((f for f in v or [] if 0 < f < MIN_FREQUENCY_HZ), None)
+        if tiny is not None:
+            raise ValueError(f"{tiny:g} Hz: a frequency is 0 or at least {MIN_FREQUENCY_HZ:g} Hz")
+        return v
 
     @model_validator(mode="after")
     def _one_form(self) -> Sweep:
@@ -128,7 +129,7 @@ class Reference(_Model):
     """A reference step at ``frequency_hz`` first, after every ``every_steps`` sweep steps, and last: its drift
     over the session tells a slow change of the rig (e.g. a beam warming up) from a frequency effect."""
 
-    frequency_hz: float = Field(gt=0)
+    frequency_hz: float = Field(ge=MIN_FREQUENCY_HZ)
     every_steps: int = Field(gt=0, le=MAX_STEPS)
 
 
@@ -166,7 +167,7 @@ class SimOptions(_Model):
 
     model: str = Field("prb3", min_length=1, max_length=40)  # checked against the registry by session.checks
     params: str = Field("paper", min_length=1, max_length=400)
-    timestep: float | None = Field(None, gt=0, le=0.01)
+    timestep: float | None = Field(None, ge=MIN_TIMESTEP_S, le=0.01)
     integrator: Integrator = "implicitfast"
     tolerance_mm: float | None = Field(None, gt=0)
     # h' (mm) from the foot's unloaded position; None: the parameter set's rig.plate_gap (paper: 5.5 mm)
@@ -254,10 +255,24 @@ class Output(_Model):
 def format_name(template: str, protocol: str, rig: str, backend: str, date: str) -> str:
     """Fill an ``output.name`` template; any template problem is a ValueError with one short line."""
     try:
+        _check_format_specs(template)
         return template.format(protocol=protocol, rig=rig, backend=backend, date=date)
     except (KeyError, IndexError, ValueError, AttributeError, TypeError) as exc:
         known = "{protocol}, {rig}, {backend}, {date}"
         raise ValueError(f"bad template ({type(exc).__name__}: {str(exc)[:60]}); use {known}") from None
+
+
+def _check_format_specs(template: str) -> None:
+    """Refuse a width or precision that would make a name longer than :data:`MAX_NAME_BYTES` before formatting
+    (``{protocol:>300000000}`` would build 300 MB first) and nested fields in a format spec."""
+    for _, field, spec, _ in string.Formatter().parse(template):
+        if field is None or not spec:
+            continue
+        if "{" in spec or "}" in spec:
+            raise ValueError(f"nested field in {spec[:12]!r}")
+        widths = [int(d) for d in re.findall(r"\d+", spec)] if len(spec) <= 20 else [MAX_NAME_BYTES + 1]
+        if max(widths, default=0) > MAX_NAME_BYTES:
+            raise ValueError(f"format width over {MAX_NAME_BYTES} in {spec[:12]!r}")
 
 
 class Protocol(_Model):
@@ -300,7 +315,23 @@ class Protocol(_Model):
         n = self.n_planned_steps()
         if n > MAX_STEPS:
             raise ValueError(f"sweep: {n:.3g} steps with direction, repeats and reference: more than {MAX_STEPS}")
+        self._check_sim_steps(n)
         return self
+
+    def _check_sim_steps(self, n_steps: float) -> None:
+        """A fixed ``sim.timestep`` may not ask for more than :data:`MAX_SIM_STEPS` physics steps in all."""
+        dt = self.sim.timestep
+        if dt is None:
+            return
+        if self.track is not None:
+            rig_s = sum(seg.hold_s for seg in self.track.segments)
+        else:
+            rig_s = n_steps * (self.settle_s + self.record_s)
+        if rig_s / dt > MAX_SIM_STEPS:
+            raise ValueError(
+                f"sim.timestep = {dt:g} s over {rig_s:g} s of rig time is {rig_s / dt:.3g} physics steps: more than "
+                f"{MAX_SIM_STEPS:.0e} (a coarser timestep, or fewer or shorter steps)"
+            )
 
     def n_planned_steps(self) -> float:
         """Steps the run makes: the sweep (both directions, repeats) plus reference steps."""

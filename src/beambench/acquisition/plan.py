@@ -8,7 +8,8 @@ from datetime import datetime
 from pathlib import Path
 
 from beambench.acquisition.capabilities import MotorLimits
-from beambench.acquisition.config import ConfigError, Protocol, check_name, format_name
+from beambench.acquisition.config import ConfigError, Protocol, format_name
+from beambench.common.names import check_name
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from beambench.analysis.figures import FIGURES, FigureSpec, ReportOptions
 from beambench.analysis.figures.style import R2_SENSE_MIN, SESSION_COLORS
 from beambench.analysis.release import release_table
 from beambench.analysis.session import SessionAnalysis
+from beambench.sinks.hdf5 import session_warnings
 
 __all__ = ["SESSION_COLORS", "SUMMARY_COLUMNS", "figures_of", "make_report", "summary_table", "write_html"]
 
@@ -157,6 +158,18 @@ def _no_contact_notes(analyses: list[SessionAnalysis]) -> list[str]:
     return notes
 
 
+def _warning_banners(analyses: list[SessionAnalysis]) -> list[str]:
+    """A banner at the top for each warning a session's run gave (``/general/warnings``)."""
+    banners = []
+    for a in analyses:
+        who = "" if len(analyses) == 1 else f" ({html.escape(a.label)})"
+        banners += [
+            f"<p class='warn'><strong>Warning from the run{who}:</strong> {html.escape(w)}</p>"
+            for w in session_warnings(a.general)
+        ]
+    return banners
+
+
 def write_html(
     analyses: list[SessionAnalysis],
     out: Path,
@@ -173,8 +186,10 @@ def write_html(
         "img{max-width:100%;border:1px solid #ddd}figure{margin:1.5em 0}figcaption{color:#444;font-size:0.9em}"
         "table{border-collapse:collapse;font-size:0.85em}td,th{padding:2px 8px;border-bottom:1px solid #eee;text-align:left}"
         "pre{background:#f6f6f6;padding:0.8em;overflow:auto}.cols{display:flex;gap:2em;flex-wrap:wrap}"
-        ".note{background:#fff4e0;border-left:4px solid #ff7f0e;padding:0.6em 1em}</style></head><body>",
+        ".note{background:#fff4e0;border-left:4px solid #ff7f0e;padding:0.6em 1em}"
+        ".warn{background:#fde8e8;border-left:4px solid #d62728;padding:0.6em 1em}</style></head><body>",
         f"<h1>{title}</h1>",
+        *_warning_banners(analyses),
         *_no_contact_notes(analyses),
         f"<p>Per-step results: the main columns are at the end of this page; all of them are in "
         f"<a href='{csv_name}'>{csv_name}</a>. Record windows only (t_settled → t_end of each step), "

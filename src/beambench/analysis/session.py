@@ -25,7 +25,7 @@ from beambench.analysis.contact import (
     touchdown_velocity,
 )
 from beambench.analysis.drift import drift_corrected
-from beambench.analysis.path_shape import annotate_inversions, shape_columns
+from beambench.analysis.path_shape import annotate_inversions, path_noise, shape_columns
 from beambench.analysis.signals import NAN_SINE, fit_sinusoid, velocity
 from beambench.analysis.sync import (
     NS,
@@ -52,7 +52,7 @@ from beambench.analysis.trajectory import (
     stage_frame,
 )
 from beambench.analysis.walking import body_speed
-from beambench.sinks.session_frames import step_of
+from beambench.sinks.session_frames import flat_names, step_of
 
 
 @dataclass(frozen=True)
@@ -150,6 +150,11 @@ def _protocol_dict(general: dict[str, Any]) -> dict[str, Any]:
     except yaml.YAMLError:
         return {}
     return data if isinstance(data, dict) else {}
+
+
+def session_rig(general: dict[str, Any]) -> str:
+    """The rig a session was recorded on (its /general, else its protocol's; contact by default)."""
+    return _text(general.get("rig")) or str(_protocol_dict(general).get("rig", "contact"))
 
 
 def _geometry_axis(general: dict[str, Any], key: str) -> str | None:
@@ -380,7 +385,7 @@ def analyze_session(
     """Analyse every step of a session (as returned by :func:`beambench.sinks.hdf5.read_session`)."""
     general = dict(session.general)
     proto = _protocol_dict(general)
-    rig = _text(general.get("rig")) or str(proto.get("rig", "contact"))
+    rig = session_rig(general)
     backend = _text(general.get("backend")) or str(proto.get("backend", ""))
     name = _text(general.get("protocol_name")) or str(proto.get("name", ""))
     amplitude_mm = float(proto.get("amplitude_mm", np.nan)) if proto else float("nan")
@@ -404,6 +409,7 @@ def analyze_session(
         results.append(_analyze_step(srow, a, b, streams.window(a, b) if 0 <= a < b else None, ctx))
         if progress is not None:
             progress(k + 1, n_steps)
+    _shapes(results)
     table = pd.DataFrame([r.row for r in results])
     body = streams.markers.get(options.body_marker)
     track = track_result(session.streams.get("track"), session.steps, streams.mocap_t, body, forward)
@@ -426,6 +432,18 @@ def analyze_session(
         _edge_check(session, fits),
         track=track,
     )
+
+
+def _shapes(results: list[StepResult]) -> None:
+    """Each step's path shape (crossings, loop sense) above the session's mocap noise floor."""
+    tracked = [r for r in results if r.paths and np.isfinite(r.row.get("analysis_frequency_hz", np.nan))]
+    noise = path_noise([(r.paths, r.t_mocap, float(r.row["analysis_frequency_hz"])) for r in tracked])
+    for r in tracked:
+        f = float(r.row["analysis_frequency_hz"])
+        r.row.update(shape_columns(r.paths, r.t_mocap, f, str(r.row.get("regime", "")), noise))
+    if tracked:
+        for r in results:
+            r.row["path_noise_mm"] = noise
 
 
 def _annotated(table: pd.DataFrame, options: AnalysisOptions) -> pd.DataFrame:
@@ -464,7 +482,6 @@ def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepCo
         _contacts(res, arr, ctx, f_use)
     else:
         row["regime"] = ""
-    row.update(shape_columns(res.paths, arr.t_mocap, f_use, str(row["regime"])))
     body = arr.marker(ctx.options.body_marker)
     if body is not None:  # walker: body speed
         sp = body_speed(arr.t_mocap, body, ctx.forward)
@@ -626,7 +643,8 @@ def resample_session(
     """Every stream's numeric columns on one uniform host-clock timeline (a DataFrame indexed by ``t_s``, seconds
     from the earliest sample), for notebooks.
 
-    Columns are named ``stream/column[/label][/axis]`` (``mocap/data/foot/x``, ``motor/axis_state``); load cells
+    Columns are named ``<stream>/<column>`` with the column names of ``Session.to_pandas`` (``mocap/foot_x``,
+    ``mocap/foot_occluded``, ``loadcell/lc0``, ``motor/axis_state``); load cells
     also get calibrated ``loadcell/normal_n`` and ``loadcell/tangential_n``, and ``step`` is the protocol step
     each row falls in (-1 between steps). Float columns are interpolated linearly (NaN where a stream has no data
     or a gap); integer, boolean and enum columns (frame and sequence numbers, occlusion flags, the ODrive's
@@ -675,11 +693,5 @@ def resample_session(
 
 
 def _column_names(stream: str, col: str, shape: tuple[int, ...], labels: list[str]) -> list[str]:
-    if not shape:
-        return [f"{stream}/{col}"]
-    if len(shape) == 1:
-        names = labels if len(labels) == shape[0] else [str(i) for i in range(shape[0])]
-        return [f"{stream}/{col}/{n}" for n in names]
-    first = labels if len(labels) == shape[0] else [str(i) for i in range(shape[0])]
-    axes = "xyz" if shape[-1] == 3 else [str(i) for i in range(shape[-1])]
-    return [f"{stream}/{col}/{m}/{ax}" for m in first for ax in axes]
+    """``<stream>/<name>`` with the names of ``Session.to_pandas`` (``mocap/foot_x``, ``loadcell/lc0``)."""
+    return [f"{stream}/{name}" for name in flat_names(stream, col, shape, tuple(labels))]

@@ -30,11 +30,11 @@ from beambench.acquisition.config import (
     LoadCellWiring,
     NatNetWiring,
     OdriveWiring,
-    Protocol,
     RigFile,
 )
 from beambench.acquisition.scenes import scene_info
 from beambench.backends.hardware import DeviceRig
+from beambench.sim.protocol_slice import SimSlice
 
 
 class RealtimePhysics:
@@ -47,10 +47,10 @@ class RealtimePhysics:
     scheduled for tens of ms under load) still carries the markers of its timestamp.
     """
 
-    def __init__(self, protocol: Protocol, odrive: Any, period_s: float = 0.005, lag_s: float = 0.03) -> None:
+    def __init__(self, sim: SimSlice, odrive: Any, period_s: float = 0.005, lag_s: float = 0.03) -> None:
         from beambench.backends.sim import build_scene
 
-        self.scene = build_scene(protocol)
+        self.scene = build_scene(sim)
         self.odrive = odrive
         self.period_s, self.lag_s = period_s, lag_s
         self._lock = threading.Lock()
@@ -75,20 +75,15 @@ class RealtimePhysics:
 
     def advance(self, t_target: float) -> None:
         speed = float(self.odrive.velocity_turns_s) if self.odrive is not None else 0.0
-        set_frequency = getattr(self.scene, "set_frequency", None)
-        if set_frequency is not None:
-            set_frequency(speed)
-            ramp = getattr(self.scene, "ramp", None)
-            if ramp is not None:
-                ramp.omega = speed
+        self.scene.set_frequency(speed)  # every scene is a DrivenScene: a crank speed, its ramp, a motor torque
+        self.scene.ramp.omega = speed
         traj = self.scene.advance_to(t_target)
         if not len(traj):
             return
         force = traj.channels.get("force_nt", np.zeros((len(traj), 2)))
-        motor_torque = getattr(self.scene, "motor_torque", None)
-        if motor_torque is not None and self.odrive is not None:
+        if self.odrive is not None:
             with contextlib.suppress(KeyError):
-                self.odrive.load_torque_nm = float(motor_torque(traj.channels)[-1])
+                self.odrive.load_torque_nm = float(self.scene.motor_torque(traj.channels)[-1])
         with self._lock:
             keep = self._t[-2000:] if len(self._t) else self._t
             k = len(keep)
@@ -127,7 +122,7 @@ class RealtimePhysics:
 
 
 @contextlib.contextmanager
-def emulated_peers(protocol: Protocol | None = None, physics: bool = False) -> Iterator[RigFile]:
+def emulated_peers() -> Iterator[RigFile]:
     """Start the three emulated peers on loopback/virtual bus/pty; yields the rig wiring that reaches them."""
     from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
     from beambench.emulators.motive import MotiveEmulator
@@ -206,10 +201,26 @@ def _favour_device_threads() -> None:
                 os.setpriority(os.PRIO_PROCESS, t.native_id, -10)
 
 
+@dataclasses.dataclass(frozen=True)
+class PeerSpec:
+    """What the peers' process is started with (the first message on its socket)."""
+
+    sim: SimSlice
+    """The physics driving the peers, and their clocks, noise and seed."""
+    inject: dict[str, Any]
+    """Faults to inject (keys in :data:`INJECTIONS`)."""
+    calibration: LoadCellCalibration
+    """The load-cell MCU's calibration (counts per newton)."""
+    can_port: int
+    """The host's end of the loopback CAN bus."""
+    rig_file: Path | None = None
+    """The rig file whose ``walker:`` motor the emulated ODrive plays (None: the shipped one)."""
+
+
 def _peer_entry(fd: int) -> None:
-    """Entry point of the peers' process: the first message on the socket ``fd`` is the spec. Signals are the
-    acquisition process's business (it stops the peers when it is done); a parent that dies closes the socket,
-    which ends this process."""
+    """Entry point of the peers' process: the first message on the socket ``fd`` is the :class:`PeerSpec`.
+    Signals are the acquisition process's business (it stops the peers when it is done); a parent that dies
+    closes the socket, which ends this process."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     conn = Connection(fd)
     try:
@@ -219,24 +230,33 @@ def _peer_entry(fd: int) -> None:
     _peer_main(conn, spec)
 
 
-def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
-    """The emulated peers' process: Motive, the ODrive, the load-cell MCU and the realtime physics driving them.
+@dataclasses.dataclass
+class _Peers:
+    """The emulators of one peers' process and the physics driving them."""
 
-    Tells the parent where to find them (``ready``), starts on ``start``, answers ``snapshot`` and ``outage``
-    while running, and on ``stop`` stops everything and sends back what it injected (a report).
-    """
+    odrive_bus: Any
+    odrive: Any
+    config: Any
+    physics: RealtimePhysics
+    motive: Any
+    mcu: Any
+    outage: _Outage
+    started: bool = False
+    stop_mcu: threading.Timer | None = None
+
+
+def _make_peers(spec: PeerSpec) -> _Peers:
+    """Motive, the ODrive and the load-cell MCU, driven by the realtime physics of ``spec.sim``."""
     from beambench.emulators.canbus import LoopbackCanBus
     from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock
     from beambench.emulators.motive import EmulatorClock, MotiveEmulator, motive_frame
     from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
 
-    protocol: Protocol = spec["protocol"]
-    inject: dict[str, Any] = spec["inject"]
-    sim = protocol.sim
-    odrive_bus = LoopbackCanBus(0, peer_port=spec["can_port"])  # the ODrive's end of the rig's bus (loopback)
-    config = odrive_config(protocol, spec.get("rig_file"), OdriveEmulatorConfig)
+    inject, sim = spec.inject, spec.sim
+    odrive_bus = LoopbackCanBus(0, peer_port=spec.can_port)  # the ODrive's end of the rig's bus (loopback)
+    config = odrive_config(scene_info(sim.scene).own_motor, spec.rig_file, OdriveEmulatorConfig)
     odrive = EmulatedOdrive(channel=odrive_bus.channel_info, config=config, bus=odrive_bus)
-    physics = RealtimePhysics(protocol, None)
+    physics = RealtimePhysics(sim, None)
     drop = inject.get("mocap_drop")
     outage = _Outage(None if isinstance(drop, float) else drop)
     motive: MotiveEmulator | None = None
@@ -251,17 +271,17 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
         positions=motive_frame(exposed),
         command_port=0,
         multicast=False,
-        clock=EmulatorClock.from_model(sim.mocap_clock),
-        seed=sim.seed,
+        clock=EmulatorClock.from_model(sim.clocks.mocap),
+        seed=sim.settings.seed,
         drop=drop if isinstance(drop, float) else outage,
         occlude=inject.get("mocap_occlude"),
     )
     mcu = EmulatedLoadCellMCU(
         force=physics.force,
-        calibration=spec["calibration"],
-        clock=McuClock(drift_ppm=sim.loadcell_clock.drift_ppm),
-        noise_counts=50.0 if sim.noise else 0.0,
-        seed=sim.seed,
+        calibration=spec.calibration,
+        clock=McuClock(drift_ppm=sim.clocks.loadcell.drift_ppm),
+        noise_counts=50.0 if sim.settings.noise else 0.0,
+        seed=sim.settings.seed,
         faults=LinkFaults(
             crc_error_prob=inject.get("loadcell_crc", 0.0),
             drop_prob=inject.get("loadcell_drop", 0.0),
@@ -269,80 +289,95 @@ def _peer_main(conn: Connection, spec: dict[str, Any]) -> None:
         ),
         tx_buffer=1 << 22,  # frames the emulator sends late when its own process was starved are not lost
     )
-    stop_mcu: threading.Timer | None = None
-    started = False
+    return _Peers(odrive_bus, odrive, config, physics, motive, mcu, outage)
+
+
+def _peer_main(conn: Connection, spec: PeerSpec) -> None:
+    """The emulated peers' process: Motive, the ODrive, the load-cell MCU and the realtime physics driving them.
+
+    Tells the parent where to find them (``ready``), starts on ``start``, answers ``snapshot`` and ``outage``
+    while running, and on ``stop`` stops everything and sends back what it injected (a report).
+    """
+    peers = _make_peers(spec)
     try:
-        motive.start()  # binds its ports; streams once the client connects
-        lc_port = mcu.open()
-        conn.send(
-            (
-                "ready",
-                {
-                    "command_port": motive.command_address[1],
-                    "loadcell_port": lc_port,
-                    "markers": tuple(physics.scene.markers),
-                    "scene": getattr(physics.scene, "identity", dict)(),
-                    "odrive_config": dataclasses.asdict(config),  # the motor the emulated ODrive plays
-                    "can_port": odrive_bus.port,  # the host's end accepts frames from this port only
-                },
-            )
-        )
-        while True:
-            if not conn.poll(0.2):
-                continue
-            cmd, arg = conn.recv()
-            if cmd == "start" and not started:
-                started = True
-                odrive.start()
-                physics.odrive = odrive
-                physics.start()
-                mcu.start()
-                _favour_device_threads()
-                if inject.get("loadcell_stop_s") is not None:
-                    stop_mcu = threading.Timer(float(inject["loadcell_stop_s"]), mcu.stop)
-                    stop_mcu.daemon = True
-                    stop_mcu.start()
-                conn.send(("started", None))
-            elif cmd == "snapshot":
-                conn.send(("snapshot", odrive.snapshot()))
-            elif cmd == "outage":
-                outage.start(float(arg))
-                conn.send(("outage", None))
-            elif cmd == "stop":
-                break
-    except (EOFError, OSError, KeyboardInterrupt):  # the parent went away (killed: SIGKILL, a crash)
-        if started:
-            _await_watchdog(odrive, config.watchdog_timeout_s)
-    finally:
-        if stop_mcu is not None:
-            stop_mcu.cancel()
-        for peer in (mcu, motive, physics, odrive):
-            with contextlib.suppress(Exception):
-                peer.stop()
-        with contextlib.suppress(Exception):
-            odrive_bus.shutdown()
-        report = {
-            "motive": {
-                "dropped_frames": list(motive.dropped_frames),
-                "occlusions": list(motive.occlusions),
-                "frames_sent": motive.frames_sent,
-                "error": repr(motive.error) if motive.error else "",
-            },
-            "mcu": {
-                "injected": mcu.injected.as_dict(),
-                "broken_seqs": list(mcu.broken_seqs),
-                "overflowed_seqs": list(mcu.overflowed_seqs),
-                "error": mcu.error or "",
-            },
-            "odrive": odrive.snapshot(),
-            "physics_error": repr(physics.error) if physics.error else "",
+        peers.motive.start()  # binds its ports; streams once the client connects
+        lc_port = peers.mcu.open()
+        ready = {
+            "command_port": peers.motive.command_address[1],
+            "loadcell_port": lc_port,
+            "markers": tuple(peers.physics.scene.markers),
+            "scene": peers.physics.scene.identity(),
+            "odrive_config": dataclasses.asdict(peers.config),  # the motor the emulated ODrive plays
+            "can_port": peers.odrive_bus.port,  # the host's end accepts frames from this port only
         }
+        conn.send(("ready", ready))
+        _serve(conn, peers, spec.inject)
+    except (EOFError, OSError, KeyboardInterrupt):  # the parent went away (killed: SIGKILL, a crash)
+        if peers.started:
+            _await_watchdog(peers.odrive, peers.config.watchdog_timeout_s)
+    finally:
+        _stop_peers(conn, peers)
+
+
+def _serve(conn: Connection, peers: _Peers, inject: dict[str, Any]) -> None:
+    """Answer the parent's commands until ``stop``."""
+    while True:
+        if not conn.poll(0.2):
+            continue
+        cmd, arg = conn.recv()
+        if cmd == "start" and not peers.started:
+            peers.started = True
+            peers.odrive.start()
+            peers.physics.odrive = peers.odrive
+            peers.physics.start()
+            peers.mcu.start()
+            _favour_device_threads()
+            if inject.get("loadcell_stop_s") is not None:
+                peers.stop_mcu = threading.Timer(float(inject["loadcell_stop_s"]), peers.mcu.stop)
+                peers.stop_mcu.daemon = True
+                peers.stop_mcu.start()
+            conn.send(("started", None))
+        elif cmd == "snapshot":
+            conn.send(("snapshot", peers.odrive.snapshot()))
+        elif cmd == "outage":
+            peers.outage.start(float(arg))
+            conn.send(("outage", None))
+        elif cmd == "stop":
+            return
+
+
+def _stop_peers(conn: Connection, peers: _Peers) -> None:
+    """Stop every peer, then send the parent what they injected (the report) and close the socket."""
+    motive, mcu, physics, odrive = peers.motive, peers.mcu, peers.physics, peers.odrive
+    if peers.stop_mcu is not None:
+        peers.stop_mcu.cancel()
+    for peer in (mcu, motive, physics, odrive):
         with contextlib.suppress(Exception):
-            mcu.close()
-        with contextlib.suppress(Exception):
-            conn.send(("report", report))
-        with contextlib.suppress(Exception):
-            conn.close()
+            peer.stop()
+    with contextlib.suppress(Exception):
+        peers.odrive_bus.shutdown()
+    report = {
+        "motive": {
+            "dropped_frames": list(motive.dropped_frames),
+            "occlusions": list(motive.occlusions),
+            "frames_sent": motive.frames_sent,
+            "error": repr(motive.error) if motive.error else "",
+        },
+        "mcu": {
+            "injected": mcu.injected.as_dict(),
+            "broken_seqs": list(mcu.broken_seqs),
+            "overflowed_seqs": list(mcu.overflowed_seqs),
+            "error": mcu.error or "",
+        },
+        "odrive": odrive.snapshot(),
+        "physics_error": repr(physics.error) if physics.error else "",
+    }
+    with contextlib.suppress(Exception):
+        mcu.close()
+    with contextlib.suppress(Exception):
+        conn.send(("report", report))
+    with contextlib.suppress(Exception):
+        conn.close()
 
 
 def _await_watchdog(odrive: Any, timeout_s: float) -> None:
@@ -386,7 +421,7 @@ class PeerProcess:
     ``mcu.broken_seqs``, ``mcu.overflowed_seqs``, ``odrive.snapshot()`` (as when they stopped).
     """
 
-    def __init__(self, spec: dict[str, Any], ready_timeout_s: float = 60.0) -> None:
+    def __init__(self, spec: PeerSpec, ready_timeout_s: float = 60.0) -> None:
         # a fresh interpreter (like multiprocessing's spawn, without re-importing the caller's __main__, so a
         # script or notebook needs no ``if __name__ == "__main__"`` guard), talking over a socket pair
         parent, child = socket.socketpair()
@@ -493,12 +528,12 @@ class PeerProcess:
                 self.mcu = SimpleNamespace(**{**c, "injected": Injected(**c["injected"])})
 
 
-def odrive_config(protocol: Protocol, rig_file: Path | None, config_type: Any) -> Any:
-    """The emulated ODrive's boot configuration: for the walker, the motor of the rig file's ``walker:`` section
+def odrive_config(own_motor: bool, rig_file: Path | None, config_type: Any) -> Any:
+    """The emulated ODrive's boot configuration: for a scene with its own motor (the walker), the motor of the rig file's ``walker:`` section
     (default: the shipped ``calibration/rig.yaml``; pole pairs, Hall feedback, torque constant, rotor + offset-mass
     inertia); the emulator's default motor for the other rigs. ``vel_limit``/``current_lim`` come from the
     protocol's limits through Set_Limits, as on the bench."""
-    if not scene_info(protocol.rig).own_motor:
+    if not own_motor:
         return config_type(calibration_s=0.2)
     from beambench.acquisition.config import load_rig_file
     from beambench.backends.hardware import DEFAULT_RIG_FILE
@@ -522,7 +557,7 @@ def odrive_config(protocol: Protocol, rig_file: Path | None, config_type: Any) -
 
 
 def build_emulated_rig(
-    protocol: Protocol,
+    sim: SimSlice,
     can_log: Path | None = None,
     rig_file: Path | None = None,
     calibration: LoadCellCalibration | None = None,
@@ -550,15 +585,7 @@ def build_emulated_rig(
     wiring = wiring or RigFile()
     bus = LoopbackCanBus(0)  # the host's end, on loopback: the peers learn its port, it learns theirs
     try:
-        peers = PeerProcess(
-            {
-                "protocol": protocol,
-                "inject": inject,
-                "calibration": calibration or default_calibration(),
-                "can_port": bus.port,
-                "rig_file": rig_file,
-            }
-        )
+        peers = PeerProcess(PeerSpec(sim, inject, calibration or default_calibration(), bus.port, rig_file))
     except BaseException:
         bus.shutdown()
         raise

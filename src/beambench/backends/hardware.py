@@ -21,10 +21,8 @@ from beambench.acquisition.config import (
     LoadCellWiring,
     NatNetWiring,
     OdriveWiring,
-    Protocol,
     load_rig_file,
 )
-from beambench.acquisition.scenes import scene_info
 from beambench.common.resources import shipped_dir
 
 DEFAULT_RIG_FILE = shipped_dir("calibration") / "rig.yaml"
@@ -153,10 +151,6 @@ class DeviceRig:
         return out
 
 
-def _markers(protocol: Protocol) -> tuple[str, ...]:
-    return scene_info(protocol.rig).wired_markers
-
-
 def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
     if od.transport == "usb":
         from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming
@@ -197,13 +191,14 @@ def _make_loadcells(lc: LoadCellWiring) -> Stream:
     return SerialLoadCells(lc.port, lc.baudrate, silence_timeout_s=lc.silence_timeout_s)
 
 
-def build_device_rig(protocol: Protocol, rig_file: Path | None = None, can_log: Path | None = None) -> DeviceRig:
-    """The rig of real drivers against the lab's devices, wired by ``rig_file`` (default: the shipped rig.yaml)."""
+def build_device_rig(markers: tuple[str, ...], rig_file: Path | None = None, can_log: Path | None = None) -> DeviceRig:
+    """The rig of real drivers against the lab's devices, wired by ``rig_file`` (default: the shipped rig.yaml);
+    ``markers``: the ones the mocap is wired to (the scene's)."""
     path = Path(rig_file) if rig_file else DEFAULT_RIG_FILE
     rig = load_rig_file(path)
     return DeviceRig(
         _make_motor(rig.odrive, can_log),
-        _make_mocap(rig.natnet, _markers(protocol), Frame(**rig.geometry.model_dump())),
+        _make_mocap(rig.natnet, markers, Frame(**rig.geometry.model_dump())),
         _make_loadcells(rig.loadcell),
         "hardware",
         extra_identity={"rig_file": path.read_text()},

@@ -21,8 +21,8 @@ import numpy as np
 
 from beambench.acquisition.calibration import default_calibration
 from beambench.acquisition.capabilities import Stream, WarnsOfModel
-from beambench.acquisition.config import ClockModel, ConfigError, Protocol, SimOptions
-from beambench.acquisition.scenes import SceneInfo, foreign_option, runnable_names, scene_info
+from beambench.acquisition.config import ClockModel, ConfigError
+from beambench.acquisition.scenes import scene_info
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
 from beambench.backends import lookahead
 from beambench.backends.sim_devices import (
@@ -34,122 +34,57 @@ from beambench.backends.sim_devices import (
 )
 from beambench.sim import scenes
 from beambench.sim.engine.stepping import Trajectory
-from beambench.sim.models.params import has_params
-from beambench.sim.models.registry import UnknownModelError, beam_model, model_family
+from beambench.sim.models.registry import UnknownModelError, beam_model
+from beambench.sim.protocol_slice import SimSlice
 from beambench.sim.scenes import SceneConfig
 from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
 
-def build_scene(protocol: Protocol) -> DrivenScene:
-    """The MuJoCo scene for ``protocol.rig`` (the scene registry's builder) with the protocol's sim options."""
-    sim = protocol.sim
-    info = scene_info(protocol.rig)
-    _check_scene_options(info, sim)
-    plan = _contact_plan(protocol)
-    model_name = plan.model if plan else sim.model
+def build_scene(sim: SimSlice) -> DrivenScene:
+    """The MuJoCo scene of ``sim`` (the scene registry's builder), its beam made from the slice's model and set."""
     try:
-        beam = beam_model(model_name, sim.params)
+        beam = beam_model(sim.model, sim.params)
     except UnknownModelError as exc:
         raise ConfigError("<protocol>", "sim.model", sim.model, str(exc).split(": ", 1)[-1]) from None
-    slice_ = SceneConfig(
-        beam,
-        sim,
-        amplitude_mm=protocol.amplitude_mm,
-        settle_s=protocol.settle_s,
-        record_s=protocol.record_s,
-        release=protocol.release,
-        plan=plan,
-    )
-    return scenes.get(info.name).build(slice_)
-
-
-def _check_scene_options(info: SceneInfo, sim: SimOptions) -> None:
-    """``sim.model: auto`` needs a measured table; another scene's options (set to other than their default) are
-    refused with one line."""
-    if sim.model == "auto" and not info.measured_table:
-        tabled = " or ".join(n for n in runnable_names() if scene_info(n).measured_table)
-        reason = f"auto chooses from the measured {tabled}-rig table (rig: {tabled}); name a model (prb3, rod10 …)"
-        raise ConfigError("<protocol>", "sim.model", sim.model, reason)
-    defaults = SimOptions.model_fields
-    given = {k for k in sim.model_fields_set if getattr(sim, k) != defaults[k].default}
-    foreign = foreign_option(info.name, given, "rig")
-    if foreign is not None:
-        option, reason = foreign
-        value = getattr(sim, option)
-        shown = value.model_dump(exclude_unset=True) if hasattr(value, "model_dump") else value  # a block as written
-        raise ConfigError("<protocol>", f"sim.{option}", shown, reason)
-
-
-AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
-
-
-def _contact_plan(protocol: Protocol):
-    """The measured plan of a scene with a measured table (the contact rig; :mod:`beambench.sim.selection`),
-    within ``sim.tolerance_mm``:
-
-    - ``sim.model: auto``: the cheapest (model, integrator, timestep per frequency); a tolerance nothing
-      meets is a ConfigError;
-    - a named model without ``sim.timestep``: the timestep each frequency needs for that model and
-      integrator, or None (the rig's fixed policy) when the table does not cover them.
-
-    None for scenes without a measured table and for a fixed ``sim.timestep``."""
-    from beambench.sim import selection as select
-
-    sim = protocol.sim
-    auto = sim.model == "auto"
-    if not scene_info(protocol.rig).measured_table or (not auto and sim.timestep is not None):
-        return None
-    tol = sim.tolerance_mm or AUTO_TOLERANCE_MM
-    if auto:  # every model with a contact table whose family has the protocol's parameter set
-        found = [m for m in select.table_models(protocol.rig) if has_params(sim.params, model_family(m))]
-        models, integrators = (found or None), None
-    else:
-        models, integrators = [sim.model], [sim.integrator]
-    try:
-        freqs = protocol.sweep.values() if protocol.sweep is not None else []
-        return select.plan_sweep(protocol.rig, tol, freqs, models=models, integrators=integrators)
-    except select.SelectionError as exc:
-        if auto:
-            raise ConfigError("<protocol>", "sim.tolerance_mm", tol, str(exc)) from None
-        return None
+    return scenes.get(sim.scene).build(SceneConfig(beam, sim))
 
 
 class SimRig:
     """Clock, motor and streams of a simulated rig (``Rig`` protocol)."""
 
     def __init__(
-        self, protocol: Protocol, realtime: bool = False, scene: DrivenScene | None = None, prefetch: bool = True
+        self, sim: SimSlice, realtime: bool = False, scene: DrivenScene | None = None, prefetch: bool = True
     ) -> None:
-        self.protocol = protocol
-        sim = protocol.sim
-        self.scene = scene or build_scene(protocol)
-        seeds = np.random.SeedSequence(sim.seed).spawn(3)
+        self.sim = sim
+        noise = sim.settings.noise
+        self.scene = scene or build_scene(sim)
+        seeds = np.random.SeedSequence(sim.settings.seed).spawn(3)
         rng_mocap, rng_lc, rng_motor = (np.random.default_rng(s) for s in seeds)
         self.clock = SimClock(self._advance, realtime=realtime)
-        mocap_clock = DeviceClock(sim.mocap_clock, MOCAP_RATE_HZ, rng_mocap)
-        self.mocap = SimMocap(self.scene.markers, mocap_clock, rng_mocap, noise_m=1e-4 if sim.noise else 0.0)
+        mocap_clock = DeviceClock(sim.clocks.mocap, MOCAP_RATE_HZ, rng_mocap)
+        self.mocap = SimMocap(self.scene.markers, mocap_clock, rng_mocap, noise_m=1e-4 if noise else 0.0)
         self.loadcells = SimLoadCells(
-            DeviceClock(sim.loadcell_clock, LOADCELL_RATE_HZ, rng_lc),
+            DeviceClock(sim.clocks.loadcell, LOADCELL_RATE_HZ, rng_lc),
             default_calibration(),
             mocap_clock,
             rng_lc,
-            noise_counts=15.0 if sim.noise else 0.0,
+            noise_counts=15.0 if noise else 0.0,
         )
         rig = self.scene.rig
         self.motor = SimMotor(
-            DeviceClock(sim.motor_clock, MOTOR_RATE_HZ, rng_motor),
+            DeviceClock(sim.clocks.motor, MOTOR_RATE_HZ, rng_motor),
             self.scene.ramp,
             self.scene.motor_torque,
             self._command,
             rng_motor,
             torque_constant=rig.torque_constant,
             bus_voltage=rig.bus_voltage,
-            noise=sim.noise,
+            noise=noise,
             now=lambda: self.clock.now_ns() * 1e-9,
         )
-        self.motor.amplitude_mm = protocol.amplitude_mm if scene_info(protocol.rig).stage else None
+        self.motor.amplitude_mm = None if sim.stage_amplitude_m is None else sim.stage_amplitude_m * 1e3
         self.streams: list[Stream] = [self.motor, self.mocap, self.loadcells]
         self._devices = [self.motor, self.mocap, self.loadcells]
         self._hist: Trajectory | None = None
@@ -157,7 +92,7 @@ class SimRig:
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="sim-prefetch") if prefetch else None
         self._ahead: tuple[int, Future, tuple] | None = None  # (target ns, job, snapshot to undo it)
         self._last_ns = 0
-        self._own_scene = scene is None  # segments need copies of the scene, built from the protocol
+        self._own_scene = scene is None  # segments need copies of the scene, built from the slice
         self._look: lookahead.Lookahead | None = None
         self._look_info: dict[str, Any] | None = None
         self._scenes: list[DrivenScene] = [self.scene]  # every scene built (segments), closed at the end
@@ -198,9 +133,9 @@ class SimRig:
             return
         self._undo_ahead()
         calls = lookahead.script(schedule, self.clock.now_ns(), int(self.clock.max_chunk_s * 1e9))
-        segments = self.protocol.sim.segments if self._own_scene else 1
+        segments = self.sim.segments if self._own_scene else 1
         cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, getattr(self.scene, "step_cost", None))
-        clones = [build_scene(self.protocol) for _ in cuts]
+        clones = [build_scene(self.sim) for _ in cuts]
         self._scenes += clones
         self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
 
@@ -290,38 +225,38 @@ class SimRig:
             device.check()
 
     def identity(self) -> dict[str, Any]:
-        sim = self.protocol.sim
+        sim = self.sim
 
         def clock(c: ClockModel) -> dict[str, float]:
             return c.model_dump()
 
         return {
             "backend": "sim",
-            "rig": self.protocol.rig,
+            "rig": sim.scene,
             "model": self.scene.identity(),
             "mujoco_version": mujoco.__version__,
-            "seed": sim.seed,
-            "noise": sim.noise,
+            "seed": sim.settings.seed,
+            "noise": sim.settings.noise,
             "devices": {
                 "motor": {
                     "kind": "SimMotor (ODrive-like velocity ramp)",
                     "rate_hz": MOTOR_RATE_HZ,
-                    "clock": clock(sim.motor_clock),
+                    "clock": clock(sim.clocks.motor),
                 },
                 "mocap": {
                     "kind": "SimMocap (Motive-like labeled markers)",
                     "rate_hz": MOCAP_RATE_HZ,
                     "markers": list(self.scene.markers),
                     "noise_m": self.mocap.noise_m,
-                    "clock": clock(sim.mocap_clock),
+                    "clock": clock(sim.clocks.mocap),
                 },
                 "loadcell": {
                     "kind": "SimLoadCells (4 raw channels, boxcar over the sample period)",
                     "rate_hz": LOADCELL_RATE_HZ,
                     "noise_counts": self.loadcells.noise,
                     "calibration": self.loadcells.cal.source,
-                    "clock": clock(sim.loadcell_clock),
-                    "plate": scene_info(self.protocol.rig).plate,
+                    "clock": clock(sim.clocks.loadcell),
+                    "plate": scene_info(sim.scene).plate,
                 },
             },
         }
@@ -341,6 +276,6 @@ class _ShiftedRamp:
         return getattr(self._ramp, name)
 
 
-def build_sim_rig(protocol: Protocol, realtime: bool = False, prefetch: bool = True) -> SimRig:
-    """The sim backend's rig for ``protocol`` (contact rig or walker)."""
-    return SimRig(protocol, realtime=realtime, prefetch=prefetch)
+def build_sim_rig(sim: SimSlice, realtime: bool = False, prefetch: bool = True) -> SimRig:
+    """The sim backend's rig for a protocol's simulation slice (contact rig, walker or release test)."""
+    return SimRig(sim, realtime=realtime, prefetch=prefetch)

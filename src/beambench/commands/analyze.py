@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import typer
 
@@ -75,19 +75,41 @@ def _options(up: str | None, forward: str | None, drift_correct: bool = False) -
     return AnalysisOptions(up=up, forward=forward, drift_correct=drift_correct)
 
 
-def _load(path: Path, options: AnalysisOptions, progress, write: bool) -> SessionAnalysis:
-    """Read and analyse one session, with a progress task; errors become one line and exit code 2."""
-    from beambench.analysis.session import analyze_session, write_results
-    from beambench.sinks.hdf5 import read_session
+def _read(path: Path) -> Any:
+    """Read one session; a missing, foreign or empty file becomes one line and exit code 2."""
+    from beambench.sinks.hdf5 import SessionFileError, read_session
 
     if not path.is_file():
         fail(f"{path}: no such file")
     try:
         session = read_session(path)
+    except SessionFileError as exc:  # already one line naming the file
+        fail(str(exc))
     except (OSError, KeyError) as exc:
         fail(f"{path}: not a beambench session file ({exc})")
     if len(session.steps) == 0:
         fail(f"{path}: the session has no steps to analyse")
+    return session
+
+
+def _same_rig(a: Path, b: Path, sessions: list[Any]) -> None:
+    """Refuse to overlay sessions of different rigs (their figures measure different things): exit 2."""
+    from beambench.analysis.session import session_rig
+
+    rigs = [session_rig(dict(s.general)) for s in sessions]
+    if rigs[0] != rigs[1]:
+        fail(
+            f"compare: {a.name} is a {rigs[0]} session and {b.name} a {rigs[1]} session: the rigs differ, "
+            "so their figures cannot be overlaid (compare two sessions of one rig)"
+        )
+
+
+def _load(path: Path, options: AnalysisOptions, progress, write: bool, session: Any = None) -> SessionAnalysis:
+    """Read (unless given) and analyse one session, with a progress task; errors become one line and exit
+    code 2."""
+    from beambench.analysis.session import analyze_session, write_results
+
+    session = session if session is not None else _read(path)
     task = progress.add_task(f"analysing {path.name}", total=len(session.steps))
     try:
         analysis = analyze_session(session, options, lambda k, n: progress.update(task, completed=k))
@@ -138,12 +160,13 @@ def _progress(quiet: bool):
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
-        Progress,
         TextColumn,
         TimeElapsedColumn,
     )
 
-    return Progress(
+    from beambench.common.console import LogProgress
+
+    return LogProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
@@ -245,8 +268,10 @@ def register(app: typer.Typer) -> None:
         opts = _options(up, forward)
         folder = out or a.with_name(f"{a.stem}_vs_{b.stem}_report")
         _check_outputs(folder, [] if no_write else [a, b])
+        sessions = [_read(p) for p in (a, b)]
+        _same_rig(a, b, sessions)
         with _progress(quiet) as progress:
-            analyses = [_load(p, opts, progress, not no_write) for p in (a, b)]
+            analyses = [_load(p, opts, progress, not no_write, s) for p, s in zip((a, b), sessions)]
             if analyses[0].label == analyses[1].label:  # same file name in two folders: say which is which
                 for x in analyses:
                     x.name = f"{x.path.parent.name}/{x.path.stem}" if x.path else x.label

@@ -39,7 +39,7 @@ def models(
     quick: bool = typer.Option(
         False,
         "--quick",
-        help="A small ladder (3 models, 3 frequencies, short windows): "
+        help="A small ladder (4 models: PRB3, two rods and the twins' rod5g; 3 frequencies, short windows): "
         "under 2 minutes on 2 cores. Without it: the full ladder (tens of minutes).",
     ),
     out: Path | None = typer.Option(
@@ -66,25 +66,24 @@ def models(
     from rich.console import Console
     from rich.progress import (
         BarColumn,
-        Progress,
         TextColumn,
         TimeElapsedColumn,
         TimeRemainingColumn,
     )
 
-    from beambench.common.console import stderr_console
+    from beambench.common.console import LogProgress, stderr_console
     from beambench.studies.ladder import (
         FULL,
         QUICK,
         run_ladder,
         summarize,
-        write_outputs,
     )
+    from beambench.studies.ladder_figures import write_outputs
 
     cfg = replace(QUICK if quick else FULL, nthread=threads or None)
     console = stderr_console()
     t0 = time.perf_counter()
-    with Progress(
+    with LogProgress(
         TextColumn("[bold]{task.description:<40}"),
         BarColumn(),
         TextColumn("{task.percentage:>3.0f}%"),

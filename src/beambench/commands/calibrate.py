@@ -72,7 +72,10 @@ def loadcells(
     duration: float = typer.Option(1.0, "--duration", help="Seconds recorded per step (at least 0.05)."),
     settle: float = typer.Option(0.5, "--settle", help="Seconds waited after Enter before recording."),
     emulate: bool = typer.Option(
-        False, "--emulate", help="Demo against an emulated MCU on a pty (loads applied for you)."
+        False,
+        "--emulate",
+        help=f"Demo against an emulated MCU on a pty (loads applied for you); saves {EMULATE_OUT_NAME}, not "
+        f"{OUT_NAME}, so a demo never replaces the lab's calibration.",
     ),
     yes: bool = typer.Option(
         False,
@@ -84,7 +87,8 @@ def loadcells(
 ) -> None:
     """Walk through a load-cell calibration: tare (per channel), known loads, least-squares 2×4 matrix, save.
 
-    The result goes to --out or to the per-user folder; the package's shipped calibration is never changed.
+    The result goes to --out or to the per-user folder's calibration/loadcells.yaml (with --emulate:
+    loadcells-emulated.yaml); the package's shipped calibration is never changed.
     """
     from beambench.acquisition.capabilities import DeviceFault
     from beambench.common.console import stderr_console

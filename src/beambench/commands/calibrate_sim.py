@@ -99,28 +99,32 @@ def sim(
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
     runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
     whether the twin reached it."""
-    from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-    from beambench.common.console import stderr_console
+    from beambench.common.console import LogProgress, stderr_console
     from beambench.common.errors import BeambenchError
+    from beambench.common.names import check_name
     from beambench.common.resources import resolve_file
     from beambench.studies.calibration import SearchSettings, calibrate, get_rig, write_report
     from beambench.studies.calibration.targets import load_targets, session_targets
-    from beambench.studies.executor import ExecutorError
+    from beambench.studies.executor import MAX_LOCAL_WORKERS, ExecutorError
 
     if (session is None) == (targets is None):
         _fail("give a SESSION file or --targets FILE (one of them)")
     if not budget_s > 0:
         _fail(f"--budget-s = {budget_s:g}: must be > 0")
-    if workers is not None and workers < 1:
-        _fail(f"--workers = {workers}: must be >= 1")
+    if workers is not None and not 1 <= workers <= MAX_LOCAL_WORKERS:
+        _fail(f"--workers = {workers}: must be 1 to {MAX_LOCAL_WORKERS} (local worker processes)")
     try:
         tg = session_targets(session) if session is not None else load_targets(resolve_file("targets", targets))  # type: ignore[arg-type]
         get_rig(tg.rig)
     except BeambenchError as exc:
         _fail(str(exc))
     stem = (session or targets).stem  # type: ignore[union-attr]
-    name = name or f"{stem}_calibrated"
+    try:  # before anything is written: the evaluation log, the parameter set and the protocol are named by it
+        name = check_name(name, "--name") if name is not None else check_name(f"{stem}_calibrated", "the output name")
+    except ValueError as exc:
+        _fail(str(exc))
     out_dir = out or default_out()
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -149,7 +153,7 @@ def sim(
         TimeElapsedColumn(),
     )
     try:
-        with Progress(*cols, console=console, transient=False) as progress:
+        with LogProgress(*cols, console=console, transient=False) as progress:
             result = calibrate(
                 tg, out_dir, name, workers=workers, scheduler=scheduler, settings=settings, progress=progress
             )

@@ -91,21 +91,22 @@ def fit(args: FitArgs) -> None:
     from rich.console import Console
 
     from beambench.common.console import stderr_console
-    from beambench.studies.fit import FitError, load_release_session, plot_fit
+    from beambench.studies.fit import FitError, load_release_session
+    from beambench.studies.fit_figure import plot_fit
 
     models = _checked(args)
     session = args.session
     name = args.name or re.sub(r"[^A-Za-z0-9_.-]", "_", session.stem)
     out = args.out or session.with_name(session.stem + "_fit")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
     console = stderr_console()
     try:
         data = load_release_session(session, register=args.register)
     except FitError as exc:
         fail(str(exc))
+    try:  # after the session is read: a refused session leaves no folder behind
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        fail(f"--out = {str(out)!r}: cannot create ({exc.strerror or exc})")
     results = [_fit_one(data, m, args, console) for m in models]
     _print_results(results, data, Console())
     fig = plot_fit(results, out / f"fit_{session.stem}.png", title=f"Release test {session.name}: measured vs fitted")
@@ -114,9 +115,17 @@ def fit(args: FitArgs) -> None:
 
 def _checked(args: FitArgs) -> list[str]:
     """The models to fit; one line and exit 2 for bad options."""
+    from beambench.common.names import check_name
     from beambench.sim.models.registry import UnknownModelError, canonical_model
 
     models = [m.strip() for m in args.model.split(",") if m.strip()]
+    if not models:
+        fail(f"--model = {args.model[:40]!r}: name a model: prb3, rod, or rodN (e.g. rod10)")
+    if args.name is not None:
+        try:  # the parameter set is <model>_<name>.yaml in its folder: one path component
+            check_name(args.name, "--name")
+        except ValueError as exc:
+            fail(str(exc))
     for m in models:
         try:
             canonical_model(m)
@@ -144,8 +153,9 @@ def _checked(args: FitArgs) -> list[str]:
 
 def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
     """One model's fit, with a progress bar."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 
+    from beambench.common.console import LogProgress
     from beambench.studies.fit import FitError, FitOptions, fit_release
 
     options = FitOptions(
@@ -158,7 +168,7 @@ def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
         timestep=args.timestep,
         nthread=args.threads or None,
     )
-    with Progress(
+    with LogProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         TextColumn("step {task.completed:.0f}"),

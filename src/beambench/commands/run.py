@@ -92,10 +92,17 @@ def run(
         if chosen not in BACKENDS:  # typer checks the flag; this guards a bad protocol value
             raise ConfigError("<cli>", "--backend", chosen, f"must be one of {', '.join(BACKENDS)}")
         check_protocol(protocol, str(protocol_file), chosen, can_log)  # every field, dry run included
+        from_protocol = rig_file is None and protocol.rig_file is not None
+        rig_file = rig_file or protocol_rig_file(protocol, protocol_file)  # --rig, else the protocol's rig_file
         if rig_file is not None:  # every input file too: kind, size, fields
             from beambench.acquisition.config import load_rig_file
 
-            load_rig_file(rig_file)
+            try:
+                load_rig_file(rig_file)
+            except ConfigError as exc:
+                if not from_protocol:
+                    raise
+                raise ConfigError(f"{protocol_file}: rig_file: {exc}") from None
         mode: RerunMode = rerun or default_rerun_mode()
         if dry_run:
             print_dry_run(summary(protocol, chosen), expected_run_time(protocol, chosen, realtime))
@@ -114,6 +121,15 @@ def run(
     except RigStartError as exc:
         fail(f"{exc} (motor idled; no session written)", EXIT_FAULT)
     report_run(result.status, result.message, path, mode == "save", result.warnings)
+
+
+def protocol_rig_file(protocol: Protocol, protocol_file: Path) -> Path | None:
+    """The protocol's ``rig_file:`` (a relative path is taken from the protocol's folder), used when ``--rig`` is
+    not given; it is read and checked like ``--rig``."""
+    if not protocol.rig_file:
+        return None
+    given = Path(protocol.rig_file).expanduser()
+    return given if given.is_absolute() else protocol_file.parent / given
 
 
 RUN_EXIT_CODES = {"completed": EXIT_OK, "interrupted": EXIT_STOPPED, "failed": EXIT_SINK}
@@ -149,10 +165,10 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
     total = sum(s.duration_s for s in steps)
     if backend != "sim" or realtime:
         return f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
-    from beambench.backends.sim import _contact_plan
+    from beambench.session.slices import sim_slice
 
     try:
-        sim_plan = _contact_plan(protocol)
+        sim_plan = sim_slice(protocol).plan
     except ConfigError:
         sim_plan = None
     if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
@@ -262,9 +278,12 @@ def view(
         if rrd.exists():
             fail(f"{rrd}: exists; give another --out (view never overwrites a recording)")
     from beambench.session.replay import replay_session
+    from beambench.sinks.hdf5 import SessionFileError
 
     try:
         written = replay_session(session, mode, rrd)
+    except SessionFileError as exc:  # already one line naming the file
+        fail(str(exc))
     except OSError as exc:
         fail(f"{session}: cannot read session ({exc})")
     if written is not None:
@@ -274,6 +293,7 @@ def view(
 def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) -> None:
     """``view --screenshot``: the picture's path on stdout, or one line saying what is missing."""
     from beambench.session.viewer import ViewerUnavailable, session_screenshot
+    from beambench.sinks.hdf5 import SessionFileError
 
     if png.suffix.lower() != ".png":
         fail(f"{png}: --screenshot writes a PNG (give FILE.png)")
@@ -286,6 +306,8 @@ def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) ->
     except ViewerUnavailable as exc:
         fail(f"cannot take a screenshot: {exc}")
     except ValueError as exc:
+        fail(str(exc))
+    except SessionFileError as exc:  # already one line naming the file
         fail(str(exc))
     except OSError as exc:
         fail(f"{session}: cannot read session ({exc})")

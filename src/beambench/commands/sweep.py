@@ -59,10 +59,13 @@ def sweep(
     contacts per cycle, regime) go to one Parquet table, saved as each task finishes. Rerunning the
     same command skips finished points, so an interrupted sweep resumes where it stopped.
     """
+    from beambench.studies.executor import MAX_LOCAL_WORKERS
     from beambench.studies.sweep import SweepError, load_sweep, plan, read_table
 
     if workers < 0:
         fail(f"--workers = {workers}: must be >= 0")
+    if workers > MAX_LOCAL_WORKERS and cluster is None:
+        fail(f"--workers = {workers}: at most {MAX_LOCAL_WORKERS} local worker processes")
     if batch_size < 0:
         fail(f"--batch-size = {batch_size}: must be >= 0")
     if scheduler and cluster:
@@ -80,15 +83,15 @@ def sweep(
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
-        Progress,
         TextColumn,
         TimeElapsedColumn,
         TimeRemainingColumn,
     )
 
-    from beambench.common.console import stderr_console
+    from beambench.common.console import LogProgress, stderr_console
     from beambench.studies.executor import ExecutorError
-    from beambench.studies.sweep import plot_sweep, run_sweep
+    from beambench.studies.sweep import run_sweep
+    from beambench.studies.sweep_figure import plot_sweep
 
     console = stderr_console()
     if dry_run:
@@ -104,7 +107,7 @@ def sweep(
             f"axes: {', '.join(spec.axes()) or '(single point)'}; table: {out}"
         )
         return
-    with Progress(
+    with LogProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
@@ -116,11 +119,12 @@ def sweep(
         task = prog.add_task(f"{spec.name}", total=None)
 
         def on_start(todo: int, skipped: int, tasks: int, label: str) -> None:
-            prog.update(
-                task,
-                total=todo,
-                description=f"{spec.name}: {todo} points in {tasks} tasks ({skipped} done before) on {label}",
+            what = (
+                f"{todo} points in {tasks} tasks ({skipped} done before) on {label}"
+                if todo
+                else f"all {skipped} points done before, nothing to compute"
             )
+            prog.update(task, total=todo, description=f"{spec.name}: {what}")
 
         def progress(done: int, total: int) -> None:
             prog.update(task, completed=done)

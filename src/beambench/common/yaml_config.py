@@ -31,8 +31,32 @@ MAX_SHOWN = 80  # characters of a value shown in an error
 _SafeLoader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
+class DuplicateKeyError(yaml.constructor.ConstructorError):
+    """A mapping names the same key twice (YAML 1.2 forbids it; PyYAML would keep the later value silently)."""
+
+
 class _Loader(_SafeLoader):
-    """Safe loading, plus YAML 1.2 floats: ``26.0e6`` and ``1e-4`` are numbers (YAML 1.1 needs ``1.0e-4``)."""
+    """Safe loading, plus YAML 1.2 floats: ``26.0e6`` and ``1e-4`` are numbers (YAML 1.1 needs ``1.0e-4``),
+    and a key given twice in one mapping is an error (a second ``limits:`` block must not replace the first)."""
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        if isinstance(node, yaml.MappingNode):
+            # literal keys only, before merge keys (``<<: *base``) are flattened in: those may be overridden
+            seen: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    first = seen.get(key)
+                except TypeError:  # an unhashable key: the base class says so
+                    break
+                if first is not None:
+                    raise DuplicateKeyError(
+                        None, None, f"duplicate key {shorten(key, 40)} (first on line {first})", key_node.start_mark
+                    )
+                seen[key] = key_node.start_mark.line + 1
+        return super().construct_mapping(node, deep)
 
 
 _Loader.add_implicit_resolver(
@@ -142,6 +166,9 @@ def parse_yaml(text: str, file: str, error: type[ConfigError] = ConfigError) -> 
     try:
         _check_shape(text, file, error)
         return yaml.load(text, Loader=_Loader)  # a safe loader (CSafeLoader or SafeLoader)
+    except DuplicateKeyError as exc:
+        where = f"line {exc.problem_mark.line + 1}" if exc.problem_mark is not None else "(file)"
+        raise error(file, where, MISSING, f"{exc.problem}: a key may be given once") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}" if mark is not None else "(file)"

@@ -30,9 +30,10 @@ class ProbeEstimate:
 def probe_run_time(protocol: Protocol) -> ProbeEstimate:
     """Time :data:`PROBE_S` of ``protocol``'s scene at its highest frequency and extrapolate to every step."""
     from beambench.backends.sim import build_scene
+    from beambench.session.slices import sim_slice
 
     steps = plan(protocol)
-    scene = build_scene(protocol)
+    scene = build_scene(sim_slice(protocol))
     probe_hz = max(s.frequency_hz for s in steps)
     scene.set_frequency(probe_hz)
     warm = scene.physics.time + 0.02

@@ -10,7 +10,6 @@ from pathlib import Path
 
 from rich.progress import (
     BarColumn,
-    Progress,
     TextColumn,
     TimeElapsedColumn,
     TimeRemainingColumn,
@@ -24,10 +23,11 @@ from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
-from beambench.common.console import stderr_console
+from beambench.common.console import LogProgress, stderr_console
 from beambench.common.errors import BeambenchError
 from beambench.session.checks import check_protocol
 from beambench.session.provenance import provenance
+from beambench.session.slices import rig_slices
 from beambench.session.track_map import track_setup
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
@@ -86,7 +86,8 @@ def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunRe
 def _open_rig(req: RunRequest) -> Rig:
     """Build and open the rig; a device or peer lost meanwhile is one :class:`RigStartError` (rig closed)."""
     try:
-        rig = build_rig(req.protocol, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
+        slices = rig_slices(req.protocol, req.backend)
+        rig = build_rig(slices, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
         rig.open()
     except (DeviceFault, OSError, EOFError) as exc:
         if isinstance(exc, ConfigError):
@@ -114,6 +115,9 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
             "calibration": {"loadcells": default_calibration().to_yaml()},
             **provenance(),
         }
+        model_warnings = rig.model_warnings() if isinstance(rig, WarnsOfModel) else []
+        if model_warnings:  # known before the first step: a killed run keeps them too
+            general["warnings"] = model_warnings
         specs = [s.describe() for s in rig.streams]
         if tracking is not None:  # the controller's decisions are a stream; it reads the mocap as a sink
             specs.append(tracking.spec)
@@ -181,16 +185,19 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                 append_general(path, extra)
             except OSError as exc:
                 hub.errors.append(f"{writer.label}: /general not completed ({exc.strerror or exc})")
-    if isinstance(rig, WarnsOfModel):  # the model's own word on what it cannot stand for (e.g. folding legs)
-        result.warnings += rig.model_warnings()
+    # the model's own word on what it cannot stand for (e.g. folding legs), then what else went wrong
+    result.warnings += model_warnings
     result.warnings += hub.errors  # the command says them (one line with the result when the run failed)
+    if hub.errors and result.status != "failed":  # the session keeps every warning the run gave (report banners)
+        with contextlib.suppress(OSError):  # the session is as written; the command still says the warnings
+            append_general(path, {"warnings": result.warnings})
     return result
 
 
 @contextlib.contextmanager
-def _progress(show: bool) -> Iterator[Progress]:
+def _progress(show: bool) -> Iterator[LogProgress]:
     """The run's progress bar on stderr; a terminal gone (SIGHUP: writes fail with EIO) only ends the bar."""
-    progress = Progress(
+    progress = LogProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         TextColumn("{task.completed:.0f}/{task.total:.0f} s rig time"),

@@ -38,6 +38,7 @@ import pandas as pd
 from beambench.acquisition.batch import Batch, ColumnSpec, Frame, StepRecord, StreamSpec
 from beambench.common.inputs import check_input_file
 from beambench.common.yaml_config import ConfigError
+from beambench.sinks.session_schema import SessionSchemaError, check_schema
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -519,7 +520,7 @@ def check_session_file(path: str | Path) -> None:
     except OSError as exc:
         raise SessionFileError(f"{path}: cannot read the session ({exc.strerror or exc})") from None
     if size < 64 or (head != HDF5_SIGNATURE and _stored_eof(path, size) is None):
-        raise SessionFileError(f"{path}: not a session file (not HDF5{', empty' if size == 0 else ''})")
+        raise SessionFileError(f"{path}: not a beambench session file (not HDF5{', empty' if size == 0 else ''})")
     try:
         with h5py.File(path, "r") as f:
             missing = [g for g in SESSION_GROUPS if g not in f]
@@ -582,6 +583,15 @@ def _open_session(path: Path) -> h5py.File:
     if missing:
         f.close()
         raise SessionFileError(f"{path}: not a beambench session (no /{missing[0]} in the file)")
+    try:  # kinds, dtypes, shapes, times, text: one line naming the HDF5 path, before anything is read
+        check_schema(f, path.stat().st_size)
+    except SessionSchemaError as exc:
+        f.close()
+        raise SessionFileError(f"{path}: {exc}") from None
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
+        f.close()
+        why = str(exc).strip("'\"")[:120]
+        raise SessionFileError(f"{path}: damaged or not a beambench session ({type(exc).__name__}: {why})") from None
     return f
 
 
@@ -613,6 +623,11 @@ class Session:
     def protocol_text(self) -> str:
         return str(self.general.get("protocol", ""))
 
+    @property
+    def warnings(self) -> list[str]:
+        """Every warning the run gave (``/general/warnings``), e.g. a model that cannot stand for the robot."""
+        return session_warnings(self.general)
+
     def to_pandas(self, stream: str) -> pd.DataFrame:
         """One stream as a DataFrame with named columns (``foot_x``, ``lc0``, ``axis_state`` …), ``step`` and
         units in ``df.attrs["units"]`` (:func:`beambench.sinks.session_frames.stream_frame`)."""
@@ -626,6 +641,14 @@ class Session:
         from beambench.sinks.session_frames import session_dataset
 
         return session_dataset(self)
+
+
+def session_warnings(general: dict[str, Any]) -> list[str]:
+    """The run's warnings stored in ``/general/warnings`` (a JSON list of sentences); none in older sessions."""
+    stored = general.get("warnings")
+    if isinstance(stored, str):
+        stored = [stored]
+    return [str(w) for w in stored] if isinstance(stored, list) else []
 
 
 def _read_general(g: h5py.Group) -> dict[str, Any]:

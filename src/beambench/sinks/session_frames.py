@@ -60,9 +60,10 @@ def _stream(session: Session, stream: str) -> StreamData:
     return session.streams[stream]
 
 
-def _flat_names(stream: str, column: str, shape: tuple[int, ...], labels: tuple[str, ...]) -> list[str]:
+def flat_names(stream: str, column: str, shape: tuple[int, ...], labels: tuple[str, ...]) -> list[str]:
     """DataFrame column names of one stored column: ``foot_x`` for mocap positions, ``foot_occluded``, ``lc0``,
-    ``frame``; unlabelled array columns get ``<column>_<i>``."""
+    ``frame``; unlabelled array columns get ``<column>_<i>``. The one naming of ``to_pandas`` and (behind the
+    stream's name) of :func:`beambench.analysis.resample_session`."""
     if not shape:
         return [column]
     first = list(labels) if len(labels) == shape[0] else [f"{column}_{i}" for i in range(shape[0])]
@@ -98,7 +99,7 @@ def stream_frame(session: Session, stream: str) -> pd.DataFrame:
         values = np.asarray(s.columns[col])
         spec = s.spec.columns.get(col)
         labels = spec.labels if spec is not None else ()
-        names = _flat_names(stream, col, values.shape[1:], labels)
+        names = flat_names(stream, col, values.shape[1:], labels)
         flat = values.reshape(len(values), -1)
         for i, nm in enumerate(names):
             data[nm] = flat[:, i]

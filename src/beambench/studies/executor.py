@@ -46,6 +46,9 @@ class ExecutorError(BeambenchError, RuntimeError):
     """The requested executor cannot be set up (missing extra, unreachable scheduler …): one-line message."""
 
 
+MAX_LOCAL_WORKERS = 256  # local worker processes at most: more is a typo (each imports MuJoCo: ~150 MB)
+
+
 def local_cores() -> int:
     """Cores this process may use."""
     try:

@@ -45,7 +45,7 @@ import numpy as np
 import yaml
 
 from beambench.common.errors import BeambenchError
-from beambench.common.figures import new_figure
+from beambench.common.names import check_name
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.params import SIM_BACKEND_DIR, BeamParams
 from beambench.sim.models.registry import (
@@ -150,10 +150,12 @@ def load_release_session(
         mocap_markers,
         stream_host_times,
     )
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.hdf5 import SessionFileError, read_session
 
     try:
         s = read_session(path)
+    except SessionFileError as exc:  # already one line naming the file
+        raise FitError(str(exc)) from None
     except (OSError, KeyError) as exc:
         raise FitError(f"{path}: cannot read session ({exc})") from None
     try:
@@ -717,6 +719,7 @@ def param_set_dict(result: FitResult, name: str, source: str) -> dict[str, Any]:
 def write_param_set(result: FitResult, name: str, directory: str | Path = SIM_BACKEND_DIR, source: str = "") -> Path:
     """Save the fit as ``<directory>/<family>_<name>.yaml``; it loads back with ``load_params(name)``."""
     family = model_family(result.model)
+    check_name(name, "the parameter set name")  # one path component: never written outside ``directory``
     path = Path(directory) / f"{family}_{name}.yaml"
     source = source or f"beambench fit ({result.model})"
     doc = param_set_dict(result, name, f"{source}: RMS {result.rms_mm:.3f} mm; {interval_summary(result)}")
@@ -726,40 +729,6 @@ def write_param_set(result: FitResult, name: str, directory: str | Path = SIM_BA
     )
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(header + yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))
-    return path
-
-
-def plot_fit(results: Sequence[FitResult], path: str | Path, title: str = "") -> Path:
-    """Measured vs fitted tip-marker paths: x and z against time, and the x–z path (mm)."""
-    import matplotlib
-
-    r0 = results[0]
-    fig = new_figure(figsize=(14, 4.2), layout="constrained")
-    axes = fig.subplots(1, 3)
-    colors = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
-    t_ms = r0.t * 1e3
-    styles = ["-", "--", ":"]
-    for m, name in enumerate(r0.names):
-        c = colors[m % len(colors)]
-        meas = r0.measured[:, m] * 1e3
-        axes[0].plot(t_ms, meas[:, 0], ".", ms=3, color=c, label=f"{name} measured")
-        axes[1].plot(t_ms, meas[:, 2], ".", ms=3, color=c)
-        axes[2].plot(meas[:, 0], meas[:, 2], ".", ms=3, color=c, label=f"{name} measured")
-        for k, r in enumerate(results):
-            fit = r.fitted[:, m] * 1e3
-            lab = f"{name} {r.model} ({r.rms_mm:.2f} mm)"
-            axes[0].plot(t_ms, fit[:, 0], styles[k % 3], color=c, lw=1.2, label=lab)
-            axes[1].plot(t_ms, fit[:, 2], styles[k % 3], color=c, lw=1.2)
-            axes[2].plot(fit[:, 0], fit[:, 2], styles[k % 3], color=c, lw=1.2)
-    axes[0].set(xlabel="time from release (ms)", ylabel="x (mm)", title="tip markers: x (drive axis)")
-    axes[1].set(xlabel="time from release (ms)", ylabel="z (mm)", title="tip markers: z (up)")
-    axes[2].set(xlabel="x (mm)", ylabel="z (mm)", title="tip paths (x–z)")
-    axes[2].set_aspect("equal", adjustable="datalim")
-    axes[0].legend(fontsize=7, ncol=1)
-    fig.suptitle(title or "Release test: measured vs fitted tip markers")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
     return path
 
 

@@ -54,7 +54,6 @@ from pydantic import (
 )
 
 from beambench.acquisition.scenes import CONTACT, FREE_BEAM, SceneInfo, batched_names, foreign_option
-from beambench.common.figures import new_figure
 from beambench.common.yaml_config import ConfigError, load_yaml_file, validate
 
 SCHEMA = "beambench.sweep/1"
@@ -360,7 +359,7 @@ def _run_free_beam(task: dict[str, Any]) -> list[dict[str, Any]]:
         )
         for j, i in enumerate(idx):
             index, jid, point, f = jobs[i]
-            metrics = _free_metrics(t, tip[j], stage[j], f) if ok[j] else {}
+            metrics = _free_metrics(t, tip[j], stage[j], f) if ok[j] else _why(models[i], integ)
             rows[index] = _row(index, jid, point, f, FREE_BEAM.name, bool(ok[j]), metrics)
     return [rows[i] for i in sorted(rows)]
 
@@ -390,10 +389,17 @@ def _run_contact(task: dict[str, Any]) -> list[dict[str, Any]]:
         r = contact_sweep(_beam(point), freqs, sim, gap_m=point["gap_mm"] * 1e-3, sample_dt=task["sample_dt"])
         for i, (index, jid, p, f) in enumerate(jobs):
             ok = bool(r.ok[i])
-            metrics = _contact_metrics(r, i, f, point["amplitude_mm"] * 1e-3) if ok else {}
+            metrics = _contact_metrics(r, i, f, point["amplitude_mm"] * 1e-3) if ok else _why(None, point["integrator"])
             metrics["timestep_s"] = float(r.timesteps[i])
             rows[index] = _row(index, jid, p, f, CONTACT.name, ok, metrics)
     return [rows[i] for i in sorted(rows)]
+
+
+def _why(model: Any, integrator: str) -> dict[str, Any]:
+    """A failed row's reason (beambench.sim.engine.stability; the contact scene's model is not at hand)."""
+    from beambench.sim.engine.stability import unstable_reason
+
+    return {"reason": unstable_reason(model, integrator) if model is not None else f"{integrator}: MuJoCo stopped"}
 
 
 def _row(
@@ -599,7 +605,7 @@ def run_sweep(
                 merge()
     else:
         if on_start is not None:
-            on_start(0, len(jobs), 0, "nothing to compute")
+            on_start(0, len(jobs), 0, "")  # no executor: nothing to compute
         if not out.exists() or part_dir.is_dir():
             merge()
     table = read_table(out)
@@ -620,63 +626,3 @@ def run_local(spec: SweepSpec) -> pd.DataFrame:
     for task in make_tasks(spec, jobs, spec.batch_size or 50):
         rows.extend(run_task(task))
     return _ordered(rows, jobs)
-
-
-def _value_label(val: Any) -> str:
-    return f"{val:g}" if isinstance(val, (int, float)) else str(val)
-
-
-AXIS_LABELS = {
-    "twist_deg": "twist angle φ (deg)",
-    "frequency_hz": "drive frequency (Hz)",
-    "k": "bending stiffness k (N·m/rad)",
-    "b": "joint damping b (N·m·s/rad)",
-    "gap_mm": "plate gap h′ (mm)",
-    "amplitude_mm": "stage amplitude A (mm)",
-    "youngs_modulus": "Young's modulus E (Pa)",
-    "beta": "stiffness-proportional damping β (s)",
-    "model": "beam model",
-    "params": "parameter set",
-}
-
-
-def axis_label(column: str) -> str:
-    """A swept column's name in words, with its unit (``twist_deg`` → ``twist angle φ (deg)``)."""
-    return AXIS_LABELS.get(column, column.replace("_", " "))
-
-
-def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | None:
-    """Metrics against the first swept parameter (free beam: tip major/minor axes, as the paper's Fig. 2e;
-    contact: contacts per cycle and foot axes)."""
-
-    axes = [a for a in spec.axes() if a in df.columns]
-    if not axes or df.empty:
-        return None
-    x, series = axes[0], (axes[1] if len(axes) > 1 else None)
-    prefix = "tip" if spec.scene == "free_beam" else "foot_rel"
-    metrics = [(f"{prefix}_major_mm", "major axis (mm)"), (f"{prefix}_minor_mm", "minor axis (mm)")]
-    if spec.scene == "contact":
-        metrics.append(("contacts_per_cycle", "contacts per drive cycle"))
-    else:
-        metrics.append((f"{prefix}_tilt_deg", "tilt of the major axis (deg)"))
-    fig = new_figure(figsize=(5 * len(metrics), 4), layout="constrained")
-    axs = fig.subplots(1, len(metrics), squeeze=False)[0]
-    groups = [(None, df)] if series is None else list(df.groupby(series, sort=True))
-    for ax, (col, label) in zip(axs, metrics):
-        for val, g in groups[:12]:
-            g = g.sort_values(x)
-            ax.plot(
-                g[x],
-                g[col],
-                "o-",
-                ms=3,
-                label=None if series is None else f"{axis_label(series)} = {_value_label(val)}",
-            )
-        ax.set(xlabel=axis_label(x), ylabel=label)
-        ax.grid(alpha=0.3)
-    if series is not None:
-        axs[0].legend(fontsize=7)
-    fig.suptitle(f"{spec.name} ({spec.scene})")
-    path = Path(path)
-    fig.savefig(path, dpi=120)
-    return path

@@ -18,9 +18,12 @@ from beambench.analysis.figures.style import (
     legend_below,
     new_figure,
     session_style,
+    wrapped,
 )
 
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
     from beambench.analysis.session import SessionAnalysis
 
 
@@ -34,6 +37,15 @@ if TYPE_CHECKING:
     "× reference steps.",
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
+    fig = contact_frequency_figure(analyses)
+    if fig is None:
+        return None
+    fig.savefig(path)
+    return path
+
+
+def contact_frequency_figure(analyses: list[SessionAnalysis]) -> Figure | None:
+    """Contact against drive frequency of each session; None if no session has contact frequencies."""
     tables = [(a, by_frequency(a)) for a in analyses if "contact_frequency_hz" in a.table]
     if not tables:
         return None
@@ -70,12 +82,10 @@ def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) ->
     ax.set_ylabel("contact frequency (Hz)")
     ax.set_xlim(0, max(fmax, 1.0) * 1.12)
     ax.set_ylim(bottom=-0.02 * max(fmax, 1.0))
-    ax.set_title(
-        "Contact frequency vs input frequency" + ("" if single else " — " + " vs ".join(a.label for a, _ in tables))
-    )
+    names = "" if single else "\n" + " vs ".join(a.label for a, _ in tables)
+    ax.set_title(wrapped("Contact frequency vs input frequency" + names, float(fig.get_figwidth()) - 0.8))
     legend_below(fig, ax)
-    fig.savefig(path)
-    return path
+    return fig
 
 
 def _branches(ax: Any, t: pd.DataFrame) -> None:

@@ -23,6 +23,8 @@ from beambench.analysis.figures.style import (
 )
 
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
     from beambench.analysis.session import SessionAnalysis
 
 SENSE_NAMES = {"ccw": "counter-clockwise", "cw": "clockwise", "": "line (no sense)"}
@@ -37,15 +39,39 @@ SENSE_NAMES = {"ccw": "counter-clockwise", "cw": "clockwise", "": "line (no sens
     "body: where the body rocks on its slider while the feet stay put, the major axis is the body's swing.",
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
-    fig = new_figure((12, 4.3))
+    fig = ellipse_figure(analyses)
+    if fig is None:
+        return None
+    fig.savefig(path)
+    return path
+
+
+def ellipse_marker(a: SessionAnalysis) -> str:
+    """The point whose ellipse is drawn: the tip on the contact rig, else the primary marker (a foot)."""
+    return "tip" if "tip_major_mm" in a.table else (primary_marker(a) or "")
+
+
+def point_title(a: SessionAnalysis, m: str) -> str:
+    """The figure's title: which point's path (the tip here, while trajectories.png shows the foot)."""
+    if m == "tip":
+        return "Tip path (the beam's free end; the trajectory grid shows the foot, whose sense can differ)"
+    relative = "the body" if a.rig == "walker" else "the stage"
+    return f"{marker_name(m).capitalize()} path relative to {relative}"
+
+
+def ellipse_figure(analyses: list[SessionAnalysis]) -> Figure | None:
+    """Axis lengths, tilt and sense of each session's tip (walker: foot) path; None if none has one."""
+    fig = new_figure((12, 4.6))
     axes = fig.subplots(1, 2)
     anything = False
+    titles: list[str] = []
     for si, a in enumerate(analyses):
         t = by_frequency(a)
-        m = "tip" if "tip_major_mm" in t else (primary_marker(a) or "")
+        m = ellipse_marker(a)
         if f"{m}_major_mm" not in t:
             continue
         anything = True
+        titles.append(point_title(a, m))
         c = SESSION_COLORS[si % 4]
         sfx = f" ({a.label})" if len(analyses) > 1 else ""
         f = t["frequency_hz"]
@@ -74,16 +100,16 @@ def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) ->
             axes[1].scatter(f[unsure], tilt[unsure], s=size * 1.6, marker="$?$", c=UNCERTAIN, label=label)
     if not anything:
         return None
-    axes[0].set(xlabel="drive frequency (Hz)", ylabel="axis length (mm)", title="First-harmonic ellipse: axes")
+    axes[0].set(xlabel="drive frequency (Hz)", ylabel="axis length (mm)", title="Axis lengths")
     axes[1].set(
         xlabel="drive frequency (Hz)",
         ylabel="tilt of major axis from drive axis (deg)",
         title="Tilt (unwrapped) and sense of travel",
     )
     axes[1].axhline(0, color="0.6", lw=0.8)
+    fig.suptitle(" / ".join(dict.fromkeys(titles)) + ": first-harmonic ellipse")
     legend_below(fig, axes, ncol=4)
-    fig.savefig(path)
-    return path
+    return fig
 
 
 def unwrapped_tilt(tilt_deg: pd.Series, sure: pd.Series | None = None) -> pd.Series:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -17,6 +18,7 @@ from beambench.analysis.figures.style import (
     session_style,
     step_frequency,
 )
+from beambench.analysis.path_shape import period_cycles
 
 if TYPE_CHECKING:
     from beambench.analysis.session import SessionAnalysis, StepResult
@@ -31,7 +33,9 @@ PERIOD: dict[str, Any] = dict(
     "forces",
     rigs=("contact",),
     caption="Calibrated normal and tangential plate force over a few drive cycles (paper Fig. 4b). Shaded: "
-    "detected contacts; dashed purple: one drive period (1/f) apart.",
+    "detected contacts; dashed purple: one drive period (1/f) apart. Each column shows the window whose "
+    "touchdowns are spaced as the step's regime says (k cycles apart in 1 contact / k cycles); where no window "
+    "of the step is, the title says 'irregular here' with the gaps it shows.",
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
     return fig_forces(analyses, path, choose_force_frequencies(analyses, options.force_at))
@@ -113,8 +117,11 @@ def _column(ax_n: Any, ax_t: Any, r: StepResult, label: str, si: int | None, cyc
     fa = step_frequency(r)
     c = r.contacts
     t0 = r.t_force[0]
+    reg = str(r.row.get("regime", ""))
+    win = ForceWindow(r.t_force[0], [], True)
     if c is not None and c.n_touchdowns:
-        t0 = max(r.t_force[0], float(c.touchdown_s[0]) - 0.5 / fa)
+        win = force_window(np.asarray(c.touchdown_s, float), fa, reg, cycles)
+        t0 = max(r.t_force[0], win.start_s)
     sel = (r.t_force >= t0) & (r.t_force <= t0 + cycles / fa)
     tt = (r.t_force[sel] - t0) * 1e3
     style = dict(color=SESSION_COLORS[0], lw=0.9) if si is None else session_style(si)
@@ -131,7 +138,44 @@ def _column(ax_n: Any, ax_t: Any, r: StepResult, label: str, si: int | None, cyc
         ax.grid(False, axis="x")
         for kk in range(int(cycles) + 1):
             ax.axvline(kk * period_ms, **PERIOD)
-    reg, ratio = r.row.get("regime", ""), r.row.get("contacts_per_cycle", np.nan)
+    ratio = r.row.get("contacts_per_cycle", np.nan)
+    odd = "" if win.typical else f"\nirregular here: contacts {', '.join(f'{g:.1f}' for g in win.gaps)} cycles apart"
     if si is None:
-        return f"{REGIME_NAMES.get(reg, reg)} ({ratio:.2f} per cycle)"
-    return f"{label}: {reg or 'none'} ({ratio:.2f}/cycle)"
+        return f"{REGIME_NAMES.get(reg, reg)} ({ratio:.2f} per cycle){odd}"
+    return f"{label}: {reg or 'none'} ({ratio:.2f}/cycle){odd.replace(chr(10), ' · ')}"
+
+
+@dataclass(frozen=True)
+class ForceWindow:
+    """Where a step's force traces start (s, half a period before a touchdown), the gaps between the touchdowns
+    in the window (drive cycles) and whether they are those the regime's label promises."""
+
+    start_s: float
+    gaps: list[float]
+    typical: bool
+
+
+GAP_TOLERANCE = 0.25  # drive cycles: a gap this close to the label's is typical of it
+
+
+def force_window(touchdown_s: np.ndarray, f: float, regime: str, cycles: float) -> ForceWindow:
+    """The window of ``cycles`` drive cycles whose touchdown gaps are closest to the regime's (k cycles in 1/k,
+    one in "1", half in "2"; the time after its last touchdown no longer than a gap, with the tolerance); the
+    first touchdown's where the regime promises no gap (irregular, continuous)."""
+    expected = {"1": 1.0, "2": 0.5}.get(regime) or (float(period_cycles(regime)) if regime.startswith("1/") else None)
+    best: tuple[float, float, list[float]] | None = None
+    for td in touchdown_s if expected else touchdown_s[:1]:
+        start = td - 0.5 / f
+        inside = touchdown_s[(touchdown_s >= start) & (touchdown_s <= start + cycles / f)]
+        gaps = [float(g) for g in np.diff(inside) * f]
+        if expected is None:
+            return ForceWindow(float(start), gaps, True)
+        if not gaps:
+            continue
+        tail = (start + cycles / f - inside[-1]) * f  # cycles after the last touchdown: no contact there
+        miss = max([abs(g - expected) for g in gaps] + [tail - expected - GAP_TOLERANCE])
+        if best is None or miss < best[0] - 1e-9:
+            best = (miss, float(start), gaps)
+    if best is None:
+        return ForceWindow(float(touchdown_s[0] - 0.5 / f), [], True)
+    return ForceWindow(best[1], best[2], best[0] <= GAP_TOLERANCE)

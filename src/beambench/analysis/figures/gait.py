@@ -20,6 +20,8 @@ from beambench.analysis.figures.style import (
 from beambench.analysis.walking import STANCE_MM, Stance, foot_stance, ground_level
 
 if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
     from beambench.analysis.session import SessionAnalysis, StepResult
 
 SHOW_HZ = (23.0, 65.0)  # the paper's two walking points (Sec. IV-B), then the fastest step
@@ -30,25 +32,38 @@ CYCLES = 4
     "gait",
     rigs=("walker",),
     caption=f"Gait from the mocap. Top: each foot's height above the ground over {CYCLES} drive cycles at the "
-    "paper's two walking frequencies and the fastest step, with bars where the foot is on the ground (within "
+    "paper's two walking frequencies and the fastest step; under it, a row per foot with bars where the foot "
+    "is on the ground (within "
     f"{STANCE_MM:g} mm of the ground, taken as the foot's low heights over the session). Bottom: the share of "
     "each step's record window each foot spends on the ground (duty factor); at a few mocap frames per drive "
     "cycle (360 frames/s at 65 Hz: 5.5) a stance is one or two frames long, so the bars and the duty factor are "
     "as coarse as the frame interval.",
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
+    fig = gait_figure(analyses)
+    if fig is None:
+        return None
+    fig.savefig(path)
+    return path
+
+
+def gait_figure(analyses: list[SessionAnalysis]) -> Figure | None:
+    """The gait figure (None without feet): foot heights, stance strips and the duty factor per step."""
     feet_of = {id(a): _feet(a) for a in analyses}
     if not any(feet_of.values()):
         return None
     a0 = next(a for a in analyses if feet_of[id(a)])
     shown = _chosen_steps(a0)
-    fig = new_figure((4.3 * max(len(shown), 2), 7.2))
-    grid = fig.add_gridspec(2, max(len(shown), 1), height_ratios=[1.1, 1])
+    fig = new_figure((4.3 * max(len(shown), 2), 8.0))
+    grid = fig.add_gridspec(3, max(len(shown), 1), height_ratios=[1.1, 0.32, 1])
     ground = {id(a): _grounds(a, feet_of[id(a)]) for a in analyses}
+    first = None
     for j, r in enumerate(shown):
-        ax = fig.add_subplot(grid[0, j], sharey=fig.axes[0] if j else None)
-        _timing(ax, a0, r, feet_of[id(a0)], ground[id(a0)])
-    ax_d = fig.add_subplot(grid[1, :])
+        ax = fig.add_subplot(grid[0, j], sharey=first)
+        first = first or ax
+        ax_s = fig.add_subplot(grid[1, j], sharex=ax)
+        _timing(ax, ax_s, a0, r, feet_of[id(a0)], ground[id(a0)])
+    ax_d = fig.add_subplot(grid[2, :])
     for si, a in enumerate(analyses):
         for foot in feet_of[id(a)]:
             f, duty = _duty(a, foot, ground[id(a)][foot])
@@ -68,8 +83,7 @@ def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) ->
     if len(analyses) > 1:
         fig.suptitle(f"Foot timing (top): {a0.label}")
     legend_below(fig, np.array(fig.axes), ncol=4)
-    fig.savefig(path)
-    return path
+    return fig
 
 
 def _feet(a: SessionAnalysis) -> list[str]:
@@ -100,8 +114,9 @@ def _chosen_steps(a: SessionAnalysis) -> list[StepResult]:
     return sorted(out, key=lambda r: r.frequency_hz)
 
 
-def _timing(ax: Any, a: SessionAnalysis, r: StepResult, feet: list[str], ground: dict[str, float]) -> None:
-    """Foot heights over the last cycles of a step and a stance bar per foot under them."""
+def _timing(ax: Any, ax_s: Any, a: SessionAnalysis, r: StepResult, feet: list[str], ground: dict[str, float]) -> None:
+    """Foot heights over the last cycles of a step on ``ax`` (mm) and, on the strip ``ax_s`` under it, a stance
+    bar per foot (a row per foot, no height scale: a bar is a time span, not a height)."""
     f = step_frequency(r)
     t = r.t_mocap
     sel = t >= t[-1] - CYCLES / f
@@ -111,16 +126,19 @@ def _timing(ax: Any, a: SessionAnalysis, r: StepResult, feet: list[str], ground:
         st: Stance = foot_stance(t, h, 0.0)
         color = FOOT_COLORS.get(foot, "0.3")
         ax.plot(cyc, h[sel], ".-", ms=3, color=color, lw=1.0, label=f"{marker_name(foot)}: height (mocap samples)")
-        y = -0.45 - 0.35 * k
         dt = float(np.median(np.diff(cyc))) if len(cyc) > 1 else 0.0
         spans = _spans(cyc, st.mask[sel], dt)  # each sample on the ground stands for its own frame interval
-        ax.broken_barh(spans, (y - 0.1, 0.2), color=color, label=f"{marker_name(foot)}: on the ground")
+        ax_s.broken_barh(spans, (k - 0.35, 0.7), color=color, label=f"{marker_name(foot)}: on the ground")
     ax.axhline(STANCE_MM, color="0.5", ls=":", lw=0.8, label=f"stance threshold ({STANCE_MM:g} mm)")
     speed = float(r.row.get("body_speed_mm_s", np.nan))
     why = " (paper)" if r.frequency_hz in SHOW_HZ else " (fastest)"
     title = f"{r.frequency_hz:g} Hz{why}: body {speed:+.0f} mm/s"
-    ax.set(xlabel="drive cycles", ylabel="height above ground (mm)", title=title)
-    ax.set_xlim(0, CYCLES)
+    ax.set(ylabel="height above ground (mm)", title=title)
+    ax.xaxis.set_tick_params(labelbottom=False)
+    ax_s.set(xlabel="drive cycles", ylim=(len(feet) - 0.5, -0.5), xlim=(0, CYCLES))
+    ax_s.set_yticks(range(len(feet)), [marker_name(f) for f in feet])
+    ax_s.grid(False, axis="y")
+    ax_s.set_title("on the ground", fontsize=9, loc="left", pad=2)
 
 
 def _spans(x: np.ndarray, mask: np.ndarray, dx: float) -> list[tuple[float, float]]:

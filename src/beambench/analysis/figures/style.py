@@ -8,6 +8,10 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 import pandas as pd
 
+from beambench.common.figures import STYLE, fitting_columns, legend_below
+
+__all__ = ["STYLE", "fitting_columns", "legend_below"]  # the report's style lives in common.figures
+
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
@@ -51,17 +55,6 @@ PATH_CYCLES = 6
 R2_SENSE_MIN = 0.5  # below this share of the path explained by the first-harmonic ellipse, its sense is uncertain
 UNCERTAIN = "0.55"  # colour of an uncertain sense
 
-STYLE: dict[str, Any] = {
-    "axes.grid": True,
-    "grid.alpha": 0.3,
-    "axes.spines.top": False,
-    "axes.spines.right": False,
-    "font.size": 10,
-    "axes.titlesize": 10,
-    "legend.fontsize": 9,
-    "legend.frameon": False,
-}
-
 
 def new_figure(figsize: tuple[float, float], layout: Literal["constrained"] | None = "constrained") -> Figure:
     """A figure of its own (not pyplot's): constrained layout keeps titles, labels and legends inside the canvas."""
@@ -70,31 +63,17 @@ def new_figure(figsize: tuple[float, float], layout: Literal["constrained"] | No
     return Figure(figsize=figsize, dpi=110, layout=layout)
 
 
-def legend_below(fig: Figure, axes: Any, ncol: int = 4, handles: list[Any] | None = None, **kw: Any) -> None:
-    """One legend for the figure, below every panel (a legend inside hides traces), duplicate labels merged.
-    ``loc="outside …"`` makes the constrained layout keep it inside the canvas."""
-    if handles is None:
-        seen: dict[str, Any] = {}
-        for ax in np.ravel(axes):
-            for h, label in zip(*ax.get_legend_handles_labels()):
-                seen.setdefault(label, h)
-        handles_, labels = list(seen.values()), list(seen)
-    else:
-        handles_, labels = handles, [h.get_label() for h in handles]
-    if handles_:
-        ncol = fitting_columns(labels, float(fig.get_figwidth()), ncol)
-        fig.legend(handles_, labels, loc="outside lower center", ncol=ncol, **kw)
+def wrapped(text: str, width_in: float, size_pt: float | None = None) -> str:
+    """``text`` with each line broken at spaces to fit ``width_in`` inches at the axes title's font size (a
+    title wider than its figure is cut at the edges; session names make compare's titles long)."""
+    import textwrap
 
-
-def fitting_columns(labels: list[str], width_in: float, ncol: int) -> int:
-    """At most ``ncol`` legend columns, as many as fit the figure's width (a legend wider than the figure is cut
-    at both edges): every column as wide as the longest label at the legend's font size, plus its handle."""
     import matplotlib
     from matplotlib.font_manager import FontProperties
 
-    size = FontProperties(size=matplotlib.rcParams["legend.fontsize"]).get_size_in_points()
-    column_in = max((len(s) for s in labels), default=1) * 0.56 * size / 72 + 0.75
-    return max(1, min(ncol, len(labels), int(width_in / column_in)))
+    size = size_pt or FontProperties(size=matplotlib.rcParams["axes.titlesize"]).get_size_in_points()
+    chars = max(10, int(width_in * 72 / (0.6 * size)))
+    return "\n".join(textwrap.fill(line, chars, break_on_hyphens=False) for line in text.split("\n"))
 
 
 def session_style(si: int) -> dict[str, Any]:

@@ -28,6 +28,7 @@ from beambench.analysis.figures.style import (
     session_style,
     step_frequency,
 )
+from beambench.analysis.path_shape import NOISE_SIGMAS
 from beambench.analysis.trajectory import mean_path
 
 if TYPE_CHECKING:
@@ -35,6 +36,12 @@ if TYPE_CHECKING:
 
     from beambench.analysis.session import SessionAnalysis, StepResult
 
+NOISE_NOTE = (
+    f"Crossings and senses are counted above a noise floor: a lobe (or a whole path) thinner than {NOISE_SIGMAS:g}σ "
+    "of the mean path's noise does not count, σ being the mocap noise (measured as the scatter of the session's "
+    "steadiest steps about their mean paths, steps.csv: path_noise_mm) over √ of the samples a mean-path point "
+    "averages; a path that thin is 'flat'."
+)
 PLATE = "#8c564b"
 TOUCHDOWN = "#ff7f0e"
 BOX = 0.8  # panel height / width
@@ -50,12 +57,13 @@ BOX = 0.8  # panel height / width
         "R² < 0.5, so the sense is uncertain); brown, the plate (the foot's height at touchdown); orange, the foot's "
         "direction of motion along the plate at touchdown, drawn on the plate line. Each title: the mean path's loop "
         "sense (cw/ccw), or 'figure-8' / 'n crossings' where it crosses itself, and 'inverts' where its sense "
-        "flipped from the previous frequency (steps.csv: foot_crossings, foot_loop_sense, foot_path_inverts).",
+        "flipped from the previous frequency (steps.csv: foot_crossings, foot_loop_sense, foot_path_inverts). "
+        + NOISE_NOTE,
         "walker": "Both feet relative to the body in the (forward, up) plane, each step drawn about its own mean "
         "position: thin, the last cycles of the record window; bold, the mean path over one drive cycle with an "
         "arrow for its sense of travel (grey with '?' where the first-harmonic ellipse explains less than half of "
         "the path). The title says which steps are shown when there are more than fit; each panel's title the left "
-        "foot's loop sense, 'figure-8' / 'n crossings' and 'inverts' as in steps.csv.",
+        "foot's loop sense, 'figure-8' / 'n crossings' and 'inverts' as in steps.csv. " + NOISE_NOTE,
     },
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
@@ -91,6 +99,8 @@ def shape_note(a: SessionAnalysis, r: StepResult, marker: str) -> str:
         parts.append("figure-8" if int(n) == 1 else f"{int(n)} crossings")
     elif sense in ("cw", "ccw"):
         parts.append(sense)
+    elif pd.notna(n) and sense == "":
+        parts.append("flat")
     if bool(row.get(f"{marker}_path_inverts", False)):
         parts.append("inverts")
     return "".join(f" · {p}" for p in parts)
@@ -159,8 +169,9 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
         row[0].set_ylabel("up (mm)")
     names = sorted({m for ms in markers.values() for m in ms})
     title = (
-        f"{' and '.join(marker_name(m) for m in names).capitalize()} paths relative to the {'body' if walker else 'stage'}; "
-        "each step drawn about its own mean position, same scale"
+        f"{' and '.join(marker_name(m) for m in names).capitalize()} paths"
+        + (" (the beam's contact end, not the tip)" if names == ["foot"] else "")
+        + f" relative to the {'body' if walker else 'stage'}; each step drawn about its own mean position, same scale"
     )
     if exaggeration >= 1.5:
         title += f" (vertical ×{exaggeration:.0f})"

@@ -22,6 +22,7 @@ import serial
 from beambench.acquisition.batch import Batch
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import LOADCELL, LOADCELL_RATE_HZ, loadcell_spec
+from beambench.common.oserrors import serial_open_problem
 from beambench.devices.base import StreamDriver
 from beambench.devices.loadcell.protocol import CRC_NAME, VERSION, Frame, StreamDecoder
 
@@ -123,7 +124,8 @@ class SerialLoadCells(StreamDriver):
                 self.port, baudrate=self.baudrate, timeout=self._timeout, exclusive=self._exclusive
             )
         except (serial.SerialException, OSError, ValueError) as exc:
-            raise DeviceFault(f"{self.name}: cannot open serial port {self.port}: {exc}") from exc
+            why = serial_open_problem(exc)
+            raise DeviceFault(f"{self.name}: cannot open serial port {self.port}: {why}") from exc
 
     def _interrupt(self) -> None:
         ser = self._ser

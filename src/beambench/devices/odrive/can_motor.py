@@ -58,6 +58,7 @@ from beambench.acquisition.batch import Batch, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits, RefusesForeign
 from beambench.acquisition.streams import MOTOR, motor_spec
 from beambench.common.errors import BeambenchError
+from beambench.common.oserrors import can_open_problem
 from beambench.devices.odrive import cansimple as cs
 from beambench.devices.odrive.cansimple import AxisState, ControlMode, InputMode
 from beambench.devices.receive_time import mono_minus_real_ns
@@ -301,7 +302,8 @@ class OdriveCanMotor(TelemetryStream):
             try:
                 self._bus = can.Bus(**kwargs)
             except (can.CanError, OSError, ValueError, ImportError) as exc:
-                raise DeviceFault(f"cannot open CAN bus {self.interface}:{self.channel}: {exc}") from exc
+                why = can_open_problem(self.interface, self.channel, exc, self.bitrate)
+                raise DeviceFault(f"cannot open CAN bus {self.interface}:{self.channel}: {why}") from exc
         if self.can_log is not None:
             self._log = _TrafficLog(self.can_log)
         with self._cond:
@@ -787,7 +789,7 @@ def ping(
                 kw["bitrate"] = bitrate
             bus = can.Bus(**kw)
     except Exception as exc:
-        info["error"] = f"cannot open bus: {exc}"
+        info["error"] = can_open_problem(interface, channel, exc, bitrate)
         return info
     try:
         beats: dict[int, list[tuple[float, cs.Heartbeat]]] = {}

@@ -14,10 +14,8 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from beambench.common.resources import ShippedFileError, resolve_file, search_path, shipped_dir
-from beambench.common.yaml_config import ConfigError, load_yaml_file, read_text, shorten
+from beambench.common.yaml_config import ConfigError, load_yaml_file, shorten
 
 SIM_BACKEND_DIR = shipped_dir("sim_backend")  # the shipped sets and measured tables (read-only)
 
@@ -141,8 +139,8 @@ def has_params(name: str, model: str) -> bool:
         except ShippedFileError:
             return False
         try:
-            data = yaml.safe_load(read_text(path)) or {}  # kind and size checked before the read
-        except (yaml.YAMLError, ConfigError):
+            data, _ = load_yaml_file(path)  # kind and size checked before the read
+        except ConfigError:
             return False
         return isinstance(data, dict) and str(data.get("model", "prb3")) == model
     return name in available(model)

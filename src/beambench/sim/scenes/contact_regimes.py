@@ -13,6 +13,7 @@ Both maps classify each step's record window (:class:`StepWindow`) with the same
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -202,8 +203,8 @@ def stepped_regime_map(
 ) -> pd.DataFrame:
     """The contact regime per step of a *stepped* sweep, as the sim backend runs a protocol: one
     :class:`ContactRigSim` (the run's scene: servo-driven stage, the motor's velocity ramp between steps, the
-    timestep the measured table plans per frequency within ``tolerance_mm``), the frequencies in the given
-    order, each settled for ``sim.settle_s`` then recorded for ``sim.record_s``; the state carries over from
+    timestep the measured table plans per frequency within ``tolerance_mm``, or a fixed ``sim.timestep``), the
+    frequencies in the given order, each settled for ``sim.settle_s`` then recorded for ``sim.record_s``; the state carries over from
     step to step, so a regime that persists past its edge going up (hysteresis) shows here as in ``beambench
     run``, unlike :func:`regime_map` (every frequency from rest). Classified as :func:`regime_map` does; same
     columns. No device clocks or sample jitter: the load cells' 1 ms boxcar on the physics rows, ``sim.noise``
@@ -215,11 +216,15 @@ def stepped_regime_map(
     bm, rig = twin.build()
     integrator = sim.integrator or "implicitfast"
     amp = sim.amplitude_m
-    try:
-        plan = select.plan_sweep("contact", tolerance_mm, freqs, models=[twin.model], integrators=[integrator])
+    fixed = None if sim.timestep is None or isinstance(sim.timestep, tuple) else float(sim.timestep)
+    plan = None
+    if fixed is None:  # a protocol's fixed sim.timestep: the run plans nothing
+        with contextlib.suppress(select.SelectionError):
+            plan = select.plan_sweep("contact", tolerance_mm, freqs, models=[twin.model], integrators=[integrator])
+    if plan is not None:
         scene = ContactRigSim(bm, sim.twist_deg, rig.plate_gap, amp, rig, plan.integrator, timestep_for=plan.timestep)
-    except select.SelectionError:
-        scene = ContactRigSim(bm, sim.twist_deg, rig.plate_gap, amp, rig, integrator)
+    else:
+        scene = ContactRigSim(bm, sim.twist_deg, rig.plate_gap, amp, rig, integrator, timestep=fixed)
     how = Classifier.of(sim, contact)
     rows = []
     t_now = 0.0

@@ -362,18 +362,19 @@ class ContactRigSim(DrivenScene):
 @register(CONTACT)
 def build(cfg: SceneConfig) -> ContactRigSim:
     """The contact rig of a protocol: its plate gap (None: the parameter set's), stage amplitude and measured plan."""
-    sim, plan = cfg.sim, cfg.plan
+    sim = cfg.sim
+    plan = sim.plan
     scene = ContactRigSim(
         cfg.beam,
-        twist_deg=sim.twist_deg,
-        gap_m=None if sim.plate_gap_mm is None else sim.plate_gap_mm * 1e-3,
-        amplitude_m=cfg.amplitude_mm * 1e-3,
-        integrator=plan.integrator if plan else sim.integrator,
+        twist_deg=sim.settings.twist_deg,
+        gap_m=sim.plate_gap_m,
+        amplitude_m=sim.settings.amplitude_m,
+        integrator=sim.integrator,
         timestep=sim.timestep,
         timestep_for=plan.timestep if plan else None,
         selection=plan.describe() if plan else None,
     )
-    td = sim.thermal_drift
+    td = sim.thermal
     if td is not None:
         c = td.heat_capacity_j_per_k or cfg.beam.params.mass * CP_TPU
         scene.enable_thermal(ThermalParams(td.alpha_per_k, td.tau_s, c, td.heated_fraction))

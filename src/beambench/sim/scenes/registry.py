@@ -13,32 +13,24 @@ The package (:mod:`beambench.sim.scenes`) imports every scene module, so :func:`
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
-from beambench.acquisition.config import Release, SimOptions
 from beambench.acquisition.scenes import SceneInfo, scene_info
 from beambench.sim.models.beam import BeamModel
+from beambench.sim.protocol_slice import SimSlice
 from beambench.sim.scenes.drive import DrivenScene
-
-if TYPE_CHECKING:
-    from beambench.sim.selection import Plan
 
 __all__ = ["Scene", "SceneConfig", "get", "register"]
 
 
 @dataclass(frozen=True)
 class SceneConfig:
-    """The slice of a protocol a scene is built from: the beam (already resolved), the ``sim:`` options, the
-    release block, the step windows and amplitude, and the measured plan (scenes with ``measured_table``)."""
+    """What a scene is built from: the beam (model and parameter set resolved) and the protocol's simulation
+    slice (:func:`beambench.sim.protocol_slice.sim_slice`: windows, amplitude, integrator and timestep plan,
+    plate gap, thermal drift, release block)."""
 
     beam: BeamModel
-    sim: SimOptions
-    amplitude_mm: float = 2.0
-    settle_s: float = 2.0
-    record_s: float = 5.0
-    release: Release = field(default_factory=Release)
-    plan: Plan | None = None  # the measured plan (beambench.sim.selection), or None: the scene's own timestep policy
+    sim: SimSlice
 
 
 Builder = Callable[[SceneConfig], DrivenScene]

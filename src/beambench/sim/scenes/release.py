@@ -356,10 +356,10 @@ def build(cfg: SceneConfig) -> ReleaseSim:
     sim = cfg.sim
     return ReleaseSim(
         cfg.beam,
-        twist_deg=sim.twist_deg,
-        load_g=cfg.release.load_g,
-        markers=cfg.release.markers,
-        release_s=release_time(cfg.settle_s, cfg.record_s),
+        twist_deg=sim.settings.twist_deg,
+        load_g=sim.release.load_g,
+        markers=sim.release.markers,
+        release_s=release_time(sim.settings.settle_s, sim.settings.record_s),
         integrator=sim.integrator,
         timestep=sim.timestep,
     )

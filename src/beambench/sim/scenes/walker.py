@@ -477,6 +477,6 @@ def build(cfg: SceneConfig) -> WalkerSim:
     """The walker of a protocol; a leg model it cannot stand on is a ConfigError (one line)."""
     sim = cfg.sim
     try:
-        return WalkerSim(cfg.beam, twist_deg=sim.twist_deg, integrator=sim.integrator, timestep=sim.timestep)
+        return WalkerSim(cfg.beam, twist_deg=sim.settings.twist_deg, integrator=sim.integrator, timestep=sim.timestep)
     except WalkerLegError as exc:
         raise ConfigError("<protocol>", "sim.model", exc.name, exc.reason) from None

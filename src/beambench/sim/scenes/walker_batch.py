@@ -43,8 +43,8 @@ def steady_speeds(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Forward body speed (mm/s) at each frequency and the mean body height (mm) over the record window; NaN
     where a run diverged. ``settings``: twist, timestep (None: the walker's), the settle time after the ramp,
-    the record window and threads (None: all cores); the integrator is the walker's, amplitude and noise do not
-    apply."""
+    the record window, the integrator (None: the walker's) and threads (None: all cores); amplitude and noise
+    do not apply."""
     twist_deg, timestep, settle_s, record_s = (
         settings.twist_deg,
         settings.timestep,
@@ -55,7 +55,7 @@ def steady_speeds(
         raise ValueError("the walker takes one timestep for all frequencies")
     nthread = settings.nthread if settings.nthread is not None else (os.cpu_count() or 1)
     wp = replace(params or WalkerParams(), vel_ramp_rate=ramp_rate)
-    sim = WalkerSim(beam, twist_deg, wp, timestep=timestep)
+    sim = WalkerSim(beam, twist_deg, wp, integrator=settings.integrator or "implicitfast", timestep=timestep)
     m, d0 = sim.physics.model, sim.physics.data
     h = float(m.opt.timestep)
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS

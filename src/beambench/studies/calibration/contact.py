@@ -130,34 +130,31 @@ CONTACT_UNKNOWNS = (
 
 
 def contact_base(targets: Targets) -> CalibrationBase:
-    """The fixed part of the contact twin: the prior parameter set (the session's, else the protocol default),
-    model, and the session's protocol (else the shipped contact sweep): its twist, amplitude, integrator,
-    windows, noise and seed, and its sweep extended to the targets (how the written protocol runs)."""
+    """The fixed part of the contact twin: the session's protocol (else the shipped contact sweep) with its sweep
+    extended to the targets (how the written protocol runs), simulated as ``beambench run`` simulates it (one
+    :func:`~beambench.sim.protocol_slice.sim_slice`: model, ``auto`` included, integrator, timestep plan,
+    twist, amplitude, windows, noise and seed); the prior parameter set is the session's, else the protocol's."""
     from beambench.acquisition.config import Sweep, parse_protocol
     from beambench.common.resources import shipped_dir
+    from beambench.session.slices import sim_slice
 
     text = targets.protocol_text or (shipped_dir("protocols") / "contact_sweep.yaml").read_text()
     try:
         proto = parse_protocol(text, targets.source)
     except ValueError as exc:
         raise CalibrationInputError(str(exc)) from None
-    model = proto.sim.model if proto.sim.model != "auto" else "prb3"
-    params = targets.prior.get("params", proto.sim.params)
     sweep = extended_sweep(yaml.safe_load(text), targets).get("sweep", {})
     try:
-        freqs = Sweep.model_validate(sweep).values()
+        written = proto.model_copy(update={"sweep": Sweep.model_validate(sweep)})
     except ValueError as exc:
         raise CalibrationInputError(f"{targets.source}: sweep: {exc}") from None
-    sim = SimSettings(
-        settle_s=float(proto.settle_s),
-        record_s=float(proto.record_s),
-        twist_deg=float(proto.sim.twist_deg),
-        amplitude_m=float(proto.amplitude_mm) * 1e-3,
-        integrator=str(proto.sim.integrator),
-        noise=bool(proto.sim.noise),
-        seed=int(proto.sim.seed),
-    )
-    return CalibrationBase(model, str(params), sim, tuple(float(f) for f in freqs))
+    try:
+        sim = sim_slice(written)
+    except ValueError as exc:
+        raise CalibrationInputError(f"{targets.source}: {exc}") from None
+    params = targets.prior.get("params", sim.params)
+    freqs = tuple(float(f) for f in written.sweep.values()) if written.sweep is not None else ()
+    return CalibrationBase(sim.model, str(params), sim.settings, freqs, sim.tolerance_mm)
 
 
 def prior_params(base: CalibrationBase) -> BeamParams:
@@ -242,7 +239,8 @@ def simulate_contact(
     beam = make_beam_model(base.model, params)
     sag = static_sag(beam, RigParams.with_overrides(params.rig), sim.twist_deg)
     gap = physical_gap(params, sag - values.get("preload_mm", 0.0) * 1e-3)
-    table = stepped_regime_map(sorted(frequencies), sim, ContactTwin(base.model, params, {"plate_gap": gap}))
+    twin = ContactTwin(base.model, params, {"plate_gap": gap})
+    table = stepped_regime_map(sorted(frequencies), sim, twin, tolerance_mm=base.tolerance_mm)
     table = table.astype({"tangential_sign": float, "touchdown_direction": float})
     return {"steps": table.to_dict("records"), "extras": {"gap_mm": gap * 1e3, "sag_mm": sag * 1e3}}
 

@@ -26,13 +26,14 @@ __all__ = ["RIGS", "CalibratableRig", "CalibrationBase", "Landmarks", "Unknown",
 class CalibrationBase:
     """The fixed part of a twin, sent with every evaluation to the workers (frozen, picklable, hashed into the
     evaluation log's keys): the beam model, the prior parameter set (name or path), the simulation settings of
-    the protocol the calibration writes (twist, amplitude, integrator, its windows, noise and seed) and that
-    protocol's sweep (empty: the rig has no verify stage)."""
+    the protocol the calibration writes (twist, amplitude, integrator, its windows, noise and seed), that
+    protocol's sweep (empty: the rig has no verify stage) and the tolerance its timestep plan is chosen for."""
 
     model: str
     params: str
     sim: SimSettings = field(default_factory=SimSettings)
     frequencies: tuple[float, ...] = ()
+    tolerance_mm: float = 0.1  # the accuracy the run's measured timestep plan is chosen for (sim.tolerance_mm)
 
 
 # landmarks(steps, targets) -> {name: (the map's value or None where it has none, the target's value)}, both in

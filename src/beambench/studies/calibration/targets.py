@@ -45,6 +45,7 @@ import yaml
 
 from beambench.common.errors import BeambenchError
 from beambench.common.inputs import read_input_bytes
+from beambench.common.yaml_config import ConfigError, parse_yaml
 from beambench.sim.scenes.contact_regimes import CONTINUOUS, IRREGULAR, NONE, transitions
 
 __all__ = [
@@ -269,9 +270,9 @@ def load_targets(path: str | Path) -> Targets:
     p = Path(path)
     text = read_input_bytes(p, "targets file", TARGETS_MAX_BYTES, CalibrationInputError).decode("utf-8", "replace")
     try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise CalibrationInputError(f"{p}: not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        data = parse_yaml(text, str(p))  # the project's one YAML reading: caps, duplicate keys refused
+    except ConfigError as exc:
+        raise CalibrationInputError(str(exc)) from None
     except OSError as exc:
         raise CalibrationInputError(f"{p}: {exc.strerror or exc}") from None
     return parse_targets(data, str(p))
@@ -284,13 +285,15 @@ def session_targets(path: str | Path) -> Targets:
     """Per-step targets of a measured (or twin-made) session, analysed with :mod:`beambench.analysis.session`;
     the release-test fit it holds (``/processing/fit``) or the parameter set it ran with is the prior."""
     from beambench.analysis.session import analyze_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.hdf5 import SessionFileError, read_session
 
     p = Path(path)
     if not p.is_file():
         raise CalibrationInputError(f"{p}: no such session file")
     try:
         session = read_session(p)
+    except SessionFileError as exc:  # already one line naming the file
+        raise CalibrationInputError(str(exc)) from None
     except (OSError, KeyError) as exc:
         raise CalibrationInputError(f"{p}: not a beambench session file ({exc})") from None
     general = dict(session.general)

@@ -68,7 +68,7 @@ WALKER_UNKNOWNS = (  # the walker's foot mass, friction, offset radius (beambenc
 )
 STAGES: dict[str, dict[str, Any]] = {
     "coarse": {"settle_s": 3.0, "record_s": 1.5, "timestep": 1.5e-4},
-    "fine": {"settle_s": 3.0, "record_s": 1.5, "timestep": None},  # the scene's timestep
+    "fine": {"settle_s": 3.0, "record_s": 1.5},  # the protocol's timestep (none given: the scene's)
 }
 
 
@@ -143,18 +143,23 @@ def walker_checks(targets: Targets) -> list[TargetCheck]:
 
 
 def walker_base(targets: Targets) -> CalibrationBase:
-    """The fixed part: the prior parameter set, leg model and twist of the session's protocol (else the shipped
-    walker sweep)."""
+    """The fixed part: the session's protocol (else the shipped walker sweep) simulated as ``beambench run``
+    simulates it (one :func:`~beambench.sim.protocol_slice.sim_slice`: leg model, parameter set, twist,
+    integrator, timestep); the stages set their own windows (:data:`STAGES`)."""
     from beambench.acquisition.config import parse_protocol
     from beambench.common.resources import shipped_dir
+    from beambench.session.slices import sim_slice
 
     text = targets.protocol_text or (shipped_dir("protocols") / "walker_sweep.yaml").read_text()
     try:
         proto = parse_protocol(text, targets.source)
     except ValueError as exc:
         raise CalibrationInputError(str(exc)) from None
-    model = "prb3" if proto.sim.model == "auto" else proto.sim.model
-    return CalibrationBase(model, str(proto.sim.params), SimSettings(twist_deg=float(proto.sim.twist_deg)))
+    try:
+        sim = sim_slice(proto)
+    except ValueError as exc:
+        raise CalibrationInputError(f"{targets.source}: {exc}") from None
+    return CalibrationBase(sim.model, sim.params, sim.settings, tolerance_mm=sim.tolerance_mm)
 
 
 def _prior(base: CalibrationBase) -> BeamParams:

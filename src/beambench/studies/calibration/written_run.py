@@ -43,11 +43,11 @@ def run_written_protocol(path: Path, seed: int | None = None) -> dict[str, Any]:
     :data:`STEP_COLUMNS` the analysis has. A run that does not complete raises :class:`WrittenRunError`."""
     from beambench.acquisition.config import parse_protocol
     from beambench.analysis.session import analyze_session
-    from beambench.common.yaml_config import read_text
+    from beambench.common.yaml_config import load_yaml_file
     from beambench.session.run import run_session
     from beambench.sinks.hdf5 import read_session
 
-    doc = yaml.safe_load(read_text(path))  # kind and size checked before the read
+    doc, _ = load_yaml_file(path)  # kind and size checked before the read
     doc["backend"] = "sim"
     if seed is not None:
         doc.setdefault("sim", {})["seed"] = int(seed)

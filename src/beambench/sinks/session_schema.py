@@ -1,0 +1,295 @@
+"""The schema of a session file, checked when it is opened: an edited, damaged or foreign file fails here with
+one line naming the HDF5 path and the problem, before any command reads, draws or writes anything.
+
+Checked: the kind of every object (group or dataset, hard links only), dtypes and shapes, labels that match
+their axis, monotonic host times, step and event times inside the recorded data's span (plus a margin), the
+``/general`` text (JSON entries, the protocol's YAML, the rig, the axis names) and ``/processing``. No dataset
+may claim more bytes than the file holds, so nothing read from a file allocates beyond its size.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from typing import Any
+
+import h5py
+import numpy as np
+import yaml
+
+__all__ = ["AXIS", "SessionSchemaError", "check_schema"]
+
+AXIS = re.compile(r"^[+-]?[xyz]$")
+RIG = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
+NUMERIC = "biuf"  # bool, int, unsigned, float
+TIME_MARGIN_NS = 60 * 10**9  # how far outside the data a step or event may lie (a step starts before its samples)
+MAX_SPAN_NS = 7 * 86400 * 10**9  # a week: longer than any run; view draws the span in 1 s windows
+BYTES_SLACK = 1 << 20  # rows a live writer has extended but not yet written (HDF5 reads them as zeros)
+MAX_DEPTH = 12  # /general nesting (a hard link to a parent group would otherwise recurse forever)
+MIN_STEP_FIELDS = {"index": "iu", "frequency_hz": "fiu", "t_start_ns": "i", "t_settled_ns": "i", "t_end_ns": "i"}
+STEP_FIELDS = {**MIN_STEP_FIELDS, "status": "S", "direction": "S", "kind": "S", "repeat": "iu"}
+EVENT_FIELDS = {"host_time_ns": "i", "kind": "S", "message": "S"}
+
+
+class SessionSchemaError(ValueError):
+    """One problem: ``where`` (an HDF5 path) and ``problem``; the reader turns it into its one-line error."""
+
+    def __init__(self, where: str, problem: str) -> None:
+        super().__init__(f"{where}: {problem}")
+
+
+def check_schema(f: h5py.File, size: int) -> None:
+    """Raise :class:`SessionSchemaError` on the first thing in ``f`` (a file of ``size`` bytes) that is not a
+    beambench session as the readers expect it."""
+    budget = size + BYTES_SLACK
+    links = set(f)  # every link's name, a dangling one too (``name in f`` is False for those)
+    for name in ("general", "acquisition", "processing"):
+        if name in links:
+            _hard_link(f, name)
+            _kind(f[name], f"/{name}", h5py.Group)
+    for name in ("steps", "events"):
+        _hard_link(f, name)
+        _kind(f[name], f"/{name}", h5py.Dataset)
+    _check_general(f["general"], "/general", 0, budget)
+    spans = [_check_stream(g, f"/acquisition/{name}", budget) for name, g in _members(f["acquisition"], "/acquisition")]
+    steps = _table(f["steps"], "/steps", STEP_FIELDS, MIN_STEP_FIELDS, budget)
+    events = _table(f["events"], "/events", EVENT_FIELDS, EVENT_FIELDS, budget)
+    _check_times(spans, steps, events)
+    if "processing" in links:
+        _check_processing(f["processing"], budget)
+
+
+def _members(g: h5py.Group, where: str) -> list[tuple[str, Any]]:
+    out = []
+    for name in list(g):
+        _hard_link(g, name, where)
+        out.append((name, g[name]))
+    return out
+
+
+def _hard_link(g: h5py.Group, name: str, where: str = "") -> None:
+    link = g.get(name, getlink=True)
+    if not isinstance(link, h5py.HardLink):
+        kind = "an external link" if isinstance(link, h5py.ExternalLink) else "a soft link"
+        raise SessionSchemaError(f"{where}/{name}", f"{kind}; a session holds its data itself")
+
+
+def _kind(obj: Any, where: str, kind: type) -> None:
+    if not isinstance(obj, kind):
+        got = "a group" if isinstance(obj, h5py.Group) else "a dataset"
+        raise SessionSchemaError(where, f"{got}, expected a {'group' if kind is h5py.Group else 'dataset'}")
+
+
+def _bounded(ds: h5py.Dataset, where: str, budget: int) -> None:
+    nbytes = int(np.prod(ds.shape, dtype=np.float64) * ds.dtype.itemsize) if ds.shape is not None else 0
+    if nbytes > budget:
+        raise SessionSchemaError(where, f"claims {nbytes:,} bytes, more than the file holds ({budget - BYTES_SLACK:,})")
+
+
+def _text(ds: h5py.Dataset, where: str) -> str:
+    if ds.shape != () or (h5py.check_string_dtype(ds.dtype) is None and ds.dtype.kind != "S"):
+        raise SessionSchemaError(where, f"a {ds.dtype} dataset of shape {ds.shape}, expected one text value")
+    raw = ds[()]
+    try:
+        return raw.decode("utf-8") if isinstance(raw, bytes) else str(raw)
+    except UnicodeDecodeError:
+        raise SessionSchemaError(where, "not UTF-8 text") from None
+
+
+# --- /general ----------------------------------------------------------------------------------------------
+def _check_general(g: h5py.Group, where: str, depth: int, budget: int) -> None:
+    if depth > MAX_DEPTH:
+        raise SessionSchemaError(where, f"nested deeper than {MAX_DEPTH} groups (a link back to a parent?)")
+    for name, item in _members(g, where):
+        path = f"{where}/{name}"
+        if isinstance(item, h5py.Group):
+            _check_general(item, path, depth + 1, budget)
+            continue
+        _bounded(item, path, budget)
+        text = _text(item, path)
+        if item.attrs.get("encoding") == "json":
+            try:
+                json.loads(text)
+            except ValueError as exc:
+                raise SessionSchemaError(path, f"not JSON ({exc})") from None
+    if depth == 0:
+        _check_general_values(g, where)
+
+
+def _check_general_values(g: h5py.Group, where: str) -> None:
+    for key in ("up_axis", "forward_axis", "geometry/up_axis", "geometry/forward_axis"):
+        if isinstance(g.get(key), h5py.Dataset):
+            value = _text(g[key], f"{where}/{key}").strip()
+            if value and not AXIS.match(value):
+                raise SessionSchemaError(f"{where}/{key}", f"{value[:20]!r} is not an axis (x, y, z, -x, +y …)")
+    protocol_rig = None
+    if isinstance(g.get("protocol"), h5py.Dataset):
+        try:
+            proto = yaml.safe_load(_text(g["protocol"], f"{where}/protocol"))
+        except yaml.YAMLError as exc:
+            problem = str(getattr(exc, "problem", None) or "syntax error")
+            raise SessionSchemaError(f"{where}/protocol", f"not YAML ({problem})") from None
+        protocol_rig = proto.get("rig") if isinstance(proto, dict) else None
+    rig = _text(g["rig"], f"{where}/rig").strip() if isinstance(g.get("rig"), h5py.Dataset) else None
+    if rig is not None and not RIG.match(rig):
+        raise SessionSchemaError(f"{where}/rig", f"{rig[:20]!r} is not a rig name")
+    if protocol_rig not in (None, "contact") and rig != protocol_rig:
+        said = "missing" if rig is None else f"{rig!r}"
+        raise SessionSchemaError(f"{where}/rig", f"{said}, but the protocol says rig: {str(protocol_rig)[:20]}")
+
+
+# --- /acquisition ------------------------------------------------------------------------------------------
+def _check_stream(g: Any, where: str, budget: int) -> tuple[int, int] | None:
+    """The stream's checks; returns the first and last host time of its recorded rows, if any."""
+    _kind(g, where, h5py.Group)
+    _check_stream_attrs(g, where)
+    columns = dict(_members(g, where))
+    for name in ("host_time_ns", "device_time"):
+        if name not in columns:
+            raise SessionSchemaError(f"{where}/{name}", "missing")
+    for name, ds in columns.items():
+        path = f"{where}/{name}"
+        _kind(ds, path, h5py.Dataset)
+        _bounded(ds, path, budget)
+        if ds.dtype.kind not in NUMERIC or ds.dtype.names is not None or ds.ndim < 1:
+            raise SessionSchemaError(path, f"a {ds.dtype} dataset of shape {ds.shape}, expected numeric rows")
+        _check_labels(ds, path)
+    for name in ("host_time_ns", "device_time"):
+        if columns[name].ndim != 1:
+            raise SessionSchemaError(f"{where}/{name}", f"shape {columns[name].shape}, expected one value per row")
+    if columns["host_time_ns"].dtype.kind != "i":
+        raise SessionSchemaError(f"{where}/host_time_ns", f"{columns['host_time_ns'].dtype}, expected int64 ns")
+    if where == "/acquisition/mocap":
+        _check_mocap(columns, where)
+    return _host_span(columns["host_time_ns"][()], f"{where}/host_time_ns")
+
+
+def _check_stream_attrs(g: h5py.Group, where: str) -> None:
+    rate = g.attrs.get("rate_hz", 0.0)
+    if not isinstance(rate, (int, float, np.number)) or not math.isfinite(float(rate)) or float(rate) < 0:
+        raise SessionSchemaError(f"{where} rate_hz", f"{str(rate)[:20]!r} is not a rate (a number >= 0)")
+    for key in ("up_axis", "forward_axis"):
+        if key in g.attrs:
+            value = g.attrs[key]
+            value = value.decode("utf-8", "replace") if isinstance(value, bytes) else value
+            if not isinstance(value, str) or not AXIS.match(value):
+                raise SessionSchemaError(f"{where} {key}", f"{str(value)[:20]!r} is not an axis (x, y, z, -x, +y …)")
+
+
+def _check_labels(ds: h5py.Dataset, where: str) -> None:
+    if "labels" not in ds.attrs:
+        return
+    labels = np.asarray(ds.attrs["labels"])
+    if labels.ndim != 1 or labels.dtype.kind not in "OSU" or any(not isinstance(x, (str, bytes)) for x in labels):
+        raise SessionSchemaError(f"{where} labels", "expected a list of names")
+    if ds.ndim < 2 or ds.shape[1] != len(labels):
+        raise SessionSchemaError(f"{where} labels", f"{len(labels)} names for rows of shape {ds.shape[1:]}")
+
+
+def _check_mocap(columns: dict[str, h5py.Dataset], where: str) -> None:
+    data = columns.get("data")
+    if data is None:
+        raise SessionSchemaError(f"{where}/data", "missing")
+    if data.ndim != 3 or data.shape[2] != 3 or data.dtype.kind != "f":
+        raise SessionSchemaError(f"{where}/data", f"{data.dtype} of shape {data.shape}, expected (rows, markers, 3)")
+    occ = columns.get("occluded")
+    if occ is not None and (occ.ndim != 2 or occ.shape[1] != data.shape[1]):
+        raise SessionSchemaError(f"{where}/occluded", f"shape {occ.shape}, expected (rows, {data.shape[1]})")
+
+
+def _host_span(host: np.ndarray, where: str) -> tuple[int, int] | None:
+    keep = host != 0  # rows a killed run extended but never wrote; a first row at 0 is the sim clock's start
+    if len(keep) > 1 and not keep[0] and keep[1:].any():
+        keep[0] = True
+    real = host[keep]
+    if len(real) == 0:
+        return None
+    back = np.flatnonzero(np.diff(real) < 0)
+    if len(back):
+        i = int(np.flatnonzero(keep)[back[0] + 1])
+        raise SessionSchemaError(where, f"goes back in time at row {i}; host times only increase")
+    lo, hi = int(real[0]), int(real[-1])
+    if lo < 0 or hi - lo > MAX_SPAN_NS:
+        raise SessionSchemaError(where, f"spans {lo} … {hi} ns, not a run's host times")
+    return lo, hi
+
+
+# --- /steps, /events and their times -----------------------------------------------------------------------
+def _table(ds: h5py.Dataset, where: str, fields: dict[str, str], required: dict[str, str], budget: int) -> Any:
+    """The rows of a compound table with a key field set (``status`` / ``kind``): rows never written have it empty."""
+    _bounded(ds, where, budget)
+    names = ds.dtype.names or ()
+    if ds.ndim != 1 or not names:
+        raise SessionSchemaError(where, f"a {ds.dtype} dataset of shape {ds.shape}, expected a table of rows")
+    for name, kinds in fields.items():
+        if name not in names:
+            if name in required or name in ("status", "kind"):
+                raise SessionSchemaError(where, f"no {name} column")
+            continue
+        if ds.dtype[name].kind not in kinds or ds.dtype[name].shape != ():
+            raise SessionSchemaError(f"{where} {name}", f"of type {ds.dtype[name]}, expected {_kinds(kinds)}")
+    rows = ds[()]
+    key = "status" if "status" in fields else "kind"
+    return rows[rows[key] != b""]
+
+
+def _kinds(kinds: str) -> str:
+    return {"i": "an integer", "iu": "an integer", "fiu": "a number", "S": "fixed-length text"}.get(kinds, kinds)
+
+
+def _check_times(spans: list[tuple[int, int] | None], steps: Any, events: Any) -> None:
+    known = [s for s in spans if s is not None]
+    if known:
+        lo, hi = min(s[0] for s in known), max(s[1] for s in known)
+        if hi - lo > MAX_SPAN_NS:
+            raise SessionSchemaError("/acquisition", "streams' host times more than a week apart")
+    else:  # no samples (a run killed before its first batch): the steps' own starts bound the rest
+        starts = steps["t_start_ns"] if len(steps) else np.zeros(1, np.int64)
+        lo, hi = int(starts.min()), int(starts.max())
+        if lo < 0 or hi - lo > MAX_SPAN_NS:
+            raise SessionSchemaError("/steps t_start_ns", f"spans {lo} … {hi} ns, not a run's host times")
+    lo, hi = lo - TIME_MARGIN_NS, hi + TIME_MARGIN_NS
+    for i, row in enumerate(steps):
+        if not math.isfinite(float(row["frequency_hz"])):
+            raise SessionSchemaError(f"/steps row {i} frequency_hz", "not a finite number")
+        for name in ("t_start_ns", "t_settled_ns", "t_end_ns"):
+            t = int(row[name])
+            if (name != "t_start_ns" and t == -1) or lo <= t <= hi:
+                continue
+            raise SessionSchemaError(
+                f"/steps row {i} {name}", f"{t} ns lies outside the recorded data ({_span(lo, hi)})"
+            )
+    if len(events):
+        t = events["host_time_ns"]
+        bad = np.flatnonzero((t < lo) | (t > hi))
+        if len(bad):
+            i = int(bad[0])
+            raise SessionSchemaError(
+                f"/events row {i}", f"{int(t[i])} ns lies outside the recorded data ({_span(lo, hi)})"
+            )
+
+
+def _span(lo: int, hi: int) -> str:
+    return f"{lo} … {hi} ns, with a {TIME_MARGIN_NS // 10**9} s margin"
+
+
+# --- /processing -------------------------------------------------------------------------------------------
+def _check_processing(g: h5py.Group, budget: int) -> None:
+    for name, table in _members(g, "/processing"):
+        where = f"/processing/{name}"
+        _kind(table, where, h5py.Group)
+        for key, ds in _members(table, where):
+            _kind(ds, f"{where}/{key}", h5py.Dataset)
+            _bounded(ds, f"{where}/{key}", budget)
+            if ds.dtype.names is not None or (
+                ds.dtype.kind not in NUMERIC + "S" and h5py.check_string_dtype(ds.dtype) is None
+            ):
+                raise SessionSchemaError(f"{where}/{key}", f"a {ds.dtype} dataset, expected numbers or text")
+        if "columns" in table.attrs:
+            try:
+                cols = json.loads(table.attrs["columns"])
+            except (TypeError, ValueError):
+                cols = None
+            if not isinstance(cols, list) or not all(isinstance(c, str) for c in cols):
+                raise SessionSchemaError(f"{where} columns", "expected a JSON list of column names")
