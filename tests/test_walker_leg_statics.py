@@ -14,10 +14,12 @@ A leg hanging straight down (``leg_droop_deg = 90``) carries its sole load along
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
+import yaml
 
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
@@ -131,14 +133,9 @@ def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
         prb3.physics.close()
 
 
-def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
-    """The run's result (stderr) carries the model's warning; the session is written as usual (exit 0). The set:
-    the 14 MPa strip walker above, as a parameter file (no bounds: the anchored beam's exclude 14 MPa)."""
-    import yaml
-    from typer.testing import CliRunner
-
-    from beambench.cli import app
-
+def folding_protocol(tmp_path: Path) -> Path:
+    """A one-step walker protocol on the 14 MPa strip walker above, its parameters a file (without bounds: the
+    anchored beam's exclude 14 MPa)."""
     data = {**SOFT.to_dict(), "name": "soft", "walker": {**PHYSICAL.walker, **FOLDING}}
     data.pop("bounds")
     (tmp_path / "soft.yaml").write_text(yaml.safe_dump(data))
@@ -147,6 +144,16 @@ def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
         "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
         f"sim: {{model: rod5g, params: {tmp_path / 'soft.yaml'}, noise: false}}\n"
     )
+    return proto
+
+
+def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
+    """The run's result (stderr) carries the model's warning; the session is written as usual (exit 0)."""
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+
+    proto = folding_protocol(tmp_path)
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
     assert res.exit_code == 0, res.output
     assert "beambench: warning: the walker's rod5g legs fold" in res.stderr, res.stderr
@@ -162,11 +169,7 @@ def test_the_fold_warning_is_kept_in_the_session_and_shown_atop_the_report(tmp_p
     from beambench.cli import app
     from beambench.sinks.hdf5 import read_session
 
-    proto = tmp_path / "w.yaml"
-    proto.write_text(
-        "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-        "sim: {model: rod5g, params: physical, noise: false}\n"
-    )
+    proto = folding_protocol(tmp_path)
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
     assert res.exit_code == 0, res.output
     session = tmp_path / res.stdout.strip().splitlines()[-1]

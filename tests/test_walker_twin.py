@@ -25,8 +25,8 @@ def clamp_height(wp: WalkerParams) -> float:
 
 
 def test_the_shipped_walker_stands_on_its_legs():
-    """Motor off, 2 s: the body stays above 60 % of its clamp height throughout (the legs sag 6-16 mm by bending
-    and the body rocks slowly on the lightly damped strips; they do not fold in torsion, which takes the body to
+    """Motor off, 2 s: the body stays above 60 % of its clamp height throughout (the legs sag by bending and the body
+    rocks slowly on the lightly damped strips; they do not fold in torsion, which takes the body to
     the floor within 1 s), and the fold criterion agrees (no warning)."""
     sim = WalkerSim(BEAM, 90.0, SHIPPED)
     try:
@@ -44,11 +44,11 @@ def shipped_speeds() -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_the_shipped_walker_walks_in_the_papers_directions(shipped_speeds):
-    """Paper Sec. IV-B: backward at 23 Hz (−35.7 mm/s), forward at 65 Hz (+156.3). The twin walks backward at 23 Hz
-    (but ~10x slower: docs/walker-twin.md) and forward at 65 Hz within 30 %, standing (body above half its clamp
-    height) at both."""
+    """Paper Sec. IV-B: backward at 23 Hz (−35.7 mm/s), forward at 65 Hz (+156.3). The twin creeps backward at
+    23 Hz (−1.2 mm/s: the size is missed, docs/walker-twin.md) and walks forward at 65 Hz within 30 % (+193),
+    standing (body above half its clamp height) at both."""
     v, z = shipped_speeds
-    assert v[0] < -1.0, v
+    assert -10.0 < v[0] < 0.0, v
     assert v[1] == pytest.approx(156.3, rel=0.3)
     assert np.all(z > 0.5e3 * clamp_height(SHIPPED)), z
 
