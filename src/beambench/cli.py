@@ -23,6 +23,7 @@ from beambench.commands import (
     bench,
     calibrate,
     devices,
+    doctor,
     fit,
     natnet,
     run,
@@ -59,7 +60,7 @@ def _main(
 
 # One module per command (or command group), each with ``register(app)``, in the order of the help; imported by
 # name in the code (never from a string), so the import contracts see every edge.
-COMMAND_MODULES = (run, natnet, devices, calibrate, analyze, bench, fit, sweep)
+COMMAND_MODULES = (run, natnet, devices, doctor, calibrate, analyze, bench, fit, sweep)
 
 for _module in COMMAND_MODULES:
     _module.register(app)

@@ -87,8 +87,8 @@ def loadcells(
 ) -> None:
     """Walk through a load-cell calibration: tare (per channel), known loads, least-squares 2×4 matrix, save.
 
-    The result goes to --out or to the per-user folder's calibration/loadcells.yaml (with --emulate:
-    loadcells-emulated.yaml); the package's shipped calibration is never changed.
+    The result is saved to --out, or else in the per-user folder as calibration/loadcells.yaml (with --emulate:
+    calibration/loadcells-emulated.yaml); the package's shipped calibration is never changed.
     """
     from beambench.acquisition.capabilities import DeviceFault
     from beambench.common.console import stderr_console
@@ -188,12 +188,11 @@ def _emulated_mcu(console: Console) -> EmulatedLoadCellMCU:
     return mcu
 
 
-def _follow_steps(mcu: EmulatedLoadCellMCU) -> Callable[[tuple[float, float]], None]:
-    """The emulated plate carries each step's load."""
+def _follow_steps(mcu: EmulatedLoadCellMCU) -> Callable[[tuple[float, float]], int | None]:
+    """The emulated plate carries each step's load; returns the first frame that carries it."""
 
-    def apply_load(load: tuple[float, float]) -> None:
-        force = (float(load[0]), float(load[1]))
-        mcu.set_force(lambda t: force)
+    def apply_load(load: tuple[float, float]) -> int | None:
+        return mcu.switch_force((float(load[0]), float(load[1])))
 
     return apply_load
 

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
 import typer
+from typer.core import TyperCommand, TyperOption
 
 EXIT_MISSED = 3
 EXIT_INTERRUPTED = 130  # Ctrl-C or another stop signal; the evaluations so far are kept and reused
@@ -19,6 +20,24 @@ EPILOG = (
     "tolerance_hz (transitions, default ± 2 Hz) or tolerance_fraction (walker speeds, default ± 30 %); a "
     "tangential sign must match."
 )
+
+
+FREE_HELP = (
+    "Comma-separated unknowns to fit instead of the rig's default set; the others stay at the prior set's values."
+)
+
+
+class _SimCommand(TyperCommand):
+    """``calibrate sim`` whose ``--free`` help lists each rig's unknowns from the calibration registry, imported
+    only when the help is shown (it costs seconds: every other command starts without it)."""
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:  # typer's own (vendored) click types
+        from beambench.studies.calibration import unknowns_help
+
+        for param in self.params:
+            if param.name == "free" and isinstance(param, TyperOption):
+                param.help = f"{FREE_HELP} Unknowns: {unknowns_help()}."
+        super().format_help(ctx, formatter)
 
 
 def _fail(message: str) -> NoReturn:
@@ -89,10 +108,7 @@ def sim(
         str | None,
         typer.Option(
             "--free",
-            help="Comma-separated unknowns to fit instead of the rig's default set (contact rig: "
-            "b_scale,preload_mm,friction_scale), e.g. b_scale,preload_mm,friction_scale,frame_mass_g "
-            "(contact rig unknowns: k_scale, b_scale, preload_mm, friction_scale, frame_mass_g, mass_dx_mm; "
-            "the others stay at the prior set's values).",
+            help=FREE_HELP,  # completed from the unknown registry when the help is shown (_SimCommand)
         ),
     ] = None,
 ) -> None:
@@ -130,15 +146,7 @@ def sim(
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         _fail(f"--out {out_dir}: cannot create ({exc.strerror or exc})")
-    chosen = tuple(n.strip() for n in free.split(",") if n.strip()) if free is not None else None
-    if chosen is not None:
-        known = {u.name for u in get_rig(tg.rig).unknowns}
-        bad = [n for n in chosen if n not in known]
-        if not chosen or bad:
-            _fail(f"--free {free}: {tg.rig} rig unknowns are {', '.join(sorted(known))}")
-        twice = sorted({n for n in chosen if chosen.count(n) > 1})
-        if twice:
-            _fail(f"--free {free}: {twice[0]} is named twice")
+    chosen = _free_unknowns(free, tg.rig)
     settings = (
         SearchSettings.quick(budget_s=min(budget_s, 150.0), free=chosen)
         if quick
@@ -165,6 +173,23 @@ def sim(
     _finish(result, report)
 
 
+def _free_unknowns(free: str | None, rig: str) -> tuple[str, ...] | None:
+    """``--free`` as unknown names of ``rig`` (None: the rig's default set); one line and exit 2 if wrong."""
+    from beambench.studies.calibration import get_rig
+
+    if free is None:
+        return None
+    chosen = tuple(n.strip() for n in free.split(",") if n.strip())
+    known = {u.name for u in get_rig(rig).unknowns}
+    bad = [n for n in chosen if n not in known]
+    if not chosen or bad:
+        _fail(f"--free {free}: {rig} rig unknowns are {', '.join(sorted(known))}")
+    twice = sorted({n for n in chosen if chosen.count(n) > 1})
+    if twice:
+        _fail(f"--free {free}: {twice[0]} is named twice")
+    return chosen
+
+
 def _finish(result: Any, report: Path) -> None:
     """The summary and one line per target (stderr), the protocol's path (stdout), then the verdict as the last
     line (stderr); exit 3 when a target is missed."""
@@ -188,4 +213,4 @@ def _finish(result: Any, report: Path) -> None:
 
 def register_sim(sub: typer.Typer) -> None:
     """Add ``beambench calibrate sim`` to the ``calibrate`` sub-app."""
-    sub.command("sim", epilog=EPILOG)(sim)
+    sub.command("sim", epilog=EPILOG, cls=_SimCommand)(sim)

@@ -8,10 +8,8 @@ lavapipe (Debian: ``apt-get install mesa-vulkan-drivers libvulkan1``). It is con
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
-import shutil
 import socket
 import subprocess
 import tempfile
@@ -19,6 +17,9 @@ import time
 from pathlib import Path
 from types import TracebackType
 from typing import Any
+
+from beambench.common.vulkan import vulkan_devices
+from beambench.sinks.rerun_spawn import LOOPBACK, rerun_binary
 
 LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
 WINDOW = (1600, 900)
@@ -32,23 +33,10 @@ class ViewerUnavailable(RuntimeError):
     """The viewer cannot run here (no binary, no Vulkan adapter); the message says what is missing."""
 
 
-def rerun_binary() -> Path | None:
-    """The native ``rerun`` executable shipped with the rerun-sdk wheel (package ``rerun_cli``), else on PATH."""
-    spec = importlib.util.find_spec("rerun_cli")
-    if spec is not None and spec.origin is not None:
-        shipped = Path(spec.origin).with_name("rerun")
-        if shipped.is_file():
-            return shipped
-    found = shutil.which("rerun")
-    return Path(found) if found else None
-
-
 def vulkan_available() -> bool:
-    """Whether a Vulkan loader and at least one driver manifest are installed (lavapipe counts)."""
-    loaders = ("/usr/lib/x86_64-linux-gnu/libvulkan.so.1", "/usr/lib/aarch64-linux-gnu/libvulkan.so.1")
-    icd_dirs = [Path("/usr/share/vulkan/icd.d"), Path("/etc/vulkan/icd.d")]
-    has_icd = any(d.is_dir() and any(d.glob("*.json")) for d in icd_dirs) or bool(os.environ.get("VK_ICD_FILENAMES"))
-    return any(Path(p).exists() for p in loaders) and has_icd
+    """Whether the Vulkan loader finds a device to render with (lavapipe counts): asked of the loader, wherever
+    it and its drivers are installed (:func:`beambench.common.vulkan.vulkan_devices`)."""
+    return vulkan_devices().usable
 
 
 def _free_port() -> int:
@@ -73,17 +61,18 @@ class HeadlessViewer:
         binary = rerun_binary()
         if binary is None:
             raise ViewerUnavailable("the rerun viewer binary was not found (it ships with the rerun-sdk wheel)")
-        if not vulkan_available():
+        vulkan = vulkan_devices()
+        if not vulkan.usable:
             raise ViewerUnavailable(
-                "the Rerun viewer needs a Vulkan driver and finds none: on Debian/Ubuntu "
-                "`apt-get install mesa-vulkan-drivers libvulkan1` (Mesa's software renderer; no GPU or display needed)"
+                f"the Rerun viewer needs a Vulkan driver: {vulkan.error}; on Debian/Ubuntu `apt-get install "
+                "mesa-vulkan-drivers libvulkan1` (Mesa's software renderer; no GPU or display needed)"
             )
         # RUST_LOG: the viewer shows its info and warning log lines as toasts over the views (in screenshots too)
         env = dict(os.environ, XDG_RUNTIME_DIR=self._tmp.name, MESA_VK_WSI_DEBUG="noshm", RUST_LOG="error")
         if "VK_ICD_FILENAMES" not in env and LAVAPIPE_ICD.exists() and not Path("/dev/dri").exists():
             env["VK_ICD_FILENAMES"] = str(LAVAPIPE_ICD)  # no GPU: the software rasteriser, not a search of all
         os.chmod(self._tmp.name, 0o700)
-        args = [str(binary), "--headless", "--port", str(self.port), "--hide-welcome-screen"]
+        args = [str(binary), "--headless", "--bind", LOOPBACK, "--port", str(self.port), "--hide-welcome-screen"]
         args += ["--window-size", f"{self.window[0]}x{self.window[1]}", "--renderer", "vulkan"]
         if self.rrd is not None:  # loaded whole (``open`` registers a file and fetches its chunks on demand)
             args.append(str(self.rrd))

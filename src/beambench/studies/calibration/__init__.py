@@ -21,7 +21,14 @@ objective=..., base=..., write=..., summary=..., checks=...))``, imported below;
 from beambench.studies.calibration import contact, walker
 from beambench.studies.calibration.evaluate import EvalLog, Evaluator, Interrupted, Point, SearchSettings
 from beambench.studies.calibration.report import write_report
-from beambench.studies.calibration.rig import RIGS, CalibratableRig, CalibrationBase, get_rig, register_rig
+from beambench.studies.calibration.rig import (
+    RIGS,
+    CalibratableRig,
+    CalibrationBase,
+    get_rig,
+    register_rig,
+    unknowns_help,
+)
 from beambench.studies.calibration.search import Result, calibrate
 from beambench.studies.unknowns import Unknown
 
@@ -40,6 +47,7 @@ __all__ = [
     "contact",
     "get_rig",
     "register_rig",
+    "unknowns_help",
     "walker",
     "write_report",
 ]

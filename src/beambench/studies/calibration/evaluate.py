@@ -58,6 +58,9 @@ class SearchSettings:
     fixed: dict[str, float] = field(default_factory=dict)
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)  # per-unknown (lo, hi), inside its own
     max_evals: int | None = None  # stop (as if killed) after this many *new* evaluations
+    # noise seeds the winner's map is run at for the verdict (its own first): a miss that another seed meets is the
+    # twin's own seed-to-seed spread (irregular regimes that move with the noise), not a bound (verdict)
+    spread_seeds: int = 4
 
     @classmethod
     def quick(cls, **kw: Any) -> SearchSettings:
@@ -72,6 +75,7 @@ class SearchSettings:
             stall_generations=4,
             refine_top=2,
             verify_top=1,  # each candidate is two runs of the written protocol
+            spread_seeds=3,
             bracket_rounds=2,
             prior_rounds=2,
             line_cycles=1,

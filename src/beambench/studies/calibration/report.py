@@ -104,15 +104,15 @@ def _targets_table(result: Result, targets: Targets) -> list[str]:
                 rows.append(f"| {k} | {tv} | {v} |")
         return rows
     rows = [
-        "| target | wanted | twin | near-best twins | tolerance | verdict | limited by |",
-        "|---|---|---|---|---|---|---|",
+        "| target | wanted | twin | near-best twins | over noise seeds | tolerance | verdict | limited by |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     spread = result.identifiability.get("landmark_spread", {})
     for v in result.verdicts:
         sp = spread.get(v.target)
         near = f"{sp['min']:.4g} … {sp['max']:.4g} ({sp['n']})" if sp else ""
         rows.append(
-            f"| {v.target} | {v.wanted_text()} | {v.twin_text()} | {near} | {v.tolerance_text} | "
+            f"| {v.target} | {v.wanted_text()} | {v.twin_text()} | {near} | {v.spread_text()} | {v.tolerance_text} | "
             f"{'met' if v.met else '**missed**'} | {v.limited_by or ''} |"
         )
     return rows

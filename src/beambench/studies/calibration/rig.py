@@ -19,7 +19,16 @@ from beambench.studies.calibration.checks import TargetCheck
 from beambench.studies.calibration.targets import CalibrationInputError, Targets
 from beambench.studies.unknowns import Unknown
 
-__all__ = ["RIGS", "CalibratableRig", "CalibrationBase", "Landmarks", "Unknown", "get_rig", "register_rig"]
+__all__ = [
+    "RIGS",
+    "CalibratableRig",
+    "CalibrationBase",
+    "Landmarks",
+    "Unknown",
+    "get_rig",
+    "register_rig",
+    "unknowns_help",
+]
 
 
 @dataclass(frozen=True)
@@ -100,6 +109,17 @@ def register_rig(rig: CalibratableRig) -> CalibratableRig:
     """Add ``rig`` to the registry (a rig module calls this at import); returns it."""
     RIGS[rig.name] = rig
     return rig
+
+
+def unknowns_help() -> str:
+    """Every registered rig's unknowns in words, for ``calibrate sim --free``'s help: those fitted by default,
+    then the others (one registry: the help cannot drift from what the search fits)."""
+    parts = []
+    for rig in RIGS.values():
+        others = [u.name for u in rig.unknowns if u.name not in rig.default_free]
+        also = f"; also {', '.join(others)}" if others else ""
+        parts.append(f"{rig.name} rig: {', '.join(rig.default_free)} by default{also}")
+    return "; ".join(parts)
 
 
 def get_rig(name: str) -> CalibratableRig:

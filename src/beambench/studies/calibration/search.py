@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from beambench.sim.settings import SimSettings
 from beambench.studies.calibration.evaluate import (
     EvalLog,
     Evaluator,
@@ -60,9 +61,9 @@ __all__ = ["Interrupted", "Result", "SearchSettings", "calibrate"]
 DEFAULT_SETTINGS = SearchSettings()
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Result:
-    """What :func:`calibrate` found (``protocol``: the calibrated protocol it wrote)."""
+    """What :func:`calibrate` found (``protocol``: the calibrated protocol it wrote); built by keyword only."""
 
     rig: str
     values: dict[str, float]
@@ -80,6 +81,18 @@ class Result:
     settings: SearchSettings = field(default_factory=SearchSettings)
     verdicts: list[Verdict] = field(default_factory=list)  # one per target (:mod:`.verdict`)
     j_stage: str = ""  # which objective ``j`` is (the winner's stage: "verify, worse of two noise seeds" …)
+
+
+RunAt = Callable[[int], SimSettings | WrittenRun]  # the winner's run at its own noise seed plus k
+
+# The budget's shares (of settings.budget_s) at which each stage stops starting new work. The coarse evolution
+# stops at 55 %: the rest pays for the fine stage (the best coarse points re-run on every target frequency, each
+# a full stepped sweep, several times a coarse evaluation) and the verify stage (the written protocol, two noise
+# seeds each). The fine stage starts no batch after 85 % and the bracket of the monotone unknown no round after
+# 90 %, leaving the last 10 % for verify and the report.
+COARSE_SHARE = 0.55
+FINE_SHARE = 0.85
+BRACKET_SHARE = 0.9
 
 
 def coarse_frequencies(targets: Targets, step_hz: float, lo: float) -> list[float]:
@@ -202,46 +215,60 @@ def calibrate(
         _evolution(s, init, reached)
         winner = _refine(s)
         if rig.verify is not None and settings.verify_top > 0:
-            winner = _verify(s, winner, out_dir, name)
+            winner, freqs, run_at = _verify(s, winner, out_dir, name)
             label = "verify: the written protocol's map, worse of two noise seeds"
         else:
             if winner.stage != "fine":  # out of time before the fine stage: still the map on every frequency
                 winner = s.ev.batch([winner.values], s.fine, "fine")[0]
             label = "fine: every target frequency"
+            fine_sim = s.ev.stage_sim("fine")
+            freqs, run_at = s.fine, lambda k: fine_sim.replace(seed=fine_sim.seed + k)
+        seeds = seed_spread(s, winner, freqs, run_at)
         ident = identifiability([p for p in s.ev.points if p.stage == "coarse"], s.free)
         fine_pts = [p for p in s.ev.points if p.stage == "fine"]
         if len(fine_pts) > 1:  # the refine/bracket points: on every frequency, so their spread is the sharper one
             ident["fine_spread"] = identifiability(fine_pts, s.free).get("spread", {})
         s.finish(winner, label)
     summary = rig.summary(winner.steps)
-    verdicts = _judge(s, winner, ident)
+    verdicts = _judge(s, winner, ident, seeds)
     wall = s.elapsed()
     protocol = rig.write(s.base, winner.values, winner.extras, targets, out_dir, name)
     for path in (protocol, out_dir / f"{name}_params.yaml"):
         annotate_yaml(Path(path), verdicts)
     return Result(
-        rig.name,
-        winner.values,
-        winner.j,
-        winner.steps,
-        winner.extras,
-        protocol,
-        s.history,
-        ident,
-        summary,
-        s.log.new,
-        s.log.reused,
-        wall,
-        tuple(s.free),
-        settings,
-        verdicts,
-        label,
+        rig=rig.name,
+        values=winner.values,
+        j=winner.j,
+        steps=winner.steps,
+        extras=winner.extras,
+        protocol=protocol,
+        history=s.history,
+        identifiability=ident,
+        summary=summary,
+        evaluations=s.log.new,
+        reused=s.log.reused,
+        wall_s=wall,
+        free=tuple(s.free),
+        settings=settings,
+        verdicts=verdicts,
+        j_stage=label,
     )
 
 
-def _judge(s: Search, winner: Point, ident: dict[str, Any]) -> list[Verdict]:
-    """The verdict per target (:mod:`.verdict`); into ``ident`` the unknowns' intervals and the landmarks' spread
-    over the near-best refined points (:mod:`.intervals`)."""
+def seed_spread(s: Search, winner: Point, freqs: list[float], run_at: RunAt) -> list[Point]:
+    """The winner's map at :attr:`SearchSettings.spread_seeds` noise seeds: its own, then ``run_at(k)``, its seed
+    plus k (maps already in the log, e.g. the verify stage's second seed, are reused). The verdict reads from
+    them how far the twin's own noise moves each target."""
+    runs = [run_at(k) for k in range(1, max(1, s.settings.spread_seeds))]
+    if not runs:
+        return [winner]
+    return [winner, *s.ev.batch([winner.values] * len(runs), freqs, "spread", runs=runs)]
+
+
+def _judge(s: Search, winner: Point, ident: dict[str, Any], seeds: list[Point]) -> list[Verdict]:
+    """The verdict per target (:mod:`.verdict`), with the spread of the winner's map over noise ``seeds``; into
+    ``ident`` the unknowns' intervals and the landmarks' spread over the near-best refined points
+    (:mod:`.intervals`)."""
     if s.rig.checks is None:
         return []
     checks = s.rig.checks(s.targets)
@@ -251,7 +278,7 @@ def _judge(s: Search, winner: Point, ident: dict[str, Any]) -> list[Verdict]:
     if fine:
         jb = min(p.j for p in fine)
         ident["landmark_spread"] = landmark_spread(checks, [p for p in fine if p.j <= jb + max(0.05, 0.25 * jb)])
-    return judge(checks, winner, pts, s.free)
+    return judge(checks, winner, pts, s.free, seeds)
 
 
 def free_unknowns(
@@ -345,7 +372,7 @@ def _evolution(s: Search, init: np.ndarray, reached: bool) -> None:
     from scipy.optimize import differential_evolution
 
     settings = s.settings
-    late = s.over(0.55)
+    late = s.over(COARSE_SHARE)
 
     def mapper(_func: Any, xs: Any) -> list[float]:
         if s.history and s.history[-1]["stage"] == "coarse" and late():
@@ -393,19 +420,21 @@ def _refine(s: Search) -> Point:
             picks.append(p.values)
         if len(picks) >= settings.refine_top:
             break
-    late = s.over(0.85)
+    late = s.over(FINE_SHARE)
     finals = s.ev.batch(picks, s.fine, "fine") if not late() else []
     s.record("fine", finals)
     winner = min(finals, key=lambda p: p.j) if finals else ranked[0]
     if br is not None and finals and settings.bracket_rounds > 0 and not late():
         c = br.coord(winner.values[br.name])
         half = 0.06 * (br.bounds[1] - br.bounds[0])
-        line = Line(s.fine, "fine", settings.bracket_rounds, max(2, 2 * s.pool.workers), "bracket", s.over(0.9))
+        line = Line(
+            s.fine, "fine", settings.bracket_rounds, max(2, 2 * s.pool.workers), "bracket", s.over(BRACKET_SHARE)
+        )
         winner = min(winner, bracket(s, winner.values, br, (c - half, c + half), line), key=lambda p: p.j)
     return winner
 
 
-def _verify(s: Search, winner: Point, out_dir: Path, name: str) -> Point:
+def _verify(s: Search, winner: Point, out_dir: Path, name: str) -> tuple[Point, list[float], RunAt]:
     """The best distinct refined points run as the written protocol will run (its sweep, windows, noise and
     seed), each also with a second noise realisation: a label that flips with the noise (a stray ½ or ⅓ at the
     continuous edge) would move a "lowest" transition in the user's run; the worse of the two counts. The
@@ -441,7 +470,11 @@ def _verify(s: Search, winner: Point, out_dir: Path, name: str) -> Point:
     worst = [max(a.j, b.j) for a, b in zip(checked, again)]
     s.record("verify", checked + again)
     ib = int(np.argmin(worst))
-    return replace(checked[ib], j=float(worst[ib]), extras={**cands[ib].extras, **checked[ib].extras})
+    best = replace(checked[ib], j=float(worst[ib]), extras={**cands[ib].extras, **checked[ib].extras})
+    if rig.run_written is not None:
+        path = paths[ib]
+        return best, vfreqs, lambda k: WrittenRun(path, seed + k)
+    return best, vfreqs, lambda k: vsim.replace(seed=seed + k)
 
 
 def prior_lines(s: Search, start: dict[str, float], order: list[Unknown], freqs: list[float], n: int) -> Point:

@@ -4,7 +4,10 @@ and, for a miss, the unknown that limits it.
 A rig names its targets as :class:`~.checks.TargetCheck` s (``CalibratableRig.checks(targets)``; the
 tolerances: :mod:`.checks`).
 
-A missed target is *limited by* a free unknown that sits at (within :data:`AT_BOUND_FRACTION` of its search span,
+The winner's map is also run at a few more noise seeds (``SearchSettings.spread_seeds``): a missed target that
+one of them meets is limited by the twin's own seed-to-seed spread (irregular regimes that change with the noise
+seed: no unknown is to blame), and every verdict carries that spread. Otherwise a missed target is *limited by*
+a free unknown that sits at (within :data:`AT_BOUND_FRACTION` of its search span,
 on its log axis where it has one) one of its bounds at the best point, preferring one that the evaluated points
 say moves the twin's value toward the target when pushed past that bound (a weighted local linear fit of the
 value over the points, as the landmark steps fit theirs); with none at a bound, no unknown moves it far enough.
@@ -45,6 +48,15 @@ class Verdict:
     unit: str
     met: bool
     limited_by: str | None = None
+    seed_spread: tuple[float, float] | None = None  # the value's range over the noise seeds the winner ran at
+    seeds: int = 1
+
+    def spread_text(self) -> str:
+        """``33.0 … 40.0 Hz (4 seeds)``, or empty without a spread."""
+        if self.seed_spread is None:
+            return ""
+        lo, hi = self.seed_spread
+        return f"{lo:.4g} … {hi:.4g}{_u(self.unit)} ({self.seeds} seeds)"
 
     def wanted_text(self) -> str:
         return f"{self.wanted:.4g}{_u(self.unit)}"
@@ -68,6 +80,8 @@ class Verdict:
             "unit": self.unit,
             "met": self.met,
             "limited_by": self.limited_by,
+            "seed_spread": list(self.seed_spread) if self.seed_spread is not None else None,
+            "seeds": self.seeds,
         }
 
 
@@ -76,19 +90,46 @@ def _u(unit: str) -> str:
 
 
 def judge(
-    checks: Sequence[TargetCheck], winner: Point, points: Sequence[Point], free: Sequence[Unknown]
+    checks: Sequence[TargetCheck],
+    winner: Point,
+    points: Sequence[Point],
+    free: Sequence[Unknown],
+    seeds: Sequence[Point] = (),
 ) -> list[Verdict]:
-    """Every check on the winner's map; a miss names its limit from the winner's values, the ``points``
+    """Every check on the winner's map; a miss names its limit: the twin's own spread over the noise ``seeds``
+    (the winner's map at other seeds) when one of them meets it, else from the winner's values, the ``points``
     evaluated and the ``free`` unknowns' bounds."""
     out = []
     steps, best = winner.steps, winner.values
     for c in checks:
-        v = c.measure(steps)
-        v = float(v) if v is not None and math.isfinite(v) else None
+        v = _finite(c.measure(steps))
         ok = c.met(v)
-        why = None if ok else limiting_unknown(c, v, best, points, free)
-        out.append(Verdict(c.name, c.kind, c.target, v, c.tolerance, c.tolerance_text, c.unit, ok, why))
+        across = [x for x in (_finite(c.measure(p.steps)) for p in seeds) if x is not None]
+        spread = (min(across), max(across)) if len(seeds) > 1 and across else None
+        why = None
+        if not ok:
+            met_by = [x for x in across if c.met(x)]
+            why = (
+                seed_spread_text(spread, len(seeds), len(met_by), c.unit)
+                if met_by and spread is not None
+                else limiting_unknown(c, v, best, points, free)
+            )
+        tol, unit = c.tolerance_text, c.unit
+        out.append(Verdict(c.name, c.kind, c.target, v, c.tolerance, tol, unit, ok, why, spread, max(1, len(seeds))))
     return out
+
+
+def seed_spread_text(spread: tuple[float, float], seeds: int, meeting: int, unit: str) -> str:
+    """A miss that other noise seeds meet: the twin's own spread, not a bound."""
+    lo, hi = spread
+    return (
+        f"the twin's own seed-to-seed spread covers it ({lo:.4g} … {hi:.4g}{_u(unit)} over {seeds} noise seeds, "
+        f"{meeting} within tolerance: irregular regimes that change with the noise seed), not a bound"
+    )
+
+
+def _finite(v: float | None) -> float | None:
+    return float(v) if v is not None and math.isfinite(v) else None
 
 
 def at_bound(values: dict[str, float], free: Sequence[Unknown]) -> list[tuple[Unknown, int]]:
