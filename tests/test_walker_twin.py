@@ -71,3 +71,18 @@ def test_swapping_the_legs_chirality_mirrors_the_sideways_drift():
     assert np.abs(a[:, 1]).max() > 1e-4  # a chiral robot drifts sideways (m) ...
     assert np.abs(a[:, 1] + b[:, 1]).max() < 1e-6  # ... and its mirror image the other way
     assert np.abs(a[:, [0, 2]] - b[:, [0, 2]]).max() < 1e-6
+
+
+def test_legs_clamped_flat_sag_to_the_floor_and_on_edge_stand():
+    """The argued orientation: the strip clamped with its width vertical (``leg_roll_deg`` 0, shipped) carries the
+    body near its clamp height; the same strip clamped flat (90: its weak axis under the clamp's largest moment)
+    lets it down to the floor within 1.5 s, motor off."""
+    heights = {}
+    for roll in (0.0, 90.0):
+        sim = WalkerSim(BEAM, 90.0, replace(SHIPPED, leg_roll_deg=roll))
+        try:
+            heights[roll] = float(sim.advance_to(1.5).channels["markers"][-1, 0, 2])
+        finally:
+            sim.physics.close()
+    assert heights[0.0] > 0.75 * clamp_height(SHIPPED), heights
+    assert heights[90.0] < 0.2 * clamp_height(SHIPPED), heights
