@@ -69,10 +69,12 @@ def process_alive(pid: int) -> bool:
 _SOAK = False
 
 
-def fuzz_examples(n: int, least: int = 50) -> int:
-    """A Hypothesis test's example count: ``n`` in the soak tier, a fifth of it (at least ``least``, 50 unless a
-    test whose examples take seconds says fewer) in the default run."""
-    return n if _SOAK else min(n, max(least, n // 5))
+def fuzz_examples(n: int, default: int | None = None) -> int:
+    """A Hypothesis test's example count: ``n`` in the soak tier; in the default run a fifth of it (at least 50),
+    or ``default`` for a test whose examples take seconds each."""
+    if _SOAK:
+        return n
+    return default if default is not None else min(n, max(50, n // 5))
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -48,7 +48,7 @@ ROOT = Path(__file__).resolve().parents[1]
 NOISE = 3e-4  # m per coordinate
 NOISE_FLOOR_MM = NOISE * 1e3 * math.sqrt(3)  # RMS of a 3-D Gaussian distance = σ·√3
 SHORT = ReleaseTest(post_s=0.2, timestep=2e-4)  # the fit's timestep: an exact model (see the module docstring)
-ROD_TRUTH = {"youngs_modulus": 20e6, "beta": 1.5e-3}  # the defaults (rod_paper): 26 MPa, 0.6 ms
+ROD_TRUTH = {"youngs_modulus": 48e6, "beta": 1.5e-3}  # the defaults (rod_paper): 26 MPa, 0.6 ms
 
 
 def _inside(r: FitResult, key: str, truth: float) -> None:
@@ -89,7 +89,7 @@ def _decay(data: ReleaseData) -> Decay:
 def test_fitted_rod_rings_down_at_the_measured_frequency(rod_fit):
     """Physics check: the release analysis (a second-order free response fitted to the tip's mean) of the
     fitted model's own release matches that of the session's markers: natural frequency within 1 %, damping ratio
-    within 10 % — where the default set (26 MPa, 0.6 ms) is 15 % off in frequency."""
+    within 10 % — where the default set (26 MPa, 0.6 ms) is ~25 % off in frequency."""
     data, r, _ = rod_fit
     measured = _decay(data)
     fitted = _decay(synthetic_release(r.params, model="rod5", noise_m=0.0, test=SHORT))
@@ -98,7 +98,7 @@ def test_fitted_rod_rings_down_at_the_measured_frequency(rod_fit):
         f"\nring-down: measured {measured.natural_frequency_hz:.2f} Hz ζ {measured.damping_ratio:.3f}; fitted "
         f"{fitted.natural_frequency_hz:.2f} Hz ζ {fitted.damping_ratio:.3f}; default {default.natural_frequency_hz:.2f} Hz"
     )
-    assert 15 < measured.natural_frequency_hz < 30 and measured.r2 > 0.85
+    assert 25 < measured.natural_frequency_hz < 45 and measured.r2 > 0.85
     assert fitted.natural_frequency_hz == pytest.approx(measured.natural_frequency_hz, rel=0.01)
     assert fitted.damping_ratio == pytest.approx(measured.damping_ratio, rel=0.10)
     assert abs(default.natural_frequency_hz / measured.natural_frequency_hz - 1) > 0.05
@@ -140,12 +140,12 @@ def test_de_then_sysid_from_a_bad_initial_guess():
 def test_differential_evolution_still_available_with_intervals():
     """--method de: the paper's optimizer, each generation one batch; intervals at its optimum too."""
     base = default_base("rod")
-    truth = replace(base, material=replace(base.material, youngs_modulus=16e6), beta=3e-3)
+    truth = replace(base, material=replace(base.material, youngs_modulus=58e6), beta=3e-3)
     data = synthetic_release(truth, model="rod5", noise_m=NOISE, seed=3, test=SHORT)
     r = fit_release(data, "rod5", FitOptions(method="de", popsize=6, maxiter=25, tol=1e-2, nthread=2))
     print(f"\nrod5 DE fit: {r.nfev} rollouts, {r.generations} generations, {r.wall_s:.1f} s")
     assert r.method == "de"
-    assert r.values["youngs_modulus"] == pytest.approx(16e6, rel=0.02)
+    assert r.values["youngs_modulus"] == pytest.approx(58e6, rel=0.02)
     assert r.values["beta"] == pytest.approx(3e-3, rel=0.10)
     assert set(r.intervals) == {"youngs_modulus", "beta"}
     # every generation was one batched call for the whole population, not a loop per member
@@ -240,12 +240,25 @@ def test_fit_command_end_to_end(session, tmp_path):
     assert dict(zip(table["parameter"], table["value"]))["k"] == pytest.approx(p.k)
 
 
-def test_a_fit_that_needs_an_unphysical_value_says_so(session):
-    """The paper's PRB3 release is stiffer than any printed-TPU rod: the rod's E ends at its 30 MPa bound (the
-    error stays at millimetres), and the result names it instead of passing the interval off as a confidence."""
+def test_the_papers_release_fits_a_rod_inside_its_range(session):
+    """The paper's PRB3 release (the stand-in for its measured one) is what the shipped rod's modulus range was
+    drawn from: the rod fits it inside the range, at no bound, to about a millimetre (model error: a rod is not a
+    PRB3), with E near the shipped 53 MPa."""
     r = fit_release(load_release_session(session), "rod5", FitOptions(nthread=2))
-    assert r.at_bounds.get("youngs_modulus", "").startswith("upper bound 3e+07")
-    assert r.values["youngs_modulus"] == pytest.approx(30e6, rel=0.02) and r.rms_mm > 1.0
+    assert r.at_bounds == {}
+    assert r.values["youngs_modulus"] == pytest.approx(53e6, rel=0.1) and r.rms_mm < 2.5
+
+
+def test_a_fit_that_needs_an_unphysical_value_says_so():
+    """A release of a rod stiffer than printed TPU 95A can be (100 MPa): the fitted E ends at the range's upper
+    bound, and the result names it instead of passing the interval off as a confidence."""
+    base = default_base("rod")
+    stiff = replace(base, material=replace(base.material, youngs_modulus=100e6), beta=2e-3)
+    data = synthetic_release(stiff, model="rod5", noise_m=NOISE, seed=5, test=SHORT)
+    r = fit_release(data, "rod5", FitOptions(nthread=2))
+    hi = ParamSpace.rod(base, "rod5").variables[0].hi
+    assert r.at_bounds.get("youngs_modulus", "").startswith(f"upper bound {hi:g}")
+    assert r.values["youngs_modulus"] == pytest.approx(hi, rel=0.02) and r.rms_mm > 2 * NOISE_FLOOR_MM
     assert "at its bound" in interval_summary(r)
 
 

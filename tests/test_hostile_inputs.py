@@ -214,3 +214,274 @@ def test_calibrate_sim_workers_are_bounded(tmp_path):
     )
     one_line_error(code, res, "--workers", "256")
     assert tree(tmp_path) == []
+
+
+# --- parameter sets: validated like protocols, physics that diverges stops the run ---------------------------
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        ("beam: {k: 1e300}", "beam.k"),
+        ("beam: {k_twist: -1}", "beam.k_twist"),
+        ("beam: {b_twist: -0.1}", "beam.b_twist"),
+        ("beam: {material: {youngs_modulus: -5}}", "beam.material.youngs_modulus"),
+        ("beam: {material: {density: 0}}", "beam.material.density"),
+        ("beam: {material: {poisson: 0.9}}", "beam.material.poisson"),
+        ("beam: {twist_deg: 1e9}", "beam.twist_deg"),
+        ("rig: {friction: 'x'}", "rig.friction"),
+        ("rig: {friction: [1]}", "rig.friction"),
+        ("rig: {plate_gap: 1e300}", "rig.plate_gap"),
+        ("rig: {contact_timeconst: -1}", "rig.contact_timeconst"),
+        ("rig: {nosuch: 1}", "rig.nosuch"),
+        ("walker: {foot_mass: 'x'}", "walker.foot_mass"),
+        ("walker: {timestep: 1e-12}", "walker.timestep"),
+        ("walker: {nosuch: 1}", "walker.nosuch"),
+        ("nosuch: 1", "nosuch"),
+        ("name: [1]", "name"),
+    ],
+)
+def test_a_parameter_set_outside_physical_bounds_is_refused_dry_run_and_run(tmp_path, body, field):
+    params = tmp_path / "set.yaml"
+    params.write_text(f"model: prb3\n{body}\n")
+    proto = tmp_path / "p.yaml"
+    proto.write_text(BASE + f"sim: {{params: '{params}'}}\n")
+    out = tmp_path / "out"
+    for extra in (["--dry-run"], ["--out", str(out), "--rerun", "save"]):
+        code, res = cli("run", str(proto), *extra)
+        one_line_error(code, res, "sim.params", field)
+    assert not out.exists()
+
+
+def test_every_shipped_parameter_set_is_inside_the_physical_bounds():
+    from beambench.sim.models.params import SIM_BACKEND_DIR, load_params
+
+    shipped = sorted(SIM_BACKEND_DIR.glob("*.yaml"))
+    assert shipped
+    for f in shipped:
+        assert load_params(str(f), model=f.stem.split("_")[0]).length > 0
+
+
+def test_a_run_whose_physics_diverges_stops_with_one_line_motor_idle_session_saved(tmp_path):
+    """Stiff springs on a near-massless beam at a 10 ms explicit-Euler step: MuJoCo's bad-QACC reset."""
+    import h5py
+
+    from beambench.sinks.hdf5 import read_session
+
+    params = tmp_path / "stiff.yaml"
+    params.write_text("model: prb3\nbeam: {k: 100, k_twist: 100, b: 1.0e-6, b_twist: 0, mass: 1.0e-4}\n")
+    proto = tmp_path / "p.yaml"
+    proto.write_text(
+        "name: t\nsweep: {frequencies: [40, 40, 40]}\nsettle_s: 0.5\nrecord_s: 0.5\n"
+        f"sim: {{params: '{params}', timestep: 0.01, integrator: euler}}\n"
+    )
+    code, res = cli("run", str(proto), "--out", str(tmp_path / "out"), "--rerun", "off", "--name", "div")
+    assert code == 1, res
+    faults = [ln for ln in res.splitlines() if ln.startswith("beambench:")]
+    assert len(faults) == 1 and "diverged" in faults[0], res
+    assert "WARNING" not in res and "Nan" not in res.replace(faults[0], ""), res
+    session = read_session(tmp_path / "out" / "div.h5")
+    kinds = list(session.events["kind"])
+    assert "idle" in kinds and kinds.index("idle") > kinds.index("start"), kinds
+    assert len(session.steps) < 3
+    with h5py.File(tmp_path / "out" / "div.h5") as f:
+        assert "general" in f
+
+
+# --- the Rerun viewer listens on loopback only ------------------------------------------------------------
+def _listening_addresses(pid: int) -> list[str]:
+    import psutil
+
+    return [c.laddr.ip for c in psutil.Process(pid).net_connections(kind="inet") if c.status == psutil.CONN_LISTEN]
+
+
+@pytest.fixture
+def xvfb_display(tmp_path):
+    """A private X server for a windowed viewer (no display on CI)."""
+    import shutil
+    import subprocess
+    import time
+
+    if shutil.which("Xvfb") is None:
+        pytest.skip("Xvfb is not installed")
+    for n in range(140, 200):
+        if not Path(f"/tmp/.X11-unix/X{n}").exists() and not Path(f"/tmp/.X{n}-lock").exists():
+            break
+    proc = subprocess.Popen(
+        ["Xvfb", f":{n}", "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        deadline = time.monotonic() + 30
+        while not Path(f"/tmp/.X11-unix/X{n}").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, "Xvfb did not start"
+            time.sleep(0.05)
+        yield f":{n}"
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_a_spawned_viewer_listens_on_loopback_only(xvfb_display, monkeypatch):
+    import socket
+
+    from beambench.sinks.rerun_spawn import rerun_binary, spawn_viewer
+
+    if rerun_binary() is None:
+        pytest.skip("the rerun viewer binary is missing")
+    monkeypatch.setenv("DISPLAY", xvfb_display)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = spawn_viewer(port)
+    assert proc is not None
+    try:
+        addresses = _listening_addresses(proc.pid)
+        assert addresses, "the viewer listens nowhere"
+        assert all(a in ("127.0.0.1", "::1") for a in addresses), addresses
+        assert spawn_viewer(port) is None  # a viewer already listening is reused, as rr.spawn does
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def test_the_headless_viewer_listens_on_loopback_only():
+    from beambench.session.viewer import HeadlessViewer, ViewerUnavailable, vulkan_available
+
+    if not vulkan_available():
+        pytest.skip("no Vulkan driver for the headless viewer")
+    try:
+        viewer = HeadlessViewer().__enter__()
+    except ViewerUnavailable as exc:
+        pytest.skip(str(exc))
+    try:
+        assert viewer._proc is not None
+        addresses = _listening_addresses(viewer._proc.pid)
+        assert addresses and all(a in ("127.0.0.1", "::1") for a in addresses), addresses
+    finally:
+        viewer.__exit__(None, None, None)
+
+
+def test_spawn_without_the_viewer_binary_is_one_line(tmp_path):
+    """A rerun_cli package without its binary and no ``rerun`` on PATH: one warning line, the run goes on."""
+    import os
+    import subprocess
+    import sys
+
+    fake = tmp_path / "site" / "rerun_cli"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text("")
+    proto = tmp_path / "p.yaml"
+    proto.write_text("name: t\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.1\n")
+    path = os.pathsep.join(p for p in (str(tmp_path / "site"), os.environ.get("PYTHONPATH", "")) if p)
+    env = dict(os.environ, PATH="/usr/bin:/bin", PYTHONPATH=path)
+    env.pop("DISPLAY", None)
+    res = subprocess.run(
+        [sys.executable, "-m", "beambench", "run", str(proto), "--out", str(tmp_path / "o"), "--rerun", "spawn"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert res.returncode == 0, res.stderr
+    said = [ln for ln in res.stderr.splitlines() if ln.startswith("beambench:")]
+    assert len(said) == 1 and "viewer binary was not found" in said[0], res.stderr
+    others = [ln for ln in res.stderr.splitlines() if ln.strip() and ln not in said]
+    assert all("step" in ln or "starting" in ln for ln in others), res.stderr  # progress lines only
+
+
+# --- device text reaches the terminal without control sequences ---------------------------------------------
+HOSTILE = "Motive\x1b]52;c;cm0gLXJmIH4=\x07\x1b]0;pwned\x1b\\\x1b[2J\x9d0;t\x9c\u202etxt\x07\x7f"
+
+
+@pytest.mark.parametrize(
+    ("raw", "shown"),
+    [
+        (HOSTILE, "Motivetxt"),
+        ("a\x1b[31mred\x1b[0m b", "ared b"),
+        ("line\nbreak\ttab\rcr", "line break tab cr"),
+        ("ok é 中 ✓", "ok é 中 ✓"),
+        ("\x1bP1$r\x1b\\x\x1bc", "x"),
+    ],
+)
+def test_printable_strips_escape_sequences_and_controls(raw, shown):
+    from beambench.common.text import printable
+
+    assert printable(raw) == shown
+
+
+def test_natnet_decode_prints_no_escape_sequence_a_server_sent(tmp_path):
+    from beambench.devices.natnet import protocol as nn
+    from test_natnet_capture import write_pcap
+
+    sender = nn.Sender(HOSTILE, nn.Version(3, 1, 0, 0), nn.V4_1)
+    info = nn.ServerInfo(sender, 1_000_000, 1511, True, "239.255.42.99")
+    frame = nn.FrameOfData(7, timestamp=0.1, mid_exposure=1, data_received=2, transmit=3)
+    path = tmp_path / "hostile.pcap"
+    write_pcap(path, [(1.0, nn.encode(info), 1510, 50000), (1.1, nn.encode(frame, (4, 1)), 1511, 50000)])
+    code, out = cli("natnet", "decode", str(path), "--out", str(tmp_path / "f.csv"))
+    assert code == 0, out
+    assert "SERVERINFO: Motive" in out, out
+    assert not any(c in out for c in "\x1b\x07\x9d\x9c\x7f\u202e"), repr(out)
+
+
+# --- numbers on the command line, output paths ---------------------------------------------------------------
+@pytest.fixture(scope="module")
+def short_session(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("session")
+    proto = folder / "p.yaml"
+    proto.write_text("name: t\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.2\n")
+    code, out = cli("run", str(proto), "--out", str(folder), "--name", "s", "--rerun", "off")
+    assert code == 0, out
+    proto.unlink()
+    return folder / "s.h5"
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "5,-inf", "1e-320x"])
+def test_analyze_force_at_must_be_finite(short_session, value):
+    before = tree(short_session.parent)
+    code, out = cli("analyze", str(short_session), "--force-at", value)
+    one_line_error(code, out, "--force-at")
+    assert tree(short_session.parent) == before
+
+
+@pytest.mark.parametrize("loads", ["nan,0", "1,inf", "0,-nan"])
+def test_calibrate_loadcells_loads_must_be_finite(tmp_path, loads):
+    code, out = cli("calibrate", "loadcells", "--emulate", "--yes", "--loads", loads, "--out", str(tmp_path / "c.yaml"))
+    one_line_error(code, out, "--loads")
+    assert tree(tmp_path) == []
+
+
+def _unwritable_folder(tmp_path: Path) -> Path:
+    """A folder no file can be created in: /proc/self even for root; chmod 500 for a normal user."""
+    import os
+
+    if os.geteuid() == 0:
+        return Path("/proc/self")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    return ro
+
+
+@pytest.mark.parametrize("where", ["missing", "unwritable"])
+def test_view_out_in_a_folder_that_takes_no_file_is_one_line(short_session, tmp_path, where):
+    folder = tmp_path / "nonexistent" if where == "missing" else _unwritable_folder(tmp_path)
+    before = tree(short_session.parent)
+    code, out = cli("view", str(short_session), "--rerun", "save", "--out", str(folder / "x.rrd"))
+    one_line_error(code, out, "--out")
+    code, out = cli("view", str(short_session), "--screenshot", str(folder / "x.png"))
+    one_line_error(code, out, "screenshot")
+    assert tree(short_session.parent) == before
+
+
+def test_a_dangling_symlink_named_like_the_session_leaves_no_empty_recording(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "s.h5").symlink_to(tmp_path / "nowhere.h5")
+    proto = tmp_path / "p.yaml"
+    proto.write_text("name: t\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.1\n")
+    code, res = cli("run", str(proto), "--out", str(out), "--name", "s", "--rerun", "save")
+    assert code == 0, res
+    assert not (out / "s.rrd").exists()
+    assert (out / "s_1.h5").is_file() and (out / "s_1.rrd").stat().st_size > 0
+    assert not (tmp_path / "nowhere.h5").exists()

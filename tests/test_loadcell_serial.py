@@ -108,7 +108,10 @@ def test_driver_opening_a_running_stream_counts_startup_bytes_not_errors():
 
 
 def test_mcu_clock_drift_shows_in_device_time():
-    drift_ppm = 5000.0  # exaggerated, so host timing noise on a busy machine cannot hide it
+    # exaggerated, so host timing noise on a busy machine cannot hide it: over the 1.5 s run the device clock gains
+    # 75 ms; the envelope below tolerates 15 ms of receive delay in its least delayed samples (at 5000 ppm it was
+    # 1.5 ms, and at load 20 on 2 cores a 1.5 s run read 8929 ppm)
+    drift_ppm = 50_000.0
     mcu = EmulatedLoadCellMCU(force, PLATE, clock=McuClock(drift_ppm=drift_ppm), tx_buffer=BIG_TX, seed=2)
     b, _ = acquire(mcu, 1.5)
     np.testing.assert_array_equal(np.rint(np.diff(b.device_time) * 1e6), 1000)  # the MCU thinks it is exact
@@ -118,8 +121,8 @@ def test_mcu_clock_drift_shows_in_device_time():
     # of each tenth of the run), as a clock-sync fit would
     pick = [i[np.argmin(host_s[i] - dev_s[i])] for i in np.array_split(np.arange(len(b)), 10)]
     slope = np.polyfit(host_s[pick], dev_s[pick], 1)[0]  # device seconds per host second
-    assert (slope - 1) * 1e6 == pytest.approx(drift_ppm, abs=1000)
-    assert len(b) == mcu.injected.frames  # frames arrive 0.5 % faster than 1 kHz, none lost
+    assert (slope - 1) * 1e6 == pytest.approx(drift_ppm, abs=10_000)
+    assert len(b) == mcu.injected.frames  # frames arrive 5 % faster than 1 kHz, none lost
 
 
 def test_32_bit_microsecond_clock_wraps_into_a_continuous_device_time():

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.cli import app
 from beambench.devices.loadcell.driver import SerialLoadCells
-from beambench.devices.odrive import can_motor
+from beambench.devices.odrive import can_ping
 
 PROTOCOL = "name: m\nrig: contact\nsweep: {frequencies: [5, 26]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
 
@@ -19,7 +19,7 @@ PROTOCOL = "name: m\nrig: contact\nsweep: {frequencies: [5, 26]}\nsettle_s: 0.2\
 def test_a_can_bus_that_cannot_open_is_said_plainly():
     """On this machine the kernel may have no CAN at all (EAFNOSUPPORT) or no such interface (ENODEV): either way
     a sentence with what to do, never Python's ``[Errno 97] Address family not supported by protocol``."""
-    info = can_motor.ping("bbnope0", "socketcan", listen_s=0.05)
+    info = can_ping.ping("bbnope0", "socketcan", listen_s=0.05)
     assert not info["found"]
     error = info["error"]
     assert "Errno" not in error and "Address family" not in error, error

@@ -60,3 +60,75 @@ def test_a_speed_tracking_run_shows_target_measured_and_commanded_in_the_live_vi
     entities = {chunk.entity_path for chunk in rc.RrdReader(rrd).stream() if not chunk.is_static}
     assert {"/track/target_mm_s", "/track/measured_mm_s", "/track/frequency_hz"} <= entities
     assert "/track/mode" not in entities and "/track/integral_mm_s" not in entities
+
+
+def _walker_mocap() -> StreamSpec:
+    from beambench.acquisition.batch import Frame
+
+    labels = ("body", "foot_left", "foot_right")
+    return StreamSpec(
+        "mocap",
+        360.0,
+        {"data": ColumnSpec((3, 3), unit="m", labels=labels)},
+        frame=Frame(up_axis="z", forward_axis="x"),
+    )
+
+
+def _collapsing_walk(n: int = 3600) -> tuple[np.ndarray, np.ndarray]:
+    """10 s of a walker that folds its legs and sinks through the floor while it slides 0.3 m forward (m)."""
+    t = np.arange(n) / 360.0
+    x = 0.03 * t
+    sink_z = np.clip(0.03 - 0.01 * t, -0.04, None)  # the body from 30 mm above the floor to 40 mm below it
+    body = np.stack([x, np.zeros(n), sink_z], 1)
+    left = np.stack([x + 0.02 * np.sin(40 * t), np.full(n, 0.05), np.zeros(n)], 1)
+    right = np.stack([x, np.full(n, -0.05), np.zeros(n)], 1)
+    return t, np.stack([body, left, right], 1)
+
+
+def test_the_3d_eye_frames_the_whole_walker_scene_from_outside_whatever_the_body_does(tmp_path):
+    """A body that sinks below the floor with folded legs and walks away: the eye tracks nothing, stays outside
+    the scene's box and sees all of it, and is framed anew when the scene outgrows the first framing."""
+    sink = RerunSink("save", "walk", tmp_path / "walk.rrd", t0_ns=0, rig="walker")
+    sink.open([_walker_mocap()])
+    t, pos = _collapsing_walk()
+    framings = []
+    for i in range(0, len(t), 180):  # 0.5 s batches
+        sl = slice(i, i + 180)
+        t_ns = (t[sl] * 1e9).astype(np.int64)
+        sink.write(Batch("mocap", t_ns, t[sl], {"data": pos[sl]}))
+        if not framings or sink._framed is not framings[-1]:
+            framings.append(sink._framed)
+    sink.close()
+    assert len(framings) >= 2  # the 0.3 m walk outgrew the first framing
+    scene = sink._scene
+    assert scene is not None
+    lo, hi = scene.extent()
+    cam = scene.camera(lo, hi)
+    assert cam.track is None  # nothing pulls the eye along (into a collapsing body)
+    eye, target = np.array(cam.position), np.array(cam.look_target)
+    points_mm = pos.reshape(-1, 3) * 1e3
+    assert np.all(points_mm >= lo - 1e-3) and np.all(points_mm <= hi + 1e-3)
+    assert np.any(eye < lo) or np.any(eye > hi)  # outside the scene's box
+    axis = (target - eye) / np.linalg.norm(target - eye)
+    rays = (points_mm - eye) / np.linalg.norm(points_mm - eye, axis=1, keepdims=True)
+    assert np.degrees(np.arccos(np.clip(rays @ axis, -1, 1))).max() < 30  # all of it inside a 60° view cone
+    assert cam.grid_height_mm <= points_mm[:, 2].min() + 1e-6  # the grid at the scene's lowest level
+
+
+def test_the_step_panel_tells_a_standstill_from_a_walk():
+    """ "+0.0 mm/s" alone reads as a broken number: the panel says the body swings in place, walking nowhere."""
+    import rerun as rr
+
+    from beambench.acquisition.batch import StepRecord
+    from beambench.sinks.rerun_step import StepPanel
+
+    panel = StepPanel(rr.RecordingStream("step-test"), 2, t0_ns=0)
+    t = np.arange(0, 3, 1 / 360)
+    for index, speed in ((0, 0.0), (1, 20.0)):
+        t0 = 3.0 * index
+        panel.step(StepRecord(index, 50.0, int(t0 * 1e9)), t0)
+        panel.body(t0 + t, speed * t + 4.0 * np.sin(2 * np.pi * 50 * t))
+        panel.step(StepRecord(index, 50.0, int(t0 * 1e9), int(t0 * 1e9), int((t0 + 3) * 1e9), status="done"), t0 + 3)
+        if index == 0:
+            assert "+0.0 mm/s**: no net walking (the body swings ±4 mm in place)" in panel.last_done
+    assert "+20.0 mm/s** (the body swings ±4 mm about that)" in panel.last_done

@@ -77,7 +77,12 @@ def test_calibrate_sim_stopped_by_ctrl_c_says_how_to_resume(tmp_path):
     with err_path.open("wb") as err:
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env, start_new_session=True)
         try:
-            time.sleep(6.0)  # imports done, the search and its worker started (a rich bar off a tty shows late)
+            log = tmp_path / "c.evals.jsonl"  # written after the first evaluation: imports done, the search running
+            deadline = time.monotonic() + 180
+            while not (log.exists() and log.stat().st_size > 0):
+                assert proc.poll() is None, err_path.read_text()[-2000:]
+                assert time.monotonic() < deadline, "no evaluation in 180 s"
+                time.sleep(0.05)
             assert proc.poll() is None, err_path.read_text()[-2000:]
             os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal sends: the whole process group
             with contextlib.suppress(subprocess.TimeoutExpired):

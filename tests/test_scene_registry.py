@@ -9,7 +9,7 @@ from beambench.acquisition import scenes as catalogue
 from beambench.acquisition.config import ConfigError, parse_protocol
 from beambench.acquisition.streams import CONTACT_MARKERS, WALKER_MARKERS
 from beambench.sim import scenes
-from beambench.studies import sweep
+from beambench.studies import sweep_scenes
 
 
 def test_every_runnable_scene_has_a_builder_and_every_batched_one_a_sweep_runner():
@@ -17,7 +17,7 @@ def test_every_runnable_scene_has_a_builder_and_every_batched_one_a_sweep_runner
     assert catalogue.batched_names() == ("free_beam", "contact")
     for name in catalogue.runnable_names():
         assert scenes.get(name).info is catalogue.scene_info(name)
-    assert set(sweep._RUNNERS) == set(catalogue.batched_names())
+    assert set(sweep_scenes.RUNNERS) == set(catalogue.batched_names())
     with pytest.raises(KeyError, match="no builder"):
         scenes.get("free_beam")
     with pytest.raises(KeyError, match="unknown scene 'boat'"):
@@ -56,3 +56,19 @@ def test_the_protocols_rig_is_checked_against_the_catalogue():
         parse_protocol(text % "contact")
     with pytest.raises(ConfigError, match="Input should be 'contact', 'walker' or 'release'"):
         parse_protocol(text % "free_beam")  # a sweep-only scene is no rig
+
+
+def test_a_sweep_task_is_a_typed_frozen_value_that_pickles():
+    """Workers receive a SweepTask of Jobs (not a dict of tuples): a misspelt field fails where it is made."""
+    import dataclasses
+    import pickle
+
+    from beambench.studies.sweep import SweepSpec, make_tasks, plan
+    from beambench.studies.sweep_scenes import Job, SweepTask
+
+    spec = SweepSpec.model_validate({"scene": "contact", "points": [{"gap_mm": 1.0}], "frequencies": [5, 10]})
+    tasks = make_tasks(spec, plan(spec), 1)
+    assert [type(t) for t in tasks] == [SweepTask, SweepTask]
+    assert all(isinstance(j, Job) for t in tasks for j in t.jobs)
+    assert pickle.loads(pickle.dumps(tasks[0])) == tasks[0]
+    assert dataclasses.is_dataclass(tasks[0]) and tasks[0].scene == "contact"

@@ -62,3 +62,99 @@ def test_no_module_imports_another_packages_private_names() -> None:
                 private = [a.name for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
                 found += [f"{_name(path)}: {node.module}.{n}" for n in private if there != home]
     assert found == []
+
+
+PROBE_FREE = ("backends", "session")  # capabilities are checked with isinstance on a typing.Protocol here
+
+
+def test_capabilities_are_checked_by_protocol_not_by_probing_attribute_names() -> None:
+    found = []
+    for path in [*_modules(*PROBE_FREE), PACKAGE / "analysis" / "session.py"]:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and node.func.id in ("getattr", "hasattr")
+                and len(node.args) >= 2
+                and isinstance(node.args[1], ast.Constant)
+                and (node.func.id == "hasattr" or len(node.args) == 3)
+            ):
+                found.append(f"{_name(path)}:{node.lineno} {ast.unparse(node)}")
+    assert found == []
+
+
+def test_the_device_rig_reads_the_mocaps_echoes_through_its_protocol_not_its_client() -> None:
+    tree = ast.parse((PACKAGE / "backends" / "hardware.py").read_text())
+    reached = [
+        ast.unparse(n)
+        for n in ast.walk(tree)
+        if (isinstance(n, ast.Attribute) and n.attr == "client")
+        or (isinstance(n, ast.Constant) and n.value == "client")
+    ]
+    assert reached == []
+
+
+MAX_MODULE_LINES = 700
+MAX_FUNCTION_LINES = 100
+
+
+def test_no_import_cycle_of_any_size_even_inside_a_package() -> None:
+    """Strongly connected groups of the import graph (lazy and TYPE_CHECKING imports included): none."""
+    import grimp
+
+    graph = grimp.build_graph("beambench")
+    edges = {m: graph.find_modules_directly_imported_by(m) for m in graph.modules}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    groups: list[list[str]] = []
+
+    def visit(v: str) -> None:  # Tarjan's strongly connected components
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in edges[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = [stack.pop()]
+            while group[-1] != v:
+                group.append(stack.pop())
+            if len(group) > 1:
+                groups.append(sorted(group))
+
+    for module in sorted(graph.modules):
+        if module not in index:
+            visit(module)
+    assert groups == []
+
+
+def test_modules_and_functions_stay_small() -> None:
+    long_modules, long_functions = [], []
+    for path in _modules():
+        text = path.read_text()
+        if text.count("\n") > MAX_MODULE_LINES:
+            long_modules.append(f"{_name(path)}: {text.count(chr(10))} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                n = (node.end_lineno or node.lineno) - node.lineno + 1
+                if n > MAX_FUNCTION_LINES:
+                    long_functions.append(f"{_name(path)}.{node.name}: {n} lines")
+    assert (long_modules, long_functions) == ([], [])
+
+
+def test_the_calibration_result_is_built_by_keyword_and_its_budget_shares_are_named() -> None:
+    import dataclasses
+
+    from beambench.studies.calibration.search import Result
+
+    assert all(f.kw_only for f in dataclasses.fields(Result))
+    tree = ast.parse((PACKAGE / "studies" / "calibration" / "search.py").read_text())
+    shares = [
+        ast.unparse(n)
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "over"
+    ]
+    assert shares and all(not isinstance(ast.parse(c).body[0].value.args[0], ast.Constant) for c in shares), shares  # type: ignore[attr-defined]

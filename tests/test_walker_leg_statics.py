@@ -12,22 +12,29 @@ A leg hanging straight down (``leg_droop_deg = 90``) carries its sole load along
 
 from __future__ import annotations
 
+from dataclasses import replace
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
 
+from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.models.rod import RodParams
 from beambench.sim.scenes.walker import WalkerParams, WalkerSim, sole_load
 
+ROOT = Path(__file__).resolve().parents[1]
 PHYSICAL = load_params("physical", model="rod")
 BEAM = make_beam_model("rod5g", PHYSICAL)
+# the strip as soft as the twin's beam was before it was anchored to the release test (14 MPa)
+SOFT = replace(PHYSICAL, material=replace(PHYSICAL.material, youngs_modulus=14e6))
 G = 9.81
 
 
-def _walker(**overrides: float) -> WalkerSim:
-    return WalkerSim(BEAM, 90.0, WalkerParams.with_overrides({**PHYSICAL.walker, **overrides}))
+def _walker(beam: BeamModel = BEAM, **overrides: float) -> WalkerSim:
+    return WalkerSim(beam, 90.0, WalkerParams.with_overrides({**PHYSICAL.walker, **overrides}))
 
 
 def walker_normal_forces(sim: WalkerSim) -> dict[str, float]:
@@ -68,17 +75,36 @@ def test_hanging_legs_stand_and_share_the_weight_by_the_moment_balance(motor_x):
         sim.physics.close()
 
 
-def test_sideways_strip_legs_fold_in_torsion_under_the_walkers_weight():
-    """The shipped physical walker (sideways legs, the contact rig's 66.5 mm foot): each sole carries ~5× the
-    torsional limit GJ/(L·l) of the strip, and the body falls through the floor (no body collision) within 1 s —
-    the measured reason the physical walker cannot walk (docs/contact-twin.md)."""
+def test_the_anchored_strip_legs_carry_the_walker_below_their_torsional_limit():
+    """The shipped physical walker (sideways legs, 66.5 mm foot, the beam anchored to the release test): each sole
+    carries less than the torsional limit GJ_twisted/(L·l) of the pre-twisted strip, though more than Saint-Venant's
+    GJ alone would hold (the trapeze term is what carries it), and the body stays above half its clamp height for
+    1 s, motor off."""
     rod = RodParams.from_beam(PHYSICAL)
     sim = _walker()
     try:
         wp = sim.rig
         per_sole = sole_load(sim.physics.model)
-        limit = rod.gj / (rod.length * wp.foot_length)
-        assert 3.0 < per_sole / limit < 10.0, (per_sole, limit)
+        limit = rod.torsion_gj(PHYSICAL.twist_deg) / (rod.length * wp.foot_length)
+        assert per_sole < limit < per_sole * rod.torsion_gj(PHYSICAL.twist_deg) / rod.gj, (per_sole, limit)
+        assert per_sole > rod.gj / (rod.length * wp.foot_length)
+        body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
+        clamp = wp.foot_length + 0.002
+        assert body.min() > clamp / 2, (body.min(), clamp)
+    finally:
+        sim.physics.close()
+
+
+def test_a_softer_strip_folds_in_torsion_under_the_walkers_weight():
+    """The same walker on a 14 MPa strip: each sole carries > 1.5x the torsional limit and the body falls through
+    the floor (no body collision) within 1 s: the legs fold."""
+    rod = RodParams.from_beam(SOFT)
+    sim = _walker(make_beam_model("rod5g", SOFT))
+    try:
+        wp = sim.rig
+        per_sole = sole_load(sim.physics.model)
+        limit = rod.torsion_gj(SOFT.twist_deg) / (rod.length * wp.foot_length)
+        assert 1.5 < per_sole / limit < 10.0, (per_sole, limit)
         body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
         clamp = wp.foot_length + 0.002
         assert body[-1] < clamp - wp.foot_length, (body[-1], clamp)  # below the floor: the feet folded under
@@ -94,7 +120,7 @@ def test_a_light_body_on_sideways_legs_stands_below_the_torsional_limit():
     try:
         wp = sim.rig
         per_sole = sole_load(sim.physics.model)
-        assert per_sole < 0.6 * rod.gj / (rod.length * wp.foot_length), per_sole
+        assert per_sole < 0.6 * rod.gj / (rod.length * wp.foot_length), per_sole  # Saint-Venant alone holds it
         body = sim.advance_to(1.0).channels["markers"][:, 0, 2]
         clamp = wp.foot_length + 0.002
         assert clamp - body[-1] < 5e-3, (clamp, body[-1])
@@ -104,16 +130,21 @@ def test_a_light_body_on_sideways_legs_stands_below_the_torsional_limit():
 
 
 def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
-    """``leg_fold`` (the run's and the dry run's warning) names the shipped physical walker, whose sole load beats
-    the torsional limit; not the effective PRB3 walker (twist springs 11x the strip's: it stands), nor legs hanging
-    down. Its sole load is the standing PRB3 walker's measured contact force per sole within 3 %."""
+    """``leg_fold`` (the run's and the dry run's warning) names a walker on a 14 MPa strip, whose sole load beats
+    the torsional limit; not the shipped physical walker (its anchored strip holds), nor the PRB3 walker, nor legs
+    hanging down. Its sole load is the standing PRB3 walker's measured contact force per sole within 3 %."""
     from beambench.sim.scenes.walker import leg_fold
 
-    sim = _walker()
+    sim = _walker(make_beam_model("rod5g", SOFT))
     try:
         assert sim.model_warnings() and "legs fold" in sim.model_warnings()[0]
     finally:
         sim.physics.close()
+    shipped = _walker()
+    try:
+        assert shipped.model_warnings() == []
+    finally:
+        shipped.physics.close()
     hanging = _walker(leg_droop_deg=90.0, foot_length=0.010)
     try:
         assert hanging.model_warnings() == []
@@ -128,8 +159,15 @@ def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
         prb3.physics.close()
 
 
-def test_a_run_of_the_physical_walker_ends_with_the_fold_warning(tmp_path):
-    """The run's result (stderr) carries the model's warning; the session is written as usual (exit 0)."""
+def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
+    """The run's result (stderr) carries the model's warning (a walker on a 14 MPa strip); the session is written
+    as usual (exit 0)."""
+    import yaml
+
+    soft = yaml.safe_load((ROOT / "sim_backend" / "rod_physical.yaml").read_text())
+    soft["beam"]["material"]["youngs_modulus"] = 14e6
+    soft_path = tmp_path / "rod_soft.yaml"
+    soft_path.write_text(yaml.safe_dump(soft))
     from typer.testing import CliRunner
 
     from beambench.cli import app
@@ -137,7 +175,7 @@ def test_a_run_of_the_physical_walker_ends_with_the_fold_warning(tmp_path):
     proto = tmp_path / "w.yaml"
     proto.write_text(
         "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-        "sim: {model: rod5g, params: physical, noise: false}\n"
+        f"sim: {{model: rod5g, params: {soft_path}, noise: false}}\n"
     )
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
     assert res.exit_code == 0, res.output

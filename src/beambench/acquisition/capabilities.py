@@ -180,6 +180,28 @@ class WarnsOfModel(Protocol):
 
 
 @runtime_checkable
+class HasSilenceTimeout(Protocol):
+    """A stream that faults after ``silence_timeout_s`` without data (None: never), from the rig file."""
+
+    silence_timeout_s: float | None
+
+
+@runtime_checkable
+class ReportsEchoes(Protocol):
+    """A mocap driver that timed its server's clock by echo requests (NatNet ECHO): the table of host send and
+    receive times and server ticks with the server's clock frequency, or None while it knows no server clock."""
+
+    def echo_sync(self) -> dict[str, Any] | None: ...
+
+
+@runtime_checkable
+class Identifies(Protocol):
+    """A device that says what it is (serial, firmware, wiring) for ``/general``."""
+
+    def identity(self) -> dict[str, Any]: ...
+
+
+@runtime_checkable
 class Connectable(Protocol):
     """A device with a connection to open before use and close after (a CAN bus, a USB handle)."""
 

@@ -145,7 +145,7 @@ def session_path(
         raise ConfigError("<cli>", "--out", str(out_dir), f"cannot write in {existing} (permission denied)")
     path = out_dir / f"{name}.h5"
     k = 1
-    while path.exists() or path.with_suffix(".rrd").exists():
+    while os.path.lexists(path) or os.path.lexists(path.with_suffix(".rrd")):  # a dangling symlink is taken too
         path = out_dir / f"{name}_{k}.h5"
         k += 1
         if k > 99999:

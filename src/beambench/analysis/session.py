@@ -52,6 +52,7 @@ from beambench.analysis.trajectory import (
     stage_frame,
 )
 from beambench.analysis.walking import body_speed
+from beambench.sinks.hdf5_read import StreamData
 from beambench.sinks.session_frames import flat_names, step_of
 
 
@@ -210,11 +211,11 @@ def natnet_echo_fit(general: dict[str, Any]) -> ClockFit | None:
         return None
 
 
-def mocap_markers(stream: Any) -> tuple[list[str], np.ndarray]:
+def mocap_markers(stream: StreamData) -> tuple[list[str], np.ndarray]:
     """Marker labels and positions ``(n, M, 3)`` in metres, NaN where occluded."""
     data = np.array(stream.columns["data"], dtype=np.float64)
-    spec = getattr(stream, "spec", None)
-    labels = list(spec.columns["data"].labels) if spec is not None and "data" in spec.columns else []
+    spec = stream.spec
+    labels = list(spec.columns["data"].labels) if "data" in spec.columns else []
     if len(labels) != data.shape[1]:
         labels = [f"m{i}" for i in range(data.shape[1])]
     occ = stream.columns.get("occluded")
@@ -416,7 +417,7 @@ def analyze_session(
     if track is not None and track.segments:  # per-segment target, error, settling and direction times
         table = table.merge(pd.DataFrame(track.segments), on="step", how="left")
     return SessionAnalysis(
-        Path(session.path) if getattr(session, "path", None) is not None else None,
+        Path(session.path),
         rig,
         backend,
         name,
@@ -674,8 +675,7 @@ def resample_session(
             arr = np.asarray(values)
             if arr.dtype.kind not in "fiub":
                 continue
-            spec = getattr(s, "spec", None)
-            labels = list(spec.columns[col].labels) if spec is not None and col in spec.columns else []
+            labels = list(s.spec.columns[col].labels) if col in s.spec.columns else []
             names = _column_names(name, col, arr.shape[1:], labels)
             if arr.dtype.kind == "f":
                 flat = resample(t, arr, grid).reshape(len(grid), -1)

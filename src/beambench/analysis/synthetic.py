@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -212,6 +213,29 @@ def _echo_exchanges(clock: SynthClock, t_end: float, rng: np.random.Generator, e
     }
 
 
+def _general(cfg: SynthSession, cal: LoadCellCalibration) -> dict[str, Any]:
+    """The synthetic session's ``/general``: a protocol of its steps, the calibration, a z-up geometry."""
+    proto = {
+        "name": f"synthetic_{cfg.rig}",
+        "rig": cfg.rig,
+        "backend": "sim",
+        "sweep": {"frequencies": [s.frequency_hz for s in cfg.steps]},
+        "settle_s": cfg.settle_s,
+        "record_s": cfg.record_s,
+        "amplitude_mm": cfg.amplitude_mm,
+    }
+    general = {
+        "protocol": yaml.safe_dump(proto, sort_keys=False),
+        "protocol_name": proto["name"],
+        "rig": cfg.rig,
+        "backend": "synthetic",
+        "identity": {"generator": "beambench.analysis.synthetic"},
+        "calibration": {"loadcells": cal.to_yaml()},
+        "geometry": {"up_axis": "z", "forward_axis": "x"},
+    }
+    return general
+
+
 def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
     """Write a session file with the truth of ``cfg``; returns its path."""
     from beambench.acquisition.batch import StepRecord
@@ -275,24 +299,7 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
             )
         )
 
-    proto = {
-        "name": f"synthetic_{cfg.rig}",
-        "rig": cfg.rig,
-        "backend": "sim",
-        "sweep": {"frequencies": [s.frequency_hz for s in cfg.steps]},
-        "settle_s": cfg.settle_s,
-        "record_s": cfg.record_s,
-        "amplitude_mm": cfg.amplitude_mm,
-    }
-    general = {
-        "protocol": yaml.safe_dump(proto, sort_keys=False),
-        "protocol_name": proto["name"],
-        "rig": cfg.rig,
-        "backend": "synthetic",
-        "identity": {"generator": "beambench.analysis.synthetic"},
-        "calibration": {"loadcells": cal.to_yaml()},
-        "geometry": {"up_axis": "z", "forward_axis": "x"},
-    }
+    general = _general(cfg, cal)
     if cfg.natnet_echo:
         general["sync"] = {"natnet_echo": _echo_exchanges(clocks["mocap"], t_end, rng)}
     path = Path(path)

@@ -15,7 +15,15 @@ from pathlib import Path
 from typing import Any
 
 from beambench.acquisition.batch import Frame
-from beambench.acquisition.capabilities import Connectable, Motor, ReportsHealth, Stream
+from beambench.acquisition.capabilities import (
+    Connectable,
+    HasSilenceTimeout,
+    Identifies,
+    Motor,
+    ReportsEchoes,
+    ReportsHealth,
+    Stream,
+)
 from beambench.acquisition.config import (
     ConfigError,
     LoadCellWiring,
@@ -115,9 +123,8 @@ class DeviceRig:
         """Each stream's silence timeout (s), for :func:`beambench.acquisition.monitors.build_monitors`."""
         out: dict[str, float] = {}
         for s in (self.mocap, self.loadcells):
-            timeout = getattr(s, "silence_timeout_s", None)
-            if timeout is not None:
-                out[s.name] = float(timeout)
+            if isinstance(s, HasSilenceTimeout) and s.silence_timeout_s is not None:
+                out[s.name] = float(s.silence_timeout_s)
         return out
 
     def device_health(self) -> dict[str, dict[str, Any]]:
@@ -130,12 +137,13 @@ class DeviceRig:
         return out
 
     def _keep_echoes(self) -> None:
-        client = getattr(self.mocap, "client", None)
-        if client is None or not getattr(client, "clock_frequency", None):
+        """The mocap's ECHO table (``ReportsEchoes``), kept before the driver stops, for the clock fit."""
+        if not isinstance(self.mocap, ReportsEchoes):
             return
         with contextlib.suppress(Exception):
-            table = {k: v.tolist() for k, v in client.echo_table().items()}
-            self._after_run = {"sync": {"natnet_echo": {**table, "clock_frequency": int(client.clock_frequency)}}}
+            sync = self.mocap.echo_sync()
+            if sync is not None:
+                self._after_run = {"sync": {"natnet_echo": sync}}
 
     def after_run(self) -> dict[str, Any]:
         """The NatNet ECHO table (for the clock fit) and every driver's counters (``devices``), known once the
@@ -145,8 +153,7 @@ class DeviceRig:
     def identity(self) -> dict[str, Any]:
         out: dict[str, Any] = {"backend": self.backend}
         for key, dev in (("motor", self.motor), ("mocap", self.mocap), ("loadcells", self.loadcells)):
-            ident = getattr(dev, "identity", None)
-            out[key] = ident() if callable(ident) else type(dev).__name__
+            out[key] = dev.identity() if isinstance(dev, Identifies) else type(dev).__name__
         out.update(self._extra)
         return out
 

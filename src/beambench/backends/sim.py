@@ -13,6 +13,7 @@ each later part pre-settled at its first frequency (what that changes: the looka
 
 from __future__ import annotations
 
+import contextlib
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, cast
 
@@ -20,7 +21,7 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.calibration import default_calibration
-from beambench.acquisition.capabilities import Stream, WarnsOfModel
+from beambench.acquisition.capabilities import DeviceFault, Stream, WarnsOfModel
 from beambench.acquisition.config import ClockModel, ConfigError
 from beambench.acquisition.scenes import scene_info
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
@@ -33,11 +34,11 @@ from beambench.backends.sim_devices import (
     SimMotor,
 )
 from beambench.sim import scenes
-from beambench.sim.engine.stepping import Trajectory
+from beambench.sim.engine.stepping import Trajectory, quiet_mujoco_warnings
 from beambench.sim.models.registry import UnknownModelError, beam_model
 from beambench.sim.protocol_slice import SimSlice
 from beambench.sim.scenes import SceneConfig
-from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
+from beambench.sim.scenes.drive import CostsByFrequency, DrivenScene, VelocityRamp, WarmsUp
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
@@ -59,7 +60,15 @@ class SimRig:
     ) -> None:
         self.sim = sim
         noise = sim.settings.noise
-        self.scene = scene or build_scene(sim)
+        # MuJoCo's warnings from the build (its preroll) to close() are collected, not printed: a diverging state
+        # stops the run in check()
+        self._quiet = contextlib.ExitStack()
+        self._warnings: list[str] = self._quiet.enter_context(quiet_mujoco_warnings())
+        try:
+            self.scene = scene or build_scene(sim)
+        except BaseException:
+            self._quiet.close()
+            raise
         seeds = np.random.SeedSequence(sim.settings.seed).spawn(3)
         rng_mocap, rng_lc, rng_motor = (np.random.default_rng(s) for s in seeds)
         self.clock = SimClock(self._advance, realtime=realtime)
@@ -124,6 +133,7 @@ class SimRig:
                 dev.stop()
             for scene in self._scenes:
                 scene.physics.close()
+            self._quiet.close()
             self._state = "closed"
 
     # --- lookahead ------------------------------------------------------------------------------------
@@ -134,7 +144,8 @@ class SimRig:
         self._undo_ahead()
         calls = lookahead.script(schedule, self.clock.now_ns(), int(self.clock.max_chunk_s * 1e9))
         segments = self.sim.segments if self._own_scene else 1
-        cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, getattr(self.scene, "step_cost", None))
+        cost = self.scene.step_cost if isinstance(self.scene, CostsByFrequency) else None
+        cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, cost)
         clones = [build_scene(self.sim) for _ in cuts]
         self._scenes += clones
         self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
@@ -164,9 +175,8 @@ class SimRig:
         if self._look is not None and len(self._look.segments) > 1:
             self._look_info = lookahead.info(self._look)
         out: dict[str, Any] = {"sim_segments": self._look_info} if self._look_info else {}
-        thermal = getattr(self.scene, "thermal", None)
-        if thermal is not None:
-            out["sim_thermal_drift"] = thermal.now()
+        if isinstance(self.scene, WarmsUp) and self.scene.thermal is not None:
+            out["sim_thermal_drift"] = self.scene.thermal.now()
         return out
 
     # --- stepping -------------------------------------------------------------------------------------
@@ -220,9 +230,25 @@ class SimRig:
             self._ahead = (target, self._pool.submit(self.scene.advance_to, target * 1e-9), snap)
 
     def check(self) -> None:
-        """The motor, then every stream (the simulated devices never go silent; the same call as on a rig)."""
+        """The physics, the motor, then every stream (the simulated devices never go silent; the same call as on a
+        rig). Physics that diverged (MuJoCo's bad-acceleration reset, or a non-finite state) is a device fault:
+        the runner idles the motor and saves what was recorded."""
+        self._check_physics()
         for device in self.streams:
             device.check()
+
+    def _check_physics(self) -> None:
+        diverged = next((w for w in self._warnings if "nan" in w.lower() or "inf" in w.lower()), None)
+        if diverged is None and self._hist is not None and len(self._hist):
+            last = self._hist.tail(1)
+            if not all(np.isfinite(v).all() for v in last.channels.values()):
+                diverged = "a non-finite value in the state"
+        if diverged is not None:
+            t = self.clock.now_ns() * 1e-9
+            raise DeviceFault(
+                f"sim: the physics diverged by t = {t:.3f} s (MuJoCo: {' '.join(diverged.split())[:120]}); "
+                "check the parameter set and sim.timestep"
+            )
 
     def identity(self) -> dict[str, Any]:
         sim = self.sim

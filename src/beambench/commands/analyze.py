@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,8 +21,8 @@ def _frequencies(text: str | None) -> list[float] | None:
         vals = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
         fail(f"--force-at {text!r}: expected frequencies in Hz separated by commas, e.g. 26,40")
-    if not vals or any(v <= 0 for v in vals):
-        fail(f"--force-at {text!r}: expected positive frequencies in Hz")
+    if not vals or any(not (math.isfinite(v) and v > 0) for v in vals):
+        fail(f"--force-at {text!r}: expected positive, finite frequencies in Hz")
     return vals
 
 

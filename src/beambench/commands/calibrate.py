@@ -188,12 +188,11 @@ def _emulated_mcu(console: Console) -> EmulatedLoadCellMCU:
     return mcu
 
 
-def _follow_steps(mcu: EmulatedLoadCellMCU) -> Callable[[tuple[float, float]], None]:
-    """The emulated plate carries each step's load."""
+def _follow_steps(mcu: EmulatedLoadCellMCU) -> Callable[[tuple[float, float]], int | None]:
+    """The emulated plate carries each step's load; returns the first frame that carries it."""
 
-    def apply_load(load: tuple[float, float]) -> None:
-        force = (float(load[0]), float(load[1]))
-        mcu.set_force(lambda t: force)
+    def apply_load(load: tuple[float, float]) -> int | None:
+        return mcu.switch_force((float(load[0]), float(load[1])))
 
     return apply_load
 

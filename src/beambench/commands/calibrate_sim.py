@@ -146,15 +146,7 @@ def sim(
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         _fail(f"--out {out_dir}: cannot create ({exc.strerror or exc})")
-    chosen = tuple(n.strip() for n in free.split(",") if n.strip()) if free is not None else None
-    if chosen is not None:
-        known = {u.name for u in get_rig(tg.rig).unknowns}
-        bad = [n for n in chosen if n not in known]
-        if not chosen or bad:
-            _fail(f"--free {free}: {tg.rig} rig unknowns are {', '.join(sorted(known))}")
-        twice = sorted({n for n in chosen if chosen.count(n) > 1})
-        if twice:
-            _fail(f"--free {free}: {twice[0]} is named twice")
+    chosen = _free_unknowns(free, tg.rig)
     settings = (
         SearchSettings.quick(budget_s=min(budget_s, 150.0), free=chosen)
         if quick
@@ -179,6 +171,23 @@ def sim(
     except KeyboardInterrupt:  # Ctrl-C: every finished evaluation is in the log, which a rerun reuses
         _interrupted(out_dir / f"{name}.evals.jsonl")
     _finish(result, report)
+
+
+def _free_unknowns(free: str | None, rig: str) -> tuple[str, ...] | None:
+    """``--free`` as unknown names of ``rig`` (None: the rig's default set); one line and exit 2 if wrong."""
+    from beambench.studies.calibration import get_rig
+
+    if free is None:
+        return None
+    chosen = tuple(n.strip() for n in free.split(",") if n.strip())
+    known = {u.name for u in get_rig(rig).unknowns}
+    bad = [n for n in chosen if n not in known]
+    if not chosen or bad:
+        _fail(f"--free {free}: {rig} rig unknowns are {', '.join(sorted(known))}")
+    twice = sorted({n for n in chosen if chosen.count(n) > 1})
+    if twice:
+        _fail(f"--free {free}: {twice[0]} is named twice")
+    return chosen
 
 
 def _finish(result: Any, report: Path) -> None:

@@ -23,10 +23,12 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Ping the mocap server, the ODrive and the load-cell MCU; print version, serial and rate. Moves nothing."""
         from rich.console import Console
+        from rich.markup import escape
         from rich.table import Table
 
         from beambench.acquisition.config import ConfigError, load_rig_file
         from beambench.backends.hardware import DEFAULT_RIG_FILE
+        from beambench.common.text import printable
 
         try:
             rig = load_rig_file(rig_file or DEFAULT_RIG_FILE) if not emulate else None
@@ -44,12 +46,12 @@ def register(app: typer.Typer) -> None:
             table.add_column(col)
         for name, info in results.items():
             found = bool(info.get("found", False))
-            details = ", ".join(
-                f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+            details = ", ".join(  # what a device sent: no escape sequences, no rich markup
+                f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={printable(v)}"
                 for k, v in info.items()
                 if k != "found" and v not in (None, "")
             )
-            table.add_row(name, "[green]yes" if found else "[red]no", details)
+            table.add_row(name, "[green]yes" if found else "[red]no", escape(details))
         Console().print(table)
         if not all(r.get("found") for r in results.values()):
             raise typer.Exit(1)
@@ -59,7 +61,7 @@ def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
     """Ping each device of a :class:`beambench.acquisition.config.RigFile`; never raises for a device that is absent."""
     from beambench.devices.loadcell import driver as loadcell
     from beambench.devices.natnet import client as natnet
-    from beambench.devices.odrive import can_motor as odrive_can
+    from beambench.devices.odrive import can_ping as odrive_can
 
     out: dict[str, dict[str, Any]] = {}
     nn = rig.natnet.model_dump(exclude={"markers"})

@@ -29,6 +29,7 @@ def decode(
     size, occluded, params. The NatNet version is taken from a SERVERINFO in the capture, else --natnet-version.
     Prints a summary line (frames, dropped, parse errors, version, rate).
     """
+    from beambench.common.text import printable
     from beambench.devices.natnet import protocol as nn
     from beambench.devices.natnet.capture import decode_capture, frames_table
     from beambench.devices.natnet.pcap import CaptureError
@@ -68,7 +69,7 @@ def decode(
         table.to_csv(sys.stdout, index=False)
         typer.echo(summary, err=True)
     for err in decoded.errors[:5]:
-        typer.echo(f"  parse error: {err}", err=True)
+        typer.echo(f"  parse error: {printable(err)}", err=True)  # may quote what the capture holds
 
 
 def register(app: typer.Typer) -> None:

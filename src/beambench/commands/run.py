@@ -277,6 +277,7 @@ def view(
         rrd = out or free_path(session.with_name(f"{session.stem}_view.rrd"))
         if rrd.exists():
             fail(f"{rrd}: exists; give another --out (view never overwrites a recording)")
+        check_writable(rrd, "--out")
     from beambench.session.replay import replay_session
     from beambench.sinks.hdf5 import SessionFileError
 
@@ -301,6 +302,9 @@ def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) ->
         fail(f"{png.parent}: no such folder for the screenshot")
     if rrd is not None and rrd.exists():
         fail(f"{rrd}: exists; give another --out (view never overwrites a recording)")
+    for path, option in ((png, "--screenshot"), (rrd, "--out")):
+        if path is not None and not path.exists():
+            check_writable(path, option)
     try:
         shown = session_screenshot(session, png, at, rrd)
     except ViewerUnavailable as exc:
@@ -313,6 +317,19 @@ def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) ->
         fail(f"{session}: cannot read session ({exc})")
     typer.echo(f"viewer at {shown:g} s of {session.name}", err=True)
     typer.echo(str(png))
+
+
+def check_writable(path: Path, option: str) -> None:
+    """One line and exit 2 unless a new file can be created at ``path`` (its folder exists and takes files): a
+    probe file is created exclusively and removed at once, before any work."""
+    if not path.parent.is_dir():
+        fail(f"{option} = {str(path)!r}: no such folder {str(path.parent)!r}")
+    try:
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+    except OSError as exc:
+        fail(f"{option} = {str(path)!r}: cannot write there ({exc.strerror or exc})")
+    with contextlib.suppress(OSError):
+        path.unlink()
 
 
 def free_path(path: Path) -> Path:

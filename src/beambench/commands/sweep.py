@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import typer
 
 from beambench.commands import fail
 from beambench.common.resources import shipped_names, user_dir
+
+if TYPE_CHECKING:
+    from beambench.studies.sweep import SweepSpec
 
 
 def default_table(name: str) -> Path:
@@ -59,25 +63,7 @@ def sweep(
     contacts per cycle, regime) go to one Parquet table, saved as each task finishes. Rerunning the
     same command skips finished points, so an interrupted sweep resumes where it stopped.
     """
-    from beambench.studies.executor import MAX_LOCAL_WORKERS
-    from beambench.studies.sweep import SweepError, load_sweep, plan, read_table
-
-    if workers < 0:
-        fail(f"--workers = {workers}: must be >= 0")
-    if workers > MAX_LOCAL_WORKERS and cluster is None:
-        fail(f"--workers = {workers}: at most {MAX_LOCAL_WORKERS} local worker processes")
-    if batch_size < 0:
-        fail(f"--batch-size = {batch_size}: must be >= 0")
-    if scheduler and cluster:
-        fail("give either --scheduler or --cluster, not both")
-    if cluster and cluster != "slurm":
-        fail(f"--cluster = {cluster!r}: only 'slurm' is supported")
-    from beambench.common.resources import ShippedFileError, resolve_file
-
-    try:
-        spec = load_sweep(resolve_file("sweep", sweep_file))
-    except (SweepError, ShippedFileError) as exc:
-        fail(str(exc))
+    spec = _checked_spec(sweep_file, workers, batch_size, scheduler, cluster)
     out = out or (Path(spec.output) if spec.output else default_table(spec.name))
 
     from rich.progress import (
@@ -90,23 +76,13 @@ def sweep(
 
     from beambench.common.console import LogProgress, stderr_console
     from beambench.studies.executor import ExecutorError
-    from beambench.studies.sweep import run_sweep
+    from beambench.studies.sweep import SweepError, run_sweep
     from beambench.studies.sweep_figure import plot_sweep
 
-    console = stderr_console()
     if dry_run:
-        try:
-            jobs = plan(spec)
-            old = read_table(out)
-        except SweepError as exc:
-            fail(str(exc))
-        done = set(old["point_id"]) if "point_id" in old.columns else set()
-        todo = sum(j.id not in done for j in jobs)
-        typer.echo(
-            f"{spec.name}: {spec.scene}, {len(jobs)} points ({len(jobs) - todo} done, {todo} to do), "
-            f"axes: {', '.join(spec.axes()) or '(single point)'}; table: {out}"
-        )
+        _print_plan(spec, out)
         return
+    console = stderr_console()
     with LogProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -150,3 +126,46 @@ def sweep(
 
 def register(app: typer.Typer) -> None:
     app.command("sweep")(sweep)
+
+
+def _checked_spec(
+    sweep_file: Path, workers: int, batch_size: int, scheduler: str | None, cluster: str | None
+) -> SweepSpec:
+    """The sweep file's spec, after the options are checked (one line and exit 2 for anything wrong)."""
+    from beambench.studies.executor import MAX_LOCAL_WORKERS
+    from beambench.studies.sweep import SweepError, load_sweep
+
+    if workers < 0:
+        fail(f"--workers = {workers}: must be >= 0")
+    if workers > MAX_LOCAL_WORKERS and cluster is None:
+        fail(f"--workers = {workers}: at most {MAX_LOCAL_WORKERS} local worker processes")
+    if batch_size < 0:
+        fail(f"--batch-size = {batch_size}: must be >= 0")
+    if scheduler and cluster:
+        fail("give either --scheduler or --cluster, not both")
+    if cluster and cluster != "slurm":
+        fail(f"--cluster = {cluster!r}: only 'slurm' is supported")
+    from beambench.common.resources import ShippedFileError, resolve_file
+
+    try:
+        spec = load_sweep(resolve_file("sweep", sweep_file))
+    except (SweepError, ShippedFileError) as exc:
+        fail(str(exc))
+    return spec
+
+
+def _print_plan(spec: SweepSpec, out: Path) -> None:
+    """``--dry-run``: the points, how many are done and how many to do."""
+    from beambench.studies.sweep import SweepError, plan, read_table
+
+    try:
+        jobs = plan(spec)
+        old = read_table(out)
+    except SweepError as exc:
+        fail(str(exc))
+    done = set(old["point_id"]) if "point_id" in old.columns else set()
+    todo = sum(j.id not in done for j in jobs)
+    typer.echo(
+        f"{spec.name}: {spec.scene}, {len(jobs)} points ({len(jobs) - todo} done, {todo} to do), "
+        f"axes: {', '.join(spec.axes()) or '(single point)'}; table: {out}"
+    )

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import math
 import os
 import random
 import threading
@@ -140,6 +141,19 @@ class EmulatedLoadCellMCU:
 
     def set_force(self, force: ForceSource) -> None:
         self.force = force
+
+    def switch_force(self, force: tuple[float, float]) -> int:
+        """The plate carries ``force`` from now on, by the frames' own sample times (frames made late, after a
+        starved thread wakes, still carry the force of their time); returns the first such frame's sequence
+        number."""
+        if self.started_ns is None:
+            self.force = lambda t: force
+            return self.seq_start
+        rate = self.true_rate_hz
+        k = math.ceil((time.monotonic_ns() - self.started_ns) * 1e-9 * rate)
+        before = self.force
+        self.force = lambda t: force if round(t * rate) >= k else before(t)
+        return self.seq_start + k
 
     def counts_at(self, t: float) -> np.ndarray:
         """Noise-free counts (float) for the force at true time ``t``."""

@@ -7,14 +7,17 @@ loads, the limits, and the run's options (``--can-log``).
 
 from __future__ import annotations
 
+from dataclasses import fields
 from pathlib import Path
 
 from beambench.acquisition.config import ConfigError, Protocol
 from beambench.acquisition.plan import check_limits
 from beambench.common.yaml_config import shorten
 from beambench.devices.odrive.can_motor import LOG_SUFFIXES
-from beambench.sim.models.params import ParamsError, load_params
+from beambench.sim.models.params import BeamParams, ParamsError, load_params
 from beambench.sim.models.registry import model_family
+from beambench.sim.scenes.contact_rig import RigParams
+from beambench.sim.scenes.walker import WalkerParams
 
 
 def _reason(exc: Exception) -> str:
@@ -22,6 +25,17 @@ def _reason(exc: Exception) -> str:
     text = str(exc)
     head, sep, tail = text.partition(": ")
     return tail if sep and " = " in head else text
+
+
+def _check_overrides(params: BeamParams, rig: str, file: str, given: str) -> None:
+    """The set's ``rig:`` block names contact-rig (or, on the walker, walker) parameters; ``walker:`` the walker's."""
+    contact, walker = {f.name for f in fields(RigParams)}, {f.name for f in fields(WalkerParams)}
+    known_rig = walker | contact if rig == "walker" else contact
+    for block, names, known in (("rig", params.rig, known_rig), ("walker", params.walker, walker)):
+        unknown = sorted(set(names) - known)
+        if unknown:
+            reason = f"{block}.{unknown[0][:40]}: unknown {block} parameter (see the scene's RigParams or WalkerParams)"
+            raise ConfigError(file, "sim.params", given, reason)
 
 
 def check_protocol(protocol: Protocol, file: str, backend: str | None = None, can_log: Path | None = None) -> None:
@@ -35,9 +49,10 @@ def check_protocol(protocol: Protocol, file: str, backend: str | None = None, ca
         except ValueError as exc:
             raise ConfigError(file, "sim.model", sim.model, _reason(exc)) from None
     try:
-        load_params(sim.params, model=family)
+        params = load_params(sim.params, model=family)
     except (ParamsError, OSError) as exc:
         raise ConfigError(file, "sim.params", sim.params, _reason(exc)) from None
+    _check_overrides(params, protocol.rig, file, sim.params)
     if can_log is not None:
         if backend == "sim":
             raise ConfigError(

@@ -31,6 +31,7 @@ def probe_run_time(protocol: Protocol) -> ProbeEstimate:
     """Time :data:`PROBE_S` of ``protocol``'s scene at its highest frequency and extrapolate to every step."""
     from beambench.backends.sim import build_scene
     from beambench.session.slices import sim_slice
+    from beambench.sim.scenes.drive import CostsByFrequency
 
     steps = plan(protocol)
     scene = build_scene(sim_slice(protocol))
@@ -41,10 +42,11 @@ def probe_run_time(protocol: Protocol) -> ProbeEstimate:
     t0 = time.perf_counter()
     scene.advance_to(warm + PROBE_S)
     wall_per_s = (time.perf_counter() - t0) / PROBE_S
-    cost = getattr(scene, "step_cost", None)
 
     def relative(hz: float) -> float:
-        return float(cost(hz) / cost(probe_hz)) if cost is not None else 1.0
+        if not isinstance(scene, CostsByFrequency):
+            return 1.0
+        return float(scene.step_cost(hz) / scene.step_cost(probe_hz))
 
     total = sum(s.duration_s * wall_per_s * relative(s.frequency_hz) for s in steps)
     parallel = max(1, min(protocol.sim.segments, os.cpu_count() or 1))

@@ -70,6 +70,12 @@ def run_session(
     )
 
 
+def _run_twin(sweep: Protocol, text: str, path: Path, show_progress: bool) -> tuple[str, str]:
+    """A ``track: map: twin`` run's sweep on the sim (:func:`beambench.session.track_map.twin_map`)."""
+    result = run_session(sweep, text, "sim", path, show_progress=show_progress)
+    return result.status, result.message
+
+
 def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunResult:
     """Run one :class:`RunRequest`.
 
@@ -100,10 +106,15 @@ def _open_rig(req: RunRequest) -> Rig:
 def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     protocol, path, backend = req.protocol, req.path, req.backend
     check_protocol(protocol, "<protocol>", backend, req.can_log)
-    tracking = track_setup(protocol, path, req.show_progress) if protocol.track is not None else None
-    if req.rerun_mode == "save":
-        _reserve(path.with_suffix(".rrd"))
-    rig = _open_rig(req)
+    tracking = track_setup(protocol, path, _run_twin, req.show_progress) if protocol.track is not None else None
+    reserved = path.with_suffix(".rrd") if req.rerun_mode == "save" else None
+    if reserved is not None:
+        _reserve(reserved)
+    try:
+        rig = _open_rig(req)
+    except BaseException:
+        _unreserve(reserved)
+        raise
     steps = plan(protocol)
     try:
         general = {
@@ -150,6 +161,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         hub.open(specs)
     except BaseException:
         rig.close()
+        _unreserve(reserved)  # the run never started: no empty recording left behind
         raise
     with _progress(req.show_progress) as progress:
         task = progress.add_task("starting", total=sum(s.duration_s for s in steps))
@@ -214,6 +226,13 @@ def _progress(show: bool) -> Iterator[LogProgress]:
     finally:
         with contextlib.suppress(OSError):
             progress.stop()
+
+
+def _unreserve(path: Path | None) -> None:
+    """Remove a recording reserved by :func:`_reserve` that is still empty (the run did not start)."""
+    with contextlib.suppress(OSError):
+        if path is not None and not path.is_symlink() and path.is_file() and path.stat().st_size == 0:
+            path.unlink()
 
 
 def _reserve(path: Path) -> None:

@@ -11,6 +11,7 @@ the rig is built.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,10 +82,16 @@ def load_map(spec: str) -> SpeedMap:
     raise ConfigError("<protocol>", "track.map", spec, "expected a session .h5, a steps.csv, or twin")
 
 
-def twin_map(protocol: Protocol, session_path: Path, show_progress: bool = True) -> tuple[SpeedMap, Path]:
-    """Run the protocol's sweep on the sim (its ``sim:`` section) into ``<session>_map.h5``; its speed map."""
-    from beambench.session.run import run_session
+# how the twin's sweep is run: (protocol, its text, session path, show progress) -> (status, message); the
+# session runner passes its own (beambench.session.run), which imports this module
+TwinRunner = Callable[[Protocol, str, Path, bool], tuple[str, str]]
 
+
+def twin_map(
+    protocol: Protocol, session_path: Path, run_twin: TwinRunner, show_progress: bool = True
+) -> tuple[SpeedMap, Path]:
+    """Run the protocol's sweep on the sim (its ``sim:`` section) into ``<session>_map.h5`` with ``run_twin``;
+    its speed map."""
     sweep = protocol.model_copy(update={"track": None, "backend": "sim"})
     text = yaml.safe_dump(sweep.model_dump(mode="json", exclude={"track"}, exclude_none=True), sort_keys=False)
     path = session_path.with_name(f"{session_path.stem}_map.h5")
@@ -92,9 +99,9 @@ def twin_map(protocol: Protocol, session_path: Path, show_progress: bool = True)
     while path.exists():
         path = session_path.with_name(f"{session_path.stem}_map_{k}.h5")
         k += 1
-    result = run_session(sweep, text, "sim", path, show_progress=show_progress)
-    if result.status != "completed":
-        raise ConfigError("<protocol>", "track.map", "twin", f"the twin's sweep {result.status}: {result.message}")
+    status, message = run_twin(sweep, text, path, show_progress)
+    if status != "completed":
+        raise ConfigError("<protocol>", "track.map", "twin", f"the twin's sweep {status}: {message}")
     return map_from_session(path), path
 
 
@@ -145,13 +152,13 @@ class Tracking:
         )
 
 
-def track_setup(protocol: Protocol, session_path: Path, show_progress: bool = True) -> Tracking:
-    """Resolve and check the map (``twin``: run its sweep first), then build the controller: all before the
-    rig is built, so a target out of reach moves nothing."""
+def track_setup(protocol: Protocol, session_path: Path, run_twin: TwinRunner, show_progress: bool = True) -> Tracking:
+    """Resolve and check the map (``twin``: run its sweep first with ``run_twin``), then build the controller: all
+    before the rig is built, so a target out of reach moves nothing."""
     track = protocol.track
     assert track is not None
     if track.map == "twin":
-        speed_map, _ = twin_map(protocol, session_path, show_progress)
+        speed_map, _ = twin_map(protocol, session_path, run_twin, show_progress)
     else:
         speed_map = load_map(track.map)
     check_reach(protocol, speed_map)

@@ -8,10 +8,8 @@ lavapipe (Debian: ``apt-get install mesa-vulkan-drivers libvulkan1``). It is con
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
-import shutil
 import socket
 import subprocess
 import tempfile
@@ -21,6 +19,7 @@ from types import TracebackType
 from typing import Any
 
 from beambench.common.vulkan import vulkan_devices
+from beambench.sinks.rerun_spawn import LOOPBACK, rerun_binary
 
 LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
 WINDOW = (1600, 900)
@@ -32,17 +31,6 @@ SETTLE_PAUSE_S = 0.3
 
 class ViewerUnavailable(RuntimeError):
     """The viewer cannot run here (no binary, no Vulkan adapter); the message says what is missing."""
-
-
-def rerun_binary() -> Path | None:
-    """The native ``rerun`` executable shipped with the rerun-sdk wheel (package ``rerun_cli``), else on PATH."""
-    spec = importlib.util.find_spec("rerun_cli")
-    if spec is not None and spec.origin is not None:
-        shipped = Path(spec.origin).with_name("rerun")
-        if shipped.is_file():
-            return shipped
-    found = shutil.which("rerun")
-    return Path(found) if found else None
 
 
 def vulkan_available() -> bool:
@@ -84,7 +72,7 @@ class HeadlessViewer:
         if "VK_ICD_FILENAMES" not in env and LAVAPIPE_ICD.exists() and not Path("/dev/dri").exists():
             env["VK_ICD_FILENAMES"] = str(LAVAPIPE_ICD)  # no GPU: the software rasteriser, not a search of all
         os.chmod(self._tmp.name, 0o700)
-        args = [str(binary), "--headless", "--port", str(self.port), "--hide-welcome-screen"]
+        args = [str(binary), "--headless", "--bind", LOOPBACK, "--port", str(self.port), "--hide-welcome-screen"]
         args += ["--window-size", f"{self.window[0]}x{self.window[1]}", "--renderer", "vulkan"]
         if self.rrd is not None:  # loaded whole (``open`` registers a file and fetches its chunks on demand)
             args.append(str(self.rrd))

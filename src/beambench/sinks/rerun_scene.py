@@ -25,6 +25,10 @@ BODY_TRAIL_S = 20.0
 BODY_TRAIL_STEP_S = 0.2  # spacing of the body trail's points
 BODY_TRAIL_EVERY_S = 0.2  # a saved file redraws the body trail five times a second
 FLOOR_EVERY_S = 1.0  # and the floor patch under the body once a second
+FLOOR_HALF_MM = (300.0, 150.0)  # the floor patch's half size along forward and sideways
+EYE_DISTANCE = 1.0  # the eye's distance from the scene's centre in scene diagonals: its bounding sphere fits a 60° cone
+MIN_EXTENT_MM = {False: 60.0, True: 250.0}  # the smallest scene diagonal framed (contact rig, walker)
+REFRAME_SHARE = 0.15  # the scene outgrows its framing when it leaves the box by this share of its diagonal
 BODY_SERIES_HZ = 30.0  # body position and speed samples per second
 SPEED_WINDOW_S = 0.5  # speed: forward displacement over this span
 CONTACT_N = 0.02  # normal force that counts as a contact for the plate's height (ContactParams.floor_n)
@@ -65,6 +69,8 @@ class Scene3D:
         self._contacts: list[tuple[float, float]] = []  # recent (start, end) s of normal force > CONTACT_N
         self._plate_heights: list[np.ndarray] = []
         self._plate_mm: float | None = None
+        self._lo: np.ndarray | None = None  # the scene's extent so far (mm)
+        self._hi: np.ndarray | None = None
         self._force_until = -np.inf  # the plate's force has been seen up to this time
         self._plate_until = -np.inf  # mocap frames up to this time were matched with it
 
@@ -92,23 +98,45 @@ class Scene3D:
                 static=True,
             )
 
-    def camera(self, first_mm: np.ndarray) -> Camera:
-        """An eye a readable distance from the beam of the first frame, the grid at the lowest marker's level."""
-        lo, hi = first_mm.min(axis=0), first_mm.max(axis=0)
+    def extent(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The box (mm) holding every marker seen so far (the body's trail included; the floor patch under it is
+        background and may reach past the view)."""
+        return None if self._lo is None or self._hi is None else (self._lo, self._hi)
+
+    def _grow(self, pos_mm: np.ndarray) -> None:
+        pts = pos_mm.reshape(-1, 3)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        if not len(pts):
+            return
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        self._lo = lo if self._lo is None else np.minimum(self._lo, lo)
+        self._hi = hi if self._hi is None else np.maximum(self._hi, hi)
+
+    def camera(self, lo: np.ndarray, hi: np.ndarray) -> Camera:
+        """An eye outside the box ``lo``…``hi`` (mm) seeing all of it: aimed at its centre from a distance of
+        :data:`EYE_DISTANCE` × its diagonal (outside the box; the box's bounding sphere fits a 60° view cone), above and to the side,
+        the grid at the box's lowest level. Nothing is tracked: a body that falls through the floor or folds
+        its legs cannot pull the eye into itself."""
         centre = (lo + hi) / 2
         side = np.cross(self.up, self.fwd)
-        heights = first_mm @ self.up
-        if self.layout.body is not None:
-            extent = 450.0
+        walker = self.layout.body is not None
+        diagonal = max(float(np.linalg.norm(hi - lo)), MIN_EXTENT_MM[walker])
+        if walker:
             direction = -1.0 * side + 0.8 * self.up - 0.35 * self.fwd
-            spacing = 100.0
         else:
-            extent = max(float(np.max(hi - lo)), 40.0) * 1.5
             direction = -1.0 * side + 0.35 * self.up + 0.45 * self.fwd
-            spacing = 10.0
-        eye = centre + extent * direction / np.linalg.norm(direction)
-        track = f"/mocap/{self.layout.body}" if self.layout.body is not None else None
-        return Camera(_vec(eye), _vec(centre), float(heights.min()), spacing, track)
+        eye = centre + EYE_DISTANCE * diagonal * direction / np.linalg.norm(direction)
+        spacing = 100.0 if walker else 10.0
+        return Camera(_vec(eye), _vec(centre), float(min(lo @ self.up, hi @ self.up)), spacing)
+
+    def outgrown(self, framed: tuple[np.ndarray, np.ndarray]) -> bool:
+        """Whether the scene has left the box a camera was framed on by more than :data:`REFRAME_SHARE` of its
+        diagonal (then the view is framed anew)."""
+        box = self.extent()
+        if box is None:
+            return False
+        margin = REFRAME_SHARE * float(np.linalg.norm(framed[1] - framed[0]))
+        return bool(np.any(box[0] < framed[0] - margin) or np.any(box[1] > framed[1] + margin))
 
     def contacts(self, t: np.ndarray, normal_n: np.ndarray) -> None:
         """The plate's force: remember when it read a contact (for the plate's height from the foot)."""
@@ -124,6 +152,7 @@ class Scene3D:
 
     def write(self, t: np.ndarray, pos_mm: np.ndarray) -> None:
         """One mocap batch: ``t`` (n,) session seconds, ``pos_mm`` (n, markers, 3)."""
+        self._grow(pos_mm)
         for m, j in self.index.items():
             self.send(f"mocap/{m}", "points", t, pos_mm[:, j, :])
         for chain in self.layout.chains:
@@ -176,7 +205,8 @@ class Scene3D:
         if not floor:
             return
         centre = below[-1] - self.up * 1.5
-        half = np.abs(self.fwd) * 300.0 + np.abs(np.cross(self.up, self.fwd)) * 150.0 + np.abs(self.up) * 1.0
+        half = np.abs(self.fwd) * FLOOR_HALF_MM[0] + np.abs(np.cross(self.up, self.fwd)) * FLOOR_HALF_MM[1]
+        half = half + np.abs(self.up) * 1.0
         self.rec.log(
             "mocap/floor",
             rr.Boxes3D(centers=[centre], half_sizes=[half], colors=[(120, 120, 120, 90)], fill_mode="solid"),

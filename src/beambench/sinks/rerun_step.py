@@ -18,6 +18,9 @@ MEASURED_SPAN_S = 0.5  # the measured frequency: mean motor velocity over the la
 MEASURED_EVERY_S = 0.5  # a batch longer than this (a saved file's) updates the panel at this spacing
 
 
+STANDING_MM_S = 5.0  # a step slower than this walks nowhere (the analysis' speed dead band)
+
+
 class StepPanel:
     """Follows the steps and writes ``/step`` (a markdown text document) whenever what it says changes."""
 
@@ -78,8 +81,12 @@ class StepPanel:
             return f"{head}: regime **{s.regime}** ({s.contacts_per_cycle:.2f} contacts/cycle)"
         w = (self._bt >= a) & (self._bt <= b)
         if w.sum() > 10:
-            speed = float(np.polyfit(self._bt[w], self._bx[w], 1)[0])
-            return f"{head}: speed **{speed:+.1f} mm/s**"
+            slope, offset = np.polyfit(self._bt[w], self._bx[w], 1)
+            swing = float(np.ptp(self._bx[w] - (slope * self._bt[w] + offset))) / 2
+            speed = f"speed **{round(float(slope), 1) or 0.0:+.1f} mm/s**"  # no "-0.0"
+            if abs(slope) < STANDING_MM_S:
+                return f"{head}: {speed}: no net walking (the body swings ±{swing:.0f} mm in place)"
+            return f"{head}: {speed} (the body swings ±{swing:.0f} mm about that)"
         return f"{head}: done"
 
     def _write(self, t_s: float) -> None:

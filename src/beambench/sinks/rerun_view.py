@@ -35,6 +35,7 @@ from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
 from beambench.sinks import RerunMode
 from beambench.sinks.rerun_layout import TIMELINE, RigLayout, blueprint, layout_of, series_styles
 from beambench.sinks.rerun_scene import Scene3D
+from beambench.sinks.rerun_spawn import spawn_viewer, viewer_url
 from beambench.sinks.rerun_step import StepPanel
 
 if TYPE_CHECKING:
@@ -109,12 +110,15 @@ class RerunSink:
         self._scene: Scene3D | None = None
         self._steps = StepPanel(self.rec, total_steps, t0_ns)
         self._blueprint_sent = False
+        self._framed: tuple[np.ndarray, np.ndarray] | None = None  # the box the 3-D eye was framed on
+        self._next_frame = -np.inf
 
     def open(self, specs: list[StreamSpec]) -> None:
         if self.mode == "save":
             self.rec.save(str(self.rrd_path))
-        elif self.mode == "spawn":
-            self.rec.spawn()
+        elif self.mode == "spawn":  # on loopback only (rr.spawn's viewer listens on every interface)
+            spawn_viewer()
+            self.rec.connect_grpc(viewer_url())
         else:
             self.rec.connect_grpc()
         self._specs = {s.name: s for s in specs}
@@ -128,10 +132,12 @@ class RerunSink:
         else:  # nothing to frame the camera on: the layout now
             self._send_blueprint(None)
 
-    def _send_blueprint(self, first_mm: np.ndarray | None) -> None:
-        camera = self._scene.camera(first_mm) if self._scene is not None and first_mm is not None else None
+    def _send_blueprint(self, box: tuple[np.ndarray, np.ndarray] | None) -> None:
+        """The layout, its 3-D eye framed on ``box`` (the scene's extent, mm; None: the viewer's own)."""
+        camera = self._scene.camera(*box) if self._scene is not None and box is not None else None
         self.rec.send_blueprint(blueprint(self.layout, camera, live=self.mode != "save"))
         self._blueprint_sent = True
+        self._framed = box
 
     def write(self, batch: Batch) -> None:
         spec = self._specs.get(batch.stream)
@@ -163,10 +169,17 @@ class RerunSink:
 
     def _write_mocap(self, batch: Batch, t: np.ndarray) -> None:
         pos_mm = (batch.columns["data"] * 1000.0).astype(np.float32)
-        if not self._blueprint_sent:
-            self._send_blueprint(pos_mm[0])
         if self._scene is not None:
             self._scene.write(t, pos_mm)
+            box = self._scene.extent()
+            # framed on the first frames, and anew (at most every REFRAME_EVERY_S) when the scene outgrows that:
+            # a saved file's last framing holds the whole session
+            due = self._framed is None or (t[-1] >= self._next_frame and self._scene.outgrown(self._framed))
+            if box is not None and due:
+                self._send_blueprint(box)
+                self._next_frame = float(t[-1]) + REFRAME_EVERY_S
+        elif not self._blueprint_sent:
+            self._send_blueprint(None)
         body = self.layout.body
         if body is not None:
             j = self.layout.markers.index(body)
@@ -225,6 +238,7 @@ class RerunSink:
         self.rec.disconnect()
 
 
+REFRAME_EVERY_S = 5.0  # the 3-D eye is framed anew at most this often (session seconds)
 CLOSE_TIMEOUT_S = 5.0  # the longest a recording's close may take before it is given up
 
 

@@ -11,15 +11,56 @@ of the protocol step it falls in (``step``, -1 between steps) and whether it lie
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import pandas as pd
 
+from beambench.acquisition.batch import StreamSpec
+
 if TYPE_CHECKING:
     import xarray as xr
 
-    from beambench.sinks.hdf5 import Session, StreamData
+
+class StreamLike(Protocol):
+    """What the frames read of a stream (a :class:`beambench.sinks.hdf5_read.StreamData`)."""
+
+    @property
+    def spec(self) -> StreamSpec: ...
+
+    @property
+    def host_time_ns(self) -> np.ndarray: ...
+
+    @property
+    def device_time(self) -> np.ndarray: ...
+
+    @property
+    def columns(self) -> dict[str, np.ndarray]: ...
+
+    def __len__(self) -> int: ...
+
+
+class SessionLike(Protocol):
+    """What the frames read of a session (a :class:`beambench.sinks.hdf5_read.Session`; typed structurally, so
+    the reader, whose ``to_pandas``/``to_xarray`` call these, is not imported back)."""
+
+    @property
+    def path(self) -> Path: ...
+
+    @property
+    def streams(self) -> Mapping[str, StreamLike]: ...
+
+    @property
+    def steps(self) -> pd.DataFrame: ...
+
+    @property
+    def general(self) -> dict[str, Any]: ...
+
+    @property
+    def attrs(self) -> dict[str, Any]: ...
+
 
 NS = 1e9
 AXES = ("x", "y", "z")
@@ -29,7 +70,7 @@ _VARIABLE = {(MOCAP, "data"): "position", (MOCAP, "frame"): "frame", (MOCAP, "oc
 _VARIABLE[("loadcell", "data")] = "loadcell_counts"
 
 
-def session_t0_ns(session: Session) -> int:
+def session_t0_ns(session: SessionLike) -> int:
     """The session's time origin on the host clock (ns): the start of its first step, else its first sample."""
     if len(session.steps):
         return int(session.steps["t_start_ns"].min())
@@ -37,7 +78,7 @@ def session_t0_ns(session: Session) -> int:
     return min(firsts) if firsts else 0
 
 
-def step_of(session: Session, host_time_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def step_of(session: SessionLike, host_time_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For host times (ns): the index of the step each falls in (-1 outside every step) and whether it lies in
     that step's record window (``t_settled_ns <= t < t_end_ns``)."""
     t = np.asarray(host_time_ns, np.int64)
@@ -54,7 +95,7 @@ def step_of(session: Session, host_time_ns: np.ndarray) -> tuple[np.ndarray, np.
     return step, recording
 
 
-def _stream(session: Session, stream: str) -> StreamData:
+def _stream(session: SessionLike, stream: str) -> StreamLike:
     if stream not in session.streams:
         raise KeyError(f"{stream!r}: no such stream in {session.path} (streams: {', '.join(session.streams)})")
     return session.streams[stream]
@@ -75,7 +116,7 @@ def flat_names(stream: str, column: str, shape: tuple[int, ...], labels: tuple[s
     return [f"{m}_{a}" for m in first for a in last]
 
 
-def stream_frame(session: Session, stream: str) -> pd.DataFrame:
+def stream_frame(session: SessionLike, stream: str) -> pd.DataFrame:
     """One stream as a DataFrame: one row per sample, indexed by ``t_s`` (host receive time, s from
     :func:`session_t0_ns`), with named columns (mocap: ``stage_x`` … ``foot_z``, ``frame``, ``foot_occluded``;
     loadcell: ``lc0`` … ``lc3``, ``seq``; motor: ``position``, ``axis_state`` …) in their stored dtypes, plus
@@ -141,7 +182,7 @@ def _flat_attrs(general: dict[str, Any], prefix: str = "") -> dict[str, str | in
     return out
 
 
-def session_dataset(session: Session) -> xr.Dataset:
+def session_dataset(session: SessionLike) -> xr.Dataset:
     """The whole session as one xarray Dataset.
 
     Dimensions: ``time`` (mocap samples), ``marker`` and ``axis`` (x, y, z) for ``position`` (m), ``occluded`` and

@@ -288,6 +288,22 @@ def run_ladder(cfg: LadderConfig = FULL, progress: Progress | None = None) -> pd
         return _run_ladder(cfg, progress)
 
 
+def _skipped_rows(base: dict, cost: float, cfg: LadderConfig) -> list[dict]:
+    """The rows of a configuration whose sweep would cost more than one sweep's CPU budget (not run)."""
+    reason = f"estimated {cost:.3g} CPU s > the {cfg.max_sweep_cpu_s:g} s budget of one sweep"
+    return [
+        {
+            **base,
+            "frequency_hz": f,
+            "status": "skipped",
+            "tip_err_mm": np.nan,
+            "rel_dev_converged": np.nan,
+            "reason": reason,
+        }
+        for f in cfg.frequencies
+    ]
+
+
 def _run_ladder(cfg: LadderConfig, progress: Progress | None) -> pd.DataFrame:
     _check_grid(cfg)
     say = progress or (lambda desc, frac: None)
@@ -334,17 +350,7 @@ def _run_ladder(cfg: LadderConfig, progress: Progress | None) -> pd.DataFrame:
             if (model, integ, h) == cfg.reference:
                 run = ref
             elif cost > cfg.max_sweep_cpu_s:
-                for f in cfg.frequencies:
-                    rows.append(
-                        {
-                            **base,
-                            "frequency_hz": f,
-                            "status": "skipped",
-                            "tip_err_mm": np.nan,
-                            "rel_dev_converged": np.nan,
-                            "reason": f"estimated {cost:.3g} CPU s > the {cfg.max_sweep_cpu_s:g} s budget of one sweep",
-                        }
-                    )
+                rows += _skipped_rows(base, cost, cfg)
                 tick(desc + " (skipped)", cfg.max_sweep_cpu_s)
                 continue
             else:

@@ -134,6 +134,28 @@ def ladder_note(cfg: LadderConfig) -> str:
     )
 
 
+def _legend_handles(summary: pd.DataFrame) -> list:
+    """The speed/accuracy chart's legend: one line per model, one marker per integrator, the two grey/hollow keys."""
+    from matplotlib.lines import Line2D
+
+    handles = [
+        Line2D(
+            [],
+            [],
+            color=_MODEL_COLORS.get(m, "k"),
+            lw=2,
+            label=m + (" (the shipped twins' model)" if m == TWIN_MODEL else ""),
+        )
+        for m in summary.model.unique()
+    ]
+    handles += [Line2D([], [], color="k", marker=mk, ls="", label=i) for i, mk in _INTEGRATOR_MARKERS.items()]
+    handles.append(
+        Line2D([], [], color="k", marker="o", mfc="none", ls="", label="hollow: inaccurate (> 1 % from converged)")
+    )
+    handles.append(Line2D([], [], color="0.8", marker="o", ls="", label="other stable configurations"))
+    return handles
+
+
 def plot_speed_accuracy(
     summary: pd.DataFrame, path: Path, title: str = "", time_col: str = "wall_s_per_10s", note: str = ""
 ) -> Path:
@@ -142,7 +164,6 @@ def plot_speed_accuracy(
     at some frequency of the band); the paper's PRB (1.2 s) and FEA (82.5 s) marked as another CPU's times.
     ``note`` (e.g. :func:`ladder_note`) goes under the title. ``time_col="cpu_s_per_10s"`` plots thread-CPU
     time instead (steadier on a shared machine)."""
-    from matplotlib.lines import Line2D
 
     summary = summary.assign(wall_s_per_10s=summary[time_col])
     fig = new_figure(figsize=(11, 7), dpi=110)
@@ -205,22 +226,7 @@ def plot_speed_accuracy(
     )
     ax.set_ylabel("mean tip RMS error vs 40-segment rod reference, 5–45 Hz [mm]")
 
-    handles = [
-        Line2D(
-            [],
-            [],
-            color=_MODEL_COLORS.get(m, "k"),
-            lw=2,
-            label=m + (" (the shipped twins' model)" if m == TWIN_MODEL else ""),
-        )
-        for m in summary.model.unique()
-    ]
-    handles += [Line2D([], [], color="k", marker=mk, ls="", label=i) for i, mk in _INTEGRATOR_MARKERS.items()]
-    handles.append(
-        Line2D([], [], color="k", marker="o", mfc="none", ls="", label="hollow: inaccurate (> 1 % from converged)")
-    )
-    handles.append(Line2D([], [], color="0.8", marker="o", ls="", label="other stable configurations"))
-    ax.legend(handles=handles, fontsize=7, loc="lower left", ncol=2)
+    ax.legend(handles=_legend_handles(summary), fontsize=7, loc="lower left", ncol=2)
     head = title or "Speed vs accuracy: Pareto front of each model (labels: model integrator dt [s])"
     ax.set_title(head + ("\n" + note if note else ""))
     ax.grid(True, which="both", alpha=0.2)

@@ -71,25 +71,15 @@ def body_figure(analyses: list[SessionAnalysis]) -> Figure | None:
         return None
     fig = new_figure((8.5 if len(runs) == 1 else 5.2 * len(runs), 5.2))
     axes = fig.subplots(1, len(runs), sharey=True, squeeze=False)[0]
+    freqs = [r.frequency_hz for r in chosen_steps(runs[0][1])]  # every panel the same frequencies, same colours
     for ax, (si, (a, steps)) in zip(axes, enumerate(runs)):
-        shown = chosen_steps(steps)
-        for k, r in enumerate(shown):
+        shown = [r for f in freqs for r in steps[:] if r.frequency_hz == f][: len(freqs)]
+        for r in shown:
             x = r.body_x_mm - np.nanmedian(r.body_x_mm[: max(3, len(r.body_x_mm) // 50)])
             speed = float(r.row.get("body_speed_mm_s", np.nan))
             shown_speed = f"{speed:+.0f}" if round(speed) else "0"
-            label = f"{r.frequency_hz:g} Hz ({shown_speed} mm/s)" if len(runs) == 1 else None
-            ax.plot(r.body_t, x, color=LINE_COLORS[k % len(LINE_COLORS)], lw=1.1, label=label)
-            if len(runs) == 1:
-                continue
-            ax.annotate(
-                f"{r.frequency_hz:g} Hz",
-                (r.body_t[-1], x[-1]),
-                xytext=(3, 0),
-                textcoords="offset points",
-                fontsize=8,
-                color=LINE_COLORS[k % len(LINE_COLORS)],
-                va="center",
-            )
+            label = f"{r.frequency_hz:g} Hz ({shown_speed} mm/s)" if len(runs) == 1 else f"{r.frequency_hz:g} Hz"
+            ax.plot(r.body_t, x, color=LINE_COLORS[freqs.index(r.frequency_hz) % len(LINE_COLORS)], lw=1.1, label=label)
         ax.axhline(0, color="0.3", lw=0.8)
         which = f"{len(shown)} of {len(steps)} steps" if len(shown) < len(steps) else f"all {len(steps)} steps"
         head = a.label if len(runs) > 1 else "Body along the slider"
@@ -97,6 +87,5 @@ def body_figure(analyses: list[SessionAnalysis]) -> Figure | None:
         if len(runs) > 1:
             ax.title.set_color(SESSION_COLORS[si % 4])
     axes[0].set_ylabel("forward displacement (mm, + forward)")
-    if len(runs) == 1:
-        legend_below(fig, axes, ncol=3)
+    legend_below(fig, axes, ncol=6 if len(runs) > 1 else 3)
     return fig

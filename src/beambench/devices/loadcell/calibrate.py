@@ -10,6 +10,7 @@ arithmetic (tare, fit, the saved file) is :mod:`beambench.acquisition.calibratio
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -53,9 +54,12 @@ def parse_loads(values: list[str]) -> list[tuple[float, float]]:
             try:
                 if len(parts) != 2:
                     raise ValueError
-                loads.append((float(parts[0]), float(parts[1])))
+                fn, ft = float(parts[0]), float(parts[1])
+                if not (math.isfinite(fn) and math.isfinite(ft)):
+                    raise ValueError
+                loads.append((fn, ft))
             except ValueError:
-                raise ValueError(f"--loads {item!r}: expected FN,FT in newtons, e.g. 1.0,0") from None
+                raise ValueError(f"--loads {item!r}: expected FN,FT in newtons (finite numbers), e.g. 1.0,0") from None
     return loads
 
 
@@ -64,23 +68,57 @@ def _noise_floor(std: np.ndarray) -> float:
     return max(float(std.max()), 1.0)
 
 
-def record(stream: Stream, settle_s: float, duration_s: float) -> Recording:
-    """Wait ``settle_s``, drop what came meanwhile, then collect ``duration_s`` of samples."""
+NO_SAMPLES_S = 5.0  # how long past its window a recording waits for a late (or a starved host's) first sample
+
+
+def record(stream: Stream, settle_s: float, duration_s: float, from_seq: int | None = None) -> Recording:
+    """Wait ``settle_s``, drop what came meanwhile, then collect ``duration_s`` of samples.
+
+    ``from_seq``: the first MCU frame (sequence number) that carries the step's load, when it is known (the
+    emulated plate). The settle and the window are then counted in the MCU's own frames, so a host that reads
+    late (a loaded machine) neither mixes in the previous load's frames still in transit nor gets too few."""
     import numpy as np
 
     from beambench.acquisition.batch import Batch
 
+    if from_seq is not None:
+        return _record_frames(stream, settle_s, duration_s, from_seq)
     time.sleep(settle_s)
     stream.read()
-    batches = []
+    batches: list[Batch] = []
     t_end = time.monotonic() + duration_s
-    while time.monotonic() < t_end:
-        time.sleep(min(0.05, max(0.0, t_end - time.monotonic())))
+    while time.monotonic() < t_end or (not any(len(b) for b in batches) and time.monotonic() < t_end + NO_SAMPLES_S):
+        time.sleep(min(0.05, max(0.005, t_end - time.monotonic())))
         batches.append(stream.read())
     b = Batch.concat(batches)
     if len(b) == 0:
-        raise CalibrationAborted(f"no load-cell samples in {duration_s:g} s: is the MCU connected and running?")
+        waited = duration_s + NO_SAMPLES_S
+        raise CalibrationAborted(f"no load-cell samples in {waited:g} s: is the MCU connected and running?")
     return Recording(np.asarray(b.columns["data"], dtype=np.float64))
+
+
+def _record_frames(stream: Stream, settle_s: float, duration_s: float, from_seq: int) -> Recording:
+    """Frames ``from_seq + settle`` … ``+ duration`` (counted at the stream's rate), however late they arrive."""
+    import numpy as np
+
+    rate = stream.describe().rate_hz
+    first = from_seq + round(settle_s * rate)
+    end = first + max(1, round(duration_s * rate))
+    rows: list[np.ndarray] = []
+    deadline = time.monotonic() + settle_s + duration_s + NO_SAMPLES_S
+    last = first - 1
+    while last < end - 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
+        b = stream.read()
+        if len(b):
+            seq = np.asarray(b.columns["seq"])
+            rows.append(np.asarray(b.columns["data"])[(seq >= first) & (seq < end)])
+            last = max(last, int(seq.max()))
+    samples = np.concatenate(rows) if rows else np.zeros((0, 4))
+    if len(samples) == 0:
+        waited = settle_s + duration_s + NO_SAMPLES_S
+        raise CalibrationAborted(f"no load-cell samples in {waited:g} s: is the MCU connected and running?")
+    return Recording(samples.astype(np.float64))
 
 
 def walkthrough(
@@ -92,7 +130,7 @@ def walkthrough(
     settle_s: float = 0.5,
     duration_s: float = 1.0,
     gain: np.ndarray | None = None,
-    on_step: Callable[[tuple[float, float]], None] | None = None,
+    on_step: Callable[[tuple[float, float]], int | None] | None = None,
     source: str = "",
 ) -> tuple[LoadCellCalibration, MatrixFit]:
     """Tare then known loads, fitted. ``loads=None`` asks the user for each load until a blank answer."""
@@ -107,9 +145,9 @@ def walkthrough(
     from beambench.acquisition.streams import LOADCELL_CHANNELS
 
     hook = on_step or (lambda load: None)
-    hook((0.0, 0.0))
+    from_seq = hook((0.0, 0.0))
     ask("Remove every load from the plate, then press Enter to record the tare")
-    rec = record(stream, settle_s, duration_s)
+    rec = record(stream, settle_s, duration_s, from_seq)
     tare = tare_counts(rec.samples)
     tare_std = rec.std
     t = Table(title=f"Tare ({len(rec.samples)} samples, mean over time per channel)")
@@ -137,9 +175,9 @@ def walkthrough(
             load = parsed[0]
         else:
             load = loads[k]
-        hook(load)
+        from_seq = hook(load)
         ask(f"Apply load {k + 1}: Fn = {load[0]:g} N, Ft = {load[1]:g} N, then press Enter")
-        rec = record(stream, settle_s, duration_s)
+        rec = record(stream, settle_s, duration_s, from_seq)
         known.append(load)
         means.append(rec.mean)
         console.print(f"  load {k + 1}: {len(rec.samples)} samples, std {np.array2string(rec.std, precision=1)} counts")

@@ -11,6 +11,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from beambench.common.text import printable
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet.pcap import read_udp
 
@@ -64,7 +65,7 @@ class CaptureDecode:
         rate = self.frame_rate_hz
         src = self.version_source
         if self.server_info is not None and src == "SERVERINFO":
-            src += f": {self.server_info.app_name} {self.server_info.app_version}"
+            src += f": {printable(self.server_info.app_name, 80)} {printable(self.server_info.app_version, 40)}"
         parts = [
             f"{name}: {n} frames{span}",
             f"{self.dropped_frames} dropped",

@@ -228,14 +228,7 @@ class FrameOfData:
             r.pos = end  # fields newer than this version: skipped
 
         n, end = section("marker set", 5)
-        msets = []
-        for _ in range(n):
-            name = r.cstring("marker set name")
-            m = r.count("marker set marker count", 12)
-            r.need(12 * m, "marker set positions")
-            pos = tuple(_V3.iter_unpack(r.data[r.pos : r.pos + 12 * m]))
-            r.pos += 12 * m
-            msets.append(MarkerSetData(name, pos))
+        msets = _read_marker_sets(r, n)
         close("marker sets", end)
 
         n, end = section("other marker", 12)
@@ -256,21 +249,10 @@ class FrameOfData:
             skels.append(SkeletonData(sk_id, _read_rbs(r, m, "skeleton bones")))
         close("skeletons", end)
 
-        assets = []
+        assets: list[AssetData] = []
         if v >= V4_1:
             n, end = section("asset", 12)
-            for _ in range(n):
-                a_id = r.i32("asset id")
-                m = r.count("asset rigid body count", _ASSET_RB.size)
-                a_rbs = _read_rbs(r, m, "asset rigid bodies")
-                k = r.count("asset marker count", _ASSET_MK.size)
-                r.need(k * _ASSET_MK.size, "asset markers")
-                mks = tuple(
-                    AssetMarker(t[0], (t[1], t[2], t[3]), t[4], t[5], t[6])
-                    for t in _ASSET_MK.iter_unpack(r.data[r.pos : r.pos + k * _ASSET_MK.size])
-                )
-                r.pos += k * _ASSET_MK.size
-                assets.append(AssetData(a_id, a_rbs, mks))
+            assets = _read_assets(r, n)
             close("assets", end)
 
         n, end = section("labeled marker", _LM.size)
@@ -299,7 +281,7 @@ class FrameOfData:
             r.pos += 4
         return cls(
             frame_number,
-            tuple(msets),
+            msets,
             others,
             rbs,
             tuple(skels),
@@ -375,3 +357,34 @@ class FrameOfData:
         out.append(_I16.pack(self.params))
         out.append(_I32.pack(0))  # end-of-data tag
         return b"".join(out)
+
+
+def _read_marker_sets(r: _Reader, n: int) -> tuple[MarkerSetData, ...]:
+    """``n`` marker sets: a name and its markers' positions each."""
+    msets = []
+    for _ in range(n):
+        name = r.cstring("marker set name")
+        m = r.count("marker set marker count", 12)
+        r.need(12 * m, "marker set positions")
+        pos = tuple(_V3.iter_unpack(r.data[r.pos : r.pos + 12 * m]))
+        r.pos += 12 * m
+        msets.append(MarkerSetData(name, pos))
+    return tuple(msets)
+
+
+def _read_assets(r: _Reader, n: int) -> list[AssetData]:
+    """``n`` assets (NatNet 4.1+): an id, its rigid bodies and its markers each."""
+    assets = []
+    for _ in range(n):
+        a_id = r.i32("asset id")
+        m = r.count("asset rigid body count", _ASSET_RB.size)
+        a_rbs = _read_rbs(r, m, "asset rigid bodies")
+        k = r.count("asset marker count", _ASSET_MK.size)
+        r.need(k * _ASSET_MK.size, "asset markers")
+        mks = tuple(
+            AssetMarker(t[0], (t[1], t[2], t[3]), t[4], t[5], t[6])
+            for t in _ASSET_MK.iter_unpack(r.data[r.pos : r.pos + k * _ASSET_MK.size])
+        )
+        r.pos += k * _ASSET_MK.size
+        assets.append(AssetData(a_id, a_rbs, mks))
+    return assets

@@ -154,6 +154,15 @@ class NatNetMocap(StreamDriver):
         if st.last_frame_ns is not None:
             self.last_receive_ns = st.last_frame_ns
 
+    def echo_sync(self) -> dict[str, Any] | None:
+        """The client's ECHO table and the server's clock frequency (``ReportsEchoes``; None while there is no
+        client or no server clock)."""
+        c = self.client
+        if c is None or not c.clock_frequency:
+            return None
+        table = {k: v.tolist() for k, v in c.echo_table().items()}
+        return {**table, "clock_frequency": int(c.clock_frequency)}
+
     @property
     def stats(self) -> NatNetStats:
         return self.client.stats if self.client is not None else self._last_stats

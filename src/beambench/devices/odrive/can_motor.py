@@ -52,15 +52,19 @@ from pathlib import Path
 from typing import Any
 
 import can
-import numpy as np
 
-from beambench.acquisition.batch import Batch, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits, RefusesForeign
-from beambench.acquisition.streams import MOTOR, motor_spec
-from beambench.common.errors import BeambenchError
+from beambench.acquisition.streams import MOTOR
 from beambench.common.oserrors import can_open_problem
 from beambench.devices.odrive import cansimple as cs
 from beambench.devices.odrive.cansimple import AxisState, ControlMode, InputMode
+from beambench.devices.odrive.telemetry import (
+    MAX_BUFFERED_ROWS,
+    LimitError,
+    TelemetryStream,
+    current_limit_for,
+    vel_limit_for,
+)
 from beambench.devices.receive_time import mono_minus_real_ns
 
 # The ODrive sends its heartbeat every axis.config.can.heartbeat_rate_ms, 100 ms by default, and
@@ -71,85 +75,12 @@ from beambench.devices.receive_time import mono_minus_real_ns
 # watchdog (armed over USB, watchdog_timeout_s) is what idles the motor when the host stops. The rig file sets
 # it (odrive.heartbeat_timeout_s).
 HEARTBEAT_TIMEOUT_S = 1.0
-VEL_HEADROOM = 1.1  # vel_limit = max_frequency_hz × this
-MAX_VEL_LIMIT = 250.0  # turn/s; never send more (the old script's 8000 disabled the limit)
-MAX_CURRENT_LIMIT = 60.0  # A, the ODrive v3.6 hardware maximum
-MAX_BUFFERED_ROWS = 200_000  # ~33 min of telemetry if nobody reads
 LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc", ".csv")  # python-can writers that keep direction or ids
 RECEIVE_COALESCE_S = 0.02  # after a frame arrives, let others gather this long: one wake-up handles them all
 MAX_FRAMES_PER_WAKE = 1024  # a flood cannot keep the receive thread from checking its stop flag
 
 
 _ERROR_REGISTERS = (cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR)
-
-
-class LimitError(BeambenchError, ValueError):
-    """A command or a limit outside what the protocol's limits allow; nothing was sent."""
-
-
-def vel_limit_for(limits: MotorLimits) -> float:
-    """The ``vel_limit`` (turn/s) sent for these limits; LimitError if unsafe or invalid."""
-    f = limits.max_frequency_hz
-    if not (math.isfinite(f) and f > 0):
-        raise LimitError(f"max_frequency_hz = {f!r} must be a positive number")
-    v = f * VEL_HEADROOM
-    if v > MAX_VEL_LIMIT:
-        raise LimitError(f"vel_limit {v:g} turn/s (max_frequency_hz {f:g} × {VEL_HEADROOM}) exceeds {MAX_VEL_LIMIT:g}")
-    return v
-
-
-def current_limit_for(limits: MotorLimits) -> float:
-    a = limits.max_current_a
-    if not (math.isfinite(a) and 0 < a <= MAX_CURRENT_LIMIT):
-        raise LimitError(f"max_current_a = {a!r} must be in (0, {MAX_CURRENT_LIMIT:g}] A")
-    return float(a)
-
-
-def rows_to_batch(rows: list[tuple]) -> Batch:
-    """A motor Batch from rows (host_ns, device_t, position, velocity, setpoint, iq, vbus, state, error)."""
-    if not rows:
-        return motor_spec().empty_batch()
-    host, dev, pos, vel, sp, iq, vbus, state, err = zip(*rows)
-    cols: dict[str, np.ndarray] = {
-        "position": np.asarray(pos, np.float64),
-        "velocity": np.asarray(vel, np.float64),
-        "velocity_setpoint": np.asarray(sp, np.float64),
-        "iq_measured": np.asarray(iq, np.float64),
-        "bus_voltage": np.asarray(vbus, np.float64),
-        "axis_state": np.asarray(state, np.int32),
-        "axis_error": np.asarray(err, np.int64),
-    }
-    return Batch(MOTOR, np.asarray(host, np.int64), np.asarray(dev, np.float64), cols)
-
-
-class TelemetryStream:
-    """The Motor's telemetry as a Stream over a row buffer, shared by the CAN and USB drivers: a driver
-    appends rows (see :func:`rows_to_batch`) to ``_rows`` under ``_guard`` while ``_streaming``."""
-
-    _guard: Any  # the driver's lock (or condition) that guards _rows and _streaming
-    _rows: deque[tuple]
-    _streaming: bool
-    _streaming_ns: int | None
-    open: Any  # the driver's own: connects if needed
-
-    def describe(self) -> StreamSpec:
-        return motor_spec()
-
-    def start(self) -> None:
-        self.open()
-        with self._guard:
-            self._streaming = True
-            self._streaming_ns = time.monotonic_ns()
-
-    def stop(self) -> None:
-        with self._guard:
-            self._streaming = False
-
-    def read(self) -> Batch:
-        with self._guard:
-            rows = list(self._rows)
-            self._rows.clear()
-        return rows_to_batch(rows)
 
 
 class _TrafficLog:
@@ -758,98 +689,3 @@ class OdriveCanMotor(TelemetryStream):
             "can_log": str(self.can_log) if self.can_log else None,
             "note": "CAN Simple 0.5.x reports no serial number or firmware version",
         }
-
-
-def ping(
-    channel: str = "can0",
-    interface: str = "socketcan",
-    node_id: int | None = None,
-    *,
-    bitrate: int | None = None,
-    listen_s: float = 0.35,
-    bus: can.BusABC | None = None,
-) -> dict[str, Any]:
-    """Listen on a CAN bus for ODrive heartbeats and ask the node (``node_id``, or the first heard) for its
-    bus voltage, errors and encoder estimates. Never moves anything; never raises for a silent bus.
-
-    Returns ``found``, ``nodes`` (every node id heard), ``heartbeat_hz``, ``axis_state``, ``axis_error``,
-    ``bus_voltage_v``, ``position_turn`` and errors; CAN Simple 0.5.x cannot report serial or firmware.
-    """
-    info: dict[str, Any] = {
-        "device": "ODrive v3.6 (CAN Simple, fw 0.5.x)",
-        "interface": interface,
-        "channel": channel,
-        "found": False,
-    }
-    own = bus is None
-    try:
-        if bus is None:
-            kw: dict[str, Any] = {"interface": interface, "channel": channel}
-            if bitrate is not None:
-                kw["bitrate"] = bitrate
-            bus = can.Bus(**kw)
-    except Exception as exc:
-        info["error"] = can_open_problem(interface, channel, exc, bitrate)
-        return info
-    try:
-        beats: dict[int, list[tuple[float, cs.Heartbeat]]] = {}
-        replies: dict[str, Any] = {}
-        target = node_id
-
-        def listen(seconds: float) -> None:
-            end = time.monotonic() + seconds
-            while (left := end - time.monotonic()) > 0:
-                frame = bus.recv(timeout=left)
-                if frame is None:
-                    continue
-                try:
-                    node, msg = cs.parse_message(frame)
-                except cs.CanParseError:
-                    continue
-                if isinstance(msg, cs.Heartbeat):
-                    beats.setdefault(node, []).append((time.monotonic(), msg))
-                elif node == target and isinstance(msg, cs.BusVoltageCurrent):
-                    replies["bus_voltage_v"] = round(msg.voltage, 3)
-                elif node == target and isinstance(msg, cs.EncoderEstimates):
-                    replies["position_turn"] = round(msg.pos, 4)
-                elif node == target and isinstance(msg, cs.MotorError):
-                    replies["motor_error"] = msg.error
-                elif node == target and isinstance(msg, cs.EncoderError):
-                    replies["encoder_error"] = msg.error
-                elif node == target and isinstance(msg, cs.ControllerErrorMsg):
-                    replies["controller_error"] = msg.error
-
-        listen(listen_s)
-        if target is None and beats:
-            target = min(beats)
-        if target is not None and target in beats:
-            for cmd in (
-                cs.Cmd.GET_BUS_VOLTAGE_CURRENT,
-                cs.Cmd.GET_ENCODER_ESTIMATES,
-                cs.Cmd.GET_MOTOR_ERROR,
-                cs.Cmd.GET_ENCODER_ERROR,
-                cs.Cmd.GET_CONTROLLER_ERROR,
-            ):
-                bus.send(cs.request(target, cmd))
-            listen(0.15)
-        info["nodes"] = sorted(beats)
-        if target is not None:
-            info["node_id"] = target
-        if target is not None and target in beats:
-            hbs = beats[target]
-            last = hbs[-1][1]
-            state = last.axis_state
-            info.update(
-                found=True,
-                axis_error=cs.error_names(last.axis_error),
-                **replies,
-                axis_state=AxisState(state).name if state in AxisState._value2member_map_ else state,
-            )
-            if len(hbs) > 1:
-                info["heartbeat_hz"] = round((len(hbs) - 1) / (hbs[-1][0] - hbs[0][0]), 1)
-    except Exception as exc:
-        info["error"] = str(exc)
-    finally:
-        if own:
-            bus.shutdown()
-    return info

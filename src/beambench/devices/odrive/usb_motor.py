@@ -36,19 +36,19 @@ from typing import Any
 
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits
 from beambench.acquisition.streams import MOTOR
-from beambench.devices.odrive.can_motor import (
-    MAX_BUFFERED_ROWS,
-    LimitError,
-    TelemetryStream,
-    current_limit_for,
-    vel_limit_for,
-)
 from beambench.devices.odrive.cansimple import (
     AxisError,
     AxisState,
     ControlMode,
     InputMode,
     error_names,
+)
+from beambench.devices.odrive.telemetry import (
+    MAX_BUFFERED_ROWS,
+    LimitError,
+    TelemetryStream,
+    current_limit_for,
+    vel_limit_for,
 )
 
 

@@ -103,8 +103,11 @@ class CosseratSweep:
     info: dict = field(default_factory=dict)
 
 
-def _section_matrices(p: CosseratParams, rest_lengths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-element shear [3, 3, n] and mass second moment [3, 3, n]; per-Voronoi bend matrix [3, 3, n − 1]."""
+def _section_matrices(
+    p: CosseratParams, rest_lengths: np.ndarray, twist_deg: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-element shear [3, 3, n] and mass second moment [3, 3, n]; per-Voronoi bend matrix [3, 3, n − 1]
+    (torsion: the pre-twisted strip's GJ with the trapeze term, as the segmented rod has it)."""
     r = p.rod
     n = len(rest_lengths)
     a = r.area
@@ -116,7 +119,7 @@ def _section_matrices(p: CosseratParams, rest_lengths: np.ndarray) -> tuple[np.n
     inertia = np.zeros((3, 3, n))
     inertia[0, 0], inertia[1, 1], inertia[2, 2] = (r.density * rest_lengths * v for v in (i1, i2, i1 + i2))
     bend = np.zeros((3, 3, n - 1))
-    bend[0, 0], bend[1, 1], bend[2, 2] = r.ei_weak, r.ei_strong, r.gj
+    bend[0, 0], bend[1, 1], bend[2, 2] = r.ei_weak, r.ei_strong, r.torsion_gj(twist_deg)
     return shear, inertia, bend
 
 
@@ -197,7 +200,7 @@ class CosseratBeam:
             shear_modulus=r.shear_modulus,
             directors=directors,
         )
-        shear, inertia, bend = _section_matrices(p, rod.rest_lengths)
+        shear, inertia, bend = _section_matrices(p, rod.rest_lengths, twist_deg)
         rod.shear_matrix[:] = shear
         rod.bend_matrix[:] = bend
         rod.mass_second_moment_of_inertia[:] = inertia

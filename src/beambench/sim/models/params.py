@@ -168,6 +168,65 @@ def load_params(name: str = "paper", model: str = "prb3") -> BeamParams:
     return params_from_dict(data, str(path))
 
 
+# The physical range of each beam number (SI), whatever a set's own ``bounds:`` say: (low, high, low excluded).
+# A printed beam is centimetres long and grams heavy; these are orders of magnitude around it, so a typo
+# (k = 1e300, E < 0, density 0) is refused before MuJoCo turns it into NaN.
+PHYSICAL: dict[str, tuple[float, float, bool, str]] = {
+    "l1": (0.0, 1.0, False, "m"),
+    "l2": (0.0, 1.0, True, "m"),
+    "l3": (0.0, 1.0, True, "m"),
+    "k": (0.0, 100.0, True, "N·m/rad"),
+    "k_twist": (0.0, 100.0, True, "N·m/rad"),
+    "b": (0.0, 10.0, True, "N·m·s/rad"),
+    "b_twist": (0.0, 10.0, False, "N·m·s/rad"),
+    "mass": (0.0, 10.0, True, "kg"),
+    "width": (0.0, 1.0, True, "m"),
+    "thickness": (0.0, 1.0, True, "m"),
+    "twist_deg": (-720.0, 720.0, False, "deg"),
+    "beta": (0.0, 1.0, True, "s"),
+    "material.youngs_modulus": (1e3, 1e12, False, "Pa"),
+    "material.poisson": (-1.0, 0.5, True, ""),
+    "material.density": (1.0, 1e5, False, "kg/m³"),
+}
+# rig and walker overrides: every value a finite number of at most this magnitude; these must be > 0, and
+# ``timestep`` at least MIN_OVERRIDE_TIMESTEP_S (s) as the protocol's sim.timestep
+OVERRIDE_MAX = 1e6
+POSITIVE_OVERRIDES = frozenset(
+    {"timestep", "contact_timeconst", "contact_dampratio", "servo_hz", "sole_radius", "wheel_radius", "foot_length"}
+    | {"torque_constant", "bus_voltage", "stage_armature", "stage_mass", "vel_ramp_rate", "motor_radius"}
+)
+NON_NEGATIVE_OVERRIDES = frozenset(
+    {"foot_mass", "foot_bar_mass", "frame_mass", "sole_mass", "friction", "friction_torque", "sole_stiffness"}
+    | {"sole_damping", "sole_travel", "preroll_s", "rotor_inertia"}
+)
+MIN_OVERRIDE_TIMESTEP_S = 1e-6
+TOP_LEVEL_KEYS = frozenset({"name", "model", "source", "beam", "rig", "walker", "bounds", "fit"})
+
+
+def _in_range(value: float, where: str, key: str) -> float:
+    lo, hi, open_lo, unit = PHYSICAL[key]
+    if value < lo or value > hi or (open_lo and value == lo):
+        shown = f"{'(' if open_lo else '['}{lo:g}, {hi:g}]{' ' + unit if unit else ''}"
+        raise ParamsError(f"{where}: beam.{key} = {value:g}: outside the physical range {shown}")
+    return value
+
+
+def _overrides(block: dict[Any, Any], where: str, name: str) -> dict[str, float]:
+    """A ``rig:`` or ``walker:`` block: names to finite numbers of a physical magnitude."""
+    out = {}
+    for key, v in block.items():
+        value = _number(v, where, f"{name}.{str(key)[:40]}")
+        k = str(key)
+        if abs(value) > OVERRIDE_MAX:
+            raise ParamsError(f"{where}: {name}.{k[:40]} = {value:g}: magnitude over {OVERRIDE_MAX:g}")
+        if (k in POSITIVE_OVERRIDES and value <= 0) or (k in NON_NEGATIVE_OVERRIDES and value < 0):
+            raise ParamsError(f"{where}: {name}.{k} = {value:g}: must be {'>' if k in POSITIVE_OVERRIDES else '>='} 0")
+        if k == "timestep" and value < MIN_OVERRIDE_TIMESTEP_S:
+            raise ParamsError(f"{where}: {name}.timestep = {value:g}: at least {MIN_OVERRIDE_TIMESTEP_S:g} s")
+        out[k] = value
+    return out
+
+
 def _number(value: Any, where: str, key: str) -> float:
     """A finite number (not a bool, not a string), else :class:`ParamsError`."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -179,6 +238,9 @@ def _number(value: Any, where: str, key: str) -> float:
 
 def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParams:
     """Build :class:`BeamParams` from a mapping with a ``beam`` block (and optional ``rig`` block)."""
+    unknown_top = sorted(map(str, set(data) - TOP_LEVEL_KEYS))
+    if unknown_top:
+        raise ParamsError(f"{where}: {unknown_top[0][:80]}: unknown field (known: {', '.join(sorted(TOP_LEVEL_KEYS))})")
     beam_block = data.get("beam") or {}
     if not isinstance(beam_block, dict):
         raise ParamsError(f"{where}: beam: expected a mapping of beam fields")
@@ -195,17 +257,20 @@ def params_from_dict(data: dict[str, Any], where: str = "<params>") -> BeamParam
     unknown_mat = set(mat) - {f.name for f in fields(Material)}
     if unknown_mat:
         raise ParamsError(f"{where}: beam.material.{sorted(map(str, unknown_mat))[0][:80]}: unknown field")
-    material = Material(**{k: _number(v, where, f"beam.material.{k}") for k, v in mat.items()})
-    values = {k: _number(v, where, f"beam.{k}") for k, v in beam.items()}
-    for key in ("l2", "l3", "k", "b", "mass", "width", "thickness", "beta"):
-        if key in values and values[key] <= 0:
-            raise ParamsError(f"{where}: beam.{key} = {values[key]}: must be > 0")
+    material = Material(
+        **{k: _in_range(_number(v, where, f"beam.material.{k}"), where, f"material.{k}") for k, v in mat.items()}
+    )
+    values = {k: _in_range(_number(v, where, f"beam.{k}"), where, k) for k, v in beam.items()}
     rig = data.get("rig") or {}
     if not isinstance(rig, dict):
         raise ParamsError(f"{where}: rig: expected a mapping of rig overrides")
     walker = data.get("walker") or nested_walker
     if not isinstance(walker, dict):
         raise ParamsError(f"{where}: walker: expected a mapping of walker overrides")
+    rig, walker = _overrides(rig, where, "rig"), _overrides(walker, where, "walker")
+    for key in ("name", "model", "source"):
+        if isinstance(data.get(key), (dict, list)):
+            raise ParamsError(f"{where}: {key} = {shorten(data[key])}: must be a string")
     return BeamParams(
         name=str(data.get("name", Path(where).stem)),
         model=str(data.get("model", "prb3")),

@@ -1,12 +1,17 @@
 """The MuJoCo scenes, one module each, collected into one registry (:mod:`.registry`).
 
-Importing the package imports every scene module, and each registers its builder (``@register(INFO)``); the sim
-backend builds a protocol's scene with ``get(protocol.rig).build(config)``. Adding a scene: its
-:class:`~beambench.acquisition.scenes.SceneInfo` in :mod:`beambench.acquisition.scenes`, its module here, and
-its name in the import below.
+Importing the package imports every module in it, and each scene module registers its builder
+(``@register(INFO)``); the sim backend builds a protocol's scene with ``get(sim.scene).build(config)``. Adding a
+scene: its :class:`~beambench.acquisition.scenes.SceneInfo` in :mod:`beambench.acquisition.scenes` and its module
+here (docs/extending.md).
 """
 
-from beambench.sim.scenes import contact_rig, release, walker  # noqa: F401  (each registers itself)
+import importlib
+import pkgutil
+
 from beambench.sim.scenes.registry import Scene, SceneConfig, get, register
+
+for _module in pkgutil.iter_modules(__path__):  # each scene module registers itself on import
+    importlib.import_module(f"{__name__}.{_module.name}")
 
 __all__ = ["Scene", "SceneConfig", "get", "register"]

@@ -11,11 +11,14 @@ row times (the current one included), so a scene can precompute a whole chunk of
 from __future__ import annotations
 
 import math
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
 from beambench.sim.engine.stepping import Physics, Trajectory
+
+if TYPE_CHECKING:
+    from beambench.sim.models.thermal import ThermalState
 
 
 class MotorConstants(Protocol):
@@ -82,6 +85,22 @@ class KinematicServo:
         ctrl = ref[:-1] + (self.m * acc + self.kv * (w if self.implicit else v)) / self.kp
         self.r_prev, self.h_prev = float(ref[-2]), h
         return ctrl, acc
+
+
+@runtime_checkable
+class CostsByFrequency(Protocol):
+    """A scene whose physics costs more or less per simulated second with the drive frequency (the walker): the sim
+    rig cuts a sweep into segments of equal cost, the dry run weighs its estimate."""
+
+    def step_cost(self, hz: float) -> float: ...
+
+
+@runtime_checkable
+class WarmsUp(Protocol):
+    """A scene whose beam may warm with the drive power (the contact rig's ``sim.thermal_drift``): its state, or
+    None when the drift is off."""
+
+    thermal: ThermalState | None
 
 
 class DrivenScene:

@@ -61,9 +61,9 @@ __all__ = ["Interrupted", "Result", "SearchSettings", "calibrate"]
 DEFAULT_SETTINGS = SearchSettings()
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Result:
-    """What :func:`calibrate` found (``protocol``: the calibrated protocol it wrote)."""
+    """What :func:`calibrate` found (``protocol``: the calibrated protocol it wrote); built by keyword only."""
 
     rig: str
     values: dict[str, float]
@@ -84,6 +84,15 @@ class Result:
 
 
 RunAt = Callable[[int], SimSettings | WrittenRun]  # the winner's run at its own noise seed plus k
+
+# The budget's shares (of settings.budget_s) at which each stage stops starting new work. The coarse evolution
+# stops at 55 %: the rest pays for the fine stage (the best coarse points re-run on every target frequency, each
+# a full stepped sweep, several times a coarse evaluation) and the verify stage (the written protocol, two noise
+# seeds each). The fine stage starts no batch after 85 % and the bracket of the monotone unknown no round after
+# 90 %, leaving the last 10 % for verify and the report.
+COARSE_SHARE = 0.55
+FINE_SHARE = 0.85
+BRACKET_SHARE = 0.9
 
 
 def coarse_frequencies(targets: Targets, step_hz: float, lo: float) -> list[float]:
@@ -227,22 +236,22 @@ def calibrate(
     for path in (protocol, out_dir / f"{name}_params.yaml"):
         annotate_yaml(Path(path), verdicts)
     return Result(
-        rig.name,
-        winner.values,
-        winner.j,
-        winner.steps,
-        winner.extras,
-        protocol,
-        s.history,
-        ident,
-        summary,
-        s.log.new,
-        s.log.reused,
-        wall,
-        tuple(s.free),
-        settings,
-        verdicts,
-        label,
+        rig=rig.name,
+        values=winner.values,
+        j=winner.j,
+        steps=winner.steps,
+        extras=winner.extras,
+        protocol=protocol,
+        history=s.history,
+        identifiability=ident,
+        summary=summary,
+        evaluations=s.log.new,
+        reused=s.log.reused,
+        wall_s=wall,
+        free=tuple(s.free),
+        settings=settings,
+        verdicts=verdicts,
+        j_stage=label,
     )
 
 
@@ -363,7 +372,7 @@ def _evolution(s: Search, init: np.ndarray, reached: bool) -> None:
     from scipy.optimize import differential_evolution
 
     settings = s.settings
-    late = s.over(0.55)
+    late = s.over(COARSE_SHARE)
 
     def mapper(_func: Any, xs: Any) -> list[float]:
         if s.history and s.history[-1]["stage"] == "coarse" and late():
@@ -411,14 +420,16 @@ def _refine(s: Search) -> Point:
             picks.append(p.values)
         if len(picks) >= settings.refine_top:
             break
-    late = s.over(0.85)
+    late = s.over(FINE_SHARE)
     finals = s.ev.batch(picks, s.fine, "fine") if not late() else []
     s.record("fine", finals)
     winner = min(finals, key=lambda p: p.j) if finals else ranked[0]
     if br is not None and finals and settings.bracket_rounds > 0 and not late():
         c = br.coord(winner.values[br.name])
         half = 0.06 * (br.bounds[1] - br.bounds[0])
-        line = Line(s.fine, "fine", settings.bracket_rounds, max(2, 2 * s.pool.workers), "bracket", s.over(0.9))
+        line = Line(
+            s.fine, "fine", settings.bracket_rounds, max(2, 2 * s.pool.workers), "bracket", s.over(BRACKET_SHARE)
+        )
         winner = min(winner, bracket(s, winner.values, br, (c - half, c + half), line), key=lambda p: p.j)
     return winner
 
