@@ -232,6 +232,8 @@ def test_calibrate_sim_workers_are_bounded(tmp_path):
         ("rig: {plate_gap: 1e300}", "rig.plate_gap"),
         ("rig: {contact_timeconst: -1}", "rig.contact_timeconst"),
         ("rig: {nosuch: 1}", "rig.nosuch"),
+        ("rig: {plate_gap: true}", "rig.plate_gap"),
+        ("rig: {sole_at_corner: 1}", "rig.sole_at_corner"),
         ("walker: {foot_mass: 'x'}", "walker.foot_mass"),
         ("walker: {timestep: 1e-12}", "walker.timestep"),
         ("walker: {nosuch: 1}", "walker.nosuch"),
