@@ -109,8 +109,8 @@ def time_analyze(session: Path, repeats: int, figures: str = "all") -> tuple[lis
 def sync_accuracy() -> None:
     import numpy as np
 
-    from beambench.acquisition.config import parse_protocol
-    from beambench.analysis.session import fit_session_clocks
+    from beambench.acquisition.protocol.schema import parse_protocol
+    from beambench.analysis.session_analysis import fit_session_clocks
     from beambench.sinks.hdf5 import read_session
 
     path = run_protocol(SYNC, "bench_sync_5min")

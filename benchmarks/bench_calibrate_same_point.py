@@ -89,9 +89,9 @@ def targets_of(case: str):
     import pandas as pd
 
     from beambench.sim.settings import SimSettings
-    from beambench.studies.calibration import CalibrationBase
-    from beambench.studies.calibration.contact import simulate_contact
-    from beambench.studies.calibration.targets import Targets, load_targets
+    from beambench.studies.twin_calibration import CalibrationBase
+    from beambench.studies.twin_calibration.contact import simulate_contact
+    from beambench.studies.twin_calibration.targets import Targets, load_targets
 
     if case == "paper":
         return load_targets(ROOT / "calibration" / "paper_contact_targets.yaml")
@@ -109,7 +109,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("/tmp/bench_calibrate_same_point"))
     ap.add_argument("--cases", default="tiny,paper,walker")
     args = ap.parse_args()
-    from beambench.studies.calibration import SearchSettings, calibrate
+    from beambench.studies.twin_calibration import SearchSettings, calibrate
 
     results = {}
     for case in [c.strip() for c in args.cases.split(",") if c.strip()]:

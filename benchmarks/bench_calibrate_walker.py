@@ -58,7 +58,7 @@ def twin_session(out: Path) -> Path:
 
 def verify(protocol: Path, targets: dict[float, float]) -> dict[float, float]:
     """Steady speeds of the calibrated parameter set at the target frequencies."""
-    from beambench.acquisition.config import load_protocol
+    from beambench.acquisition.protocol.schema import load_protocol
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
     from beambench.sim.scenes.walker import WalkerParams
@@ -79,7 +79,7 @@ def main() -> None:
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     from beambench.common.resources import shipped_dir
-    from beambench.studies.calibration.targets import load_targets, session_targets
+    from beambench.studies.twin_calibration.targets import load_targets, session_targets
 
     rows = []
     for case in args.cases.split(","):

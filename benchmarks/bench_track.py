@@ -28,8 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _run(text: str, path: Path):
-    from beambench.acquisition.config import parse_protocol
-    from beambench.analysis.session import analyze_session
+    from beambench.acquisition.protocol.schema import parse_protocol
+    from beambench.analysis.session_analysis import analyze_session
     from beambench.session.run import run_session
     from beambench.sinks.hdf5 import read_session
 
@@ -72,7 +72,7 @@ def main() -> None:
     user = out / "user"
     (user / "sim_backend").mkdir(parents=True, exist_ok=True)
     os.environ["BEAMBENCH_USER_DIR"] = str(user)  # the other twin's parameter set lives here
-    from beambench.analysis.figures.tracking import draw_tracking
+    from beambench.analysis.figures.speed_tracking import draw_tracking
     from beambench.session.track_map import map_from_session
 
     shipped = yaml.safe_load((ROOT / "protocols" / "walker_track.yaml").read_text())
@@ -87,7 +87,7 @@ def main() -> None:
     (user / "sim_backend" / "prb3_other_twin.yaml").write_text(yaml.safe_dump(params))
     sweep = {k: v for k, v in shipped.items() if k != "track"}
     sweep["sim"] = {**shipped["sim"], "params": "other_twin"}
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.session.run import run_session
 
     text = yaml.safe_dump(sweep)

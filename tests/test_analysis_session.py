@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.acquisition.calibration import LoadCellCalibration
-from beambench.analysis.session import (
+from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
+from beambench.analysis.session_analysis import (
     analyze_session,
     contacts_table,
     resample_session,

@@ -6,10 +6,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from beambench.acquisition.config import ConfigError, parse_protocol
-from beambench.acquisition.plan import plan
+from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+from beambench.acquisition.protocol.plan import plan
 from beambench.analysis.branches import annotate_branches
-from beambench.analysis.session import analyze_session
+from beambench.analysis.session_analysis import analyze_session
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
 from beambench.sinks.hdf5 import read_session
 

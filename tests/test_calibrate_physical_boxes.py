@@ -13,11 +13,11 @@ from beambench.sim.models.registry import make_beam_model
 from beambench.sim.scenes.contact_regimes import static_sag
 from beambench.sim.scenes.contact_rig import RigParams
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration import get_rig
-from beambench.studies.calibration.contact import calibrated_params, contact_boxes, physical_gap
-from beambench.studies.calibration.rig import CalibrationBase
-from beambench.studies.calibration.search import free_unknowns
-from beambench.studies.calibration.walker import walker_boxes
+from beambench.studies.twin_calibration import get_rig
+from beambench.studies.twin_calibration.contact import calibrated_params, contact_boxes, physical_gap
+from beambench.studies.twin_calibration.rig import CalibrationBase
+from beambench.studies.twin_calibration.search import free_unknowns
+from beambench.studies.twin_calibration.walker import walker_boxes
 
 PHYSICAL = CalibrationBase("rod5g", "physical", SimSettings(twist_deg=90.0))
 CORNER_UNKNOWNS = ("b_scale", "friction_scale", "frame_mass_g", "mass_dx_mm", "mass_dy_mm")
@@ -71,6 +71,6 @@ def test_the_walker_searches_its_physical_foot_friction_and_radius_ranges():
 
 
 def rig_settings():
-    from beambench.studies.calibration.evaluate import SearchSettings
+    from beambench.studies.twin_calibration.evaluate import SearchSettings
 
     return SearchSettings(free=("b_scale", "preload_mm", "friction_scale", "frame_mass_g", "mass_dx_mm"))

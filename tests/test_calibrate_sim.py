@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration import (
+from beambench.studies.twin_calibration import (
     RIGS,
     CalibrationBase,
     Interrupted,
@@ -23,9 +23,9 @@ from beambench.studies.calibration import (
     get_rig,
     write_report,
 )
-from beambench.studies.calibration.contact import simulate_contact
-from beambench.studies.calibration.contact_objective import contact_objective, regime_level
-from beambench.studies.calibration.targets import (
+from beambench.studies.twin_calibration.contact import simulate_contact
+from beambench.studies.twin_calibration.contact_objective import contact_objective, regime_level
+from beambench.studies.twin_calibration.targets import (
     CalibrationInputError,
     Targets,
     load_targets,
@@ -124,7 +124,7 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     not, and a fitted value lands in the parameter set's rig block (SI) — the scene the map is computed on."""
     from dataclasses import replace
 
-    from beambench.studies.calibration.contact import calibrated_params
+    from beambench.studies.twin_calibration.contact import calibrated_params
 
     rig = get_rig("contact")
     assert rig.default_free == ("b_scale", "preload_mm", "friction_scale")
@@ -141,7 +141,7 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     assert calibrated_params(stuck, {"k_scale": 1.0}).rig["frame_mass"] == pytest.approx(0.010)
     assert names["frame_mass_g"].opt_in and names["mass_dx_mm"].opt_in and names["mass_dy_mm"].opt_in
     # the search's fixed values leave the opt-in unknowns out unless they are fixed explicitly
-    from beambench.studies.calibration.search import fixed_values
+    from beambench.studies.twin_calibration.search import fixed_values
 
     free = [names[n] for n in rig.default_free]
     assert fixed_values(names, free, SearchSettings()) == {"k_scale": 1.0}  # k stays the prior's
@@ -151,7 +151,7 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     }
     assert fixed_values(names, free[:2], SearchSettings()) == {"k_scale": 1.0, "friction_scale": 1.0}
     # the search's first line starts at the prior set's own values
-    from beambench.studies.calibration.contact import contact_prior
+    from beambench.studies.twin_calibration.contact import contact_prior
 
     assert contact_prior(stuck) == pytest.approx(
         {
@@ -257,7 +257,7 @@ def test_transitions_are_scored_beyond_the_per_step_levels():
     """A map that lacks the target's ⅓ band, or has a stray low ½ step, is a missed calibration (the goal is
     each transition within ± 2 Hz) although it differs from the target at only a few steps: the transition term
     makes it cost as much as a whole band of wrong steps."""
-    from beambench.studies.calibration.contact_objective import TRANSITION_WEIGHT, transition_misfit
+    from beambench.studies.twin_calibration.contact_objective import TRANSITION_WEIGHT, transition_misfit
 
     targets = parse_targets({"rig": "contact", "continuous_below_hz": 15, "half_at_hz": 30, "third_at_hz": 42})
     exact = _steps({(1, 14): "continuous", (15, 29): "1", (30, 41): "1/2", (42, 46): "1/3"})
@@ -291,7 +291,7 @@ def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
     """The calibrator fits maps of a stepped sweep; they must be what `beambench run` + `beambench analyze` of the
     same protocol give (maps of every frequency from rest put the continuous edge several Hz lower than the run:
     calibrations fitted on them missed their targets once run)."""
-    from beambench.analysis.session import analyze_session
+    from beambench.analysis.session_analysis import analyze_session
     from beambench.sim.scenes.contact_regimes import ContactTwin, stepped_regime_map
     from beambench.sim.settings import SimSettings
     from beambench.sinks.hdf5 import read_session
@@ -312,7 +312,7 @@ def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
     assert {"continuous", "1/2"} <= set(twin["regime"])  # a map with edges, not a row of one label
     assert list(run["tangential_sign"].astype(int)) == list(twin["tangential_sign"])
     # the verify stage's map of a written protocol is that run's analysed map, step for step
-    from beambench.studies.calibration.written_run import run_written_protocol
+    from beambench.studies.twin_calibration.written_run import run_written_protocol
 
     verify = pd.DataFrame(run_written_protocol(proto)["steps"])
     assert list(verify["frequency_hz"]) == list(run["frequency_hz"])
@@ -428,7 +428,7 @@ def test_a_targets_files_twin_is_the_shipped_protocol_extended_to_the_targets():
     import yaml
 
     from beambench.common.resources import shipped_dir
-    from beambench.studies.calibration.contact import contact_base
+    from beambench.studies.twin_calibration.contact import contact_base
 
     shipped = yaml.safe_load((shipped_dir("protocols") / "contact_sweep.yaml").read_text())
     base = contact_base(parse_targets({"rig": "contact", "half_at_hz": 30, "third_at_hz": 32}, "small.yaml"))
@@ -441,8 +441,8 @@ def test_a_targets_files_twin_is_the_shipped_protocol_extended_to_the_targets():
 
 
 def test_the_written_sweep_reaches_the_targets_and_its_limit_starts_from_the_parsers_default():
-    from beambench.acquisition.config import Limits
-    from beambench.studies.calibration.protocol_out import extended_sweep
+    from beambench.acquisition.protocol.schema import Limits
+    from beambench.studies.twin_calibration.protocol_out import extended_sweep
 
     targets = parse_targets({"rig": "contact", "half_at_hz": 30, "third_at_hz": 42})
     top = float(max(targets.frequencies))

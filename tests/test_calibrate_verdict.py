@@ -18,12 +18,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from beambench.studies.calibration import RIGS, CalibratableRig, CalibrationBase, Unknown
-from beambench.studies.calibration.contact import contact_summary
-from beambench.studies.calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
-from beambench.studies.calibration.targets import CalibrationInputError, parse_targets
-from beambench.studies.calibration.verdict import AT_BOUND_FRACTION, at_bound, closing_line, judge
-from beambench.studies.calibration.walker import walker_checks
+from beambench.studies.twin_calibration import RIGS, CalibratableRig, CalibrationBase, Unknown
+from beambench.studies.twin_calibration.contact import contact_summary
+from beambench.studies.twin_calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
+from beambench.studies.twin_calibration.targets import CalibrationInputError, parse_targets
+from beambench.studies.twin_calibration.verdict import AT_BOUND_FRACTION, at_bound, closing_line, judge
+from beambench.studies.twin_calibration.walker import walker_checks
 from beambench.studies.executor import Pool
 
 TOY_FREQS = [float(f) for f in range(3, 71)]
@@ -219,7 +219,7 @@ def test_free_names_only_the_rigs_bounded_unknowns_once(tmp_path):
         _one_line_exit_2(
             _beambench("calibrate", "sim", "--targets", str(PAPER), "--free", free, "--out", str(tmp_path)), words
         )
-    from beambench.studies.calibration import get_rig
+    from beambench.studies.twin_calibration import get_rig
 
     for rig in ("contact", "walker"):  # every unknown --free may name has finite physical bounds
         assert all(math.isfinite(u.lo) and math.isfinite(u.hi) and u.lo < u.hi for u in get_rig(rig).unknowns)
@@ -262,10 +262,10 @@ def test_walker_speeds_within_30_percent_with_the_floor():
     assert checks["speed at 65 Hz"].tolerance == pytest.approx(0.3 * 156.3)
     assert checks["speed at 40 Hz"].tolerance == pytest.approx(0.3 * 20.0)  # a near-zero target: the floor
     steps = pd.DataFrame({"frequency_hz": [23.0, 40.0, 65.0], "body_speed_mm_s": [-20.0, 10.0, 120.0]})
-    from beambench.studies.calibration.evaluate import Point
+    from beambench.studies.twin_calibration.evaluate import Point
 
     winner = Point({"foot_mass": 0.008, "friction": 0.45}, 0.3, {}, steps, {}, "fine", 0)
-    from beambench.studies.calibration.walker import WALKER_UNKNOWNS
+    from beambench.studies.twin_calibration.walker import WALKER_UNKNOWNS
 
     verdicts = judge(walker_checks(t), winner, [winner], WALKER_UNKNOWNS)
     assert [v.met for v in verdicts] == [False, True, True]  # −20 is 44 % off −35.7; 10 is 5 off 5; 120 is 23 % off
@@ -275,7 +275,7 @@ def test_walker_speeds_within_30_percent_with_the_floor():
 
 
 def test_a_sessions_signed_steps_are_one_agreement_row():
-    from beambench.studies.calibration.targets import Targets
+    from beambench.studies.twin_calibration.targets import Targets
 
     table = pd.DataFrame(
         {
@@ -295,8 +295,8 @@ def test_a_sessions_signed_steps_are_one_agreement_row():
 def test_the_maps_figure_places_each_step_at_its_label_as_the_table_reads_it():
     """Issue 23: the figure disagreed with the table at 17 Hz (a '1' step drawn near continuous by its in-contact
     fraction, a '1/2' step off its tick by its measured ratio)."""
-    from beambench.studies.calibration.contact_objective import regime_level
-    from beambench.studies.calibration.report import _label_level
+    from beambench.studies.twin_calibration.contact_objective import regime_level
+    from beambench.studies.twin_calibration.report import _label_level
 
     assert _label_level({"regime": "1", "contacts_per_cycle": 1.0, "in_contact_fraction": 0.9}) == regime_level("1")
     assert _label_level({"regime": "1/2", "contacts_per_cycle": 0.55}) == regime_level("1/2") == 1.0

@@ -8,8 +8,8 @@ import pandas as pd
 import pytest
 
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration import get_rig
-from beambench.studies.calibration.targets import parse_targets
+from beambench.studies.twin_calibration import get_rig
+from beambench.studies.twin_calibration.targets import parse_targets
 
 TARGETS = parse_targets({"rig": "walker", "speed_mm_s": {23: -35.7, 65: 156.3}}, "<test>")
 
@@ -40,7 +40,7 @@ def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
     scene with the fitted foot mass and friction."""
     from dataclasses import replace
 
-    from beambench.acquisition.config import load_protocol
+    from beambench.acquisition.protocol.schema import load_protocol
     from beambench.backends.sim import build_scene
     from beambench.session.slices import sim_slice
 
@@ -61,7 +61,7 @@ def test_evaluator_and_written_protocol_carry_the_values(tmp_path):
 def test_on_the_physical_set_the_values_go_into_its_walker_block(tmp_path):
     """The physical set's rig block is the contact rig's; the walker scene reads its walker block, so the fitted
     foot mass and friction must land there, in the evaluation and in the written protocol alike."""
-    from beambench.acquisition.config import load_protocol
+    from beambench.acquisition.protocol.schema import load_protocol
     from beambench.backends.sim import build_scene
     from beambench.session.slices import sim_slice
     from beambench.sim.models.params import load_params
@@ -81,8 +81,8 @@ def test_landmark_targets_add_their_grid_and_are_scored_and_judged():
     """`reverses_at_hz` / `peak_at_hz`: the calibrator runs a 2 Hz grid ± 8 Hz around each; the objective scores a
     landmark at its tolerance as a speed at its ± 30 % (0.3), a missing one as MISSING_LANDMARK; the verdict judges
     each landmark ± tolerance_hz."""
-    from beambench.studies.calibration.targets import CalibrationInputError
-    from beambench.studies.calibration.walker import MISSING_LANDMARK, walker_checks
+    from beambench.studies.twin_calibration.targets import CalibrationInputError
+    from beambench.studies.twin_calibration.walker import MISSING_LANDMARK, walker_checks
 
     t = parse_targets(
         {"rig": "walker", "speed_mm_s": {23: -35.7}, "reverses_at_hz": 27, "peak_at_hz": 62, "tolerance_hz": 3},

@@ -145,7 +145,7 @@ def test_effective_stuck_set_keeps_the_foot_down_to_17_hz_where_a_sliding_sole_h
 
 
 def test_the_gap_comes_from_the_parameter_set_unless_the_protocol_sets_it():
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.backends.sim import build_scene
     from beambench.session.slices import sim_slice
 
@@ -159,7 +159,7 @@ def test_the_gap_comes_from_the_parameter_set_unless_the_protocol_sets_it():
 
 
 def test_auto_considers_every_model_with_a_contact_table_and_the_parameter_set():
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.backends.sim import build_scene
     from beambench.session.slices import sim_slice
     from beambench.sim import selection as select

@@ -10,9 +10,9 @@ import threading
 import numpy as np
 import pytest
 
-from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.hub import Hub
-from beambench.acquisition.plan import motor_limits, plan
+from beambench.acquisition.protocol.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.natnet import protocol as nn
@@ -119,7 +119,7 @@ def test_the_emulated_peers_run_in_their_own_process_and_the_heartbeat_timeout_i
     the ODrive heartbeat timeout comes from the rig file (default 1 s: ten 100 ms heartbeat periods)."""
     import os
 
-    from beambench.acquisition.config import OdriveWiring, RigFile, load_rig_file
+    from beambench.acquisition.protocol.schema import OdriveWiring, RigFile, load_rig_file
     from beambench.backends.hardware import DEFAULT_RIG_FILE
 
     assert RigFile().odrive.heartbeat_timeout_s == load_rig_file(DEFAULT_RIG_FILE).odrive.heartbeat_timeout_s == 1.0

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from beambench.acquisition.config import load_rig_file
+from beambench.acquisition.protocol.schema import load_rig_file
 from beambench.cli import app
 from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
 from beambench.emulators.motive import MotiveEmulator

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from beambench.acquisition.config import ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
 from beambench.analysis.drift import drift_corrected, drift_table, linear_trend
 from beambench.cli import app
 from beambench.sim.models.thermal import ThermalParams, ThermalState

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import rerun.chunk as rc
 
-from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.hub import Hub
-from beambench.acquisition.plan import motor_limits, plan
+from beambench.acquisition.protocol.plan import motor_limits, plan
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.session.run import run_session
@@ -95,7 +95,7 @@ def test_the_stage_follows_the_odrive(clean):
 def test_markers_arrive_in_motives_y_up_frame_and_analysis_uses_the_recorded_axes(clean):
     """The emulated Motive streams y-up like the real one; the session records that, so the analysis puts
     the foot below the stage and measures the stroke without being told ``--up``."""
-    from beambench.analysis.session import analyze_session
+    from beambench.analysis.session_analysis import analyze_session
 
     _, s = clean
     assert s.general["geometry"]["up_axis"] == "y"
@@ -167,7 +167,7 @@ def test_devices_command_prints_a_table_and_exits_zero():
 
 
 def test_natnet_echo_exchanges_are_kept_for_clock_sync(clean):
-    from beambench.analysis.session import natnet_echo_fit
+    from beambench.analysis.session_analysis import natnet_echo_fit
 
     _, s = clean
     echo = s.general["sync"]["natnet_echo"]

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from matplotlib.collections import PolyCollection
 
-from beambench.analysis.session import SessionAnalysis, analyze_session
+from beambench.analysis.session_analysis import SessionAnalysis, analyze_session
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
 from beambench.sinks.hdf5 import read_session
 

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.analysis.release import Decay, fit_decay, tip_displacement
 from beambench.cli import app
 from beambench.sim.models.params import load_params

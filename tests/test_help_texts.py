@@ -23,7 +23,7 @@ def _option_text(text: str, option: str) -> str:
 
 
 def test_calibrate_sim_help_lists_every_rigs_unknowns_from_the_registry():
-    from beambench.studies.calibration import RIGS
+    from beambench.studies.twin_calibration import RIGS
 
     free = _option_text(_help("calibrate", "sim"), "--free")
     assert len(RIGS) >= 2

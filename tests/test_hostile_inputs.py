@@ -139,7 +139,7 @@ def test_a_format_width_is_bounded_before_any_string_is_built():
     """``{protocol:>300000000}`` once built a 300 MB string (29 s) before refusing the name it made."""
     import tracemalloc
 
-    from beambench.acquisition.config import format_name
+    from beambench.acquisition.protocol.schema import format_name
 
     tracemalloc.start()
     try:

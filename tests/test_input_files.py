@@ -88,7 +88,7 @@ def test_a_2_gb_targets_file_is_refused_before_it_is_read(tmp_path):
 
 
 def test_a_load_cell_calibration_file_is_checked_too(tmp_path):
-    from beambench.acquisition.calibration import LoadCellCalibration
+    from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
     from beambench.common.yaml_config import ConfigError
 
     for path in (_big(tmp_path), tmp_path, Path("/dev/zero")):

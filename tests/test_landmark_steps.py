@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from beambench.studies.calibration import (
+from beambench.studies.twin_calibration import (
     RIGS,
     CalibratableRig,
     CalibrationBase,
@@ -21,9 +21,9 @@ from beambench.studies.calibration import (
     Unknown,
     register_rig,
 )
-from beambench.studies.calibration.contact_objective import contact_landmarks, contact_objective
-from beambench.studies.calibration.landmark_steps import LandmarkPlan, fit_local_linear, landmark_steps, solve_step
-from beambench.studies.calibration.targets import parse_targets
+from beambench.studies.twin_calibration.contact_objective import contact_landmarks, contact_objective
+from beambench.studies.twin_calibration.landmark_steps import LandmarkPlan, fit_local_linear, landmark_steps, solve_step
+from beambench.studies.twin_calibration.targets import parse_targets
 from beambench.studies.executor import Pool
 
 # ------------------------------------------------------------------------------------------------ the model

@@ -12,7 +12,7 @@ import rerun.chunk as rc
 from typer.testing import CliRunner
 
 from beambench.acquisition.streams import CONTACT_MARKERS, WALKER_MARKERS, loadcell_spec, mocap_spec, motor_spec
-from beambench.analysis.session import analyze_session
+from beambench.analysis.session_analysis import analyze_session
 from beambench.cli import app
 from beambench.session.replay import replay_session
 from beambench.sinks.hdf5 import read_session

@@ -8,7 +8,7 @@ import typer
 from rich.console import Console
 from typer.testing import CliRunner
 
-from beambench.acquisition.calibration import (
+from beambench.acquisition.forces.loadcell_calibration import (
     LoadCellCalibration,
     calibrate,
     fit_matrix,

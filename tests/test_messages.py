@@ -47,7 +47,7 @@ def test_a_file_that_is_not_a_session_is_one_unnested_line(tmp_path, command):
 
 
 def test_analyze_prints_no_blank_line_on_stderr(tmp_path):
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.session.run import run_session
 
     path = tmp_path / "m.h5"

@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 import beambench
-from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.analysis import analyze_session, resample_session, write_results
 from beambench.sinks.hdf5 import read_processing, read_session
 

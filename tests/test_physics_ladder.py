@@ -140,7 +140,7 @@ def test_bench_command_help_and_bad_output_folder(tmp_path):
 def test_auto_model_picks_the_timestep_each_frequency_needs():
     """``sim.model: auto`` on the contact rig: the plan from the shipped contact table is recorded in the
     scene's identity, and the timestep follows the frequency (not the worst case over the sweep)."""
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.backends.sim import build_scene
     from beambench.session.slices import sim_slice
 
@@ -179,7 +179,7 @@ def test_selection_skips_a_coarse_step_that_passes_where_a_finer_one_fails():
 def test_fixed_model_gets_the_timestep_each_frequency_needs_unless_one_is_given():
     """``sim.model: prb3`` without ``sim.timestep``: the plan for that model and integrator from the contact
     table (recorded in the session); with ``sim.timestep`` that step is used throughout."""
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.backends.sim import build_scene
     from beambench.session.slices import sim_slice
 

@@ -6,7 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.sim.scenes.free_beam import FREE_BEAM_SETTINGS, frequency_sweep
 from beambench.sim.settings import SimSettings
 

@@ -41,7 +41,7 @@ def test_a_slow_stream_is_sent_at_least_every_chunk_span_of_session_time(tmp_pat
 def test_a_speed_tracking_run_shows_target_measured_and_commanded_in_the_live_view(tmp_path):
     """A run with the speed controller's stream gets its panels, and its columns reach the recording (the
     controller's band, mode and integrator do not: they are not what a panel plots)."""
-    from beambench.acquisition.tracking import track_spec
+    from beambench.acquisition.control.speed_controller import track_spec
     from beambench.sinks.rerun_layout import layout_of
 
     spec = track_spec(0.1)

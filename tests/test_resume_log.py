@@ -56,7 +56,7 @@ def test_a_last_record_without_its_newline_is_kept(tmp_path):
 
 def test_the_calibrators_log_keeps_the_evaluation_after_a_cut_line(tmp_path):
     """The evaluation finished after a resume used to be appended onto the cut line: both lost on the next resume."""
-    from beambench.studies.calibration.evaluate import EvalLog
+    from beambench.studies.twin_calibration.evaluate import EvalLog
 
     path = tmp_path / "r.evals.jsonl"
     _cut_log(path)

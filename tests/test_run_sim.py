@@ -78,7 +78,7 @@ def test_rrd_holds_the_same_sample_counts(short_run):
 def test_rrd_is_written_in_few_large_chunks_with_forces_in_newtons(short_run):
     """Columns are gathered per entity (~2 MiB a chunk), not one chunk per batch: this short run fits in one
     chunk per entity (it came out as one per ~0.5 s batch, 6+ each, before); plate forces are there in N."""
-    from beambench.analysis.session import session_calibration
+    from beambench.analysis.session_analysis import session_calibration
 
     out, _ = short_run
     s = read_session(out / "s.h5")

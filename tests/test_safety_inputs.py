@@ -19,8 +19,8 @@ import h5py
 import pytest
 from typer.testing import CliRunner
 
-from beambench.acquisition.config import ConfigError, load_protocol, parse_protocol
-from beambench.acquisition.plan import session_path
+from beambench.acquisition.protocol.schema import ConfigError, load_protocol, parse_protocol
+from beambench.acquisition.protocol.plan import session_path
 from beambench.cli import app
 from beambench.common.yaml_config import MAX_FILE_BYTES, parse_yaml
 from beambench.sim.models.params import ParamsError, params_from_dict
@@ -72,7 +72,7 @@ def test_non_finite_and_boolean_numbers_are_rejected(text, field):
 
 
 def test_a_rig_file_rejects_non_finite_numbers(tmp_path):
-    from beambench.acquisition.config import load_rig_file
+    from beambench.acquisition.protocol.schema import load_rig_file
 
     rig = tmp_path / "rig.yaml"
     rig.write_text("odrive: {watchdog_timeout_s: .nan}\n")

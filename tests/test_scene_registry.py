@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from beambench.acquisition import scenes as catalogue
-from beambench.acquisition.config import ConfigError, parse_protocol
+from beambench.acquisition.protocol import scenes as catalogue
+from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
 from beambench.acquisition.streams import CONTACT_MARKERS, WALKER_MARKERS
 from beambench.sim import scenes
 from beambench.studies import sweep_scenes

@@ -23,7 +23,7 @@ from typer.testing import CliRunner
 
 from beambench.cli import app
 from beambench.sinks.hdf5 import SessionFileError, read_session
-from beambench.studies.calibration.targets import CalibrationInputError, session_targets
+from beambench.studies.twin_calibration.targets import CalibrationInputError, session_targets
 from conftest import fuzz_examples
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,7 +39,7 @@ RELEASE = (
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory) -> dict[str, Path]:
     """A contact sweep (two steps) and a release test, recorded by the sim backend."""
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.session.run import run_session
 
     out = tmp_path_factory.mktemp("real")
@@ -195,7 +195,7 @@ def test_each_edited_session_is_one_line_exit_2_in_every_command(case, sessions,
 
 def test_a_release_session_without_its_rig_entry_is_read_as_its_protocol_says(sessions, tmp_path):
     """/general/rig missing: the protocol's rig: is the session's (a release session is analysed as one)."""
-    from beambench.analysis.session import session_rig
+    from beambench.analysis.session_analysis import session_rig
 
     path = tmp_path / "no_rig.h5"
     shutil.copy(sessions["release"], path)

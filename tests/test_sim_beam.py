@@ -138,7 +138,7 @@ def test_opposite_chirality_mirrors_the_tip_path(paper):
 def test_segmented_rod_runs_in_the_contact_rig_and_mirrors_with_chirality():
     """With the drive mirrored too (A → −A) the −φ rod's whole tip path, transients included, is the
     mirror image of the +φ one (this rod's response at 20 Hz is not periodic, so no half-period trick)."""
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.backends.sim import build_scene
     from beambench.session.slices import sim_slice
 

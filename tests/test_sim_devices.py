@@ -7,7 +7,7 @@ import pytest
 
 from beambench.acquisition.batch import Batch
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits, Rig
-from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.streams import (
     CONTACT_MARKERS,
     loadcell_spec,
@@ -235,6 +235,6 @@ def test_prefetching_the_next_chunk_changes_nothing():
 
 
 def default_force(batch: Batch) -> np.ndarray:
-    from beambench.acquisition.calibration import default_calibration
+    from beambench.acquisition.forces.loadcell_calibration import default_calibration
 
     return default_calibration().force_from_counts(batch.columns["data"])

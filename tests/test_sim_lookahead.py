@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from beambench.acquisition.capabilities import MotorLimits
-from beambench.acquisition.config import parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.runner import record_polls, wait_polls
 from beambench.backends.lookahead import cut_points, script
 from beambench.backends.sim import SimRig

@@ -28,7 +28,7 @@ def _name(path: Path) -> str:
 def _imports_protocol_model(tree: ast.Module) -> bool:
     return any(
         isinstance(node, ast.ImportFrom)
-        and node.module == "beambench.acquisition.config"
+        and node.module == "beambench.acquisition.protocol.schema"
         and any(a.name == "Protocol" for a in node.names)
         for node in ast.walk(tree)
     )
@@ -69,7 +69,7 @@ PROBE_FREE = ("backends", "session")  # capabilities are checked with isinstance
 
 def test_capabilities_are_checked_by_protocol_not_by_probing_attribute_names() -> None:
     found = []
-    for path in [*_modules(*PROBE_FREE), PACKAGE / "analysis" / "session.py"]:
+    for path in [*_modules(*PROBE_FREE), PACKAGE / "analysis" / "session_analysis.py"]:
         for node in ast.walk(ast.parse(path.read_text())):
             if (
                 isinstance(node, ast.Call)
@@ -148,7 +148,7 @@ def test_modules_and_functions_stay_small() -> None:
 def test_the_calibration_result_is_built_by_keyword_and_its_budget_shares_are_named() -> None:
     import dataclasses
 
-    from beambench.studies.calibration.search import Result
+    from beambench.studies.twin_calibration.search import Result
 
     assert all(f.kw_only for f in dataclasses.fields(Result))
     tree = ast.parse((PACKAGE / "studies" / "calibration" / "search.py").read_text())

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 from typer.testing import CliRunner
 
-from beambench.acquisition.config import ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
 from beambench.cli import app
 
 BASE = "name: t\nsettle_s: 0.2\nrecord_s: 0.3\nsweep: {sweep}\n"

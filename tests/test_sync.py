@@ -160,7 +160,7 @@ def test_clockfit_inverse_and_offset():
 
 def test_sim_device_clocks_over_five_minutes_align_within_half_a_millisecond():
     """The sim backend's own clock model (offset, drift, exponential receive jitter, FIFO link)."""
-    from beambench.acquisition.config import ClockModel
+    from beambench.acquisition.protocol.schema import ClockModel
     from beambench.backends.sim_devices import DeviceClock
 
     rng = np.random.default_rng(9)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.analysis.session import analyze_session
+from beambench.analysis.session_analysis import analyze_session
 from beambench.analysis.synthetic import (
     SynthSession,
     SynthStep,

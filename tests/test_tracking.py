@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from beambench.acquisition.batch import Batch, Frame
-from beambench.acquisition.config import ConfigError, TrackControl, parse_protocol
-from beambench.acquisition.speed_map import SpeedMap
+from beambench.acquisition.protocol.schema import ConfigError, TrackControl, parse_protocol
+from beambench.acquisition.control.speed_map import SpeedMap
 from beambench.acquisition.streams import WALKER_MARKERS, mocap_spec
-from beambench.acquisition.tracking import LOST, TRACKING, TrackController, track_spec
+from beambench.acquisition.control.speed_controller import LOST, TRACKING, TrackController, track_spec
 
 MAX_HZ = 60.0
 
@@ -149,7 +149,7 @@ def test_losing_mocap_holds_then_stands_and_recovers():
 
 
 def test_the_speed_comes_from_the_mocap_timestamps_not_the_receive_times():
-    from beambench.acquisition.tracking import SpeedEstimator
+    from beambench.acquisition.control.speed_controller import SpeedEstimator
 
     est = SpeedEstimator(1.0)
     dev = np.arange(180) / 360.0  # half a second at 360 Hz, walking 40 mm/s
@@ -199,7 +199,7 @@ def _track_text(map_path: Path, segments: list[tuple[float, float]], extra: str 
 
 
 def test_walker_follows_a_short_profile_on_the_sim(twin_map_session, tmp_path):
-    from beambench.analysis.session import analyze_session
+    from beambench.analysis.session_analysis import analyze_session
     from beambench.session.run import run_session
     from beambench.sinks.hdf5 import read_session
 

@@ -1,6 +1,6 @@
 """The one model of a device clock against true (host) time, used by the simulated devices, the emulators
 (Motive's QPC counter, the load-cell MCU's microsecond clock) and, through ``from_model``, the protocol's
-``sim.*_clock`` settings (:class:`beambench.acquisition.config.ClockModel`).
+``sim.*_clock`` settings (:class:`beambench.acquisition.protocol.schema.ClockModel`).
 
 A device clock runs ``drift_ppm`` fast and started ``offset_s`` ahead: ``device = offset_s + (1 + drift)·true``
 with ``drift = drift_ppm·1e-6``. A device that samples every ``1/rate`` of *its* seconds therefore delivers

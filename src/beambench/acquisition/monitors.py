@@ -18,7 +18,7 @@ from beambench.acquisition.batch import Batch, StreamSpec
 from beambench.acquisition.streams import MOCAP
 
 if TYPE_CHECKING:
-    from beambench.acquisition.config import Protocol as ProtocolConfig
+    from beambench.acquisition.protocol.schema import Protocol as ProtocolConfig
 
 
 class Problem(NamedTuple):

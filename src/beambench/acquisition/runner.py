@@ -49,7 +49,7 @@ from beambench.acquisition.capabilities import (
 )
 from beambench.acquisition.hub import Hub, SinkFailure
 from beambench.acquisition.monitors import Monitor
-from beambench.acquisition.plan import Step
+from beambench.acquisition.protocol.plan import Step
 
 
 class Terminated(BaseException):

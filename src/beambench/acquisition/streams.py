@@ -7,7 +7,7 @@ motor in turns and turn/s (as the ODrive reports them). ``device_time`` is secon
 from __future__ import annotations
 
 from beambench.acquisition.batch import ColumnSpec, Frame, StreamSpec
-from beambench.acquisition.scenes import CONTACT, WALKER
+from beambench.acquisition.protocol.scenes import CONTACT, WALKER
 
 MOCAP = "mocap"
 LOADCELL = "loadcell"
@@ -17,7 +17,7 @@ MOCAP_RATE_HZ = 360.0
 LOADCELL_RATE_HZ = 1000.0
 MOTOR_RATE_HZ = 100.0
 
-# each scene declares its markers (beambench.acquisition.scenes); these two names are kept for their many readers
+# each scene declares its markers (beambench.acquisition.protocol.scenes); these two names are kept for their many readers
 CONTACT_MARKERS = CONTACT.markers
 WALKER_MARKERS = WALKER.markers
 LOADCELL_CHANNELS = ("lc0", "lc1", "lc2", "lc3")

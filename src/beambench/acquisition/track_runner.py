@@ -2,7 +2,7 @@
 
 Same life cycle and safety as :class:`~beambench.acquisition.runner.Runner` (arm, steps, idle on every exit
 path), but a step is not one frequency: every ``control_s`` of rig time the runner lets the rig run, hands the
-batches to the hub (the controller reads the mocap from it), asks :class:`~beambench.acquisition.tracking.
+batches to the hub (the controller reads the mocap from it), asks :class:`~beambench.acquisition.control.speed_controller.
 TrackController` for the next frequency, commands it and writes the decision to the ``track`` stream. The
 session's ``/steps`` row of a segment carries its feed-forward frequency; ``t_settled`` marks the end of
 ``track.settle_s``. Losing mocap is handled by the controller (hold, then stand); a loss longer than
@@ -14,9 +14,9 @@ from __future__ import annotations
 from beambench.acquisition.batch import StepRecord
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits, Rig
 from beambench.acquisition.hub import Hub
-from beambench.acquisition.plan import Step
+from beambench.acquisition.protocol.plan import Step
 from beambench.acquisition.runner import ProgressCallback, Runner, StopSignal, wait_polls
-from beambench.acquisition.tracking import HOLDING, LOST, MODES, TRACKING, TrackController, decisions_batch
+from beambench.acquisition.control.speed_controller import HOLDING, LOST, MODES, TRACKING, TrackController, decisions_batch
 
 
 class TrackRunner(Runner):

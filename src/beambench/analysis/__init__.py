@@ -23,7 +23,7 @@ from beambench.analysis.contact import (
     regime_label,
     summarize_contacts,
 )
-from beambench.analysis.session import (
+from beambench.analysis.session_analysis import (
     AnalysisOptions,
     SessionAnalysis,
     StepResult,

@@ -1,6 +1,6 @@
 """Contact events, ratio and regime of a record window (Fig. 1b, 4) — from the plate's normal force alone.
 
-The detection itself lives in :mod:`beambench.acquisition.contact_events` (pure numpy, below both the
+The detection itself lives in :mod:`beambench.acquisition.forces.contact_events` (pure numpy, below both the
 simulator and the analysis, so the twin's regime maps and ``beambench analyze`` classify identically);
 this module re-exports it and adds what needs the foot's motion (the velocity at touchdown).
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from beambench.acquisition.contact_events import (
+from beambench.acquisition.forces.contact_events import (
     REGIME_ORDER,
     ContactParams,
     Contacts,

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis, StepResult
+    from beambench.analysis.session_analysis import SessionAnalysis, StepResult
 
 TIP_PREFIX = "tip"
 REST_SHARE = 0.3  # the last 30 % of the record is the rest position

@@ -21,7 +21,7 @@ from beambench.analysis.drift import drift_table
 from beambench.analysis.figures import FIGURES, FigureSpec, ReportOptions
 from beambench.analysis.figures.style import R2_SENSE_MIN, SESSION_COLORS
 from beambench.analysis.release import release_table
-from beambench.analysis.session import SessionAnalysis
+from beambench.analysis.session_analysis import SessionAnalysis
 from beambench.sinks.hdf5 import session_warnings
 
 __all__ = ["SESSION_COLORS", "SUMMARY_COLUMNS", "figures_of", "make_report", "summary_table", "write_html"]

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beambench.acquisition.contact_events import runs as runs  # re-exported (moved there)
+from beambench.acquisition.forces.contact_events import runs as runs  # re-exported (moved there)
 
 
 @dataclass(frozen=True)

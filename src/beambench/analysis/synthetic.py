@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from beambench.acquisition.batch import Batch
-from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.streams import (
     CONTACT_MARKERS,
     WALKER_MARKERS,
@@ -48,7 +48,7 @@ class SynthStep:
 
 @dataclass(frozen=True)
 class SynthClock:
-    """As ``beambench.acquisition.config.ClockModel``: device = offset + (1 + drift)·t; receive = t + latency + |N(0, jitter)|."""
+    """As ``beambench.acquisition.protocol.schema.ClockModel``: device = offset + (1 + drift)·t; receive = t + latency + |N(0, jitter)|."""
 
     offset_s: float = 0.0
     drift_ppm: float = 0.0

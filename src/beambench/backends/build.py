@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from beambench.acquisition.capabilities import Rig
-from beambench.acquisition.config import Backend
+from beambench.acquisition.protocol.schema import Backend
 from beambench.sim.protocol_slice import SimSlice
 
 

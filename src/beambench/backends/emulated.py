@@ -24,15 +24,15 @@ from typing import Any
 import numpy as np
 
 from beambench.acquisition.batch import Frame
-from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.capabilities import DeviceFault
-from beambench.acquisition.config import (
+from beambench.acquisition.protocol.schema import (
     LoadCellWiring,
     NatNetWiring,
     OdriveWiring,
     RigFile,
 )
-from beambench.acquisition.scenes import scene_info
+from beambench.acquisition.protocol.scenes import scene_info
 from beambench.backends.hardware import DeviceRig
 from beambench.sim.protocol_slice import SimSlice
 
@@ -535,7 +535,7 @@ def odrive_config(own_motor: bool, rig_file: Path | None, config_type: Any) -> A
     protocol's limits through Set_Limits, as on the bench."""
     if not own_motor:
         return config_type(calibration_s=0.2)
-    from beambench.acquisition.config import load_rig_file
+    from beambench.acquisition.protocol.schema import load_rig_file
     from beambench.backends.hardware import DEFAULT_RIG_FILE
 
     drive = load_rig_file(rig_file or DEFAULT_RIG_FILE).walker

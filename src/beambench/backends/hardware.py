@@ -24,7 +24,7 @@ from beambench.acquisition.capabilities import (
     ReportsHealth,
     Stream,
 )
-from beambench.acquisition.config import (
+from beambench.acquisition.protocol.schema import (
     ConfigError,
     LoadCellWiring,
     NatNetWiring,

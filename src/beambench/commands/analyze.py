@@ -11,7 +11,7 @@ import typer
 from beambench.commands import chatter, fail
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import AnalysisOptions, SessionAnalysis
+    from beambench.analysis.session_analysis import AnalysisOptions, SessionAnalysis
 
 
 def _frequencies(text: str | None) -> list[float] | None:
@@ -64,7 +64,7 @@ def _check_figures(only: list[str] | None, analyses: list[SessionAnalysis]) -> N
 
 
 def _options(up: str | None, forward: str | None, drift_correct: bool = False) -> AnalysisOptions:
-    from beambench.analysis.session import AnalysisOptions
+    from beambench.analysis.session_analysis import AnalysisOptions
     from beambench.analysis.trajectory import axis_vector
 
     for name, value in (("--up", up), ("--forward", forward)):
@@ -95,7 +95,7 @@ def _read(path: Path) -> Any:
 
 def _same_rig(a: Path, b: Path, sessions: list[Any]) -> None:
     """Refuse to overlay sessions of different rigs (their figures measure different things): exit 2."""
-    from beambench.analysis.session import session_rig
+    from beambench.analysis.session_analysis import session_rig
 
     rigs = [session_rig(dict(s.general)) for s in sessions]
     if rigs[0] != rigs[1]:
@@ -108,7 +108,7 @@ def _same_rig(a: Path, b: Path, sessions: list[Any]) -> None:
 def _load(path: Path, options: AnalysisOptions, progress, write: bool, session: Any = None) -> SessionAnalysis:
     """Read (unless given) and analyse one session, with a progress task; errors become one line and exit
     code 2."""
-    from beambench.analysis.session import analyze_session, write_results
+    from beambench.analysis.session_analysis import analyze_session, write_results
 
     session = session if session is not None else _read(path)
     task = progress.add_task(f"analysing {path.name}", total=len(session.steps))

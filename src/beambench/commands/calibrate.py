@@ -28,7 +28,7 @@ if TYPE_CHECKING:
 
     from rich.console import Console
 
-    from beambench.acquisition.calibration import LoadCellCalibration
+    from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
     from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
 
 __all__ = ["loadcells", "register"]
@@ -143,7 +143,7 @@ def loadcells(
 
 def _wired_port(rig: Path | None, baudrate: int | None, out: Path | None) -> tuple[str, int, Path]:
     """The port, baud rate and default output of the rig file (``--rig``, else the shipped ``rig.yaml``)."""
-    from beambench.acquisition.config import ConfigError, load_rig_file
+    from beambench.acquisition.protocol.schema import ConfigError, load_rig_file
 
     if rig is None:
         from beambench.backends.hardware import DEFAULT_RIG_FILE

@@ -1,5 +1,5 @@
 """``beambench calibrate sim [SESSION.h5] [--targets TARGETS.yaml]``: fit the twin to a measured sweep or to
-published numbers (:mod:`beambench.studies.calibration`). The last stdout line is the calibrated protocol's path;
+published numbers (:mod:`beambench.studies.twin_calibration`). The last stdout line is the calibrated protocol's path;
 the last stderr line the verdict (every target met, or the misses with what limits them): :data:`EPILOG`."""
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ class _SimCommand(TyperCommand):
     only when the help is shown (it costs seconds: every other command starts without it)."""
 
     def format_help(self, ctx: Any, formatter: Any) -> None:  # typer's own (vendored) click types
-        from beambench.studies.calibration import unknowns_help
+        from beambench.studies.twin_calibration import unknowns_help
 
         for param in self.params:
             if param.name == "free" and isinstance(param, TyperOption):
@@ -121,8 +121,8 @@ def sim(
     from beambench.common.errors import BeambenchError
     from beambench.common.names import check_name
     from beambench.common.resources import resolve_file
-    from beambench.studies.calibration import SearchSettings, calibrate, get_rig, write_report
-    from beambench.studies.calibration.targets import load_targets, session_targets
+    from beambench.studies.twin_calibration import SearchSettings, calibrate, get_rig, write_report
+    from beambench.studies.twin_calibration.targets import load_targets, session_targets
     from beambench.studies.executor import MAX_LOCAL_WORKERS, ExecutorError
 
     if (session is None) == (targets is None):
@@ -175,7 +175,7 @@ def sim(
 
 def _free_unknowns(free: str | None, rig: str) -> tuple[str, ...] | None:
     """``--free`` as unknown names of ``rig`` (None: the rig's default set); one line and exit 2 if wrong."""
-    from beambench.studies.calibration import get_rig
+    from beambench.studies.twin_calibration import get_rig
 
     if free is None:
         return None
@@ -193,7 +193,7 @@ def _free_unknowns(free: str | None, rig: str) -> tuple[str, ...] | None:
 def _finish(result: Any, report: Path) -> None:
     """The summary and one line per target (stderr), the protocol's path (stdout), then the verdict as the last
     line (stderr); exit 3 when a target is missed."""
-    from beambench.studies.calibration.verdict import all_met, closing_line
+    from beambench.studies.twin_calibration.verdict import all_met, closing_line
 
     twin = ", ".join(f"{k} {v}" for k, v in result.summary.items() if k != "map" and not isinstance(v, dict))
     typer.echo(

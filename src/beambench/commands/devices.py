@@ -26,7 +26,7 @@ def register(app: typer.Typer) -> None:
         from rich.markup import escape
         from rich.table import Table
 
-        from beambench.acquisition.config import ConfigError, load_rig_file
+        from beambench.acquisition.protocol.schema import ConfigError, load_rig_file
         from beambench.backends.hardware import DEFAULT_RIG_FILE
         from beambench.common.text import printable
 
@@ -58,7 +58,7 @@ def register(app: typer.Typer) -> None:
 
 
 def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
-    """Ping each device of a :class:`beambench.acquisition.config.RigFile`; never raises for a device that is absent."""
+    """Ping each device of a :class:`beambench.acquisition.protocol.schema.RigFile`; never raises for a device that is absent."""
     from beambench.devices.loadcell import driver as loadcell
     from beambench.devices.natnet import client as natnet
     from beambench.devices.odrive import can_ping as odrive_can

@@ -35,7 +35,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.table import Table
 
-        from beambench.acquisition.config import ConfigError, load_rig_file
+        from beambench.acquisition.protocol.schema import ConfigError, load_rig_file
         from beambench.backends.hardware import DEFAULT_RIG_FILE
         from beambench.common.console import LOG_WIDTH
         from beambench.session.doctor import Machine, check_machine, failed

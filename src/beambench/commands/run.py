@@ -10,13 +10,13 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from beambench.acquisition.config import BACKENDS, Backend, ConfigError
+from beambench.acquisition.protocol.schema import BACKENDS, Backend, ConfigError
 from beambench.commands import EXIT_FAULT, EXIT_OK, EXIT_SINK, EXIT_STOPPED, STANDALONE, fail
 from beambench.common.resources import shipped_names
 from beambench.sinks import RerunMode
 
 if TYPE_CHECKING:
-    from beambench.acquisition.config import Protocol
+    from beambench.acquisition.protocol.schema import Protocol
 
 
 def has_display() -> bool:
@@ -81,8 +81,8 @@ def run(
     checked before anything moves. Ctrl-C, SIGTERM, SIGHUP (a closed terminal), SIGQUIT and the other stop
     signals idle the motor and close the file cleanly (exit 3); a full disk idles the motor too (exit 4).
     """
-    from beambench.acquisition.config import load_protocol
-    from beambench.acquisition.plan import session_path, summary
+    from beambench.acquisition.protocol.schema import load_protocol
+    from beambench.acquisition.protocol.plan import session_path, summary
     from beambench.session.checks import check_protocol
 
     protocol_file = resolve_protocol(protocol_file)
@@ -95,7 +95,7 @@ def run(
         from_protocol = rig_file is None and protocol.rig_file is not None
         rig_file = rig_file or protocol_rig_file(protocol, protocol_file)  # --rig, else the protocol's rig_file
         if rig_file is not None:  # every input file too: kind, size, fields
-            from beambench.acquisition.config import load_rig_file
+            from beambench.acquisition.protocol.schema import load_rig_file
 
             try:
                 load_rig_file(rig_file)
@@ -167,7 +167,7 @@ def report_run(
 def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) -> str:
     """How long the run will take here, in words: real time on emulated and hardware (and the sim with
     --realtime); on the sim, the stepping time from the measured timing table where the rig has one."""
-    from beambench.acquisition.plan import plan
+    from beambench.acquisition.protocol.plan import plan
 
     steps = plan(protocol)
     total = sum(s.duration_s for s in steps)

@@ -67,7 +67,7 @@ class EmulatorClock:
 
     @classmethod
     def from_model(cls, model: object, frequency_hz: int = 10_000_000) -> EmulatorClock:
-        """From a :class:`beambench.acquisition.config.ClockModel` (or anything with the same attributes)."""
+        """From a :class:`beambench.acquisition.protocol.schema.ClockModel` (or anything with the same attributes)."""
         return cls(
             float(getattr(model, "offset_s", 0.0)),
             float(getattr(model, "drift_ppm", 0.0)),

@@ -1,6 +1,6 @@
 """Everything about a run that can be checked before anything moves, dry run included (one-line errors).
 
-The protocol model (:mod:`beambench.acquisition.config`) checks each field on its own; here go the checks that
+The protocol model (:mod:`beambench.acquisition.protocol.schema`) checks each field on its own; here go the checks that
 need the rest of the package: the beam model name against the registry, that the parameter set exists and
 loads, the limits, and the run's options (``--can-log``).
 """
@@ -11,8 +11,8 @@ import os
 from dataclasses import fields
 from pathlib import Path
 
-from beambench.acquisition.config import ConfigError, Protocol
-from beambench.acquisition.plan import check_limits
+from beambench.acquisition.protocol.schema import ConfigError, Protocol
+from beambench.acquisition.protocol.plan import check_limits
 from beambench.common.yaml_config import shorten
 from beambench.devices.odrive.can_motor import LOG_SUFFIXES
 from beambench.sim.models.params import BeamParams, ParamsError, load_params

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from beambench.acquisition.config import RigFile
+from beambench.acquisition.protocol.schema import RigFile
 from beambench.common.oserrors import CAN_KERNEL_FIX, DIALOUT_FIX, can_link_up_fix
 from beambench.common.vulkan import vulkan_devices
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from beambench.acquisition.batch import Batch, StepRecord
-from beambench.analysis.session import session_calibration
+from beambench.analysis.session_analysis import session_calibration
 from beambench.sinks import RerunMode
 from beambench.sinks.hdf5 import Session, read_session
 from beambench.sinks.rerun_view import RerunSink

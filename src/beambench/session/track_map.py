@@ -21,13 +21,13 @@ import yaml
 
 from beambench.acquisition.batch import StreamSpec
 from beambench.acquisition.capabilities import Rig
-from beambench.acquisition.config import ConfigError, Protocol
+from beambench.acquisition.protocol.schema import ConfigError, Protocol
 from beambench.acquisition.hub import Hub
-from beambench.acquisition.plan import Step, motor_limits
+from beambench.acquisition.protocol.plan import Step, motor_limits
 from beambench.acquisition.runner import ProgressCallback, StopSignal
-from beambench.acquisition.speed_map import SpeedMap, SpeedMapError
+from beambench.acquisition.control.speed_map import SpeedMap, SpeedMapError
 from beambench.acquisition.track_runner import TrackRunner
-from beambench.acquisition.tracking import TrackController, track_spec
+from beambench.acquisition.control.speed_controller import TrackController, track_spec
 
 DEFAULT_MOCAP_LOST_S = 0.25  # with monitors.mocap_lost_s: null the controller still never drives blind longer
 
@@ -53,7 +53,7 @@ def map_from_table(table: pd.DataFrame, source: str) -> SpeedMap:
 
 def map_from_session(path: Path) -> SpeedMap:
     """Analyse a walker session and take its speed map."""
-    from beambench.analysis.session import analyze_session
+    from beambench.analysis.session_analysis import analyze_session
     from beambench.sinks.hdf5 import read_session
 
     try:

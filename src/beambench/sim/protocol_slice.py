@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from beambench.acquisition.config import ClockModel, Release, ThermalDrift
+from beambench.acquisition.protocol.schema import ClockModel, Release, ThermalDrift
 from beambench.sim.selection import Plan
 from beambench.sim.settings import SimSettings
 

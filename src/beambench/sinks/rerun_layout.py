@@ -16,7 +16,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from beambench.acquisition.batch import StreamSpec
-from beambench.acquisition.scenes import scene_info
+from beambench.acquisition.protocol.scenes import scene_info
 
 TIMELINE = "session_time"
 FORCE_WINDOW_S = 2.0  # 1 kHz plate forces: 2 s holds a few cycles of a slow step and stays readable at 40 Hz
@@ -60,7 +60,7 @@ class RigLayout:
     loadcell_channels: tuple[str, ...]
     motor: bool
     mocap_rate_hz: float = 360.0
-    track: bool = False  # a speed-tracking run (beambench.acquisition.tracking): target, measured, commanded
+    track: bool = False  # a speed-tracking run (beambench.acquisition.control.speed_controller): target, measured, commanded
 
     @property
     def panels(self) -> tuple[Panel, ...]:
@@ -161,7 +161,7 @@ def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
 
     A body marker makes a walker (legs drawn body → each foot); otherwise the markers form one chain in the
     stream's order (stage → tip → foot). A load-cell stream is a plate under the foot where the scene catalogue
-    says the rig has one (:attr:`beambench.acquisition.scenes.SceneInfo.plate`; the walker's sim streams a load
+    says the rig has one (:attr:`beambench.acquisition.protocol.scenes.SceneInfo.plate`; the walker's sim streams a load
     cell but has no plate)."""
     by_name = {s.name: s for s in specs}
     mocap = by_name.get("mocap")

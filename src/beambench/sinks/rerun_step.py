@@ -1,7 +1,7 @@
 """The step in sight: a text panel with step i of N, the commanded and measured drive frequency, and what the
 last finished step did (the contact regime from the plate's normal force, or the walker's speed).
 
-The regime is :func:`beambench.acquisition.contact_events.force_regime` of the step's record window (the rule the
+The regime is :func:`beambench.acquisition.forces.contact_events.force_regime` of the step's record window (the rule the
 analysis uses); the speed is a straight-line fit of the body's forward position over the record window.
 """
 
@@ -11,7 +11,7 @@ import numpy as np
 import rerun as rr
 
 from beambench.acquisition.batch import StepRecord
-from beambench.acquisition.contact_events import force_regime
+from beambench.acquisition.forces.contact_events import force_regime
 from beambench.sinks.rerun_layout import TIMELINE
 
 MEASURED_SPAN_S = 0.5  # the measured frequency: mean motor velocity over the last half second

@@ -39,7 +39,7 @@ from beambench.sinks.rerun_spawn import spawn_viewer, viewer_url
 from beambench.sinks.rerun_step import StepPanel
 
 if TYPE_CHECKING:
-    from beambench.acquisition.calibration import LoadCellCalibration
+    from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
 
 SAVE_CHUNK_BYTES = 2 * 1024 * 1024  # per chunk in a saved .rrd (rerun's object-store chunk target)
 SAVE_CHUNK_SECONDS = 60.0  # longest span of session time an entity's columns wait before they are sent

@@ -121,8 +121,8 @@ def load_release_session(
     on the sim, else detected from the data. ``register``: map the mocap frame onto the model's
     (:func:`register_to_model`); None = only for sessions not made by the sim (whose frame is the model's).
     Raises :class:`FitError` for sessions that are not release tests."""
-    from beambench.acquisition.config import ConfigError, parse_protocol
-    from beambench.analysis.session import (
+    from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+    from beambench.analysis.session_analysis import (
         fit_session_clocks,
         mocap_markers,
         stream_host_times,

@@ -52,7 +52,7 @@ from pydantic import (
     model_validator,
 )
 
-from beambench.acquisition.scenes import batched_names, foreign_option
+from beambench.acquisition.protocol.scenes import batched_names, foreign_option
 from beambench.common.yaml_config import ConfigError, load_yaml_file, validate
 from beambench.studies.sweep_scenes import Job, SweepTask, run_task
 
@@ -112,7 +112,7 @@ def _batched_scene(name: str) -> str:
     return name
 
 
-# a scene with a batched engine (beambench.acquisition.scenes: free_beam, contact)
+# a scene with a batched engine (beambench.acquisition.protocol.scenes: free_beam, contact)
 SweepScene = Annotated[str, AfterValidator(_batched_scene)]
 
 

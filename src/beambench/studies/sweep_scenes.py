@@ -1,5 +1,5 @@
 """How each scene with a batched engine runs a sweep task: one runner per scene, registered with
-:func:`batched` against its :class:`~beambench.acquisition.scenes.SceneInfo` (``batched=True``), fed a typed
+:func:`batched` against its :class:`~beambench.acquisition.protocol.scenes.SceneInfo` (``batched=True``), fed a typed
 :class:`SweepTask`, returning one result row per job with the scene's metrics (:mod:`beambench.analysis`).
 """
 
@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from beambench.acquisition.scenes import CONTACT, FREE_BEAM, SceneInfo
+from beambench.acquisition.protocol.scenes import CONTACT, FREE_BEAM, SceneInfo
 
 __all__ = ["RUNNERS", "Job", "SweepTask", "batched", "run_task"]
 

@@ -14,7 +14,7 @@ from beambench.analysis.figures import (  # noqa: F401  (each module registers i
     gait,
     release_decay,
     sync,
-    tracking,
+    speed_tracking,
     trajectories,
     walking_speed,
 )

@@ -14,7 +14,7 @@ from beambench.analysis.figures.style import SESSION_COLORS, legend_below, new_f
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from beambench.analysis.session import SessionAnalysis, StepResult
+    from beambench.analysis.session_analysis import SessionAnalysis, StepResult
 
 MAX_LINES = 6  # more overlaid lines are no longer told apart
 PAPER_HZ = (23.0, 65.0)  # the paper's two walking points (Sec. IV-B)

@@ -18,7 +18,7 @@ from beambench.analysis.figures.style import (
 )
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 
 @FIGURES.add(

@@ -24,7 +24,7 @@ from beambench.analysis.figures.style import (
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 
 @FIGURES.add(

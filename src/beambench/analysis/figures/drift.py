@@ -15,7 +15,7 @@ from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import SESSION_COLORS, legend_below, new_figure
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 MIN_REFERENCES = 3
 

@@ -25,7 +25,7 @@ from beambench.analysis.figures.style import (
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 SENSE_NAMES = {"ccw": "counter-clockwise", "cw": "clockwise", "": "line (no sense)"}
 

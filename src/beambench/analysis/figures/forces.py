@@ -21,7 +21,7 @@ from beambench.analysis.figures.style import (
 from beambench.analysis.path_shape import period_cycles
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis, StepResult
+    from beambench.analysis.session_analysis import SessionAnalysis, StepResult
 
 CONTACT = "#ff7f0e"
 PERIOD: dict[str, Any] = dict(

@@ -10,7 +10,7 @@ from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import SESSION_COLORS, by_frequency, legend_below, new_figure
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 
 def _has(a: SessionAnalysis, col: str) -> bool:

@@ -22,7 +22,7 @@ from beambench.analysis.walking import STANCE_MM, Stance, foot_stance, ground_le
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from beambench.analysis.session import SessionAnalysis, StepResult
+    from beambench.analysis.session_analysis import SessionAnalysis, StepResult
 
 SHOW_HZ = (23.0, 65.0)  # the paper's two walking points (Sec. IV-B), then the fastest step
 CYCLES = 4

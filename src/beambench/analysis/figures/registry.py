@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, cast
 from beambench.analysis.figures.style import STYLE
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 RIGS = ("contact", "walker", "release")  # the rig names a session records in /general
 

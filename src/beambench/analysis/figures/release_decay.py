@@ -13,7 +13,7 @@ from beambench.analysis.figures.style import SESSION_COLORS, legend_below, new_f
 from beambench.analysis.release import step_decay
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 AXES = ("x", "y", "z")
 AXIS_COLORS = ("#8c564b", "#2ca02c", "#9467bd")

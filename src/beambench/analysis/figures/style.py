@@ -15,7 +15,7 @@ __all__ = ["STYLE", "fitting_columns", "legend_below"]  # the report's style liv
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from beambench.analysis.session import SessionAnalysis, StepResult
+    from beambench.analysis.session_analysis import SessionAnalysis, StepResult
 
 REGIME_COLORS = {
     "1": "#1f77b4",

@@ -13,7 +13,7 @@ from beambench.analysis.figures.registry import FIGURES, RIGS, ReportOptions
 from beambench.analysis.figures.style import SESSION_COLORS, legend_below, new_figure
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 FLAT_US = 1.0  # delays spread less than this: nothing to show
 

@@ -34,7 +34,7 @@ from beambench.analysis.trajectory import mean_path
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from beambench.analysis.session import SessionAnalysis, StepResult
+    from beambench.analysis.session_analysis import SessionAnalysis, StepResult
 
 NOISE_NOTE = (
     f"Crossings and senses are counted above a noise floor: a lobe (or a whole path) thinner than {NOISE_SIGMAS:g}σ "

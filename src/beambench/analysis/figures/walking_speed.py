@@ -9,7 +9,7 @@ from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import SESSION_COLORS, SESSION_MARKERS, by_frequency, legend_below, new_figure
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 PAPER_WALKER = [(23.0, -35.7), (65.0, 156.3)]  # Sec. IV-B, mm/s
 

@@ -5,7 +5,7 @@
 and an optional ``on_step`` hook called when a load should be on the plate, and prints its tables on a rich
 console. ``beambench calibrate loadcells`` (:mod:`beambench.commands.calibrate`) wires it to prompts on stdin, and
 with ``--emulate`` to an emulated MCU on a pty whose force follows the steps (:func:`emulated_plate`). The
-arithmetic (tare, fit, the saved file) is :mod:`beambench.acquisition.calibration`.
+arithmetic (tare, fit, the saved file) is :mod:`beambench.acquisition.forces.loadcell_calibration`.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     import numpy as np
     from rich.console import Console
 
-    from beambench.acquisition.calibration import LoadCellCalibration, MatrixFit
+    from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, MatrixFit
     from beambench.acquisition.capabilities import Stream
 
 EMULATE_LOADS = [(1.0, 0.0), (2.0, 0.0), (0.0, 0.5), (0.0, 1.0), (1.5, 0.5), (1.0, -0.5)]
@@ -137,7 +137,7 @@ def walkthrough(
     import numpy as np
     from rich.table import Table
 
-    from beambench.acquisition.calibration import (
+    from beambench.acquisition.forces.loadcell_calibration import (
         LoadCellCalibration,
         fit_matrix,
         tare_counts,
@@ -221,7 +221,7 @@ def emulated_plate() -> LoadCellCalibration:
     """A plate that differs from the shipped calibration (gains off by a few %, crosstalk, other offsets)."""
     import numpy as np
 
-    from beambench.acquisition.calibration import (
+    from beambench.acquisition.forces.loadcell_calibration import (
         LoadCellCalibration,
         default_calibration,
     )

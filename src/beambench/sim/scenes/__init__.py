@@ -2,7 +2,7 @@
 
 Importing the package imports every module in it, and each scene module registers its builder
 (``@register(INFO)``); the sim backend builds a protocol's scene with ``get(sim.scene).build(config)``. Adding a
-scene: its :class:`~beambench.acquisition.scenes.SceneInfo` in :mod:`beambench.acquisition.scenes` and its module
+scene: its :class:`~beambench.acquisition.protocol.scenes.SceneInfo` in :mod:`beambench.acquisition.protocol.scenes` and its module
 here (docs/extending.md).
 """
 

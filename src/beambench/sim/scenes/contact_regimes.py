@@ -22,8 +22,8 @@ import mujoco
 import numpy as np
 import pandas as pd
 
-from beambench.acquisition.calibration import default_calibration
-from beambench.acquisition.contact_events import ContactParams, force_contacts
+from beambench.acquisition.forces.loadcell_calibration import default_calibration
+from beambench.acquisition.forces.contact_events import ContactParams, force_contacts
 from beambench.acquisition.streams import CONTACT_MARKERS, LOADCELL_RATE_HZ, MOCAP_RATE_HZ
 from beambench.common.types import Floats
 from beambench.sim.models.beam import BeamModel
@@ -157,7 +157,7 @@ def regime_map(
 ) -> pd.DataFrame:
     """The contact regime at each drive frequency, fast: every frequency held from t = 0 in one batched run
     (:func:`~beambench.sim.scenes.contact_sweep.contact_sweep`), classified from the plate's normal force alone
-    as ``beambench analyze`` does (:func:`beambench.acquisition.contact_events.force_regime`).
+    as ``beambench analyze`` does (:func:`beambench.acquisition.forces.contact_events.force_regime`).
 
     ``sim``: windows, twist, amplitude, timesteps (None: the measured table's), threads; the force is
     box-averaged over the load cells' sample period (1 ms) like the rig's load cells; ``sim.noise`` adds their

@@ -24,7 +24,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from beambench.acquisition.scenes import CONTACT
+from beambench.acquisition.protocol.scenes import CONTACT
 from beambench.acquisition.streams import CONTACT_MARKERS
 from beambench.sim.engine.stepping import INTEGRATORS, Physics, Trajectory
 from beambench.sim.models.beam import BeamModel, add_beam

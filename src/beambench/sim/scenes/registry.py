@@ -1,7 +1,7 @@
 """The scene registry, in the manner of dm_control's suite: each scene module registers how it is built.
 
-What a scene *is* (name, markers, options, flags) is its :class:`~beambench.acquisition.scenes.SceneInfo`, declared
-in :mod:`beambench.acquisition.scenes` so the protocol model can read it without MuJoCo. Here a scene module adds
+What a scene *is* (name, markers, options, flags) is its :class:`~beambench.acquisition.protocol.scenes.SceneInfo`, declared
+in :mod:`beambench.acquisition.protocol.scenes` so the protocol model can read it without MuJoCo. Here a scene module adds
 how it is built from its slice of the protocol (a :class:`SceneConfig`)::
 
     @register(CONTACT)
@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from beambench.acquisition.scenes import SceneInfo, scene_info
+from beambench.acquisition.protocol.scenes import SceneInfo, scene_info
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.protocol_slice import SimSlice
 from beambench.sim.scenes.drive import DrivenScene

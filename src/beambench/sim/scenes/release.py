@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout
 
-from beambench.acquisition.scenes import RELEASE
+from beambench.acquisition.protocol.scenes import RELEASE
 from beambench.sim.engine.stepping import Physics, integrator_enum, quiet_mujoco_warnings
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.models.params import BeamParams

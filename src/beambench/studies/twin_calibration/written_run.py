@@ -41,8 +41,8 @@ def run_written_protocol(path: Path, seed: int | None = None) -> dict[str, Any]:
     """Run the protocol at ``path`` on the sim backend (``seed`` instead of its ``sim.seed`` when not None) into
     a temporary session file, analyse it and return ``{"steps": [row per step], "extras": {...}}`` with the
     :data:`STEP_COLUMNS` the analysis has. A run that does not complete raises :class:`WrittenRunError`."""
-    from beambench.acquisition.config import parse_protocol
-    from beambench.analysis.session import analyze_session
+    from beambench.acquisition.protocol.schema import parse_protocol
+    from beambench.analysis.session_analysis import analyze_session
     from beambench.common.yaml_config import load_yaml_file
     from beambench.session.run import run_session
     from beambench.sinks.hdf5 import read_session

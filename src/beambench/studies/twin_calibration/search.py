@@ -37,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration.evaluate import (
+from beambench.studies.twin_calibration.evaluate import (
     EvalLog,
     Evaluator,
     Interrupted,
@@ -48,11 +48,11 @@ from beambench.studies.calibration.evaluate import (
     identifiability,
     key,
 )
-from beambench.studies.calibration.intervals import intervals, landmark_spread
-from beambench.studies.calibration.landmark_steps import LandmarkPlan, landmark_steps, within
-from beambench.studies.calibration.rig import CalibratableRig, get_rig
-from beambench.studies.calibration.targets import CalibrationInputError, Targets
-from beambench.studies.calibration.verdict import Verdict, annotate_yaml, judge
+from beambench.studies.twin_calibration.intervals import intervals, landmark_spread
+from beambench.studies.twin_calibration.landmark_steps import LandmarkPlan, landmark_steps, within
+from beambench.studies.twin_calibration.rig import CalibratableRig, get_rig
+from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
+from beambench.studies.twin_calibration.verdict import Verdict, annotate_yaml, judge
 from beambench.studies.executor import Pool
 from beambench.studies.unknowns import Unknown
 
@@ -202,7 +202,7 @@ def calibrate(
 ) -> Result:
     """Fit the twin of ``targets.rig`` to ``targets``; write ``out_dir/<name>.yaml`` (runnable protocol) and its
     parameter set. ``progress``: a rich Progress (or None). The report: :func:`.report.write_report`."""
-    from beambench.studies.calibration import evaluate
+    from beambench.studies.twin_calibration import evaluate
     from beambench.studies.executor import make_executor
 
     rig = get_rig(targets.rig)

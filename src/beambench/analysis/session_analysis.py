@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from beambench.acquisition.calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.analysis.branches import annotate_branches, step_labels
 from beambench.analysis.contact import (
     ContactParams,
@@ -41,7 +41,7 @@ from beambench.analysis.sync import (
     sync_edge_check,
     timeline,
 )
-from beambench.analysis.tracking import TrackResult, track_result
+from beambench.analysis.speed_tracking import TrackResult, track_result
 from beambench.analysis.trajectory import (
     Ellipse,
     StageFrame,

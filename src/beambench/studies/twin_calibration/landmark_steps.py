@@ -24,7 +24,7 @@ import numpy as np
 if TYPE_CHECKING:
     import pandas as pd
 
-    from beambench.studies.calibration.evaluate import Point
+    from beambench.studies.twin_calibration.evaluate import Point
     from beambench.studies.unknowns import Unknown
 
 # evaluate(values, frequencies, stage) -> one evaluated point per values, in order

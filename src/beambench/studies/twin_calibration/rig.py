@@ -15,8 +15,8 @@ from typing import Any
 import pandas as pd
 
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration.checks import TargetCheck
-from beambench.studies.calibration.targets import CalibrationInputError, Targets
+from beambench.studies.twin_calibration.checks import TargetCheck
+from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
 from beambench.studies.unknowns import Unknown
 
 __all__ = [

@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal, get_args
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from beambench.acquisition.scenes import runnable_names, scene_info
+from beambench.acquisition.protocol.scenes import runnable_names, scene_info
 from beambench.common.names import MAX_NAME_BYTES, check_name
 from beambench.common.yaml_config import MISSING as _MISSING
 from beambench.common.yaml_config import ConfigError, load_yaml_file, parse_yaml, validate

@@ -284,7 +284,7 @@ def load_targets(path: str | Path) -> Targets:
 def session_targets(path: str | Path) -> Targets:
     """Per-step targets of a measured (or twin-made) session, analysed with :mod:`beambench.analysis.session`;
     the release-test fit it holds (``/processing/fit``) or the parameter set it ran with is the prior."""
-    from beambench.analysis.session import analyze_session
+    from beambench.analysis.session_analysis import analyze_session
     from beambench.sinks.hdf5 import SessionFileError, read_session
 
     p = Path(path)
@@ -361,7 +361,7 @@ def _release_fit(path: Path) -> dict[str, float]:
 
 
 def _walker_session(p: Path, session: Any, general: dict[str, Any]) -> Targets:
-    from beambench.analysis.session import analyze_session
+    from beambench.analysis.session_analysis import analyze_session
 
     analysis = analyze_session(session)
     t = analysis.table

@@ -20,11 +20,11 @@ import pandas as pd
 import yaml
 
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
-from beambench.studies.calibration.protocol_out import CalibratedSet, extended_sweep, write_calibrated_protocol
-from beambench.studies.calibration.rig import CalibratableRig, CalibrationBase, register_rig
-from beambench.studies.calibration.targets import CalibrationInputError, Targets
-from beambench.studies.calibration.written_run import run_written_protocol
+from beambench.studies.twin_calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
+from beambench.studies.twin_calibration.protocol_out import CalibratedSet, extended_sweep, write_calibrated_protocol
+from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, register_rig
+from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
+from beambench.studies.twin_calibration.written_run import run_written_protocol
 from beambench.studies.unknowns import Override, Unknown, apply_values
 
 if TYPE_CHECKING:
@@ -145,7 +145,7 @@ def contact_base(targets: Targets) -> CalibrationBase:
     extended to the targets (how the written protocol runs), simulated as ``beambench run`` simulates it (one
     :func:`~beambench.sim.protocol_slice.sim_slice`: model, ``auto`` included, integrator, timestep plan,
     twist, amplitude, windows, noise and seed); the prior parameter set is the session's, else the protocol's."""
-    from beambench.acquisition.config import Sweep, parse_protocol
+    from beambench.acquisition.protocol.schema import Sweep, parse_protocol
     from beambench.common.resources import shipped_dir
     from beambench.session.slices import sim_slice
 

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import yaml
 
-from beambench.studies.calibration.targets import Targets
+from beambench.studies.twin_calibration.targets import Targets
 
 if TYPE_CHECKING:
     from beambench.sim.models.params import BeamParams
@@ -38,7 +38,7 @@ def write_calibrated_protocol(cal: CalibratedSet, targets: Targets, out_dir: Pat
     the session's protocol (or the shipped ``cal.shipped_protocol``) with ``sim.params`` = that file's absolute
     path plus ``cal.sim_extra``; the sweep is extended to cover the targets if it stops short. Every calibratable
     rig writes its outputs through here; a protocol that would not load is refused, never written."""
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.common.resources import shipped_dir
 
     params = cal.params
@@ -81,7 +81,7 @@ def extended_sweep(doc: dict[str, Any], targets: Targets) -> dict[str, Any]:
     """The protocol mapping ``doc`` with its sweep (and frequency limit) extended up to the targets' highest
     frequency when it stops short (in place; returned). A protocol without ``limits.max_frequency_hz`` has the
     parser's default limit (:class:`~beambench.acquisition.config.Limits`), raised only as far as the targets."""
-    from beambench.acquisition.config import Limits
+    from beambench.acquisition.protocol.schema import Limits
 
     top = float(max(targets.frequencies)) if len(targets.table) else 0.0
     sweep = doc.get("sweep", {})

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from beambench.studies.calibration.contact_objective import CONTINUOUS_LEVEL, regime_level
-from beambench.studies.calibration.evaluate import json_default
-from beambench.studies.calibration.search import Result
-from beambench.studies.calibration.targets import IRREGULAR, Targets
-from beambench.studies.calibration.verdict import all_met, closing_line
+from beambench.studies.twin_calibration.contact_objective import CONTINUOUS_LEVEL, regime_level
+from beambench.studies.twin_calibration.evaluate import json_default
+from beambench.studies.twin_calibration.search import Result
+from beambench.studies.twin_calibration.targets import IRREGULAR, Targets
+from beambench.studies.twin_calibration.verdict import all_met, closing_line
 
 
 def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> Path:

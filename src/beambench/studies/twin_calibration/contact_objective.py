@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 
 from beambench.sim.scenes.contact_regimes import CONTINUOUS, NONE, transitions
-from beambench.studies.calibration.checks import SIGN_AGREEMENT, TRANSITION_TOLERANCE_HZ, TargetCheck
-from beambench.studies.calibration.targets import Targets
+from beambench.studies.twin_calibration.checks import SIGN_AGREEMENT, TRANSITION_TOLERANCE_HZ, TargetCheck
+from beambench.studies.twin_calibration.targets import Targets
 
 CONTINUOUS_LEVEL = -1.0  # one level below 1:1 (as ½ is one above); -2 was tried: see the bench notes
 

@@ -8,7 +8,7 @@ from datetime import datetime
 from pathlib import Path
 
 from beambench.acquisition.capabilities import MotorLimits
-from beambench.acquisition.config import ConfigError, Protocol, format_name
+from beambench.acquisition.protocol.schema import ConfigError, Protocol, format_name
 from beambench.common.names import check_name
 
 

@@ -18,10 +18,10 @@ objective=..., base=..., write=..., summary=..., checks=...))``, imported below;
 ``targets.table``. The CLI, the search, the log and the report are rig-agnostic.
 """
 
-from beambench.studies.calibration import contact, walker
-from beambench.studies.calibration.evaluate import EvalLog, Evaluator, Interrupted, Point, SearchSettings
-from beambench.studies.calibration.report import write_report
-from beambench.studies.calibration.rig import (
+from beambench.studies.twin_calibration import contact, walker
+from beambench.studies.twin_calibration.evaluate import EvalLog, Evaluator, Interrupted, Point, SearchSettings
+from beambench.studies.twin_calibration.report import write_report
+from beambench.studies.twin_calibration.rig import (
     RIGS,
     CalibratableRig,
     CalibrationBase,
@@ -29,7 +29,7 @@ from beambench.studies.calibration.rig import (
     register_rig,
     unknowns_help,
 )
-from beambench.studies.calibration.search import Result, calibrate
+from beambench.studies.twin_calibration.search import Result, calibrate
 from beambench.studies.unknowns import Unknown
 
 __all__ = [

@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
-from beambench.analysis.tracking import TrackResult
+from beambench.analysis.speed_tracking import TrackResult
 
 if TYPE_CHECKING:
-    from beambench.analysis.session import SessionAnalysis
+    from beambench.analysis.session_analysis import SessionAnalysis
 
 KEY = "tracking"
 CAPTION = "Speed tracking: target and measured body speed (shaded: ±tolerance after settling), commanded frequency"

@@ -35,11 +35,11 @@ import pandas as pd
 
 from beambench.analysis.walking import SpeedCurveShape, speed_curve_shape
 from beambench.sim.settings import SimSettings
-from beambench.studies.calibration.checks import SPEED_TOLERANCE_FRACTION, TRANSITION_TOLERANCE_HZ, TargetCheck
-from beambench.studies.calibration.protocol_out import CalibratedSet, write_calibrated_protocol
-from beambench.studies.calibration.rig import CalibratableRig, CalibrationBase, register_rig
-from beambench.studies.calibration.targets import WALKER_LANDMARKS as LANDMARKS
-from beambench.studies.calibration.targets import CalibrationInputError, Targets
+from beambench.studies.twin_calibration.checks import SPEED_TOLERANCE_FRACTION, TRANSITION_TOLERANCE_HZ, TargetCheck
+from beambench.studies.twin_calibration.protocol_out import CalibratedSet, write_calibrated_protocol
+from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, register_rig
+from beambench.studies.twin_calibration.targets import WALKER_LANDMARKS as LANDMARKS
+from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
 from beambench.studies.unknowns import Override, Unknown, apply_values
 
 if TYPE_CHECKING:
@@ -147,7 +147,7 @@ def walker_base(targets: Targets) -> CalibrationBase:
     """The fixed part: the session's protocol (else the shipped walker sweep) simulated as ``beambench run``
     simulates it (one :func:`~beambench.sim.protocol_slice.sim_slice`: leg model, parameter set, twist,
     integrator, timestep); the stages set their own windows (:data:`STAGES`)."""
-    from beambench.acquisition.config import parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.common.resources import shipped_dir
     from beambench.session.slices import sim_slice
 

@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from beambench.studies.calibration.landmark_steps import fit_local_linear
+from beambench.studies.twin_calibration.landmark_steps import fit_local_linear
 
 if TYPE_CHECKING:
-    from beambench.studies.calibration.checks import TargetCheck
-    from beambench.studies.calibration.evaluate import Point
+    from beambench.studies.twin_calibration.checks import TargetCheck
+    from beambench.studies.twin_calibration.evaluate import Point
     from beambench.studies.unknowns import Unknown
 
 NUMERIC_KINDS = ("transition", "speed")

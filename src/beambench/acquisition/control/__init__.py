@@ -1,0 +1,1 @@
+"""The speed-tracking controller and the speed map it steers by."""

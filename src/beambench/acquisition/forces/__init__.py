@@ -1,0 +1,1 @@
+"""Force arithmetic: load-cell calibration (counts to newtons) and contact detection from forces."""
