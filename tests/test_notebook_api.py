@@ -1,4 +1,4 @@
-"""The notebook API on a real session made by a short sim run: Session.to_pandas / to_xarray, resample_session
+"""The notebook API on a real session made by a short sim run: SessionFile.to_pandas / to_xarray, resample_session
 keeping discrete columns discrete with a step column, /processing read back in stored order."""
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ def session_file(tmp_path_factory) -> Path:
 
 def test_the_package_and_its_reading_functions_are_documented():
     from beambench.sinks import session_frames
-    from beambench.sinks.hdf5 import Session
+    from beambench.sinks.hdf5 import SessionFile
 
     assert beambench.__doc__ and "to_pandas" in beambench.__doc__
-    for f in (Session.to_pandas, Session.to_xarray, resample_session, read_processing, session_frames):
+    for f in (SessionFile.to_pandas, SessionFile.to_xarray, resample_session, read_processing, session_frames):
         assert f.__doc__ and len(f.__doc__) > 40
 
 

@@ -197,7 +197,7 @@ def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
 
 
 def test_the_fold_warning_is_kept_in_the_session_and_shown_atop_the_report(tmp_path):
-    """Every warning the run gave is in ``/general/warnings`` (read back as ``Session.warnings``) and is a banner
+    """Every warning the run gave is in ``/general/warnings`` (read back as ``SessionFile.warnings``) and is a banner
     at the top of the report's index.html, before the figures."""
     from typer.testing import CliRunner
 

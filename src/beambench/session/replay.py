@@ -16,7 +16,7 @@ import numpy as np
 from beambench.acquisition.batch import Batch, StepRecord
 from beambench.analysis.session_analysis import session_calibration
 from beambench.sinks import RerunMode
-from beambench.sinks.hdf5 import Session, read_session
+from beambench.sinks.hdf5 import SessionFile, read_session
 from beambench.sinks.rerun_view import RerunSink
 
 WINDOW_S = 1.0
@@ -70,7 +70,7 @@ def replay_session(session_path: Path, mode: RerunMode, out: Path | None = None)
     return rrd
 
 
-def _step_records(session: Session) -> list[tuple[int, StepRecord]]:
+def _step_records(session: SessionFile) -> list[tuple[int, StepRecord]]:
     """Each step's start (as ``running``) and end (with its final status), in time order."""
     out: list[tuple[int, StepRecord]] = []
     for row in session.steps.to_dict("records"):

@@ -35,7 +35,7 @@ from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
 from beambench.sinks.hdf5_read import (
     HDF5_SIGNATURE,
     SESSION_GROUPS,
-    Session,
+    SessionFile,
     SessionFileError,
     StreamData,
     check_session_file,
@@ -48,7 +48,7 @@ from beambench.sinks.hdf5_read import (
 __all__ = [  # the reader's names stay importable from here (sessions were read through this module)
     "HDF5_SIGNATURE",
     "SESSION_GROUPS",
-    "Session",
+    "SessionFile",
     "SessionFileError",
     "SessionWriter",
     "StreamData",

@@ -1,5 +1,5 @@
 """The HDF5 session file's reader: checks a file is a whole session before HDF5 sees it, opens it in SWMR mode
-(a file being written, or cut off by a kill, reads too) and returns a :class:`Session`. The layout is the
+(a file being written, or cut off by a kill, reads too) and returns a :class:`SessionFile`. The layout is the
 writer's (:mod:`beambench.sinks.hdf5`).
 """
 
@@ -163,7 +163,7 @@ class StreamData:
 
 
 @dataclass
-class Session:
+class SessionFile:
     """A session read back: streams, steps, events and general metadata."""
 
     path: Path
@@ -255,7 +255,7 @@ def real_rows(host_time_ns: np.ndarray) -> np.ndarray:
     return keep
 
 
-def read_session(path: str | Path) -> Session:
+def read_session(path: str | Path) -> SessionFile:
     """Read a session (opened with ``swmr=True``, so files being written or cut off by a kill also read)."""
     path = Path(path)
     with _open_session(path) as f:
@@ -281,7 +281,7 @@ def read_session(path: str | Path) -> Session:
             raise SessionFileError(
                 f"{path}: damaged or not a beambench session ({type(exc).__name__}: {why})"
             ) from None
-    return Session(path, streams, steps, events, general, attrs)
+    return SessionFile(path, streams, steps, events, general, attrs)
 
 
 def read_processing(path: str | Path, name: str) -> pd.DataFrame:

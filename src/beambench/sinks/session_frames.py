@@ -1,5 +1,5 @@
 """A session read back as labelled tables for notebooks: one stream as a pandas DataFrame, the whole session as
-one xarray Dataset (:meth:`Session.to_pandas`, :meth:`Session.to_xarray` call these).
+one xarray Dataset (:meth:`SessionFile.to_pandas`, :meth:`SessionFile.to_xarray` call these).
 
 Both are views of the raw data as recorded (no clock fits, no calibration, occluded markers keep their stored
 values; :func:`beambench.analysis.resample_session` puts every stream on one clock-corrected timeline). Time is
@@ -43,7 +43,7 @@ class StreamLike(Protocol):
 
 
 class SessionLike(Protocol):
-    """What the frames read of a session (a :class:`beambench.sinks.hdf5_read.Session`; typed structurally, so
+    """What the frames read of a session (a :class:`beambench.sinks.hdf5_read.SessionFile`; typed structurally, so
     the reader, whose ``to_pandas``/``to_xarray`` call these, is not imported back)."""
 
     @property
