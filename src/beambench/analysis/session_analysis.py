@@ -110,7 +110,7 @@ class SessionAnalysis:
     residual_t_s: dict[str, np.ndarray] = field(default_factory=dict)
     edge_check: EdgeCheck | None = None
     name: str = ""
-    track: TrackResult | None = None  # speed tracking (track: sessions), beambench.analysis.tracking
+    track: TrackResult | None = None  # speed tracking (track: sessions), beambench.analysis.speed_tracking
 
     @property
     def sync_table(self) -> pd.DataFrame:
@@ -644,7 +644,7 @@ def resample_session(
     """Every stream's numeric columns on one uniform host-clock timeline (a DataFrame indexed by ``t_s``, seconds
     from the earliest sample), for notebooks.
 
-    Columns are named ``<stream>/<column>`` with the column names of ``Session.to_pandas`` (``mocap/foot_x``,
+    Columns are named ``<stream>/<column>`` with the column names of ``SessionFile.to_pandas`` (``mocap/foot_x``,
     ``mocap/foot_occluded``, ``loadcell/lc0``, ``motor/axis_state``); load cells
     also get calibrated ``loadcell/normal_n`` and ``loadcell/tangential_n``, and ``step`` is the protocol step
     each row falls in (-1 between steps). Float columns are interpolated linearly (NaN where a stream has no data
@@ -693,5 +693,5 @@ def resample_session(
 
 
 def _column_names(stream: str, col: str, shape: tuple[int, ...], labels: list[str]) -> list[str]:
-    """``<stream>/<name>`` with the names of ``Session.to_pandas`` (``mocap/foot_x``, ``loadcell/lc0``)."""
+    """``<stream>/<name>`` with the names of ``SessionFile.to_pandas`` (``mocap/foot_x``, ``loadcell/lc0``)."""
     return [f"{stream}/{name}" for name in flat_names(stream, col, shape, tuple(labels))]

@@ -2,7 +2,7 @@
 
 Each control tick (``control.control_s`` of rig time) :meth:`TrackController.update` decides the drive frequency:
 
-- **band**: the map's band that reaches the target (:mod:`beambench.acquisition.speed_map`), kept while it does;
+- **band**: the map's band that reaches the target (:mod:`beambench.acquisition.control.speed_map`), kept while it does;
   a target of the other sign switches band (and resets the integrator). A target of 0 stands the walker at a
   frequency whose speed is ~0: the zero crossing of the map's run through zero that holds the band in use (the
   walker keeps stepping in place; feedback holds it there); from rest (no band yet) it stands at 0 Hz (the motor

@@ -2,7 +2,7 @@
 
 A scene is a rig the simulator can build (the contact rig, the walker, the release test, the free beam). Its
 description — a :class:`SceneInfo` — lives here, below the simulator, because the protocol model (``rig:``,
-:data:`beambench.acquisition.config.RigKind`), the standard streams (marker names) and the hardware backend read
+:data:`beambench.acquisition.protocol.schema.RigKind`), the standard streams (marker names) and the hardware backend read
 it without importing MuJoCo. How a scene is *built* is registered beside its code in :mod:`beambench.sim.scenes`
 against the same :class:`SceneInfo`; adding a scene is one :func:`declare` here plus its module there.
 

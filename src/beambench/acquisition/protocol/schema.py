@@ -30,7 +30,7 @@ def _runnable_scene(name: str) -> str:
     return name
 
 
-# the scenes a protocol may run, as declared in beambench.acquisition.scenes (contact, walker, release)
+# the scenes a protocol may run, as declared in beambench.acquisition.protocol.scenes (contact, walker, release)
 RigKind = Annotated[str, AfterValidator(_runnable_scene)]
 Integrator = Literal["euler", "implicitfast", "implicit", "rk4", "discrete"]
 BACKENDS: tuple[str, ...] = get_args(Backend)
@@ -207,7 +207,7 @@ class TrackSegment(_Model):
 
 
 class TrackControl(_Model):
-    """The speed controller's settings (:mod:`beambench.acquisition.tracking`); the defaults suit the walker."""
+    """The speed controller's settings (:mod:`beambench.acquisition.control.speed_controller`); the defaults suit the walker."""
 
     feedback: bool = True  # false: feed-forward from the map alone
     kp: float = Field(1.5, ge=0, le=10)  # proportional gain on the speed error (mm/s per mm/s)

@@ -122,7 +122,7 @@ TRANSITION_KEYS = (("continuous_below_hz", CONTINUOUS), ("half_at_hz", "1/2"), (
 
 def contact_landmarks(steps: pd.DataFrame, targets: Targets) -> dict[str, tuple[float | None, float]]:
     """The transitions the targets name, each as (the map's, the target's) in Hz, for the landmark steps
-    (:mod:`beambench.studies.calibration.landmark_steps`). The map's lowest ½ and ⅓ are the lowest steps that *hold* the
+    (:mod:`beambench.studies.twin_calibration.landmark_steps`). The map's lowest ½ and ⅓ are the lowest steps that *hold* the
     regime (the next step has it too, or it is the map's top): a lone ½ step at the continuous edge, where
     the foot starts to bounce, is a stray label that sits on another landmark's line and would bend the model
     (the objective still scores the plain lowest, as the user's map shows it)."""

@@ -80,7 +80,7 @@ def write_calibrated_protocol(cal: CalibratedSet, targets: Targets, out_dir: Pat
 def extended_sweep(doc: dict[str, Any], targets: Targets) -> dict[str, Any]:
     """The protocol mapping ``doc`` with its sweep (and frequency limit) extended up to the targets' highest
     frequency when it stops short (in place; returned). A protocol without ``limits.max_frequency_hz`` has the
-    parser's default limit (:class:`~beambench.acquisition.config.Limits`), raised only as far as the targets."""
+    parser's default limit (:class:`~beambench.acquisition.protocol.schema.Limits`), raised only as far as the targets."""
     from beambench.acquisition.protocol.schema import Limits
 
     top = float(max(targets.frequencies)) if len(targets.table) else 0.0

@@ -282,7 +282,7 @@ def load_targets(path: str | Path) -> Targets:
 
 
 def session_targets(path: str | Path) -> Targets:
-    """Per-step targets of a measured (or twin-made) session, analysed with :mod:`beambench.analysis.session`;
+    """Per-step targets of a measured (or twin-made) session, analysed with :mod:`beambench.analysis.session_analysis`;
     the release-test fit it holds (``/processing/fit``) or the parameter set it ran with is the prior."""
     from beambench.analysis.session_analysis import analyze_session
     from beambench.sinks.hdf5 import SessionFileError, read_session
