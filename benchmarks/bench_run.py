@@ -25,8 +25,8 @@ def main() -> None:
     ap.add_argument("--protocol", default=str(ROOT / "protocols" / "contact_sweep.yaml"))
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "src"))
-    from beambench.acquisition.protocol.schema import load_protocol
     from beambench.acquisition.protocol.plan import summary
+    from beambench.acquisition.protocol.schema import load_protocol
 
     protocol, _ = load_protocol(args.protocol)
     sim_s = summary(protocol, "sim")["total_duration_s"]

@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from beambench.acquisition.capabilities import MotorLimits
-from beambench.acquisition.protocol.schema import load_protocol, parse_protocol
 from beambench.acquisition.protocol.plan import motor_limits, plan
+from beambench.acquisition.protocol.schema import load_protocol, parse_protocol
 from beambench.backends.sim import build_sim_rig
 from beambench.backends.sim_devices import interp_rows
 from beambench.session.slices import sim_slice

@@ -140,10 +140,10 @@ def main() -> None:
     if args.nice:
         os.nice(args.nice)
     sys.path.insert(0, str(ROOT / "src"))
-    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.acquisition.hub import Hub
     from beambench.acquisition.monitors import build_monitors
     from beambench.acquisition.protocol.plan import motor_limits, plan
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.acquisition.runner import Runner
     from beambench.backends.emulated import build_emulated_rig
     from beambench.session.slices import sim_slice

@@ -91,8 +91,8 @@ def cli_sweep(repeats: int, segments: int | None = None) -> dict:
     import pandas as pd
     import yaml
 
-    from beambench.acquisition.protocol.schema import load_protocol
     from beambench.acquisition.protocol.plan import summary
+    from beambench.acquisition.protocol.schema import load_protocol
 
     protocol, _ = load_protocol(str(SWEEP))
     sim_s = float(summary(protocol, "sim")["total_duration_s"])

@@ -6,8 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
 from beambench.acquisition.protocol.plan import plan
+from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
 from beambench.analysis.branches import annotate_branches
 from beambench.analysis.session_analysis import analyze_session
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session

@@ -10,9 +10,9 @@ import threading
 import numpy as np
 import pytest
 
-from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import motor_limits, plan
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.natnet import protocol as nn

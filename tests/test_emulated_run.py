@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import rerun.chunk as rc
 
-from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import motor_limits, plan
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.session.run import run_session

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from beambench.studies.executor import Pool
 from beambench.studies.twin_calibration import (
     RIGS,
     CalibratableRig,
@@ -24,7 +25,6 @@ from beambench.studies.twin_calibration import (
 from beambench.studies.twin_calibration.contact_objective import contact_landmarks, contact_objective
 from beambench.studies.twin_calibration.landmark_steps import LandmarkPlan, fit_local_linear, landmark_steps, solve_step
 from beambench.studies.twin_calibration.targets import parse_targets
-from beambench.studies.executor import Pool
 
 # ------------------------------------------------------------------------------------------------ the model
 

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from beambench.acquisition.batch import Batch
-from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
 from beambench.acquisition.capabilities import DeviceFault, Stream
+from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
 from beambench.acquisition.streams import LOADCELL, loadcell_spec
 from beambench.devices.loadcell.driver import SerialLoadCells, Unwrap32
 from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 
 from beambench.acquisition.batch import Batch
-from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.monitors import MocapLost, StreamSilent, build_monitors
 from beambench.acquisition.protocol.plan import motor_limits, plan
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.odrive.cansimple import AxisState

@@ -8,8 +8,8 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from beambench.acquisition.protocol.schema import ConfigError, Protocol, parse_protocol
 from beambench.acquisition.protocol.plan import plan, summary
+from beambench.acquisition.protocol.schema import ConfigError, Protocol, parse_protocol
 from conftest import fuzz_examples
 
 VALID = """

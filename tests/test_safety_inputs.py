@@ -19,8 +19,8 @@ import h5py
 import pytest
 from typer.testing import CliRunner
 
-from beambench.acquisition.protocol.schema import ConfigError, load_protocol, parse_protocol
 from beambench.acquisition.protocol.plan import session_path
+from beambench.acquisition.protocol.schema import ConfigError, load_protocol, parse_protocol
 from beambench.cli import app
 from beambench.common.yaml_config import MAX_FILE_BYTES, parse_yaml
 from beambench.sim.models.params import ParamsError, params_from_dict

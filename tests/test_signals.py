@@ -415,9 +415,9 @@ def test_python_m_beambench_run_stops_on_a_signal(tmp_path, backend, sig):
 
 # --- in-process: the flag, from any state, and a signal during the shutdown ---------------------------
 def _sim_runner(tmp_path: Path, stop=None, on_progress=None):
-    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.acquisition.hub import Hub
     from beambench.acquisition.protocol.plan import motor_limits, plan
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.acquisition.runner import Runner
     from beambench.backends.sim import SimRig
     from beambench.session.slices import sim_slice

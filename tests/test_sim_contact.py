@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from beambench.acquisition.batch import Batch
-from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.capabilities import MotorLimits
+from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.backends.sim import build_sim_rig

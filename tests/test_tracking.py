@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from beambench.acquisition.batch import Batch, Frame
-from beambench.acquisition.protocol.schema import ConfigError, TrackControl, parse_protocol
-from beambench.acquisition.control.speed_map import SpeedMap
-from beambench.acquisition.streams import WALKER_MARKERS, mocap_spec
 from beambench.acquisition.control.speed_controller import LOST, TRACKING, TrackController, track_spec
+from beambench.acquisition.control.speed_map import SpeedMap
+from beambench.acquisition.protocol.schema import ConfigError, TrackControl, parse_protocol
+from beambench.acquisition.streams import WALKER_MARKERS, mocap_spec
 
 MAX_HZ = 60.0
 

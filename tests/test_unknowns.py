@@ -8,12 +8,12 @@ import math
 import pytest
 
 from beambench.sim.models.params import load_params
+from beambench.studies.fit import ParamSpace
 from beambench.studies.twin_calibration import SearchSettings, get_rig
 from beambench.studies.twin_calibration.contact import CONTACT_UNKNOWNS, calibrated_params
 from beambench.studies.twin_calibration.rig import CalibrationBase
 from beambench.studies.twin_calibration.search import free_unknowns
 from beambench.studies.twin_calibration.targets import CalibrationInputError
-from beambench.studies.fit import ParamSpace
 from beambench.studies.unknowns import BEAM_OVERRIDES, Override, Unknown, apply_values
 
 

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.acquisition.protocol.schema import load_rig_file, parse_protocol
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import motor_limits, plan
+from beambench.acquisition.protocol.schema import load_rig_file, parse_protocol
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.backends.hardware import DEFAULT_RIG_FILE

@@ -13,10 +13,17 @@ from __future__ import annotations
 
 from beambench.acquisition.batch import StepRecord
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits, Rig
+from beambench.acquisition.control.speed_controller import (
+    HOLDING,
+    LOST,
+    MODES,
+    TRACKING,
+    TrackController,
+    decisions_batch,
+)
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import Step
 from beambench.acquisition.runner import ProgressCallback, Runner, StopSignal, wait_polls
-from beambench.acquisition.control.speed_controller import HOLDING, LOST, MODES, TRACKING, TrackController, decisions_batch
 
 
 class TrackRunner(Runner):

@@ -27,6 +27,7 @@ from beambench.analysis.contact import (
 from beambench.analysis.drift import drift_corrected
 from beambench.analysis.path_shape import annotate_inversions, path_noise, shape_columns
 from beambench.analysis.signals import NAN_SINE, fit_sinusoid, velocity
+from beambench.analysis.speed_tracking import TrackResult, track_result
 from beambench.analysis.sync import (
     NS,
     ClockFit,
@@ -41,7 +42,6 @@ from beambench.analysis.sync import (
     sync_edge_check,
     timeline,
 )
-from beambench.analysis.speed_tracking import TrackResult, track_result
 from beambench.analysis.trajectory import (
     Ellipse,
     StageFrame,

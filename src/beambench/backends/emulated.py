@@ -24,15 +24,15 @@ from typing import Any
 import numpy as np
 
 from beambench.acquisition.batch import Frame
-from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.capabilities import DeviceFault
+from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.protocol.schema import (
     LoadCellWiring,
     NatNetWiring,
     OdriveWiring,
     RigFile,
 )
-from beambench.acquisition.protocol.scenes import scene_info
 from beambench.backends.hardware import DeviceRig
 from beambench.sim.protocol_slice import SimSlice
 

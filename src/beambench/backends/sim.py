@@ -20,10 +20,10 @@ from typing import Any, cast
 import mujoco
 import numpy as np
 
-from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.capabilities import DeviceFault, Stream, WarnsOfModel
-from beambench.acquisition.protocol.schema import ClockModel, ConfigError
+from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.protocol.scenes import scene_info
+from beambench.acquisition.protocol.schema import ClockModel, ConfigError
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
 from beambench.backends import lookahead
 from beambench.backends.sim_devices import (

@@ -17,9 +17,9 @@ from collections.abc import Callable
 import numpy as np
 
 from beambench.acquisition.batch import Batch, StreamSpec
-from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits
 from beambench.acquisition.clocks import DriftingClock
+from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
 from beambench.acquisition.protocol.schema import ClockModel
 from beambench.acquisition.streams import loadcell_spec, mocap_spec, motor_spec
 from beambench.sim.engine.stepping import Trajectory

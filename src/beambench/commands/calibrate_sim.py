@@ -121,9 +121,9 @@ def sim(
     from beambench.common.errors import BeambenchError
     from beambench.common.names import check_name
     from beambench.common.resources import resolve_file
+    from beambench.studies.executor import MAX_LOCAL_WORKERS, ExecutorError
     from beambench.studies.twin_calibration import SearchSettings, calibrate, get_rig, write_report
     from beambench.studies.twin_calibration.targets import load_targets, session_targets
-    from beambench.studies.executor import MAX_LOCAL_WORKERS, ExecutorError
 
     if (session is None) == (targets is None):
         _fail("give a SESSION file or --targets FILE (one of them)")

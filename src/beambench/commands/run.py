@@ -81,8 +81,8 @@ def run(
     checked before anything moves. Ctrl-C, SIGTERM, SIGHUP (a closed terminal), SIGQUIT and the other stop
     signals idle the motor and close the file cleanly (exit 3); a full disk idles the motor too (exit 4).
     """
-    from beambench.acquisition.protocol.schema import load_protocol
     from beambench.acquisition.protocol.plan import session_path, summary
+    from beambench.acquisition.protocol.schema import load_protocol
     from beambench.session.checks import check_protocol
 
     protocol_file = resolve_protocol(protocol_file)

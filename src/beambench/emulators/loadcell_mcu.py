@@ -35,8 +35,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.clocks import DriftingClock
+from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.devices.loadcell.protocol import FRAME_LEN, encode_frame
 
 ForceSource = Callable[[float], tuple[float, float]]

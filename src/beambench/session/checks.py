@@ -11,8 +11,8 @@ import os
 from dataclasses import fields
 from pathlib import Path
 
-from beambench.acquisition.protocol.schema import ConfigError, Protocol
 from beambench.acquisition.protocol.plan import check_limits
+from beambench.acquisition.protocol.schema import ConfigError, Protocol
 from beambench.common.yaml_config import shorten
 from beambench.devices.odrive.can_motor import LOG_SUFFIXES
 from beambench.sim.models.params import BeamParams, ParamsError, load_params

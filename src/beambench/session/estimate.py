@@ -8,8 +8,8 @@ import time
 from dataclasses import dataclass
 
 from beambench.acquisition.capabilities import WarnsOfModel
-from beambench.acquisition.protocol.schema import Protocol
 from beambench.acquisition.protocol.plan import plan
+from beambench.acquisition.protocol.schema import Protocol
 
 PROBE_S = 0.2  # simulated seconds timed (after a short warm-up): ~0.03 s of wall time on the walker
 

@@ -15,12 +15,12 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.capabilities import DeviceFault, HasSilenceTimeouts, ReportsAfterRun, Rig, WarnsOfModel
-from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
+from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.protocol.plan import motor_limits, plan
+from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
 from beambench.common.console import LogProgress, stderr_console

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from pydantic import BaseModel
 
-from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol, SimOptions
 from beambench.acquisition.protocol.scenes import SceneInfo, foreign_option, runnable_names, scene_info
+from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol, SimOptions
 from beambench.backends.build import RigSlices
 from beambench.sim.models.params import has_params
 from beambench.sim.models.registry import model_family

@@ -21,13 +21,13 @@ import yaml
 
 from beambench.acquisition.batch import StreamSpec
 from beambench.acquisition.capabilities import Rig
-from beambench.acquisition.protocol.schema import ConfigError, Protocol
+from beambench.acquisition.control.speed_controller import TrackController, track_spec
+from beambench.acquisition.control.speed_map import SpeedMap, SpeedMapError
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import Step, motor_limits
+from beambench.acquisition.protocol.schema import ConfigError, Protocol
 from beambench.acquisition.runner import ProgressCallback, StopSignal
-from beambench.acquisition.control.speed_map import SpeedMap, SpeedMapError
 from beambench.acquisition.track_runner import TrackRunner
-from beambench.acquisition.control.speed_controller import TrackController, track_spec
 
 DEFAULT_MOCAP_LOST_S = 0.25  # with monitors.mocap_lost_s: null the controller still never drives blind longer
 

@@ -60,7 +60,7 @@ class RigLayout:
     loadcell_channels: tuple[str, ...]
     motor: bool
     mocap_rate_hz: float = 360.0
-    track: bool = False  # a speed-tracking run (beambench.acquisition.control.speed_controller): target, measured, commanded
+    track: bool = False  # a speed-tracking run (acquisition.control.speed_controller): target, measured, commanded
 
     @property
     def panels(self) -> tuple[Panel, ...]:

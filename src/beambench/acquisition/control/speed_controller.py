@@ -32,8 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
-from beambench.acquisition.protocol.schema import TrackControl
 from beambench.acquisition.control.speed_map import Band, SpeedMap
+from beambench.acquisition.protocol.schema import TrackControl
 from beambench.acquisition.streams import MOCAP
 
 TRACK = "track"

@@ -3,7 +3,7 @@ applies to (``@FIGURES.add("key", rigs=(...), caption=...)``); the report draws 
 order below. Adding a figure: a new module here and its line in this import list (docs/extending.md)."""
 
 # isort: off  (the import order is the report's order)
-from beambench.analysis.figures import (  # noqa: F401  (each module registers its figure on import)
+from beambench.analysis.figures import (  # noqa: F401, I001  (each module registers its figure on import; report order)
     body_trajectory,
     contact_direction,
     contact_frequency,

@@ -20,8 +20,8 @@ if TYPE_CHECKING:
     import numpy as np
     from rich.console import Console
 
-    from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, MatrixFit
     from beambench.acquisition.capabilities import Stream
+    from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, MatrixFit
 
 EMULATE_LOADS = [(1.0, 0.0), (2.0, 0.0), (0.0, 0.5), (0.0, 1.0), (1.5, 0.5), (1.0, -0.5)]
 

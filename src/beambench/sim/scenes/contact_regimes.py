@@ -22,8 +22,8 @@ import mujoco
 import numpy as np
 import pandas as pd
 
-from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.forces.contact_events import ContactParams, force_contacts
+from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.streams import CONTACT_MARKERS, LOADCELL_RATE_HZ, MOCAP_RATE_HZ
 from beambench.common.types import Floats
 from beambench.sim.models.beam import BeamModel

@@ -32,8 +32,8 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from beambench.acquisition.protocol.schema import ConfigError
 from beambench.acquisition.protocol.scenes import WALKER
+from beambench.acquisition.protocol.schema import ConfigError
 from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.common.errors import BeambenchError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics

@@ -17,9 +17,9 @@ import pandas as pd
 
 from beambench.common.jsonl import append_record, read_records
 from beambench.sim.settings import SimSettings
+from beambench.studies.executor import Pool, run_tasks
 from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, get_rig
 from beambench.studies.twin_calibration.targets import Targets
-from beambench.studies.executor import Pool, run_tasks
 from beambench.studies.unknowns import Unknown
 
 # ------------------------------------------------------------------------------------------------ settings

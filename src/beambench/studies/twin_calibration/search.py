@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from beambench.sim.settings import SimSettings
+from beambench.studies.executor import Pool
 from beambench.studies.twin_calibration.evaluate import (
     EvalLog,
     Evaluator,
@@ -53,7 +54,6 @@ from beambench.studies.twin_calibration.landmark_steps import LandmarkPlan, land
 from beambench.studies.twin_calibration.rig import CalibratableRig, get_rig
 from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
 from beambench.studies.twin_calibration.verdict import Verdict, annotate_yaml, judge
-from beambench.studies.executor import Pool
 from beambench.studies.unknowns import Unknown
 
 __all__ = ["Interrupted", "Result", "SearchSettings", "calibrate"]
@@ -202,8 +202,8 @@ def calibrate(
 ) -> Result:
     """Fit the twin of ``targets.rig`` to ``targets``; write ``out_dir/<name>.yaml`` (runnable protocol) and its
     parameter set. ``progress``: a rich Progress (or None). The report: :func:`.report.write_report`."""
-    from beambench.studies.twin_calibration import evaluate
     from beambench.studies.executor import make_executor
+    from beambench.studies.twin_calibration import evaluate
 
     rig = get_rig(targets.rig)
     out_dir.mkdir(parents=True, exist_ok=True)
