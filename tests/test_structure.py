@@ -151,7 +151,7 @@ def test_the_calibration_result_is_built_by_keyword_and_its_budget_shares_are_na
     from beambench.studies.twin_calibration.search import Result
 
     assert all(f.kw_only for f in dataclasses.fields(Result))
-    tree = ast.parse((PACKAGE / "studies" / "calibration" / "search.py").read_text())
+    tree = ast.parse((PACKAGE / "studies" / "twin_calibration" / "search.py").read_text())
     shares = [
         ast.unparse(n)
         for n in ast.walk(tree)
