@@ -186,16 +186,21 @@ def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
 
 def test_the_fold_warning_is_kept_in_the_session_and_shown_atop_the_report(tmp_path):
     """Every warning the run gave is in ``/general/warnings`` (read back as ``Session.warnings``) and is a banner
-    at the top of the report's index.html, before the figures."""
+    at the top of the report's index.html, before the figures (a walker on a 14 MPa strip)."""
+    import yaml
     from typer.testing import CliRunner
 
     from beambench.cli import app
     from beambench.sinks.hdf5 import read_session
 
+    soft = yaml.safe_load((ROOT / "sim_backend" / "rod_physical.yaml").read_text())
+    soft["beam"]["material"]["youngs_modulus"] = 14e6
+    soft_path = tmp_path / "rod_soft.yaml"
+    soft_path.write_text(yaml.safe_dump(soft))
     proto = tmp_path / "w.yaml"
     proto.write_text(
         "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-        "sim: {model: rod5g, params: physical, noise: false}\n"
+        f"sim: {{model: rod5g, params: {soft_path}, noise: false}}\n"
     )
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
     assert res.exit_code == 0, res.output

@@ -197,10 +197,11 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                 append_general(path, extra)
             except OSError as exc:
                 hub.errors.append(f"{writer.label}: /general not completed ({exc.strerror or exc})")
-    # the model's own word on what it cannot stand for (e.g. folding legs), then what else went wrong
-    result.warnings += model_warnings
+    # the model's own word on what it cannot stand for (e.g. folding legs; a scene built at the first step says
+    # it only now), then what else went wrong
+    result.warnings += rig.model_warnings() if isinstance(rig, WarnsOfModel) else []
     result.warnings += hub.errors  # the command says them (one line with the result when the run failed)
-    if hub.errors and result.status != "failed":  # the session keeps every warning the run gave (report banners)
+    if result.warnings != model_warnings and result.status != "failed":  # every warning kept (report banners)
         with contextlib.suppress(OSError):  # the session is as written; the command still says the warnings
             append_general(path, {"warnings": result.warnings})
     return result
