@@ -87,8 +87,8 @@ def loadcells(
 ) -> None:
     """Walk through a load-cell calibration: tare (per channel), known loads, least-squares 2×4 matrix, save.
 
-    The result goes to --out, else to loadcells.yaml in the per-user folder's calibration folder (with --emulate
-    to loadcells-emulated.yaml there); the package's shipped calibration is never changed.
+    The result is saved to --out, or else in the per-user folder as calibration/loadcells.yaml (with --emulate:
+    calibration/loadcells-emulated.yaml); the package's shipped calibration is never changed.
     """
     from beambench.acquisition.capabilities import DeviceFault
     from beambench.common.console import stderr_console

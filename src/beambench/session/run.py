@@ -190,21 +190,27 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
             )
         )
         result = runner.run()
+    _after_run(rig, path, result, hub, writer.label, model_warnings)
+    return result
+
+
+def _after_run(rig: Rig, path: Path, result: RunResult, hub: Hub, label: str, model_warnings: list[str]) -> None:
+    """What the rig reports once the run is over goes into /general; every warning the run gave goes into the
+    result (the command says them) and, when the run did not fail, into the session (report banners)."""
     if isinstance(rig, ReportsAfterRun) and result.status != "failed":
         extra = rig.after_run()
         if extra:
             try:
                 append_general(path, extra)
             except OSError as exc:
-                hub.errors.append(f"{writer.label}: /general not completed ({exc.strerror or exc})")
+                hub.errors.append(f"{label}: /general not completed ({exc.strerror or exc})")
     # the model's own word on what it cannot stand for (e.g. folding legs; a scene built at the first step says
     # it only now), then what else went wrong
     result.warnings += rig.model_warnings() if isinstance(rig, WarnsOfModel) else []
-    result.warnings += hub.errors  # the command says them (one line with the result when the run failed)
-    if result.warnings != model_warnings and result.status != "failed":  # every warning kept (report banners)
+    result.warnings += hub.errors
+    if result.warnings != model_warnings and result.status != "failed":
         with contextlib.suppress(OSError):  # the session is as written; the command still says the warnings
             append_general(path, {"warnings": result.warnings})
-    return result
 
 
 @contextlib.contextmanager

@@ -18,7 +18,7 @@ each inside its physical bounds:
 - **PRB3**: k, b (both on the bending and the twist joints, as in the paper), l2 with l1 = 0 and
   l3 = L − l2; with ``free_l1`` also l1 (l3 = L − l1 − l2). k and b are searched on a log scale.
 - **Segmented rod** (``rodN``): Young's modulus E and the stiffness-proportional damping β (b = β·k), within the
-  physical set's bounds (printed TPU 95A: 12–30 MPa, 0.4–10 ms).
+  physical set's bounds (``sim_backend/rod_physical.yaml``, each with its source).
 
 The release instant of measured data is known only to a sample or so (and the sim's mocap samples arrive
 with a receive latency), so every candidate is compared at the best of a small grid of time shifts
@@ -26,8 +26,7 @@ with a receive latency), so every candidate is compared at the best of a small g
 squares fits it as a bounded parameter instead (its interval is reported with the others).
 
 :func:`load_release_session` turns a ``rig: release`` session into :class:`ReleaseData`; :func:`fit_release`
-runs the fit; :func:`write_param_set` saves the result as ``sim_backend/<model>_<name>.yaml`` (selectable with
-``sim.params: <name>``); :func:`plot_fit` draws measured vs fitted tip paths.
+runs the fit; :func:`write_param_set` saves it as ``sim_backend/<model>_<name>.yaml`` (``sim.params: <name>``).
 """
 
 from __future__ import annotations

@@ -139,10 +139,10 @@ def _column(ax_n: Any, ax_t: Any, r: StepResult, label: str, si: int | None, cyc
         for kk in range(int(cycles) + 1):
             ax.axvline(kk * period_ms, **PERIOD)
     ratio = r.row.get("contacts_per_cycle", np.nan)
-    odd = "" if win.typical else f"\nirregular here: contacts {', '.join(f'{g:.1f}' for g in win.gaps)} cycles apart"
+    odd = "" if win.typical else f"irregular here: contacts {', '.join(f'{g:.1f}' for g in win.gaps)} cycles apart"
     if si is None:
-        return f"{REGIME_NAMES.get(reg, reg)} ({ratio:.2f} per cycle){odd}"
-    return f"{label}: {reg or 'none'} ({ratio:.2f}/cycle){odd.replace(chr(10), ' · ')}"
+        return f"{REGIME_NAMES.get(reg, reg)} ({ratio:.2f} per cycle)" + (f"\n{odd}" if odd else "")
+    return f"{label}: {reg or 'none'} ({ratio:.2f}/cycle)" + (f" · {odd}" if odd else "")
 
 
 @dataclass(frozen=True)
