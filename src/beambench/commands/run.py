@@ -143,7 +143,11 @@ def report_run(
     """The result on stdout (the .rrd, then the session), one line on stderr unless completed (with what else
     failed, e.g. the recording on the same full disk), the exit code. A completed run's warnings are a line each.
     A terminal that hung up (SIGHUP) or a closed pipe cannot take them: then only the exit code tells."""
-    warnings = warnings or []
+    from beambench.common.text import printable
+
+    # a fault or warning may quote what a device sent (an MCU's error line): no control sequences reach the terminal
+    warnings = [printable(w, None) for w in warnings or []]
+    message = printable(message, None)
     with contextlib.suppress(OSError):
         if rrd:
             typer.echo(str(path.with_suffix(".rrd")))

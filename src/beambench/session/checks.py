@@ -37,6 +37,11 @@ def _check_overrides(params: BeamParams, rig: str, file: str, given: str) -> Non
         if unknown:
             reason = f"{block}.{unknown[0][:40]}: unknown {block} parameter (see the scene's RigParams or WalkerParams)"
             raise ConfigError(file, "sim.params", given, reason)
+        switches = {f.name for cls in (RigParams, WalkerParams) for f in fields(cls) if f.type in (bool, "bool")}
+        for key, value in names.items():
+            if isinstance(value, bool) != (key in switches):
+                kind = "true or false" if key in switches else "a number"
+                raise ConfigError(file, "sim.params", given, f"{block}.{key} = {value}: must be {kind}")
 
 
 def can_log_problem(path: Path) -> str | None:

@@ -56,7 +56,12 @@ from beambench.acquisition.streams import MOTOR
 from beambench.common.oserrors import can_open_problem
 from beambench.devices.odrive import cansimple as cs
 from beambench.devices.odrive.can_log import TrafficLog
-from beambench.devices.odrive.can_timing import CanMotorTiming, receive_ns
+from beambench.devices.odrive.can_timing import (
+    MAX_FRAMES_PER_WAKE,
+    RECEIVE_COALESCE_S,
+    CanMotorTiming,
+    receive_ns,
+)
 from beambench.devices.odrive.cansimple import AxisState, ControlMode, InputMode
 from beambench.devices.odrive.telemetry import (
     MAX_BUFFERED_ROWS,
@@ -71,9 +76,6 @@ DEFAULT_TIMING = CanMotorTiming()
 IDLE_SEND_TRIES = 5  # each idle frame is sent up to this many times (a full TX queue, no memory for a moment)
 IDLE_RETRY_S = 0.02
 LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc", ".csv")  # python-can writers that keep direction or ids
-RECEIVE_COALESCE_S = 0.02  # after a frame arrives, let others gather this long: one wake-up handles them all
-MAX_FRAMES_PER_WAKE = 1024  # a flood cannot keep the receive thread from checking its stop flag
-
 
 _ERROR_REGISTERS = (cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR)
 

@@ -1,5 +1,5 @@
-"""How :class:`~beambench.devices.odrive.can_motor.OdriveCanMotor` times its work: the heartbeat timeout, the
-waits and periods (:class:`CanMotorTiming`), and when a received frame arrived (:func:`receive_ns`)."""
+"""How the CAN driver times the ODrive: its liveness timeouts, receive coalescing, the arming waits
+(:class:`CanMotorTiming`) and when a frame arrived on the monotonic clock (:func:`receive_ns`)."""
 
 from __future__ import annotations
 
@@ -15,6 +15,8 @@ import can
 # watchdog (armed over USB, watchdog_timeout_s) is what idles the motor when the host stops. The rig file sets
 # it (odrive.heartbeat_timeout_s).
 HEARTBEAT_TIMEOUT_S = 1.0
+RECEIVE_COALESCE_S = 0.02  # after a frame arrives, let others gather this long: one wake-up handles them all
+MAX_FRAMES_PER_WAKE = 1024  # a flood cannot keep the receive thread from checking its stop flag
 
 
 def receive_ns(frame: can.Message, now_ns: int, mono_minus_real_ns: int) -> int:
