@@ -200,6 +200,7 @@ NON_NEGATIVE_OVERRIDES = frozenset(
     | {"sole_damping", "sole_travel", "preroll_s", "rotor_inertia"}
 )
 MIN_OVERRIDE_TIMESTEP_S = 1e-6
+FLAG_OVERRIDES = frozenset({"sole_at_corner"})  # rig switches: true/false, not numbers
 TOP_LEVEL_KEYS = frozenset({"name", "model", "source", "beam", "rig", "walker", "bounds", "fit"})
 
 
@@ -211,12 +212,17 @@ def _in_range(value: float, where: str, key: str) -> float:
     return value
 
 
-def _overrides(block: dict[Any, Any], where: str, name: str) -> dict[str, float]:
-    """A ``rig:`` or ``walker:`` block: names to finite numbers of a physical magnitude."""
-    out = {}
+def _overrides(block: dict[Any, Any], where: str, name: str) -> dict[str, float | bool]:
+    """A ``rig:`` or ``walker:`` block: names to finite numbers of a physical magnitude (switches: true/false)."""
+    out: dict[str, float | bool] = {}
     for key, v in block.items():
-        value = _number(v, where, f"{name}.{str(key)[:40]}")
         k = str(key)
+        if k in FLAG_OVERRIDES:
+            if not isinstance(v, bool):
+                raise ParamsError(f"{where}: {name}.{k} = {shorten(v)}: must be true or false")
+            out[k] = v
+            continue
+        value = _number(v, where, f"{name}.{k[:40]}")
         if abs(value) > OVERRIDE_MAX:
             raise ParamsError(f"{where}: {name}.{k[:40]} = {value:g}: magnitude over {OVERRIDE_MAX:g}")
         if (k in POSITIVE_OVERRIDES and value <= 0) or (k in NON_NEGATIVE_OVERRIDES and value < 0):
