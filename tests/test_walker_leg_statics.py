@@ -159,19 +159,25 @@ def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
         prb3.physics.close()
 
 
-def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
-    """The run's result (stderr) carries the model's warning (a walker on a 14 MPa strip); the session is written
-    as usual (exit 0)."""
+def _soft_set(tmp_path: Path) -> Path:
+    """The shipped physical set with a 14 MPa strip, written as a parameter file (legs that fold)."""
     import yaml
 
     soft = yaml.safe_load((ROOT / "sim_backend" / "rod_physical.yaml").read_text())
     soft["beam"]["material"]["youngs_modulus"] = 14e6
-    soft_path = tmp_path / "rod_soft.yaml"
-    soft_path.write_text(yaml.safe_dump(soft))
+    path = tmp_path / "rod_soft.yaml"
+    path.write_text(yaml.safe_dump(soft))
+    return path
+
+
+def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
+    """The run's result (stderr) carries the model's warning (a walker on a 14 MPa strip); the session is written
+    as usual (exit 0)."""
     from typer.testing import CliRunner
 
     from beambench.cli import app
 
+    soft_path = _soft_set(tmp_path)
     proto = tmp_path / "w.yaml"
     proto.write_text(
         "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
@@ -186,7 +192,7 @@ def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
 
 def test_the_fold_warning_is_kept_in_the_session_and_shown_atop_the_report(tmp_path):
     """Every warning the run gave is in ``/general/warnings`` (read back as ``Session.warnings``) and is a banner
-    at the top of the report's index.html, before the figures."""
+    at the top of the report's index.html, before the figures (a walker on a 14 MPa strip, whose legs fold)."""
     from typer.testing import CliRunner
 
     from beambench.cli import app
@@ -195,7 +201,7 @@ def test_the_fold_warning_is_kept_in_the_session_and_shown_atop_the_report(tmp_p
     proto = tmp_path / "w.yaml"
     proto.write_text(
         "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-        "sim: {model: rod5g, params: physical, noise: false}\n"
+        f"sim: {{model: rod5g, params: {_soft_set(tmp_path)}, noise: false}}\n"
     )
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
     assert res.exit_code == 0, res.output
