@@ -61,11 +61,11 @@ def test_the_search_uses_the_physical_boxes_and_keeps_the_gap_inside_h_prime():
     assert contact_boxes(CalibrationBase("prb3", "contact_stuck")) == {}
 
 
-def test_the_walker_searches_its_physical_foot_and_friction_ranges():
+def test_the_walker_searches_its_physical_foot_friction_and_radius_ranges():
     physical = load_params("physical", model="rod")
     assert walker_boxes(PHYSICAL) == {
-        "foot_mass": (physical.bounds["walker.foot_mass"].min, physical.bounds["walker.foot_mass"].max),
-        "friction": (physical.bounds["walker.friction"].min, physical.bounds["walker.friction"].max),
+        name: (physical.bounds[f"walker.{name}"].min, physical.bounds[f"walker.{name}"].max)
+        for name in ("foot_mass", "friction", "eccentric_radius")
     }
     assert walker_boxes(CalibrationBase("prb3", "paper")) == {}
 

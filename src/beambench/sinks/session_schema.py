@@ -25,7 +25,9 @@ RIG = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 NUMERIC = "biuf"  # bool, int, unsigned, float
 TIME_MARGIN_NS = 60 * 10**9  # how far outside the data a step or event may lie (a step starts before its samples)
 MAX_SPAN_NS = 7 * 86400 * 10**9  # a week: longer than any run; view draws the span in 1 s windows
+SPAN_FACTOR = 20  # a stream's host times span at most this many times what its rows take at its nominal rate
 BYTES_SLACK = 1 << 20  # rows a live writer has extended but not yet written (HDF5 reads them as zeros)
+HOST_JITTER_NS = 50_000_000  # receive-time jitter a stream may show: a step back by more is refused
 MAX_DEPTH = 12  # /general nesting (a hard link to a parent group would otherwise recurse forever)
 MIN_STEP_FIELDS = {"index": "iu", "frequency_hz": "fiu", "t_start_ns": "i", "t_settled_ns": "i", "t_end_ns": "i"}
 STEP_FIELDS = {**MIN_STEP_FIELDS, "status": "S", "direction": "S", "kind": "S", "repeat": "iu"}
@@ -134,14 +136,16 @@ def _check_general_values(g: h5py.Group, where: str) -> None:
     rig = _text(g["rig"], f"{where}/rig").strip() if isinstance(g.get("rig"), h5py.Dataset) else None
     if rig is not None and not RIG.match(rig):
         raise SessionSchemaError(f"{where}/rig", f"{rig[:20]!r} is not a rig name")
-    if protocol_rig not in (None, "contact") and rig != protocol_rig:
-        said = "missing" if rig is None else f"{rig!r}"
-        raise SessionSchemaError(f"{where}/rig", f"{said}, but the protocol says rig: {str(protocol_rig)[:20]}")
+    # without /general/rig the protocol's rig: is the session's (what the readers take); only a contradiction is
+    # refused
+    if rig is not None and protocol_rig is not None and rig != protocol_rig:
+        raise SessionSchemaError(f"{where}/rig", f"{rig[:20]!r}, but the protocol says rig: {str(protocol_rig)[:20]}")
 
 
 # --- /acquisition ------------------------------------------------------------------------------------------
-def _check_stream(g: Any, where: str, budget: int) -> tuple[int, int] | None:
-    """The stream's checks; returns the first and last host time of its recorded rows, if any."""
+def _check_stream(g: Any, where: str, budget: int) -> tuple[int, int, int] | None:
+    """The stream's checks; returns the first and last host time of its recorded rows and the longest span its
+    rows allow, if it has rows."""
     _kind(g, where, h5py.Group)
     _check_stream_attrs(g, where)
     columns = dict(_members(g, where))
@@ -162,7 +166,7 @@ def _check_stream(g: Any, where: str, budget: int) -> tuple[int, int] | None:
         raise SessionSchemaError(f"{where}/host_time_ns", f"{columns['host_time_ns'].dtype}, expected int64 ns")
     if where == "/acquisition/mocap":
         _check_mocap(columns, where)
-    return _host_span(columns["host_time_ns"][()], f"{where}/host_time_ns")
+    return _host_span(columns["host_time_ns"][()], f"{where}/host_time_ns", float(g.attrs.get("rate_hz", 0.0)))
 
 
 def _check_stream_attrs(g: h5py.Group, where: str) -> None:
@@ -198,21 +202,29 @@ def _check_mocap(columns: dict[str, h5py.Dataset], where: str) -> None:
         raise SessionSchemaError(f"{where}/occluded", f"shape {occ.shape}, expected (rows, {data.shape[1]})")
 
 
-def _host_span(host: np.ndarray, where: str) -> tuple[int, int] | None:
+def _host_span(host: np.ndarray, where: str, rate_hz: float) -> tuple[int, int, int] | None:
     keep = host != 0  # rows a killed run extended but never wrote; a first row at 0 is the sim clock's start
     if len(keep) > 1 and not keep[0] and keep[1:].any():
         keep[0] = True
     real = host[keep]
     if len(real) == 0:
         return None
-    back = np.flatnonzero(np.diff(real) < 0)
+    # receive stamps jitter (a sample's host time is its batch's receive time less its place in the batch), so a
+    # stamp may fall a little behind the one before; a jump back by more than HOST_JITTER_NS is a file out of order
+    back = np.flatnonzero(np.diff(real) < -HOST_JITTER_NS)
     if len(back):
         i = int(np.flatnonzero(keep)[back[0] + 1])
-        raise SessionSchemaError(where, f"goes back in time at row {i}; host times only increase")
+        raise SessionSchemaError(
+            where, f"goes back in time at row {i}; host times only increase (up to {HOST_JITTER_NS // 10**6} ms jitter)"
+        )
     lo, hi = int(real[0]), int(real[-1])
-    if lo < 0 or hi - lo > MAX_SPAN_NS:
-        raise SessionSchemaError(where, f"spans {lo} … {hi} ns, not a run's host times")
-    return lo, hi
+    allowed = MAX_SPAN_NS
+    if rate_hz > 0:  # the rows' own duration bounds it (view draws the span in 1 s windows: no week of them)
+        allowed = min(allowed, int(SPAN_FACTOR * len(real) / rate_hz * 1e9) + TIME_MARGIN_NS)
+    if lo < 0 or hi - lo > allowed:
+        rows = f"{len(real)} rows at {rate_hz:g} Hz" if rate_hz > 0 else f"{len(real)} rows"
+        raise SessionSchemaError(where, f"spans {(hi - lo) * 1e-9:.6g} s with {rows}: not a run's host times")
+    return lo, hi, allowed
 
 
 # --- /steps, /events and their times -----------------------------------------------------------------------
@@ -222,15 +234,15 @@ def _table(ds: h5py.Dataset, where: str, fields: dict[str, str], required: dict[
     names = ds.dtype.names or ()
     if ds.ndim != 1 or not names:
         raise SessionSchemaError(where, f"a {ds.dtype} dataset of shape {ds.shape}, expected a table of rows")
+    key = "status" if "status" in fields else "kind"  # /steps: status (its kind column is optional); /events: kind
     for name, kinds in fields.items():
         if name not in names:
-            if name in required or name in ("status", "kind"):
+            if name in required or name == key:
                 raise SessionSchemaError(where, f"no {name} column")
             continue
         if ds.dtype[name].kind not in kinds or ds.dtype[name].shape != ():
             raise SessionSchemaError(f"{where} {name}", f"of type {ds.dtype[name]}, expected {_kinds(kinds)}")
     rows = ds[()]
-    key = "status" if "status" in fields else "kind"
     return rows[rows[key] != b""]
 
 
@@ -238,12 +250,12 @@ def _kinds(kinds: str) -> str:
     return {"i": "an integer", "iu": "an integer", "fiu": "a number", "S": "fixed-length text"}.get(kinds, kinds)
 
 
-def _check_times(spans: list[tuple[int, int] | None], steps: Any, events: Any) -> None:
+def _check_times(spans: list[tuple[int, int, int] | None], steps: Any, events: Any) -> None:
     known = [s for s in spans if s is not None]
     if known:
         lo, hi = min(s[0] for s in known), max(s[1] for s in known)
-        if hi - lo > MAX_SPAN_NS:
-            raise SessionSchemaError("/acquisition", "streams' host times more than a week apart")
+        if hi - lo > max(s[2] for s in known):
+            raise SessionSchemaError("/acquisition", f"the streams' host times lie {(hi - lo) * 1e-9:.6g} s apart")
     else:  # no samples (a run killed before its first batch): the steps' own starts bound the rest
         starts = steps["t_start_ns"] if len(steps) else np.zeros(1, np.int64)
         lo, hi = int(starts.min()), int(starts.max())

@@ -212,16 +212,17 @@ def _in_range(value: float, where: str, key: str) -> float:
     return value
 
 
-def _overrides(block: dict[Any, Any], where: str, name: str) -> dict[str, float | bool]:
-    """A ``rig:`` or ``walker:`` block: names to finite numbers of a physical magnitude (switches: true/false)."""
-    out: dict[str, float | bool] = {}
+def _overrides(block: dict[Any, Any], where: str, name: str) -> dict[str, float]:
+    """A ``rig:`` or ``walker:`` block: names to finite numbers of a physical magnitude, or to switches (a
+    true/false scene option such as ``rig.sole_at_corner``; the scene checks the names)."""
+    out: dict[str, float] = {}
     for key, v in block.items():
         k = str(key)
-        if k in FLAG_OVERRIDES:
-            if not isinstance(v, bool):
-                raise ParamsError(f"{where}: {name}.{k} = {shorten(v)}: must be true or false")
+        if isinstance(v, bool):
             out[k] = v
             continue
+        if k in FLAG_OVERRIDES:
+            raise ParamsError(f"{where}: {name}.{k} = {shorten(v)}: must be true or false")
         value = _number(v, where, f"{name}.{k[:40]}")
         if abs(value) > OVERRIDE_MAX:
             raise ParamsError(f"{where}: {name}.{k[:40]} = {value:g}: magnitude over {OVERRIDE_MAX:g}")
