@@ -156,7 +156,7 @@ CASES: dict[str, tuple[Any, str]] = {  # name: (edit, what the one line names)
     "streams_days_apart": (lambda f: _shift(f, "acquisition/loadcell/host_time_ns", DAYS_6), "/acquisition:"),
     "host_time_shuffled": (lambda f: _shuffle(f, "acquisition/mocap/host_time_ns"), "host_time_ns"),
     "protocol_not_yaml": (lambda f: _text(f, "general/protocol", "a: [b\n  : c: {"), "/general/protocol"),
-    "no_rig": (lambda f: f.__delitem__("general/rig"), "/general/rig"),
+    "rig_not_the_protocols": (lambda f: _text(f, "general/rig", "walker"), "/general/rig"),
     "a_dataset_resized_beyond_the_file": (
         lambda f: f["acquisition/motor/position"].resize((10**11,)),
         "/acquisition/motor/position",
@@ -175,7 +175,7 @@ CASES: dict[str, tuple[Any, str]] = {  # name: (edit, what the one line names)
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_each_edited_session_is_one_line_exit_2_in_every_command(case, sessions, tmp_path):
     edit, named = CASES[case]
-    rig = "release" if case == "no_rig" else "contact"  # a release session without /general/rig
+    rig = "release" if case == "rig_not_the_protocols" else "contact"  # a release session said to be a walker
     path = tmp_path / f"{case}.h5"
     shutil.copy(sessions[rig], path)
     with h5py.File(path, "r+") as f:
