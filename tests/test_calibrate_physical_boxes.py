@@ -20,12 +20,12 @@ from beambench.studies.calibration.search import free_unknowns
 from beambench.studies.calibration.walker import walker_boxes
 
 PHYSICAL = CalibrationBase("rod5g", "physical", SimSettings(twist_deg=90.0))
-CORNER_UNKNOWNS = ("b_scale", "friction_scale", "frame_mass_g", "mass_dx_mm")
+CORNER_UNKNOWNS = ("b_scale", "friction_scale", "frame_mass_g", "mass_dx_mm", "mass_dy_mm")
 
 
 def test_every_corner_of_the_contact_box_is_a_physical_rig():
-    """The search box of every contact unknown on the physical prior: applied at each corner (16 corners of
-    damping, friction, frame mass and load offset), the parameter set has nothing outside its bounds; the preload
+    """The search box of every contact unknown on the physical prior: applied at each corner (32 corners of
+    damping, friction, frame mass and the load offsets), the parameter set has nothing outside its bounds; the preload
     box gives h' at its physical ends at the prior's own sag."""
     boxes = contact_boxes(PHYSICAL)
     assert set(boxes) == {"preload_mm", *CORNER_UNKNOWNS}
@@ -39,11 +39,11 @@ def test_every_corner_of_the_contact_box_is_a_physical_rig():
         params = calibrated_params(PHYSICAL, dict(zip(CORNER_UNKNOWNS, corner)))
         assert params.out_of_bounds() == [], (corner, params.out_of_bounds())
     # the rig's generic boxes would have left the physical ranges: the damping scale up to 4 (beta 35 ms),
-    # the offset up to 25 mm, the frame up to 15 g, the preload -0.3..1 mm (an h' outside 4.5-6.5 mm at this sag)
+    # the frame up to 15 g; and the preload -0.3..1 mm is not h' 4.5-6.5 mm at this sag
     generic = {u.name: (u.lo, u.hi) for u in get_rig("contact").unknowns}
-    assert generic["b_scale"][1] > boxes["b_scale"][1] and generic["mass_dx_mm"][1] > boxes["mass_dx_mm"][1]
-    h_ends = [1e3 * sag - preload for preload in generic["preload_mm"]]
-    assert min(h_ends) < 1e3 * gap.min or max(h_ends) > 1e3 * gap.max
+    assert generic["b_scale"][1] > boxes["b_scale"][1] and generic["frame_mass_g"][1] > boxes["frame_mass_g"][1]
+    lo, hi = generic["preload_mm"]
+    assert (lo, hi) != pytest.approx(boxes["preload_mm"], abs=0.05)  # not the physical h' range at this sag
 
 
 def test_the_search_uses_the_physical_boxes_and_keeps_the_gap_inside_h_prime():
@@ -61,11 +61,11 @@ def test_the_search_uses_the_physical_boxes_and_keeps_the_gap_inside_h_prime():
     assert contact_boxes(CalibrationBase("prb3", "contact_stuck")) == {}
 
 
-def test_the_walker_searches_its_physical_foot_and_friction_ranges():
+def test_the_walker_searches_its_physical_foot_friction_and_radius_ranges():
     physical = load_params("physical", model="rod")
     assert walker_boxes(PHYSICAL) == {
-        "foot_mass": (physical.bounds["walker.foot_mass"].min, physical.bounds["walker.foot_mass"].max),
-        "friction": (physical.bounds["walker.friction"].min, physical.bounds["walker.friction"].max),
+        name: (physical.bounds[f"walker.{name}"].min, physical.bounds[f"walker.{name}"].max)
+        for name in ("foot_mass", "friction", "eccentric_radius")
     }
     assert walker_boxes(CalibrationBase("prb3", "paper")) == {}
 

@@ -139,7 +139,7 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     # not fitted, the prior's own value stays (the shipped default's frame mass is 10 g)
     stuck = replace(base, params="contact_stuck")
     assert calibrated_params(stuck, {"k_scale": 1.0}).rig["frame_mass"] == pytest.approx(0.010)
-    assert names["frame_mass_g"].opt_in and names["mass_dx_mm"].opt_in
+    assert names["frame_mass_g"].opt_in and names["mass_dx_mm"].opt_in and names["mass_dy_mm"].opt_in
     # the search's fixed values leave the opt-in unknowns out unless they are fixed explicitly
     from beambench.studies.calibration.search import fixed_values
 
@@ -154,7 +154,14 @@ def test_opt_in_unknowns_reach_the_scene_and_stay_out_of_the_default_search():
     from beambench.studies.calibration.contact import contact_prior
 
     assert contact_prior(stuck) == pytest.approx(
-        {"k_scale": 1.0, "b_scale": 1.0, "friction_scale": 1.0, "frame_mass_g": 10.0, "mass_dx_mm": 0.0}
+        {
+            "k_scale": 1.0,
+            "b_scale": 1.0,
+            "friction_scale": 1.0,
+            "frame_mass_g": 10.0,
+            "mass_dx_mm": 0.0,
+            "mass_dy_mm": 0.0,
+        }
     )
     # the friction is scaled from the prior's own (the stuck sole's 6, the scene's default 0.5 for the paper set)
     assert calibrated_params(stuck, {"friction_scale": 0.9}).rig["friction"] == pytest.approx(5.4)

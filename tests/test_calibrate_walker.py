@@ -14,9 +14,9 @@ from beambench.studies.calibration.targets import parse_targets
 TARGETS = parse_targets({"rig": "walker", "speed_mm_s": {23: -35.7, 65: 156.3}}, "<test>")
 
 
-def test_walker_is_calibratable_in_foot_mass_and_friction():
+def test_walker_is_calibratable_in_foot_mass_friction_and_offset_radius():
     rig = get_rig("walker")
-    assert [u.name for u in rig.unknowns] == ["foot_mass", "friction"]
+    assert [u.name for u in rig.unknowns] == ["foot_mass", "friction", "eccentric_radius"]
     assert rig.stage_sim is not None
     assert rig.stage_sim("coarse", SimSettings()).settle_s >= 3.0  # the speed needs ~3 s from rest
 

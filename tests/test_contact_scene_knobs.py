@@ -85,3 +85,52 @@ def test_mass_dy_moves_the_load_along_the_beam_axis():
     assert shift[1] == pytest.approx(dy * share, rel=0.05)
     assert abs(shift[0]) < 1e-4
     assert np.isfinite(static_sag(beam, RigParams.with_overrides({"mass_dy": dy})))
+
+
+def _rod_beam():
+    return make_beam_model("rod5g", load_params("physical", model="rod"))
+
+
+def test_the_load_frame_meets_the_plate_at_its_corner():
+    """``sole_at_corner``: the frame's lower corner (10 mm along the travel, 15 mm along the beam from the point
+    below the tip) carries the 20 g and is what touches the plate. Unloaded (no gravity), the plate lies h' below
+    that corner; at rest on the plate (0.3 mm preload) the contact is at the corner, > 10 mm from below the tip."""
+    rig = RigParams.with_overrides(
+        {"sole_at_corner": True, "mass_dx": 0.010, "mass_dy": 0.015, "clamp_roll_deg": 90.0, "friction": 1.0}
+    )
+    spec = build_contact_spec(_rod_beam(), 90.0, 0.0055, rig)
+    spec.option.gravity = [0, 0, 0]
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    sole = d.geom_xpos[m.geom("sole").id]
+    tip = d.site_xpos[m.site("beam_tip_site").id]
+    assert sole[:2] - tip[:2] == pytest.approx([0.010, 0.015], abs=1e-9)
+    plate_top = d.site_xpos[m.site("plate_site").id][2]
+    assert (sole[2] - rig.sole_radius) - plate_top == pytest.approx(0.0055, abs=1e-9)
+    assert d.site_xpos[m.site("foot").id] == pytest.approx(sole - [0, 0, rig.sole_radius], abs=1e-9)
+
+    gap = static_sag(_rod_beam(), rig) - 3e-4
+    m = build_contact_spec(_rod_beam(), 90.0, gap, rig).compile()
+    d = mujoco.MjData(m)
+    d.qpos[:] = equilibrium_qpos(m, 1.5, mujoco.mjtIntegrator.mjINT_IMPLICITFAST, 1e-4)
+    mujoco.mj_forward(m, d)
+    # the plate carries the preload's share: the corner's stiffness (~0.3 N over ~5 mm of sag) x 0.3 mm
+    assert 0.005 < _normal(m, d) < 0.05
+    tip = d.site_xpos[m.site("beam_tip_site").id]
+    assert d.ncon >= 1 and np.linalg.norm(d.contact[0].pos[:2] - tip[:2]) > 0.010  # the tilted frame: ~13 mm
+
+
+def test_a_corner_beyond_the_tip_sags_more_by_the_tips_rotation():
+    """The corner is a lever on the tip's rotation: moved away from the stage along the beam it sinks more under
+    the same 20 g, moved toward the stage less, and the differences are those of the lever (the sag grows with
+    the offset, the moment too: a convex rise)."""
+    sags = [
+        static_sag(
+            _rod_beam(),
+            RigParams.with_overrides({"sole_at_corner": True, "mass_dy": dy, "clamp_roll_deg": 90.0}),
+        )
+        for dy in (-0.015, 0.0, 0.015, 0.030)
+    ]
+    assert sags[0] < sags[1] < sags[2] < sags[3], sags
+    assert sags[3] - sags[2] > sags[2] - sags[1] > 0, sags

@@ -232,6 +232,8 @@ def test_calibrate_sim_workers_are_bounded(tmp_path):
         ("rig: {plate_gap: 1e300}", "rig.plate_gap"),
         ("rig: {contact_timeconst: -1}", "rig.contact_timeconst"),
         ("rig: {nosuch: 1}", "rig.nosuch"),
+        ("rig: {plate_gap: true}", "rig.plate_gap"),
+        ("rig: {sole_at_corner: 1}", "rig.sole_at_corner"),
         ("walker: {foot_mass: 'x'}", "walker.foot_mass"),
         ("walker: {timestep: 1e-12}", "walker.timestep"),
         ("walker: {nosuch: 1}", "walker.nosuch"),
@@ -485,3 +487,16 @@ def test_a_dangling_symlink_named_like_the_session_leaves_no_empty_recording(tmp
     assert not (out / "s.rrd").exists()
     assert (out / "s_1.h5").is_file() and (out / "s_1.rrd").stat().st_size > 0
     assert not (tmp_path / "nowhere.h5").exists()
+
+
+def test_a_run_result_quoting_a_device_prints_no_escape_sequence(tmp_path, capsys):
+    import typer
+
+    from beambench.commands.run import report_run
+
+    with pytest.raises(typer.Exit) as stop:
+        report_run("fault", f"device fault: load cells said {HOSTILE}", tmp_path / "s.h5", False, [HOSTILE])
+    assert stop.value.exit_code == 1
+    err = capsys.readouterr().err
+    assert "load cells said Motivetxt" in err and "also Motivetxt" in err, err
+    assert not any(c in err for c in "\x1b\x07\x9d\x9c\x7f\u202e"), repr(err)

@@ -156,7 +156,7 @@ CASES: dict[str, tuple[Any, str]] = {  # name: (edit, what the one line names)
     "streams_days_apart": (lambda f: _shift(f, "acquisition/loadcell/host_time_ns", DAYS_6), "/acquisition:"),
     "host_time_shuffled": (lambda f: _shuffle(f, "acquisition/mocap/host_time_ns"), "host_time_ns"),
     "protocol_not_yaml": (lambda f: _text(f, "general/protocol", "a: [b\n  : c: {"), "/general/protocol"),
-    "rig_not_the_protocols": (lambda f: _text(f, "general/rig", "walker"), "/general/rig"),
+    "rig_contradicts_protocol": (lambda f: _text(f, "general/rig", "walker"), "/general/rig"),
     "a_dataset_resized_beyond_the_file": (
         lambda f: f["acquisition/motor/position"].resize((10**11,)),
         "/acquisition/motor/position",
@@ -175,7 +175,7 @@ CASES: dict[str, tuple[Any, str]] = {  # name: (edit, what the one line names)
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_each_edited_session_is_one_line_exit_2_in_every_command(case, sessions, tmp_path):
     edit, named = CASES[case]
-    rig = "release" if case == "rig_not_the_protocols" else "contact"  # a release session said to be a walker
+    rig = "release" if case == "rig_contradicts_protocol" else "contact"  # a release session that says walker
     path = tmp_path / f"{case}.h5"
     shutil.copy(sessions[rig], path)
     with h5py.File(path, "r+") as f:
@@ -191,6 +191,20 @@ def test_each_edited_session_is_one_line_exit_2_in_every_command(case, sessions,
     assert named in line, line
     assert path.read_bytes() == before  # nothing written into the session
     assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]  # no report, recording or fit folder
+
+
+def test_a_release_session_without_its_rig_entry_is_read_as_its_protocol_says(sessions, tmp_path):
+    """/general/rig missing: the protocol's rig: is the session's (a release session is analysed as one)."""
+    from beambench.analysis.session import session_rig
+
+    path = tmp_path / "no_rig.h5"
+    shutil.copy(sessions["release"], path)
+    with h5py.File(path, "r+") as f:
+        del f["general/rig"]
+    s = read_session(path)
+    assert "rig" not in s.general and session_rig(dict(s.general)) == "release"
+    code, out = _invoke(["analyze", str(path), "--out", str(tmp_path / "r"), "--no-write", "--figures", "none"])
+    assert code == 0 and "Traceback" not in out, out
 
 
 def test_junk_after_the_hdf5_signature_is_one_line(sessions, tmp_path):

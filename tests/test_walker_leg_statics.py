@@ -18,6 +18,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 import pytest
+import yaml
 
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.params import load_params
@@ -33,8 +34,29 @@ SOFT = replace(PHYSICAL, material=replace(PHYSICAL.material, youngs_modulus=14e6
 G = 9.81
 
 
+# the contact rig's foot (66.5 mm, its 20 g load) on sideways legs clamped width-vertical, unraked: the walker these
+# statics are about (the shipped walker's own short feet: tests/test_walker_twin.py)
+FOLDING = {"foot_length": 0.0665, "foot_mass": 0.020, "leg_mount_deg": 0.0, "leg_roll_deg": 0.0, "spin": -1.0}
+
+
 def _walker(beam: BeamModel = BEAM, **overrides: float) -> WalkerSim:
-    return WalkerSim(beam, 90.0, WalkerParams.with_overrides({**PHYSICAL.walker, **overrides}))
+    return WalkerSim(beam, 90.0, WalkerParams.with_overrides({**PHYSICAL.walker, **FOLDING, **overrides}))
+
+
+def folding_protocol(tmp_path: Path) -> Path:
+    """A one-step walker protocol on a 14 MPa strip under the contact rig's foot (legs that fold), its parameters a
+    copy of the physical set's file."""
+    soft = yaml.safe_load((ROOT / "sim_backend" / "rod_physical.yaml").read_text())
+    soft["beam"]["material"]["youngs_modulus"] = 14e6
+    soft["walker"].update(FOLDING)
+    soft_path = tmp_path / "rod_soft.yaml"
+    soft_path.write_text(yaml.safe_dump(soft))
+    proto = tmp_path / "w.yaml"
+    proto.write_text(
+        "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
+        f"sim: {{model: rod5g, params: {soft_path}, noise: false}}\n"
+    )
+    return proto
 
 
 def walker_normal_forces(sim: WalkerSim) -> dict[str, float]:
@@ -76,7 +98,7 @@ def test_hanging_legs_stand_and_share_the_weight_by_the_moment_balance(motor_x):
 
 
 def test_the_anchored_strip_legs_carry_the_walker_below_their_torsional_limit():
-    """The shipped physical walker (sideways legs, 66.5 mm foot, the beam anchored to the release test): each sole
+    """The physical legs (the beam anchored to the release test) under the contact rig's 66.5 mm foot: each sole
     carries less than the torsional limit GJ_twisted/(L·l) of the pre-twisted strip, though more than Saint-Venant's
     GJ alone would hold (the trapeze term is what carries it), and the body stays above half its clamp height for
     1 s, motor off."""
@@ -131,7 +153,7 @@ def test_a_light_body_on_sideways_legs_stands_below_the_torsional_limit():
 
 def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
     """``leg_fold`` (the run's and the dry run's warning) names a walker on a 14 MPa strip, whose sole load beats
-    the torsional limit; not the shipped physical walker (its anchored strip holds), nor the PRB3 walker, nor legs
+    the torsional limit; not the anchored strip under the same foot (it holds), nor the PRB3 walker, nor legs
     hanging down. Its sole load is the standing PRB3 walker's measured contact force per sole within 3 %."""
     from beambench.sim.scenes.walker import leg_fold
 
@@ -162,21 +184,11 @@ def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
 def test_a_run_of_a_folding_walker_ends_with_the_fold_warning(tmp_path):
     """The run's result (stderr) carries the model's warning (a walker on a 14 MPa strip); the session is written
     as usual (exit 0)."""
-    import yaml
-
-    soft = yaml.safe_load((ROOT / "sim_backend" / "rod_physical.yaml").read_text())
-    soft["beam"]["material"]["youngs_modulus"] = 14e6
-    soft_path = tmp_path / "rod_soft.yaml"
-    soft_path.write_text(yaml.safe_dump(soft))
     from typer.testing import CliRunner
 
     from beambench.cli import app
 
-    proto = tmp_path / "w.yaml"
-    proto.write_text(
-        "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-        f"sim: {{model: rod5g, params: {soft_path}, noise: false}}\n"
-    )
+    proto = folding_protocol(tmp_path)
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
     assert res.exit_code == 0, res.output
     assert "beambench: warning: the walker's rod5g legs fold" in res.stderr, res.stderr
@@ -192,11 +204,7 @@ def test_the_fold_warning_is_kept_in_the_session_and_shown_atop_the_report(tmp_p
     from beambench.cli import app
     from beambench.sinks.hdf5 import read_session
 
-    proto = tmp_path / "w.yaml"
-    proto.write_text(
-        "name: w\nrig: walker\nbackend: sim\nsweep: {frequencies: [10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-        "sim: {model: rod5g, params: physical, noise: false}\n"
-    )
+    proto = folding_protocol(tmp_path)
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
     assert res.exit_code == 0, res.output
     session = tmp_path / res.stdout.strip().splitlines()[-1]

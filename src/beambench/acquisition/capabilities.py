@@ -79,6 +79,13 @@ class RefusesForeign(Protocol):
 
 
 @runtime_checkable
+class PacksAhead(Protocol):
+    """A transport that encodes a message once, ahead of sending it: sending it later needs no memory."""
+
+    def keep_packed(self, msg: Any) -> None: ...
+
+
+@runtime_checkable
 class Motor(Stream, Protocol):
     """The drive: crank speed f turn/s gives the stage x = A·sin(2πft). Also a telemetry stream."""
 
@@ -95,6 +102,22 @@ class Motor(Stream, Protocol):
     def check(self) -> None:
         """Raise :class:`DeviceFault` if the motor reports an error or its heartbeat was lost."""
         ...
+
+
+@runtime_checkable
+class ConfirmsIdle(Protocol):
+    """A motor that reports its own state: after ``idle()``, whether the device confirms it is idle."""
+
+    def confirm_idle(self) -> str:
+        """ "motor idle …" once the device says so, else "motor idle NOT confirmed; …" (what idles it then)."""
+        ...
+
+
+@runtime_checkable
+class ReportsSinkFailure(Protocol):
+    """A device that writes a file of its own (the CAN traffic log): why that file stopped early, or None."""
+
+    def sink_failure(self) -> str | None: ...
 
 
 @runtime_checkable

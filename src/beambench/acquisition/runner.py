@@ -39,10 +39,12 @@ from beambench.acquisition.batch import StepRecord
 from beambench.acquisition.capabilities import (
     Anticipates,
     ChecksDevices,
+    ConfirmsIdle,
     DeviceFault,
     HasIdleTail,
     MotorLimits,
     ReportsDeviceHealth,
+    ReportsSinkFailure,
     Rig,
 )
 from beambench.acquisition.hub import Hub, SinkFailure
@@ -52,6 +54,10 @@ from beambench.acquisition.plan import Step
 
 class Terminated(BaseException):
     """Kept for callers that raise it themselves: treated like a SIGTERM (the run ends as interrupted)."""
+
+
+class _DeviceSinkFailed(Exception):
+    """A device's own file (the CAN log) failed: the run stops as a sink failure (exit 4), motor idle first."""
 
 
 class _Stopped(BaseException):
@@ -64,6 +70,7 @@ class RunResult:
     steps_done: int
     message: str = ""
     warnings: list[str] = field(default_factory=list)  # what went wrong besides (a live view or recording lost)
+    idle: str = "motor idled"  # what the motor's state is known to be at the end (confirmed by the device or not)
 
 
 ProgressCallback = Callable[[int, float, float], None]  # (step index, frequency, rig seconds just waited)
@@ -192,6 +199,11 @@ def stop_on_signals(stop: StopSignal | None = None, *, then_ignore: bool = False
             signal.signal(signum, signal.SIG_IGN if then_ignore else previous)
 
 
+def _thread_start_failed(exc: RuntimeError) -> bool:
+    """CPython's "can't start new thread" (no memory or no thread left for one): a resource, not a bug."""
+    return "can't start new thread" in str(exc)
+
+
 class Runner:
     """Runs ``steps`` on ``rig``, streaming every batch to ``hub`` every ``poll_s`` of rig time."""
 
@@ -235,7 +247,7 @@ class Runner:
                 result = RunResult("completed", self.steps_done, "all steps done")
             except _Stopped:
                 result = RunResult("interrupted", self.steps_done, self.stop.reason)
-            except SinkFailure as exc:
+            except (SinkFailure, _DeviceSinkFailed) as exc:
                 result = RunResult("failed", self.steps_done, str(exc))
             except KeyboardInterrupt:  # raised by code outside our handlers (e.g. a caller's thread)
                 result = RunResult("interrupted", self.steps_done, "interrupted by user (SIGINT)")
@@ -246,20 +258,36 @@ class Runner:
                     result = RunResult("interrupted", self.steps_done, f"{self.stop.reason}; then {exc}")
                 else:
                     result = RunResult("fault", self.steps_done, f"device fault: {exc}")
+            except MemoryError:  # the shutdown below idles the motor without allocating; then one line
+                result = RunResult("error", self.steps_done, "out of memory (MemoryError)")
+            except RuntimeError as exc:
+                if not _thread_start_failed(exc):
+                    result = RunResult("error", self.steps_done, f"{type(exc).__name__}: {exc}")
+                    raise
+                result = RunResult("error", self.steps_done, f"out of resources: {exc}")
             except Exception as exc:
                 result = RunResult("error", self.steps_done, f"{type(exc).__name__}: {exc}")
                 raise
             finally:
                 self._shutdown(result)
-                failure = self.hub.failure
-                if failure is not None and result.status != "failed":  # the file failed while closing
+                failure = self.hub.failure or self._device_sink_failure()
+                if failure is not None and result.status != "failed":  # a file failed while closing
                     before = f"; the run had {result.status}: {result.message}" if result.status != "completed" else ""
                     result.status, result.message = "failed", f"{failure}{before}"
             return result
 
+    def _say_lost(self, now_ns: int, health: dict[str, dict[str, Any]], result: RunResult) -> None:
+        """Frames a stream's device sent that never arrived: a ``lost`` event and a warning (said on stderr)."""
+        for stream, counts in sorted(health.items()):
+            lost, got = counts.get("dropped", 0), counts.get("received", 0)
+            if isinstance(lost, int) and isinstance(got, int) and lost > 0:
+                text = f"{stream}: {lost} frames lost of {lost + got} ({100 * lost / (lost + got):.1f} %)"
+                self._log_event(now_ns, "lost", text)
+                result.warnings.append(text)
+
     def _log_event(self, now_ns: int, kind: str, message: str) -> None:
         """An event during the shutdown: a sink failing now is in ``hub.failure``, never raised."""
-        with contextlib.suppress(SinkFailure):
+        with contextlib.suppress(SinkFailure, MemoryError):
             self.hub.event(now_ns, kind, message)
 
     def _check_stop(self) -> None:
@@ -354,6 +382,13 @@ class Runner:
             self.rig.check()  # the motor, then every stream's liveness
         else:
             self.rig.motor.check()
+        failed = self._device_sink_failure()
+        if failed is not None:
+            raise _DeviceSinkFailed(failed)
+
+    def _device_sink_failure(self) -> str | None:
+        motor = self.rig.motor
+        return motor.sink_failure() if isinstance(motor, ReportsSinkFailure) else None
 
     def _problem(self) -> tuple[str | None, int]:
         """(the monitors' reasons joined, or None; the earliest time the data went bad)."""
@@ -372,11 +407,14 @@ class Runner:
         the rig and the sinks are closed: a sink that fails now is only recorded (``hub.failure``)."""
         # Signals during shutdown only set the stop flag (see run()): they cannot skip the idle.
         try:
+            said = "motor commanded to idle"
             try:
                 self.rig.motor.idle()
+                if isinstance(self.rig.motor, ConfirmsIdle):
+                    said = result.idle = self.rig.motor.confirm_idle()
             except Exception as exc:  # the idle attempt must not hide the original problem
                 self._log_event(self.rig.clock.now_ns(), "error", f"idle failed: {exc}")
-            self._log_event(self.rig.clock.now_ns(), "idle", "motor commanded to idle")
+            self._log_event(self.rig.clock.now_ns(), "idle", said)
             try:
                 # real devices: record a short tail so the session shows the motor stopping
                 if isinstance(self.rig, HasIdleTail) and self.rig.idle_tail_s > 0:
@@ -402,6 +440,7 @@ class Runner:
                 for stream, counts in sorted(health.items()):
                     listed = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
                     self._log_event(now, "devices", f"{stream}: {listed}")
+                self._say_lost(now, health, result)
             kind = {"completed": "stop"}.get(result.status, result.status)
             if result.status != "failed" and self.hub.failure is not None:
                 kind, result.message = "failed", f"{self.hub.failure}; the run had {result.status}: {result.message}"

@@ -615,6 +615,7 @@ def build_emulated_rig(
             timing=CanMotorTiming(
                 heartbeat_timeout_s=wiring.odrive.heartbeat_timeout_s,
                 telemetry_timeout_s=wiring.odrive.telemetry_timeout_s,
+                watchdog_timeout_s=wiring.odrive.watchdog_timeout_s,
             ),
         )
         loadcells = SerialLoadCells(ready["loadcell_port"], silence_timeout_s=wiring.loadcell.silence_timeout_s)

@@ -176,7 +176,11 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
         od.node_id,
         bitrate=od.bitrate,
         can_log=can_log,
-        timing=CanMotorTiming(heartbeat_timeout_s=od.heartbeat_timeout_s, telemetry_timeout_s=od.telemetry_timeout_s),
+        timing=CanMotorTiming(
+            heartbeat_timeout_s=od.heartbeat_timeout_s,
+            telemetry_timeout_s=od.telemetry_timeout_s,
+            watchdog_timeout_s=od.watchdog_timeout_s,
+        ),
         **can_kw,
     )
 

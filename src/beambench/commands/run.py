@@ -120,7 +120,9 @@ def run(
         fail(str(exc))
     except RigStartError as exc:
         fail(f"{exc} (motor idled; no session written)", EXIT_FAULT)
-    report_run(result.status, result.message, path, mode == "save", result.warnings)
+    except MemoryError:  # outside the runner (opening, closing): the rig's close has idled the motor
+        fail("run error: out of memory (MemoryError) (motor idled)", EXIT_FAULT)
+    report_run(result.status, result.message, path, mode == "save", result.warnings, result.idle)
 
 
 def protocol_rig_file(protocol: Protocol, protocol_file: Path) -> Path | None:
@@ -135,11 +137,17 @@ def protocol_rig_file(protocol: Protocol, protocol_file: Path) -> Path | None:
 RUN_EXIT_CODES = {"completed": EXIT_OK, "interrupted": EXIT_STOPPED, "failed": EXIT_SINK}
 
 
-def report_run(status: str, message: str, path: Path, rrd: bool, warnings: list[str] | None = None) -> None:
+def report_run(
+    status: str, message: str, path: Path, rrd: bool, warnings: list[str] | None = None, idle: str = "motor idled"
+) -> None:
     """The result on stdout (the .rrd, then the session), one line on stderr unless completed (with what else
     failed, e.g. the recording on the same full disk), the exit code. A completed run's warnings are a line each.
     A terminal that hung up (SIGHUP) or a closed pipe cannot take them: then only the exit code tells."""
-    warnings = warnings or []
+    from beambench.common.text import printable
+
+    # a fault or warning may quote what a device sent (an MCU's error line): no control sequences reach the terminal
+    warnings = [printable(w, None) for w in warnings or []]
+    message = printable(message, None)
     with contextlib.suppress(OSError):
         if rrd:
             typer.echo(str(path.with_suffix(".rrd")))
@@ -152,7 +160,7 @@ def report_run(status: str, message: str, path: Path, rrd: bool, warnings: list[
     saved = "the session holds what was written before" if status == "failed" else "session saved"
     also = "".join(f"; also {w}" for w in warnings)
     with contextlib.suppress(OSError):
-        typer.echo(f"beambench: run {status}: {message} (motor idled; {saved}){also}", err=True)
+        typer.echo(f"beambench: run {status}: {message} ({idle}; {saved}){also}", err=True)
     raise typer.Exit(RUN_EXIT_CODES.get(status, EXIT_FAULT))
 
 

@@ -42,6 +42,7 @@ class LoopbackCanBus(can.BusABC):
         self.host = host
         self.port = int(self._sock.getsockname()[1])
         self._peer: tuple[str, int] | None = None
+        self._packed: dict[int, tuple[can.Message, bytes]] = {}  # keep_packed(): id -> (message, its datagram)
         self.received = 0  # frames accepted from the other end
         self.forged = 0  # datagrams from any other sender: dropped
         self.garbled = 0  # datagrams from the other end that are no python-can frame: dropped
@@ -77,9 +78,15 @@ class LoopbackCanBus(can.BusABC):
         if self._peer is None:
             raise can.CanOperationError("the loopback CAN bus has no other end yet")
         try:
-            self._sock.sendto(pack_message(msg), self._peer)
+            kept = self._packed.get(id(msg))
+            self._sock.sendto(kept[1] if kept is not None and kept[0] is msg else pack_message(msg), self._peer)
         except OSError as exc:
             raise can.CanOperationError(f"loopback CAN send failed: {exc}") from exc
+
+    def keep_packed(self, msg: can.Message) -> None:
+        """Pack ``msg`` now: sending this very message later needs no memory (an idle frame, sent when the
+        process may have none left)."""
+        self._packed[id(msg)] = (msg, pack_message(msg))
 
     def fileno(self) -> int:
         return self._sock.fileno()

@@ -7,6 +7,7 @@ loads, the limits, and the run's options (``--can-log``).
 
 from __future__ import annotations
 
+import os
 from dataclasses import fields
 from pathlib import Path
 
@@ -36,6 +37,31 @@ def _check_overrides(params: BeamParams, rig: str, file: str, given: str) -> Non
         if unknown:
             reason = f"{block}.{unknown[0][:40]}: unknown {block} parameter (see the scene's RigParams or WalkerParams)"
             raise ConfigError(file, "sim.params", given, reason)
+        switches = {f.name for cls in (RigParams, WalkerParams) for f in fields(cls) if f.type in (bool, "bool")}
+        for key, value in names.items():
+            if isinstance(value, bool) != (key in switches):
+                kind = "true or false" if key in switches else "a number"
+                raise ConfigError(file, "sim.params", given, f"{block}.{key} = {value}: must be {kind}")
+
+
+def can_log_problem(path: Path) -> str | None:
+    """Why ``path`` cannot take a new CAN log (checked before anything moves), or None. A log is a new regular
+    file in a folder this process can write: never a device (``/dev/full``), a folder, or a file it would
+    truncate."""
+    if path.is_symlink() or path.exists():
+        if path.is_dir():
+            return "is a folder"
+        if not path.is_file():
+            return "is not a regular file (a device, a pipe or a broken link)"
+        return "exists; give a new file (a CAN log is never overwritten)"
+    folder = path.parent
+    while not folder.exists() and folder != folder.parent:  # the folders the log would create
+        folder = folder.parent
+    if not folder.is_dir():
+        return f"{folder} is not a folder"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"folder {folder} cannot be written (read-only or no permission)"
+    return None
 
 
 def check_protocol(protocol: Protocol, file: str, backend: str | None = None, can_log: Path | None = None) -> None:
@@ -60,5 +86,6 @@ def check_protocol(protocol: Protocol, file: str, backend: str | None = None, ca
             )
         if can_log.suffix.lower() not in LOG_SUFFIXES:
             raise ConfigError("<cli>", "--can-log", shorten(str(can_log)), f"use a {' or '.join(LOG_SUFFIXES)} file")
-        if can_log.exists() and not can_log.is_file():
-            raise ConfigError("<cli>", "--can-log", str(can_log), "is a folder")
+        problem = can_log_problem(can_log)
+        if problem is not None:
+            raise ConfigError("<cli>", "--can-log", shorten(str(can_log)), problem)

@@ -25,9 +25,9 @@ RIG = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 NUMERIC = "biuf"  # bool, int, unsigned, float
 TIME_MARGIN_NS = 60 * 10**9  # how far outside the data a step or event may lie (a step starts before its samples)
 MAX_SPAN_NS = 7 * 86400 * 10**9  # a week: longer than any run; view draws the span in 1 s windows
-MAX_BACK_FRACTION, MAX_BACK_NS = 0.01, 10**9  # host times are in order but for rare small steps back
 SPAN_FACTOR = 20  # a stream's host times span at most this many times what its rows take at its nominal rate
 BYTES_SLACK = 1 << 20  # rows a live writer has extended but not yet written (HDF5 reads them as zeros)
+HOST_JITTER_NS = 50_000_000  # receive-time jitter a stream may show: a step back by more is refused
 MAX_DEPTH = 12  # /general nesting (a hard link to a parent group would otherwise recurse forever)
 MIN_STEP_FIELDS = {"index": "iu", "frequency_hz": "fiu", "t_start_ns": "i", "t_settled_ns": "i", "t_end_ns": "i"}
 STEP_FIELDS = {**MIN_STEP_FIELDS, "status": "S", "direction": "S", "kind": "S", "repeat": "iu"}
@@ -136,8 +136,10 @@ def _check_general_values(g: h5py.Group, where: str) -> None:
     rig = _text(g["rig"], f"{where}/rig").strip() if isinstance(g.get("rig"), h5py.Dataset) else None
     if rig is not None and not RIG.match(rig):
         raise SessionSchemaError(f"{where}/rig", f"{rig[:20]!r} is not a rig name")
-    if rig is not None and isinstance(protocol_rig, str) and rig != protocol_rig:
-        raise SessionSchemaError(f"{where}/rig", f"{rig!r}, but the protocol says rig: {protocol_rig[:20]}")
+    # without /general/rig the protocol's rig: is the session's (what the readers take); only a contradiction is
+    # refused
+    if rig is not None and protocol_rig is not None and rig != protocol_rig:
+        raise SessionSchemaError(f"{where}/rig", f"{rig[:20]!r}, but the protocol says rig: {str(protocol_rig)[:20]}")
 
 
 # --- /acquisition ------------------------------------------------------------------------------------------
@@ -207,10 +209,14 @@ def _host_span(host: np.ndarray, where: str, rate_hz: float) -> tuple[int, int, 
     real = host[keep]
     if len(real) == 0:
         return None
-    steps = np.diff(real)
-    back = np.flatnonzero(steps < 0)  # receive-time estimates may step back a little, now and then; shuffled
-    if len(back) and (len(back) > MAX_BACK_FRACTION * len(steps) or steps.min() < -MAX_BACK_NS):  # rows do a lot
-        raise SessionSchemaError(where, f"goes back in time {len(back)} times (by up to {-steps.min() * 1e-9:.3g} s)")
+    # receive stamps jitter (a sample's host time is its batch's receive time less its place in the batch), so a
+    # stamp may fall a little behind the one before; a jump back by more than HOST_JITTER_NS is a file out of order
+    back = np.flatnonzero(np.diff(real) < -HOST_JITTER_NS)
+    if len(back):
+        i = int(np.flatnonzero(keep)[back[0] + 1])
+        raise SessionSchemaError(
+            where, f"goes back in time at row {i}; host times only increase (up to {HOST_JITTER_NS // 10**6} ms jitter)"
+        )
     lo, hi = int(real[0]), int(real[-1])
     allowed = MAX_SPAN_NS
     if rate_hz > 0:  # the rows' own duration bounds it (view draws the span in 1 s windows: no week of them)
@@ -230,6 +236,7 @@ def _table(
     names = ds.dtype.names or ()
     if ds.ndim != 1 or not names:
         raise SessionSchemaError(where, f"a {ds.dtype} dataset of shape {ds.shape}, expected a table of rows")
+    key = "status" if "status" in fields else "kind"  # /steps: status (its kind column is optional); /events: kind
     for name, kinds in fields.items():
         if name not in names:
             if name in required or name == key:

@@ -77,6 +77,10 @@ class LoadCellPing:
         )
 
 
+MAX_LOST_FRACTION = 0.05  # of the frames expected in one window: more is a fault that stops the run
+LOST_WINDOW_FRAMES = 1000  # frames expected (received + lost) per window: 1 s at 1 kHz
+
+
 class SerialLoadCells(StreamDriver):
     """The load-cell plate on a serial port (a device path or any pyserial URL, e.g. ``socket://host:port``).
 
@@ -111,6 +115,7 @@ class SerialLoadCells(StreamDriver):
         self._seq = Unwrap32()
         self._edges = Unwrap32()
         self.samples_delivered = 0
+        self._window = (0, 0)  # (received, dropped) when the current loss window began
 
     @property
     def last_frame_ns(self) -> int | None:
@@ -179,6 +184,23 @@ class SerialLoadCells(StreamDriver):
             queued = len(self._rows)
         d.update(samples_delivered=self.samples_delivered, samples_queued=queued, fault=self._fault)
         return d
+
+    def _check_health(self) -> None:
+        """Also: more than ``MAX_LOST_FRACTION`` of the frames expected in a window of ``LOST_WINDOW_FRAMES``
+        lost (sequence gaps: another program reading the port, a failing cable) is a fault."""
+        super()._check_health()
+        with self._lock:
+            got, lost = self.counters.received, self.counters.dropped
+            got0, lost0 = self._window
+            expected, missing = (got - got0) + (lost - lost0), lost - lost0
+            if expected < LOST_WINDOW_FRAMES:
+                return
+            self._window = (got, lost)
+        if missing > MAX_LOST_FRACTION * expected:
+            raise DeviceFault(
+                f"{self.name}: {missing} of {expected} frames lost ({100 * missing / expected:.1f} % > "
+                f"{100 * MAX_LOST_FRACTION:g} %): another program reading {self.port}, or a failing link?"
+            )
 
     def check(self, silence_s: float | None = None) -> None:
         """Raise :class:`DeviceFault` if the port failed or no frame arrived for ``silence_s`` (default: the

@@ -42,21 +42,26 @@ other python-can formats work too), fed by the receive thread and the senders.
 from __future__ import annotations
 
 import contextlib
-import copy
 import math
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import can
 
-from beambench.acquisition.capabilities import DeviceFault, MotorLimits, RefusesForeign
+from beambench.acquisition.capabilities import DeviceFault, MotorLimits, PacksAhead, RefusesForeign
 from beambench.acquisition.streams import MOTOR
 from beambench.common.oserrors import can_open_problem
 from beambench.devices.odrive import cansimple as cs
+from beambench.devices.odrive.can_log import TrafficLog
+from beambench.devices.odrive.can_timing import (
+    MAX_FRAMES_PER_WAKE,
+    RECEIVE_COALESCE_S,
+    CanMotorTiming,
+    receive_ns,
+)
 from beambench.devices.odrive.cansimple import AxisState, ControlMode, InputMode
 from beambench.devices.odrive.telemetry import (
     MAX_BUFFERED_ROWS,
@@ -67,76 +72,12 @@ from beambench.devices.odrive.telemetry import (
 )
 from beambench.devices.receive_time import mono_minus_real_ns
 
-# The ODrive sends its heartbeat every axis.config.can.heartbeat_rate_ms, 100 ms by default, and
-# Encoder_Estimates every encoder_rate_ms, 10 ms by default (firmware 0.5.x: CANConfig_t in
-# Firmware/MotorControl/axis.hpp; CAN protocol docs, https://docs.odriverobotics.com/v/0.5.6/can-protocol.html,
-# "cyclic messages"). A timeout of ten heartbeat periods outlasts a busy host's scheduling hiccups (a 573 ms gap
-# was seen on a loaded 2-core machine) while a dead link is still noticed within a second; the ODrive's own
-# watchdog (armed over USB, watchdog_timeout_s) is what idles the motor when the host stops. The rig file sets
-# it (odrive.heartbeat_timeout_s).
-HEARTBEAT_TIMEOUT_S = 1.0
+DEFAULT_TIMING = CanMotorTiming()
+IDLE_SEND_TRIES = 5  # each idle frame is sent up to this many times (a full TX queue, no memory for a moment)
+IDLE_RETRY_S = 0.02
 LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc", ".csv")  # python-can writers that keep direction or ids
-RECEIVE_COALESCE_S = 0.02  # after a frame arrives, let others gather this long: one wake-up handles them all
-MAX_FRAMES_PER_WAKE = 1024  # a flood cannot keep the receive thread from checking its stop flag
-
 
 _ERROR_REGISTERS = (cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR)
-
-
-class _TrafficLog:
-    """python-can's ``can.Logger`` shared by the receive thread (received) and senders (sent), locked."""
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._writer = can.Logger(str(self.path))
-        self._lock = threading.Lock()
-        self._closed = False
-
-    def on_message_received(self, msg: can.Message) -> None:
-        number = can.util.channel2int(msg.channel)
-        if msg.channel is not None and (number is None or not 0 <= number < 0xFFFF):
-            # .blf stores the channel as a 16-bit number read off the name's trailing digits; a name such as
-            # a virtual bus "odrive-…93817" would overflow it: log such frames on the file's default channel
-            msg = copy.copy(msg)
-            msg.channel = None
-        with self._lock:
-            if not self._closed:
-                self._writer.on_message_received(msg)
-
-    __call__ = on_message_received
-
-    def stop(self) -> None:
-        with self._lock:
-            if not self._closed:
-                self._closed = True
-                self._writer.stop()
-
-
-def receive_ns(frame: can.Message, now_ns: int, mono_minus_real_ns: int) -> int:
-    """When ``frame`` arrived, on the monotonic clock: python-can's timestamp moved from the wall clock when it
-    is one (not after ``now_ns``, at most a second before it); otherwise ``now_ns`` (an interface whose stamps
-    run on another clock, or none)."""
-    ts = frame.timestamp
-    if ts:
-        stamped = int(ts * 1e9) + mono_minus_real_ns
-        if now_ns - 1_000_000_000 <= stamped <= now_ns:
-            return stamped
-    return now_ns
-
-
-@dataclass(frozen=True)
-class CanMotorTiming:
-    """How :class:`OdriveCanMotor` arms and watches the axis: calibration, the waits, the liveness timeouts and the
-    periods of its watchdog feeder and poller (seconds)."""
-
-    calibrate: bool = True  # run the full calibration sequence when arming
-    calibration_timeout_s: float = 30.0
-    closed_loop_timeout_s: float = 2.0
-    heartbeat_timeout_s: float = HEARTBEAT_TIMEOUT_S  # no heartbeat this long: a fault
-    telemetry_timeout_s: float | None = 1.0  # no Encoder_Estimates this long while streaming: a fault (None: off)
-    feed_period_s: float = 0.05  # watchdog feed
-    poll_period_s: float = 0.05  # bus voltage / current requests
 
 
 class OdriveCanMotor(TelemetryStream):
@@ -159,7 +100,7 @@ class OdriveCanMotor(TelemetryStream):
         bus: can.BusABC | None = None,
         own_bus: bool | None = None,
         can_log: str | Path | None = None,
-        timing: CanMotorTiming = CanMotorTiming(),
+        timing: CanMotorTiming = DEFAULT_TIMING,
         extended_id: bool = False,
     ) -> None:
         cs.arbitration_id(node_id, 0, extended_id)  # validates the node id
@@ -180,7 +121,7 @@ class OdriveCanMotor(TelemetryStream):
         self._own_bus = bus is None if own_bus is None else own_bus
         self._receiver: threading.Thread | None = None
         self._receiver_stop = threading.Event()
-        self._log: _TrafficLog | None = None
+        self._log: TrafficLog | None = None
         self._tx_lock = threading.Lock()
         self._cond = threading.Condition()  # guards everything below
         self._guard = self._cond
@@ -218,6 +159,13 @@ class OdriveCanMotor(TelemetryStream):
         self._feeder_stop = threading.Event()
         self._tx_paused = False
         self._closed = False
+        self._tick_ns: int | None = None  # the feeder's last wake-up: a longer gap than a heartbeat timeout is
+        self._stall_ns = 0  # the host's own stall (no CPU time: suspended, swapping), not the ODrive's silence
+        # the idle frames, built now: sending them must not need memory the run may have run out of
+        self._idle_sent_ns: int | None = None
+        self._idle_frames = tuple(
+            cs.to_can(node_id, m, extended_id) for m in (cs.SetAxisState(AxisState.IDLE), cs.SetInputVel(0.0, 0.0))
+        )
 
     # ------------------------------------------------------------------ bus lifecycle
     def open(self) -> None:
@@ -235,8 +183,11 @@ class OdriveCanMotor(TelemetryStream):
             except (can.CanError, OSError, ValueError, ImportError) as exc:
                 why = can_open_problem(self.interface, self.channel, exc, self.bitrate)
                 raise DeviceFault(f"cannot open CAN bus {self.interface}:{self.channel}: {why}") from exc
+        if isinstance(self._bus, PacksAhead):
+            for frame in self._idle_frames:
+                self._bus.keep_packed(frame)
         if self.can_log is not None:
-            self._log = _TrafficLog(self.can_log)
+            self._log = TrafficLog(self.can_log)
         with self._cond:
             self._opened_ns = time.monotonic_ns()
         self._receiver_stop.clear()
@@ -275,6 +226,11 @@ class OdriveCanMotor(TelemetryStream):
         self.close()
 
     # ------------------------------------------------------------------ sending
+    def sink_failure(self) -> str | None:
+        """Why the ``--can-log`` file stopped early (a full disk), or None."""
+        log = self._log
+        return log.failure if log is not None else None
+
     def _send(self, msg: can.Message) -> None:
         if self._bus is None:
             raise DeviceFault("CAN bus is not open")
@@ -321,7 +277,8 @@ class OdriveCanMotor(TelemetryStream):
             except Exception as exc:  # e.g. the bus closing under us: recorded, never a traceback
                 if stop.is_set():
                     return
-                self.rx_errors.append(f"{type(exc).__name__}: {exc}")
+                with contextlib.suppress(MemoryError):
+                    self.rx_errors.append(f"{type(exc).__name__}: {exc}")
                 time.sleep(0.01)  # a dead interface must not spin this thread; the heartbeat check reports it
 
     def _on_rx(self, frame: can.Message, host_ns: int | None = None) -> None:
@@ -389,6 +346,8 @@ class OdriveCanMotor(TelemetryStream):
                 continue
             now_ns = time.monotonic_ns()
             with self._cond:
+                self._note_stall_locked(now_ns)
+                self._tick_ns = now_ns
                 lost = self._heartbeat_lost_locked(now_ns)
                 armed, setpoint, hb = self._armed, self._setpoint, self._hb
                 if lost and armed and self._fault is None:
@@ -418,15 +377,35 @@ class OdriveCanMotor(TelemetryStream):
         self._tx_paused = False
 
     # ------------------------------------------------------------------ waiting on heartbeats
+    def _note_stall_locked(self, now_ns: int) -> None:
+        """The feeder wakes every few tens of ms: not waking for longer than a heartbeat timeout (or the ODrive's
+        watchdog timeout, if shorter) means this process got no CPU time (SIGSTOP, a debugger, swapping),
+        whatever the ODrive did meanwhile."""
+        gap = now_ns - self._tick_ns if self._tick_ns is not None else 0
+        limit = min(self.heartbeat_timeout_s, self.timing.watchdog_timeout_s or math.inf)  # the watchdog idled it
+        if self._armed and gap > limit * 1e9:
+            self._stall_ns = max(self._stall_ns, gap)
+
+    def _stall_text(self) -> str:
+        watchdog = self.timing.watchdog_timeout_s
+        then = f"; the ODrive's watchdog idles the axis after {watchdog:g} s without a frame" if watchdog else ""
+        return (
+            f"the host stalled for {self._stall_ns / 1e6:.0f} ms (this process got no CPU time: suspended or "
+            f"overloaded), so ODrive node {self.node_id} went unfed and unread{then}"
+        )
+
     def _heartbeat_lost_locked(self, now_ns: int) -> str | None:
         if self._opened_ns is None:
             return None
+        self._note_stall_locked(now_ns)
         limit_ns = int(self.heartbeat_timeout_s * 1e9)
         if self._hb_ns is None:
             if now_ns - self._opened_ns > limit_ns:
                 return f"no heartbeat from ODrive node {self.node_id} on {self.interface}:{self.channel}"
             return None
         age = now_ns - self._hb_ns
+        if age > limit_ns and self._stall_ns:
+            return self._stall_text()
         if age > limit_ns:
             limit_ms = self.heartbeat_timeout_s * 1e3
             return f"ODrive node {self.node_id} heartbeat lost for {age / 1e6:.0f} ms (> {limit_ms:.0f} ms)"
@@ -532,6 +511,7 @@ class OdriveCanMotor(TelemetryStream):
             raise DeviceFault(f"no heartbeat from ODrive node {self.node_id} on {self.interface}:{self.channel}")
         with self._cond:
             self._fault = None
+            self._stall_ns = 0
             self._limits = limits
             self._setpoint = 0.0
         self.vel_limit, self.current_limit = vel_limit, current
@@ -618,17 +598,37 @@ class OdriveCanMotor(TelemetryStream):
         self.send(cs.SetInputVel(float(hz), 0.0))
 
     def idle(self) -> None:
-        """Input velocity 0 and AXIS_STATE_IDLE. Idempotent; never raises (errors kept in ``send_errors``)."""
+        """Set_Axis_State IDLE and input velocity 0, from frames built at construction (no allocation needed),
+        each tried ``IDLE_SEND_TRIES`` times. Idempotent; never raises (errors kept in ``send_errors``)."""
         with self._cond:
             self._armed = False
             self._setpoint = 0.0
         if self._bus is None or self._closed:
             return
-        for msg in (cs.SetAxisState(AxisState.IDLE), cs.SetInputVel(0.0, 0.0)):
-            try:
-                self.send(msg)
-            except Exception as exc:
-                self.send_errors.append(f"idle: {exc}")
+        self._idle_sent_ns = time.monotonic_ns()
+        for frame in self._idle_frames:
+            for attempt in range(IDLE_SEND_TRIES):
+                try:
+                    self._send(frame)
+                    break
+                except BaseException as exc:  # MemoryError included: the next try may find memory freed
+                    if attempt == IDLE_SEND_TRIES - 1:
+                        with contextlib.suppress(BaseException):
+                            self.send_errors.append(f"idle: {exc}")
+                    else:
+                        time.sleep(IDLE_RETRY_S)
+
+    def confirm_idle(self) -> str:
+        """After :meth:`idle`: "motor idle" once a heartbeat sent after it says AXIS_STATE_IDLE (waiting at most
+        ``timing.idle_confirm_s``); otherwise "idle NOT confirmed" and when the ODrive's watchdog idles it."""
+        sent = self._idle_sent_ns
+        if sent is not None and self._bus is not None:
+            hb = self._wait_heartbeat(lambda h: h.axis_state == AxisState.IDLE, self.timing.idle_confirm_s, sent)
+            if hb is not None:
+                return f"motor idle (ODrive node {self.node_id} confirms AXIS_STATE_IDLE)"
+        watchdog = self.timing.watchdog_timeout_s
+        within = f"within {watchdog:g} s" if watchdog else "if its watchdog is enabled"
+        return f"motor idle NOT confirmed; the ODrive watchdog idles it {within}"
 
     def estop(self) -> None:
         """Send Estop: the axis latches ESTOP_REQUESTED and goes idle until errors are cleared."""
@@ -643,9 +643,11 @@ class OdriveCanMotor(TelemetryStream):
     def check(self) -> None:
         """Raise DeviceFault on axis errors, on leaving closed loop while armed, or on a lost heartbeat."""
         with self._cond:
+            lost = self._heartbeat_lost_locked(time.monotonic_ns())
+            if self._stall_ns and self._armed:  # whatever the ODrive says now follows from the host's stall
+                raise DeviceFault(self._stall_text())
             if self._fault is not None:
                 raise DeviceFault(self._fault)
-            lost = self._heartbeat_lost_locked(time.monotonic_ns())
             if lost is not None:
                 raise DeviceFault(lost)
             hb, armed = self._hb, self._armed

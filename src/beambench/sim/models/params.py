@@ -212,9 +212,13 @@ def _in_range(value: float, where: str, key: str) -> float:
 
 
 def _overrides(block: dict[Any, Any], where: str, name: str) -> dict[str, float]:
-    """A ``rig:`` or ``walker:`` block: names to finite numbers of a physical magnitude."""
-    out = {}
+    """A ``rig:`` or ``walker:`` block: names to finite numbers of a physical magnitude, or to switches (a
+    true/false scene option such as ``rig.sole_at_corner``; the scene checks the names)."""
+    out: dict[str, float] = {}
     for key, v in block.items():
+        if isinstance(v, bool):
+            out[str(key)] = v
+            continue
         value = _number(v, where, f"{name}.{str(key)[:40]}")
         k = str(key)
         if abs(value) > OVERRIDE_MAX:

@@ -4,7 +4,9 @@ stage (beam clamp) is at the origin.
 
 - Stage: a slider with a large armature driven by a servo whose feed-forward uses the *discrete*
   acceleration of the reference x = A·sin θ, so it follows the crank to ~µm whatever the beam does.
-- Foot: rigid, ``foot_length`` below the beam tip in the natural shape, its mass at the sole (a sphere).
+- Foot: rigid, ``foot_length`` below the beam tip in the natural shape, its mass at the sole (a sphere). With
+  ``sole_at_corner`` it is the paper's load frame: a bar down from the tip and across to the frame's lower corner
+  (``mass_dx``, ``mass_dy`` from the point below the tip), where the 20 g hangs and where the frame meets the plate.
 - Plate: top at z = −(foot_length + gap); the gap is h' of the paper (5.5 mm; ``RigParams.plate_gap``, a
   parameter set's ``rig:`` block or the protocol's ``sim.plate_gap_mm`` may override it) measured from the
   foot's natural (unloaded, gravity-free) position, as the paper defines it ("the contact distance between the
@@ -44,6 +46,9 @@ class RigParams:
     # corner of the load frame" without giving the offset — an offset mass twists the tip
     mass_dx: float = 0.0
     mass_dy: float = 0.0  # m, the same along y (the beam's axis, away from the stage)
+    # the frame meets the plate at that lower corner (the paper's load frame), not below the tip: the sole sits
+    # with the load, and h' is the corner's clearance in the unloaded shape
+    sole_at_corner: bool = False
     # kg, the load frame's own mass, spread along the foot (tip to sole); the paper gives only the 20 g load
     frame_mass: float = 0.0
     # deg, the beam's section turned about its own axis at the clamp: 0 = as built (width vertical at the
@@ -78,7 +83,9 @@ class RigParams:
         bad = set(overrides) - known
         if bad:
             raise ValueError(f"rig.{sorted(bad)[0]}: unknown rig parameter")
-        return cls(**{k: float(v) for k, v in overrides.items()})
+        flags = {f.name for f in fields(cls) if f.type in (bool, "bool")}
+        values: dict[str, Any] = {k: bool(v) if k in flags else float(v) for k, v in overrides.items()}
+        return cls(**values)
 
 
 TIMESTEP_POLICY = ((40.0, 2e-4), (80.0, 1e-4), (float("inf"), 5e-5))  # (up to Hz, dt)
@@ -187,7 +194,8 @@ def _add_foot(spec: mujoco.MjSpec, names: SceneNames, tip: mujoco.MjsBody, rig: 
         return [float(v) for v in back @ np.array([x, y, z])]
 
     r = rig.sole_radius
-    offset = abs(rig.mass_dx) > 0 or abs(rig.mass_dy) > 0
+    corner = rig.sole_at_corner
+    offset = (abs(rig.mass_dx) > 0 or abs(rig.mass_dy) > 0) and not corner
     invisible = dict(contype=0, conaffinity=0)
     tip.add_geom(
         type=mujoco.mjtGeom.mjGEOM_CAPSULE,
@@ -197,7 +205,16 @@ def _add_foot(spec: mujoco.MjSpec, names: SceneNames, tip: mujoco.MjsBody, rig: 
         rgba=[0.9, 0.5, 0.1, 1],
         **invisible,
     )
-    sole_at = at(0, 0, -(rig.foot_length - r))
+    sole_at = at(rig.mass_dx if corner else 0, rig.mass_dy if corner else 0, -(rig.foot_length - r))
+    if corner:  # the frame's lower cross bar, from below the tip to the corner (visual)
+        tip.add_geom(
+            type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+            fromto=at(0, 0, -(rig.foot_length - 2 * r)) + sole_at,
+            size=[0.002, 0, 0],
+            mass=0.0,
+            rgba=[0.9, 0.5, 0.1, 1],
+            **invisible,
+        )
     sphere = mujoco.mjtGeom.mjGEOM_SPHERE
     if rig.sole_stiffness > 0:  # a compliant sole: its own body on a damped slide along the foot axis
         if not offset:  # the load stays on the frame, at the sole
@@ -223,11 +240,12 @@ def _add_foot(spec: mujoco.MjSpec, names: SceneNames, tip: mujoco.MjsBody, rig: 
             name=names.sole, type=sphere, size=[r, 0, 0], pos=sole_at, mass=mass, rgba=[0.9, 0.5, 0.1, 1], **invisible
         )
     if offset:  # the load at the frame's lower corner, mass_dx along the stage travel
-        corner = at(rig.mass_dx, rig.mass_dy, -(rig.foot_length - r))
+        load_at = at(rig.mass_dx, rig.mass_dy, -(rig.foot_length - r))
         tip.add_geom(
-            type=sphere, size=[0.004, 0, 0], pos=corner, mass=rig.foot_mass, rgba=[0.5, 0.5, 0.5, 1], **invisible
+            type=sphere, size=[0.004, 0, 0], pos=load_at, mass=rig.foot_mass, rgba=[0.5, 0.5, 0.5, 1], **invisible
         )
-    tip.add_site(name="foot", pos=at(0, 0, -rig.foot_length), size=[0.002, 0, 0])
+    foot_at = at(rig.mass_dx, rig.mass_dy, -rig.foot_length) if corner else at(0, 0, -rig.foot_length)
+    tip.add_site(name="foot", pos=foot_at, size=[0.002, 0, 0])
 
 
 def _add_sensors(spec: mujoco.MjSpec, names: SceneNames, tip_site: str) -> None:

@@ -1,53 +1,23 @@
-"""The paper's walker (Sec. IV-B), after the structure the planning prototype ran.
+"""The paper's walker (Sec. IV-B): a plate with a motor spinning a 40 g offset mass, two mirrored twisted-beam legs.
 
 Body frame: x forward (away from the cart), y left, z up; the floor is z = 0. The body slides in x and z
 and rolls/pitches. The paper's slider holds the robot "along the x-axis and about the yaw axis" while
 "roll, pitch, z-axis and y-axis" are free; since the robot walks, the paper's y is the walking direction
 and its x the lateral one, so here lateral translation and yaw are locked (``lateral_free = 1`` frees the
-lateral slide for experiments). On the body: a 45 g carbon plate, a 110 g Maxon EC 45 flat (Ø42.9 mm)
-lying on its side with its axis along y at plate half-thickness + motor radius (23 mm) above the leg
-clamps, its rotor carrying a 40 g mass at 10 mm turning in the x–z plane (f Hz = f turn/s); two PRB3
-legs sticking out sideways, mirrored across the sagittal plane (left −φ, right +φ), each with a 66.5 mm
-rigid foot, a calibrated 3 g at its sole (the paper_guesses set: 20 g, the paper's foot load, Sec. IV-A) and a
-3 mm sphere sole; and a 100 g cart
-rigidly at the tail on two frictionless wheels (total length 295 mm).
+lateral slide, e.g. for the mirror-symmetry check). On the body: a carbon plate, a Maxon EC 45 flat (Ø42.9 mm)
+lying on its side with its axis along y above the leg clamps, its rotor carrying the 40 g offset mass at
+``eccentric_radius`` turning in the x–z plane (f Hz = f turn/s); two legs (any beam model: the physical twin's
+segmented rod, or PRB3) leaving the plate sideways, mirrored across the sagittal plane (left −φ, right +φ),
+each clamped with ``leg_roll_deg`` about its axis (0: width vertical), raked by ``leg_mount_deg``, with a rigid
+foot of ``foot_length`` hanging from its tip to a sphere sole carrying ``foot_mass``; a 100 g cart rigidly at the
+tail on two frictionless wheels, which carry their share of the weight by the moment balance (total length
+295 mm). Every number's source: the comments of :class:`WalkerParams`; the physical set's walker block
+(``sim_backend/rod_physical.yaml``) with its bounds; docs/walker-twin.md for the model, the evidence and the
+numerics.
 
-Calibrated set (the defaults; ``protocols/walker_sweep.yaml``, one CLI run + ``beambench analyze``): backward at
-13–26 Hz (−64 at 18 Hz, −41.0 at 23 Hz; paper −35.7), forward from 27 Hz, a plateau of ~160 at 57–66 Hz (+161.1 at
-65 Hz, +162.2 with segments: 1; paper +156.3); above ~73 Hz the gait turns irregular (speeds 70–150 mm/s that
-change with any perturbation, impacts that peak the motor current at 4–5 A for a few ms) — so does the finest setting (dt 2.5e-5, contact
-0.125 ms) from 76 Hz; only the old 0.25 ms / 5e-5 pair stayed smooth to 80 Hz. Steady speeds (settle 3 s from a
-settled robot, ``walker_batch``) at 23 / 65 Hz: −39.2 / +160.1; at half the timestep and half the contact time
-constant −38.8 / +159.4 (1.0 % / 0.4 %, ``bench_walker.py --check``). The speed needs ~3 s from rest to be steady.
-The soft contacts creep: standing, the soles slide outward and the body sinks ~1–2 mm/s.
-
-Numerics (issue 12, steady speeds at 23 / 65 Hz, mm/s): the contact time constant and the timestep were chosen
-together for speed — dt 1.2e-4 s with 0.3 ms (2.5 steps; MuJoCo's floor is 2) costs 2.4× less than the earlier
-5e-5 / 0.25 ms (−35.7 / +154.8, its own halving check 1.6 % / 0.8 %). Pairs with the same halving check: 1e-4 /
-0.3 ms 0.8 % / 1.1 %; 1.25e-4 / 0.3 ms 2.8 % / 1.0 %; 1.5e-4 / 0.4 ms 1.1 % / 0.1 % (but irregular from 72 Hz);
-failing it: 1e-4 / 0.5 ms 8.2 % at 23 Hz, 1e-4 / 0.4 ms 5.5 %, 2e-4 / 0.6 ms 6.6 %, 1e-4 / 0.25 ms ~10 %. Speeds at
-0.075–0.4 ms all lie within −35…−40 / +155…+163; 0.5 ms and softer slow 65 Hz (+137 at 0.5 ms, dt 2.5e-5).
-
-With the paper_guesses set (20 g feet), from the planning work (short windows, settle 1 s from rest):
-Numerics (``benchmarks/bench_walker.py``; speeds mm/s at 23 / 65 Hz): the contact time constant matters,
-the timestep much less. 2 ms: +4 / +10 (no reversal); 1 ms: −10 / +15; 0.5 ms: −14 / +15; 0.25 ms:
-−15.6 / +12.0 (dt 1.25e-5). The then defaults, 0.25 ms at dt 5e-5, give −15.6 / +11.6 (within 3.3 % of the
-finest setting at a quarter of its cost; dt 1e-4 is 12 % off at 65 Hz). Stiffer still (0.125 ms):
-−16.2 / +9.4, so the 65 Hz speed carries a ±3 mm/s contact-model uncertainty. Over 1–80 Hz the defaults
-follow the finest setting within ~1.5 mm/s except at 20–32 Hz, where the speed changes sign within a few
-Hz and differs by up to 7 mm/s. The speed is a steady attractor: the same within 0.2 mm/s for ramp rates
-10–200 turn/s², a step start or a ramp down from 80 Hz. The mirror-symmetric gait is stable at 23 Hz but not at
-40 and 65 Hz (round-off grows into a few-mrad roll; with the lateral slide free, into a sideways drift).
-
-Result: backward at 12–18 and 21–27 Hz (−15.6 at 23 Hz, −30 at 24 Hz), forward above ~28 Hz (peak +30
-at 43 Hz, +11.6 at 65 Hz) vs the paper's −35.7 and +156.3: the sign pattern, not the size. The size is
-ill-conditioned in the unknowns the paper leaves open (one at a time, 23 / 65 Hz): leg rake ±5° → +71 / +65
-and −28 / −31; foot mass 10 g or 5 g at the sole → 0 / +44 and +14 / +100; 20 g spread along the foot bar
-→ −37 / +48; friction 0.3 / 0.8 → +23 / −63 at 23 Hz; reversed spin → −26 / −26; swapped chirality →
-+48 / +52; offset radius 5 / 15 mm → −9 / +4 at 23 Hz. Plate/motor split, cart mass, clamp offset and the
-height of the offset plane move the speeds by ≤ 4 mm/s. The planning prototype's curve (−28 at 20 Hz,
-+110 at 50, +88 at 65, strongly contact-dependent at 65 Hz) is reproduced by a light (5 g) foot: −11 at
-20, +104 at 50, +98 at 65, and 37 → 98 mm/s at 65 Hz for contact 2 → 0.25 ms, like theirs.
+The class defaults are the effective PRB3 walker (``sim.model: prb3, sim.params: paper``; 3 g feet, friction 0.5,
+fitted to the paper's two speeds on PRB3 legs whose twist springs are ~3x the anchored strip's): −39 / +160 mm/s
+at 23 / 65 Hz, steady; ``paper_guesses`` is the same robot with the paper's 20 g foot load.
 
 There is no load-cell plate under the walker: ``force_nt`` is zero, so the load-cell stream carries
 tare + noise only.
@@ -115,6 +85,7 @@ class WalkerParams:
     motor_flat: float = 0.0  # G: 1 = motor axis vertical (offset mass turns in the x–y plane) instead of along y
     leg_mount_deg: float = 0.0  # G: leg rake about the lateral axis; + = soles toward the cart
     leg_droop_deg: float = 0.0  # G: the legs' angle below the horizontal at the clamp (0 sideways, 90 hanging down)
+    leg_roll_deg: float = 0.0  # G: each clamp turned about its leg's axis (0: width vertical at the clamp, 90: flat)
     lateral_free: float = 0.0  # P: 1 = let the body slide sideways (the paper's slider holds it; see above)
     torque_constant: float = 0.0255  # D line 12: 25.5 mN·m/A (12 V winding 200142; the walker's winding is unknown)
     bus_voltage: float = 24.0  # G: ODrive bus
@@ -153,7 +124,7 @@ class WalkerLegError(BeambenchError, ValueError):
 
 def check_leg_model(name: str) -> None:
     """Refuse leg models of a family the walker cannot build (every known family builds today: PRB3 and the
-    segmented rods; issue 22 puts the contact rig's physical rod on the walker, docs/contact-twin.md)."""
+    segmented rods; issue 22 puts the contact rig's physical rod on the walker, docs/walker-twin.md)."""
     try:
         family = model_family(name)
     except UnknownModelError as exc:
@@ -200,6 +171,7 @@ def build_walker_spec(
         quat = qmul(quat_x(-side * droop), mount)
         if side < 0:
             quat = qmul(quat, [0.0, 0, 0, 1])
+        quat = qmul(quat, quat_y(side * math.radians(wp.leg_roll_deg)))  # mirrored: the same turn seen from outside
         sites = add_beam(
             body, beam, chir * twist_deg, pos=[0, side * wp.leg_offset, 0], quat=quat.tolist(), prefix=f"{name}_"
         )
@@ -361,7 +333,7 @@ def sole_load(model: mujoco.MjModel) -> float:
 def leg_fold(model: mujoco.MjModel, beam: BeamModel, wp: WalkerParams) -> str | None:
     """A sentence when the legs cannot carry the walker, else None: a sole pushed up by the floor a foot length
     below a sideways leg's tip is an inverted pendulum on the leg's twist stiffness k, standing only while its
-    load F · foot length < k (``tests/test_walker_leg_statics.py``; docs/contact-twin.md)."""
+    load F · foot length < k (``tests/test_walker_leg_statics.py``; docs/walker-twin.md)."""
     if wp.leg_droop_deg >= FOLD_DROOP_DEG or wp.foot_length <= 0:
         return None
     k = beam.torsion_stiffness()
@@ -371,7 +343,7 @@ def leg_fold(model: mujoco.MjModel, beam: BeamModel, wp: WalkerParams) -> str | 
     return (
         f"the walker's {beam.name} legs fold: each sole carries {load:.2f} N, {load / limit:.1f}x the {limit:.2f} N "
         f"that a {1e3 * wp.foot_length:g} mm foot stands on the legs' twist stiffness ({k:.3g} N·m/rad), so its "
-        "speeds are no walking robot's (docs/contact-twin.md; a walker that stands: sim.model: prb3, sim.params: paper)"
+        "speeds are no walking robot's (docs/walker-twin.md)"
     )
 
 

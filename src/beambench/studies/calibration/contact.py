@@ -115,6 +115,17 @@ CONTACT_UNKNOWNS = (
         own=RigValue("mass_dx", 1e-3),
     ),
     Unknown(
+        "mass_dy_mm",
+        -30.0,
+        30.0,
+        unit="mm",
+        default=0.0,
+        opt_in=True,
+        doc="the 20 g load's offset along y, the beam's axis (rig.mass_dy)",
+        effect=Override(("rig.mass_dy",), si=1e-3),
+        own=RigValue("mass_dy", 1e-3),
+    ),
+    Unknown(
         "friction_scale",
         0.7,
         1.15,
@@ -198,8 +209,9 @@ def contact_boxes(base: CalibrationBase) -> dict[str, tuple[float, float]]:
         out["friction_scale"] = (b["rig.friction"].min / rig.friction, b["rig.friction"].max / rig.friction)
     if "rig.frame_mass" in b:
         out["frame_mass_g"] = (1e3 * b["rig.frame_mass"].min, 1e3 * b["rig.frame_mass"].max)
-    if "rig.mass_dx" in b:
-        out["mass_dx_mm"] = (1e3 * b["rig.mass_dx"].min, 1e3 * b["rig.mass_dx"].max)
+    for axis in ("dx", "dy"):
+        if f"rig.mass_{axis}" in b:
+            out[f"mass_{axis}_mm"] = (1e3 * b[f"rig.mass_{axis}"].min, 1e3 * b[f"rig.mass_{axis}"].max)
     return out
 
 

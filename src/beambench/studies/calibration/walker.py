@@ -5,7 +5,8 @@ Targets: ``rig: walker`` with ``speed_mm_s: {f: v}`` (any number of frequencies;
 
 Unknowns (``benchmarks/bench_walker.py`` sensitivity: one at a time, 23 / 65 Hz): the foot mass moves 65 Hz by
 ×12 between 20 g and 2 g, the friction turns 23 Hz from +21 to −60 mm/s between 0.3 and 0.8 (with a cliff: two
-gaits near 20 Hz between 0.475 and 0.525); rotor inertia, cart and clamp offset move nothing. Leg rake and foot
+gaits near 20 Hz between 0.475 and 0.525); rotor inertia, cart and clamp offset move nothing. The offset mass's
+radius (the paper gives 40 g, not where it sits) scales the drive force at every frequency. Leg rake and foot
 length also move the speed but are geometry one can measure on the robot, so they stay fixed.
 
 Objective: the mean over the target frequencies of |v − v*| / max(|v*|, 20 mm/s) — absolute (L1) relative
@@ -18,7 +19,7 @@ counts :data:`MISSING_LANDMARK`). Each evaluation runs every target frequency as
 dt 1.5e-4 (1.25× cheaper; the contact time constant is then at MuJoCo's 2-step floor), the fine stages at the
 scene's converged default (1.2e-4 with a 0.3 ms contact).
 
-Output: ``<name>_params.yaml`` (the prior set with ``rig: {foot_mass, friction}``) and ``<name>.yaml`` (the
+Output: ``<name>_params.yaml`` (the prior set with the fitted foot mass, friction and offset radius in its walker block) and ``<name>.yaml`` (the
 session's protocol, else the shipped walker sweep, with ``sim.params`` pointing at it).
 """
 
@@ -47,7 +48,7 @@ if TYPE_CHECKING:
 SPEED_FLOOR_MM_S = 20.0
 MISSING_LANDMARK = 3.0  # objective share of a landmark the twin's curve does not have (no reversal, no forward peak)
 LANDMARK_NAMES = {"reverses_at_hz": "speed reverses (backward → forward)", "peak_at_hz": "fastest forward at"}
-WALKER_UNKNOWNS = (  # the walker's foot_mass and friction (beambench.sim.scenes.walker.WalkerParams)
+WALKER_UNKNOWNS = (  # the walker's foot mass, friction, offset radius (beambench.sim.scenes.walker.WalkerParams)
     Unknown(
         "foot_mass",
         0.001,
@@ -57,6 +58,14 @@ WALKER_UNKNOWNS = (  # the walker's foot_mass and friction (beambench.sim.scenes
         effect=Override(("walker.foot_mass",)),
     ),
     Unknown("friction", 0.35, 0.60, doc="sole–floor Coulomb friction", effect=Override(("walker.friction",))),
+    Unknown(
+        "eccentric_radius",
+        0.003,
+        0.0215,
+        unit="m",
+        doc="radius of the 40 g offset mass on the rotor (the paper gives the mass, not the radius)",
+        effect=Override(("walker.eccentric_radius",)),
+    ),
 )
 STAGES: dict[str, dict[str, Any]] = {
     "coarse": {"settle_s": 3.0, "record_s": 1.5, "timestep": 1.5e-4},

@@ -1,0 +1,72 @@
+"""Load-cell frames lost (another program reading the port mid-run): the driver's check fails past
+``MAX_LOST_FRACTION`` of a window's expected frames (docs/safety.md, "Lost data")."""
+
+from __future__ import annotations
+
+import errno
+import os
+import threading
+import time
+
+import pytest
+
+from beambench.acquisition.capabilities import DeviceFault
+from beambench.devices.loadcell.driver import MAX_LOST_FRACTION, SerialLoadCells
+from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+
+BIG_TX = 1 << 22  # no scheduling stall on a loaded machine overflows it: losses are the thief's only
+
+
+def _steal(port: str, stop: threading.Event) -> int:
+    """A second reader on the port (root ignores TIOCEXCL, as the stealing program did): bytes it took."""
+    try:
+        fd = os.open(port, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY)
+    except OSError as exc:
+        if exc.errno == errno.EBUSY:
+            pytest.skip("the exclusive port cannot be opened twice here: nothing can steal it")
+        raise
+    taken = 0
+
+    def run() -> None:
+        nonlocal taken
+        while not stop.is_set():
+            try:
+                taken += len(os.read(fd, 4096))
+            except BlockingIOError:
+                stop.wait(0.001)
+        os.close(fd)
+
+    threading.Thread(target=run, daemon=True).start()
+    return taken
+
+
+def test_a_port_stolen_by_a_second_reader_fails_the_check_naming_the_lost_frames():
+    mcu = EmulatedLoadCellMCU(tx_buffer=BIG_TX, seed=9)
+    port = mcu.open()
+    lc = SerialLoadCells(port)
+    stop = threading.Event()
+    try:
+        lc.start()
+        mcu.start()
+        deadline = time.monotonic() + 60
+        while lc.counters.received < 1500:  # more than one loss window of a clean link
+            assert time.monotonic() < deadline, "no load-cell frames"
+            lc.read()
+            lc.check()  # a clean link: no fault
+            time.sleep(0.02)
+        assert lc.counters.dropped == 0
+        _steal(port, stop)
+        fault = None
+        while fault is None and time.monotonic() < deadline + 60:
+            lc.read()
+            try:
+                lc.check()
+            except DeviceFault as exc:
+                fault = exc
+            time.sleep(0.02)
+    finally:
+        stop.set()
+        lc.stop()
+        mcu.close()
+    assert fault is not None and "frames lost" in str(fault) and port in str(fault), fault
+    assert lc.counters.dropped > MAX_LOST_FRACTION * 1000
