@@ -121,7 +121,7 @@ def notebook_picture(session: Path, out: Path) -> None:
     df = resample_session(s, 1000)
     one = df[df.step == 25].iloc[-300:]
     fig, ax = plt.subplots(2, sharex=True, figsize=(7, 4.2), layout="constrained")
-    ax[0].plot(one.index, one["mocap/data/stage/x"] * 1e3)
+    ax[0].plot(one.index, one["mocap/stage_x"] * 1e3)
     ax[0].set(ylabel="stage x (mm)")
     ax[1].plot(one.index, one["loadcell/normal_n"])
     ax[1].set(ylabel="plate force (N)", xlabel="t (s)")

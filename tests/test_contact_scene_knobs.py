@@ -134,3 +134,12 @@ def test_a_corner_beyond_the_tip_sags_more_by_the_tips_rotation():
     ]
     assert sags[0] < sags[1] < sags[2] < sags[3], sags
     assert sags[3] - sags[2] > sags[2] - sags[1] > 0, sags
+
+
+def test_the_corner_switch_is_true_or_false_in_a_parameter_set():
+    """``rig.sole_at_corner`` is a switch: a number there is refused with one line naming the field."""
+    from beambench.sim.models.params import ParamsError, params_from_dict
+
+    assert params_from_dict({"beam": {}, "rig": {"sole_at_corner": True}}).rig == {"sole_at_corner": True}
+    with pytest.raises(ParamsError, match=r"rig\.sole_at_corner = 3: must be true or false"):
+        params_from_dict({"beam": {}, "rig": {"sole_at_corner": 3}})

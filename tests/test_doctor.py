@@ -208,3 +208,19 @@ def test_the_viewer_asks_the_vulkan_loader_not_fixed_paths(monkeypatch, tmp_path
     assert not vulkan_available()
     with pytest.raises(ViewerUnavailable, match="needs a Vulkan driver: no Vulkan driver found"), HeadlessViewer():
         pass
+
+
+def test_the_viewer_row_finds_the_rerun_program_the_sdk_wheel_ships(monkeypatch, tmp_path):
+    """On this machine (root /) the doctor asks for the viewer beambench itself starts: the wheel's own ``rerun``,
+    found with nothing on PATH (an environment used without activating it)."""
+    from beambench.session.doctor import rerun_row
+    from beambench.sinks.rerun_spawn import rerun_binary
+
+    shipped = rerun_binary()
+    if shipped is None or "rerun_cli" not in str(shipped):
+        pytest.skip("this rerun-sdk install ships no rerun_cli binary")
+    monkeypatch.setenv("PATH", str(tmp_path))
+    from beambench.common.resources import shipped_dir
+
+    row = rerun_row(Machine(load_rig_file(shipped_dir("calibration") / "rig.yaml"), tmp_path))
+    assert row.state == "ok" and str(shipped) in row.found, row

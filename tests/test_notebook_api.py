@@ -127,9 +127,6 @@ def test_the_readme_example_plots_one_step(session_file, tmp_path, monkeypatch):
     assert len(code.strip().splitlines()) <= 11
     path = code.split('read_session("', 1)[1].split('"', 1)[0]
     code = code.replace(path, str(session_file)).replace("step == 25", "step == 1").replace("[25]", "[1]")
-    # resample_session names columns as to_pandas does now (mocap/stage_x); README.md is rewritten by its own
-    # owner, who takes the new name: until then its example is run with it
-    code = code.replace('"mocap/data/stage/x"', '"mocap/stage_x"')
     monkeypatch.chdir(tmp_path)
     exec(compile(code, "README.md", "exec"), {})
     assert (tmp_path / "step25.png").stat().st_size > 10_000

@@ -213,10 +213,18 @@ def vulkan_row() -> Row:
 
 
 def rerun_row(m: Machine) -> Row:
-    """The ``rerun`` viewer program on PATH, and whether its version is the SDK's."""
+    """The ``rerun`` viewer program beambench starts (the one the rerun-sdk wheel ships, else the first on PATH;
+    on a machine read below another root, or with ``m.path`` given, the first on PATH), and whether its version
+    is the SDK's."""
     from importlib.metadata import PackageNotFoundError, version
 
-    binary = shutil.which("rerun", path=m.path)
+    from beambench.sinks.rerun_spawn import rerun_binary
+
+    if m.path is None and m.root == Path("/"):
+        shipped = rerun_binary()
+        binary = str(shipped) if shipped is not None else None
+    else:
+        binary = shutil.which("rerun", path=m.path)
     try:
         sdk = version("rerun-sdk")
     except PackageNotFoundError:

@@ -204,10 +204,11 @@ def _after_run(rig: Rig, path: Path, result: RunResult, hub: Hub, label: str, mo
                 append_general(path, extra)
             except OSError as exc:
                 hub.errors.append(f"{label}: /general not completed ({exc.strerror or exc})")
-    # the model's own word on what it cannot stand for (e.g. folding legs), then what else went wrong
-    result.warnings += model_warnings
+    # the model's own word on what it cannot stand for (e.g. folding legs; a scene built at the first step says
+    # it only now), then what else went wrong
+    result.warnings += rig.model_warnings() if isinstance(rig, WarnsOfModel) else []
     result.warnings += hub.errors
-    if hub.errors and result.status != "failed":
+    if result.warnings != model_warnings and result.status != "failed":
         with contextlib.suppress(OSError):  # the session is as written; the command still says the warnings
             append_general(path, {"warnings": result.warnings})
 

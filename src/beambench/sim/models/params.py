@@ -200,6 +200,7 @@ NON_NEGATIVE_OVERRIDES = frozenset(
     | {"sole_damping", "sole_travel", "preroll_s", "rotor_inertia"}
 )
 MIN_OVERRIDE_TIMESTEP_S = 1e-6
+FLAG_OVERRIDES = frozenset({"sole_at_corner"})  # rig switches: true/false, not numbers
 TOP_LEVEL_KEYS = frozenset({"name", "model", "source", "beam", "rig", "walker", "bounds", "fit"})
 
 
@@ -216,11 +217,13 @@ def _overrides(block: dict[Any, Any], where: str, name: str) -> dict[str, float]
     true/false scene option such as ``rig.sole_at_corner``; the scene checks the names)."""
     out: dict[str, float] = {}
     for key, v in block.items():
-        if isinstance(v, bool):
-            out[str(key)] = v
-            continue
-        value = _number(v, where, f"{name}.{str(key)[:40]}")
         k = str(key)
+        if isinstance(v, bool):
+            out[k] = v
+            continue
+        if k in FLAG_OVERRIDES:
+            raise ParamsError(f"{where}: {name}.{k} = {shorten(v)}: must be true or false")
+        value = _number(v, where, f"{name}.{k[:40]}")
         if abs(value) > OVERRIDE_MAX:
             raise ParamsError(f"{where}: {name}.{k[:40]} = {value:g}: magnitude over {OVERRIDE_MAX:g}")
         if (k in POSITIVE_OVERRIDES and value <= 0) or (k in NON_NEGATIVE_OVERRIDES and value < 0):
