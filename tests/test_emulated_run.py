@@ -3,6 +3,8 @@ pty) against emulated peers driven by the MuJoCo physics, end to end into a sess
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import rerun.chunk as rc
@@ -246,3 +248,11 @@ def test_a_mocap_frame_carries_the_markers_of_its_exposure_time_however_late_it_
     np.testing.assert_array_equal(on_time, physics._markers[i])
     # the markers move: a frame exposed 20 ms later is another row with other positions
     assert not np.allclose(physics.positions_at(exposed + 0.02), on_time)
+
+
+def test_lost_load_cell_frames_are_said_in_a_lost_event(injected):
+    """Frames the board sent that never arrived whole (below the fault threshold): a ``lost`` event says how many."""
+    _rig, s = injected
+    lost = [m for k, m in zip(s.events["kind"], s.events["message"]) if k == "lost"]
+    said = [m for m in lost if m.startswith("loadcell: ")]
+    assert len(said) == 1 and re.fullmatch(r"loadcell: [1-9]\d* frames lost of \d+ \(\d+\.\d %\)", said[0]), lost

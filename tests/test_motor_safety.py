@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from beambench.sinks.hdf5 import read_session
@@ -89,8 +90,9 @@ def test_a_stalled_host_is_said_to_be_the_host_not_the_odrive(tmp_path, stall_s)
     stalled = re.search(r"the host stalled for (\d+) ms", said[0])
     assert stalled and int(stalled.group(1)) >= 500, said  # > the 0.5 s watchdog timeout; of the order of the stall
     assert int(stalled.group(1)) <= stall_s * 1e3 + 5000, said
-    motor = read_session(tmp_path / "s.h5").streams["motor"]
-    assert motor.columns["axis_state"][-1] == 1  # AXIS_STATE_IDLE
+    s = read_session(tmp_path / "s.h5")  # the stall left a session that reads (no stamp goes back in time)
+    assert s.streams["motor"].columns["axis_state"][-1] == 1  # AXIS_STATE_IDLE
+    assert (np.diff(s.streams["mocap"].host_time_ns) >= 0).all()
 
 
 def _vm_size(pid: int) -> int:
@@ -150,6 +152,8 @@ def test_a_can_log_that_cannot_be_a_new_file_is_bad_input_before_anything_moves(
     assert not (tmp_path / "s.h5").exists()
     if kind == "existing":
         assert log.read_text() == "keep me\n"
+    if kind == "device":
+        assert "not a regular file" in said[0], said  # not "a folder"
 
 
 @pytest.fixture
@@ -184,3 +188,20 @@ def test_a_can_log_on_a_full_disk_fails_the_run_as_a_sink_motor_idle_first(tmp_p
     idle = [m for k, m in zip(s.events["kind"], s.events["message"]) if k == "idle"]
     assert idle == ["motor idle (ODrive node 0 confirms AXIS_STATE_IDLE)"], idle
     assert s.streams["motor"].columns["axis_state"][-1] == 1
+
+
+def test_a_can_log_in_a_read_only_folder_is_bad_input_before_anything_moves(tmp_path):
+    """A read-only filesystem (refused even to root): one line naming --can-log, exit 2, no session."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    res = subprocess.run(["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(ro)], capture_output=True)
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a read-only tmpfs here: {res.stderr.decode(errors='replace').strip()[:120]}")
+    try:
+        proc = _start(tmp_path, "--can-log", str(ro / "bus.asc"))
+        _, err = proc.communicate(timeout=120)
+    finally:
+        subprocess.run(["umount", "-l", str(ro)], capture_output=True, timeout=10)
+    said = _said(err)
+    assert proc.returncode == 2 and len(said) == 1 and "--can-log" in said[0] and "read-only" in said[0], said
+    assert not (tmp_path / "s.h5").exists()

@@ -55,8 +55,8 @@ def check_schema(f: h5py.File, size: int) -> None:
         _kind(f[name], f"/{name}", h5py.Dataset)
     _check_general(f["general"], "/general", 0, budget)
     spans = [_check_stream(g, f"/acquisition/{name}", budget) for name, g in _members(f["acquisition"], "/acquisition")]
-    steps = _table(f["steps"], "/steps", STEP_FIELDS, MIN_STEP_FIELDS, budget)
-    events = _table(f["events"], "/events", EVENT_FIELDS, EVENT_FIELDS, budget)
+    steps = _table(f["steps"], "/steps", STEP_FIELDS, MIN_STEP_FIELDS, "status", budget)
+    events = _table(f["events"], "/events", EVENT_FIELDS, EVENT_FIELDS, "kind", budget)
     _check_times(spans, steps, events)
     if "processing" in links:
         _check_processing(f["processing"], budget)
@@ -228,7 +228,9 @@ def _host_span(host: np.ndarray, where: str, rate_hz: float) -> tuple[int, int, 
 
 
 # --- /steps, /events and their times -----------------------------------------------------------------------
-def _table(ds: h5py.Dataset, where: str, fields: dict[str, str], required: dict[str, str], budget: int) -> Any:
+def _table(
+    ds: h5py.Dataset, where: str, fields: dict[str, str], required: dict[str, str], key: str, budget: int
+) -> Any:
     """The rows of a compound table with a key field set (``status`` / ``kind``): rows never written have it empty."""
     _bounded(ds, where, budget)
     names = ds.dtype.names or ()
@@ -256,11 +258,11 @@ def _check_times(spans: list[tuple[int, int, int] | None], steps: Any, events: A
         lo, hi = min(s[0] for s in known), max(s[1] for s in known)
         if hi - lo > max(s[2] for s in known):
             raise SessionSchemaError("/acquisition", f"the streams' host times lie {(hi - lo) * 1e-9:.6g} s apart")
-    else:  # no samples (a run killed before its first batch): the steps' own starts bound the rest
-        starts = steps["t_start_ns"] if len(steps) else np.zeros(1, np.int64)
-        lo, hi = int(starts.min()), int(starts.max())
+    else:  # no samples (a run killed before its first batch): the steps' starts and the events bound the rest
+        times = [*(steps["t_start_ns"] if len(steps) else ()), *(events["host_time_ns"] if len(events) else ())]
+        lo, hi = (int(min(times)), int(max(times))) if times else (0, 0)
         if lo < 0 or hi - lo > MAX_SPAN_NS:
-            raise SessionSchemaError("/steps t_start_ns", f"spans {lo} … {hi} ns, not a run's host times")
+            raise SessionSchemaError("/steps, /events", f"times span {lo} … {hi} ns, not a run's host times")
     lo, hi = lo - TIME_MARGIN_NS, hi + TIME_MARGIN_NS
     for i, row in enumerate(steps):
         if not math.isfinite(float(row["frequency_hz"])):

@@ -98,6 +98,7 @@ class SerialLoadCells(StreamDriver):
         read_timeout_s: float = 0.05,
         exclusive: bool = True,
         silence_timeout_s: float | None = 1.0,
+        max_lost_fraction: float | None = MAX_LOST_FRACTION,
     ) -> None:
         super().__init__(name, loadcell_spec(rate_hz), silence_timeout_s)
         self.port = port
@@ -105,6 +106,7 @@ class SerialLoadCells(StreamDriver):
         self.rate_hz = rate_hz
         self._timeout = read_timeout_s
         self._exclusive = exclusive
+        self.max_lost_fraction = max_lost_fraction  # of a window's expected frames; None: losses only counted
         self._ser: serial.SerialBase | None = None
         self._reset()
 
@@ -193,13 +195,13 @@ class SerialLoadCells(StreamDriver):
             got, lost = self.counters.received, self.counters.dropped
             got0, lost0 = self._window
             expected, missing = (got - got0) + (lost - lost0), lost - lost0
-            if expected < LOST_WINDOW_FRAMES:
+            if expected < LOST_WINDOW_FRAMES or self.max_lost_fraction is None:
                 return
             self._window = (got, lost)
-        if missing > MAX_LOST_FRACTION * expected:
+        if missing > self.max_lost_fraction * expected:
             raise DeviceFault(
                 f"{self.name}: {missing} of {expected} frames lost ({100 * missing / expected:.1f} % > "
-                f"{100 * MAX_LOST_FRACTION:g} %): another program reading {self.port}, or a failing link?"
+                f"{100 * self.max_lost_fraction:g} %): another program reading {self.port}, or a failing link?"
             )
 
     def check(self, silence_s: float | None = None) -> None:

@@ -139,6 +139,10 @@ class NatNetClient:
         self._data: socket.socket | None = None
         self._sel: selectors.DefaultSelector | None = None
         self._stamped = False  # the kernel stamps received datagrams (see receive_time)
+        # the latest receive time handed on: stamps never go back (after the host stalls for longer than
+        # receive_time's 1 s age limit, the first datagrams read get the read time and the next ones their older
+        # kernel stamps; a frame is then stamped no earlier than the one before it)
+        self._last_host_ns = 0
         self._pending_bitstream: nn.Version | None = None  # asked for, not yet confirmed
         # after a bitstream change: the version before it and until when (monotonic ns) a frame may still be in it
         self._previous_bitstream: tuple[nn.Version, int] | None = None
@@ -390,6 +394,7 @@ class NatNetClient:
             if not self._from_server(sock, addr):
                 self._forged(addr)
                 continue
+            host_ns = self._last_host_ns = max(host_ns, self._last_host_ns)
             self._handle(data, host_ns)
 
     def _from_server(self, sock: socket.socket, addr: tuple[str, int]) -> bool:
