@@ -4,6 +4,7 @@
     python benchmarks/bench_sim.py --accuracy # also the timestep-policy accuracy table (~1 min)
     python benchmarks/bench_sim.py --e2e      # also `beambench run protocols/contact_sweep.yaml --rerun off`
     python benchmarks/bench_sim.py --sweep-only  # only the 280 s lab sweep of the shipped twin (median of 3)
+    python benchmarks/bench_sim.py --dt-check 2e-4 1e-4  # the shipped sweep's regimes and forces at each timestep
 
 Figures are wall-clock medians of repeated runs (the machine is shared: read ratios, not absolutes) and the
 CPU time of this process. Results are printed and written to ``bench_out/bench_sim.json``.
@@ -118,6 +119,42 @@ def accuracy_table(freqs=(5, 10, 20, 30, 40, 60, 80), dts=(5e-5, 1e-4, 2e-4, 4e-
     return out
 
 
+def dt_check(timesteps: list[float]) -> list[dict]:
+    """The shipped contact sweep (its twin, windows and order, noise off) at each fixed timestep: per step the
+    regime and the peak normal / mean tangential force, compared with the first timestep's (the reference)."""
+    from beambench.sim.scenes.contact_regimes import ContactTwin, stepped_regime_map
+    from beambench.sim.settings import SimSettings
+
+    protocol, _ = load_protocol(ROOT / "protocols" / "contact_sweep.yaml")
+    twin = ContactTwin(protocol.sim.model, protocol.sim.params)
+    base = SimSettings(
+        protocol.settle_s, protocol.record_s, protocol.sim.twist_deg, protocol.amplitude_mm * 1e-3, "implicitfast"
+    )
+    freqs = list(protocol.sweep.values())
+    maps = {}
+    for dt in timesteps:
+        c0 = time.process_time()
+        maps[dt] = stepped_regime_map(freqs, base.replace(timestep=dt), twin)
+        print(f"  dt {dt:g}: {time.process_time() - c0:.1f} s cpu", flush=True)
+    ref = maps[timesteps[0]]
+    out = []
+    for dt in timesteps[1:]:
+        m = maps[dt]
+        same = int((m["regime"] == ref["regime"]).sum())
+        dfn = np.abs(m["peak_normal_n"] / ref["peak_normal_n"] - 1.0) * 100
+        dft = np.abs(m["mean_tangential_n"] - ref["mean_tangential_n"]) / ref["mean_tangential_n"].abs().max() * 100
+        row = {"timestep": dt, "reference": timesteps[0], "same_regime": same, "steps": len(m)}
+        row |= {"max_peak_normal_pct": float(dfn.max()), "max_tangential_pct_of_max": float(dft.max())}
+        row["differ_hz"] = [float(f) for f, a, b in zip(m["frequency_hz"], m["regime"], ref["regime"]) if a != b]
+        out.append(row)
+        print(
+            f"dt {dt:g} vs {timesteps[0]:g}: same regime at {same}/{len(m)} steps (differ at {row['differ_hz']} Hz); "
+            f"peak normal force up to {row['max_peak_normal_pct']:.0f} % off, mean tangential up to "
+            f"{row['max_tangential_pct_of_max']:.0f} % of its largest value"
+        )
+    return out
+
+
 def end_to_end() -> dict[str, float]:
     with tempfile.TemporaryDirectory() as tmp:
         w0 = time.perf_counter()
@@ -146,8 +183,12 @@ def main() -> None:
     ap.add_argument("--accuracy", action="store_true", help="also the timestep-policy accuracy table")
     ap.add_argument("--e2e", action="store_true", help="also time `beambench run` of the lab sweep (with HDF5)")
     ap.add_argument("--sweep-only", action="store_true", help="only the lab sweep (prefetch on) of the shipped twin")
+    ap.add_argument("--dt-check", type=float, nargs="+", metavar="DT", help="regimes and forces at each timestep")
     args = ap.parse_args()
     results: dict[str, object] = {"per_10s": []}
+    if args.dt_check:
+        dt_check(args.dt_check)
+        return
     if args.sweep_only:
         sweeps = [lab_sweep(True) for _ in range(args.repeats)]
         med = sorted(sweeps, key=lambda r: r["wall_s"])[len(sweeps) // 2]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -144,3 +145,22 @@ def test_protocol_selects_the_named_set_and_refuses_unknown_legs():
     assert guesses.rig == WalkerParams.named("paper_guesses")
     with pytest.raises(ConfigError, match=r"sim.model"):
         build_scene(sim_slice(parse_protocol(text.replace("model: rod5g", "model: beam7"))))
+
+
+@pytest.mark.parametrize(("motor_flat", "axis"), [(0.0, [0, 1, 0]), (1.0, [0, 0, 1]), (2.0, [1, 0, 0])])
+def test_offset_mass_turns_in_the_plane_across_the_motor_axis(motor_flat, axis):
+    """The rotor turns about y (0), z (1) or x (2): at every rotor angle the 40 g mass stays in the plane across
+    that axis, at the offset radius from it (2 turned the mass in the x–y plane before the x axis was added)."""
+    sim = WalkerSim(BEAM, 90.0, replace(WalkerParams(), motor_flat=motor_flat, preroll_s=0.0))
+    m, d = sim.physics.model, sim.physics.data
+    try:
+        rotor, body = m.body("rotor").id, m.body("walker").id
+        qadr = int(m.jnt_qposadr[m.joint("rotor").id])
+        for angle in np.linspace(0.0, 2 * np.pi, 7):
+            d.qpos[qadr] = angle
+            mujoco.mj_forward(m, d)
+            rel = d.xmat[body].reshape(3, 3).T @ (d.xipos[rotor] - d.xpos[rotor])  # mass centre in the body frame
+            assert float(np.dot(rel, axis)) == pytest.approx(0.0, abs=1e-9)
+            assert float(np.linalg.norm(rel)) == pytest.approx(sim.rig.eccentric_radius, rel=1e-6)
+    finally:
+        sim.physics.close()

@@ -82,7 +82,9 @@ class WalkerParams:
     motor_radius: float = 0.02145  # P footnote / D: Ø42.9 mm
     rotor_height: float = 0.023  # G: motor axis above the leg clamps: plate half-thickness + motor radius
     motor_x: float = 0.0  # G: the motor's axis along the body, + ahead of the leg clamps (toward the cart: −)
-    motor_flat: float = 0.0  # G: 1 = motor axis vertical (offset mass turns in the x–y plane) instead of along y
+    motor_flat: float = (
+        0.0  # G: motor axis along y (0: offset mass turns in x–z), vertical (1: x–y) or along x (2: y–z)
+    )
     leg_mount_deg: float = 0.0  # G: leg rake about the lateral axis; + = soles toward the cart
     leg_droop_deg: float = 0.0  # G: the legs' angle below the horizontal at the clamp (0 sideways, 90 hanging down)
     leg_roll_deg: float = 0.0  # G: each clamp turned about its leg's axis (0: width vertical at the clamp, 90: flat)
@@ -226,23 +228,30 @@ def _add_body(spec: mujoco.MjSpec, wp: WalkerParams, z0: float) -> mujoco.MjsBod
         type=mujoco.mjtGeom.mjGEOM_CYLINDER,
         size=[wp.motor_radius, 0.007, 0],
         pos=[wp.motor_x, 0, wp.rotor_height],
-        quat=[1, 0, 0, 0] if wp.motor_flat else [math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0],
+        quat=_motor_quat(wp.motor_flat),
         mass=wp.motor_mass,
         rgba=[0.2, 0.2, 0.2, 1],
         **invisible,
     )
     body.add_site(name="body", pos=[0, 0, 0], size=[0.003, 0, 0])
     rotor = body.add_body(name="rotor", pos=[wp.motor_x, 0, wp.rotor_height])
-    rotor.add_joint(name="rotor", type=hinge, axis=[0, 0, 1] if wp.motor_flat else [0, 1, 0], armature=wp.rotor_inertia)
+    axis = [1, 0, 0] if wp.motor_flat == 2 else [0, 0, 1] if wp.motor_flat else [0, 1, 0]
+    rotor.add_joint(name="rotor", type=hinge, axis=axis, armature=wp.rotor_inertia)
     rotor.add_geom(
         type=mujoco.mjtGeom.mjGEOM_SPHERE,
         size=[0.006, 0, 0],
-        pos=[wp.eccentric_radius, 0, 0],
+        pos=[0, 0, wp.eccentric_radius] if wp.motor_flat == 2 else [wp.eccentric_radius, 0, 0],
         mass=wp.eccentric_mass,
         rgba=[0.8, 0.1, 0.1, 1],
         **invisible,
     )
     return body
+
+
+def _motor_quat(motor_flat: float) -> list[float]:
+    """The motor cylinder's orientation (its axis = the rotor's): along y (0), z (1) or x (2)."""
+    c = math.cos(math.pi / 4)
+    return [1.0, 0, 0, 0] if motor_flat == 1 else [c, 0, c, 0] if motor_flat == 2 else [c, c, 0, 0]
 
 
 def _add_cart(spec: mujoco.MjSpec, body: mujoco.MjsBody, wp: WalkerParams, z0: float, solref: list) -> None:
