@@ -205,3 +205,26 @@ def test_a_can_log_in_a_read_only_folder_is_bad_input_before_anything_moves(tmp_
     said = _said(err)
     assert proc.returncode == 2 and len(said) == 1 and "--can-log" in said[0] and "read-only" in said[0], said
     assert not (tmp_path / "s.h5").exists()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="RLIMIT_AS through preexec_fn: Linux")
+@pytest.mark.parametrize("limit_mb", [300, 350, 450])
+def test_the_whole_command_under_a_memory_limit_ends_in_one_line(tmp_path, limit_mb):
+    """``prlimit --as`` on the whole command: whatever runs out first (an extension's import, MuJoCo's model
+    compile, a thread start) ends it with one line and exit 1, never a traceback; enough memory runs it (exit 0)."""
+    import resource
+
+    def limit() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit_mb << 20, limit_mb << 20))
+
+    env = dict(_env(), BEAMBENCH_USER_DIR=str(tmp_path / "user"), OPENBLAS_NUM_THREADS="1")
+    argv = ["run", "contact_sweep", "--rerun", "off", "--out", str(tmp_path / "out")]
+    res = subprocess.run(
+        [sys.executable, "-m", "beambench.cli", *argv], env=env, preexec_fn=limit, capture_output=True, timeout=300
+    )
+    err = res.stderr.decode(errors="replace")
+    assert "Traceback" not in err, err[-3000:]
+    said = [ln for ln in err.splitlines() if ln.strip() and not re.match(r"^\d\d:\d\d:\d\d ", ln)]
+    assert res.returncode in (0, 1), (res.returncode, said)
+    if res.returncode == 1:  # OpenBLAS that cannot allocate its buffers ends the process itself, in its own line
+        assert len(said) == 1 and said[0].startswith(("beambench:", "OpenBLAS error:")), said

@@ -83,6 +83,26 @@ def main() -> None:
         raise
 
 
+_NO_MEMORY = ("could not allocate memory", "cannot allocate memory", "failed to map segment", "can't start new thread")
+
+
+def out_of_memory(exc: BaseException) -> str | None:
+    """What ran out, if ``exc`` (or an exception it came from) is the process running out of memory: a
+    ``MemoryError``, or an allocation, a shared library's mapping or a thread start refused by the memory limit
+    (MuJoCo, an extension module's import, threading). None otherwise."""
+    seen: BaseException | None = exc
+    for _ in range(8):
+        if seen is None:
+            return None
+        if isinstance(seen, MemoryError):
+            return "MemoryError"
+        text = str(seen).strip().splitlines()[0] if str(seen).strip() else ""
+        if any(m in text.lower() for m in _NO_MEMORY):
+            return f"{type(seen).__name__}: {text[:160]}"
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
 def _main_inner() -> None:
     try:
         code = app(standalone_mode=False, prog_name="beambench")
@@ -93,7 +113,12 @@ def _main_inner() -> None:
     except Exception as exc:
         # click's exceptions (typer vendors its own click, so match by shape, not by class)
         if not (hasattr(exc, "format_message") and hasattr(exc, "exit_code")):
-            raise
+            reason = out_of_memory(exc)
+            if reason is None:
+                raise
+            with contextlib.suppress(OSError):  # a run that had armed the motor idled it on its way out
+                typer.echo(f"beambench: error: out of memory ({reason}); give the command more memory", err=True)
+            sys.exit(1)
         ctx = getattr(exc, "ctx", None)
         if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:  # bare ``beambench`` or a group
             typer.echo(ctx.get_help())
