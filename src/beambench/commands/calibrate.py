@@ -113,7 +113,9 @@ def loadcells(
     if mcu is not None:
         port = mcu.port
     assert port is not None
-    stream = SerialLoadCells(port, baudrate or DEFAULT_BAUDRATE)
+    # a calibration averages the frames it receives in each window: lost frames (a loaded machine's reader falling
+    # behind while a prompt waits) are counted and said in the link line below, never a fault that loses the walk
+    stream = SerialLoadCells(port, baudrate or DEFAULT_BAUDRATE, max_lost_fraction=None)
     try:
         stream.start()
         if mcu is not None:
