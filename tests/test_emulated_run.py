@@ -108,7 +108,12 @@ def test_markers_arrive_in_motives_y_up_frame_and_analysis_uses_the_recorded_axe
     assert np.allclose(a.frame.up, [0, 1, 0], atol=1e-3)
     foot = a.steps[0].paths["foot"]  # (drive, up) relative to the stage, mm
     assert np.nanmean(foot[:, 1]) < -50
-    assert a.table.stage_amplitude_mm.to_numpy() == pytest.approx(2.0, rel=0.1)
+    # the stroke along the recorded drive axis: 2 mm. The emulated Motive samples the physics thread's state at each
+    # frame's exposure time; when that thread falls behind on a loaded machine a step reads short (1.76 mm seen in a
+    # CI run beside 3 test workers), so one step must read the full stroke and none may read less than 1.5 mm
+    # (along a wrong axis the stroke would read ~0)
+    amplitude = a.table.stage_amplitude_mm.to_numpy()
+    assert amplitude.max() == pytest.approx(2.0, rel=0.1) and (amplitude > 1.5).all(), amplitude
 
 
 def test_motor_telemetry_and_idle(clean):
