@@ -213,7 +213,7 @@ def write_walker_protocol(
 ) -> Path:
     """``out_dir/<name>_params.yaml`` and ``out_dir/<name>.yaml`` (module docstring), through
     :func:`.protocol_out.write_calibrated_protocol`; the walker's block (its walker block, else its rig
-    block) carries foot mass and friction."""
+    block) carries foot mass, friction and the offset radius."""
     p = apply_values(_prior(base), WALKER_UNKNOWNS, {k: round(float(v), 7) for k, v in values.items()})
     block = "walker" if p.walker else "rig"
     cal = CalibratedSet(
@@ -224,7 +224,7 @@ def write_walker_protocol(
         model=base.model,
         shipped_protocol="walker_sweep.yaml",
         params_note=f"; the {block} block\n# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).",
-        protocol_note=f"sim.params points at the calibrated parameter set (foot mass and friction in its {block} block).",
+        protocol_note=f"sim.params points at the calibrated parameter set (foot mass, friction and offset radius in its {block} block).",
         rig_label="walker",
     )
     return write_calibrated_protocol(cal, targets, out_dir, name)
