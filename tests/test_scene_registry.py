@@ -16,7 +16,9 @@ def test_every_runnable_scene_has_a_builder_and_every_batched_one_a_sweep_runner
     assert catalogue.batched_names() == ("free_beam", "contact")
     for name in catalogue.runnable_names():
         assert scenes.get(name).info is catalogue.scene_info(name)
-    assert set(scenes.batched_scenes()) == set(catalogue.batched_names())  # each engine registered in its scene's module
+    assert set(scenes.batched_scenes()) == set(
+        catalogue.batched_names()
+    )  # each engine registered in its scene's module
     with pytest.raises(KeyError, match="no builder"):
         scenes.get("free_beam")
     with pytest.raises(KeyError, match="'walker' has no batched engine"):
