@@ -79,11 +79,17 @@ def _batch_jobs(jobs: tuple[Job, ...]) -> tuple[BatchJob, ...]:
         group = json.dumps(p, sort_keys=True)
         if group not in beams:
             beams[group] = _beam(p)
-        twist = p["twist_deg"] * p["chirality"]
-        amplitude = p["amplitude_mm"] * 1e-3
         out.append(
             BatchJob(
-                job.index, group, beams[group], job.frequency_hz, twist, amplitude, p["integrator"], p["timestep"], p
+                index=job.index,
+                group=group,
+                beam=beams[group],
+                frequency_hz=job.frequency_hz,
+                twist_deg=p["twist_deg"] * p["chirality"],
+                amplitude_m=p["amplitude_mm"] * 1e-3,
+                integrator=p["integrator"],
+                timestep=p["timestep"],
+                point=p,
             )
         )
     return tuple(out)
