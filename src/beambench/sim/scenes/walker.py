@@ -135,6 +135,11 @@ def check_leg_model(name: str) -> None:
         raise WalkerLegError(name, f"refused for the walker: use a leg model of {' or '.join(LEG_FAMILIES)}")
 
 
+# PGS, not Newton: at most 10 constraint rows (two pyramidal soles, two wheels) against 35 dofs, so Newton's dense
+# 35 x 35 Hessian per step costs more than PGS's 2-14 sweeps; the steady speeds agree within 0.6 mm/s at 5-80 Hz and
+# the step costs a quarter less CPU (docs/performance.md, "Walker sweep speed")
+SOLVER = mujoco.mjtSolver.mjSOL_PGS
+
 WALKER_FRONT = 0.04  # m, the plate's front edge ahead of the leg clamps (the platform's length is counted from it)
 
 
@@ -143,11 +148,13 @@ def build_walker_spec(
 ) -> mujoco.MjSpec:
     """The walker scene as an ``MjSpec``. Only the soles and the wheels touch the floor, through explicit
     ``<pair>``s (every geom has contype = conaffinity = 0: no broad phase); no force sensor (it would add a
-    post-constraint RNE pass)."""
+    post-constraint RNE pass); the constraint solver is :data:`SOLVER` with islands off."""
     spec = mujoco.MjSpec()
     spec.modelname = "beambench_walker"
     spec.option.timestep = timestep
     spec.option.integrator = INTEGRATORS[integrator]
+    spec.option.solver = SOLVER
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_ISLAND  # one kinematic tree: islands find nothing
     solref = [wp.contact_timeconst, wp.contact_dampratio]
     friction = [wp.friction, 0.005, 0.0001]  # the floor's own (visual: contacts come from the pairs below)
     spec.worldbody.add_geom(
