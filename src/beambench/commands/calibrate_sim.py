@@ -100,9 +100,7 @@ def sim(
         str | None, typer.Option("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")
     ] = None,
     budget_s: Annotated[float, typer.Option("--budget-s", help="Wall-time budget of the search (s).")] = 540.0,
-    quick: Annotated[
-        bool, typer.Option("--quick", help="A smaller, faster search (smoke runs; a budget of at most 100 s).")
-    ] = False,
+    quick: Annotated[bool, typer.Option("--quick", help="A smaller, faster search (smoke runs).")] = False,
     name: Annotated[
         str | None, typer.Option("--name", help="Output name (default: <session or targets>_calibrated).")
     ] = None,
@@ -125,7 +123,6 @@ def sim(
     from beambench.common.resources import resolve_file
     from beambench.studies.executor import MAX_LOCAL_WORKERS, ExecutorError
     from beambench.studies.twin_calibration import SearchSettings, calibrate, get_rig, write_report
-    from beambench.studies.twin_calibration.evaluate import QUICK_BUDGET_S
     from beambench.studies.twin_calibration.targets import load_targets, session_targets
 
     if (session is None) == (targets is None):
@@ -151,7 +148,7 @@ def sim(
         _fail(f"--out {out_dir}: cannot create ({exc.strerror or exc})")
     chosen = _free_unknowns(free, tg.rig)
     settings = (
-        SearchSettings.quick(budget_s=min(budget_s, QUICK_BUDGET_S), free=chosen)
+        SearchSettings.quick(budget_s=min(budget_s, 150.0), free=chosen)
         if quick
         else SearchSettings(budget_s=budget_s, free=chosen)
     )

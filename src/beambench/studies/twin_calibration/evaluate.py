@@ -25,13 +25,6 @@ from beambench.studies.unknowns import Unknown
 # ------------------------------------------------------------------------------------------------ settings
 
 
-# --quick's budget: the stages stop starting work at shares of it (search.COARSE_SHARE …) and the last batch, the
-# seed spread and the report come after, so the whole command ends ~10 s past it; 100 s keeps it within 2 min on
-# this 2-core machine under load (the walker's paper targets: 110 s wall at a load of 12, the same fitted point and
-# verdict as with 150 s; docs/performance.md)
-QUICK_BUDGET_S = 100.0
-
-
 @dataclass(frozen=True)
 class SearchSettings:
     """Knobs of the search; ``quick()`` is a smaller, faster variant (smoke runs, tests)."""
@@ -72,7 +65,7 @@ class SearchSettings:
     @classmethod
     def quick(cls, **kw: Any) -> SearchSettings:
         base: dict[str, Any] = dict(
-            budget_s=QUICK_BUDGET_S,
+            budget_s=150.0,
             coarse_settle_s=0.8,
             coarse_record_s=1.2,
             fine_settle_s=1.0,
