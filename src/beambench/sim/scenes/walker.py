@@ -16,7 +16,7 @@ tail on two frictionless wheels, which carry their share of the weight by the mo
 numerics.
 
 The class defaults are the effective PRB3 walker (``sim.model: prb3, sim.params: paper``; 3 g feet, friction 0.5,
-fitted to the paper's two speeds on PRB3 legs whose twist springs are ~3x the anchored strip's): −39 / +160 mm/s
+fitted to the paper's two speeds on PRB3 legs whose twist springs are ~3x the anchored strip's): −38 / +161 mm/s
 at 23 / 65 Hz, steady; ``paper_guesses`` is the same robot with the paper's 20 g foot load.
 
 There is no load-cell plate under the walker: ``force_nt`` is zero, so the load-cell stream carries
