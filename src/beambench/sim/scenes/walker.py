@@ -423,9 +423,9 @@ class WalkerSim(DrivenScene):
     @staticmethod
     def step_cost(hz: float) -> float:
         """The physics' relative cost per simulated second at drive frequency ``hz``: the sim rig cuts a sweep into
-        segments of equal cost with it (:func:`beambench.backends.lookahead.cut_points`). Issue 12, dt 1.2e-4, on a loaded
-        machine: ~20 µs/step at 4–12 Hz, ~17.5 at 20–33 Hz, ~12.5 from 55 Hz; tuned down a little so that the shipped
-        sweep's two workers take about the same CPU time (cut at 37 Hz)."""
+        segments of equal cost with it (:func:`beambench.backends.lookahead.cut_points`). With PGS at dt 1.2e-4 on a loaded
+        machine: ~14.5 µs/step at 1–20 Hz, ~13.3 at 21–37 Hz, ~11 from 40 Hz (Newton: ~20, ~17.5, ~12.5); the shipped
+        sweep is cut at 37 Hz, its two workers then within ~10 % of each other's CPU time (docs/performance.md)."""
         return float(np.interp(hz, [0, 3, 4, 12, 20, 33, 45, 55], [1.0, 1.1, 1.45, 1.4, 1.3, 1.25, 1.1, 1.0]))
 
     def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
