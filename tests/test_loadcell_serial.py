@@ -103,6 +103,17 @@ def test_injected_faults_are_counted_exactly():
     np.testing.assert_allclose(b.device_time, seq * 1e-3, atol=1e-9)
 
 
+def test_a_fault_in_the_last_frame_before_the_board_stops_is_still_counted():
+    """Every other frame truncated (a fault is always followed by a clean frame, which is how the driver sees
+    it): whichever frame the board stops on, the driver's count equals the injected one."""
+    for seed in range(8):
+        mcu = EmulatedLoadCellMCU(
+            force, PLATE, faults=LinkFaults(drop_prob=1.0, max_drop=4), tx_buffer=BIG_TX, seed=seed
+        )
+        _, lc = acquire(mcu, 0.15)
+        assert lc.stats()["truncated"] == mcu.injected.frames_truncated > 10, (seed, lc.stats(), mcu.injected)
+
+
 def test_driver_opening_a_running_stream_counts_startup_bytes_not_errors():
     mcu = EmulatedLoadCellMCU(force, PLATE, seed=5)
     b, lc = acquire(mcu, 0.5, driver_first=False)

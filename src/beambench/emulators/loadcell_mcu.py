@@ -122,7 +122,9 @@ class EmulatedLoadCellMCU:
         self.overflowed_seqs: list[int] = []  # sequence numbers never sent (transmit buffer full)
         self._rng = random.Random(seed)
         self._noise = np.random.default_rng(seed)
-        self._guard = False
+        # a fault is always followed by a clean frame (the driver sees a fault by the frame after it); the board's
+        # first frame is clean too (a driver that opens the port first reads it whole)
+        self._guard = True
         self._k = 0
         self._master: int | None = None
         self._slave: int | None = None
@@ -279,6 +281,9 @@ class EmulatedLoadCellMCU:
                 self._write()
                 self._drain_input()
                 time.sleep(0.001)
+            if self._guard and self._k:  # the last frame was broken: end on the clean one that shows it
+                self._tx += b"".join(self.frames_bytes(self._k, 1))
+                self._k += 1
             deadline = time.monotonic() + 1.0
             while self._tx and time.monotonic() < deadline:  # flush the transmit buffer
                 self._write()
