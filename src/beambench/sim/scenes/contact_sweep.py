@@ -94,7 +94,6 @@ def _models(
     beam: BeamModel, twist_deg: float, gap_m: float, rig: RigParams, integrator: str, timesteps: Floats
 ) -> dict[float, mujoco.MjModel]:
     spec = build_contact_spec(beam, twist_deg, gap_m, rig, integrator, float(timesteps[0]))
-    spec.delete(spec.sensor("clamp_force"))  # unused here; a force sensor costs a post-constraint RNE per step
     base = spec.compile()
     act = base.actuator("stage_servo").id
     base.actuator_gainprm[act, 0] = 1.0  # a pure force actuator: ctrl = M·a (feed-forward only)
