@@ -76,6 +76,9 @@ class RigParams:
     friction_torque: float = 0.02  # N·m, crank + bearings (Coulomb)
     bus_voltage: float = 24.0  # V
     preroll_s: float = 0.5  # settle to the static equilibrium before t = 0
+    # s, the largest timestep this twin's answers are converged at (measured with
+    # benchmarks/bench_contact_convergence.py); caps the frequency policy below; 0 = the policy alone
+    max_timestep: float = 0.0
 
     @classmethod
     def with_overrides(cls, overrides: dict[str, Any]) -> RigParams:
@@ -91,10 +94,12 @@ class RigParams:
 TIMESTEP_POLICY = ((40.0, 2e-4), (80.0, 1e-4), (float("inf"), 5e-5))  # (up to Hz, dt)
 
 
-def default_timestep(frequency_hz: float) -> float:
+def default_timestep(frequency_hz: float, max_timestep: float = 0.0) -> float:
     """The timestep the contact rig needs at a drive frequency: foot path within 0.07 mm (below the mocap
-    noise) of a dt = 2.5e-5 reference at a 1 mm gap up to 40 Hz; 1e-4 up to 80 Hz (planning notes)."""
-    return next(dt for f, dt in TIMESTEP_POLICY if abs(frequency_hz) <= f)
+    noise) of a dt = 2.5e-5 reference at a 1 mm gap up to 40 Hz; 1e-4 up to 80 Hz (planning notes); at most
+    ``max_timestep`` (a twin's :attr:`RigParams.max_timestep`) when that is > 0."""
+    dt = next(dt for f, dt in TIMESTEP_POLICY if abs(frequency_hz) <= f)
+    return min(dt, max_timestep) if max_timestep > 0 else dt
 
 
 @dataclass(frozen=True)
@@ -300,7 +305,9 @@ class ContactRigSim(DrivenScene):
         self.integrator = integrator
         self.fixed_timestep = timestep
         # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.selection (model: auto)
-        self.timestep_for = timestep_for or default_timestep
+        # capped at the twin's converged timestep (RigParams.max_timestep), a plan's too
+        base, cap = timestep_for or default_timestep, self.rig.max_timestep
+        self.timestep_for = (lambda hz: min(base(hz), cap)) if cap > 0 else base
         self.selection = selection
         h0 = timestep or self.timestep_for(1.0)
         self.spec = build_contact_spec(beam, twist_deg, gap, self.rig, integrator, h0)
@@ -385,13 +392,17 @@ class ContactRigSim(DrivenScene):
             "timestep": self.fixed_timestep if self.fixed_timestep else "auto",
             "timestep_policy": "fixed"
             if self.fixed_timestep
-            else "auto: " + ", ".join(f"{dt:g} s up to {f:g} Hz" for f, dt in TIMESTEP_POLICY),
+            else "auto: " + ", ".join(f"{dt:g} s up to {f:g} Hz" for f, dt in TIMESTEP_POLICY) + _cap_note(self.rig),
             "nq": int(m.nq),
             "nv": int(m.nv),
             "mujoco_version": mujoco.__version__,
             **({"selection": self.selection} if self.selection else {}),
             **({"thermal_drift": self.thermal.describe()} if self.thermal is not None else {}),
         }
+
+
+def _cap_note(rig: RigParams) -> str:
+    return f", at most {rig.max_timestep:g} s (this twin's converged timestep)" if rig.max_timestep > 0 else ""
 
 
 # --- scene registration (beambench.sim.scenes.registry) --------------------------------------------------------
