@@ -14,7 +14,9 @@
 from __future__ import annotations
 
 import os
+import subprocess
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -64,6 +66,67 @@ def process_alive(pid: int) -> bool:
     except (OSError, IndexError):
         return False
     return state != "Z"
+
+
+def cli(*args: str) -> tuple[int, str]:
+    """Exit code and the combined output of one in-process CLI call; a traceback fails the test."""
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+
+    res = CliRunner().invoke(app, list(args))
+    if res.exception is not None and not isinstance(res.exception, SystemExit):
+        raise AssertionError(f"traceback instead of one line: {res.exception!r}") from res.exception
+    return res.exit_code, res.output
+
+
+def one_line_error(code: int, output: str, *words: str) -> str:
+    """Exit 2 and exactly one ``beambench: error:`` line holding ``words``; no traceback."""
+    errors = [ln for ln in output.splitlines() if ln.startswith("beambench: error:")]
+    assert code == 2, output
+    assert len(errors) == 1, output
+    assert "Traceback" not in output, output
+    assert len(errors[0]) < 400, errors[0]
+    for w in words:
+        assert w in errors[0], errors[0]
+    return errors[0]
+
+
+@contextmanager
+def tmpfs(folder: Path, size: str) -> Iterator[Path]:
+    """A tmpfs of ``size`` (mount's syntax: ``64k``, ``24m``) mounted at ``folder`` for the block; the test is
+    skipped with the reason where mounting needs root it does not have."""
+    folder.mkdir(exist_ok=True)
+    try:
+        res = subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(folder)],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+    except (OSError, subprocess.SubprocessError) as exc:
+        pytest.skip(f"cannot mount a tmpfs here ({exc})")
+    if res.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here (root needed): {res.stderr.strip()[:120]}")
+    try:
+        yield folder
+    finally:
+        subprocess.run(["umount", "-l", str(folder)], capture_output=True, timeout=10)
+
+
+SET_AXIS_STATE = 0x07  # CAN Simple command id (node 0)
+
+
+def last_requested_state(can_log: Path) -> int | None:
+    """The state the last Set_Axis_State frame on the bus asked for (from a run's own .asc CAN log)."""
+    import can
+
+    last = None
+    with can.ASCReader(str(can_log)) as reader:
+        for msg in reader:
+            if msg.arbitration_id == SET_AXIS_STATE and not msg.is_remote_frame and len(msg.data) >= 4:
+                last = int.from_bytes(bytes(msg.data[:4]), "little")
+    return last
 
 
 _SOAK = False

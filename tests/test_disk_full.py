@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from beambench.sinks.hdf5 import read_session
+from conftest import last_requested_state, tmpfs
 
 ENDLESS = """
 name: endless
@@ -31,7 +32,6 @@ record_s: 0.3
 sim: {seed: 5}
 """
 REPEAT = max(1, int(os.environ.get("BEAMBENCH_DISK_FULL_RUNS", "1")))
-SET_AXIS_STATE = 0x07
 
 
 def _env() -> dict[str, str]:
@@ -42,20 +42,8 @@ def _env() -> dict[str, str]:
 @pytest.fixture
 def small_disk(tmp_path: Path) -> Iterator[Path]:
     """A 24 MB tmpfs at ``tmp_path/disk``, unmounted after the test."""
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    try:
-        res = subprocess.run(
-            ["mount", "-t", "tmpfs", "-o", "size=24m", "tmpfs", str(disk)], capture_output=True, text=True, timeout=10
-        )
-    except (OSError, subprocess.TimeoutExpired) as exc:
-        pytest.skip(f"cannot mount a tmpfs here ({exc})")
-    if res.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here (root needed): {res.stderr.strip()[:120]}")
-    try:
+    with tmpfs(tmp_path / "disk", "24m") as disk:
         yield disk
-    finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True, timeout=10)
 
 
 def _fill(disk: Path, leave_bytes: int) -> None:
@@ -66,17 +54,6 @@ def _fill(disk: Path, leave_bytes: int) -> None:
         os.posix_fallocate(fd, 0, max(0, free - leave_bytes))
     finally:
         os.close(fd)
-
-
-def _last_requested_state(can_log: Path) -> int | None:
-    import can
-
-    last = None
-    with can.ASCReader(str(can_log)) as reader:
-        for msg in reader:
-            if msg.arbitration_id == SET_AXIS_STATE and not msg.is_remote_frame and len(msg.data) >= 4:
-                last = int.from_bytes(bytes(msg.data[:4]), "little")
-    return last
 
 
 def _no_unwritten_rows(path: Path) -> None:
@@ -138,7 +115,7 @@ def _check_failed_cleanly(code: int, err: str, took: float, path: Path, can_log:
     if len(s.steps):
         assert s.steps["status"].iloc[-1] != "running"
     if can_log is not None:
-        assert _last_requested_state(can_log) == 1, "the last Set_Axis_State did not request IDLE"
+        assert last_requested_state(can_log) == 1, "the last Set_Axis_State did not request IDLE"
 
 
 @pytest.mark.slow

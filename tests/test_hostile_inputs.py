@@ -10,32 +10,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from typer.testing import CliRunner
 
-from beambench.cli import app
 from beambench.common.yaml_config import ConfigError, parse_yaml
+from conftest import cli, one_line_error
 
 BASE = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-
-
-def cli(*args: str) -> tuple[int, str]:
-    """Exit code and the combined output of one CLI call; a traceback fails the test."""
-    res = CliRunner().invoke(app, list(args))
-    if res.exception is not None and not isinstance(res.exception, SystemExit):
-        raise AssertionError(f"traceback instead of one line: {res.exception!r}") from res.exception
-    return res.exit_code, res.output
-
-
-def one_line_error(code: int, output: str, *words: str) -> str:
-    """Exit 2 and exactly one ``beambench: error:`` line holding ``words``; no traceback."""
-    errors = [ln for ln in output.splitlines() if ln.startswith("beambench: error:")]
-    assert code == 2, output
-    assert len(errors) == 1, output
-    assert "Traceback" not in output, output
-    assert len(errors[0]) < 400, errors[0]
-    for w in words:
-        assert w in errors[0], errors[0]
-    return errors[0]
 
 
 def tree(folder: Path) -> list[str]:

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from beambench.sinks.hdf5 import read_session
+from conftest import tmpfs
 
 SHORT = """
 name: short
@@ -159,20 +160,8 @@ def test_a_can_log_that_cannot_be_a_new_file_is_bad_input_before_anything_moves(
 @pytest.fixture
 def tiny_disk(tmp_path):
     """A 64 KiB tmpfs at ``tmp_path/disk`` (root only), unmounted after the test."""
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    try:
-        res = subprocess.run(
-            ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(disk)], capture_output=True, text=True, timeout=10
-        )
-    except (OSError, subprocess.SubprocessError) as exc:
-        pytest.skip(f"cannot mount a tmpfs here ({exc})")
-    if res.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here (root needed): {res.stderr.strip()[:120]}")
-    try:
+    with tmpfs(tmp_path / "disk", "64k") as disk:
         yield disk
-    finally:
-        subprocess.run(["umount", "-l", str(disk)], capture_output=True, timeout=10)
 
 
 @pytest.mark.slow

@@ -365,3 +365,33 @@ def test_the_offset_between_the_wall_and_monotonic_clocks_is_read_tightly():
     reads = [mono_minus_real_ns() for _ in range(2000)]
     assert abs(reads[0] - naive) < 5_000_000
     assert max(reads) - min(reads) < 200_000, (max(reads) - min(reads)) / 1e3
+
+
+class _FrameBeforeServerInfo(MotiveEmulator):
+    """A server whose frame thread reaches a new unicast client before the SERVERINFO reply does (the client is
+    registered first, then answered: under load a frame slips in between)."""
+
+    def _command(self, msg, addr, now_ticks):  # type: ignore[no-untyped-def]
+        if isinstance(msg, nn.Connect) and not isinstance(msg, nn.Discovery) and self._data is not None:
+            self._data.sendto(nn.encode(nn.FrameOfData(1, timestamp=0.0), self.stream_version), addr)
+            time.sleep(0.02)
+        super()._command(msg, addr, now_ticks)
+
+
+def test_a_server_frame_that_beats_its_serverinfo_is_not_counted_as_forged():
+    """Before SERVERINFO names the data port, a datagram from the server's address is early, not forged: the
+    forged count stays exactly what came from other senders."""
+    emu = _FrameBeforeServerInfo(
+        version="4.1", command_port=0, data_port=free_udp_port(), multicast=False, positions=moving
+    )
+    with emu:
+        client = NatNetClient(config_for(emu)).connect()
+        try:
+            deadline = time.monotonic() + 5
+            while client.stats.frames < 20 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert client.stats.frames >= 20
+            assert client.stats.forged == 0, client.stats
+            assert client.stats.ignored >= 1  # the early frame: read, and left out (no version yet)
+        finally:
+            client.close()

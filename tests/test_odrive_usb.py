@@ -53,6 +53,7 @@ class StandInAxis(Node):
             feeds=0,
             cal_s=cal_s,
             cal_end=None,
+            last_feed=time.monotonic(),
             config=Node(f"{path}.config", log, watchdog_timeout=0.0, enable_watchdog=False),
             controller=Node(
                 f"{path}.controller",
@@ -80,6 +81,8 @@ class StandInAxis(Node):
         )
 
     def __getattribute__(self, name):
+        if name in ("current_state", "error"):
+            object.__getattribute__(self, "_watchdog")()
         if name == "current_state":
             end = object.__getattribute__(self, "cal_end")
             if end is not None and time.monotonic() >= end:
@@ -103,8 +106,19 @@ class StandInAxis(Node):
         elif value == AxisState.IDLE:
             object.__setattr__(self, "current_state", int(AxisState.IDLE))
 
+    def _watchdog(self):
+        """The firmware's watchdog runs on its own clock: unfed past its timeout in closed loop, the axis idles."""
+        get = object.__getattribute__
+        config, fed = get(self, "config"), get(self, "last_feed")
+        closed = get(self, "current_state") == AxisState.CLOSED_LOOP_CONTROL
+        if closed and config.enable_watchdog and time.monotonic() - fed > config.watchdog_timeout:
+            object.__setattr__(self, "error", get(self, "error") | AxisError.WATCHDOG_TIMER_EXPIRED)
+            object.__setattr__(self, "current_state", int(AxisState.IDLE))
+
     def watchdog_feed(self):
+        self._watchdog()
         object.__setattr__(self, "feeds", self.feeds + 1)
+        object.__setattr__(self, "last_feed", time.monotonic())
         self._log.append((f"{self._path}.watchdog_feed()", None))
 
 
@@ -258,3 +272,81 @@ def test_ping_with_stand_in_and_without_package(odrv):
     if importlib.util.find_spec("odrive") is None:  # the optional extra is absent here
         missing = ping(timeout_s=0.1)
         assert missing["found"] is False and "pip install" in missing["error"]
+
+
+def test_idle_is_said_only_once_the_axis_reports_idle(odrv):
+    """After idle(), "motor idle" only when the axis's current_state reads IDLE; an axis that stays in closed loop
+    (a stuck request) gives "idle NOT confirmed" and names what idles it then (the watchdog)."""
+    from beambench.acquisition.capabilities import ConfirmsIdle
+
+    m = OdriveUsbMotor(odrv=odrv, timing=UsbMotorTiming(poll_period_s=0.005, idle_confirm_s=0.2))
+    assert isinstance(m, ConfirmsIdle)
+    m.arm(LIMITS)
+    m.idle()
+    said = m.confirm_idle()
+    assert said.startswith("motor idle (") and "IDLE" in said, said
+    m.close()
+
+    class Stuck(StandInAxis):
+        def __setattr__(self, name, value):
+            if name == "requested_state" and value == AxisState.IDLE:
+                Node.__setattr__(self, name, value)  # the request is written but the axis stays where it is
+                return
+            super().__setattr__(name, value)
+
+    stuck = StandInODrive()
+    object.__setattr__(stuck, "axis0", Stuck("odrv.axis0", stuck._log))
+    m = OdriveUsbMotor(odrv=stuck, timing=UsbMotorTiming(poll_period_s=0.005, idle_confirm_s=0.2))
+    m.arm(LIMITS)
+    t0 = time.monotonic()
+    m.idle()
+    said = m.confirm_idle()
+    assert "NOT confirmed" in said and "watchdog" in said and "0.5 s" in said, said
+    assert time.monotonic() - t0 < 2.0
+    m.close()
+
+
+def test_a_stalled_host_is_named_not_blamed_on_the_usb_link(tmp_path):
+    """SIGSTOP of the process that polls the axis for 1 s: check() says the host stalled, not "USB link lost"."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = tmp_path / "stall.py"
+    script.write_text(
+        "import sys, time\n"
+        f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from test_odrive_usb import StandInODrive, LIMITS\n"
+        "from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming\n"
+        "from beambench.acquisition.capabilities import DeviceFault\n"
+        "m = OdriveUsbMotor(odrv=StandInODrive(), timing=UsbMotorTiming(poll_period_s=0.005))\n"
+        "m.arm(LIMITS)\n"
+        "print('armed', flush=True)\n"
+        "sys.stdin.readline()\n"
+        "time.sleep(0.05)\n"
+        "try:\n"
+        "    m.check(); print('no fault', flush=True)\n"
+        "except DeviceFault as exc:\n"
+        "    print('fault:', exc, flush=True)\n"
+        "m.close()\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, str(script)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=dict(os.environ)
+    )
+    try:
+        assert proc.stdout is not None and proc.stdin is not None
+        assert proc.stdout.readline().strip() == "armed"
+        os.kill(proc.pid, signal.SIGSTOP)
+        time.sleep(1.0)
+        os.kill(proc.pid, signal.SIGCONT)
+        proc.stdin.write("\n")
+        proc.stdin.flush()
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert "host stalled for" in out and "link lost" not in out, out
+    ms = int(out.split("host stalled for ")[1].split(" ms")[0])
+    assert 800 <= ms <= 5000, out

@@ -17,35 +17,18 @@ from pathlib import Path
 
 import h5py
 import pytest
-from typer.testing import CliRunner
 
 from beambench.acquisition.protocol.plan import session_path
 from beambench.acquisition.protocol.schema import ConfigError, load_protocol, parse_protocol
-from beambench.cli import app
 from beambench.common.yaml_config import MAX_FILE_BYTES, parse_yaml
 from beambench.sim.models.params import ParamsError, params_from_dict
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, read_session
 from beambench.studies.sweep import SweepError, load_sweep
+from conftest import cli, one_line_error
 
 ROOT = Path(__file__).resolve().parents[1]
 PROTOCOLS = ROOT / "protocols"
 BASE = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-
-
-def _cli(*args: str) -> tuple[int, str]:
-    res = CliRunner().invoke(app, list(args))
-    if res.exception is not None and not isinstance(res.exception, SystemExit):
-        raise AssertionError(f"traceback instead of one line: {res.exception!r}") from res.exception
-    return res.exit_code, res.output
-
-
-def _one_line_error(code: int, output: str, *words: str) -> None:
-    errors = [ln for ln in output.splitlines() if ln.startswith("beambench: error:")]
-    assert code == 2, output
-    assert len(errors) == 1, output
-    assert len(errors[0]) < 400, errors[0]
-    for w in words:
-        assert w in errors[0], errors[0]
 
 
 # --- point 7: finite numbers, booleans are not numbers ---------------------------------------------------
@@ -97,8 +80,8 @@ def test_yaml_1_2_exponents_are_numbers():
 def test_a_frequency_over_the_limit_in_a_list_is_caught_in_a_dry_run(tmp_path):
     proto = tmp_path / "p.yaml"
     proto.write_text("name: t\nsweep: {frequencies: [5, 100, 10]}\nlimits: {max_frequency_hz: 40}\n")
-    code, out = _cli("run", str(proto), "--dry-run")
-    _one_line_error(code, out, "sweep = 100", "max_frequency_hz")
+    code, out = cli("run", str(proto), "--dry-run")
+    one_line_error(code, out, "sweep = 100", "max_frequency_hz")
 
 
 # --- point 4: caps ------------------------------------------------------------------------------------
@@ -107,8 +90,8 @@ def test_a_tiny_sweep_step_is_refused_quickly_run_and_dry_run(tmp_path):
     proto.write_text("name: t\nsweep: {start: 1, stop: 40, step: 1.0e-9}\n")
     for extra in ([], ["--dry-run"]):
         t0 = time.perf_counter()
-        code, out = _cli("run", str(proto), "--out", str(tmp_path), *extra)
-        _one_line_error(code, out, "steps", "10000")
+        code, out = cli("run", str(proto), "--out", str(tmp_path), *extra)
+        one_line_error(code, out, "steps", "10000")
         assert time.perf_counter() - t0 < 20  # a bound, not a benchmark: it used to spin for hours
 
 
@@ -143,8 +126,8 @@ def test_a_bad_sim_model_is_one_line_blaming_sim_model_dry_run_too(tmp_path, mod
     proto = tmp_path / "p.yaml"
     proto.write_text(BASE + f"sim: {{model: {model}}}\n")
     for extra in (["--dry-run"], ["--out", str(tmp_path), "--rerun", "off"]):
-        code, out = _cli("run", str(proto), *extra)
-        _one_line_error(code, out, "sim.model", model)
+        code, out = cli("run", str(proto), *extra)
+        one_line_error(code, out, "sim.model", model)
     assert not list(tmp_path.glob("*.h5"))  # nothing ran
 
 
@@ -153,8 +136,8 @@ def test_a_missing_parameter_set_is_one_line_dry_run_too(tmp_path, params):
     proto = tmp_path / "p.yaml"
     proto.write_text(BASE + f"sim: {{params: '{params}'}}\n")
     for extra in (["--dry-run"], ["--out", str(tmp_path), "--rerun", "off"]):
-        code, out = _cli("run", str(proto), *extra)
-        _one_line_error(code, out, "sim.params")
+        code, out = cli("run", str(proto), *extra)
+        one_line_error(code, out, "sim.params")
 
 
 def test_a_malformed_parameter_file_is_one_line(tmp_path):
@@ -162,8 +145,8 @@ def test_a_malformed_parameter_file_is_one_line(tmp_path):
     params.write_text("beam: {k: .nan}\n")
     proto = tmp_path / "p.yaml"
     proto.write_text(BASE + f"sim: {{params: '{params}'}}\n")
-    code, out = _cli("run", str(proto), "--dry-run")
-    _one_line_error(code, out, "sim.params", "finite")
+    code, out = cli("run", str(proto), "--dry-run")
+    one_line_error(code, out, "sim.params", "finite")
 
 
 def test_sweep_files_are_capped_too(tmp_path):
@@ -202,8 +185,8 @@ def test_a_nul_in_the_name_cannot_overwrite_an_existing_session(tmp_path):
         f.attrs["mine"] = 1
     proto = tmp_path / "p.yaml"
     proto.write_text(BASE)
-    code, out = _cli("run", str(proto), "--out", str(tmp_path), "--name", "keep\x00x", "--rerun", "off")
-    _one_line_error(code, out, "--name")
+    code, out = cli("run", str(proto), "--out", str(tmp_path), "--name", "keep\x00x", "--rerun", "off")
+    one_line_error(code, out, "--name")
     with h5py.File(existing, "r") as f:
         assert f.attrs["mine"] == 1
 
@@ -230,8 +213,8 @@ def test_the_rrd_beside_a_session_is_never_overwritten(tmp_path):
 def test_tracebacks_become_one_line(tmp_path):
     binary = tmp_path / "bin.yaml"
     binary.write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\xff\xfe" * 20)
-    code, out = _cli("run", str(binary), "--dry-run")
-    _one_line_error(code, out, "not a text file")
+    code, out = cli("run", str(binary), "--dry-run")
+    one_line_error(code, out, "not a text file")
 
     for text, words in (
         (BASE + "sim: {seed: -1}\n", ["sim.seed"]),
@@ -242,21 +225,21 @@ def test_tracebacks_become_one_line(tmp_path):
     ):
         proto = tmp_path / "p.yaml"
         proto.write_text(text)
-        code, out = _cli("run", str(proto), "--out", str(tmp_path), "--rerun", "off")
-        _one_line_error(code, out, *words)
+        code, out = cli("run", str(proto), "--out", str(tmp_path), "--rerun", "off")
+        one_line_error(code, out, *words)
 
     proto = tmp_path / "p.yaml"
     proto.write_text(BASE)
     a_file = tmp_path / "afile"
     a_file.write_text("x")
-    code, out = _cli("run", str(proto), "--out", str(a_file), "--rerun", "off")
-    _one_line_error(code, out, "--out")
-    code, out = _cli("run", str(proto), "--out", str(a_file / "sub"), "--rerun", "off")
-    _one_line_error(code, out, "--out")
-    code, out = _cli("run", str(proto), "--name", "n" * 300, "--out", str(tmp_path), "--rerun", "off")
-    _one_line_error(code, out, "--name")
-    code, out = _cli("run", str(proto), "--backend", "emulated", "--can-log", str(tmp_path / "x.txt"), "--dry-run")
-    _one_line_error(code, out, "--can-log")
+    code, out = cli("run", str(proto), "--out", str(a_file), "--rerun", "off")
+    one_line_error(code, out, "--out")
+    code, out = cli("run", str(proto), "--out", str(a_file / "sub"), "--rerun", "off")
+    one_line_error(code, out, "--out")
+    code, out = cli("run", str(proto), "--name", "n" * 300, "--out", str(tmp_path), "--rerun", "off")
+    one_line_error(code, out, "--name")
+    code, out = cli("run", str(proto), "--backend", "emulated", "--can-log", str(tmp_path / "x.txt"), "--dry-run")
+    one_line_error(code, out, "--can-log")
 
 
 def test_an_unwritable_out_folder_is_one_line(tmp_path):
@@ -270,8 +253,8 @@ def test_an_unwritable_out_folder_is_one_line(tmp_path):
         target = ro / "x"
     proto = tmp_path / "p.yaml"
     proto.write_text(BASE)
-    code, out = _cli("run", str(proto), "--out", str(target), "--rerun", "off")
-    _one_line_error(code, out, "--out")
+    code, out = cli("run", str(proto), "--out", str(target), "--rerun", "off")
+    one_line_error(code, out, "--out")
 
 
 def test_an_unwritable_session_path_is_a_session_file_error(tmp_path):
@@ -283,13 +266,13 @@ def test_an_unwritable_session_path_is_a_session_file_error(tmp_path):
 
 # --- issue 14 point 7: the wrong kind of file ---------------------------------------------------------
 def test_a_sweep_file_given_to_run_says_so():
-    code, out = _cli("run", str(PROTOCOLS / "twist_sweep.yaml"), "--dry-run")
-    _one_line_error(code, out, "sweep file", "beambench sweep")
+    code, out = cli("run", str(PROTOCOLS / "twist_sweep.yaml"), "--dry-run")
+    one_line_error(code, out, "sweep file", "beambench sweep")
 
 
 def test_a_protocol_file_given_to_sweep_says_so():
-    code, out = _cli("sweep", str(PROTOCOLS / "contact_sweep.yaml"))
-    _one_line_error(code, out, "protocol file", "beambench run")
+    code, out = cli("sweep", str(PROTOCOLS / "contact_sweep.yaml"))
+    one_line_error(code, out, "protocol file", "beambench run")
 
 
 def test_every_shipped_file_loads_with_its_own_command():

@@ -40,6 +40,7 @@ import pytest
 
 from beambench.acquisition.runner import signal_name
 from beambench.sinks.hdf5 import read_session
+from conftest import last_requested_state
 
 # Long enough that no run can finish before its signal (200 steps x 0.5 s of rig time).
 ENDLESS = """
@@ -116,19 +117,6 @@ def _one_h5py_reader() -> Iterator[None]:
 
 
 SCALE = max(1, int(os.environ.get("BEAMBENCH_SIGNAL_RUNS", "1")))
-SET_AXIS_STATE = 0x07  # CAN Simple command id (node 0)
-
-
-def _last_requested_state(can_log: Path) -> int | None:
-    """The state the last Set_Axis_State frame on the bus asked for (from the run's own .asc log)."""
-    import can
-
-    last = None
-    with can.ASCReader(str(can_log)) as reader:
-        for msg in reader:
-            if msg.arbitration_id == SET_AXIS_STATE and not msg.is_remote_frame and len(msg.data) >= 4:
-                last = int.from_bytes(bytes(msg.data[:4]), "little")
-    return last
 
 
 def _check_interrupted(
@@ -156,7 +144,7 @@ def _check_interrupted(
     if motor_state_idle:  # the emulated rig: its drivers' counters, and the bus itself
         assert "devices" in kinds and "motor" in s.general.get("devices", {}), (kinds, list(s.general))
     if can_log is not None:
-        assert _last_requested_state(can_log) in (None, 1), "the last Set_Axis_State did not request IDLE"
+        assert last_requested_state(can_log) in (None, 1), "the last Set_Axis_State did not request IDLE"
 
 
 class Zygote:

@@ -29,6 +29,7 @@ from beambench.commands import (
     run,
     sweep,
 )
+from beambench.common.out_of_memory import out_of_memory
 
 
 def _version(value: bool) -> None:
@@ -81,26 +82,6 @@ def main() -> None:
                 sys.stderr.flush()
             os._exit(code)
         raise
-
-
-_NO_MEMORY = ("could not allocate memory", "cannot allocate memory", "failed to map segment", "can't start new thread")
-
-
-def out_of_memory(exc: BaseException) -> str | None:
-    """What ran out, if ``exc`` (or an exception it came from) is the process running out of memory: a
-    ``MemoryError``, or an allocation, a shared library's mapping or a thread start refused by the memory limit
-    (MuJoCo, an extension module's import, threading). None otherwise."""
-    seen: BaseException | None = exc
-    for _ in range(8):
-        if seen is None:
-            return None
-        if isinstance(seen, MemoryError):
-            return "MemoryError"
-        text = str(seen).strip().splitlines()[0] if str(seen).strip() else ""
-        if any(m in text.lower() for m in _NO_MEMORY):
-            return f"{type(seen).__name__}: {text[:160]}"
-        seen = seen.__cause__ or seen.__context__
-    return None
 
 
 def _main_inner() -> None:

@@ -50,6 +50,7 @@ from beambench.acquisition.capabilities import (
 from beambench.acquisition.hub import Hub, SinkFailure
 from beambench.acquisition.monitors import Monitor
 from beambench.acquisition.protocol.plan import Step
+from beambench.common.out_of_memory import out_of_memory
 
 
 class Terminated(BaseException):
@@ -199,11 +200,6 @@ def stop_on_signals(stop: StopSignal | None = None, *, then_ignore: bool = False
             signal.signal(signum, signal.SIG_IGN if then_ignore else previous)
 
 
-def _thread_start_failed(exc: RuntimeError) -> bool:
-    """CPython's "can't start new thread" (no memory or no thread left for one): a resource, not a bug."""
-    return "can't start new thread" in str(exc)
-
-
 class Runner:
     """Runs ``steps`` on ``rig``, streaming every batch to ``hub`` every ``poll_s`` of rig time."""
 
@@ -261,7 +257,7 @@ class Runner:
             except MemoryError:  # the shutdown below idles the motor without allocating; then one line
                 result = RunResult("error", self.steps_done, "out of memory (MemoryError)")
             except RuntimeError as exc:
-                if not _thread_start_failed(exc):
+                if out_of_memory(exc) is None:
                     result = RunResult("error", self.steps_done, f"{type(exc).__name__}: {exc}")
                     raise
                 result = RunResult("error", self.steps_done, f"out of resources: {exc}")

@@ -392,7 +392,10 @@ class NatNetClient:
             except OSError:
                 return
             if not self._from_server(sock, addr):
-                self._forged(addr)
+                if self._early(sock, addr):
+                    self.stats.ignored += 1  # the server's, before its SERVERINFO named the port: not read
+                else:
+                    self._forged(addr)
                 continue
             host_ns = self._last_host_ns = max(host_ns, self._last_host_ns)
             self._handle(data, host_ns)
@@ -407,6 +410,12 @@ class NatNetClient:
             return True
         info = self.server_info
         return addr[1] == self.config.command_port or (info is not None and addr[1] == info.data_port)
+
+    def _early(self, sock: socket.socket, addr: tuple[str, int]) -> bool:
+        """A datagram from the server's address that came before its SERVERINFO named its data port (a server
+        may start streaming to a new client before its reply arrives): dropped like a forgery, but not counted as
+        one."""
+        return sock is self._cmd and addr[0] == self._server_ip and self.server_info is None
 
     def _forged(self, addr: tuple[str, int]) -> None:
         st = self.stats

@@ -77,6 +77,7 @@ class UsbMotorTiming:
     heartbeat_timeout_s: float = 0.3  # no successful poll this long: a fault
     closed_loop_timeout_s: float = 2.0
     calibration_timeout_s: float = 30.0
+    idle_confirm_s: float = 0.5  # after idle(): how long to wait for the axis to report IDLE
 
 
 class OdriveUsbMotor(TelemetryStream):
@@ -120,6 +121,8 @@ class OdriveUsbMotor(TelemetryStream):
         self._error = 0
         self._sub_errors: dict[str, int] = {}
         self._link_error: str | None = None
+        self._tick_ns: int | None = None  # the poller's last wake
+        self._stall_ns = 0  # the host's own stall (no CPU time: suspended, swapping), not the link's silence
         self._saved_watchdog: bool | None = None
         self._poller: threading.Thread | None = None
         self._stop = threading.Event()
@@ -195,11 +198,31 @@ class OdriveUsbMotor(TelemetryStream):
 
     def _poll_loop(self) -> None:
         while not self._stop.wait(self.poll_period_s):
+            self._note_stall(time.monotonic_ns())
             try:
                 self._poll_once()
             except Exception as exc:
                 with self._lock:
                     self._link_error = f"{type(exc).__name__}: {exc}"
+
+    def _note_stall(self, now_ns: int) -> None:
+        """The poller wakes every ``poll_period_s``: not waking for longer than the link timeout (or the axis's
+        watchdog timeout, if shorter) means this process got no CPU time (SIGSTOP, a debugger, swapping), whatever
+        the ODrive did meanwhile."""
+        with self._lock:
+            gap = now_ns - self._tick_ns if self._tick_ns is not None else 0
+            self._tick_ns = now_ns
+            limit = min(self.heartbeat_timeout_s, self.watchdog_timeout_s or math.inf)
+            if self._armed and gap > limit * 1e9:
+                self._stall_ns = max(self._stall_ns, gap)
+
+    def _stall_text(self) -> str:
+        watchdog = self.watchdog_timeout_s
+        then = f"; the ODrive's watchdog idles the axis after {watchdog:g} s unfed" if watchdog else ""
+        return (
+            f"the host stalled for {self._stall_ns / 1e6:.0f} ms (this process got no CPU time: suspended or "
+            f"overloaded), so ODrive axis{self.axis_index} went unfed and unread over USB{then}"
+        )
 
     # ------------------------------------------------------------------ Motor protocol (stream: TelemetryStream)
     def arm(self, limits: MotorLimits) -> None:
@@ -223,6 +246,7 @@ class OdriveUsbMotor(TelemetryStream):
             ax.config.enable_watchdog = True
             with self._lock:
                 self._limits, self._setpoint = limits, 0.0
+                self._stall_ns = 0
             needs_cal = self.calibrate
             if needs_cal is None:
                 needs_cal = not (bool(ax.motor.is_calibrated) and bool(ax.encoder.is_ready))
@@ -301,10 +325,31 @@ class OdriveUsbMotor(TelemetryStream):
             except Exception as exc:
                 self.idle_errors.append(f"idle {step}: {exc}")
 
+    def confirm_idle(self) -> str:
+        """After :meth:`idle`: "motor idle" once the axis reports AXIS_STATE_IDLE (waiting at most
+        ``timing.idle_confirm_s``); otherwise "idle NOT confirmed" and when the ODrive's watchdog idles it."""
+        end = time.monotonic() + self.timing.idle_confirm_s
+        while self._ax is not None and not self._closed:
+            try:
+                if int(self._ax.current_state) == AxisState.IDLE:
+                    return f"motor idle (ODrive axis{self.axis_index} confirms AXIS_STATE_IDLE over USB)"
+            except Exception as exc:  # the link is gone: nothing to confirm with
+                self.idle_errors.append(f"confirm idle: {exc}")
+                break
+            if time.monotonic() >= end:
+                break
+            time.sleep(min(0.01, self.poll_period_s))
+        watchdog = self.watchdog_timeout_s
+        within = f"within {watchdog:g} s" if watchdog else "if its watchdog is enabled"
+        return f"motor idle NOT confirmed; the ODrive watchdog idles it {within}"
+
     def check(self) -> None:
+        self._note_stall(time.monotonic_ns())
         with self._lock:
             if self._last_ok_ns is None:
                 return
+            if self._stall_ns and self._armed:  # whatever the ODrive says now follows from the host's stall
+                raise DeviceFault(self._stall_text())
             age_s = (time.monotonic_ns() - self._last_ok_ns) * 1e-9
             if age_s > self.heartbeat_timeout_s:
                 why = f" ({self._link_error})" if self._link_error else ""
