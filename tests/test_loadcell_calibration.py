@@ -1,6 +1,7 @@
 """Load-cell calibration: per-channel tare, least-squares matrix, and the `calibrate loadcells` walkthrough."""
 
 import io
+import time
 
 import numpy as np
 import pytest
@@ -137,6 +138,66 @@ def test_walkthrough_over_a_pty_with_a_person_placing_weights():
     assert np.all(fit.rms < 5e-3)
     probe = np.array([[1.2, 0.3], [0.1, -0.8]])
     np.testing.assert_allclose(cal.force_from_counts(plate.counts_from_force(probe)), probe, atol=5e-3)
+
+
+class LateReader:
+    """The real driver, read by a host that is behind: read() hands over only the rows the driver received at
+    least ``lag_s`` ago (as a loaded machine's calibration loop would get them)."""
+
+    def __init__(self, stream: SerialLoadCells, lag_s: float) -> None:
+        self.stream, self.lag_ns, self.held = stream, int(lag_s * 1e9), []
+
+    def describe(self):  # type: ignore[no-untyped-def]
+        return self.stream.describe()
+
+    def read(self):  # type: ignore[no-untyped-def]
+        from beambench.acquisition.batch import Batch
+
+        got = self.stream.read()
+        if len(got):
+            self.held.append(got)
+        if not self.held:
+            return got
+        b = Batch.concat(self.held)
+        ready = b.host_time_ns <= time.monotonic_ns() - self.lag_ns
+
+        def rows(mask):  # type: ignore[no-untyped-def]
+            cols = {k: v[mask] for k, v in b.columns.items()}
+            return Batch(b.stream, b.host_time_ns[mask], b.device_time[mask], cols)
+
+        self.held = [rows(~ready)] if not np.all(ready) else []
+        return rows(ready)
+
+
+def test_a_host_that_reads_late_still_records_each_load_after_its_enter():
+    """The person's Enter is the mark: frames the MCU sent before it but the host reads after it (0.3 s late,
+    longer than the settle) are not the new load's."""
+    rng = np.random.default_rng(6)
+    sens = np.array([[20000.0, 0], [20000.0, 0], [0, 20000.0], [0, 20000.0]]) + rng.normal(0, 500, (4, 2))
+    plate = LoadCellCalibration(tare=np.array([900.0, -100.0, 40.0, 2000.0]), sensitivity=sens)
+    mcu = EmulatedLoadCellMCU(calibration=plate, noise_counts=30.0, seed=10)
+    on_plate = {"load": (3.0, 3.0)}  # something left on the plate until the tare's prompt is answered
+    mcu.set_force(lambda t: on_plate["load"])
+    pending = iter([(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)])
+
+    def ask(text):  # type: ignore[no-untyped-def]
+        on_plate["load"] = next(pending)
+        return ""
+
+    lc = SerialLoadCells(mcu.open())
+    try:
+        lc.start()
+        mcu.start()
+        time.sleep(0.5)
+        late = LateReader(lc, 0.3)
+        cal, _ = walkthrough(
+            late, [(1.0, 0.0), (0.0, 1.0)], ask, Console(file=io.StringIO()), settle_s=0.1, duration_s=0.2
+        )
+    finally:
+        lc.stop()
+        mcu.close()
+    np.testing.assert_allclose(cal.tare, plate.tare, atol=5)
+    np.testing.assert_allclose(cal.matrix @ sens, np.eye(2), atol=5e-3)
 
 
 def app():

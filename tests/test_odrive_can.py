@@ -107,6 +107,16 @@ def test_arm_calibrates_then_enters_closed_loop(motor, emu):
     assert motor.heartbeat.axis_state == AxisState.CLOSED_LOOP_CONTROL
 
 
+def test_a_starved_emulator_still_shows_the_calibration_it_ran(motor, emu):
+    """The emulator's thread gets no CPU for longer than the calibration right after it starts one (a loaded
+    host): the heartbeats that fell due meanwhile go out late but say what the axis did at their time, so the
+    driver sees the calibration and arms, instead of "did not start calibrating"."""
+    emu.stall_after(cs.Cmd.SET_AXIS_STATE, 2 * CAL_S)
+    motor.arm(LIMITS)
+    assert emu.snapshot()["state"] == AxisState.CLOSED_LOOP_CONTROL
+    assert emu.stalls == 1  # the stall really happened
+
+
 def test_limits_and_mode_sent_before_calibration_and_closed_loop(motor, emu, tmp_path):
     motor.arm(LIMITS)
     motor.close()
@@ -180,7 +190,9 @@ def test_telemetry_is_stamped_at_arrival_not_when_the_receive_thread_handles_it(
     assert len(batch) > 50
     gaps_ms = np.diff(batch.host_time_ns) * 1e-6
     assert RECEIVE_COALESCE_S * 1e3 > 15  # the premise: gatherings longer than the 10 ms telemetry period
-    assert np.median(gaps_ms) == pytest.approx(10.0, abs=2.0)
+    # arrival times keep the sender's ~10 ms spacing (handling times would put the median gap near 0); a sender
+    # starved on a loaded host sends late and spaces them wider, never closer
+    assert 8.0 <= np.median(gaps_ms) <= 30.0, np.round(gaps_ms, 2)
     assert np.mean(gaps_ms < 2.0) < 0.2, np.round(gaps_ms, 2)
     # host and device clocks agree: both are the frame's stamp, the host's moved from the wall clock onto the
     # monotonic one, so they differ by that offset only. (Not "they move together": this VM's wall clock was seen
@@ -353,7 +365,7 @@ def test_can_log_has_the_traffic(numbered_channel, tmp_path, suffix):
 
 
 def test_ping(channel, emu):
-    info = ping(channel, "virtual")
+    info = ping(channel, "virtual", listen_s=1.0)
     assert info["found"] and info["nodes"] == [NODE] and info["node_id"] == NODE
     assert info["axis_state"] == "IDLE" and info["axis_error"] == "NONE"
     assert info["bus_voltage_v"] == pytest.approx(24.0)

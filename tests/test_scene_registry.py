@@ -9,7 +9,6 @@ from beambench.acquisition.protocol import scenes as catalogue
 from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
 from beambench.acquisition.streams import CONTACT_MARKERS, WALKER_MARKERS
 from beambench.sim import scenes
-from beambench.studies import sweep_scenes
 
 
 def test_every_runnable_scene_has_a_builder_and_every_batched_one_a_sweep_runner():
@@ -17,9 +16,13 @@ def test_every_runnable_scene_has_a_builder_and_every_batched_one_a_sweep_runner
     assert catalogue.batched_names() == ("free_beam", "contact")
     for name in catalogue.runnable_names():
         assert scenes.get(name).info is catalogue.scene_info(name)
-    assert set(sweep_scenes.RUNNERS) == set(catalogue.batched_names())
+    assert set(scenes.batched_scenes()) == set(
+        catalogue.batched_names()
+    )  # each engine registered in its scene's module
     with pytest.raises(KeyError, match="no builder"):
         scenes.get("free_beam")
+    with pytest.raises(KeyError, match="'walker' has no batched engine"):
+        scenes.batch_engine("walker")
     with pytest.raises(KeyError, match="unknown scene 'boat'"):
         catalogue.scene_info("boat")
 

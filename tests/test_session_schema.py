@@ -281,7 +281,13 @@ def _edits(draw: Any, objects: list[str]) -> list[tuple]:
         elif op == "attr":
             out.append((op, target, draw(st.sampled_from(ATTR_NAMES)), draw(st.sampled_from([*ATTR_VALUES, None]))))
         elif op == "text":
-            out.append((op, target, draw(st.sampled_from(TEXTS) | st.text(max_size=40))))
+            out.append(
+                (
+                    op,
+                    target,
+                    draw(st.sampled_from(TEXTS) | st.text(st.characters(exclude_characters="\x00"), max_size=40)),
+                )
+            )
         elif op in ("truncate", "junk"):
             out.append((op, draw(st.floats(0.0, 1.0)), draw(st.binary(min_size=1, max_size=64))))
         else:

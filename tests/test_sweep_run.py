@@ -23,7 +23,7 @@ from beambench.studies.sweep import (
     run_sweep,
     write_table,
 )
-from conftest import descendants, process_alive
+from conftest import cli, descendants, one_line_error, process_alive
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -130,6 +130,18 @@ def test_bad_sweep_files_fail_with_one_line(tmp_path):
     (tmp_path / "junk.parquet").write_text("not parquet")
     with pytest.raises(SweepError, match="not a readable sweep table"):
         read_table(tmp_path / "junk.parquet")
+
+
+def test_an_unknown_parameter_set_is_one_line_before_any_worker_starts(tmp_path):
+    """A point whose ``params`` names no set of its model's family is refused when the file is read (it reached
+    the workers as a ParamsError traceback, exit 1, after the pool had started)."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("scene: free_beam\ngrid: {params: [paper, nosuch]}\nfrequencies: [15]\n")
+    with pytest.raises(SweepError, match=r"bad\.yaml: params = 'nosuch': no parameter set prb3_nosuch\.yaml"):
+        load_sweep(bad)
+    code, out = cli("sweep", str(bad), "--out", str(tmp_path / "t.parquet"), "--workers", "1")
+    one_line_error(code, out, "bad.yaml", "params = 'nosuch'")
+    assert not (tmp_path / "t.parquet").exists()
 
 
 def test_options_the_scene_does_not_build_are_refused(tmp_path):

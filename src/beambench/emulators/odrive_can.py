@@ -360,6 +360,8 @@ class EmulatedOdrive:
         self.model = OdriveAxisModel(self.config, clock())
         self.sent = 0
         self.error: BaseException | None = None
+        self._stall: tuple[int, float] | None = None  # (command id, seconds): fault injection, see stall_after
+        self.stalls = 0
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> EmulatedOdrive:
@@ -446,6 +448,12 @@ class EmulatedOdrive:
             self.model.advance(self._clock())
             self.model.inject_error(motor, encoder, controller, axis)
 
+    def stall_after(self, command: int, seconds: float) -> None:
+        """Fault injection: once the next frame of ``command`` is handled, this emulator's thread gets no CPU for
+        ``seconds`` (as on a loaded host); the axis's own timeline runs on meanwhile."""
+        with self._lock:
+            self._stall = (int(command), float(seconds))
+
     def configure(self, **changes: object) -> None:
         """Change configuration as if set over USB (e.g. ``watchdog_timeout_s``, ``vel_ramp_rate``)."""
         with self._lock:
@@ -475,9 +483,18 @@ class EmulatedOdrive:
                 with self._lock:
                     now = self._clock()
                     m = self.model
+                    if hb_period > 0 and now >= m.silent_until:
+                        next_hb = self._late_heartbeats(next_hb, hb_period, now)
                     m.advance(now)
                     if frame is not None and now >= silent_until:
                         self._on_frame(frame)
+                        stall = self._stall_due(frame)
+                        if stall:
+                            self._lock.release()  # starved: nothing runs in this thread, the lock is free
+                            try:
+                                time.sleep(stall)
+                            finally:
+                                self._lock.acquire()
                     if now < m.silent_until:
                         next_hb = next_enc = m.silent_until
                         continue
@@ -492,6 +509,31 @@ class EmulatedOdrive:
         except Exception as exc:
             if not (self._stop.is_set() and isinstance(exc, (can.CanError, OSError))):
                 self.error = exc
+
+    def _late_heartbeats(self, next_hb: float, period: float, now: float) -> float:
+        """Heartbeats that fell due while this thread got no CPU, each saying the axis's state at its own due time
+        (a device's timeline does not skip because its emulator was starved); the last one due is left to the
+        caller, at ``now``. At most a second's worth; returns the next due time."""
+        for _ in range(max(1, round(1.0 / period))):
+            if next_hb + period > now:
+                break
+            self.model.advance(next_hb)
+            self._send(self.model.heartbeat())
+            next_hb += period
+        return next_hb
+
+    def _stall_due(self, frame: can.Message) -> float:
+        if self._stall is None:
+            return 0.0
+        try:
+            node, cmd = cs.split_id(frame.arbitration_id, frame.is_extended_id)
+        except cs.CanParseError:
+            return 0.0
+        if node != self.model.node_id or cmd != self._stall[0]:
+            return 0.0
+        seconds, self._stall = self._stall[1], None
+        self.stalls += 1
+        return seconds
 
     def _on_frame(self, frame: can.Message) -> None:
         m = self.model

@@ -217,13 +217,26 @@ def load_sweep(path: str | Path) -> SweepSpec:
         )
     spec = validate(SweepSpec, data, str(path), SweepError, what="sweep fields")
     try:
-        spec.scene_points()
+        points = spec.scene_points()
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = ".".join(str(x) for x in err["loc"] if not str(x).startswith("function-")) or "(top level)"
         msg = "unknown field" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
         raise SweepError(f"{path}: {loc}: {msg}") from None
+    _check_parameter_sets(points, path)
     return spec
+
+
+def _check_parameter_sets(points: list[Point], path: str | Path) -> None:
+    """Every point's parameter set exists for its model (else the workers would fail one by one)."""
+    from beambench.sim.models.params import ParamsError
+    from beambench.sim.models.registry import default_params
+
+    for model, params in sorted({(p.model, p.params) for p in points}):
+        try:
+            default_params(model, params)
+        except ParamsError as exc:
+            raise SweepError(f"{path}: {str(exc).removeprefix('sim.')}") from None
 
 
 # ------------------------------------------------------------------------------------------------ plan

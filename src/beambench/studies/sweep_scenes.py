@@ -1,20 +1,22 @@
-"""How each scene with a batched engine runs a sweep task: one runner per scene, registered with
-:func:`batched` against its :class:`~beambench.acquisition.protocol.scenes.SceneInfo` (``batched=True``), fed a typed
-:class:`SweepTask`, returning one result row per job with the scene's metrics (:mod:`beambench.analysis`).
+"""How a sweep task runs: the scene's batched engine (registered in its own module with
+:func:`beambench.sim.scenes.batched`) simulates the task's jobs and returns standard channels (tip, stage, foot,
+the plate's normal force); the metrics are computed here from the channels a run carries (:mod:`beambench.analysis`),
+with no code per scene. The MuJoCo side is imported when a task runs, so validating a sweep file needs no MuJoCo.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from beambench.acquisition.protocol.scenes import CONTACT, FREE_BEAM, SceneInfo
+if TYPE_CHECKING:
+    from beambench.sim.models.beam import BeamModel
+    from beambench.sim.scenes.registry import BatchJob, ContactTrace, JobRun
 
-__all__ = ["RUNNERS", "Job", "SweepTask", "batched", "run_task"]
+__all__ = ["Job", "SweepTask", "metrics", "run_task"]
 
 
 @dataclass(frozen=True)
@@ -38,7 +40,7 @@ class SweepTask:
     sample_dt: float
 
 
-def _beam(point: dict[str, Any]):
+def _beam(point: dict[str, Any]) -> BeamModel:
     """The beam model of a point, with its stiffness/damping overrides applied (the beam's own overrides,
     :data:`beambench.studies.unknowns.BEAM_OVERRIDES`, as the fit applies them)."""
     from beambench.sim.models.registry import default_params, is_rod, make_beam_model
@@ -53,107 +55,66 @@ def _beam(point: dict[str, Any]):
 
 
 def run_task(task: SweepTask) -> list[dict[str, Any]]:
-    """Simulate one task's jobs (in this process, one thread) and return one result row per job."""
-    return RUNNERS[task.scene](task)
+    """Simulate one task's jobs (in this process, one thread) with the scene's batched engine and return one
+    result row per job: the point, the frequency and the metrics of the channels the scene's runs carry."""
+    from beambench.sim.scenes import BatchTask, batch_engine
+
+    batch = BatchTask(_batch_jobs(task.jobs), task.settle_s, task.record_s, task.sample_dt)
+    runs = {run.index: run for run in batch_engine(task.scene)(batch)}
+    rows = []
+    for job in sorted(task.jobs, key=lambda j: j.index):
+        run = runs[job.index]
+        rows.append(_row(job.index, job.id, job.point, job.frequency_hz, task.scene, run.ok, metrics(run, job)))
+    return rows
 
 
-TaskRunner = Callable[[SweepTask], list[dict[str, Any]]]
-RUNNERS: dict[str, TaskRunner] = {}
-"""Scene name → how its batched engine runs a task (registered with :func:`batched`)."""
+def _batch_jobs(jobs: tuple[Job, ...]) -> tuple[BatchJob, ...]:
+    """The engine's view of the jobs: the beam of each point built once (its overrides applied), the drive in SI."""
+    from beambench.sim.scenes import BatchJob
 
-
-def batched(info: SceneInfo) -> Callable[[TaskRunner], TaskRunner]:
-    """Register the task runner of a scene with a batched engine (``info.batched``), once."""
-
-    def add(run: TaskRunner) -> TaskRunner:
-        if not info.batched:
-            raise ValueError(f"{info.name} declares no batched engine")
-        if info.name in RUNNERS:
-            raise ValueError(f"{info.name} has a sweep runner already")
-        RUNNERS[info.name] = run
-        return run
-
-    return add
-
-
-@batched(FREE_BEAM)
-def _run_free_beam(task: SweepTask) -> list[dict[str, Any]]:
-    from beambench.sim.scenes.free_beam import build_free_beam_spec, run_batch
-
-    rows: dict[int, dict[str, Any]] = {}
-    models, freqs, jobs = [], [], []
-    compiled: dict[str, Any] = {}  # one model (and one rest pose) per scene point, shared by its frequencies
-    for job in task.jobs:
-        index, jid, point, f = job.index, job.id, job.point, job.frequency_hz
-        key = json.dumps(point, sort_keys=True)
-        if key not in compiled:
-            h = point["timestep"] or 1e-4
-            compiled[key] = build_free_beam_spec(
-                _beam(point), point["twist_deg"] * point["chirality"], point["integrator"], h
-            ).compile()
-        models.append(compiled[key])
-        freqs.append(f)
-        jobs.append((index, jid, point, f))
-    # one batch per model shape, timestep, integrator and amplitude (PRB3 merges a joint at φ = 0)
-    groups: dict[tuple, list[int]] = {}
-    for i, m in enumerate(models):
-        p = jobs[i][2]
-        groups.setdefault((m.nq, m.nv, float(m.opt.timestep), p["integrator"], p["amplitude_mm"]), []).append(i)
-    for (_, _, h, integ, amp), idx in groups.items():
-        every = max(1, round(task.sample_dt / h))
-        t, tip, stage, ok, _ = run_batch(
-            [models[i] for i in idx],
-            [freqs[i] for i in idx],
-            amp * 1e-3,
-            task.settle_s,
-            task.record_s,
-            every,
-            integ,
-            nthread=1,
+    beams: dict[str, BeamModel] = {}
+    out = []
+    for job in jobs:
+        p = job.point
+        group = json.dumps(p, sort_keys=True)
+        if group not in beams:
+            beams[group] = _beam(p)
+        out.append(
+            BatchJob(
+                index=job.index,
+                group=group,
+                beam=beams[group],
+                frequency_hz=job.frequency_hz,
+                twist_deg=p["twist_deg"] * p["chirality"],
+                amplitude_m=p["amplitude_mm"] * 1e-3,
+                integrator=p["integrator"],
+                timestep=p["timestep"],
+                point=p,
+            )
         )
-        for j, i in enumerate(idx):
-            index, jid, point, f = jobs[i]
-            metrics = _free_metrics(t, tip[j], stage[j], f) if ok[j] else _why(models[i], integ)
-            rows[index] = _row(index, jid, point, f, FREE_BEAM.name, bool(ok[j]), metrics)
-    return [rows[i] for i in sorted(rows)]
+    return tuple(out)
 
 
-@batched(CONTACT)
-def _run_contact(task: SweepTask) -> list[dict[str, Any]]:
-    from beambench.sim.scenes.contact_sweep import contact_sweep
-    from beambench.sim.settings import SimSettings
-
-    rows: dict[int, dict[str, Any]] = {}
-    groups: dict[str, list[Job]] = {}
-    for job in task.jobs:
-        groups.setdefault(json.dumps(job.point, sort_keys=True), []).append(job)
-    for key, jobs in groups.items():
-        point = json.loads(key)
-        freqs = [j.frequency_hz for j in jobs]
-        sim = SimSettings(
-            settle_s=task.settle_s,
-            record_s=task.record_s,
-            twist_deg=point["twist_deg"] * point["chirality"],
-            amplitude_m=point["amplitude_mm"] * 1e-3,
-            integrator=point["integrator"],
-            timestep=point["timestep"],
-            nthread=1,
-        )
-        r = contact_sweep(_beam(point), freqs, sim, gap_m=point["gap_mm"] * 1e-3, sample_dt=task.sample_dt)
-        for i, job in enumerate(jobs):
-            index, jid, p, f = job.index, job.id, job.point, job.frequency_hz
-            ok = bool(r.ok[i])
-            metrics = _contact_metrics(r, i, f, point["amplitude_mm"] * 1e-3) if ok else _why(None, point["integrator"])
-            metrics["timestep_s"] = float(r.timesteps[i])
-            rows[index] = _row(index, jid, p, f, CONTACT.name, ok, metrics)
-    return [rows[i] for i in sorted(rows)]
-
-
-def _why(model: Any, integrator: str) -> dict[str, Any]:
-    """A failed row's reason (beambench.sim.engine.stability; the contact scene's model is not at hand)."""
-    from beambench.sim.engine.stability import unstable_reason
-
-    return {"reason": unstable_reason(model, integrator) if model is not None else f"{integrator}: MuJoCo stopped"}
+def metrics(run: JobRun, job: Job) -> dict[str, Any]:
+    """A run's metrics from its standard channels (:class:`beambench.sim.scenes.JobRun`), the same for every scene:
+    a tip path gives ``tip_*`` (lab frame) and ``tip_rel_*`` (relative to the stage) ellipses and the out-of-plane
+    travel, a foot path the ``foot_rel_*`` ellipse, a contact trace the contacts per cycle and their regime; a
+    failed run its ``reason``; ``timestep_s`` when the scene chose one per job."""
+    f = job.frequency_hz
+    out: dict[str, Any] = {}
+    if not run.ok:
+        out["reason"] = run.reason
+    else:
+        if run.tip is not None and run.stage is not None:
+            out.update(_free_metrics(run.t, run.tip, run.stage, f))
+        if run.foot is not None and run.stage is not None:
+            rel = np.column_stack([run.foot[:, 0] - run.stage, run.foot[:, 2]]) * 1e3
+            out.update(_ellipse_cols("foot_rel", run.t, rel, f))
+        if run.contact is not None:
+            out.update(_contact_metrics(run.contact, f))
+    if run.timestep_s is not None:
+        out["timestep_s"] = float(run.timestep_s)
+    return out
 
 
 def _row(
@@ -190,21 +151,14 @@ def _free_metrics(t: np.ndarray, tip: np.ndarray, stage: np.ndarray, f: float) -
     }
 
 
-def _contact_metrics(r: Any, i: int, f: float, amplitude: float) -> dict[str, Any]:
-    """Foot ellipse relative to the stage (``foot_rel_*``) and contacts per cycle from the plate's normal
-    force (``contacts_per_cycle``, ``regime`` …)."""
+def _contact_metrics(trace: ContactTrace, f: float) -> dict[str, Any]:
+    """Contacts per cycle from the plate's normal force at every step (``contacts_per_cycle``, ``regime`` …)."""
     from beambench.analysis import detect_contacts, summarize_contacts
 
-    t = r.t
-    stage = amplitude * np.sin(2 * np.pi * f * t)
-    rel = np.column_stack([r.foot[i, :, 0] - stage, r.foot[i, :, 2]]) * 1e3
-    normal, foot_z = r.contact[i]
-    h = float(r.timesteps[i])
-    tf = t[0] + np.arange(len(normal)) * h
-    c = detect_contacts(tf, np.asarray(normal, float), f, foot_t_s=tf, foot_height_m=np.asarray(foot_z, float))
+    normal = trace.normal
+    c = detect_contacts(trace.t, normal, f, foot_t_s=trace.t, foot_height_m=trace.foot_z)
     s = summarize_contacts(c, f)
     return {
-        **_ellipse_cols("foot_rel", t, rel, f),
         "n_contacts": s.n_contacts,
         "contact_frequency_hz": s.contact_frequency_hz,
         "contacts_per_cycle": s.contacts_per_cycle,

@@ -3,8 +3,9 @@
 A scene is a rig the simulator can build (the contact rig, the walker, the release test, the free beam). Its
 description — a :class:`SceneInfo` — lives here, below the simulator, because the protocol model (``rig:``,
 :data:`beambench.acquisition.protocol.schema.RigKind`), the standard streams (marker names) and the hardware backend read
-it without importing MuJoCo. How a scene is *built* is registered beside its code in :mod:`beambench.sim.scenes`
-against the same :class:`SceneInfo`; adding a scene is one :func:`declare` here plus its module there.
+it without importing MuJoCo. Everything a scene *does* — how it is built for a run, its batched sweep engine — is
+registered in its own module in :mod:`beambench.sim.scenes` against the same :class:`SceneInfo`; adding a scene is
+one :func:`declare` line here plus its module there (docs/extending.md).
 
 ``options`` are the scene-specific knobs: the ``sim:`` fields of a protocol and the parameters of a sweep point
 that only this scene builds. Any other scene refuses them with one line (:func:`foreign_option`).

@@ -83,18 +83,34 @@ def record(stream: Stream, settle_s: float, duration_s: float, from_seq: int | N
 
     if from_seq is not None:
         return _record_frames(stream, settle_s, duration_s, from_seq)
-    time.sleep(settle_s)
-    stream.read()
+    # Now (the Enter) on the host's clock; each frame is placed on that clock by the MCU's own stamp plus the
+    # least-delayed host-minus-MCU offset seen, so frames still in transit when the user pressed Enter (a host
+    # that reads late) count as before it, whenever they are read.
+    start_ns = time.monotonic_ns() + round(settle_s * 1e9)
+    end_ns = start_ns + round(duration_s * 1e9)
     batches: list[Batch] = []
-    t_end = time.monotonic() + duration_s
-    while time.monotonic() < t_end or (not any(len(b) for b in batches) and time.monotonic() < t_end + NO_SAMPLES_S):
-        time.sleep(min(0.05, max(0.005, t_end - time.monotonic())))
-        batches.append(stream.read())
-    b = Batch.concat(batches)
-    if len(b) == 0:
-        waited = duration_s + NO_SAMPLES_S
+    deadline = time.monotonic() + settle_s + duration_s + NO_SAMPLES_S
+    while time.monotonic() < deadline:
+        time.sleep(0.02)
+        b = stream.read()
+        if len(b):
+            batches.append(b)
+            host = np.concatenate([x.host_time_ns for x in batches]).astype(np.float64)
+            dev = np.concatenate([x.device_time for x in batches]) * 1e9
+            if (dev + np.min(host - dev))[-1] >= end_ns:
+                break
+    if not batches:
+        waited = settle_s + duration_s + NO_SAMPLES_S
         raise CalibrationAborted(f"no load-cell samples in {waited:g} s: is the MCU connected and running?")
-    return Recording(np.asarray(b.columns["data"], dtype=np.float64))
+    b = Batch.concat(batches)
+    host, dev = b.host_time_ns.astype(np.float64), np.asarray(b.device_time) * 1e9
+    on_host = dev + np.min(host - dev)
+    keep = (on_host >= start_ns) & (on_host < end_ns)
+    if not np.any(keep):
+        raise CalibrationAborted(
+            f"no load-cell samples in the {duration_s:g} s window after the settle: is the MCU connected and running?"
+        )
+    return Recording(np.asarray(b.columns["data"], dtype=np.float64)[keep])
 
 
 def _record_frames(stream: Stream, settle_s: float, duration_s: float, from_seq: int) -> Recording:

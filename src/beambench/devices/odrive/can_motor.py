@@ -79,6 +79,8 @@ LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc", ".csv")  # python-can writers th
 
 _ERROR_REGISTERS = (cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR)
 
+HEARTBEAT_LOG = 64  # heartbeats kept for waiters: 6 s at the default 100 ms
+
 
 class OdriveCanMotor(TelemetryStream):
     """One ODrive axis on a CAN bus (CAN Simple, firmware 0.5.x), satisfying the ``Motor`` protocol.
@@ -129,6 +131,9 @@ class OdriveCanMotor(TelemetryStream):
         self._hb: cs.Heartbeat | None = None
         self._hb_ns: int | None = None
         self._hb_count = 0
+        # the latest heartbeats, (count, receive ns, heartbeat): a burst (a stalled host reading a full socket
+        # buffer) must not hide the one a waiter looks for behind the ones after it
+        self._hb_log: deque[tuple[int, int, cs.Heartbeat]] = deque(maxlen=HEARTBEAT_LOG)
         self._pos = math.nan
         self._vel = math.nan
         self._iq = math.nan
@@ -297,6 +302,7 @@ class OdriveCanMotor(TelemetryStream):
             if isinstance(msg, cs.Heartbeat):
                 self._hb, self._hb_ns = msg, host_ns
                 self._hb_count += 1
+                self._hb_log.append((self._hb_count, host_ns, msg))
                 self._cond.notify_all()
             elif isinstance(msg, cs.EncoderEstimates):
                 self._pos, self._vel = msg.pos, msg.vel
@@ -445,13 +451,13 @@ class OdriveCanMotor(TelemetryStream):
         """First heartbeat received after ``after_ns`` satisfying ``pred`` (or None on timeout)."""
         deadline = time.monotonic() + timeout_s
         with self._cond:
-            seen = -1
+            seen = 0
             while True:
-                hb, hb_ns = self._hb, self._hb_ns
-                if hb is not None and hb_ns is not None and hb_ns > after_ns and self._hb_count != seen:
-                    seen = self._hb_count
-                    if pred(hb):
-                        return hb
+                for count, hb_ns, hb in self._hb_log:  # every heartbeat since the last look, in order
+                    if count > seen:
+                        seen = count
+                        if hb_ns > after_ns and pred(hb):
+                            return hb
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return None

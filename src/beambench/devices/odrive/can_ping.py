@@ -59,8 +59,8 @@ def ping(
                     node, msg = cs.parse_message(frame)
                 except cs.CanParseError:
                     continue
-                if isinstance(msg, cs.Heartbeat):
-                    beats.setdefault(node, []).append((time.monotonic(), msg))
+                if isinstance(msg, cs.Heartbeat):  # the frame's own stamp: when it was on the bus, not when read
+                    beats.setdefault(node, []).append((frame.timestamp or time.time(), msg))
                 elif node == target and isinstance(msg, cs.BusVoltageCurrent):
                     replies["bus_voltage_v"] = round(msg.voltage, 3)
                 elif node == target and isinstance(msg, cs.EncoderEstimates):

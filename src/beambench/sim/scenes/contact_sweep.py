@@ -21,12 +21,14 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from beambench.acquisition.protocol.scenes import CONTACT
 from beambench.common.types import Floats
 from beambench.sim.engine.batch import rollout_batch, thread_count, window
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.registry import beam_model
 from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
 from beambench.sim.scenes.free_beam import equilibrium_qpos, slider_inertia, stage_controls
+from beambench.sim.scenes.registry import BatchJob, BatchTask, ContactTrace, JobRun, batched
 from beambench.sim.settings import SimSettings
 
 SWEEP_SIM = SimSettings()  # contact_sweep's default: 1 s settle, 1 s record, 90°, 2 mm, the table's timesteps
@@ -159,6 +161,42 @@ def contact_sweep(
     t = sim.settle_s + np.arange(run.nt) * sample_dt
     info = {"model": bm.name, "gap_m": gap_m, "integrator": integrator, "twist_deg": sim.twist_deg}
     return ContactSweep(freqs, dts, t, run.foot, run.normal, run.ok, wall, run.contact, run.motion, info)
+
+
+@batched(CONTACT)
+def run_sweep_task(task: BatchTask) -> list[JobRun]:
+    """A sweep's jobs, one :func:`contact_sweep` per point (its frequencies together) in this thread: the foot and
+    the stage on the ``task.sample_dt`` grid, the plate's normal force and the foot height at every step."""
+    groups: dict[str, list[BatchJob]] = {}
+    for job in task.jobs:
+        groups.setdefault(job.group, []).append(job)
+    runs: list[JobRun] = []
+    for jobs in groups.values():
+        first = jobs[0]
+        sim = SimSettings(
+            settle_s=task.settle_s,
+            record_s=task.record_s,
+            twist_deg=first.twist_deg,
+            amplitude_m=first.amplitude_m,
+            integrator=first.integrator,
+            timestep=first.timestep,
+            nthread=1,
+        )
+        freqs = [j.frequency_hz for j in jobs]
+        r = contact_sweep(first.beam, freqs, sim, gap_m=first.point["gap_mm"] * 1e-3, sample_dt=task.sample_dt)
+        t = r.t
+        for i, job in enumerate(jobs):
+            h = float(r.timesteps[i])
+            if not r.ok[i]:
+                runs.append(JobRun(job.index, False, t, reason=f"{job.integrator}: MuJoCo stopped", timestep_s=h))
+                continue
+            normal, foot_z = r.contact[i]
+            trace = ContactTrace(
+                t[0] + np.arange(len(normal)) * h, np.asarray(normal, float), np.asarray(foot_z, float)
+            )
+            stage = job.amplitude_m * np.sin(2 * np.pi * job.frequency_hz * t)
+            runs.append(JobRun(job.index, True, t, stage=stage, foot=r.foot[i], contact=trace, timestep_s=h))
+    return sorted(runs, key=lambda r: r.index)
 
 
 class _SweepRun:

@@ -20,11 +20,14 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
+from beambench.acquisition.protocol.scenes import FREE_BEAM
 from beambench.common.types import Floats
 from beambench.sim.engine.batch import rollout_batch, window
+from beambench.sim.engine.stability import unstable_reason
 from beambench.sim.engine.stepping import integrator_enum
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.models.registry import beam_model
+from beambench.sim.scenes.registry import BatchTask, JobRun, batched
 from beambench.sim.settings import SimSettings
 
 DEFAULT_INTEGRATOR = "implicitfast"
@@ -290,6 +293,34 @@ def twist_sweep(
         wall,
         {"model": bm.name, "amplitude": amplitude, "gravity": gravity},
     )
+
+
+@batched(FREE_BEAM)
+def run_sweep_task(task: BatchTask) -> list[JobRun]:
+    """A sweep's jobs, one compiled model per point, one batch per model shape, timestep, integrator and
+    amplitude (PRB3 merges a joint at φ = 0), in this thread: tip and stage on the ``task.sample_dt`` grid."""
+    compiled: dict[str, mujoco.MjModel] = {}  # one model (and one rest pose) per point, shared by its frequencies
+    for job in task.jobs:
+        if job.group not in compiled:
+            h = job.timestep or DEFAULT_TIMESTEP
+            compiled[job.group] = build_free_beam_spec(job.beam, job.twist_deg, job.integrator, h).compile()
+    groups: dict[tuple, list[int]] = {}
+    for i, job in enumerate(task.jobs):
+        m = compiled[job.group]
+        groups.setdefault((m.nq, m.nv, float(m.opt.timestep), job.integrator, job.amplitude_m), []).append(i)
+    runs: list[JobRun] = []
+    for (_, _, h, integ, amp), idx in groups.items():
+        jobs = [task.jobs[i] for i in idx]
+        models = [compiled[j.group] for j in jobs]
+        every = max(1, round(task.sample_dt / h))
+        freqs = [j.frequency_hz for j in jobs]
+        t, tip, stage, ok, _ = run_batch(models, freqs, amp, task.settle_s, task.record_s, every, integ, nthread=1)
+        for k, job in enumerate(jobs):
+            if ok[k]:
+                runs.append(JobRun(job.index, True, t, stage=stage[k], tip=tip[k]))
+            else:
+                runs.append(JobRun(job.index, False, t, reason=unstable_reason(models[k], integ)))
+    return sorted(runs, key=lambda r: r.index)
 
 
 def orbit_axes(tip: np.ndarray) -> tuple[float, float, float, float]:
