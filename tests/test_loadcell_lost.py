@@ -69,10 +69,11 @@ def test_a_port_stolen_by_a_second_reader_fails_the_check_naming_the_lost_frames
         stop.set()
         lc.stop()
         mcu.close()
-    # the thief takes whole frames (lost: sequence gaps) or wins a read pyserial was woken for ("multiple
-    # access on port"): either way the check fails naming the port, where it used to go on without a word
+    # the thief takes whole frames (lost: sequence gaps), wins a read pyserial was woken for ("multiple
+    # access on port"), or on a loaded host takes every frame for a whole silence timeout ("silent"): either way
+    # the check fails naming the port, where it used to go on without a word
     assert fault is not None and port in str(fault), fault
-    assert "frames lost" in str(fault) or "multiple access" in str(fault), fault
+    assert any(w in str(fault) for w in ("frames lost", "multiple access", "silent")), fault
 
 
 def test_frames_lost_past_the_threshold_are_a_fault_and_below_it_are_counted():

@@ -219,8 +219,9 @@ def test_a_silence_found_by_check_is_not_raised_again_by_the_final_read():
         time.sleep(0.3)
         mcu.stop()
         time.sleep(0.6)  # silent for longer than the timeout
-        with pytest.raises(DeviceFault, match="silent"):
+        with pytest.raises(DeviceFault, match="silent") as found:
             lc.check()  # the runner's check() finds it first
+        assert f"on {port}" in str(found.value)  # which board: the port it is on
         drained = [lc.read(), lc.read()]  # what arrived before the silence, then nothing: no second raise
         assert len(drained[0]) > 100 and len(drained[1]) == 0
         with pytest.raises(DeviceFault, match="silent"):

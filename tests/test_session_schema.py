@@ -315,7 +315,11 @@ def _edit(f: h5py.File, edit: tuple) -> None:
     elif op == "text":
         if isinstance(obj, h5py.Dataset):
             del f[target]
-            f.create_dataset(target, data=edit[2], dtype=h5py.string_dtype())
+            text = edit[2]
+            if "\x00" in text:  # HDF5's variable-length strings cannot hold a NUL: fixed-length bytes can
+                f.create_dataset(target, data=np.bytes_(text.encode("latin-1")))
+            else:
+                f.create_dataset(target, data=text, dtype=h5py.string_dtype())
     elif isinstance(obj, h5py.Dataset):
         _edit_dataset(f, target, obj, edit)
     elif op == "replace":

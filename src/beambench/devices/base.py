@@ -54,6 +54,7 @@ class StreamDriver:
 
     def __init__(self, name: str, spec: StreamSpec, silence_timeout_s: float | None = 0.5) -> None:
         self.name = name
+        self.where = ""  # the port or address the device is on, for the fault messages ("" if none)
         self._spec = spec
         self.silence_timeout_s = silence_timeout_s
         self.counters = Counters()
@@ -170,7 +171,8 @@ class StreamDriver:
         silent = time.monotonic_ns() - last
         if silent > timeout * 1e9:
             what = "nothing received" if self.last_receive_ns is None else "silent"
-            raise DeviceFault(f"{self.name}: {what} for {silent * 1e-9:.2f} s (> {timeout:g} s)")
+            on = f" on {self.where}" if self.where else ""
+            raise DeviceFault(f"{self.name}{on}: {what} for {silent * 1e-9:.2f} s (> {timeout:g} s)")
 
     def health(self) -> dict[str, Any]:
         """The counters, the fault if any, and the age of the last sample (s), for the session."""

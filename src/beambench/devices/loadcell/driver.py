@@ -101,7 +101,7 @@ class SerialLoadCells(StreamDriver):
         max_lost_fraction: float | None = MAX_LOST_FRACTION,
     ) -> None:
         super().__init__(name, loadcell_spec(rate_hz), silence_timeout_s)
-        self.port = port
+        self.port = self.where = port
         self.baudrate = baudrate
         self.rate_hz = rate_hz
         self._timeout = read_timeout_s

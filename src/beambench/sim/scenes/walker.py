@@ -16,7 +16,7 @@ tail on two frictionless wheels, which carry their share of the weight by the mo
 numerics.
 
 The class defaults are the effective PRB3 walker (``sim.model: prb3, sim.params: paper``; 3 g feet, friction 0.5,
-fitted to the paper's two speeds on PRB3 legs whose twist springs are ~3x the anchored strip's): −39 / +160 mm/s
+fitted to the paper's two speeds on PRB3 legs whose twist springs are ~3x the anchored strip's): −38 / +161 mm/s
 at 23 / 65 Hz, steady; ``paper_guesses`` is the same robot with the paper's 20 g foot load.
 
 There is no load-cell plate under the walker: ``force_nt`` is zero, so the load-cell stream carries
@@ -135,6 +135,11 @@ def check_leg_model(name: str) -> None:
         raise WalkerLegError(name, f"refused for the walker: use a leg model of {' or '.join(LEG_FAMILIES)}")
 
 
+# PGS, not Newton: at most 10 constraint rows (two pyramidal soles, two wheels) against 35 dofs, so Newton's dense
+# 35 x 35 Hessian per step costs more than PGS's 2-14 sweeps; the steady speeds agree within 0.6 mm/s at 5-80 Hz and
+# the step costs a quarter less CPU (docs/performance.md, "Walker sweep speed")
+SOLVER = mujoco.mjtSolver.mjSOL_PGS
+
 WALKER_FRONT = 0.04  # m, the plate's front edge ahead of the leg clamps (the platform's length is counted from it)
 
 
@@ -143,11 +148,13 @@ def build_walker_spec(
 ) -> mujoco.MjSpec:
     """The walker scene as an ``MjSpec``. Only the soles and the wheels touch the floor, through explicit
     ``<pair>``s (every geom has contype = conaffinity = 0: no broad phase); no force sensor (it would add a
-    post-constraint RNE pass)."""
+    post-constraint RNE pass); the constraint solver is :data:`SOLVER` with islands off."""
     spec = mujoco.MjSpec()
     spec.modelname = "beambench_walker"
     spec.option.timestep = timestep
     spec.option.integrator = INTEGRATORS[integrator]
+    spec.option.solver = SOLVER
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_ISLAND  # one kinematic tree: islands find nothing
     solref = [wp.contact_timeconst, wp.contact_dampratio]
     friction = [wp.friction, 0.005, 0.0001]  # the floor's own (visual: contacts come from the pairs below)
     spec.worldbody.add_geom(
@@ -416,9 +423,9 @@ class WalkerSim(DrivenScene):
     @staticmethod
     def step_cost(hz: float) -> float:
         """The physics' relative cost per simulated second at drive frequency ``hz``: the sim rig cuts a sweep into
-        segments of equal cost with it (:func:`beambench.backends.lookahead.cut_points`). Issue 12, dt 1.2e-4, on a loaded
-        machine: ~20 µs/step at 4–12 Hz, ~17.5 at 20–33 Hz, ~12.5 from 55 Hz; tuned down a little so that the shipped
-        sweep's two workers take about the same CPU time (cut at 37 Hz)."""
+        segments of equal cost with it (:func:`beambench.backends.lookahead.cut_points`). With PGS at dt 1.2e-4 on a loaded
+        machine: ~14.5 µs/step at 1–20 Hz, ~13.3 at 21–37 Hz, ~11 from 40 Hz (Newton: ~20, ~17.5, ~12.5); the shipped
+        sweep is cut at 37 Hz, its two workers then within ~10 % of each other's CPU time (docs/performance.md)."""
         return float(np.interp(hz, [0, 3, 4, 12, 20, 33, 45, 55], [1.0, 1.1, 1.45, 1.4, 1.3, 1.25, 1.1, 1.0]))
 
     def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
