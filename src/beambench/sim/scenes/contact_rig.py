@@ -76,6 +76,9 @@ class RigParams:
     friction_torque: float = 0.02  # N·m, crank + bearings (Coulomb)
     bus_voltage: float = 24.0  # V
     preroll_s: float = 0.5  # settle to the static equilibrium before t = 0
+    # s, the largest timestep this twin's answers are converged at (measured with
+    # benchmarks/bench_contact_convergence.py); caps the frequency policy below; 0 = the policy alone
+    max_timestep: float = 0.0
 
     @classmethod
     def with_overrides(cls, overrides: dict[str, Any]) -> RigParams:
@@ -91,10 +94,12 @@ class RigParams:
 TIMESTEP_POLICY = ((40.0, 2e-4), (80.0, 1e-4), (float("inf"), 5e-5))  # (up to Hz, dt)
 
 
-def default_timestep(frequency_hz: float) -> float:
+def default_timestep(frequency_hz: float, max_timestep: float = 0.0) -> float:
     """The timestep the contact rig needs at a drive frequency: foot path within 0.07 mm (below the mocap
-    noise) of a dt = 2.5e-5 reference at a 1 mm gap up to 40 Hz; 1e-4 up to 80 Hz (planning notes)."""
-    return next(dt for f, dt in TIMESTEP_POLICY if abs(frequency_hz) <= f)
+    noise) of a dt = 2.5e-5 reference at a 1 mm gap up to 40 Hz; 1e-4 up to 80 Hz (planning notes); at most
+    ``max_timestep`` (a twin's :attr:`RigParams.max_timestep`) when that is > 0."""
+    dt = next(dt for f, dt in TIMESTEP_POLICY if abs(frequency_hz) <= f)
+    return min(dt, max_timestep) if max_timestep > 0 else dt
 
 
 @dataclass(frozen=True)
@@ -249,11 +254,18 @@ def _add_foot(spec: mujoco.MjSpec, names: SceneNames, tip: mujoco.MjsBody, rig: 
 
 
 def _add_sensors(spec: mujoco.MjSpec, names: SceneNames, tip_site: str) -> None:
-    """Marker positions (stage, beam tip, foot), the clamp's force and the sole–plate contact force."""
-    site = mujoco.mjtObj.mjOBJ_SITE
+    """Marker positions (stage, beam tip, foot), the stage's velocity and actuator force (the beam's pull on the
+    stage follows from them, :meth:`ContactRigSim.stage_pull`) and the sole–plate contact force.
+
+    No force sensor at the clamp: it would make MuJoCo run a post-constraint RNE every step (~10 % of the step)
+    for a channel the stage's own balance gives exactly."""
+    site, joint = mujoco.mjtObj.mjOBJ_SITE, mujoco.mjtObj.mjOBJ_JOINT
     for marker, name in zip(CONTACT_MARKERS, ("stage", tip_site, "foot")):
         spec.add_sensor(name=marker, type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=site, objname=name)
-    spec.add_sensor(name="clamp_force", type=mujoco.mjtSensor.mjSENS_FORCE, objtype=site, objname="clamp")
+    spec.add_sensor(name="stage_vel", type=mujoco.mjtSensor.mjSENS_JOINTVEL, objtype=joint, objname=names.stage_joint)
+    spec.add_sensor(
+        name="stage_act", type=mujoco.mjtSensor.mjSENS_JOINTACTFRC, objtype=joint, objname=names.stage_joint
+    )
     # contact sensor: data = found + force (bits 0, 1), reduce = netforce (3), one slot; global frame
     spec.add_sensor(
         name="plate_force",
@@ -293,14 +305,16 @@ class ContactRigSim(DrivenScene):
         self.integrator = integrator
         self.fixed_timestep = timestep
         # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.selection (model: auto)
-        self.timestep_for = timestep_for or default_timestep
+        # capped at the twin's converged timestep (RigParams.max_timestep), a plan's too
+        base, cap = timestep_for or default_timestep, self.rig.max_timestep
+        self.timestep_for = (lambda hz: min(base(hz), cap)) if cap > 0 else base
         self.selection = selection
         h0 = timestep or self.timestep_for(1.0)
         self.spec = build_contact_spec(beam, twist_deg, gap, self.rig, integrator, h0)
         model = self.spec.compile()
         super().__init__(Physics(model))
         self.ramp = VelocityRamp(self.rig.vel_ramp_rate)
-        stage_dof = model.jnt_dofadr[model.joint("stage").id]
+        stage_dof = self._stage_dof = int(model.jnt_dofadr[model.joint("stage").id])
         # the slider's own inertia: armature + the stage body (the beam acts on it as an external load)
         self._m_stage = float(model.dof_armature[stage_dof] + model.body("stage").mass[0])
         self.servo = KinematicServo(model, "stage_servo", self._m_stage, self.rig.servo_hz, integrator, h0)
@@ -344,8 +358,19 @@ class ContactRigSim(DrivenScene):
         markers = np.stack([self.sensor(sens, m) for m in CONTACT_MARKERS], axis=1)
         plate = self.sensor(sens, "plate_force")  # found, fx, fy, fz: force of the foot on the plate
         force_nt = np.column_stack([-plate[:, 3], plate[:, 1]])
-        pull_x = -self.sensor(sens, "clamp_force")[:, 0]  # beam on stage (sensor: stage on clamp+beam)
+        pull_x = self.stage_pull(self.sensor(sens, "stage_vel")[:, 0], self.sensor(sens, "stage_act")[:, 0])
         return {"markers": markers.reshape(n, len(CONTACT_MARKERS), 3), "force_nt": force_nt, "pull_x": pull_x}
+
+    def stage_pull(self, v: np.ndarray, f_act: np.ndarray) -> np.ndarray:
+        """The beam's force on the stage along the travel x (N) during each step of the chunk just stepped, from
+        the stage's balance: M·a = f_act + F_beam, with a = (v[k+1] − v[k])/h the acceleration the step realised
+        (the last one from the state the chunk ends in) and, for the implicit integrators, the actuator's force
+        as the step applies it (f_act − h·kv·a)."""
+        h = self.physics.timestep
+        v_next = np.append(v[1:], self.physics.data.qvel[self._stage_dof])
+        a = (v_next - v) / h
+        m_eff = self._m_stage + (h * self.servo.kv if self.servo.implicit else 0.0)
+        return np.asarray(m_eff * a - f_act)
 
     def motor_torque(self, traj_channels: dict[str, np.ndarray]) -> np.ndarray:
         """Crank torque (N·m) from the stage force by virtual work: τ = F·dx/dθ = F·A·cos θ, plus friction."""
@@ -367,13 +392,17 @@ class ContactRigSim(DrivenScene):
             "timestep": self.fixed_timestep if self.fixed_timestep else "auto",
             "timestep_policy": "fixed"
             if self.fixed_timestep
-            else "auto: " + ", ".join(f"{dt:g} s up to {f:g} Hz" for f, dt in TIMESTEP_POLICY),
+            else "auto: " + ", ".join(f"{dt:g} s up to {f:g} Hz" for f, dt in TIMESTEP_POLICY) + _cap_note(self.rig),
             "nq": int(m.nq),
             "nv": int(m.nv),
             "mujoco_version": mujoco.__version__,
             **({"selection": self.selection} if self.selection else {}),
             **({"thermal_drift": self.thermal.describe()} if self.thermal is not None else {}),
         }
+
+
+def _cap_note(rig: RigParams) -> str:
+    return f", at most {rig.max_timestep:g} s (this twin's converged timestep)" if rig.max_timestep > 0 else ""
 
 
 # --- scene registration (beambench.sim.scenes.registry) --------------------------------------------------------

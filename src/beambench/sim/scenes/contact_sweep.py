@@ -96,7 +96,6 @@ def _models(
     beam: BeamModel, twist_deg: float, gap_m: float, rig: RigParams, integrator: str, timesteps: Floats
 ) -> dict[float, mujoco.MjModel]:
     spec = build_contact_spec(beam, twist_deg, gap_m, rig, integrator, float(timesteps[0]))
-    spec.delete(spec.sensor("clamp_force"))  # unused here; a force sensor costs a post-constraint RNE per step
     base = spec.compile()
     act = base.actuator("stage_servo").id
     base.actuator_gainprm[act, 0] = 1.0  # a pure force actuator: ctrl = M·a (feed-forward only)
@@ -134,13 +133,13 @@ def contact_sweep(
     bm = beam_model(beam) if isinstance(beam, str) else beam
     freqs = np.asarray(frequencies, float)
     integrator = sim.integrator
+    rig = rig or RigParams.with_overrides(bm.params.rig)
     if sim.timestep is None:
-        planned, dts = default_contact_plan(bm.name, freqs)
+        planned, dts = default_contact_plan(bm.name, freqs, max_timestep=rig.max_timestep)
         integrator = integrator or planned
     else:
         dts = np.broadcast_to(np.asarray(sim.timestep, float), freqs.shape).copy()
     integrator = integrator or "implicitfast"
-    rig = rig or RigParams.with_overrides(bm.params.rig)
     run = _SweepRun(_models(bm, sim.twist_deg, gap_m, rig, integrator, dts), freqs, sim, integrator, sample_dt, timing)
     workers = thread_count(sim.nthread, len(freqs))
     if workers == 1 or timing is not None:
@@ -291,14 +290,17 @@ def _balanced_shares(dts: np.ndarray, seconds: float, workers: int) -> list[list
     return [[(h, np.array(ix)) for h, ix in p.items()] for p in picks if p]
 
 
-def default_contact_plan(model: str, frequencies: Floats, tolerance_mm: float = 0.1) -> tuple[str, np.ndarray]:
+def default_contact_plan(
+    model: str, frequencies: Floats, tolerance_mm: float = 0.1, max_timestep: float = 0.0
+) -> tuple[str, np.ndarray]:
     """(integrator, timestep per frequency) the measured contact table picks for ``model``, else implicitfast
-    with the rig's default timestep policy."""
+    with the rig's default timestep policy, capped at ``max_timestep`` (> 0: the twin's converged timestep)."""
     from beambench.sim import selection as select
     from beambench.sim.scenes.contact_rig import default_timestep
 
     try:
         plan = select.plan_sweep("contact", tolerance_mm, frequencies, models=[model])
-        return plan.integrator, np.array([plan.timestep(f) for f in frequencies])
+        dts = np.array([plan.timestep(f) for f in frequencies])
+        return plan.integrator, np.minimum(dts, max_timestep) if max_timestep > 0 else dts
     except select.SelectionError:
-        return "implicitfast", np.array([default_timestep(f) for f in frequencies])
+        return "implicitfast", np.array([default_timestep(f, max_timestep) for f in frequencies])
