@@ -462,11 +462,14 @@ def _verify(s: Search, winner: Point, out_dir: Path, name: str) -> tuple[Point, 
             )
             for c in cands
         ]
-        checked = s.ev.batch(values, vfreqs, "verify", runs=[WrittenRun(p) for p in paths])
-        again = s.ev.batch(values, vfreqs, "verify", runs=[WrittenRun(p, seed + 1) for p in paths])
+        runs: list[SimSettings | WrittenRun] = [
+            *(WrittenRun(p) for p in paths),
+            *(WrittenRun(p, seed + 1) for p in paths),
+        ]
     else:
-        checked = s.ev.batch(values, vfreqs, "verify", runs=vsim)
-        again = s.ev.batch(values, vfreqs, "verify", runs=vsim.replace(seed=seed + 1))
+        runs = [*([vsim] * len(cands)), *([vsim.replace(seed=seed + 1)] * len(cands))]
+    both = s.ev.batch(values * 2, vfreqs, "verify", runs=runs)  # both noise seeds at once: one round of workers
+    checked, again = both[: len(cands)], both[len(cands) :]
     worst = [max(a.j, b.j) for a, b in zip(checked, again)]
     s.record("verify", checked + again)
     ib = int(np.argmin(worst))
