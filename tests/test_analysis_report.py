@@ -122,6 +122,16 @@ def test_walker_report_has_walking_speed(sessions, tmp_path):
     assert np.allclose(csv["body_speed_mm_s"], [-35.0, 150.0], atol=1.5)
 
 
+def test_a_missing_session_is_said_before_an_unwritable_report_folder(sessions):
+    """The input is checked first: a missing session with --out somewhere unwritable names the session."""
+    for args in (["analyze", "/nonexistent/x.h5"], ["compare", str(sessions[0]), "/nonexistent/y.h5"]):
+        res = runner.invoke(app, [*args, "-q", "--out", "/proc/x"])
+        lines = [ln for ln in res.output.splitlines() if ln.strip()]
+        assert res.exit_code == 2 and len(lines) == 1 and "/nonexistent/" in lines[0] and "no such file" in lines[0], (
+            lines
+        )
+
+
 @pytest.mark.parametrize(
     "args,needle",
     [

@@ -124,16 +124,19 @@ def _load(path: Path, options: AnalysisOptions, progress, write: bool, session: 
     return analysis
 
 
-def _check_outputs(folder: Path, sessions: list[Path]) -> None:
-    """Every place analyze writes, checked before it writes anything: the report folder, and each session it
-    stores results in (``/processing``). One line, exit 2."""
+def _check_outputs(folder: Path, sessions: list[Path], write: bool) -> None:
+    """The sessions exist, then every place analyze writes, checked before it writes anything: the report folder,
+    and (``write``) each session it stores results in (``/processing``). One line, exit 2."""
     from beambench.common.outputs import unwritable_file, unwritable_folder
 
+    for path in sessions:  # a missing input is the first thing to say, before where the output would go
+        if not path.is_file():
+            fail(f"{path}: no such file")
     problem = unwritable_folder(folder)
     if problem:
         fail(f"{problem}: the report folder (give another with --out)")
-    for path in sessions:
-        problem = unwritable_file(path) if path.is_file() else None
+    for path in sessions if write else []:
+        problem = unwritable_file(path)
         if problem:
             fail(f"{problem}: the results go into the session (--no-write analyses without storing them)")
 
@@ -228,7 +231,7 @@ def register(app: typer.Typer) -> None:
         only = _figure_names(figures)
         opts = _options(up, forward, drift_correct)
         folder = out or session.with_name(f"{session.stem}_report")
-        _check_outputs(folder, [] if no_write else [session])
+        _check_outputs(folder, [session], write=not no_write)
         with _progress(quiet) as progress:
             a = _load(session, opts, progress, not no_write)
             index = _report([a], folder, freqs, progress, only)
@@ -268,7 +271,7 @@ def register(app: typer.Typer) -> None:
         only = _figure_names(figures)
         opts = _options(up, forward)
         folder = out or a.with_name(f"{a.stem}_vs_{b.stem}_report")
-        _check_outputs(folder, [] if no_write else [a, b])
+        _check_outputs(folder, [a, b], write=not no_write)
         sessions = [_read(p) for p in (a, b)]
         _same_rig(a, b, sessions)
         with _progress(quiet) as progress:
