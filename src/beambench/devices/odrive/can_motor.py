@@ -63,6 +63,7 @@ from beambench.devices.odrive.can_timing import (
     receive_ns,
 )
 from beambench.devices.odrive.cansimple import AxisState, ControlMode, InputMode
+from beambench.devices.odrive.host_stall import HostStall, idle_not_confirmed
 from beambench.devices.odrive.telemetry import (
     MAX_BUFFERED_ROWS,
     LimitError,
@@ -164,8 +165,7 @@ class OdriveCanMotor(TelemetryStream):
         self._feeder_stop = threading.Event()
         self._tx_paused = False
         self._closed = False
-        self._tick_ns: int | None = None  # the feeder's last wake-up: a longer gap than a heartbeat timeout is
-        self._stall_ns = 0  # the host's own stall (no CPU time: suspended, swapping), not the ODrive's silence
+        self._stall = HostStall()  # the host's own stall (no CPU time), not the ODrive's silence
         # the idle frames, built now: sending them must not need memory the run may have run out of
         self._idle_sent_ns: int | None = None
         self._idle_frames = tuple(
@@ -353,7 +353,7 @@ class OdriveCanMotor(TelemetryStream):
             now_ns = time.monotonic_ns()
             with self._cond:
                 self._note_stall_locked(now_ns)
-                self._tick_ns = now_ns
+                self._stall.tick(now_ns)
                 lost = self._heartbeat_lost_locked(now_ns)
                 armed, setpoint, hb = self._armed, self._setpoint, self._hb
                 if lost and armed and self._fault is None:
@@ -384,21 +384,11 @@ class OdriveCanMotor(TelemetryStream):
 
     # ------------------------------------------------------------------ waiting on heartbeats
     def _note_stall_locked(self, now_ns: int) -> None:
-        """The feeder wakes every few tens of ms: not waking for longer than a heartbeat timeout (or the ODrive's
-        watchdog timeout, if shorter) means this process got no CPU time (SIGSTOP, a debugger, swapping),
-        whatever the ODrive did meanwhile."""
-        gap = now_ns - self._tick_ns if self._tick_ns is not None else 0
-        limit = min(self.heartbeat_timeout_s, self.timing.watchdog_timeout_s or math.inf)  # the watchdog idled it
-        if self._armed and gap > limit * 1e9:
-            self._stall_ns = max(self._stall_ns, gap)
+        """A stall of this process since the feeder's last wake-up (:class:`HostStall`), under the lock."""
+        self._stall.note(now_ns, self._armed, self.heartbeat_timeout_s, self.timing.watchdog_timeout_s)
 
     def _stall_text(self) -> str:
-        watchdog = self.timing.watchdog_timeout_s
-        then = f"; the ODrive's watchdog idles the axis after {watchdog:g} s without a frame" if watchdog else ""
-        return (
-            f"the host stalled for {self._stall_ns / 1e6:.0f} ms (this process got no CPU time: suspended or "
-            f"overloaded), so ODrive node {self.node_id} went unfed and unread{then}"
-        )
+        return self._stall.text(f"ODrive node {self.node_id}", self.timing.watchdog_timeout_s)
 
     def _heartbeat_lost_locked(self, now_ns: int) -> str | None:
         if self._opened_ns is None:
@@ -410,7 +400,7 @@ class OdriveCanMotor(TelemetryStream):
                 return f"no heartbeat from ODrive node {self.node_id} on {self.interface}:{self.channel}"
             return None
         age = now_ns - self._hb_ns
-        if age > limit_ns and self._stall_ns:
+        if age > limit_ns and self._stall.stall_ns:
             return self._stall_text()
         if age > limit_ns:
             limit_ms = self.heartbeat_timeout_s * 1e3
@@ -517,7 +507,7 @@ class OdriveCanMotor(TelemetryStream):
             raise DeviceFault(f"no heartbeat from ODrive node {self.node_id} on {self.interface}:{self.channel}")
         with self._cond:
             self._fault = None
-            self._stall_ns = 0
+            self._stall.stall_ns = 0
             self._limits = limits
             self._setpoint = 0.0
         self.vel_limit, self.current_limit = vel_limit, current
@@ -632,9 +622,7 @@ class OdriveCanMotor(TelemetryStream):
             hb = self._wait_heartbeat(lambda h: h.axis_state == AxisState.IDLE, self.timing.idle_confirm_s, sent)
             if hb is not None:
                 return f"motor idle (ODrive node {self.node_id} confirms AXIS_STATE_IDLE)"
-        watchdog = self.timing.watchdog_timeout_s
-        within = f"within {watchdog:g} s" if watchdog else "if its watchdog is enabled"
-        return f"motor idle NOT confirmed; the ODrive watchdog idles it {within}"
+        return idle_not_confirmed(self.timing.watchdog_timeout_s)
 
     def estop(self) -> None:
         """Send Estop: the axis latches ESTOP_REQUESTED and goes idle until errors are cleared."""
@@ -650,7 +638,7 @@ class OdriveCanMotor(TelemetryStream):
         """Raise DeviceFault on axis errors, on leaving closed loop while armed, or on a lost heartbeat."""
         with self._cond:
             lost = self._heartbeat_lost_locked(time.monotonic_ns())
-            if self._stall_ns and self._armed:  # whatever the ODrive says now follows from the host's stall
+            if self._stall.stall_ns and self._armed:  # whatever the ODrive says now follows from the host's stall
                 raise DeviceFault(self._stall_text())
             if self._fault is not None:
                 raise DeviceFault(self._fault)

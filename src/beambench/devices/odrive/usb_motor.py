@@ -43,6 +43,7 @@ from beambench.devices.odrive.cansimple import (
     InputMode,
     error_names,
 )
+from beambench.devices.odrive.host_stall import HostStall, idle_not_confirmed
 from beambench.devices.odrive.telemetry import (
     MAX_BUFFERED_ROWS,
     LimitError,
@@ -121,8 +122,7 @@ class OdriveUsbMotor(TelemetryStream):
         self._error = 0
         self._sub_errors: dict[str, int] = {}
         self._link_error: str | None = None
-        self._tick_ns: int | None = None  # the poller's last wake
-        self._stall_ns = 0  # the host's own stall (no CPU time: suspended, swapping), not the link's silence
+        self._stall = HostStall()  # the host's own stall (no CPU time), not the link's silence
         self._saved_watchdog: bool | None = None
         self._poller: threading.Thread | None = None
         self._stop = threading.Event()
@@ -206,23 +206,10 @@ class OdriveUsbMotor(TelemetryStream):
                     self._link_error = f"{type(exc).__name__}: {exc}"
 
     def _note_stall(self, now_ns: int) -> None:
-        """The poller wakes every ``poll_period_s``: not waking for longer than the link timeout (or the axis's
-        watchdog timeout, if shorter) means this process got no CPU time (SIGSTOP, a debugger, swapping), whatever
-        the ODrive did meanwhile."""
+        """A wake-up of this process's (the poller's, or a check's): a stall since the last one is recorded."""
         with self._lock:
-            gap = now_ns - self._tick_ns if self._tick_ns is not None else 0
-            self._tick_ns = now_ns
-            limit = min(self.heartbeat_timeout_s, self.watchdog_timeout_s or math.inf)
-            if self._armed and gap > limit * 1e9:
-                self._stall_ns = max(self._stall_ns, gap)
-
-    def _stall_text(self) -> str:
-        watchdog = self.watchdog_timeout_s
-        then = f"; the ODrive's watchdog idles the axis after {watchdog:g} s unfed" if watchdog else ""
-        return (
-            f"the host stalled for {self._stall_ns / 1e6:.0f} ms (this process got no CPU time: suspended or "
-            f"overloaded), so ODrive axis{self.axis_index} went unfed and unread over USB{then}"
-        )
+            self._stall.note(now_ns, self._armed, self.heartbeat_timeout_s, self.watchdog_timeout_s)
+            self._stall.tick(now_ns)
 
     # ------------------------------------------------------------------ Motor protocol (stream: TelemetryStream)
     def arm(self, limits: MotorLimits) -> None:
@@ -246,7 +233,7 @@ class OdriveUsbMotor(TelemetryStream):
             ax.config.enable_watchdog = True
             with self._lock:
                 self._limits, self._setpoint = limits, 0.0
-                self._stall_ns = 0
+                self._stall.stall_ns = 0
             needs_cal = self.calibrate
             if needs_cal is None:
                 needs_cal = not (bool(ax.motor.is_calibrated) and bool(ax.encoder.is_ready))
@@ -339,17 +326,15 @@ class OdriveUsbMotor(TelemetryStream):
             if time.monotonic() >= end:
                 break
             time.sleep(min(0.01, self.poll_period_s))
-        watchdog = self.watchdog_timeout_s
-        within = f"within {watchdog:g} s" if watchdog else "if its watchdog is enabled"
-        return f"motor idle NOT confirmed; the ODrive watchdog idles it {within}"
+        return idle_not_confirmed(self.watchdog_timeout_s)
 
     def check(self) -> None:
         self._note_stall(time.monotonic_ns())
         with self._lock:
             if self._last_ok_ns is None:
                 return
-            if self._stall_ns and self._armed:  # whatever the ODrive says now follows from the host's stall
-                raise DeviceFault(self._stall_text())
+            if self._stall.stall_ns and self._armed:  # whatever the ODrive says now follows from the host's stall
+                raise DeviceFault(self._stall.text(f"ODrive axis{self.axis_index} over USB", self.watchdog_timeout_s))
             age_s = (time.monotonic_ns() - self._last_ok_ns) * 1e-9
             if age_s > self.heartbeat_timeout_s:
                 why = f" ({self._link_error})" if self._link_error else ""
