@@ -72,39 +72,37 @@ NO_SAMPLES_S = 5.0  # how long past its window a recording waits for a late (or 
 
 
 def record(stream: Stream, settle_s: float, duration_s: float, from_seq: int | None = None) -> Recording:
-    """Wait ``settle_s``, drop what came meanwhile, then collect ``duration_s`` of samples.
+    """The samples of the ``duration_s`` window that starts ``settle_s`` after now (the user's Enter).
 
+    Each frame is placed on the host's clock by the MCU's own stamp plus the least-delayed host-minus-MCU offset
+    seen, so frames still in transit at the Enter (a host that reads late) count as before it, whenever read.
     ``from_seq``: the first MCU frame (sequence number) that carries the step's load, when it is known (the
-    emulated plate). The settle and the window are then counted in the MCU's own frames, so a host that reads
-    late (a loaded machine) neither mixes in the previous load's frames still in transit nor gets too few."""
+    emulated plate): the settle and the window are then counted in the MCU's own frames."""
     import numpy as np
 
     from beambench.acquisition.batch import Batch
 
     if from_seq is not None:
         return _record_frames(stream, settle_s, duration_s, from_seq)
-    # Now (the Enter) on the host's clock; each frame is placed on that clock by the MCU's own stamp plus the
-    # least-delayed host-minus-MCU offset seen, so frames still in transit when the user pressed Enter (a host
-    # that reads late) count as before it, whenever they are read.
     start_ns = time.monotonic_ns() + round(settle_s * 1e9)
     end_ns = start_ns + round(duration_s * 1e9)
     batches: list[Batch] = []
+    offset_ns = np.inf  # the least-delayed host-minus-MCU offset so far
     deadline = time.monotonic() + settle_s + duration_s + NO_SAMPLES_S
     while time.monotonic() < deadline:
         time.sleep(0.02)
         b = stream.read()
         if len(b):
             batches.append(b)
-            host = np.concatenate([x.host_time_ns for x in batches]).astype(np.float64)
-            dev = np.concatenate([x.device_time for x in batches]) * 1e9
-            if (dev + np.min(host - dev))[-1] >= end_ns:
+            dev = np.asarray(b.device_time) * 1e9
+            offset_ns = min(offset_ns, float(np.min(b.host_time_ns - dev)))
+            if dev[-1] + offset_ns >= end_ns:
                 break
     if not batches:
         waited = settle_s + duration_s + NO_SAMPLES_S
         raise CalibrationAborted(f"no load-cell samples in {waited:g} s: is the MCU connected and running?")
     b = Batch.concat(batches)
-    host, dev = b.host_time_ns.astype(np.float64), np.asarray(b.device_time) * 1e9
-    on_host = dev + np.min(host - dev)
+    on_host = np.asarray(b.device_time) * 1e9 + offset_ns
     keep = (on_host >= start_ns) & (on_host < end_ns)
     if not np.any(keep):
         raise CalibrationAborted(
