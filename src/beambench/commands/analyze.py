@@ -76,12 +76,17 @@ def _options(up: str | None, forward: str | None, drift_correct: bool = False) -
     return AnalysisOptions(up=up, forward=forward, drift_correct=drift_correct)
 
 
+def _must_exist(path: Path) -> None:
+    """A missing session file is one line and exit code 2."""
+    if not path.is_file():
+        fail(f"{path}: no such file")
+
+
 def _read(path: Path) -> Any:
     """Read one session; a missing, foreign or empty file becomes one line and exit code 2."""
     from beambench.sinks.hdf5 import SessionFileError, read_session
 
-    if not path.is_file():
-        fail(f"{path}: no such file")
+    _must_exist(path)
     try:
         session = read_session(path)
     except SessionFileError as exc:  # already one line naming the file
@@ -130,8 +135,7 @@ def _check_outputs(folder: Path, sessions: list[Path], write: bool) -> None:
     from beambench.common.outputs import unwritable_file, unwritable_folder
 
     for path in sessions:  # a missing input is the first thing to say, before where the output would go
-        if not path.is_file():
-            fail(f"{path}: no such file")
+        _must_exist(path)
     problem = unwritable_folder(folder)
     if problem:
         fail(f"{problem}: the report folder (give another with --out)")
