@@ -41,6 +41,16 @@ def _steal(port: str, stop: threading.Event) -> int:
     return taken
 
 
+def _poll(lc: SerialLoadCells) -> DeviceFault | None:
+    """One read and check, as the runner polls: the fault it raises, else None."""
+    try:
+        lc.read()
+        lc.check()
+    except DeviceFault as exc:
+        return exc
+    return None
+
+
 def test_a_port_stolen_by_a_second_reader_fails_the_check_naming_the_lost_frames():
     mcu = EmulatedLoadCellMCU(tx_buffer=BIG_TX, seed=9)
     port = mcu.open()
@@ -59,11 +69,7 @@ def test_a_port_stolen_by_a_second_reader_fails_the_check_naming_the_lost_frames
         _steal(port, stop)
         fault = None
         while fault is None and time.monotonic() < deadline + 60:
-            try:
-                lc.read()
-                lc.check()
-            except DeviceFault as exc:
-                fault = exc
+            fault = _poll(lc)
             time.sleep(0.02)
     finally:
         stop.set()
@@ -93,11 +99,7 @@ def test_frames_lost_past_the_threshold_are_a_fault_and_below_it_are_counted():
             lc.start()
             while lc.counters.received < 1500 and fault is None:
                 assert time.monotonic() < deadline, "no load-cell frames"
-                try:
-                    lc.read()
-                    lc.check()
-                except DeviceFault as exc:
-                    fault = exc
+                fault = _poll(lc)
                 time.sleep(0.02)
         finally:
             lc.stop()
