@@ -115,6 +115,8 @@ def sim(
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
     runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
     whether the twin reached it."""
+    import dataclasses
+
     from rich.progress import BarColumn, SpinnerColumn, TextColumn, TimeElapsedColumn
 
     from beambench.common.console import LogProgress, stderr_console
@@ -147,11 +149,11 @@ def sim(
     except OSError as exc:
         _fail(f"--out {out_dir}: cannot create ({exc.strerror or exc})")
     chosen = _free_unknowns(free, tg.rig)
-    settings = (
-        SearchSettings.quick(budget_s=min(budget_s, 150.0), free=chosen)
-        if quick
-        else SearchSettings(budget_s=budget_s, free=chosen)
-    )
+    if quick:  # the rig's own quick settings; --budget-s can only shorten its budget
+        fast = SearchSettings.quick(**{**dict(get_rig(tg.rig).quick), "free": chosen})
+        settings = dataclasses.replace(fast, budget_s=min(budget_s, fast.budget_s))
+    else:
+        settings = SearchSettings(budget_s=budget_s, free=chosen)
     console = stderr_console()
     cols = (
         SpinnerColumn(),

@@ -61,6 +61,10 @@ class SearchSettings:
     # noise seeds the winner's map is run at for the verdict (its own first): a miss that another seed meets is the
     # twin's own seed-to-seed spread (irregular regimes that move with the noise), not a bound (verdict)
     spread_seeds: int = 4
+    # the budget is the search's whole wall time, verify included: a stage starts no batch whose expected end (its
+    # last batch's time) leaves less than the later stages' expected time (from the measured cost per simulated
+    # second: Search.reserve_s). False: the stages stop *starting* work at shares of the budget
+    plan_finish: bool = False
 
     @classmethod
     def quick(cls, **kw: Any) -> SearchSettings:
@@ -222,6 +226,7 @@ class Evaluator:
         self.on_eval = on_eval or (lambda p: None)
         self.points: list[Point] = []
         self.generation = 0
+        self.rates: list[float] = []  # wall seconds per simulated second of each map run so far (sim_rate)
 
     def stage_sim(self, stage: str) -> SimSettings:
         """A stage's simulation settings: the base's with the search's windows (or the rig's own)."""
@@ -274,11 +279,20 @@ class Evaluator:
         if cut:
             raise Interrupted(f"stopped after {limit} new evaluations")
         out = []
-        for k in keys:
+        for k, r in zip(keys, per):
+            sim_s = len(freqs) * (r.settle_s + r.record_s) if isinstance(r, SimSettings) else 0.0
+            wall = self.log.cache[k].get("wall_s")
+            if sim_s > 0 and isinstance(wall, float | int) and wall > 0:
+                self.rates.append(float(wall) / sim_s)
             p = self._point(self.log.cache[k], stage)
             out.append(p)
             self.points.append(p)
         return out
+
+    def sim_rate(self) -> float | None:
+        """Wall seconds per simulated second of one map on one worker: the median of the last 8 maps (None before
+        the first; the recent ones follow the machine's load). A map's cost is its simulated time (steps × (settle + record)) at the twin's timestep."""
+        return float(np.median(self.rates[-8:])) if self.rates else None
 
     def _point(self, rec: dict, stage: str) -> Point:
         steps = pd.DataFrame(rec["steps"])

@@ -76,7 +76,10 @@ class CalibratableRig:
       (:mod:`.verdict`; None: no verdict, the command cannot say whether a target was met);
     - ``boxes(base) -> {name: (lo, hi)}``: the prior set's physical ranges (its ``bounds:`` block) as the
       unknowns' boxes, in the unknowns' own units; they replace the unknowns' generic boxes (which stay for
-      sets without bounds: the documented effective sets), so the search never leaves a physical range.
+      sets without bounds: the documented effective sets), so the search never leaves a physical range;
+    - ``quick``: the rig's own ``--quick`` search settings, (name, value) pairs that override
+      ``SearchSettings.quick()``'s (the contact rig's verify stage runs the written protocol: its quick search
+      plans its budget around it).
     """
 
     name: str
@@ -95,6 +98,7 @@ class CalibratableRig:
     landmarks: Landmarks | None = None
     checks: Callable[[Targets], list[TargetCheck]] | None = None
     boxes: Callable[[CalibrationBase], dict[str, tuple[float, float]]] | None = None
+    quick: tuple[tuple[str, Any], ...] = ()
 
     @property
     def default_free(self) -> tuple[str, ...]:

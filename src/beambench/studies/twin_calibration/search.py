@@ -93,6 +93,11 @@ RunAt = Callable[[int], SimSettings | WrittenRun]  # the winner's run at its own
 COARSE_SHARE = 0.55
 FINE_SHARE = 0.85
 BRACKET_SHARE = 0.9
+# With ``SearchSettings.plan_finish`` the verify stage's written-protocol run is expected to cost this many times a
+# search map per simulated second, plus WRITTEN_EXTRA_S (the session's pipeline, file and analysis; two runs on two
+# workers contend for more than their core), so the budget reserves it before the coarse stage ends
+WRITTEN_FACTOR = 1.5
+WRITTEN_EXTRA_S = 3.0
 
 
 def coarse_frequencies(targets: Targets, step_hz: float, lo: float) -> list[float]:
@@ -137,10 +142,12 @@ class Search:
         self.progress = progress
         self.task = progress.add_task("calibrating", total=None) if progress is not None else None
         self.bracketed = next((u for u in self.free if u.name == rig.bracket), None)
+        self.t_record = self.last_batch_s = 0.0  # when the last batch was recorded, how long it took (over())
 
     def start(self, pool: Pool) -> None:
         self.pool = pool
         self.ev = Evaluator(pool, self.rig, self.base, self.targets, self.log, self.settings, self._on_eval)
+        self.t_record = self.elapsed()  # the first batch's time starts here, not at the set-up
 
     def _on_eval(self, p: Point) -> None:
         """Progress: the best objective *of the point's stage* (a coarse map's J is not a verify map's)."""
@@ -172,6 +179,8 @@ class Search:
     def record(self, label: str, pts: list[Point], **extra: float) -> None:
         """One history row for a batch (its generation number, best and median objective)."""
         js = [p.j for p in pts] or [math.inf]
+        now = self.elapsed()
+        self.last_batch_s, self.t_record = now - self.t_record, now
         self.ev.generation += 1
         self.history.append(
             {
@@ -180,14 +189,40 @@ class Search:
                 "best": float(np.min(js)),
                 "median": float(np.median(js)),
                 "n": len(pts),
-                "elapsed_s": self.elapsed(),
+                "elapsed_s": now,
                 **extra,
             }
         )
 
     def over(self, share: float) -> Callable[[], bool]:
-        """A stop test: more than ``share`` of the budget spent."""
-        return lambda: self.elapsed() > share * self.settings.budget_s
+        """A stop test: more than ``share`` of the budget spent. With ``plan_finish``: the next batch (as long as
+        the last one) would end past the stage's deadline — for the coarse shares (≤ ``COARSE_SHARE``) that share
+        of the time left once the later stages are reserved (:meth:`reserve_s`), for the fine ones the budget
+        less the verify stage's."""
+        budget = self.settings.budget_s
+        if not self.settings.plan_finish:
+            return lambda: self.elapsed() > share * budget
+        if share <= COARSE_SHARE:
+            return lambda: self.elapsed() + self.last_batch_s > share / COARSE_SHARE * (budget - self.reserve_s())
+        return lambda: self.elapsed() + self.last_batch_s > budget - self.reserve_s(fine=False)
+
+    def reserve_s(self, fine: bool = True) -> float:
+        """The expected wall time of the stages after the coarse one (``fine``: the fine maps of the best
+        ``refine_top`` points too): the verify stage's written-protocol runs (two noise seeds per candidate, and
+        the spread seeds beyond them) or, without a verify stage, the winner's spread seeds on every target
+        frequency; from the cost per simulated second of the maps so far (0 before the first)."""
+        rate, w, st = self.ev.sim_rate(), max(1, self.pool.workers), self.settings
+        if rate is None:
+            return 0.0
+        settle, record = st.window("fine")
+        fine_s = len(self.fine) * (settle + record) * rate
+        out = math.ceil(st.refine_top / w) * fine_s if fine and st.refine_top > 0 else 0.0
+        extra = max(0, st.spread_seeds - 2)
+        if self.rig.verify is not None and st.verify_top > 0:
+            vfreqs, vsim = self.rig.verify(self.base)
+            run_s = len(vfreqs) * (vsim.settle_s + vsim.record_s) * rate * WRITTEN_FACTOR + WRITTEN_EXTRA_S
+            return out + math.ceil(2 * st.verify_top / w) * run_s + math.ceil(extra / w) * run_s
+        return out + math.ceil(max(0, st.spread_seeds - 1) / w) * fine_s
 
 
 def calibrate(
@@ -210,9 +245,8 @@ def calibrate(
     s = Search(rig, targets, EvalLog(out_dir / f"{name}.evals.jsonl"), settings, progress)
     with make_executor(workers, scheduler, preload=(evaluate.__name__,)) as pool:
         s.start(pool)
-        init = initial_population(s.free, settings)
-        reached = _lines_and_landmarks(s, init)
-        _evolution(s, init, reached)
+        reached, start = _lines_and_landmarks(s)
+        _evolution(s, start, reached)
         winner = _refine(s)
         if rig.verify is not None and settings.verify_top > 0:
             winner, freqs, run_at = _verify(s, winner, out_dir, name)
@@ -323,13 +357,13 @@ def physical(u: Unknown, box: tuple[float, float] | None) -> Unknown:
     return replace(u, lo=lo, hi=hi, default=default)
 
 
-def _lines_and_landmarks(s: Search, init: np.ndarray) -> bool:
+def _lines_and_landmarks(s: Search) -> tuple[bool, np.ndarray | None]:
     """The prior's lines (1-D brackets of each unknown from the prior, the monotone one — e.g. the preload —
-    first), then the landmark steps; their best point joins the initial population (``init``, in place).
-    Returns whether every landmark is within tolerance (the evolution is then skipped)."""
+    first), then the landmark steps. Returns whether every landmark is within tolerance (the evolution is then
+    skipped) and their best point in the unknowns' coordinates (it joins the evolution's initial population)."""
     rig, settings, br = s.rig, s.settings, s.bracketed
     if br is None or settings.prior_rounds <= 0:
-        return False
+        return False, None
     own = rig.prior(s.base) if rig.prior is not None else {}
     centre = {
         u.name: float(
@@ -362,20 +396,28 @@ def _lines_and_landmarks(s: Search, init: np.ndarray) -> bool:
             on_round=lambda pts, radius: s.record("landmark step", pts, radius=radius),
         )
         reached = within(marks(best.steps, s.targets), settings.landmark_tolerance)
-    init[-1] = [u.coord(best.values[u.name]) for u in s.free]
-    return reached
+    return reached, np.array([u.coord(best.values[u.name]) for u in s.free])
 
 
-def _evolution(s: Search, init: np.ndarray, reached: bool) -> None:
-    """Differential evolution over the free unknowns, one generation per parallel batch, until ~55 % of the
-    budget, ``good_enough`` or a stall (skipped when the lines and landmark steps reached the targets)."""
-    from scipy.optimize import differential_evolution
-
+def _evolution(s: Search, start: np.ndarray | None, reached: bool) -> None:
+    """Differential evolution over the free unknowns from :func:`initial_population` with ``start`` (the lines'
+    best) as its last member, one generation per parallel batch, until ~55 % of the budget, ``good_enough`` or a
+    stall (skipped when the lines and landmark steps reached the targets). scipy is imported only when it runs
+    (its import costs seconds of a quick search's start)."""
     settings = s.settings
     late = s.over(COARSE_SHARE)
+    if reached or (s.best is not None and s.best.j <= settings.good_enough):
+        return  # the lines and landmark steps already reached the targets
+    if settings.plan_finish and late():
+        return  # no generation fits before the later stages' reserve
+    from scipy.optimize import differential_evolution
+
+    init = initial_population(s.free, settings)
+    if start is not None:
+        init[-1] = start
 
     def mapper(_func: Any, xs: Any) -> list[float]:
-        if s.history and s.history[-1]["stage"] == "coarse" and late():
+        if (settings.plan_finish or (s.history and s.history[-1]["stage"] == "coarse")) and late():
             raise OutOfTime  # a generation would overrun the coarse stage's share of the budget
         pts = s.ev.batch([s.values_of(np.asarray(x)) for x in xs], s.coarse, "coarse")
         s.record("coarse", pts)
@@ -392,8 +434,6 @@ def _evolution(s: Search, init: np.ndarray, reached: bool) -> None:
         return bool(j <= settings.good_enough or late() or stall["since"] >= settings.stall_generations)
 
     with contextlib.suppress(OutOfTime):
-        if reached or (s.best is not None and s.best.j <= settings.good_enough):
-            raise OutOfTime  # the lines and landmark steps already reached the targets
         differential_evolution(
             lambda x: 0.0,  # never called: the mapper evaluates
             [u.bounds for u in s.free],
@@ -414,6 +454,8 @@ def _refine(s: Search) -> Point:
     """The best distinct coarse points on every target frequency, then a bracket of the monotone unknown."""
     settings, br = s.settings, s.bracketed
     ranked = sorted((p for p in s.ev.points if p.stage == "coarse"), key=lambda p: p.j)
+    if settings.refine_top <= 0:
+        return ranked[0]  # no fine stage: the verify stage (or the winner's spread) runs the best coarse point
     picks: list[dict[str, float]] = []
     for p in ranked:
         if all(_distance(p.values, q, s.free) > 0.02 for q in picks):
@@ -486,7 +528,7 @@ def prior_lines(s: Search, start: dict[str, float], order: list[Unknown], freqs:
     of each range), until ``line_share`` of the budget. Each unknown of the contact rig moves mainly one landmark
     of the map (the preload all of them, the friction the continuous edge, the damping ⅓ against ½), so lines
     reach a good region in a few dozen maps where the evolution's first generations (one map per point of a
-    box-filling design) do not."""
+    box-filling design) do not. With ``plan_finish`` the first line runs all its rounds whatever the budget."""
     settings = s.settings
     done = s.over(settings.line_share)
     best: Point | None = None
@@ -499,8 +541,11 @@ def prior_lines(s: Search, start: dict[str, float], order: list[Unknown], freqs:
             if cycle > 0:
                 c, half = u.coord(cur[u.name]), 0.15 * (hi - lo)
                 lo, hi = c - half, c + half
-            rounds = settings.prior_rounds if k == 0 and cycle == 0 else max(1, settings.prior_rounds - 1)
-            p = bracket(s, cur, u, (lo, hi), Line(freqs, "coarse", rounds, n, "prior line", done))
+            first = k == 0 and cycle == 0
+            rounds = settings.prior_rounds if first else max(1, settings.prior_rounds - 1)
+            # a planned budget never cuts the first line short: its rounds are the least search a verify is worth
+            stop = (lambda: False) if first and settings.plan_finish else done
+            p = bracket(s, cur, u, (lo, hi), Line(freqs, "coarse", rounds, n, "prior line", stop))
             if best is None or p.j < best.j:
                 best, cur = p, dict(p.values)
     assert best is not None

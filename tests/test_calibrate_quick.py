@@ -1,0 +1,55 @@
+"""``beambench calibrate sim --quick`` on the contact rig plans its budget around its verify stage: the whole search,
+the verify stage's written-protocol maps included, ends within the budget. The toy rig of test_calibrate_verdict
+(its map's transitions known functions of two unknowns) with a cost: each map takes wall time in proportion to
+the time it simulates (the twin's cost: steps × (settle + record) at its timestep), and a verify stage whose
+written protocol is a long sweep, as the contact rig's is."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import replace
+
+from beambench.sim.settings import SimSettings
+from beambench.studies.twin_calibration import RIGS, CalibrationBase
+from beambench.studies.twin_calibration.contact import CONTACT_QUICK
+from test_calibrate_verdict import TOY, TOY_FREQS, _beambench, _threads, toy_simulate
+
+WALL_PER_SIM_S = 0.0075  # wall seconds per simulated second: a search map ~0.8 s, a written-protocol map ~3.6 s
+WRITTEN = SimSettings(settle_s=2.0, record_s=5.0)  # the written protocol's windows (the shipped sweep's)
+
+
+def costly_simulate(base: CalibrationBase, values: dict[str, float], frequencies: list[float], sim: SimSettings) -> dict:
+    """The toy map after as long as the twin would take to simulate it (a model of compute time, not a wait)."""
+    time.sleep(WALL_PER_SIM_S * len(frequencies) * (sim.settle_s + sim.record_s))
+    return toy_simulate(base, values, frequencies, sim)
+
+
+def test_a_quick_contact_search_ends_within_its_budget_with_its_verify_stage(monkeypatch, tmp_path):
+    """The coarse stage stops before a batch whose end would leave less than the verify stage's expected time (two
+    written-protocol maps, one round of the two workers): the command's search, verify and seed spread included,
+    ends within --budget-s, and it still searched (lines from the prior) before verifying its best point.
+    Budgets that stop *starting* stages at shares of the budget ended ~1.5 budgets later here."""
+    rig = replace(
+        TOY,
+        simulate=costly_simulate,
+        verify=lambda base: (TOY_FREQS, WRITTEN),
+        quick=CONTACT_QUICK,
+    )
+    monkeypatch.setitem(RIGS, "contact", rig)
+    monkeypatch.setattr("beambench.studies.executor.make_executor", _threads)
+    t = tmp_path / "t.yaml"
+    t.write_text("rig: contact\ncontinuous_below_hz: 17\nhalf_at_hz: 32\nthird_at_hz: 50\n")
+    out = tmp_path / "out"
+    budget = 12.0
+    t0 = time.perf_counter()
+    res = _beambench("calibrate", "sim", "--targets", str(t), "--out", str(out), "--quick", "--budget-s", str(budget))
+    wall = time.perf_counter() - t0
+    assert res.returncode in (0, 3), res.stderr
+    assert wall <= budget + 1.0, f"{wall:.1f} s for a {budget:g} s budget"
+    rep = json.loads((out / "t_calibrated_report.json").read_text())
+    stages = [h["stage"] for h in rep["history"]]
+    assert rep["history"][-1]["elapsed_s"] <= budget, rep["history"]
+    # the verify stage was reserved, not squeezed out, and the search ran before it
+    assert stages[-1] == "verify" and "fine" not in stages, stages
+    assert stages.count("prior line") >= 2, json.dumps(rep["history"])
