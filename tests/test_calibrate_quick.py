@@ -13,13 +13,15 @@ from dataclasses import replace
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration import RIGS, CalibrationBase
 from beambench.studies.twin_calibration.contact import CONTACT_QUICK
-from test_calibrate_verdict import TOY, TOY_FREQS, _beambench, _threads, toy_simulate
+from test_calibrate_verdict import TOY, TOY_FREQS, TOY_UNKNOWNS, _beambench, _threads, toy_simulate
 
 WALL_PER_SIM_S = 0.0075  # wall seconds per simulated second: a search map ~0.8 s, a written-protocol map ~3.6 s
 WRITTEN = SimSettings(settle_s=2.0, record_s=5.0)  # the written protocol's windows (the shipped sweep's)
 
 
-def costly_simulate(base: CalibrationBase, values: dict[str, float], frequencies: list[float], sim: SimSettings) -> dict:
+def costly_simulate(
+    base: CalibrationBase, values: dict[str, float], frequencies: list[float], sim: SimSettings
+) -> dict:
     """The toy map after as long as the twin would take to simulate it (a model of compute time, not a wait)."""
     time.sleep(WALL_PER_SIM_S * len(frequencies) * (sim.settle_s + sim.record_s))
     return toy_simulate(base, values, frequencies, sim)
@@ -53,3 +55,32 @@ def test_a_quick_contact_search_ends_within_its_budget_with_its_verify_stage(mon
     # the verify stage was reserved, not squeezed out, and the search ran before it
     assert stages[-1] == "verify" and "fine" not in stages, stages
     assert stages.count("prior line") >= 2, json.dumps(rep["history"])
+
+
+def test_an_unknown_the_short_search_never_moved_is_reported_not_pinned():
+    """A quick search may end after its first line (one unknown moved): the intervals still pin the moved unknown
+    from its maps' landmarks and report the unmoved one over its whole box, not pinned (the report had no
+    intervals at all for such a search)."""
+    import pandas as pd
+
+    from beambench.studies.twin_calibration.contact_objective import contact_checks
+    from beambench.studies.twin_calibration.evaluate import Point
+    from beambench.studies.twin_calibration.intervals import intervals
+    from beambench.studies.twin_calibration.targets import parse_targets
+
+    targets = parse_targets({"rig": "contact", "continuous_below_hz": 17, "half_at_hz": 32}, "t.yaml")
+    u, w = TOY_UNKNOWNS
+
+    def point(x: float) -> Point:
+        values = {"u": x, "w": 1.0}
+        steps = pd.DataFrame(toy_simulate(CalibrationBase("toy", "none"), values, TOY_FREQS, SimSettings())["steps"])
+        return Point(values, abs(x - 0.4), {}, steps, {}, "coarse", 0)
+
+    points = [point(x) for x in (0.1, 0.2, 0.3, 0.35, 0.4, 0.45, 0.5, 0.6)]
+    winner = points[4]
+    got = intervals(contact_checks(targets), winner, points, [u, w])
+    assert got, "no intervals"
+    assert got["unknowns"]["w"] == {"lo": w.lo, "hi": w.hi, "pinned": False}
+    iu = got["unknowns"]["u"]
+    assert iu["pinned"] and iu["lo"] < 0.4 < iu["hi"] and iu["hi"] - iu["lo"] < 0.5, iu
+    assert "w not moved by the search" in got["method"]

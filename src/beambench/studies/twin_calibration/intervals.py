@@ -7,7 +7,8 @@ speeds; not the signs). A weighted linear fit of each over the evaluated points 
 reading each target's tolerance as 2σ, ``C = (Jᵀ W J)⁻¹`` (``W = diag(1/σ²)``) is the linearised covariance of
 the unknowns that keep the landmarks where the winner has them, and ± 2√C_ii (clipped to the bounds) each
 unknown's interval. A direction no landmark sees, or an interval that spans the bounds on both sides (a valley
-the landmarks leave open: two unknowns that move them alike), leaves the unknown *not pinned*. No extra
+the landmarks leave open: two unknowns that move them alike), leaves the unknown *not pinned*, as does an unknown
+the search never moved (a short search's lines may not reach it). No extra
 simulation: only the maps the search evaluated (not the verify stage's, which run other windows and noise).
 """
 
@@ -34,15 +35,19 @@ def intervals(
 ) -> dict[str, Any]:
     """``{"method": …, "unknowns": {name: {"lo", "hi", "pinned"}}}`` (empty when the points pin no plane)."""
     marks = [c for c in checks if c.kind in NUMERIC_KINDS]
-    if not marks or not free or len(points) < len(free) + 3:
+    points = [p for p in points if p.stage != "verify"] or list(points)  # one kind of map: the search's own
+    # an unknown the search never moved (a short search: the first line only) is not pinned; the others are fitted
+    moved = [u for u in free if len({round(u.coord(p.values[u.name]), 12) for p in points}) > 1]
+    if not marks or not moved or len(points) < len(moved) + 3:
         return {}
+    still = {u.name: {"lo": u.lo, "hi": u.hi, "pinned": False} for u in free if u not in moved}
+    free = moved
     lo = np.array([u.bounds[0] for u in free])
     span = np.array([u.bounds[1] - u.bounds[0] for u in free])
 
     def unit(values: dict[str, float]) -> np.ndarray:
         return (np.array([u.coord(values[u.name]) for u in free]) - lo) / span
 
-    points = [p for p in points if p.stage != "verify"] or list(points)  # one kind of map: the search's own
     x = np.array([unit(p.values) for p in points])
     y = np.array([[_nan(c.measure(p.steps)) for c in marks] for p in points])
     x0 = unit(winner.values)
@@ -68,8 +73,9 @@ def intervals(
     return {
         "method": "local Jacobian of the landmarks ("
         + ", ".join(c.name for c, ok in zip(marks, model.fitted) if ok)
-        + ") at the winner, each target's tolerance read as 2σ: ± 2σ, clipped to the bounds",
-        "unknowns": out,
+        + ") at the winner, each target's tolerance read as 2σ: ± 2σ, clipped to the bounds"
+        + (f"; {', '.join(still)} not moved by the search" if still else ""),
+        "unknowns": {**out, **still},
     }
 
 
