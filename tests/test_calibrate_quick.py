@@ -83,4 +83,5 @@ def test_an_unknown_the_short_search_never_moved_is_reported_not_pinned():
     assert got["unknowns"]["w"] == {"lo": w.lo, "hi": w.hi, "pinned": False}
     iu = got["unknowns"]["u"]
     assert iu["pinned"] and iu["lo"] < 0.4 < iu["hi"] and iu["hi"] - iu["lo"] < 0.5, iu
+    assert iu["given"] == ["w"]  # u's interval holds w where the search left it
     assert "w not moved by the search" in got["method"]

@@ -100,7 +100,13 @@ def sim(
         str | None, typer.Option("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")
     ] = None,
     budget_s: Annotated[float, typer.Option("--budget-s", help="Wall-time budget of the search (s).")] = 540.0,
-    quick: Annotated[bool, typer.Option("--quick", help="A smaller, faster search (smoke runs).")] = False,
+    quick: Annotated[
+        bool,
+        typer.Option(
+            "--quick",
+            help="A smaller, faster search (the contact rig: about 2 min on 2 idle cores, its verify stage included).",
+        ),
+    ] = False,
     name: Annotated[
         str | None, typer.Option("--name", help="Output name (default: <session or targets>_calibrated).")
     ] = None,

@@ -8,7 +8,8 @@ reading each target's tolerance as 2σ, ``C = (Jᵀ W J)⁻¹`` (``W = diag(1/σ
 the unknowns that keep the landmarks where the winner has them, and ± 2√C_ii (clipped to the bounds) each
 unknown's interval. A direction no landmark sees, or an interval that spans the bounds on both sides (a valley
 the landmarks leave open: two unknowns that move them alike), leaves the unknown *not pinned*, as does an unknown
-the search never moved (a short search's lines may not reach it). No extra
+the search never moved (a short search's lines may not reach it; the others' intervals then hold it where it
+is: ``given``). No extra
 simulation: only the maps the search evaluated (not the verify stage's, which run other windows and noise).
 """
 
@@ -74,8 +75,8 @@ def intervals(
         "method": "local Jacobian of the landmarks ("
         + ", ".join(c.name for c, ok in zip(marks, model.fitted) if ok)
         + ") at the winner, each target's tolerance read as 2σ: ± 2σ, clipped to the bounds"
-        + (f"; {', '.join(still)} not moved by the search" if still else ""),
-        "unknowns": {**out, **still},
+        + (f"; {', '.join(still)} not moved by the search: the other intervals hold them as found" if still else ""),
+        "unknowns": {**({k: {**v, "given": list(still)} for k, v in out.items()} if still else out), **still},
     }
 
 

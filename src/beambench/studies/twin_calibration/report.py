@@ -64,6 +64,8 @@ def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> 
         unit = s["unit"] if s else ""
         iv = ivals.get(k)
         ci = "" if iv is None else f"{iv['lo']:.4g} … {iv['hi']:.4g}" + ("" if iv["pinned"] else " (not pinned)")
+        if iv is not None and iv.get("given"):
+            ci += f" (with {', '.join(iv['given'])} as found)"
         lines.append(f"| {k} | {v:.5g} | {rng} | {ci} | {unit} |")
     for k, v in result.extras.items():
         lines.append(f"| {k} (derived) | {v:.5g} | | | |" if isinstance(v, float) else f"| {k} | {v} | | | |")
