@@ -100,13 +100,7 @@ def sim(
         str | None, typer.Option("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")
     ] = None,
     budget_s: Annotated[float, typer.Option("--budget-s", help="Wall-time budget of the search (s).")] = 540.0,
-    quick: Annotated[
-        bool,
-        typer.Option(
-            "--quick",
-            help="A smaller, faster search (the contact rig: about 2 min on 2 idle cores, its verify stage included).",
-        ),
-    ] = False,
+    quick: Annotated[bool, typer.Option("--quick", help="A smaller, faster search (contact rig: ~2 min).")] = False,
     name: Annotated[
         str | None, typer.Option("--name", help="Output name (default: <session or targets>_calibrated).")
     ] = None,
@@ -121,7 +115,7 @@ def sim(
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
     runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
     whether the twin reached it."""
-    import dataclasses
+    from dataclasses import replace
 
     from rich.progress import BarColumn, SpinnerColumn, TextColumn, TimeElapsedColumn
 
@@ -155,11 +149,8 @@ def sim(
     except OSError as exc:
         _fail(f"--out {out_dir}: cannot create ({exc.strerror or exc})")
     chosen = _free_unknowns(free, tg.rig)
-    if quick:  # the rig's own quick settings; --budget-s can only shorten its budget
-        fast = SearchSettings.quick(**{**dict(get_rig(tg.rig).quick), "free": chosen})
-        settings = dataclasses.replace(fast, budget_s=min(budget_s, fast.budget_s))
-    else:
-        settings = SearchSettings(budget_s=budget_s, free=chosen)
+    fast = SearchSettings.quick(**{**dict(get_rig(tg.rig).quick), "free": chosen})  # the rig's own quick settings
+    settings = replace(fast, budget_s=min(budget_s, fast.budget_s)) if quick else SearchSettings(budget_s, free=chosen)
     console = stderr_console()
     cols = (
         SpinnerColumn(),
