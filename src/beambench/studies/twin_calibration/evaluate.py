@@ -291,7 +291,8 @@ class Evaluator:
 
     def sim_rate(self) -> float | None:
         """Wall seconds per simulated second of one map on one worker: the median of the last 8 maps (None before
-        the first; the recent ones follow the machine's load). A map's cost is its simulated time (steps × (settle + record)) at the twin's timestep."""
+        the first; the recent ones follow the machine's load). A map's simulated time is its steps × (settle +
+        record), each at the twin's timestep."""
         return float(np.median(self.rates[-8:])) if self.rates else None
 
     def _point(self, rec: dict, stage: str) -> Point:
