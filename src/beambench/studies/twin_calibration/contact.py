@@ -287,13 +287,12 @@ def write_contact_protocol(
 
 # ``--quick`` on the contact rig: the whole search within its budget, the verify stage's two written-protocol runs
 # (one round on two workers, ~50 s for the shipped 280 s sweep at 5e-5 s) reserved first; the coarse stage gets
-# the rest (its lines and landmark steps all of it), the verify stage runs its best point (no fine maps: at 1 Hz
-# steps they are the coarse maps with longer windows) and the verdict's seed spread is the verify's two seeds
+# the rest (its lines and landmark steps all of it) less the fine maps of the best two points, which (and the
+# preload's bracket) run only if they fit before the verify's reserve; the verdict's seed spread is the verify's
+# two seeds
 CONTACT_QUICK: tuple[tuple[str, Any], ...] = (
     ("budget_s", 105.0),
     ("plan_finish", True),
-    ("refine_top", 0),
-    ("bracket_rounds", 0),
     ("spread_seeds", 2),
     ("line_share", 0.55),
     ("landmark_share", 0.55),
