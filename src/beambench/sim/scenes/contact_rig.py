@@ -98,7 +98,11 @@ def default_timestep(frequency_hz: float, max_timestep: float = 0.0) -> float:
     """The timestep the contact rig needs at a drive frequency: foot path within 0.07 mm (below the mocap
     noise) of a dt = 2.5e-5 reference at a 1 mm gap up to 40 Hz; 1e-4 up to 80 Hz (planning notes); at most
     ``max_timestep`` (a twin's :attr:`RigParams.max_timestep`) when that is > 0."""
-    dt = next(dt for f, dt in TIMESTEP_POLICY if abs(frequency_hz) <= f)
+    return capped(next(dt for f, dt in TIMESTEP_POLICY if abs(frequency_hz) <= f), max_timestep)
+
+
+def capped(dt: float, max_timestep: float) -> float:
+    """``dt`` at most ``max_timestep`` (a twin's converged timestep, :attr:`RigParams.max_timestep`) when > 0."""
     return min(dt, max_timestep) if max_timestep > 0 else dt
 
 
@@ -307,7 +311,7 @@ class ContactRigSim(DrivenScene):
         # the timestep each frequency needs: the rig's policy, or a plan from beambench.sim.selection (model: auto)
         # capped at the twin's converged timestep (RigParams.max_timestep), a plan's too
         base, cap = timestep_for or default_timestep, self.rig.max_timestep
-        self.timestep_for = (lambda hz: min(base(hz), cap)) if cap > 0 else base
+        self.timestep_for = lambda hz: capped(base(hz), cap)
         self.selection = selection
         h0 = timestep or self.timestep_for(1.0)
         self.spec = build_contact_spec(beam, twist_deg, gap, self.rig, integrator, h0)

@@ -296,11 +296,10 @@ def default_contact_plan(
     """(integrator, timestep per frequency) the measured contact table picks for ``model``, else implicitfast
     with the rig's default timestep policy, capped at ``max_timestep`` (> 0: the twin's converged timestep)."""
     from beambench.sim import selection as select
-    from beambench.sim.scenes.contact_rig import default_timestep
+    from beambench.sim.scenes.contact_rig import capped, default_timestep
 
     try:
         plan = select.plan_sweep("contact", tolerance_mm, frequencies, models=[model])
-        dts = np.array([plan.timestep(f) for f in frequencies])
-        return plan.integrator, np.minimum(dts, max_timestep) if max_timestep > 0 else dts
+        return plan.integrator, np.array([capped(plan.timestep(f), max_timestep) for f in frequencies])
     except select.SelectionError:
         return "implicitfast", np.array([default_timestep(f, max_timestep) for f in frequencies])
