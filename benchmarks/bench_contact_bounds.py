@@ -1,6 +1,6 @@
 """Does any point of the contact twin's physical box meet the paper's ½ and ⅓? One command:
 
-    python benchmarks/bench_contact_bounds.py --jobs 2              # ends, Sobol sample, confirmation (~15 min)
+    python benchmarks/bench_contact_bounds.py --jobs 2              # ends, Sobol, confirmation: 24 CPU-min
     python benchmarks/bench_contact_bounds.py --sobol 0 --only rig.contact_timeconst,rig.contact_dampratio
     python benchmarks/bench_contact_bounds.py --jobs 2 --reuse      # only what the last run's JSON lacks
 
