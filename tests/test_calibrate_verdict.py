@@ -23,7 +23,13 @@ from beambench.studies.twin_calibration import RIGS, CalibratableRig, Calibratio
 from beambench.studies.twin_calibration.contact import contact_summary
 from beambench.studies.twin_calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
 from beambench.studies.twin_calibration.targets import CalibrationInputError, parse_targets
-from beambench.studies.twin_calibration.verdict import AT_BOUND_FRACTION, at_bound, closing_line, judge
+from beambench.studies.twin_calibration.verdict import (
+    AT_BOUND_FRACTION,
+    at_bound,
+    closing_line,
+    judge,
+    limiting_unknown,
+)
 from beambench.studies.twin_calibration.walker import walker_checks
 
 TOY_FREQS = [float(f) for f in range(3, 71)]
@@ -237,6 +243,14 @@ def test_at_a_bound_is_judged_on_the_search_axis():
     # … 0.54 is 2.7 % of the linear span, 5.6 % of the log one; 1.97 is near the upper end of both
     assert at_bound({"a": 0.54, "b": 0.54}, [lin, log]) == [(lin, -1)]
     assert at_bound({"a": 1.97, "b": 1.97}, [lin, log]) == [(lin, 1), (log, 1)]
+
+
+def test_a_miss_with_no_free_unknown_at_a_bound_names_the_unknowns_the_search_held():
+    u, w = TOY_UNKNOWNS
+    check = contact_checks(parse_targets({"rig": "contact", "half_at_hz": 26}))[0]
+    text = limiting_unknown(check, 23.0, {"u": 0.5}, [], [u], held=[w])
+    assert text == "no unknown moves it far enough (none of u is at a bound; not searched: w (--free))"
+    assert "not searched" not in limiting_unknown(check, 23.0, {"u": 0.5}, [], [u])
 
 
 def test_contact_checks_take_the_files_tolerance_and_every_sign():

@@ -312,7 +312,9 @@ def _judge(s: Search, winner: Point, ident: dict[str, Any], seeds: list[Point]) 
     if fine:
         jb = min(p.j for p in fine)
         ident["landmark_spread"] = landmark_spread(checks, [p for p in fine if p.j <= jb + max(0.05, 0.25 * jb)])
-    return judge(checks, winner, pts, s.free, seeds)
+    searched = {u.name for u in s.free}
+    held = [u for u in s.rig.unknowns if u.name not in searched]
+    return judge(checks, winner, pts, s.free, seeds, held)
 
 
 def free_unknowns(

@@ -95,10 +95,12 @@ def judge(
     points: Sequence[Point],
     free: Sequence[Unknown],
     seeds: Sequence[Point] = (),
+    held: Sequence[Unknown] = (),
 ) -> list[Verdict]:
     """Every check on the winner's map; a miss names its limit: the twin's own spread over the noise ``seeds``
     (the winner's map at other seeds) when one of them meets it, else from the winner's values, the ``points``
-    evaluated and the ``free`` unknowns' bounds."""
+    evaluated and the ``free`` unknowns' bounds (naming the rig's ``held`` unknowns, not searched, when no free
+    one is at a bound)."""
     out = []
     steps, best = winner.steps, winner.values
     for c in checks:
@@ -112,7 +114,7 @@ def judge(
             why = (
                 seed_spread_text(spread, len(seeds), len(met_by), c.unit)
                 if met_by and spread is not None
-                else limiting_unknown(c, v, best, points, free)
+                else limiting_unknown(c, v, best, points, free, held)
             )
         tol, unit = c.tolerance_text, c.unit
         out.append(Verdict(c.name, c.kind, c.target, v, c.tolerance, tol, unit, ok, why, spread, max(1, len(seeds))))
@@ -154,12 +156,17 @@ def limiting_unknown(
     best: dict[str, float],
     points: Sequence[Point],
     free: Sequence[Unknown],
+    held: Sequence[Unknown] = (),
 ) -> str:
     """What keeps ``check`` from its target (module docstring): ``preload_mm at its upper bound 1 mm``, or
-    :data:`NOT_FAR_ENOUGH` (with the reason where one unknown is at a bound but moves it the wrong way)."""
+    :data:`NOT_FAR_ENOUGH` (with the reason where one unknown is at a bound but moves it the wrong way, or the
+    ``held`` unknowns the search did not move, which ``--free`` would)."""
     edge = at_bound(best, free)
     if not edge:
-        return f"{NOT_FAR_ENOUGH} (none of {', '.join(u.name for u in free)} is at a bound)" if free else NOT_FAR_ENOUGH
+        why = [f"none of {', '.join(u.name for u in free)} is at a bound"] if free else []
+        if held:
+            why.append(f"not searched: {', '.join(u.name for u in held)} (--free)")
+        return f"{NOT_FAR_ENOUGH} ({'; '.join(why)})" if why else NOT_FAR_ENOUGH
     slopes = _slopes(check, best, points, free)
     if slopes is not None and value is not None:
         want = check.target - value
