@@ -1,6 +1,7 @@
 """End to end over a real pseudo-terminal: emulated MCU at 1 kHz → pyserial → SerialLoadCells batches."""
 
 import math
+import threading
 import time
 
 import numpy as np
@@ -238,5 +239,39 @@ def test_a_silence_found_by_check_is_not_raised_again_by_the_final_read():
         with pytest.raises(DeviceFault, match="silent"):
             lc.check()  # the device is still reported as silent to whoever asks
     finally:
+        lc.stop()
+        mcu.close()
+
+
+def test_a_reader_that_got_no_cpu_does_not_make_a_streaming_board_silent():
+    """A host that stalls (suspended, starved of CPU) leaves the reader thread asleep while the board's frames
+    wait on the wire: the board is not silent, and a check that runs before the reader wakes must not blame it
+    (it did: a 2 s SIGSTOP of a run ended as 'loadcell: silent for 2.02 s' instead of the host's stall, now and
+    then under load). The reader is held here as a stall holds it, before its next read of the port. Held for
+    over ten timeouts it is hung, and the board is then judged on the host's clock."""
+    mcu = EmulatedLoadCellMCU(force, PLATE, tx_buffer=BIG_TX, seed=5)
+    port = mcu.open()
+    lc = SerialLoadCells(port, silence_timeout_s=0.1)
+    awake = threading.Event()
+    awake.set()
+    try:
+        lc.start()
+        ser = lc._ser
+        assert ser is not None
+        read = ser.read
+        ser.read = lambda n=1: (awake.wait(), read(n))[1]  # type: ignore[method-assign]
+        mcu.start()
+        deadline = time.monotonic() + 10.0
+        while lc.last_receive_ns is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert lc.last_receive_ns is not None, "no frame arrived"
+        awake.clear()  # the reader stops at its next read; the board keeps sending
+        time.sleep(0.5)  # 5 timeouts without a frame read
+        lc.check()  # not silent: nobody was listening
+        time.sleep(0.7)  # 12 timeouts: a reader asleep that long is hung
+        with pytest.raises(DeviceFault, match="silent"):
+            lc.check()
+    finally:
+        awake.set()
         lc.stop()
         mcu.close()

@@ -12,7 +12,8 @@ manager — and leaves the wire to subclasses), :class:`StreamDriver` gives a dr
 - :class:`Counters`: received, dropped (the device sent it, it never arrived), garbled (arrived, failed to
   decode), forged (arrived from a sender that is not the device);
 - liveness: :meth:`check` raises :class:`DeviceFault` on a fault, or when nothing arrived for longer than
-  ``silence_timeout_s`` while running. :meth:`read` returns what arrived; only when nothing did and the
+  ``silence_timeout_s`` while running and listening (a reader thread that got no CPU, e.g. a suspended host, does
+  not make its device silent: its data wait on the wire). :meth:`read` returns what arrived; only when nothing did and the
   device is faulty or silent does it raise, so samples received before a failure are never lost.
 
 Subclasses implement ``_open``, ``_close``, ``_receive`` (one bounded wait for data), ``_to_batch`` and, if a
@@ -29,6 +30,10 @@ from typing import Any
 
 from beambench.acquisition.batch import Batch, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault
+
+# A reader thread that has not come back from a (short, bounded) receive for this many silence timeouts is hung,
+# not merely starved: its device is then judged on the host's clock (StreamDriver._listened_until)
+READER_HUNG_TIMEOUTS = 10.0
 
 __all__ = ["Counters", "StreamDriver"]
 
@@ -67,6 +72,7 @@ class StreamDriver:
         self._fault: str | None = None
         self._fault_reported = False
         self.last_receive_ns: int | None = None
+        self._awake_ns: int | None = None  # when the reader thread last came back from a receive
 
     # -- to implement --------------------------------------------------------------------------------------
     def _open(self) -> None:
@@ -102,7 +108,7 @@ class StreamDriver:
             self._close()
             raise
         self._started = True
-        self._started_ns = time.monotonic_ns()
+        self._started_ns = self._awake_ns = time.monotonic_ns()
         if self.reader_thread:
             self._thread = threading.Thread(target=self._reader, name=f"{self.name}-reader", daemon=True)
             self._thread.start()
@@ -168,11 +174,21 @@ class StreamDriver:
         if timeout is None or not self._started or self._started_ns is None:
             return
         last = self.last_receive_ns if self.last_receive_ns is not None else self._started_ns
-        silent = time.monotonic_ns() - last
+        silent = self._listened_until(time.monotonic_ns(), timeout) - last
         if silent > timeout * 1e9:
             what = "nothing received" if self.last_receive_ns is None else "silent"
             on = f" on {self.where}" if self.where else ""
             raise DeviceFault(f"{self.name}{on}: {what} for {silent * 1e-9:.2f} s (> {timeout:g} s)")
+
+    def _listened_until(self, now_ns: int, timeout_s: float) -> int:
+        """Up to when the device had the chance to be heard: the reader thread's last return from a receive, not
+        ``now_ns``, while that is recent (a host that stalled, e.g. suspended or starved of CPU, left the reader
+        asleep with the device's data waiting on the wire: the device was not silent). A reader asleep for over
+        :data:`READER_HUNG_TIMEOUTS` timeouts is hung: then ``now_ns``. Without a reader thread: ``now_ns``."""
+        awake = self._awake_ns
+        if not self.reader_thread or awake is None or now_ns - awake > READER_HUNG_TIMEOUTS * timeout_s * 1e9:
+            return now_ns
+        return awake
 
     def health(self) -> dict[str, Any]:
         """The counters, the fault if any, and the age of the last sample (s), for the session."""
@@ -210,6 +226,7 @@ class StreamDriver:
         try:
             while not self._stop_evt.is_set():
                 self._receive()
+                self._awake_ns = time.monotonic_ns()
         except Exception as exc:  # the wire failed: kept, reported by check()/read(), never swallowed
             if not self._stop_evt.is_set():
                 self._set_fault(self._failure(exc))
