@@ -20,12 +20,12 @@ from beambench.studies.twin_calibration.search import free_unknowns
 from beambench.studies.twin_calibration.walker import walker_boxes
 
 PHYSICAL = CalibrationBase("rod5g", "physical", SimSettings(twist_deg=90.0))
-CORNER_UNKNOWNS = ("b_scale", "friction_scale", "frame_mass_g", "mass_dx_mm", "mass_dy_mm")
+CORNER_UNKNOWNS = ("k_scale", "b_scale", "friction_scale", "frame_mass_g", "mass_dx_mm", "mass_dy_mm")
 
 
 def test_every_corner_of_the_contact_box_is_a_physical_rig():
     """The search box of every contact unknown on the physical prior: applied at each corner (32 corners of
-    damping, friction, frame mass and the load offsets), the parameter set has nothing outside its bounds; the preload
+    stiffness, damping, friction, frame mass and the load offsets), the parameter set has nothing outside its bounds; the preload
     box gives h' at its physical ends at the prior's own sag."""
     boxes = contact_boxes(PHYSICAL)
     assert set(boxes) == {"preload_mm", *CORNER_UNKNOWNS}
@@ -33,6 +33,10 @@ def test_every_corner_of_the_contact_box_is_a_physical_rig():
     sag = static_sag(make_beam_model("rod5g", prior), RigParams.with_overrides(prior.rig), 90.0)
     gap = prior.bounds["rig.plate_gap"]
     assert boxes["preload_mm"] == pytest.approx((1e3 * (sag - gap.max), 1e3 * (sag - gap.min)))
+    e = prior.bounds["beam.material.youngs_modulus"]
+    assert boxes["k_scale"] == pytest.approx(
+        (e.min / prior.material.youngs_modulus, e.max / prior.material.youngs_modulus)
+    )
     beta = prior.bounds["beam.beta"]
     assert boxes["b_scale"] == pytest.approx((beta.min / prior.beta, beta.max / prior.beta))
     for corner in itertools.product(*(boxes[n] for n in CORNER_UNKNOWNS)):
@@ -44,6 +48,23 @@ def test_every_corner_of_the_contact_box_is_a_physical_rig():
     assert generic["b_scale"][1] > boxes["b_scale"][1] and generic["frame_mass_g"][1] > boxes["frame_mass_g"][1]
     lo, hi = generic["preload_mm"]
     assert (lo, hi) != pytest.approx(boxes["preload_mm"], abs=0.05)  # not the physical h' range at this sag
+
+
+def test_the_stiffness_scale_moves_a_rods_modulus_and_so_its_sag():
+    """k_scale on a rod (whose springs come from E, not from k) scales E, so the beam sags less in proportion;
+    the material's loss time constant beta stays (its hinges' damping b = beta·k scales with E: every corner of
+    the k and b boxes is then inside beta's bounds); on a PRB3 set it scales k as before. (It used to scale only
+    k, which a rod does not read, and divide beta: a damping change under the stiffness's name.)"""
+    prior = load_params("physical", model="rod")
+    stiff = calibrated_params(PHYSICAL, {"k_scale": 1.2})
+    assert stiff.material.youngs_modulus == pytest.approx(1.2 * prior.material.youngs_modulus)
+    assert stiff.beta == pytest.approx(prior.beta)
+    rig = RigParams.with_overrides(prior.rig)
+    sag = [static_sag(make_beam_model("rod5g", p), rig, 90.0) for p in (prior, stiff)]
+    assert sag[1] < sag[0]
+    assert sag[1] == pytest.approx(sag[0] / 1.2, rel=0.08)  # linear beam, the frame's lever: sag ~ 1/E
+    paper = CalibrationBase("prb3", "contact_paper")
+    assert calibrated_params(paper, {"k_scale": 2.0}).k == pytest.approx(2.0 * load_params("contact_paper").k)
 
 
 def test_the_search_uses_the_physical_boxes_and_keeps_the_gap_inside_h_prime():

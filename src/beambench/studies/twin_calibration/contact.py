@@ -58,7 +58,7 @@ def scale_friction(params: BeamParams, value: float) -> BeamParams:
     return replace(params, rig={**params.rig, "friction": friction})
 
 
-# Applied in this order; b before k so that beta (rods' damping, b = beta·k) becomes beta·b_scale/k_scale.
+# The contact rig's unknowns. A rod's damping is b = beta·k: b_scale moves beta, k_scale moves E (and k), beta stays.
 CONTACT_UNKNOWNS = (
     Unknown(
         "b_scale",
@@ -77,8 +77,8 @@ CONTACT_UNKNOWNS = (
         1.6,
         log=True,
         default=1.0,
-        doc="multiplies the prior set's k and k_twist",
-        effect=Override(("k", "k_twist"), scale=True, inverse=("beta",)),
+        doc="multiplies the prior set's k and k_twist (a rod's Young's modulus, which sets all its springs)",
+        effect=Override(("k", "k_twist", "material.youngs_modulus"), scale=True),
         own=neutral,
         fitted_by_default=False,
     ),
@@ -184,7 +184,8 @@ def contact_prior(base: CalibrationBase) -> dict[str, float]:
 
 def contact_boxes(base: CalibrationBase) -> dict[str, tuple[float, float]]:
     """The prior set's physical ranges (its ``bounds:``) as the unknowns' boxes (``CalibratableRig.boxes``): the
-    preload from h' (``rig.plate_gap``) at the prior's own static sag, the damping scale from ``beam.beta``, the
+    preload from h' (``rig.plate_gap``) at the prior's own static sag, the stiffness scale from the Young's modulus,
+    the damping scale from ``beam.beta``, the
     friction scale from ``rig.friction``, the frame mass and the load's offset from theirs. Empty for a set
     without bounds. (The preload box is the gap's at the prior's sag; :func:`simulate_contact` keeps the gap
     inside h' wherever the other unknowns move the sag.)"""
@@ -202,6 +203,10 @@ def contact_boxes(base: CalibrationBase) -> dict[str, tuple[float, float]]:
         sag = static_sag(make_beam_model(base.model, p), rig, base.sim.twist_deg)
         gap = b["rig.plate_gap"]
         out["preload_mm"] = (1e3 * (sag - gap.max), 1e3 * (sag - gap.min))
+    modulus = p.value("beam.material.youngs_modulus")
+    if "beam.material.youngs_modulus" in b and modulus:
+        e = b["beam.material.youngs_modulus"]
+        out["k_scale"] = (e.min / modulus, e.max / modulus)
     beta = p.value("beam.beta")
     if "beam.beta" in b and beta:
         out["b_scale"] = (b["beam.beta"].min / beta, b["beam.beta"].max / beta)
