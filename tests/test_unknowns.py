@@ -71,7 +71,9 @@ def test_the_fit_the_sweep_and_the_calibration_apply_values_the_same_way():
         direct.l2,
     )
     assert fitted.k_twist == pytest.approx(0.5) and fitted.b_twist == pytest.approx(0.004)
-    # the contact rig's scales: b before k, so a rod's beta becomes beta · b_scale / k_scale
+    # the contact rig's scales: k_scale scales k and the Young's modulus (a rod's springs), b_scale the damping;
+    # a rod's loss time constant beta moves with b_scale only
     assert [u.name for u in CONTACT_UNKNOWNS][:2] == ["b_scale", "k_scale"]
     p = calibrated_params(CalibrationBase("prb3", "paper"), {"k_scale": 0.5, "b_scale": 2.0})
-    assert (p.k, p.b_twist, p.beta) == (base.k * 0.5, base.b_twist * 2.0, base.beta * 2.0 / 0.5)
+    assert (p.k, p.b_twist, p.beta) == (base.k * 0.5, base.b_twist * 2.0, base.beta * 2.0)
+    assert p.material.youngs_modulus == base.material.youngs_modulus * 0.5
