@@ -20,12 +20,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import yaml
+
+from bench_calibrate import sh as beambench  # the same `beambench` subprocess runner (this folder is on sys.path)
 
 HIDDEN = {"beam.beta": 6.0e-3, "rig.friction": 0.9, "rig.plate_gap": 0.00515}
 SESSION_PROTOCOL = """name: twin_hidden
@@ -39,16 +38,6 @@ amplitude_mm: 2.0
 limits: {{max_frequency_hz: 45, max_current_a: 10, max_amplitude_mm: 3}}
 sim: {{model: rod5g, params: {params}, twist_deg: 90, noise: true, seed: 5}}
 """
-
-
-def beambench(*args: str) -> tuple[subprocess.CompletedProcess, float]:
-    """``beambench ARGS``; exit 3 of ``calibrate sim`` (written, a target missed) is a result."""
-    t0 = time.perf_counter()
-    res = subprocess.run([sys.executable, "-m", "beambench.cli", *args], capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    if res.returncode not in (0, 3):
-        raise RuntimeError(f"beambench {' '.join(args)} failed ({res.returncode}): {res.stderr[-2000:]}")
-    return res, wall
 
 
 def hidden_session(out: Path) -> tuple[Path, dict[str, float]]:

@@ -13,8 +13,8 @@ manager — and leaves the wire to subclasses), :class:`StreamDriver` gives a dr
   decode), forged (arrived from a sender that is not the device);
 - liveness: :meth:`check` raises :class:`DeviceFault` on a fault, or when nothing arrived for longer than
   ``silence_timeout_s`` while running and listening (a reader thread that got no CPU, e.g. a suspended host, does
-  not make its device silent: its data wait on the wire). :meth:`read` returns what arrived; only when nothing did and the
-  device is faulty or silent does it raise, so samples received before a failure are never lost.
+  not make its device silent: its data wait on the wire). :meth:`read` returns what arrived; only when nothing
+  did and the device is faulty or silent does it raise, so samples received before a failure are never lost.
 
 Subclasses implement ``_open``, ``_close``, ``_receive`` (one bounded wait for data), ``_to_batch`` and, if a
 blocking receive must be woken to stop, ``_interrupt``.
