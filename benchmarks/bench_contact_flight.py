@@ -49,12 +49,12 @@ def measure(values: dict[str, float], hz: float, settle: float, record: float) -
     """One frequency held from rest: flights and contacts of the foot above the plate."""
     from beambench.sim.scenes.contact_regimes import static_sag
     from beambench.sim.scenes.contact_rig import ContactRigSim
-    from bench_contact_bounds import point_twin
+    from bench_contact_bounds import converged_dt, point_twin
 
     twin, rig = point_twin(values)
     beam, rig = twin.build()
     sag = static_sag(beam, rig)
-    dt = min(5e-5, rig.contact_timeconst * rig.contact_dampratio / 20)
+    dt = converged_dt(rig)
     scene = ContactRigSim(beam, 90.0, rig.plate_gap, 0.002, rig, "implicitfast", timestep=dt)
     try:
         scene.set_frequency(hz)
