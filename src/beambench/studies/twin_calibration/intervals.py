@@ -9,8 +9,8 @@ the unknowns that keep the landmarks where the winner has them, and ± 2√C_ii 
 unknown's interval. A direction no landmark sees, or an interval that spans the bounds on both sides (a valley
 the landmarks leave open: two unknowns that move them alike), leaves the unknown *not pinned*, as does an unknown
 the search never moved (a short search's lines may not reach it; the others' intervals then hold it where it
-is: ``given``). No extra
-simulation: only the maps the search evaluated (not the verify stage's, which run other windows and noise).
+is: ``given``). No extra simulation: only the maps the search evaluated (not the verify stage's, which run other
+windows and noise).
 """
 
 from __future__ import annotations
