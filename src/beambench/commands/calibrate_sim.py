@@ -10,15 +10,16 @@ from typing import Annotated, Any, NoReturn
 import typer
 from typer.core import TyperCommand, TyperOption
 
-EXIT_MISSED = 3
-EXIT_INTERRUPTED = 130  # Ctrl-C or another stop signal; the evaluations so far are kept and reused
+from beambench.commands import EXIT_FAULT, EXIT_MISSED, EXIT_OK, EXIT_STOPPED, EXIT_USAGE
+
 EPILOG = (
-    "Exit status: 0 written, every target met within its tolerance; 2 bad input (one line, nothing written); "
-    "3 written, but not within tolerance (the last line names each missed target, the twin's value and the "
-    "unknown that limits it: one at its bound, or no unknown moves it far enough); 130 interrupted (Ctrl-C: "
-    "the evaluation log is kept, the same command with the same --out resumes). Tolerances: the targets file's "
-    "tolerance_hz (transitions, default ± 2 Hz) or tolerance_fraction (walker speeds, default ± 30 %); a "
-    "tangential sign must match."
+    f"Exit status: {EXIT_OK} written, every target met within its tolerance; {EXIT_FAULT} an error during the "
+    f"search; {EXIT_USAGE} bad input (one line, nothing written); {EXIT_STOPPED} stopped (Ctrl-C: the evaluation "
+    "log is kept, the same command with the same --out resumes); "
+    f"{EXIT_MISSED} written, but not within tolerance (the last line names each missed target, the twin's value "
+    "and the unknown that limits it: one at its bound, or no unknown moves it far enough). Every command's codes: "
+    "docs/commands.md, 'Exit codes'. Tolerances: the targets file's tolerance_hz (transitions, default ± 2 Hz) or "
+    "tolerance_fraction (walker speeds, default ± 30 %); a tangential sign must match."
 )
 
 
@@ -42,12 +43,12 @@ class _SimCommand(TyperCommand):
 
 def _fail(message: str) -> NoReturn:
     typer.echo(f"beambench: error: {message}", err=True)
-    raise typer.Exit(2)
+    raise typer.Exit(EXIT_USAGE)
 
 
 def _interrupted(log: Path) -> NoReturn:
-    """One line saying where the finished evaluations are and how to resume; exit 130 (interrupted: 3 is taken
-    by "written, but not within tolerance")."""
+    """One line saying where the finished evaluations are and how to resume; exit :data:`EXIT_STOPPED` (as every
+    command stopped by Ctrl-C)."""
     import shlex
     import sys
 
@@ -58,7 +59,7 @@ def _interrupted(log: Path) -> NoReturn:
         "again (same --out and --name): they are reused",
         err=True,
     )
-    raise typer.Exit(EXIT_INTERRUPTED)
+    raise typer.Exit(EXIT_STOPPED)
 
 
 def default_out() -> Path:
@@ -191,7 +192,7 @@ def _free_unknowns(free: str | None, rig: str) -> tuple[str, ...] | None:
 
 def _finish(result: Any, report: Path) -> None:
     """The summary and one line per target (stderr), the protocol's path (stdout), then the verdict as the last
-    line (stderr); exit 3 when a target is missed."""
+    line (stderr); exit :data:`EXIT_MISSED` when a target is missed."""
     from beambench.studies.twin_calibration.verdict import all_met, closing_line
 
     twin = ", ".join(f"{k} {v}" for k, v in result.summary.items() if k != "map" and not isinstance(v, dict))
