@@ -193,6 +193,16 @@ def twin_map_session(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Sp
     return path, map_from_session(path)
 
 
+def test_a_map_session_is_about_the_size_the_dry_run_says(twin_map_session):
+    """The dry run of a ``map: twin`` protocol names the map's size from SESSION_BYTES_PER_RIG_S: a written map
+    (7 steps of 2 s) is within 30 % of it."""
+    from beambench.session.estimate import SESSION_BYTES_PER_RIG_S
+
+    map_path, _ = twin_map_session
+    per_rig_s = map_path.stat().st_size / (7 * 2.0)
+    assert 0.7 * SESSION_BYTES_PER_RIG_S <= per_rig_s <= 1.3 * SESSION_BYTES_PER_RIG_S, per_rig_s
+
+
 def _track_text(map_path: Path, segments: list[tuple[float, float]], extra: str = "") -> str:
     segs = ", ".join(f"{{speed_mm_s: {v:.1f}, hold_s: {h}}}" for v, h in segments)
     return f"name: t\nrig: walker\n{SIM}{extra}track: {{map: {map_path}, segments: [{segs}]}}\n"

@@ -29,15 +29,17 @@ FREE_HELP = (
 
 
 class _SimCommand(TyperCommand):
-    """``calibrate sim`` whose ``--free`` help lists each rig's unknowns from the calibration registry, imported
-    only when the help is shown (it costs seconds: every other command starts without it)."""
+    """``calibrate sim`` whose ``--free`` and ``--quick`` help list each rig's unknowns and quick budget from the
+    calibration registry, imported only when the help is shown (it costs seconds: every other command starts without it)."""
 
     def format_help(self, ctx: Any, formatter: Any) -> None:  # typer's own (vendored) click types
-        from beambench.studies.twin_calibration import unknowns_help
+        from beambench.studies.twin_calibration import quick_help, unknowns_help
 
         for param in self.params:
             if param.name == "free" and isinstance(param, TyperOption):
                 param.help = f"{FREE_HELP} Unknowns: {unknowns_help()}."
+            if param.name == "quick" and isinstance(param, TyperOption):
+                param.help = quick_help()  # from each rig's quick budget: the one figure, never a copy
         super().format_help(ctx, formatter)
 
 
@@ -101,7 +103,7 @@ def sim(
         str | None, typer.Option("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")
     ] = None,
     budget_s: Annotated[float, typer.Option("--budget-s", help="Wall-time budget of the search (s).")] = 540.0,
-    quick: Annotated[bool, typer.Option("--quick", help="A smaller, faster search (contact rig: ~2 min).")] = False,
+    quick: Annotated[bool, typer.Option("--quick", help="A smaller, faster search.")] = False,
     name: Annotated[
         str | None, typer.Option("--name", help="Output name (default: <session or targets>_calibrated).")
     ] = None,
@@ -159,6 +161,7 @@ def sim(
         BarColumn(),
         TextColumn("{task.completed} runs"),
         TimeElapsedColumn(),
+        TextColumn("{task.fields[left]}"),  # the search's time left of its budget (a TimeLeft)
     )
     try:
         with LogProgress(*cols, console=console, transient=False) as progress:

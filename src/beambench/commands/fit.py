@@ -47,7 +47,7 @@ class FitArgs:
         "--params-dir",
         metavar="DIR",
         help="Where to write the parameter set (default: sim_backend/ in the per-user folder, where `sim.params` "
-        "finds it; see README, 'Where files go').",
+        "finds it; see docs/commands.md, 'Where files go').",
     )
     no_write: bool = typer.Option(False, "--no-write", help="Do not write a parameter set or /processing.")
     method: str = typer.Option(
