@@ -316,3 +316,16 @@ def test_the_maps_figure_places_each_step_at_its_label_as_the_table_reads_it():
     assert _label_level({"regime": "1", "contacts_per_cycle": 1.0, "in_contact_fraction": 0.9}) == regime_level("1")
     assert _label_level({"regime": "1/2", "contacts_per_cycle": 0.55}) == regime_level("1/2") == 1.0
     assert _label_level({"regime": "irregular", "contacts_per_cycle": 0.6}) == regime_level("irregular", 0.6)
+
+
+def test_quick_help_states_each_rigs_budget_from_its_own_settings():
+    """``--quick``'s time in ``--help`` is each rig's quick budget (one figure, never a copy that drifts)."""
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+    from beambench.studies.twin_calibration.rig import quick_budget_s
+
+    res = CliRunner().invoke(app, ["calibrate", "sim", "--help"], env={"COLUMNS": "300"})
+    text = " ".join(res.output.split())
+    for rig in RIGS.values():
+        assert f"{rig.name} rig {quick_budget_s(rig) / 60:.1f} min" in text, text
