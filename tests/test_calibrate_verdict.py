@@ -323,7 +323,7 @@ def test_quick_help_states_each_rigs_budget_from_its_own_settings():
     from typer.testing import CliRunner
 
     from beambench.cli import app
-    from beambench.studies.twin_calibration.rig import quick_budget_s
+    from beambench.studies.twin_calibration.evaluate import quick_budget_s
 
     res = CliRunner().invoke(app, ["calibrate", "sim", "--help"], env={"COLUMNS": "300"})
     text = " ".join(res.output.split())

@@ -104,7 +104,7 @@ class TimeLeft:
         self.start = clock()
 
     def __str__(self) -> str:
-        left = int(round(self.budget_s - (self.clock() - self.start)))
+        left = round(self.budget_s - (self.clock() - self.start))
         if left <= 0:
             return f"{self.budget_s:g} s budget spent: finishing"
         return f"{left // 60}:{left % 60:02d} left of the {self.budget_s:g} s budget"

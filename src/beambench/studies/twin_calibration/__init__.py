@@ -19,14 +19,20 @@ objective=..., base=..., write=..., summary=..., checks=...))``, imported below;
 """
 
 from beambench.studies.twin_calibration import contact, walker
-from beambench.studies.twin_calibration.evaluate import EvalLog, Evaluator, Interrupted, Point, SearchSettings
+from beambench.studies.twin_calibration.evaluate import (
+    EvalLog,
+    Evaluator,
+    Interrupted,
+    Point,
+    SearchSettings,
+    quick_help,
+)
 from beambench.studies.twin_calibration.report import write_report
 from beambench.studies.twin_calibration.rig import (
     RIGS,
     CalibratableRig,
     CalibrationBase,
     get_rig,
-    quick_help,
     register_rig,
     unknowns_help,
 )

@@ -126,23 +126,6 @@ def unknowns_help() -> str:
     return "; ".join(parts)
 
 
-def quick_budget_s(rig: CalibratableRig) -> float:
-    """The wall-time budget of ``rig``'s ``--quick`` search (its own quick settings, else ``SearchSettings.quick``'s):
-    the one figure ``calibrate sim --help`` states for ``--quick``."""
-    from beambench.studies.twin_calibration.evaluate import SearchSettings
-
-    return float(SearchSettings.quick(**dict(rig.quick)).budget_s)
-
-
-def quick_help() -> str:
-    """``--quick``'s time per rig, for ``calibrate sim --help``, from each rig's quick budget."""
-    budgets = ", ".join(f"{rig.name} rig {quick_budget_s(rig) / 60:.1f} min" for rig in RIGS.values())
-    return (
-        f"A smaller, faster search: a wall-time budget of {budgets}, plus start-up and the last batch; on a "
-        "loaded machine fewer evaluations fit in it and its last runs take longer (docs/performance.md)."
-    )
-
-
 def get_rig(name: str) -> CalibratableRig:
     """The registered rig ``name``; CalibrationInputError (one line) for a rig the calibrator does not know."""
     if name not in RIGS:
