@@ -56,5 +56,7 @@ def test_a_track_dry_run_counts_its_map_sweep_and_says_where_the_map_goes():
     assert phase, text
     map_s = float(phase.group(1)) * (60 if phase.group(2) == "min" else 1)
     assert total >= map_s > 0  # the map is part of the estimate, not left out
-    profile = re.search(r"2\. the profile: 6 segments, 27 s of rig time on the sim backend: about ([\d.]+) (s|min)", text)
+    profile = re.search(
+        r"2\. the profile: 6 segments, 27 s of rig time on the sim backend: about ([\d.]+) (s|min)", text
+    )
     assert profile, text

@@ -78,6 +78,10 @@ def run_session(
     )
 
 
+def _count(n: int, what: str) -> str:
+    return f"{n} {what}{'' if n == 1 else 's'}"
+
+
 def _say(show: bool, text: str) -> None:
     """A note on stderr (with the progress; a terminal gone only loses it)."""
     if show:
@@ -91,7 +95,7 @@ def _run_twin(sweep: Protocol, text: str, path: Path, show_progress: bool) -> tu
     steps = plan(sweep)
     _say(
         show_progress,
-        f"phase 1 of 2, the speed map (track.map: twin): this protocol's sweep on the sim, {len(steps)} steps, "
+        f"phase 1 of 2, the speed map (track.map: twin): this protocol's sweep on the sim, {_count(len(steps), 'step')}, "
         f"{sum(s.duration_s for s in steps):g} s of rig time, into {path}",
     )
     result = run_request(RunRequest(sweep, text, "sim", path, show_progress=show_progress, label="speed map: "))
@@ -136,7 +140,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         rig_s = sum(s.duration_s for s in plan(protocol))
         _say(
             req.show_progress,
-            f"phase 2 of 2, the profile: {len(protocol.track.segments)} segments, {rig_s:g} s of rig time on the "
+            f"phase 2 of 2, the profile: {_count(len(protocol.track.segments), 'segment')}, {rig_s:g} s of rig time on the "
             f"{backend} backend, into {path}",
         )
     reserved = path.with_suffix(".rrd") if req.rerun_mode == "save" else None
