@@ -1,6 +1,6 @@
 """Benchmark: speed tracking on the sim walker against issue 25's goals, each from one run.
 
-    python benchmarks/bench_track.py [--out DIR] [--mismatch foot_mass=0.0033] [--profiles]
+    python benchmarks/bench_track.py [--out DIR] [--mismatch foot_mass=0.0022] [--profiles]
 
 1. ``protocols/walker_track.yaml`` as shipped (``map: twin``: its own sweep first, then the profile).
 2. A map from a *different* twin (``--mismatch``: a walker parameter changed, default the foot 10 % heavier): its
@@ -84,7 +84,7 @@ def _verdict(name: str, track, limit_hz: float, wall: float) -> bool:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--mismatch", default="foot_mass=0.0033", help="walker parameter of the other twin, NAME=VALUE")
+    ap.add_argument("--mismatch", default="foot_mass=0.0022", help="walker parameter of the other twin, NAME=VALUE")
     ap.add_argument("--profiles", action="store_true", help="also run PROFILES on run 1's map")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "src"))
@@ -104,10 +104,13 @@ def main() -> None:
     if args.profiles:
         _profiles(shipped, out / "own_map.h5", out, limit)
 
+    from beambench.sim.models.registry import model_family
+
     name, value = args.mismatch.split("=")
-    params = yaml.safe_load((ROOT / "sim_backend" / "prb3_paper.yaml").read_text())
-    params.update(name="other_twin", rig={name: float(value)})
-    (user / "sim_backend" / "prb3_other_twin.yaml").write_text(yaml.safe_dump(params))
+    family = model_family(shipped["sim"]["model"])  # the shipped walker's parameter set, one walker value changed
+    params = yaml.safe_load((ROOT / "sim_backend" / f"{family}_{shipped['sim']['params']}.yaml").read_text())
+    params.update(name="other_twin", walker={**params.get("walker", {}), name: float(value)})
+    (user / "sim_backend" / f"{family}_other_twin.yaml").write_text(yaml.safe_dump(params))
     sweep = {k: v for k, v in shipped.items() if k != "track"}
     sweep["sim"] = {**shipped["sim"], "params": "other_twin"}
     from beambench.acquisition.protocol.schema import parse_protocol
