@@ -197,7 +197,7 @@ def _phase_time(protocol: Protocol, backend: str, realtime: bool = False) -> tup
     steps = plan(protocol)
     total = sum(s.duration_s for s in steps)
     if backend != "sim" or realtime:
-        return total, f"{_about(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
+        return total, f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
     from beambench.session.slices import sim_slice
 
     try:
@@ -226,13 +226,16 @@ def _phase_time(protocol: Protocol, backend: str, realtime: bool = False) -> tup
     )
 
 
-def _about(seconds: float) -> str:
-    """A wall time in words: "under 1 s", "about 12 s", "about 2.5 min"."""
+def _duration(seconds: float) -> str:
+    """A time in words: "under 1 s", "12 s", "2.5 min"."""
     if seconds < 1:
         return "under 1 s"
-    if seconds < 90:
-        return f"about {seconds:.0f} s"
-    return f"about {seconds / 60:.1f} min"
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
+
+
+def _about(seconds: float) -> str:
+    """An estimated time in words: "under 1 s", "about 12 s", "about 2.5 min"."""
+    return _duration(seconds) if seconds < 1 else f"about {_duration(seconds)}"
 
 
 def print_dry_run(s: dict, expected: str) -> None:
