@@ -91,3 +91,57 @@ def test_an_interrupted_run_says_so_and_names_the_missing_steps(tmp_path):
     assert list(table["status"]) == ["done", "done", "aborted"]  # the table the banner speaks of
     whole, _ = _report(tmp_path, "whole", SynthSession(steps[:2], record_s=1.2, settle_s=0.3))
     assert "planned steps" not in _top(whole) and "interrupted" not in _top(whole)
+
+
+SHORT_SWEEP = """
+name: cut_short
+rig: contact
+sweep: {start: 2, stop: 8, step: 2}
+settle_s: 0.2
+record_s: 0.4
+sim: {seed: 5}
+"""
+
+
+def test_a_sim_run_stopped_by_sigint_reports_the_steps_it_never_ran(tmp_path):
+    """The runner on the twin, stopped as Ctrl-C stops it (the stop signal's SIGINT) half-way through step 2's record
+    window: the report built from the session file names the cut step and the one never run."""
+    import signal
+
+    from beambench.acquisition.hub import Hub
+    from beambench.acquisition.protocol.plan import motor_limits, plan
+    from beambench.acquisition.protocol.schema import parse_protocol
+    from beambench.acquisition.runner import Runner, StopSignal
+    from beambench.analysis.report_notes import completeness_note, run_completeness
+    from beambench.analysis.session_analysis import analyze_session
+    from beambench.backends.sim import SimRig
+    from beambench.session.slices import sim_slice
+    from beambench.sinks.hdf5 import SessionWriter, read_session
+
+    protocol = parse_protocol(SHORT_SWEEP)
+    rig = SimRig(sim_slice(protocol))
+    rig.open()
+    writer = SessionWriter(tmp_path / "s.h5", {"protocol": SHORT_SWEEP, "rig": "contact", "backend": "sim"})
+    hub = Hub([writer], critical=(writer,))
+    hub.open([s.describe() for s in rig.streams])
+    stop = StopSignal()
+    waited: dict[int, float] = {}
+
+    def progress(index: int, _f: float, dt: float) -> None:
+        waited[index] = waited.get(index, 0.0) + dt
+        if index == 2 and waited[index] > 0.2 + 0.2:  # settled, half of the record window
+            stop.request(signal.SIGINT)
+
+    runner = Runner(rig, hub, plan(protocol), motor_limits(protocol), poll_s=0.1, stop=stop, on_progress=progress)
+    try:
+        result = runner.run()
+    finally:
+        rig.close()
+    assert result.status == "interrupted"
+    a = analyze_session(read_session(tmp_path / "s.h5"))
+    assert a.ending == ("interrupted", "interrupted by user (SIGINT)")
+    c = run_completeness(a)
+    assert (c.done, c.missing) == ([0, 1], [2, 3])
+    note = completeness_note(c) or ""
+    assert "The run was interrupted (interrupted by user (SIGINT))" in note and "2 of the 4 planned steps" in note
+    assert "steps 2 (6 Hz)" in note and "Never run: steps 3 (8 Hz)." in note
