@@ -433,7 +433,7 @@ def analyze_session(
         residual_t,
         _edge_check(session, fits),
         track=track,
-        ending=run_ending(getattr(session, "events", None)),
+        ending=run_ending(session.events),
     )
 
 
