@@ -52,7 +52,8 @@ def test_force_panel_marks_each_touchdown_and_each_merged_dip_inside_the_trace(f
     assert p.contacts_ms and all(p.t_ms[0] <= a < b <= p.t_ms[-1] for a, b in p.contacts_ms)
     fig = Figure()
     ax_n, ax_t = fig.subplots(2)
-    title = _column(ax_n, ax_t, r, "s", None, cycles)
+    title, drawn = _column(ax_n, ax_t, r, "s", None, cycles)
+    assert (drawn.touchdowns_ms, drawn.merged_dips_ms) == (p.touchdowns_ms, p.merged_dips_ms)  # what it drew
     assert f"{int(cycles / k)} ▼ touchdowns, {int(cycles - cycles / k)} ◇ dips < {limit:.1f} ms merged" in title
 
 
@@ -108,6 +109,21 @@ def test_trajectory_bands_hold_a_still_foot_and_not_a_lifting_one(noisy, tmp_pat
     assert len(spans) >= 2  # both bands are drawn behind the paths
     labels = [t.get_text() for leg in drawn[-1].legends for t in leg.get_texts()]
     assert any("mocap noise per frame" in s and f"{noise:.2f}" in s for s in labels), labels
+
+
+def test_force_traces_of_continuous_contact_keep_their_panels(noisy, tmp_path, monkeypatch):
+    """Steps without a touchdown draw no touchdown marks (an empty unclipped line collapsed the layout)."""
+    from beambench.analysis.figures.forces import choose_force_frequencies, fig_forces
+
+    drawn = _savefig_spy(monkeypatch)
+    frequencies = choose_force_frequencies([noisy])
+    assert frequencies == [9.0]  # the continuous regime's middle step: the only regime with contact
+    assert fig_forces([noisy], tmp_path / "f.png", frequencies) is not None
+    fig = drawn[-1]
+    assert all(ax.get_position().height > 0.2 for ax in fig.axes)  # each of the two rows keeps its height
+    assert "no touchdown here" in fig.axes[0].get_title()
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "touchdown (counted)" not in labels and "contact" in labels
 
 
 def test_the_ellipse_panel_says_why_no_sense_is_certain(noisy, tmp_path, monkeypatch):

@@ -62,12 +62,12 @@ def contact_overview(table: pd.DataFrame) -> ContactOverview | None:
 
 
 def hz_list(freqs: list[float], most: int = 6) -> str:
-    """``2, 3, 4 Hz``, or ``2–8 Hz (7 steps)`` for a longer list."""
+    """``2, 3, 4 Hz``, or ``2–8 Hz, 7 steps`` for a longer list."""
     if not freqs:
         return ""
     if len(freqs) <= most:
         return ", ".join(f"{f:g}" for f in freqs) + " Hz"
-    return f"{min(freqs):g}–{max(freqs):g} Hz ({len(freqs)} steps)"
+    return f"{min(freqs):g}–{max(freqs):g} Hz, {len(freqs)} steps"
 
 
 def contact_note(o: ContactOverview, backend: str = "") -> str | None:
@@ -90,8 +90,8 @@ def contact_note(o: ContactOverview, backend: str = "") -> str | None:
     lo, hi = o.in_contact_fraction
     share = f"{lo:.2f}" if lo == hi else f"{lo:.2f}–{hi:.2f}"
     if len(o.continuous) == o.n_steps:
-        fix = " Higher drive frequencies lift the foot off" + (
-            "; in the twin, so does a larger <code>sim.plate_gap_mm</code>." if sim else "."
+        fix = " The paper's beam lifts off above 18 Hz" + (
+            "; in the twin a larger <code>sim.plate_gap_mm</code> also lifts it off." if sim else "."
         )
         return (
             f"<strong>Continuous contact in every step</strong> ({hz_list(o.continuous)}): the foot stayed on the "

@@ -81,14 +81,17 @@ def fig_forces(
         return None
     ncol = len(frequencies)
     single = len(analyses) == 1
-    fig = new_figure((4.2 * ncol + 0.6, 6.0))
+    fig = new_figure((max(4.2 * ncol + 0.6, 7.5), 6.0))  # at least the legend's width
     axes = fig.subplots(2, ncol, sharex="col", squeeze=False)
+    drawn: list[ForcePanel] = []
     for j, f in enumerate(frequencies):
         titles = []
         for si, a in enumerate(analyses):
             r = next((r for r in a.steps if r.frequency_hz == f and r.contacts is not None), None)
             if r is not None and len(r.t_force):
-                titles.append(_column(axes[0][j], axes[1][j], r, a.label, None if single else si, cycles))
+                title, panel = _column(axes[0][j], axes[1][j], r, a.label, None if single else si, cycles)
+                titles.append(title)
+                drawn.append(panel)
         if single and titles:
             axes[0][j].set_title(f"{f:g} Hz: {titles[0]}")
         elif titles:
@@ -103,13 +106,13 @@ def fig_forces(
     if single:
         from matplotlib.patches import Patch
 
-        handles = [
-            Patch(color=CONTACT, alpha=0.25, label="contact"),
-            Line2D([], [], color=TOUCHDOWN, marker="v", ls="", label="touchdown (counted)"),
-            Line2D([], [], color=DIP, marker="D", mfc="none", ls="", label=f"dip merged: < {MERGED:.0%} of a period"),
-            Line2D([], [], color="0.5", ls=":", label="contact threshold (normal force)"),
-            period,
-        ]
+        handles = [Patch(color=CONTACT, alpha=0.25, label="contact")]
+        if any(p.touchdowns_ms for p in drawn):
+            handles.append(Line2D([], [], color=TOUCHDOWN, marker="v", ls="", label="touchdown (counted)"))
+        if any(p.merged_dips_ms for p in drawn):
+            dip = f"dip merged: < {MERGED:.0%} of a period"
+            handles.append(Line2D([], [], color=DIP, marker="D", mfc="none", ls="", label=dip))
+        handles += [Line2D([], [], color="0.5", ls=":", label="contact threshold (normal force)"), period]
     else:
         handles = [
             Line2D([], [], **{**session_style(i), "zorder": None}, label=a.label) for i, a in enumerate(analyses)
@@ -196,9 +199,9 @@ def _episodes(gaps: list[tuple[float, float]], within_s: float) -> list[tuple[fl
     return out
 
 
-def _column(ax_n: Any, ax_t: Any, r: StepResult, label: str, si: int | None, cycles: float) -> str:
+def _column(ax_n: Any, ax_t: Any, r: StepResult, label: str, si: int | None, cycles: float) -> tuple[str, ForcePanel]:
     """One step's normal and tangential traces from half a period before its first touchdown; returns the
-    title text (regime, contacts per cycle, and the touchdowns and merged dips drawn)."""
+    title text (regime, contacts per cycle, and the touchdowns and merged dips drawn) and what was drawn."""
     fa = step_frequency(r)
     p = force_panel(r, cycles)
     reg = str(r.row.get("regime", ""))
@@ -210,17 +213,13 @@ def _column(ax_n: Any, ax_t: Any, r: StepResult, label: str, si: int | None, cyc
             for ax in (ax_n, ax_t):
                 ax.axvspan(s, e, color=CONTACT, alpha=0.12, lw=0)
         ax_n.axhline(p.threshold_n, color="0.5", ls=":", lw=0.8)
-        ax_n.plot(
-            p.touchdowns_ms,
-            [1.0] * len(p.touchdowns_ms),
-            "v",
-            color=TOUCHDOWN,
-            ms=7,
-            transform=ax_n.get_xaxis_transform(),
-            clip_on=False,
-        )
-        mids = [(a + b) / 2 for a, b in p.merged_dips_ms]
-        ax_n.plot(mids, [p.threshold_n] * len(mids), "D", mfc="none", mec=DIP, ms=4.5, mew=1.0)
+        if p.touchdowns_ms:  # above the trace (unclipped: an empty unclipped line would upset the layout)
+            top = ax_n.get_xaxis_transform()
+            n = len(p.touchdowns_ms)
+            ax_n.plot(p.touchdowns_ms, [1.0] * n, "v", color=TOUCHDOWN, ms=7, transform=top, clip_on=False)
+        if p.merged_dips_ms:
+            mids = [(a + b) / 2 for a, b in p.merged_dips_ms]
+            ax_n.plot(mids, [p.threshold_n] * len(mids), "D", mfc="none", mec=DIP, ms=4.5, mew=1.0)
     period_ms = 1e3 / fa
     for ax in (ax_n, ax_t):
         ax.grid(False, axis="x")
@@ -230,11 +229,12 @@ def _column(ax_n: Any, ax_t: Any, r: StepResult, label: str, si: int | None, cyc
     win = p.window
     odd = "" if win.typical else f"irregular here: contacts {', '.join(f'{g:.1f}' for g in win.gaps)} cycles apart"
     if si is None:
-        seen = f"{len(p.touchdowns_ms)} ▼ touchdowns"
+        n = len(p.touchdowns_ms)
+        seen = f"{n} ▼ touchdown{'' if n == 1 else 's'}" if n else "no touchdown here"
         if p.merged_dips_ms:
             seen += f", {len(p.merged_dips_ms)} ◇ dips < {p.min_flight_ms:.1f} ms merged"
-        return f"{REGIME_NAMES.get(reg, reg)} ({ratio:.2f} per cycle)\n{seen}" + (f"\n{odd}" if odd else "")
-    return f"{label}: {reg or 'none'} ({ratio:.2f}/cycle)" + (f" · {odd}" if odd else "")
+        return f"{REGIME_NAMES.get(reg, reg)} ({ratio:.2f} per cycle)\n{seen}" + (f"\n{odd}" if odd else ""), p
+    return f"{label}: {reg or 'none'} ({ratio:.2f}/cycle)" + (f" · {odd}" if odd else ""), p
 
 
 @dataclass(frozen=True)
