@@ -52,7 +52,7 @@ from beambench.analysis.trajectory import (
     stage_frame,
 )
 from beambench.analysis.walking import body_speed
-from beambench.sinks.hdf5_read import StreamData
+from beambench.sinks.hdf5_read import StreamData, run_ending
 from beambench.sinks.session_frames import flat_names, step_of
 
 
@@ -111,6 +111,7 @@ class SessionAnalysis:
     edge_check: EdgeCheck | None = None
     name: str = ""
     track: TrackResult | None = None  # speed tracking (track: sessions), beambench.analysis.speed_tracking
+    ending: tuple[str, str] | None = None  # the run's closing event (kind, message); None: the file has none
 
     @property
     def sync_table(self) -> pd.DataFrame:
@@ -432,6 +433,7 @@ def analyze_session(
         residual_t,
         _edge_check(session, fits),
         track=track,
+        ending=run_ending(session.events),
     )
 
 
