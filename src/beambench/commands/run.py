@@ -165,14 +165,39 @@ def report_run(
 
 
 def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) -> str:
-    """How long the run will take here, in words: real time on emulated and hardware (and the sim with
-    --realtime); on the sim, the stepping time from the measured timing table where the rig has one."""
+    """How long the run will take here, in words. A ``track:`` protocol with ``map: twin`` runs in two phases, both
+    counted: its sweep on the sim first (the speed map, written beside the session), then the profile."""
+    if protocol.track is None or protocol.track.map != "twin":
+        return _phase_time(protocol, backend, realtime)[1]
+    from beambench.acquisition.protocol.plan import plan
+    from beambench.session.estimate import SESSION_BYTES_PER_RIG_S
+    from beambench.session.track_map import map_sweep
+
+    sweep, _ = map_sweep(protocol)
+    sweep_steps, profile_steps = plan(sweep), plan(protocol)
+    sweep_rig_s = sum(s.duration_s for s in sweep_steps)
+    map_s, map_how = _phase_time(sweep, "sim", False)
+    profile_s, profile_how = _phase_time(protocol, backend, realtime)
+    total = "" if map_s is None or profile_s is None else f"{_about(map_s + profile_s)} in two phases:"
+    return (
+        f"{total}\n  1. the speed map (track.map: twin): this protocol's sweep on the sim, {len(sweep_steps)} steps, "
+        f"{sweep_rig_s:g} s of rig time: {map_how}; written to <session>_map.h5 beside the session "
+        f"(about {sweep_rig_s * SESSION_BYTES_PER_RIG_S / 1e6:.0f} MB), kept, not reused by the next run "
+        "(track.map: <that file> reuses it)"
+        f"\n  2. the profile: {len(profile_steps)} segments, {sum(s.duration_s for s in profile_steps):g} s of rig "
+        f"time on the {backend} backend: {profile_how}"
+    )
+
+
+def _phase_time(protocol: Protocol, backend: str, realtime: bool = False) -> tuple[float | None, str]:
+    """(seconds or None, in words) for one run: real time on emulated and hardware (and the sim with --realtime);
+    on the sim, the stepping time from the measured timing table where the rig has one, else timed here."""
     from beambench.acquisition.protocol.plan import plan
 
     steps = plan(protocol)
     total = sum(s.duration_s for s in steps)
     if backend != "sim" or realtime:
-        return f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
+        return total, f"{_about(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
     from beambench.session.slices import sim_slice
 
     try:
@@ -186,27 +211,28 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
         try:
             est = probe_run_time(protocol)
         except BeambenchError as exc:  # the run itself would say so; the dry run still prints its plan
-            return f"not estimated ({exc})"
+            return None, f"not estimated ({exc})"
         parts = f"; {est.parallel} segments in parallel" if est.parallel > 1 else ""
         warn = "".join(f"\nwarning: {w}" for w in est.warnings)
-        return (
-            f"about {_duration(est.wall_s)} of stepping ({protocol.sim.model}; measured here: "
+        return est.wall_s, (
+            f"{_about(est.wall_s)} of stepping ({protocol.sim.model}; measured here: "
             f"{est.wall_per_s * 1e3:.0f} ms per simulated second at {est.probe_hz:g} Hz{parts}), plus recording "
             f"overhead{warn}"
         )
     wall = sum(s.duration_s / 10.0 * sim_plan.wall_s_per_10s[s.frequency_hz] for s in steps)
-    return (
-        f"about {_duration(wall)} of stepping ({sim_plan.model}, {sim_plan.integrator}; from the measured timing "
+    return wall, (
+        f"{_about(wall)} of stepping ({sim_plan.model}, {sim_plan.integrator}; from the measured timing "
         f"table {sim_plan.table}, on the machine that measured it), plus recording overhead"
     )
 
 
-def _duration(seconds: float) -> str:
+def _about(seconds: float) -> str:
+    """A wall time in words: "under 1 s", "about 12 s", "about 2.5 min"."""
     if seconds < 1:
         return "under 1 s"
     if seconds < 90:
-        return f"{seconds:.0f} s"
-    return f"{seconds / 60:.1f} min"
+        return f"about {seconds:.0f} s"
+    return f"about {seconds / 60:.1f} min"
 
 
 def print_dry_run(s: dict, expected: str) -> None:

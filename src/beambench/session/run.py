@@ -15,7 +15,14 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from beambench.acquisition.capabilities import DeviceFault, HasSilenceTimeouts, ReportsAfterRun, Rig, WarnsOfModel
+from beambench.acquisition.capabilities import (
+    DeviceFault,
+    HasSilenceTimeouts,
+    ReportsAfterRun,
+    ReportsComputedAhead,
+    Rig,
+    WarnsOfModel,
+)
 from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
@@ -46,6 +53,7 @@ class RunRequest:
     rig_file: Path | None = None
     can_log: Path | None = None
     show_progress: bool = True
+    label: str = ""  # before each progress description: the phase of a run in two (``speed map: ``)
 
 
 class RigStartError(BeambenchError):
@@ -70,9 +78,30 @@ def run_session(
     )
 
 
+def _count(n: int, what: str) -> str:
+    return f"{n} {what}{'' if n == 1 else 's'}"
+
+
+def _say(show: bool, text: str) -> None:
+    """A note on stderr (with the progress; a terminal gone only loses it)."""
+    if show:
+        with contextlib.suppress(OSError):
+            stderr_console().print(text, soft_wrap=True, markup=False, highlight=False)
+
+
 def _run_twin(sweep: Protocol, text: str, path: Path, show_progress: bool) -> tuple[str, str]:
-    """A ``track: map: twin`` run's sweep on the sim (:func:`beambench.session.track_map.twin_map`)."""
-    result = run_session(sweep, text, "sim", path, show_progress=show_progress)
+    """A ``track: map: twin`` run's first phase, its sweep on the sim (:func:`beambench.session.track_map.twin_map`),
+    said as such with where its session goes."""
+    steps = plan(sweep)
+    _say(
+        show_progress,
+        f"phase 1 of 2, the speed map (track.map: twin): this protocol's sweep on the sim, {_count(len(steps), 'step')}, "
+        f"{sum(s.duration_s for s in steps):g} s of rig time, into {path}",
+    )
+    result = run_request(RunRequest(sweep, text, "sim", path, show_progress=show_progress, label="speed map: "))
+    if result.status == "completed":
+        size = path.stat().st_size / 1e6 if path.is_file() else 0.0
+        _say(show_progress, f"speed map: {path} ({size:.1f} MB, kept: track.map: {path} reuses it without the sweep)")
     return result.status, result.message
 
 
@@ -107,6 +136,13 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     protocol, path, backend = req.protocol, req.path, req.backend
     check_protocol(protocol, "<protocol>", backend, req.can_log)
     tracking = track_setup(protocol, path, _run_twin, req.show_progress) if protocol.track is not None else None
+    if protocol.track is not None and protocol.track.map == "twin":
+        rig_s = sum(s.duration_s for s in plan(protocol))
+        _say(
+            req.show_progress,
+            f"phase 2 of 2, the profile: {_count(len(protocol.track.segments), 'segment')}, {rig_s:g} s of rig time on the "
+            f"{backend} backend, into {path}",
+        )
     reserved = path.with_suffix(".rrd") if req.rerun_mode == "save" else None
     if reserved is not None:
         _reserve(reserved)
@@ -164,11 +200,19 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         _unreserve(reserved)  # the run never started: no empty recording left behind
         raise
     with _progress(req.show_progress) as progress:
-        task = progress.add_task("starting", total=sum(s.duration_s for s in steps))
+        task = progress.add_task(f"{req.label}starting", total=sum(s.duration_s for s in steps))
+        taken = [0.0, 0.0]  # rig seconds the runner has taken, rig seconds shown (never going back)
+        what = "segment" if tracking is not None else "step"
 
         def on_progress(index: int, freq: float, waited: float) -> None:
+            taken[0] += waited
+            done, desc = taken[0], f"{req.label}{what} {index + 1}/{len(steps)}  {round(freq, 1):g} Hz"
+            ahead = rig.computed_ahead() if isinstance(rig, ReportsComputedAhead) else None
+            if ahead is not None and ahead[0] > done:  # parallel parts computed further: count all their work
+                done, desc = ahead[0], f"{req.label}{min(ahead[1], len(steps))}/{len(steps)} steps computed"
+            taken[1] = done = max(done, taken[1])
             with contextlib.suppress(OSError):  # a hung-up terminal (SIGHUP) must not end the run's shutdown
-                progress.update(task, advance=waited, description=f"step {index + 1}/{len(steps)}  {freq:g} Hz")
+                progress.update(task, completed=done, description=desc)
 
         # Batches are ~10 per second of wall time: on a sim running 10-20x faster than real time, 1 s rig-time polls
         # (each poll's HDF5 appends and flush cost ~10 ms; the data do not depend on the poll: the sim clock advances
