@@ -2,7 +2,8 @@
 
 Entities (millimetres in the mocap stream's frame): ``mocap/<marker>`` (labelled Points3D, one per frame),
 ``mocap/beam/<end>`` (LineStrips3D through the markers, one per frame), ``mocap/trail/<foot>`` (a short fading
-trail), ``mocap/plate`` (Boxes3D, plate rigs), ``mocap/body_trail`` and ``mocap/floor`` (walker); ``body/forward``
+trail), ``mocap/plate`` (Boxes3D, plate rigs), ``mocap/body_trail``, ``mocap/floor``, ``mocap/floor_lines`` and
+``mocap/follow`` (walker: the Transform3D of the frame its 3-D view follows the body in); ``body/forward``
 and ``body/speed`` (walker, mm and mm/s); ``force/normal`` and ``force/tangential`` (Scalars, newtons, through
 the load-cell calibration), ``loadcell/<channel>`` (raw counts), ``motor/velocity``, ``motor/velocity_setpoint``
 and ``motor/iq_measured``; ``step`` (TextDocument: step i of N, commanded and measured frequency, the last
@@ -34,7 +35,7 @@ import rerun as rr
 from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
 from beambench.sinks import RerunMode
 from beambench.sinks.rerun_layout import TIMELINE, RigLayout, blueprint, layout_of, series_styles
-from beambench.sinks.rerun_scene import Scene3D
+from beambench.sinks.rerun_scene import FOLLOW_ENTITY, Scene3D
 from beambench.sinks.rerun_spawn import spawn_viewer, viewer_url
 from beambench.sinks.rerun_step import StepPanel
 
@@ -65,7 +66,7 @@ def view_coordinates(up_axis: str) -> rr.components.ViewCoordinates:
 class _Pending:
     """Columns of one entity waiting to go out in one ``send_columns`` call."""
 
-    kind: str  # "scalars", "points", "strips" (a line strip per row) or "segments" (several per row)
+    kind: str  # "scalars", "points", "translations", "strips" (a line strip per row) or "segments" (several per row)
     times: list[np.ndarray] = field(default_factory=list)
     values: list[np.ndarray] = field(default_factory=list)
     nbytes: int = 0
@@ -124,6 +125,8 @@ class RerunSink:
         self._specs = {s.name: s for s in specs}
         self.layout = layout_of(specs, self.rig)
         self.rec.log("mocap", view_coordinates(self.layout.up_axis), static=True)
+        if self.layout.body is not None:  # the walker's view frame: its up is the stream's
+            self.rec.log(FOLLOW_ENTITY, view_coordinates(self.layout.up_axis), static=True)
         for entity, style in series_styles(self.layout).items():
             self.rec.log(entity, style, static=True)
         if self.layout.markers:
@@ -212,6 +215,8 @@ class RerunSink:
             flat = values.reshape(-1, values.shape[-2], 3)  # equal-length strips: Rerun's numpy path
             strips = rr.LineStrips3D.columns(strips=flat).partition(np.full(len(values), per_row, np.int32))
             self.rec.send_columns(entity, [times], strips)
+        elif p.kind == "translations":
+            self.rec.send_columns(entity, [times], rr.Transform3D.columns(translation=values))
         else:
             self.rec.send_columns(entity, [times], rr.Scalars.columns(scalars=values))
 
