@@ -102,7 +102,7 @@ def _follow_frame(rrd) -> tuple[np.ndarray, np.ndarray]:
 def test_the_walker_view_follows_the_body_and_its_eye_sees_all_of_it_whatever_the_body_does(tmp_path):
     """A body that walks 1.5 m while it sinks below the floor with folded legs: the view's frame (read back from
     the recording) follows the body over the floor, so seen from it every marker stays in one small box, framed
-    once; the eye stays outside that box and sees all of it; a fall through the floor is not followed."""
+    on the walker alone; the eye stays outside that box and sees all of it; a fall through the floor is not followed."""
     from beambench.sinks.rerun_layout import spatial_view
 
     rrd = tmp_path / "walk.rrd"
@@ -124,7 +124,7 @@ def test_the_walker_view_follows_the_body_and_its_eye_sees_all_of_it_whatever_th
     assert np.ptp(pos[:, 0, 0]) * 1e3 > 1400  # the walker walked away ...
     assert np.ptp(rel[:, :, 0]) < 120 and np.ptp(rel[:, :, 1]) < 110  # ... and stays in view, legs and all
     assert np.allclose(follow[:, 2], 0.0)  # over the floor only: the sinking body is not followed down
-    assert len(framings) == 1  # never outgrown
+    assert all(hi[0] - lo[0] < 120 for lo, hi in framings), framings  # no framing holds the walk, only the walker
     scene = sink._scene
     assert scene is not None
     lo, hi = scene.extent()
@@ -152,7 +152,7 @@ def test_the_step_panel_tells_a_standstill_from_a_walk():
     for index, speed in ((0, 0.0), (1, 20.0)):
         t0 = 3.0 * index
         panel.step(StepRecord(index, 50.0, int(t0 * 1e9)), t0)
-        panel.body(t0 + t, speed * t + 4.0 * np.sin(2 * np.pi * 50 * t))
+        panel.body(((t0 + t) * 1e9).astype(np.int64), speed * t + 4.0 * np.sin(2 * np.pi * 50 * t))
         panel.step(StepRecord(index, 50.0, int(t0 * 1e9), int(t0 * 1e9), int((t0 + 3) * 1e9), status="done"), t0 + 3)
         if index == 0:
             assert "+0.0 mm/s**: no net walking (the body swings ±4 mm in place)" in panel.last_done

@@ -37,7 +37,7 @@ FLOOR_LINES_MM = 50.0  # spacing of the floor's cross lines (fixed in the world:
 FOLLOW_ENTITY = "mocap/follow"  # the walker's view frame: follows the body over the floor
 FOLLOW_S = 0.5  # the follow frame is the body's mean floor position over this span (its swing stays visible)
 EYE_DISTANCE = 1.0  # the eye's distance from the scene's centre in scene diagonals: its bounding sphere fits a 60° cone
-MIN_EXTENT_MM = {False: 60.0, True: 300.0}  # the smallest scene diagonal framed (contact rig, walker)
+MIN_EXTENT_MM = {False: 60.0, True: 220.0}  # the smallest scene diagonal framed (contact rig, walker)
 REFRAME_SHARE = 0.15  # the scene outgrows its framing when it leaves the box by this share of its diagonal
 BODY_SERIES_HZ = 30.0  # body position and speed samples per second
 SPEED_WINDOW_S = 0.5  # speed: forward displacement over this span
@@ -136,8 +136,8 @@ class Scene3D:
         side = np.cross(self.up, self.fwd)
         walker = self.layout.body is not None
         diagonal = max(float(np.linalg.norm(hi - lo)), MIN_EXTENT_MM[walker])
-        if walker:
-            direction = -1.0 * side + 0.8 * self.up - 0.35 * self.fwd
+        if walker:  # behind and to the side, above: both legs apart, the trail running back past the eye
+            direction = -0.9 * side + 0.9 * self.up - 0.8 * self.fwd
         else:
             direction = -1.0 * side + 0.35 * self.up + 0.45 * self.fwd
         eye = centre + EYE_DISTANCE * diagonal * direction / np.linalg.norm(direction)
