@@ -24,7 +24,15 @@ def has_display() -> bool:
 
 
 def default_rerun_mode() -> RerunMode:
-    return "spawn" if has_display() else "save"
+    """``run``'s live view: the viewer where there is a display, else none (the session holds every sample;
+    ``beambench view`` replays it, ``--rerun save`` writes an ``.rrd``: about twice the session's size)."""
+    return "spawn" if has_display() else "off"
+
+
+NO_VIEW_NOTE = (
+    "no display: no live view (beambench view SESSION.h5 replays the session; --rerun save writes an .rrd, "
+    "about 10 MB a minute of contact sweep)"
+)
 
 
 def resolve_protocol(given: Path) -> Path:
@@ -57,8 +65,8 @@ def run(
     rerun: RerunMode | None = typer.Option(
         None,
         "--rerun",
-        help="Live view: spawn a viewer, connect to one, save an .rrd, or off (default: spawn "
-        "with a display, else save).",
+        help="Live view: spawn a viewer, connect to one, save an .rrd beside the session (about 10 MB a minute), "
+        "or off (default: spawn with a display, else off; `beambench view` replays any session later).",
     ),
     realtime: bool = typer.Option(False, "--realtime", help="Pace the simulation to the wall clock."),
     dry_run: bool = typer.Option(
@@ -112,6 +120,8 @@ def run(
         fail(str(exc))
     from beambench.session.run import RigStartError, RunRequest, run_request
 
+    if rerun is None and mode == "off":
+        typer.echo(f"beambench: {NO_VIEW_NOTE}", err=True)
     request = RunRequest(protocol, text, chosen, path, mode, realtime, rig_file, can_log)
     try:
         # the run is over: a late signal must not kill the process before its result (the real command only)
@@ -303,7 +313,7 @@ def view(
         return
     if at is not None:
         fail("--at needs --screenshot")
-    mode = rerun or default_rerun_mode()
+    mode = rerun or ("spawn" if has_display() else "save")  # asked to view: without a display, a file
     if mode == "off":
         fail("--rerun = 'off': view needs spawn, connect or save")
     rrd = None

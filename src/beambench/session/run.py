@@ -180,6 +180,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         if tracking is not None:
             sinks.append(tracking.controller)
         if req.rerun_mode != "off":
+            from beambench.analysis.step_contacts import window_contacts
             from beambench.sinks.rerun_view import RerunSink
 
             sinks.append(
@@ -191,6 +192,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                     calibration=default_calibration(),  # the one stored in /general: forces in N live
                     rig=protocol.rig,
                     total_steps=len(steps),
+                    step_contacts=window_contacts,  # the step panel's regimes are the report's
                 )
             )
         hub = Hub(sinks, critical=(writer,))
