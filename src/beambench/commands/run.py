@@ -17,6 +17,7 @@ from beambench.sinks import RerunMode
 
 if TYPE_CHECKING:
     from beambench.acquisition.protocol.schema import Protocol
+    from beambench.sim.selection import Plan
 
 
 def has_display() -> bool:
@@ -83,7 +84,7 @@ def run(
     """
     from beambench.acquisition.protocol.plan import session_path, summary
     from beambench.acquisition.protocol.schema import load_protocol
-    from beambench.session.checks import check_protocol
+    from beambench.session.checks import validate
 
     protocol_file = resolve_protocol(protocol_file)
     try:
@@ -91,7 +92,7 @@ def run(
         chosen: Backend = backend or protocol.backend
         if chosen not in BACKENDS:  # typer checks the flag; this guards a bad protocol value
             raise ConfigError("<cli>", "--backend", chosen, f"must be one of {', '.join(BACKENDS)}")
-        check_protocol(protocol, str(protocol_file), chosen, can_log)  # every field, dry run included
+        checked = validate(protocol, chosen, str(protocol_file), can_log)  # every field, dry run included
         from_protocol = rig_file is None and protocol.rig_file is not None
         rig_file = rig_file or protocol_rig_file(protocol, protocol_file)  # --rig, else the protocol's rig_file
         if rig_file is not None:  # every input file too: kind, size, fields
@@ -105,14 +106,15 @@ def run(
                 raise ConfigError(f"{protocol_file}: rig_file: {exc}") from None
         mode: RerunMode = rerun or default_rerun_mode()
         if dry_run:
-            print_dry_run(summary(protocol, chosen), expected_run_time(protocol, chosen, realtime))
+            sim_plan = checked.slices.sim.plan if checked.slices.sim is not None else None
+            print_dry_run(summary(protocol, chosen), expected_run_time(protocol, chosen, sim_plan, realtime))
             return
         path = session_path(protocol, chosen, out, name)
     except ConfigError as exc:
         fail(str(exc))
     from beambench.session.run import RigStartError, RunRequest, run_request
 
-    request = RunRequest(protocol, text, chosen, path, mode, realtime, rig_file, can_log)
+    request = RunRequest(protocol, text, chosen, path, mode, realtime, rig_file, can_log, validated=checked)
     try:
         # the run is over: a late signal must not kill the process before its result (the real command only)
         result = run_request(request, then_ignore_signals=STANDALONE["process"])
@@ -164,21 +166,17 @@ def report_run(
     raise typer.Exit(RUN_EXIT_CODES.get(status, EXIT_FAULT))
 
 
-def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) -> str:
+def expected_run_time(protocol: Protocol, backend: str, sim_plan: Plan | None, realtime: bool = False) -> str:
     """How long the run will take here, in words: real time on emulated and hardware (and the sim with
-    --realtime); on the sim, the stepping time from the measured timing table where the rig has one."""
+    --realtime); on the sim, the stepping time from the measured timing table where the rig has one
+    (``sim_plan``), else from timing a short stretch of its physics here (the one part of a dry run that loads
+    MuJoCo)."""
     from beambench.acquisition.protocol.plan import plan
 
     steps = plan(protocol)
     total = sum(s.duration_s for s in steps)
     if backend != "sim" or realtime:
         return f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
-    from beambench.session.slices import sim_slice
-
-    try:
-        sim_plan = sim_slice(protocol).plan
-    except ConfigError:
-        sim_plan = None
     if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
         from beambench.common.errors import BeambenchError
         from beambench.session.estimate import probe_run_time
