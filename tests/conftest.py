@@ -2,7 +2,8 @@
 
 - :func:`shared_path` / :func:`require_shared`: the shared fixtures (independent NatNet packets and captures, the
   ODrive DBC) live outside the repository, in ``$BEAMBENCH_SHARED`` if set, else ``../shared`` beside the checkout.
-  Every test that reads them goes through here and skips with the reason when they are absent.
+  Every test that reads them goes through here and skips with the reason when they are absent, or fails when the
+  environment variable ``CI`` is set (:func:`skip_unless_ci`: CI must run every test).
 - Every test runs with ``$BEAMBENCH_USER_DIR`` pointing at a temporary folder, so nothing a test runs (calibrate,
   fit, …) writes into the real per-user folder.
 - The soak tier (``@pytest.mark.soak``): more repetitions of a race check, at other random moments, than the
@@ -18,6 +19,7 @@ import subprocess
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NoReturn
 
 import pytest
 
@@ -38,11 +40,18 @@ def shared_path(*parts: str) -> Path:
     return shared_root().joinpath(*parts)
 
 
+def skip_unless_ci(reason: str) -> NoReturn:
+    """Skip the test with ``reason``; under CI (``$CI`` set) fail it instead: CI has what every test needs."""
+    if os.environ.get("CI"):
+        pytest.fail(f"CI must run this test: {reason}")
+    pytest.skip(reason)
+
+
 def require_shared(*parts: str) -> Path:
-    """The existing shared file or folder ``parts``, or skip the test saying where it was looked for."""
+    """The existing shared file or folder ``parts``, or skip the test saying where it was looked for (fail in CI)."""
     path = shared_path(*parts)
     if not path.exists():
-        pytest.skip(f"shared fixture {path} not found (set ${SHARED_ENV} or put the shared folder at ../shared)")
+        skip_unless_ci(f"shared fixture {path} not found (set ${SHARED_ENV} or put the shared folder at ../shared)")
     return path
 
 
