@@ -75,7 +75,7 @@ class RodParams:
             youngs_modulus=m.youngs_modulus,
             poisson=m.poisson,
             density=density,
-            beta=getattr(beam, "beta", 6e-4),
+            beta=beam.beta,
             nodes=nodes,
         )
 
