@@ -6,6 +6,8 @@
   environment variable ``CI`` is set (:func:`skip_unless_ci`: CI must run every test).
 - Every test runs with ``$BEAMBENCH_USER_DIR`` pointing at a temporary folder, so nothing a test runs (calibrate,
   fit, …) writes into the real per-user folder.
+- :func:`wait_until` / :func:`holds_for`: the one way a test waits on real time (a thread, a socket, a child
+  process): poll a condition until it holds, or check that it keeps holding for a while; no fixed sleeps.
 - The soak tier (``@pytest.mark.soak``): more repetitions of a race check, at other random moments, than the
   default run's one or few. Deselected unless ``--soak`` is given (``make soak``; CI runs it after ``make test``).
   Every Hypothesis test belongs to it too: the default run makes a fifth of its examples (at least 50,
@@ -16,15 +18,18 @@ from __future__ import annotations
 
 import os
 import subprocess
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import NoReturn
+from typing import NoReturn, TypeVar
 
 import pytest
 
 from beambench.common.resources import USER_DIR_ENV
 
+T = TypeVar("T")
+E = TypeVar("E", bound=BaseException)
 SHARED_ENV = "BEAMBENCH_SHARED"
 REPO = Path(__file__).resolve().parents[1]
 
@@ -53,6 +58,39 @@ def require_shared(*parts: str) -> Path:
     if not path.exists():
         skip_unless_ci(f"shared fixture {path} not found (set ${SHARED_ENV} or put the shared folder at ../shared)")
     return path
+
+
+def wait_until(condition: Callable[[], T], timeout_s: float = 10.0, what: str = "", interval_s: float = 0.01) -> T:
+    """Poll ``condition`` until it returns something true, and return that; fail after ``timeout_s`` naming
+    ``what`` (generous: a loaded machine is slow, a quick one returns at once)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what or condition}")
+        time.sleep(interval_s)
+
+
+def holds_for(condition: Callable[[], object], duration_s: float, what: str = "", interval_s: float = 0.01) -> None:
+    """Poll ``condition`` for ``duration_s``: it must be true at every poll (something that must keep holding
+    while time passes, e.g. a watchdog kept fed past its timeout)."""
+    end = time.monotonic() + duration_s
+    while True:
+        assert condition(), f"stopped holding: {what or condition}"
+        if time.monotonic() >= end:
+            return
+        time.sleep(interval_s)
+
+
+def raised(call: Callable[[], object], kind: type[E]) -> E | None:
+    """The ``kind`` exception ``call()`` raises, or None (a condition for :func:`wait_until`: a fault reported)."""
+    try:
+        call()
+    except kind as exc:
+        return exc
+    return None
 
 
 def descendants(pid: int) -> list[int]:
