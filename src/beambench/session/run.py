@@ -132,17 +132,24 @@ def _open_rig(req: RunRequest, checked: Validated) -> Rig:
     return rig
 
 
+def _announce_profile(req: RunRequest) -> None:
+    """A ``track: map: twin`` run's second phase, its profile, said as such (the map was phase 1)."""
+    track = req.protocol.track
+    if track is None or track.map != "twin":
+        return
+    rig_s = sum(s.duration_s for s in plan(req.protocol))
+    _say(
+        req.show_progress,
+        f"phase 2 of 2, the profile: {_count(len(track.segments), 'segment')}, {rig_s:g} s of rig time on the "
+        f"{req.backend} backend, into {req.path}",
+    )
+
+
 def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     protocol, path, backend = req.protocol, req.path, req.backend
     checked = req.validated or validate(protocol, backend, can_log=req.can_log)
     tracking = track_setup(protocol, path, _run_twin, req.show_progress) if protocol.track is not None else None
-    if protocol.track is not None and protocol.track.map == "twin":
-        rig_s = sum(s.duration_s for s in plan(protocol))
-        _say(
-            req.show_progress,
-            f"phase 2 of 2, the profile: {_count(len(protocol.track.segments), 'segment')}, {rig_s:g} s of rig time on the "
-            f"{backend} backend, into {path}",
-        )
+    _announce_profile(req)
     reserved = path.with_suffix(".rrd") if req.rerun_mode == "save" else None
     if reserved is not None:
         _reserve(reserved)
