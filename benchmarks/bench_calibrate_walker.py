@@ -61,7 +61,7 @@ def verify(protocol: Path, targets: dict[float, float]) -> dict[float, float]:
     from beambench.acquisition.protocol.schema import load_protocol
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
-    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scene_params import WalkerParams
     from beambench.sim.scenes.walker_batch import steady_speeds
 
     proto, _ = load_protocol(protocol)

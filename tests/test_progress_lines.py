@@ -15,15 +15,9 @@ import time
 from rich.console import Console
 
 from beambench.common.console import PROGRESS_ENV, LogProgress
+from conftest import wait_until
 
 STAMP = re.compile(r"^(\d\d):(\d\d):(\d\d) (.*)$")
-
-
-def _wait_for(predicate, timeout_s: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "condition not met in time"
-        time.sleep(0.01)
 
 
 def test_plain_lines_arrive_while_the_task_runs_and_a_last_one_at_the_end(monkeypatch):
@@ -34,7 +28,7 @@ def test_plain_lines_arrive_while_the_task_runs_and_a_last_one_at_the_end(monkey
         assert progress.plain
         task = progress.add_task("[bold]fitting", total=10, err="best 1 mm")
         progress.update(task, completed=3)
-        _wait_for(lambda: out.getvalue().count("\n") >= 2)  # lines while the task is still running
+        wait_until(lambda: out.getvalue().count("\n") >= 2, 60)  # lines while the task is still running
         running = out.getvalue()
         progress.update(task, completed=10)
     lines = out.getvalue().splitlines()

@@ -26,15 +26,14 @@ from beambench.acquisition.capabilities import (
 from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
-from beambench.acquisition.protocol.plan import motor_limits, plan
+from beambench.acquisition.protocol.plan import plan
 from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
 from beambench.common.console import LogProgress, stderr_console
 from beambench.common.errors import BeambenchError
-from beambench.session.checks import check_protocol
+from beambench.session.checks import Validated, validate
 from beambench.session.provenance import provenance
-from beambench.session.slices import rig_slices
 from beambench.session.track_map import track_setup
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
@@ -54,6 +53,8 @@ class RunRequest:
     can_log: Path | None = None
     show_progress: bool = True
     label: str = ""  # before each progress description: the phase of a run in two (``speed map: ``)
+    validated: Validated | None = None
+    """The protocol already checked for ``backend`` (:func:`beambench.session.checks.validate`); None: checked here."""
 
 
 class RigStartError(BeambenchError):
@@ -118,11 +119,10 @@ def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunRe
         return _run_session(request, stop)
 
 
-def _open_rig(req: RunRequest) -> Rig:
+def _open_rig(req: RunRequest, checked: Validated) -> Rig:
     """Build and open the rig; a device or peer lost meanwhile is one :class:`RigStartError` (rig closed)."""
     try:
-        slices = rig_slices(req.protocol, req.backend)
-        rig = build_rig(slices, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
+        rig = build_rig(checked.slices, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
         rig.open()
     except (DeviceFault, OSError, EOFError) as exc:
         if isinstance(exc, ConfigError):
@@ -132,26 +132,33 @@ def _open_rig(req: RunRequest) -> Rig:
     return rig
 
 
+def _announce_profile(req: RunRequest) -> None:
+    """A ``track: map: twin`` run's second phase, its profile, said as such (the map was phase 1)."""
+    track = req.protocol.track
+    if track is None or track.map != "twin":
+        return
+    rig_s = sum(s.duration_s for s in plan(req.protocol))
+    _say(
+        req.show_progress,
+        f"phase 2 of 2, the profile: {_count(len(track.segments), 'segment')}, {rig_s:g} s of rig time on the "
+        f"{req.backend} backend, into {req.path}",
+    )
+
+
 def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     protocol, path, backend = req.protocol, req.path, req.backend
-    check_protocol(protocol, "<protocol>", backend, req.can_log)
+    checked = req.validated or validate(protocol, backend, can_log=req.can_log)
     tracking = track_setup(protocol, path, _run_twin, req.show_progress) if protocol.track is not None else None
-    if protocol.track is not None and protocol.track.map == "twin":
-        rig_s = sum(s.duration_s for s in plan(protocol))
-        _say(
-            req.show_progress,
-            f"phase 2 of 2, the profile: {_count(len(protocol.track.segments), 'segment')}, {rig_s:g} s of rig time on the "
-            f"{backend} backend, into {path}",
-        )
+    _announce_profile(req)
     reserved = path.with_suffix(".rrd") if req.rerun_mode == "save" else None
     if reserved is not None:
         _reserve(reserved)
     try:
-        rig = _open_rig(req)
+        rig = _open_rig(req, checked)
     except BaseException:
         _unreserve(reserved)
         raise
-    steps = plan(protocol)
+    steps = checked.steps
     try:
         general = {
             "protocol": req.protocol_text,
@@ -180,6 +187,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         if tracking is not None:
             sinks.append(tracking.controller)
         if req.rerun_mode != "off":
+            from beambench.analysis.step_contacts import window_contacts
             from beambench.sinks.rerun_view import RerunSink
 
             sinks.append(
@@ -191,6 +199,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                     calibration=default_calibration(),  # the one stored in /general: forces in N live
                     rig=protocol.rig,
                     total_steps=len(steps),
+                    step_contacts=window_contacts,  # the step panel's regimes are the report's
                 )
             )
         hub = Hub(sinks, critical=(writer,))
@@ -225,7 +234,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                 rig,
                 hub,
                 steps,
-                motor_limits(protocol),
+                checked.limits,
                 poll_s=poll_s,
                 on_progress=on_progress,
                 monitors=[*monitors],
