@@ -158,7 +158,9 @@ class SerialLoadCells(StreamDriver):
             frames = self.decoder.feed(data)
             st = self.decoder.stats
             self.counters.dropped = st.lost_frames
-            self.counters.garbled = st.crc_errors + st.truncated
+            # every stretch of bytes that was no frame (a CRC error or a truncated frame is one), and every
+            # frame of a version this driver does not read
+            self.counters.garbled = st.junk_runs + st.unsupported
         self._push([(now, f) for f in frames], now)
 
     def _failure(self, exc: Exception) -> str:
@@ -203,6 +205,12 @@ class SerialLoadCells(StreamDriver):
                 f"{self.name}: {missing} of {expected} frames lost ({100 * missing / expected:.1f} % > "
                 f"{100 * self.max_lost_fraction:g} %): another program reading {self.port}, or a failing link?"
             )
+
+    def health(self) -> dict[str, Any]:
+        """As every stream's, plus the bytes that were no frame (``junk_bytes``, after the first frame)."""
+        with self._lock:
+            junk = self.decoder.stats.bytes_discarded + self.decoder.stats.unsupported_bytes
+        return {**super().health(), "junk_bytes": junk}
 
     def check(self, silence_s: float | None = None) -> None:
         """Raise :class:`DeviceFault` if the port failed or no frame arrived for ``silence_s`` (default: the
