@@ -303,4 +303,8 @@ def read_processing(path: str | Path, name: str) -> pd.DataFrame:
             if ds.dtype.kind in "OS":  # text: variable-length (older sessions) or fixed-length UTF-8 bytes
                 v = np.array([x.decode("utf-8") if isinstance(x, bytes) else x for x in v])
             data[key] = v
+    lengths = {key: len(v) if np.ndim(v) else 1 for key, v in data.items()}
+    if len(set(lengths.values())) > 1:  # a table holds one value per row in every column
+        (k0, n0), (k1, n1) = min(lengths.items(), key=lambda kv: kv[1]), max(lengths.items(), key=lambda kv: kv[1])
+        raise SessionFileError(f"{path}: /processing/{name}/{k0}: {n0} rows, but {k1} has {n1}: not a table")
     return pd.DataFrame(data)

@@ -358,10 +358,6 @@ def _check_processing(g: h5py.Group, budget: int) -> None:
                 ds.dtype.kind not in NUMERIC + "S" and h5py.check_string_dtype(ds.dtype) is None
             ):
                 raise SessionSchemaError(f"{where}/{key}", f"a {ds.dtype} dataset, expected numbers or text")
-        rows = [(ds.shape[0] if ds.ndim else 1, key) for key, ds in members]
-        if rows and min(rows)[0] != max(rows)[0]:  # a table: one value per row in every column
-            (n0, k0), (n1, k1) = min(rows), max(rows)
-            raise SessionSchemaError(f"{where}/{k0}", f"{n0} rows, but {k1} has {n1}: one row per entry in every column")
         if "columns" in table.attrs:
             try:
                 cols = json.loads(table.attrs["columns"])
