@@ -219,7 +219,7 @@ def _check_out(out: Path) -> None:
 
     problem = output_file_problem(out)
     if problem:
-        fail(f"--out: {problem}")
+        fail(f"--out = {str(out)!r}: {problem.removeprefix(f'{out}: ')}")
 
 
 def _save(cal: LoadCellCalibration, out: Path, console: Console) -> None:
