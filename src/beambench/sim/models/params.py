@@ -168,10 +168,7 @@ def load_params(name: str = "paper", model: str = "prb3") -> BeamParams:
         raise ParamsError(f"{path}: expected a mapping with a beam block")
     says = data.get("model", "prb3")  # sets written before the field are PRB3's
     if params_family(says) != model:
-        raise ParamsError(
-            f"{path}: model: {shorten(says)}, but the run's model is of the {model} family: a {shorten(says)} "
-            f"parameter set does not fit it (choose a {model}_*.yaml set)"
-        )
+        raise ParamsError(f"{path}: model: {str(says)[:20]}, not a {model} parameter set (a {model} model runs)")
     return params_from_dict(data, str(path))
 
 
