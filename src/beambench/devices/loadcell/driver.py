@@ -24,7 +24,7 @@ from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import LOADCELL, LOADCELL_RATE_HZ, loadcell_spec
 from beambench.common.oserrors import serial_open_problem
 from beambench.devices.base import StreamDriver
-from beambench.devices.loadcell.protocol import CRC_NAME, VERSION, Frame, StreamDecoder
+from beambench.devices.loadcell.protocol import CRC_NAME, FRAME_LEN, VERSION, Frame, StreamDecoder
 
 DEFAULT_BAUDRATE = 921_600
 # After the first bytes arrive the reader waits this long and reads everything then waiting: at 1 kHz a wake-up
@@ -207,9 +207,11 @@ class SerialLoadCells(StreamDriver):
             )
 
     def health(self) -> dict[str, Any]:
-        """As every stream's, plus the bytes that were no frame (``junk_bytes``, after the first frame)."""
+        """As every stream's, plus the bytes that were no frame (``junk_bytes``; before the first frame only more
+        than a port opened mid-frame leaves)."""
         with self._lock:
-            junk = self.decoder.stats.bytes_discarded + self.decoder.stats.unsupported_bytes
+            st = self.decoder.stats
+            junk = st.bytes_discarded + st.unsupported_bytes + (st.startup_bytes if st.startup_bytes >= FRAME_LEN else 0)
         return {**super().health(), "junk_bytes": junk}
 
     def check(self, silence_s: float | None = None) -> None:
