@@ -166,7 +166,9 @@ def test_a_calibration_that_cannot_be_saved_at_the_end_is_printed(tmp_path, monk
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(LoadCellCalibration, "save", full_disk)
-    code, output = cli("calibrate", "loadcells", "--emulate", "--yes", "--duration", "0.05", "--settle", "0", "--out", str(out))
+    code, output = cli(
+        "calibrate", "loadcells", "--emulate", "--yes", "--duration", "0.05", "--settle", "0", "--out", str(out)
+    )
     errors = [ln for ln in output.splitlines() if ln.startswith("beambench: error:")]
     assert code == 1 and len(errors) == 1 and "No space left" in errors[0], output
     printed = output[output.index("# not saved") : output.index("beambench: error:")]

@@ -224,7 +224,8 @@ def _check_rows(columns: dict[str, h5py.Dataset], where: str) -> None:
     for name, ds in columns.items():
         if ds.shape[0] != rows:
             raise SessionSchemaError(
-                f"{where}/{name}", f"{ds.shape[0]} rows, but host_time_ns has {rows}: one row per sample in every column"
+                f"{where}/{name}",
+                f"{ds.shape[0]} rows, but host_time_ns has {rows}: one row per sample in every column",
             )
 
 
@@ -366,4 +367,6 @@ def _check_processing(g: h5py.Group, budget: int) -> None:
             if not isinstance(cols, list) or not all(isinstance(c, str) for c in cols):
                 raise SessionSchemaError(f"{where} columns", "expected a JSON list of column names")
             if sorted(cols) != sorted(key for key, _ in members):
-                raise SessionSchemaError(f"{where} columns", f"names {len(cols)} columns, the group holds {len(members)}")
+                raise SessionSchemaError(
+                    f"{where} columns", f"names {len(cols)} columns, the group holds {len(members)}"
+                )

@@ -211,7 +211,9 @@ class SerialLoadCells(StreamDriver):
         than a port opened mid-frame leaves)."""
         with self._lock:
             st = self.decoder.stats
-            junk = st.bytes_discarded + st.unsupported_bytes + (st.startup_bytes if st.startup_bytes >= FRAME_LEN else 0)
+            junk = (
+                st.bytes_discarded + st.unsupported_bytes + (st.startup_bytes if st.startup_bytes >= FRAME_LEN else 0)
+            )
         return {**super().health(), "junk_bytes": junk}
 
     def check(self, silence_s: float | None = None) -> None:
