@@ -250,14 +250,6 @@ DAMAGED: dict[str, tuple[Callable[[h5py.File], None] | None, Callable[[Path], No
         "/processing/steps columns",
     ),
     "no protocol": (lambda f: f["general"].__delitem__("protocol"), None, "/general/protocol"),
-    "protocol a list": (
-        lambda f: (
-            f["general"].__delitem__("protocol"),
-            f["general"].create_dataset("protocol", data="- 1\n- 2\n", dtype=h5py.string_dtype()),
-        ),
-        None,
-        "/general/protocol",
-    ),
 }
 
 

@@ -136,9 +136,7 @@ def _check_general_values(g: h5py.Group, where: str) -> None:
     except yaml.YAMLError as exc:
         problem = str(getattr(exc, "problem", None) or "syntax error")
         raise SessionSchemaError(f"{where}/protocol", f"not YAML ({problem})") from None
-    if not isinstance(proto, dict):
-        raise SessionSchemaError(f"{where}/protocol", f"a YAML {type(proto).__name__}, expected a protocol mapping")
-    protocol_rig = proto.get("rig")
+    protocol_rig = proto.get("rig") if isinstance(proto, dict) else None
     rig = _text(g["rig"], f"{where}/rig").strip() if isinstance(g.get("rig"), h5py.Dataset) else None
     if rig is not None and not RIG.match(rig):
         raise SessionSchemaError(f"{where}/rig", f"{rig[:20]!r} is not a rig name")
