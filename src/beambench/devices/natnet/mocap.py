@@ -163,9 +163,12 @@ class NatNetMocap(StreamDriver):
 
     def health(self) -> dict[str, Any]:
         """As every stream's (:meth:`StreamDriver.health`); ``received`` counts frames when :meth:`read` decodes
-        them, so the frames still buffered (``unrecorded``) are added: received = stored + unrecorded."""
+        them, so the frames still buffered (``unrecorded``) are added: received = stored + unrecorded. ``ignored``:
+        datagrams that arrived before the server described itself (not decodable then)."""
         out = super().health()
         out["received"] += out["unrecorded"]
+        # datagrams that could not be used (frames before the server described itself): arrived, never rows
+        out["ignored"] = self.stats.ignored
         return out
 
     def echo_sync(self) -> dict[str, Any] | None:
