@@ -2,8 +2,9 @@
 one line naming the HDF5 path and the problem, before any command reads, draws or writes anything.
 
 Checked: the kind of every object (group or dataset, hard links only), dtypes and shapes, one row per sample in
-every column of a stream (a closed file), labels that match their axis, host times that run forwards, step and event times inside the recorded data's span (plus a margin), the
-``/general`` text (JSON entries, the protocol's YAML, the rig, the axis names) and ``/processing``. No dataset
+every column of a stream (a closed file), labels that match their axis, host times that run forwards, step and
+event times inside the recorded data's span (plus a margin), the ``/general`` text (the protocol there, JSON
+entries, the protocol's YAML, the rig, the axis names) and ``/processing``. No dataset
 may claim more bytes than the file holds, so nothing read from a file allocates beyond its size.
 """
 

@@ -143,7 +143,7 @@ def has_params(name: str, model: str) -> bool:
             data, _ = load_yaml_file(path)  # kind and size checked before the read
         except ConfigError:
             return False
-        return isinstance(data, dict) and str(data.get("model", "prb3")) == model
+        return isinstance(data, dict) and params_family(data.get("model", "prb3")) == model
     return name in available(model)
 
 
