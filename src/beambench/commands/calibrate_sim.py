@@ -147,6 +147,7 @@ def sim(
     except ValueError as exc:
         _fail(str(exc))
     out_dir = out or default_out()
+    _check_outputs(out_dir, name)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -174,6 +175,27 @@ def sim(
     except KeyboardInterrupt:  # Ctrl-C: every finished evaluation is in the log, which a rerun reuses
         _interrupted(out_dir / f"{name}.evals.jsonl")
     _finish(result, report)
+
+
+CALIBRATION_OUTPUTS = (  # what a calibration named NAME writes into its folder
+    "{}.evals.jsonl",
+    "{}_params.yaml",
+    "{}.yaml",
+    "{}_report.json",
+    "{}_report.md",
+    "{}_objective.png",
+    "{}_maps.png",
+    "{}_verify",
+)
+
+
+def _check_outputs(out_dir: Path, name: str) -> None:
+    """The folder takes files and none of the calibration's outputs is a link (planted where they go)."""
+    from beambench.common.outputs import output_folder_problem
+
+    problem = output_folder_problem(out_dir, tuple(f.format(name) for f in CALIBRATION_OUTPUTS))
+    if problem:
+        _fail(f"--out: {problem}")
 
 
 def _free_unknowns(free: str | None, rig: str) -> tuple[str, ...] | None:

@@ -103,6 +103,7 @@ def fit(args: FitArgs) -> None:
         data = load_release_session(session, register=args.register)
     except FitError as exc:
         fail(str(exc))
+    _check_outputs(args, models, name, out)
     try:  # after the session is read: a refused session leaves no folder behind
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -149,6 +150,26 @@ def _checked(args: FitArgs) -> list[str]:
         if not ok:
             fail(f"{opt} = {value}: out of range")
     return models
+
+
+def _check_outputs(args: FitArgs, models: list[str], name: str, out: Path) -> None:
+    """Every place fit writes, before the fit: the output folder and the parameter sets (never through a link,
+    into a folder that takes files); one line and exit 2."""
+    from beambench.common.outputs import output_file_problem, output_folder_problem
+    from beambench.common.resources import user_dir
+    from beambench.sim.models.registry import canonical_model, model_family
+
+    stem = args.session.stem
+    problem = output_folder_problem(out, (f"fit_{stem}.png", f"fit_{stem}.json"))
+    if problem:
+        fail(f"{problem}: the fit's folder (give another with --out)")
+    if args.no_write:
+        return
+    directory = args.params_dir or user_dir("sim_backend")
+    for m in models:
+        problem = output_file_problem(directory / f"{model_family(canonical_model(m))}_{name}.yaml")
+        if problem:
+            fail(f"{problem}: the parameter set (give another --name or --params-dir)")
 
 
 def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:

@@ -354,6 +354,11 @@ def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) ->
         fail(f"{png.parent}: no such folder for the screenshot")
     if rrd is not None and rrd.exists():
         fail(f"{rrd}: exists; give another --out (view never overwrites a recording)")
+    from beambench.common.outputs import output_file_problem
+
+    problem = output_file_problem(png)  # a picture may be replaced, never written through a link or into a device
+    if problem:
+        fail(f"--screenshot: {problem}")
     for path, option in ((png, "--screenshot"), (rrd, "--out")):
         if path is not None and not path.exists():
             check_writable(path, option)
@@ -387,7 +392,7 @@ def check_writable(path: Path, option: str) -> None:
 def free_path(path: Path) -> Path:
     """``path``, or ``<stem>_1<suffix>``, ``_2`` … whichever does not exist yet."""
     k, candidate = 1, path
-    while candidate.exists():
+    while candidate.exists() or candidate.is_symlink():  # a link, even a dangling one, is a taken name
         candidate = path.with_name(f"{path.stem}_{k}{path.suffix}")
         k += 1
     return candidate

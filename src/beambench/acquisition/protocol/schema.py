@@ -256,21 +256,29 @@ class Output(_Model):
         return v
 
 
+NAME_FIELDS = ("protocol", "rig", "backend", "date")  # the fields an ``output.name`` template may use
+
+
 def format_name(template: str, protocol: str, rig: str, backend: str, date: str) -> str:
     """Fill an ``output.name`` template; any template problem is a ValueError with one short line."""
     try:
-        _check_format_specs(template)
+        _check_template(template)
         return template.format(protocol=protocol, rig=rig, backend=backend, date=date)
     except (KeyError, IndexError, ValueError, AttributeError, TypeError) as exc:
-        known = "{protocol}, {rig}, {backend}, {date}"
+        known = ", ".join(f"{{{f}}}" for f in NAME_FIELDS)
         raise ValueError(f"bad template ({type(exc).__name__}: {str(exc)[:60]}); use {known}") from None
 
 
-def _check_format_specs(template: str) -> None:
-    """Refuse a width or precision that would make a name longer than :data:`MAX_NAME_BYTES` before formatting
-    (``{protocol:>300000000}`` would build 300 MB first) and nested fields in a format spec."""
+def _check_template(template: str) -> None:
+    """Refuse, before formatting, any field but the documented :data:`NAME_FIELDS` (so no attribute or index access,
+    ``{protocol.__class__}``, and no positional ``{}``), a width or precision that would make a name longer than
+    :data:`MAX_NAME_BYTES` (``{protocol:>300000000}`` would build 300 MB first) and nested fields in a spec."""
     for _, field, spec, _ in string.Formatter().parse(template):
-        if field is None or not spec:
+        if field is None:
+            continue
+        if field not in NAME_FIELDS:
+            raise ValueError(f"unknown field {{{field[:24]}}}")
+        if not spec:
             continue
         if "{" in spec or "}" in spec:
             raise ValueError(f"nested field in {spec[:12]!r}")
