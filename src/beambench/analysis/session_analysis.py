@@ -17,7 +17,7 @@ import pandas as pd
 import yaml
 
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
-from beambench.analysis.branches import annotate_branches, step_labels
+from beambench.analysis.branches import annotate_branches, with_step_labels
 from beambench.analysis.contact import (
     ContactParams,
     Contacts,
@@ -53,7 +53,7 @@ from beambench.analysis.trajectory import (
     stage_frame,
 )
 from beambench.analysis.walking import body_speed
-from beambench.sinks.hdf5_read import StreamData
+from beambench.sinks.hdf5_read import StreamData, run_ending
 from beambench.sinks.session_frames import flat_names, step_of
 
 
@@ -112,6 +112,7 @@ class SessionAnalysis:
     edge_check: EdgeCheck | None = None
     name: str = ""
     track: TrackResult | None = None  # speed tracking (track: sessions), beambench.analysis.speed_tracking
+    ending: tuple[str, str] | None = None  # the run's closing event (kind, message); None: the file has none
 
     @property
     def sync_table(self) -> pd.DataFrame:
@@ -405,7 +406,8 @@ def analyze_session(
     ctx = StepContext(rig, amplitude_mm, len(streams.force_t) > 0, options, frame, forward)
     results: list[StepResult] = []
     n_steps, last_ns = len(session.steps), streams.last_ns
-    for k, srow in enumerate(session.steps.itertuples(index=False)):
+    steps: Any = with_step_labels(session.steps)  # a session's own columns: read by name
+    for k, srow in enumerate(steps.itertuples(index=False)):
         a = int(srow.t_settled_ns)
         b = int(srow.t_end_ns) if int(srow.t_end_ns) > 0 else last_ns
         results.append(_analyze_step(srow, a, b, streams.window(a, b) if 0 <= a < b else None, ctx))
@@ -433,6 +435,7 @@ def analyze_session(
         residual_t,
         _edge_check(session, fits),
         track=track,
+        ending=run_ending(session.events),
     )
 
 
@@ -469,7 +472,9 @@ def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepCo
         "step": int(srow.index),
         "frequency_hz": f_cmd,
         "status": str(srow.status),
-        **step_labels(srow),
+        "direction": str(srow.direction),
+        "kind": str(srow.kind),
+        "repeat": int(srow.repeat),
         "t_settled_s": a / NS if a >= 0 else np.nan,
         "record_s": (b - a) / NS if a >= 0 else np.nan,
     }

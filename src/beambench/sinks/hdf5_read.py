@@ -205,6 +205,20 @@ def session_warnings(general: dict[str, Any]) -> list[str]:
     return [str(w) for w in stored] if isinstance(stored, list) else []
 
 
+ENDING_KINDS = ("stop", "interrupted", "fault", "failed", "error")  # the runner's closing event, one per run
+
+
+def run_ending(events: pd.DataFrame | None) -> tuple[str, str] | None:
+    """The run's closing event (kind, message) from ``/events``; None where there is none (a killed run)."""
+    if events is None or not len(events) or "kind" not in events:
+        return None
+    closing = events[events["kind"].astype(str).isin(ENDING_KINDS)]
+    if not len(closing):
+        return None
+    last = closing.iloc[-1]
+    return str(last["kind"]), str(last.get("message", ""))
+
+
 def _read_general(g: h5py.Group) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, item in g.items():
