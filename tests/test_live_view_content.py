@@ -143,8 +143,13 @@ def test_step_panel_contacts_per_cycle_are_the_reports_live_and_replayed(tmp_pat
 def test_the_step_panel_shows_the_measured_frequency_of_the_step_in_sight(touching):
     """At a step's start the panel says "settling", never the last step's speed beside the new command; once
     half a second of the step exists, the measured frequency is this step's own (within 2 % of the command by
-    the step's end)."""
-    texts = [str(t[0]) for t in _column(_chunks(touching.with_suffix(".rrd"))["/step"], "TextDocument:text")]
+    the step's end); after the last step, the panel says it ended (motor samples stamped after the end do not
+    bring the running step back)."""
+    batches = _chunks(touching.with_suffix(".rrd"))["/step"]
+    texts = [str(t[0]) for t in _column(batches, "TextDocument:text")]
+    times = np.asarray(_column(batches, "session_time"), "timedelta64[ns]").astype(np.int64)
+    last = texts[max(range(len(texts)), key=lambda i: (times[i], i))]  # what the viewer shows at the end
+    assert "Between steps" in last and "Last finished: step 2" in last, last
     by_step: dict[int, list[str]] = {}
     for text in texts:
         m = re.search(r"## Step (\d+) of", text)

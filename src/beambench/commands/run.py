@@ -123,7 +123,7 @@ def run(
     from beambench.session.run import RigStartError, RunRequest, run_request
 
     if rerun is None and mode == "off":
-        typer.echo(f"beambench: {NO_VIEW_NOTE}", err=True)
+        typer.echo(f"beambench: note: {NO_VIEW_NOTE}", err=True)
     request = RunRequest(protocol, text, chosen, path, mode, realtime, rig_file, can_log, validated=checked)
     try:
         # the run is over: a late signal must not kill the process before its result (the real command only)

@@ -199,10 +199,6 @@ class Scene3D:
         if self.layout.plate:
             self._plate()
 
-    def follow(self) -> np.ndarray | None:
-        """Where the follow frame is now (mm, the stream's frame), None before the body was seen."""
-        return None if not len(self._hist_t) else self._follow(1)[-1]
-
     def _follow(self, n: int) -> np.ndarray:
         """The follow frame at the history's last ``n`` frames (n, 3): the body's mean position over the
         :data:`FOLLOW_S` before each, on the floor plane (its height along the up axis taken out; occluded

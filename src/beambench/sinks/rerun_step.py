@@ -71,6 +71,7 @@ class StepPanel:
         self.current: StepRecord | None = None
         self.measured_hz: float | None = None
         self.last_done = ""
+        self._written_s = -np.inf  # the session time of the last text written
         self._force = _Series()
         self._mocap = _Series((len(markers), 3))
         self._motor = _Series()
@@ -86,6 +87,8 @@ class StepPanel:
         else:
             self.last_done = self._summary(record)
             self.current = None
+            # live, motor samples stamped a little after the step's end may have been shown as the step's already
+            t_s = max(t_s, self._written_s)
         self._write(t_s)
 
     def force(self, t_ns: np.ndarray, normal_n: np.ndarray) -> None:
@@ -157,5 +160,6 @@ class StepPanel:
             lines.append(f"**{commanded}measured: settling** (no {MEASURED_SPAN_S:g} s of this step yet)")
         if self.last_done:
             lines.append(f"Last finished: {self.last_done}")
+        self._written_s = max(self._written_s, t_s)
         self.rec.set_time(TIMELINE, duration=t_s)
         self.rec.log("step", rr.TextDocument("\n\n".join(lines), media_type=rr.MediaType.MARKDOWN))

@@ -178,11 +178,12 @@ class RerunSink:
                     self._scene.contacts(t, force[:, 0])
 
     def _write_mocap(self, batch: Batch, t: np.ndarray) -> None:
-        data = np.asarray(batch.columns["data"], float)
-        occluded = batch.columns.get("occluded")
-        if occluded is not None and len(occluded) == len(data):  # as the analysis reads it: NaN where not seen
-            data = np.where(np.asarray(occluded, bool)[..., None], np.nan, data)
-        self._steps.mocap(batch.host_time_ns, data)
+        if self.layout.plate and self._step_contacts is not None:  # the stage's frequency for the step's contacts
+            data = np.asarray(batch.columns["data"], float)
+            occluded = batch.columns.get("occluded")
+            if occluded is not None and len(occluded) == len(data):  # as the analysis reads it: NaN where not seen
+                data = np.where(np.asarray(occluded, bool)[..., None], np.nan, data)
+            self._steps.mocap(batch.host_time_ns, data)
         pos_mm = (batch.columns["data"] * 1000.0).astype(np.float32)
         if self._scene is not None:
             self._scene.write(t, pos_mm)
