@@ -46,8 +46,8 @@ PICTURES: dict[str, Picture] = {
     "report_forces.png": Picture(("contact_sweep",), "beambench analyze: forces.png"),
     "report_contact_frequency.png": Picture(("contact_sweep",), "beambench analyze: contact_frequency.png"),
     "report_walking_speed.png": Picture(("walker_sweep",), "beambench analyze: walking_speed.png"),
-    "live_view_contact.png": Picture(("contact_sweep",), "beambench view --screenshot --at 140"),
-    "live_view_walker.png": Picture(("walker_sweep",), "beambench view --screenshot --at 150"),
+    "live_view_contact.png": Picture(("contact_sweep",), "beambench view --screenshot --at 145"),
+    "live_view_walker.png": Picture(("walker_sweep",), "beambench view --screenshot --at 151.5"),
     "tracking.png": Picture(("walker_track",), "beambench analyze: tracking.png"),
     "notebook_step.png": Picture(("contact_sweep",), "the README's notebook example"),
 }

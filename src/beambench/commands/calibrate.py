@@ -60,7 +60,7 @@ def loadcells(
         "--out",
         metavar="FILE.yaml",
         help=f"Where to save (default: calibration/{OUT_NAME} in the per-user folder, "
-        f"calibration/{EMULATE_OUT_NAME} with --emulate; see README, 'Where files go').",
+        f"calibration/{EMULATE_OUT_NAME} with --emulate; see docs/commands.md, 'Where files go').",
     ),
     loads: list[str] = typer.Option(
         [],
@@ -223,7 +223,9 @@ def _save(cal: LoadCellCalibration, out: Path, console: Console) -> None:
 
 def register(app: typer.Typer) -> None:
     """Add ``beambench calibrate loadcells``."""
-    sub = sub_app("Calibrate rig sensors.")
+    sub = sub_app(
+        "Calibrate the rig's load cells (loadcells) or fit the twin's unknowns to a session or published numbers (sim)."
+    )
     sub.command("loadcells")(loadcells)
     register_sim(sub)
     app.add_typer(sub, name="calibrate")

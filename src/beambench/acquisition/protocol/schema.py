@@ -210,7 +210,7 @@ class TrackControl(_Model):
     """The speed controller's settings (:mod:`beambench.acquisition.control.speed_controller`); the defaults suit the walker."""
 
     feedback: bool = True  # false: feed-forward from the map alone
-    kp: float = Field(1.5, ge=0, le=10)  # proportional gain on the speed error (mm/s per mm/s)
+    kp: float = Field(1.0, ge=0, le=10)  # proportional gain on the speed error (mm/s per mm/s)
     ki_per_s: float = Field(2.0, ge=0, le=50)  # integral gain (1/s)
     # the integrator runs only while |error| <= integrate_within × |target| + 10 mm/s (not during big transients)
     integrate_within: float = Field(0.25, ge=0, le=10)
@@ -219,6 +219,10 @@ class TrackControl(_Model):
     window_periods: float = Field(4.0, gt=0, le=100)  # measured speed: slope over this many drive periods
     min_window_s: float = Field(0.15, gt=0, le=10)
     max_window_s: float = Field(0.5, gt=0, le=10)
+    # after a step: the body's speed taken as a first-order lag (time constant body_tau_s) behind the map's speed at
+    # the motor's frequency, and driven past the target by lead × the predicted error until it gets there
+    body_tau_s: float = Field(1.0, gt=0, le=10)
+    lead: float = Field(1.5, ge=0, le=10)
 
 
 class Track(_Model):

@@ -106,7 +106,7 @@ def fig_forces(
     if single:
         from matplotlib.patches import Patch
 
-        handles: list[Any] = [Patch(color=CONTACT, alpha=0.25, label="contact")]
+        handles: list[Patch | Line2D] = [Patch(color=CONTACT, alpha=0.25, label="contact")]
         if any(p.touchdowns_ms for p in drawn):
             handles.append(Line2D([], [], color=TOUCHDOWN, marker="v", ls="", label="touchdown (counted)"))
         if any(p.merged_dips_ms for p in drawn):

@@ -56,6 +56,7 @@ from beambench.acquisition.streams import MOTOR
 from beambench.common.oserrors import can_open_problem
 from beambench.devices.odrive import cansimple as cs
 from beambench.devices.odrive.can_log import TrafficLog
+from beambench.devices.odrive.can_log_formats import LOG_SUFFIXES
 from beambench.devices.odrive.can_timing import (
     MAX_FRAMES_PER_WAKE,
     RECEIVE_COALESCE_S,
@@ -76,7 +77,6 @@ from beambench.devices.receive_time import mono_minus_real_ns
 DEFAULT_TIMING = CanMotorTiming()
 IDLE_SEND_TRIES = 5  # each idle frame is sent up to this many times (a full TX queue, no memory for a moment)
 IDLE_RETRY_S = 0.02
-LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc", ".csv")  # python-can writers that keep direction or ids
 
 _ERROR_REGISTERS = (cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR)
 
