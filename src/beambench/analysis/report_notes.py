@@ -180,34 +180,36 @@ def run_completeness(a: SessionAnalysis) -> RunCompleteness:
 
 
 def _steps_text(indices: list[int], freq: dict[int, float], most: int = 8) -> str:
-    """``steps 12 (13 Hz), 13 (14 Hz)``, or ``steps 12–39 (13–40 Hz)`` for a run of many."""
+    """``step 12 (13 Hz)``, ``steps 12 (13 Hz), 13 (14 Hz)``, or ``28 steps, 12–39 (13–40 Hz)`` for many."""
     if len(indices) <= most:
-        return "steps " + ", ".join(f"{i} ({freq[i]:g} Hz)" if freq.get(i, 0) > 0 else str(i) for i in indices)
+        word = "step" if len(indices) == 1 else "steps"
+        return f"{word} " + ", ".join(f"{i} ({freq[i]:g} Hz)" if freq.get(i, 0) > 0 else str(i) for i in indices)
     fs = [freq[i] for i in indices if freq.get(i, 0) > 0]
     span = f" ({min(fs):g}–{max(fs):g} Hz)" if fs else ""
     return f"{len(indices)} steps, {indices[0]}–{indices[-1]}{span}"
 
 
-ENDINGS = {
-    "interrupted": "The run was interrupted",
-    "fault": "The run stopped on a device fault",
-    "failed": "The run failed",
-    "error": "The run stopped on an error",
-}
+ENDINGS = ("interrupted", "fault", "failed", "error")  # the runner's closing events of a run that ended early
 
 
 def completeness_note(c: RunCompleteness) -> str | None:
     """A banner when the session holds less than its protocol planned, or its run did not end normally."""
     if c.complete:
         return None
-    head = ENDINGS.get(c.ending_kind, "The run did not finish" if c.ending_kind in ("", "stop") else "The run ended")
-    why = f" ({html.escape(c.ending_message)})" if c.ending_message else ""
-    n_plan = len(c.planned)
-    text = f"<strong>{head}{why}:</strong> this report covers {len(c.done)} of the {n_plan} planned steps."
+    if c.ending_kind in ENDINGS:
+        how = f": {html.escape(c.ending_message or c.ending_kind)}"
+    elif c.ending_kind == "":
+        how = " (the session has no closing event: the run was killed or crashed)"
+    else:
+        how = ""
+    text = (
+        f"<strong>The run ended early{how}.</strong> This report covers {len(c.done)} of the {len(c.planned)} planned "
+        "steps."
+    )
     cut = [i for i in c.cut_short if i in c.missing]
     never = [i for i in c.missing if i not in cut]
     if cut:
-        text += f" Cut short (not analysed as a whole window): {_steps_text(cut, c.planned)}."
+        text += f" Cut short (steps.csv holds the part recorded): {_steps_text(cut, c.planned)}."
     if never:
         text += f" Never run: {_steps_text(never, c.planned)}."
     return text

@@ -152,6 +152,8 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
             r = next((r for r in a.steps if r.frequency_hz == f and set(markers[id(a)]) & set(r.paths)), None)
             if r is not None:
                 _draw_step(ax, r, markers[id(a)], None if single else si, plate_up.get(id(a)), marks, walker)
+                if single and a.track is None:  # a track's frequency moves within a step: no steady noise estimate
+                    _noise_bands(ax, r, markers[id(a)][0], marks)
                 note = shape_note(a, r, markers[id(a)][0]) if single else ""
         ax.set_title(f"{f:g} Hz{note}", pad=2, y=1.0)  # a fixed y skips measuring tick labels (slow)
     exaggeration = _limits(marks)
@@ -179,12 +181,30 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
     notes = [subset] if subset else []
     if plate_up and any(abs(y) > marks.yh for _, y, _ in marks.plates):
         notes.append("no contact in panels without a plate line: the plate is further below")
-    fig.suptitle("\n".join([title, *notes]), y=1 - 0.1 / height, va="top")
     handles = _handles(analyses, markers, marks, single)
     ncol = fitting_columns([str(h.get_label()) for h in handles], float(fig.get_figwidth()), legend_cols)
+    height = _legend_room(fig, height, math.ceil(len(handles) / ncol))
+    fig.suptitle("\n".join([title, *notes]), y=1 - 0.1 / height, va="top")
     fig.legend(handles=handles, loc="lower center", ncol=ncol, bbox_to_anchor=(0.5, 0.0))
     fig.savefig(path)
     return path
+
+
+LEGEND_ROW, XLABELS = 0.22, 0.75  # in: one legend row; the x tick labels and label below the lowest panels
+
+
+def _legend_room(fig: Figure, height: float, rows: int) -> float:
+    """Make the figure taller where its legend's ``rows`` need more room below the panels than the grid left
+    (the panels keep their size); returns the figure's height (in)."""
+    sp = fig.subplotpars
+    bottom, top = sp.bottom * height, (1 - sp.top) * height
+    extra = XLABELS + LEGEND_ROW * rows - bottom
+    if extra <= 0:
+        return height
+    new = height + extra
+    fig.set_size_inches(float(fig.get_figwidth()), new)
+    fig.subplots_adjust(bottom=(bottom + extra) / new, top=1 - top / new)
+    return new
 
 
 def _grid(n: int) -> tuple[Figure, Any, int, int, float]:
@@ -198,7 +218,7 @@ def _grid(n: int) -> tuple[Figure, Any, int, int, float]:
     pw = (width - left - right - (ncol - 1) * gapx) / ncol
     ph = pw * BOX
     legend_cols = max(1, int(width // 3.6))
-    bottom = 0.75 + 0.22 * math.ceil(8 / legend_cols)  # x labels, then up to eight legend entries
+    bottom = XLABELS + LEGEND_ROW * math.ceil(6 / legend_cols)  # x labels, then six legend entries (more: grown)
     height = top + bottom + nrow * ph + (nrow - 1) * gapy
     fig = new_figure((width, height), layout=None)
     axes = fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False)
@@ -266,12 +286,6 @@ def _draw_step(
             marks.extend(max(abs(lo[0]), abs(hi[0])), max(abs(lo[1]), abs(hi[1])))
         else:
             style = session_style(si)
-        if si is None and m == markers[0]:
-            raw, floor = noise_bands(r, m, len(mp))
-            if raw > 0:
-                ax.axhspan(-raw, raw, color=NOISE_BAND, lw=0, zorder=0)
-                ax.axhspan(-floor, floor, color=FLOOR_BAND, lw=0, zorder=0)
-                marks.noise_mm = float(r.row.get("path_noise_mm", 0.0))
         if len(mp) > 3:
             _mean_path(ax, mp - c, str(style["color"]), float(r.row.get(f"{m}_ellipse_r2", np.nan)), style, marks)
     if centre is None:
@@ -303,6 +317,18 @@ def _draw_step(
 
 NOISE_BAND, FLOOR_BAND = "0.9", "0.75"
 RAW_SIGMAS = 2.0  # the raw traces' band: ±2σ of the per-frame noise holds 95 % of a still marker's frames
+
+
+def _noise_bands(ax: Any, r: StepResult, marker: str, marks: _Marks) -> None:
+    """The two noise bands of :func:`noise_bands` behind a step's paths, about its centre."""
+    if marker not in r.paths:
+        return
+    mp = mean_path(r.t_mocap, r.paths[marker], _contact_period_cycles(r) / step_frequency(r))
+    raw, floor = noise_bands(r, marker, len(mp))
+    if raw > 0:
+        ax.axhspan(-raw, raw, color=NOISE_BAND, lw=0, zorder=0)
+        ax.axhspan(-floor, floor, color=FLOOR_BAND, lw=0, zorder=0)
+        marks.noise_mm = float(r.row.get("path_noise_mm", 0.0))
 
 
 def noise_bands(r: StepResult, marker: str, mean_points: int) -> tuple[float, float]:
