@@ -171,11 +171,12 @@ def expected_run_time(protocol: Protocol, backend: str, sim_plan: Plan | None, r
     --realtime); on the sim, the stepping time from the measured timing table where the rig has one
     (``sim_plan``), else from timing a short stretch of its physics here (the one part of a dry run that loads
     MuJoCo)."""
+    from beambench.acquisition.protocol.backends import backend_info
     from beambench.acquisition.protocol.plan import plan
 
     steps = plan(protocol)
     total = sum(s.duration_s for s in steps)
-    if backend != "sim" or realtime:
+    if not backend_info(backend).simulated_clock or realtime:
         return f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
     if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
         from beambench.common.errors import BeambenchError

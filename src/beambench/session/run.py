@@ -19,6 +19,7 @@ from beambench.acquisition.capabilities import DeviceFault, HasSilenceTimeouts, 
 from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
+from beambench.acquisition.protocol.backends import backend_info
 from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
 from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
@@ -172,7 +173,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         # Batches are ~10 per second of wall time: on a sim running 10-20x faster than real time, 1 s rig-time polls
         # (each poll's HDF5 appends and flush cost ~10 ms; the data do not depend on the poll: the sim clock advances
         # the physics in its own chunks of at most 0.5 s either way).
-        poll_s = 1.0 if backend == "sim" and not req.realtime else 0.1
+        poll_s = 1.0 if backend_info(backend).simulated_clock and not req.realtime else 0.1
         runner: Runner = (
             tracking.runner(rig, hub, steps, on_progress, stop)
             if tracking is not None
