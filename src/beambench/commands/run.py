@@ -212,6 +212,8 @@ def print_dry_run(s: dict, expected: str) -> None:
     from rich.console import Console
     from rich.table import Table
 
+    from beambench.acquisition.protocol.scenes import scene_info
+
     t = Table(title=f"Dry run: {s['protocol']} on the {s['rig']} rig ({s['backend']} backend) — nothing moves")
     t.add_column("step", justify="right")
     targets = s.get("targets_mm_s")
@@ -227,7 +229,7 @@ def print_dry_run(s: dict, expected: str) -> None:
     con = Console(soft_wrap=True)  # the dry run's table is its result: stdout
     con.print(t)
     lim = s["limits"]
-    if s["rig"] == "release":  # the release test drives nothing: its load is what it is about
+    if not scene_info(s["rig"]).driven:  # the release test drives nothing: its load is what it is about
         drive = f"no drive: a {s['release_load_g']:g} g tip load released"
     elif targets:
         drive = f"max frequency: chosen by the speed controller, <= {lim['max_frequency_hz']:g} Hz   "
