@@ -21,7 +21,8 @@ from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.protocol.backends import backend_info
 from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
-from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
+from beambench.acquisition.runner import Runner, RunResult
+from beambench.acquisition.stop_signals import StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
 from beambench.common.console import LogProgress, stderr_console
 from beambench.common.errors import BeambenchError
@@ -80,7 +81,7 @@ def _run_twin(sweep: Protocol, text: str, path: Path, show_progress: bool) -> tu
 def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunResult:
     """Run one :class:`RunRequest`.
 
-    From the first line on, every stop signal (:data:`beambench.acquisition.runner.STOP_SIGNALS`: SIGINT, SIGTERM,
+    From the first line on, every stop signal (:data:`beambench.acquisition.stop_signals.STOP_SIGNALS`: SIGINT, SIGTERM,
     SIGHUP, SIGQUIT, …) only requests a stop: a signal while the rig opens still yields a session that ends
     ``interrupted`` with the motor idled. A rig that cannot start raises :class:`RigStartError`; a session file
     that cannot be created or written at the start, :class:`~beambench.acquisition.hub.SinkFailure`.
