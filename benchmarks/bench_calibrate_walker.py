@@ -110,7 +110,7 @@ def main() -> None:
             "twin": got,
             "error_pct": err,
             "within_30pct": all(abs(e) <= 30 for e in err.values()),
-            "verdict": report.get("verdict"),  # the calibrator's own (exit 3 when a speed is missed)
+            "verdict": report.get("verdict"),  # the calibrator's own (exit 5, EXIT_MISSED, when a speed is missed)
             "protocol": str(protocol),
         }
         rows.append(row)
