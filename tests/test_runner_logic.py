@@ -9,7 +9,8 @@ from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.monitors import MocapLost
 from beambench.acquisition.protocol.plan import Step
-from beambench.acquisition.runner import Runner, StopSignal
+from beambench.acquisition.runner import Runner
+from beambench.acquisition.stop_signals import StopSignal
 from beambench.acquisition.streams import LOADCELL, MOCAP, MOTOR
 from fake_rig import NS, START_NS, FakeRig, RecordingSink
 

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from beambench.acquisition.protocol.backends import BACKEND_INFO
 from beambench.acquisition.protocol.plan import plan
 from beambench.acquisition.protocol.schema import parse_protocol
 
@@ -75,7 +76,8 @@ def contact_note(o: ContactOverview, backend: str = "") -> str | None:
     some step has one (the figures then speak for themselves)."""
     if o.touchdowns or not o.n_steps:
         return None
-    sim = backend == "sim"
+    info = BACKEND_INFO.get(backend)
+    sim = info is not None and info.simulates  # the twin's physics: its sim: options apply (sim, emulated)
     if len(o.none) == o.n_steps:
         fix = (
             " Lower <code>sim.plate_gap_mm</code> or raise <code>amplitude_mm</code> to bring the foot onto the plate."

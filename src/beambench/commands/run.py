@@ -213,11 +213,12 @@ def _phase_time(
     """(seconds or None, in words) for one run: real time on emulated and hardware (and the sim with --realtime);
     on the sim, the stepping time from the measured timing table where the rig has one (``sim_plan``), else from
     timing a short stretch of its physics here (the one part of a dry run that loads MuJoCo)."""
+    from beambench.acquisition.protocol.backends import backend_info
     from beambench.acquisition.protocol.plan import plan
 
     steps = plan(protocol)
     total = sum(s.duration_s for s in steps)
-    if backend != "sim" or realtime:
+    if not backend_info(backend).simulated_clock or realtime:
         return total, f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
     if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
         from beambench.common.errors import BeambenchError
@@ -257,6 +258,8 @@ def print_dry_run(s: dict, expected: str) -> None:
     from rich.console import Console
     from rich.table import Table
 
+    from beambench.acquisition.protocol.scenes import scene_info
+
     t = Table(title=f"Dry run: {s['protocol']} on the {s['rig']} rig ({s['backend']} backend) — nothing moves")
     t.add_column("step", justify="right")
     targets = s.get("targets_mm_s")
@@ -272,7 +275,7 @@ def print_dry_run(s: dict, expected: str) -> None:
     con = Console(soft_wrap=True)  # the dry run's table is its result: stdout
     con.print(t)
     lim = s["limits"]
-    if s["rig"] == "release":  # the release test drives nothing: its load is what it is about
+    if not scene_info(s["rig"]).driven:  # the release test drives nothing: its load is what it is about
         drive = f"no drive: a {s['release_load_g']:g} g tip load released"
     elif targets:
         drive = f"max frequency: chosen by the speed controller, <= {lim['max_frequency_hz']:g} Hz   "

@@ -14,6 +14,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from beambench.acquisition.capabilities import MotorLimits
+from beambench.acquisition.protocol.backends import backend_info, backends_with
 from beambench.acquisition.protocol.plan import Step, check_limits, motor_limits, plan
 from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
 from beambench.backends.build import RigSlices
@@ -103,10 +104,9 @@ def _check_fields(protocol: Protocol, file: str, backend: str | None = None, can
         raise ConfigError(file, "sim.params", sim.params, _reason(exc)) from None
     _check_overrides(params, protocol.rig, file, sim.params)
     if can_log is not None:
-        if backend == "sim":
-            raise ConfigError(
-                "<cli>", "--can-log", str(can_log), "needs an ODrive on CAN (--backend emulated or hardware)"
-            )
+        if backend is not None and not backend_info(backend).devices:
+            on_can = " or ".join(backends_with("devices"))
+            raise ConfigError("<cli>", "--can-log", str(can_log), f"needs an ODrive on CAN (--backend {on_can})")
         if can_log.suffix.lower() not in LOG_SUFFIXES:
             raise ConfigError("<cli>", "--can-log", shorten(str(can_log)), f"use a {' or '.join(LOG_SUFFIXES)} file")
         problem = can_log_problem(can_log)

@@ -26,9 +26,11 @@ from beambench.acquisition.capabilities import (
 from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
+from beambench.acquisition.protocol.backends import backend_info
 from beambench.acquisition.protocol.plan import plan
 from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
-from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
+from beambench.acquisition.runner import Runner, RunResult
+from beambench.acquisition.stop_signals import StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
 from beambench.common.console import LogProgress, stderr_console
 from beambench.common.errors import BeambenchError
@@ -109,7 +111,7 @@ def _run_twin(sweep: Protocol, text: str, path: Path, show_progress: bool) -> tu
 def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunResult:
     """Run one :class:`RunRequest`.
 
-    From the first line on, every stop signal (:data:`beambench.acquisition.runner.STOP_SIGNALS`: SIGINT, SIGTERM,
+    From the first line on, every stop signal (:data:`beambench.acquisition.stop_signals.STOP_SIGNALS`: SIGINT, SIGTERM,
     SIGHUP, SIGQUIT, …) only requests a stop: a signal while the rig opens still yields a session that ends
     ``interrupted`` with the motor idled. A rig that cannot start raises :class:`RigStartError`; a session file
     that cannot be created or written at the start, :class:`~beambench.acquisition.hub.SinkFailure`.
@@ -226,7 +228,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         # Batches are ~10 per second of wall time: on a sim running 10-20x faster than real time, 1 s rig-time polls
         # (each poll's HDF5 appends and flush cost ~10 ms; the data do not depend on the poll: the sim clock advances
         # the physics in its own chunks of at most 0.5 s either way).
-        poll_s = 1.0 if backend == "sim" and not req.realtime else 0.1
+        poll_s = 1.0 if backend_info(backend).simulated_clock and not req.realtime else 0.1
         runner: Runner = (
             tracking.runner(rig, hub, steps, on_progress, stop)
             if tracking is not None
