@@ -38,7 +38,7 @@ from beambench.sim.engine.stepping import Trajectory, quiet_mujoco_warnings
 from beambench.sim.models.registry import UnknownModelError, beam_model
 from beambench.sim.protocol_slice import SimSlice
 from beambench.sim.scenes import SceneConfig
-from beambench.sim.scenes.drive import CostsByFrequency, DrivenScene, VelocityRamp, WarmsUp
+from beambench.sim.scenes.drive import ChecksCuts, CostsByFrequency, DrivenScene, VelocityRamp, WarmsUp
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
@@ -148,7 +148,12 @@ class SimRig:
         cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, cost)
         clones = [build_scene(self.sim) for _ in cuts]
         self._scenes += clones
-        self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
+        if isinstance(self.scene, ChecksCuts):  # each cut checked; the rig does not walk: no marker offset
+            self._look = lookahead.Lookahead(
+                self.scene, calls, cuts, clones, walk_axis=None, agree=self.scene.same_regime
+            )
+        else:
+            self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
 
     def _drop_lookahead(self) -> None:
         """The run left the script: stop the workers, continue from the state after the last call taken."""
