@@ -34,6 +34,7 @@ class Picture:
 
     protocols: tuple[str, ...]
     how: str
+    files: tuple[str, ...] = ()  # other shipped files it is drawn from (a benchmark's cached table)
 
 
 PICTURES: dict[str, Picture] = {
@@ -45,6 +46,11 @@ PICTURES: dict[str, Picture] = {
     "live_view_walker.png": Picture(("walker_sweep",), "beambench view --screenshot --at 150"),
     "tracking.png": Picture(("walker_track",), "beambench analyze: tracking.png"),
     "notebook_step.png": Picture(("contact_sweep",), "the README's notebook example"),
+    "contact_chart.png": Picture(
+        (),
+        "the contact scene's speed/accuracy chart from benchmarks/bench_contact_chart.py's table",
+        ("sim_backend/contact_chart.csv",),
+    ),
 }
 
 
@@ -71,7 +77,8 @@ def shipped_inputs(protocol: str) -> list[Path]:
 def inputs_hash(name: str) -> str:
     """SHA-256 of the shipped files picture ``name`` is made from (their repository paths and bytes)."""
     digest = hashlib.sha256()
-    files = sorted({f for p in PICTURES[name].protocols for f in shipped_inputs(p)})
+    pic = PICTURES[name]
+    files = sorted({f for p in pic.protocols for f in shipped_inputs(p)} | {ROOT / f for f in pic.files})
     for f in files:
         digest.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
     return digest.hexdigest()
@@ -130,6 +137,15 @@ def notebook_picture(session: Path, out: Path) -> None:
     plt.close(fig)
 
 
+def chart_picture(name: str, out: Path) -> None:
+    """A picture drawn from a benchmark's cached table (no physics here)."""
+    import pandas as pd
+
+    from beambench.studies.contact_chart import chart_figure
+
+    chart_figure(pd.read_csv(ROOT / PICTURES[name].files[0]), out)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", default="", help="comma-separated picture names (default: all)")
@@ -163,6 +179,10 @@ def main(argv: list[str] | None = None) -> None:
                 else:
                     notebook_picture(session, out / name)
                     stamp(out / name, name)
+        for name in sorted(only):
+            if not PICTURES[name].protocols:  # drawn from a cached table (its benchmark regenerates it)
+                chart_picture(name, out / name)
+                stamp(out / name, name)
     print(f"wrote {IMG}")
 
 

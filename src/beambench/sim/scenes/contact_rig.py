@@ -388,6 +388,12 @@ class ContactRigSim(DrivenScene):
             th.heat(power, len(traj) * self.physics.timestep)
         return traj
 
+    def step_cost(self, hz: float) -> float:
+        """The physics' relative cost per simulated second at ``hz``: steps per second at the timestep it runs
+        (``CostsByFrequency``: the sim rig balances its segments with it)."""
+        h = self.fixed_timestep or self.timestep_for(abs(hz))
+        return 1e-4 / h
+
     def same_regime(self, a: Trajectory, b: Trajectory, hz: float) -> bool:
         """Two runs of one step in the same regime (``ChecksCuts``: the sim rig checks each segment cut with it)."""
         from beambench.sim.scenes.contact_regimes import steps_agree  # that module builds on this one
