@@ -3,27 +3,31 @@ a sweep cut into parallel segments against the same sweep carried in one piece (
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
+import pytest
 
 from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.backends.lookahead import Lookahead, cut_points, script
 from beambench.backends.sim import build_scene
 from beambench.session.slices import sim_slice
+from beambench.sim.engine.stepping import Trajectory
 from beambench.sim.scenes.contact_regimes import ContactTwin, stepped_regime_map, steps_agree
+from beambench.sim.scenes.contact_rig import ContactRigSim
 from beambench.sim.settings import SimSettings
 
 TWIN = ContactTwin("rod5g", "physical")
 REFERENCE_DT = 2.5e-5
 
 
+@pytest.mark.slow
 def test_the_shipped_policy_gives_the_labels_and_contact_fractions_of_a_finer_step():
     """Above the lift-off band (13–22 Hz, where a micrometre of gap flips the label at any timestep) the policy's
     timestep gives the 2.5e-5 s run's regime at every step and its in-contact fraction within 0.03."""
     freqs = [24.0, 30.0, 38.0]
     sim = SimSettings(settle_s=1.0, record_s=2.0, integrator="implicitfast")
     bm, rig = TWIN.build()
-    from beambench.sim.scenes.contact_rig import ContactRigSim
-
     shipped = ContactRigSim(bm, 90.0, rig.plate_gap, 0.002, rig)
     policy = {f: shipped.timestep_for(f) for f in freqs}
     shipped.physics.close()
@@ -48,6 +52,7 @@ sim: {model: rod5g, params: physical, noise: false, segments: 2}
 """
 
 
+@pytest.mark.slow
 def test_a_checked_cut_keeps_the_regime_of_every_later_step():
     """The cut's check accepts a cut where the state forgets: every step after the switch gives the regime that
     the sweep carried in one piece gives (same label, in-contact fraction within 0.03)."""
@@ -70,10 +75,8 @@ def test_a_checked_cut_keeps_the_regime_of_every_later_step():
         carried.append(None if kind == "cmd" else one.advance_to(t_ns * 1e-9))
     cmds = [i for i, c in enumerate(calls) if c[0] == "cmd"] + [len(calls)]
     cut = calls.index(next(c for c in calls if c[1] == look.cut_times_ns[0] and c[0] == "cmd"))
-    later = [(a, b) for a, b in zip(cmds, cmds[1:]) if a >= cut]
+    later = [(a, b) for a, b in itertools.pairwise(cmds) if a >= cut]
     assert later
-    from beambench.sim.engine.stepping import Trajectory
-
     for a, b in later:
         seg = Trajectory.concat([r for r in rows[a:b] if r is not None])
         ref = Trajectory.concat([r for r in carried[a:b] if r is not None])

@@ -288,9 +288,8 @@ class Lookahead:
 
     def _join(self, seg: _Segment, at: int) -> None:
         """The offsets that continue the rows taken so far with ``seg``'s from call ``at`` on."""
-        if at == seg.first and seg.join_row is not None:
-            row = seg.join_row
-        else:
+        row: dict[str, np.ndarray] | None = seg.join_row
+        if at != seg.first or row is None:
             prev = self._rows(seg, at - 1, at)
             row = {k: prev.channels[k][-1] for k in ("markers", "theta")} if prev is not None else None
         for j in [j for j in seg.results if j < at]:
