@@ -19,6 +19,16 @@ cut — the gait's phase, the body's height and tilt jump there, at the start of
 each part after the first starts at its first frequency already walking instead of ramping up from the previous
 step's frequency. The per-step settle window is what makes the steps' speeds comparable either way (each step's
 speed is a steady one measured after it).
+
+Checked cuts (the contact rig, a scene that ``ChecksCuts``): its state forgets the past only where its regime is
+robust, not in the lift-off band where a micrometre flips the label. So the part before a cut runs on past it step
+by step beside the part after it (started from rest, ramped up, pre-settled), and the scene compares each such
+step run both ways (:meth:`~beambench.sim.scenes.drive.ChecksCuts.same_regime`). At the first step that agrees the
+caller switches parts, at the next step's command (the agreed step's rows are the carried ones); until then the
+cut moves on, and a part that never agrees is run by the part before it (its stretch in one piece). Nothing is
+shifted along a walking axis there; the motor angle continues by whole turns, so the stage still sits at the
+crank's sine. The checks go to ``/general/sim_segments`` (``cut_checks``: where each cut was planned, where it was
+taken, the steps compared).
 """
 
 from __future__ import annotations
@@ -165,7 +175,7 @@ class Lookahead:
                     seg.verdict[j - 1] = a
             self.segments.append(seg)
         self._seg = 0  # the segment the caller takes from
-        self._pending_join: dict[str, np.ndarray] | None = None
+        self._pending_join: tuple[_Segment, int] | None = None  # the segment just switched to, from which call
         self.cuts_taken: list[int] = []  # the calls where the caller switched to the next segment
         for seg in self.segments:
             seg.thread = threading.Thread(target=self._work, args=(seg,), name="sim-lookahead", daemon=True)
@@ -281,20 +291,21 @@ class Lookahead:
             if i < at:
                 break
             self._seg = k
-            self._join(nxt, at)
+            self._pending_join = (nxt, at)
             self.cuts_taken.append(at)
             k += 1
         return self.segments[self._seg]
 
-    def _join(self, seg: _Segment, at: int) -> None:
-        """The offsets that continue the rows taken so far with ``seg``'s from call ``at`` on."""
+    def _join_row(self, seg: _Segment, at: int) -> dict[str, np.ndarray] | None:
+        """The row that ``seg``'s rows from call ``at`` on continue (its pre-settle's last, or its row before
+        ``at``); drops its rows before ``at`` (never taken). Called with the lock held, once ``seg`` made call ``at``."""
         row: dict[str, np.ndarray] | None = seg.join_row
         if at != seg.first or row is None:
             prev = self._rows(seg, at - 1, at)
             row = {k: prev.channels[k][-1] for k in ("markers", "theta")} if prev is not None else None
         for j in [j for j in seg.results if j < at]:
             del seg.results[j]
-        self._pending_join = row
+        return row
 
     # --- caller -----------------------------------------------------------------------------------------
     def expects(self, kind: str, t_ns: int, hz: float = 0.0) -> bool:
@@ -312,10 +323,10 @@ class Lookahead:
                 self._cv.wait()
             if seg.error is not None and seg.done <= i:
                 raise seg.error
+            join = self._join_row(*self._pending_join) if self._pending_join is not None else None
             out, snap = seg.results.pop(i)
             self.last_snap = snap
             self.next = i + 1
-            join = self._pending_join
             self._cv.notify_all()
         if join is not None and last_rows is not None and len(last_rows):
             self.offset = self._offset_to(last_rows, join)

@@ -7,8 +7,9 @@ With ``prefetch`` the next chunk (same length, same command) is computed on a wo
 stores the last one (MuJoCo releases the GIL); a command or a different wait undoes it from a snapshot, so
 the data are identical with and without prefetch. Once the runner announces the run's schedule
 (:meth:`SimRig.anticipate`), a worker computes the whole script ahead instead (:mod:`beambench.backends.lookahead`;
-same data), and with ``sim.segments: n`` (walker) n workers compute consecutive parts of the sweep in parallel,
-each later part pre-settled at its first frequency (what that changes: the lookahead module's docstring).
+same data), and with ``sim.segments: n`` (walker, contact rig) n workers compute consecutive parts of the sweep in
+parallel, each later part pre-settled at its first frequency (what that changes, and the contact rig's check of
+each cut: the lookahead module's docstring).
 """
 
 from __future__ import annotations
