@@ -1,6 +1,6 @@
 """Benchmark: the contact scene's speed/accuracy chart (model × contact formulation × integrator × timestep).
 
-    python benchmarks/bench_contact_chart.py [--workers 2] [--models prb3 rod3g rod5g rod10] [--out CSV]
+    python benchmarks/bench_contact_chart.py [--workers 2] [--models prb3 rod3g rod5g rod10] [--out CSV] [--reuse]
 
 Runs every point of :func:`beambench.studies.contact_chart.chart_points` (a reduced stepped sweep each: 6 steps,
 1 + 2 s; the state carried as ``beambench run`` does) on a local process pool, writes the per-step rows to
@@ -24,13 +24,21 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--models", nargs="+", default=["prb3", "rod3g", "rod5g", "rod10"])
     ap.add_argument("--out", type=Path, default=ROOT / "sim_backend" / "contact_chart.csv")
+    ap.add_argument("--reuse", action="store_true", help="keep the points --out already holds, run only the others")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "src"))
     import pandas as pd
 
     from beambench.studies.contact_chart import chart_points, run_chart, summarize
 
-    table = run_chart(chart_points(tuple(args.models)), args.workers, lambda s: print(s, flush=True))
+    points = chart_points(tuple(args.models))
+    kept = pd.DataFrame()
+    if args.reuse and args.out.exists():  # keep the points already measured, run the others
+        kept = pd.read_csv(args.out)
+        done = {(r.model, r.formulation, r.integrator, round(float(r.timestep), 12)) for r in kept.itertuples()}
+        points = [p for p in points if (p.model, p.formulation, p.integrator, round(p.timestep, 12)) not in done]
+    fresh = run_chart(points, args.workers, lambda s: print(s, flush=True)) if points else pd.DataFrame()
+    table = pd.concat([kept, fresh], ignore_index=True)
     table.to_csv(args.out, index=False)
     s = summarize(table)
     pd.set_option("display.width", 250)
