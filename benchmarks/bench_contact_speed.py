@@ -60,11 +60,10 @@ def steps(session: Path) -> pd.DataFrame:
 
 
 def segments_info(session: Path) -> dict:
-    import h5py
+    """The session's ``/general/sim_segments`` (where the cut was planned and taken, the workers' CPU)."""
+    from beambench.sinks.hdf5 import read_session
 
-    with h5py.File(session, "r") as f:
-        raw = f["general"].attrs.get("sim_segments")
-    return json.loads(raw) if isinstance(raw, str) else {}
+    return dict(read_session(session).general.get("sim_segments") or {})
 
 
 def compare(run: pd.DataFrame, ref: pd.DataFrame, from_hz: float, band: tuple[float, float]) -> dict:
@@ -133,6 +132,12 @@ def main() -> None:
         )
         result["segments"] = segments_info(session)
         print("segments:", json.dumps(result["segments"]))
+        workers = result["segments"].get("worker_cpu_s") or []
+        if workers:  # on two idle cores the wall time is the slower worker's CPU plus start-up and writing
+            print(
+                f"slowest physics worker: {max(workers):.1f} s CPU (= {rig_s / max(workers):.1f}x real time); "
+                f"all workers {sum(workers):.1f} s, the rest of the process {best_cpu - sum(workers):.1f} s"
+            )
         ref_dir = OUT / "contact_speed_reference"
         ref_session = ref_dir / "reference.h5"
         if not (args.reuse_reference and ref_session.exists()):
