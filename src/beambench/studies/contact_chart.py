@@ -35,6 +35,7 @@ FORMULATIONS: dict[str, dict[str, float | bool]] = {
     "soft 2 ms": {"contact_timeconst": 0.002},
 }
 FROM_HZ = 23.0  # the labels above the lift-off band are the ones that converge
+LIFT_OFF_BAND_HZ = (13.0, 22.0)  # chaotic at every timestep: a micrometre of gap flips its labels
 COLUMNS = (
     "model",
     "formulation",
@@ -167,8 +168,8 @@ def run_chart(points: list[ChartPoint], workers: int = 2, progress: Callable[[st
 def summarize(table: pd.DataFrame) -> pd.DataFrame:
     """One row per point: CPU per simulated second, and its accuracy against its own 4× finer run (``own_*``) and
     against the finest rod10 run of its formulation (``rod10_*``): labels equal (all steps; from 23 Hz), the
-    largest in-contact-fraction difference, the mean relative tangential-force difference, the largest lift-off
-    difference (mm). ``stable`` False with the ``reason`` where a run diverged."""
+    largest in-contact-fraction and lift-off (mm) differences outside the lift-off band, the mean tangential-force
+    difference (N) from 23 Hz. ``stable`` False with the ``reason`` where a run diverged."""
     keys = ["model", "formulation", "integrator", "timestep"]
     sim_s = len(CHART_FREQS) * (CHART_SETTLE_S + CHART_RECORD_S)
     table = table.assign(timestep=table["timestep"].astype(float).round(12))
@@ -195,18 +196,17 @@ def _accuracy(g: pd.DataFrame, ref: pd.DataFrame, name: str) -> dict[str, float]
     f = g["frequency_hz"].to_numpy()
     lab, lab_r = g["regime"].astype(str).to_numpy(), ref["regime"].astype(str).to_numpy()
     above = f >= FROM_HZ
+    out = (f < LIFT_OFF_BAND_HZ[0]) | (f > LIFT_OFF_BAND_HZ[1])
     ft, ft_r = g["mean_tangential_n"].to_numpy(float), ref["mean_tangential_n"].to_numpy(float)
-    rel = np.abs(ft - ft_r) / np.maximum(np.abs(ft_r), 1e-3)
+    dft = np.abs(ft - ft_r)  # absolute: the mean tangential force crosses zero where its sign turns
+    cf = np.abs(g["in_contact_fraction"].to_numpy(float) - ref["in_contact_fraction"].to_numpy(float))
+    lift = np.abs(g["lift_off_mm"].to_numpy(float) - ref["lift_off_mm"].to_numpy(float))
     return {
         f"{name}_labels_equal": float((lab == lab_r).mean()),
         f"{name}_labels_equal_from_23hz": float((lab[above] == lab_r[above]).mean()),
-        f"{name}_contact_fraction_err": float(
-            np.nanmax(np.abs(g["in_contact_fraction"].to_numpy(float) - ref["in_contact_fraction"].to_numpy(float)))
-        ),
-        f"{name}_tangential_rel_err": float(np.nanmean(rel[above])),
-        f"{name}_lift_off_err_mm": float(
-            np.nanmax(np.abs(g["lift_off_mm"].to_numpy(float) - ref["lift_off_mm"].to_numpy(float)))
-        ),
+        f"{name}_contact_fraction_err": float(np.nanmax(cf[out])),  # outside the lift-off band
+        f"{name}_tangential_err_n": float(np.nanmean(dft[above])) if np.isfinite(dft[above]).any() else np.nan,
+        f"{name}_lift_off_err_mm": float(np.nanmax(lift[out])),
     }
 
 
@@ -258,7 +258,8 @@ def chart_figure(table: pd.DataFrame, out: Path) -> None:
     fig.suptitle(
         f"Contact rig, reduced stepped sweep ({len(CHART_FREQS)} steps {CHART_FREQS[0]:g}-{CHART_FREQS[-1]:g} Hz, "
         f"{CHART_SETTLE_S:g} + {CHART_RECORD_S:g} s); marker size: timestep (1.6e-3 … 1.25e-5 s); dashed: 0.03"
-        + (f"\nunstable: {note}" if note else ""),
+        + (f"\nunstable: {note}" if note else "\nno point went unstable")
+        + "; prb3 (the paper's fit) does not reach the plate on this rig: no error to show (drawn at 1e-3)",
         fontsize=9,
     )
     fig.savefig(out, dpi=110)
