@@ -3,7 +3,9 @@
 Each picture is made by beambench itself from shipped protocols run as a user would run them (sim backend,
 shipped parameter sets): the contact sweep, the walker sweep and the walker's speed tracking, their reports
 (``beambench analyze``), the real Rerun viewer's own screenshots (``beambench view --screenshot``, headless, needs
-a Vulkan driver) and the README's notebook example. Every PNG carries, in a PNG text chunk, a hash of the shipped
+a Vulkan driver) and the README's notebook example. The contact chart is drawn from the table its benchmark
+writes (``benchmarks/bench_contact_chart.py`` → ``sim_backend/contact_chart.csv``; hours of physics are not rerun
+here); its stamp hashes that table. Every PNG carries, in a PNG text chunk, a hash of the shipped
 files it was made from (the protocols and the parameter sets they name); ``tests/test_docs_images.py`` recomputes
 the hashes from the shipped files and fails when a picture was made from other defaults than those shipped.
 
