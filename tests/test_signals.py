@@ -40,7 +40,7 @@ import pytest
 
 from beambench.acquisition.runner import signal_name
 from beambench.sinks.hdf5 import read_session
-from conftest import last_requested_state
+from conftest import last_requested_state, wait_until
 
 # Long enough that no run can finish before its signal (200 steps x 0.5 s of rig time).
 ENDLESS = """
@@ -89,11 +89,9 @@ def _env() -> dict[str, str]:
 
 
 def _wait_for_file(path: Path, alive, timeout: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not path.exists():
-        if not alive() or time.monotonic() > deadline:
-            raise AssertionError(f"{path} never appeared")
-        time.sleep(0.01)
+    """Wait until ``path`` exists; fail at once if the process that writes it (``alive``) is gone."""
+    wait_until(lambda: path.exists() or not alive(), timeout, f"{path}")
+    assert path.exists(), f"{path} never appeared"
 
 
 # The lanes of _signal_runs check their files from three threads of this process. One CI run (h5py 3.16,

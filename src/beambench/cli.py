@@ -16,6 +16,7 @@ import typer
 
 from beambench import __version__
 from beambench.commands import (
+    EXIT_FAULT,
     EXIT_STOPPED,
     HELP_MARKUP,
     STANDALONE,
@@ -99,7 +100,7 @@ def _main_inner() -> None:
                 raise
             with contextlib.suppress(OSError):  # a run that had armed the motor idled it on its way out
                 typer.echo(f"beambench: error: out of memory ({reason}); give the command more memory", err=True)
-            sys.exit(1)
+            sys.exit(EXIT_FAULT)
         ctx = getattr(exc, "ctx", None)
         if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:  # bare ``beambench`` or a group
             typer.echo(ctx.get_help())

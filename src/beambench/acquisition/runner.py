@@ -397,6 +397,18 @@ class Runner:
             self.hub.write(stream.read())
         self.hub.flush()
 
+    def _drain(self) -> None:
+        """The final read: every stream's rows to the hub, each stream on its own (one whose device failed, or
+        stopped with the run, must not keep the others' rows out of the session)."""
+        for stream in self.rig.streams:
+            try:
+                batch = stream.read()
+            except Exception as exc:  # SinkFailure is not raised by a read
+                self._log_event(self.rig.clock.now_ns(), "error", f"final read of {stream.name} failed: {exc}")
+                continue
+            self.hub.write(batch)
+        self.hub.flush()
+
     # --- shutdown -------------------------------------------------------------------------------------
     def _shutdown(self, result: RunResult) -> None:
         """Idle first, then save: the order matters more than anything else here. Nothing here raises before
@@ -415,7 +427,7 @@ class Runner:
                 # real devices: record a short tail so the session shows the motor stopping
                 if isinstance(self.rig, HasIdleTail) and self.rig.idle_tail_s > 0:
                     self.rig.clock.wait(self.rig.idle_tail_s)
-                self._pump()
+                self._drain()
             except SinkFailure:
                 pass  # recorded in hub.failure
             except Exception as exc:

@@ -1,10 +1,7 @@
-"""Rigs of real drivers: ``hardware`` (the lab's devices, wired by the rig file) and ``emulated`` (the same
-drivers against wire-level emulated peers on this machine, driven in real time by the MuJoCo physics).
-
-Emulated wiring: Motive on UDP loopback (unicast, a free port), the ODrive on a python-can virtual bus (a
-channel of its own), the load-cell MCU on a pseudo-terminal. A physics thread advances the sim scene to the
-wall clock every few milliseconds, following the emulated ODrive's crank speed, and the emulators read
-marker positions and plate force from it.
+"""The rig of real drivers: :class:`DeviceRig` (a motor and its streams on the wall clock, opened, checked and
+closed together) and :func:`build_device_rig`, which wires the lab's devices from the rig file
+(``calibration/rig.yaml``). The emulated backend (:mod:`beambench.backends.emulated`) builds the same
+:class:`DeviceRig` with its drivers pointed at wire-level peers on this machine.
 """
 
 from __future__ import annotations

@@ -364,6 +364,23 @@ class Lookahead:
         return self.last_snap
 
 
+def computed(look: Lookahead) -> tuple[float, int]:
+    """(seconds of rig time whose rows are computed, over every segment; step commands whose rows up to the next
+    command, or the segment's end, are all computed). A later segment's pre-settle is not counted."""
+    seconds, steps = 0.0, 0
+    calls = look.calls
+    with look._cv:
+        done = [(seg.first, min(seg.done, seg.last)) for seg in look.segments]  # not a checked cut's overlap
+    for (first, upto), seg in zip(done, look.segments):
+        if upto <= first:
+            continue
+        seconds += (calls[upto - 1][1] - calls[first][1]) * 1e-9
+        cmds = [i for i in range(first, seg.last) if calls[i][0] == "cmd"]
+        ends = [*cmds[1:], seg.last]
+        steps += sum(1 for end in ends if end <= upto)
+    return seconds, steps
+
+
 def shifted(tr: Trajectory, offset: dict[str, float], axis: int | None) -> Trajectory:
     """``tr`` with ``offset["x"]`` added to every marker along ``axis`` and ``offset["theta"]`` to the motor angle."""
     if not offset["x"] and not offset["theta"]:

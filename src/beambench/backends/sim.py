@@ -171,6 +171,11 @@ class SimRig:
         if len(look.segments) > 1:
             self._look_info = lookahead.info(look)
 
+    def computed_ahead(self) -> tuple[float, int] | None:
+        """How far the workers have computed the announced run (``ReportsComputedAhead``): every segment's share."""
+        look = self._look
+        return None if look is None else lookahead.computed(look)
+
     def model_warnings(self) -> list[str]:
         """The scene's own (``WarnsOfModel``): e.g. the physical twin's walker on legs that fold."""
         return self.scene.model_warnings() if isinstance(self.scene, WarnsOfModel) else []

@@ -28,7 +28,7 @@ from beambench.analysis.figures.style import (
     session_style,
     step_frequency,
 )
-from beambench.analysis.path_shape import NOISE_SIGMAS
+from beambench.analysis.path_shape import NOISE_SIGMAS, mean_path_noise
 from beambench.analysis.trajectory import mean_path
 
 if TYPE_CHECKING:
@@ -79,6 +79,7 @@ class _Marks:
     arrows: list[tuple[Any, float, float, float, str]] = field(default_factory=list)  # ax, x, y, sign, colour
     plates: list[tuple[Any, float, str]] = field(default_factory=list)  # ax, height, colour
     uncertain: bool = False
+    noise_mm: float = 0.0  # the mocap noise σ per frame the bands are drawn from (0: no bands)
 
     def extend(self, x: float, y: float) -> None:
         self.xh, self.yh = max(self.xh, x), max(self.yh, y)
@@ -197,7 +198,7 @@ def _grid(n: int) -> tuple[Figure, Any, int, int, float]:
     pw = (width - left - right - (ncol - 1) * gapx) / ncol
     ph = pw * BOX
     legend_cols = max(1, int(width // 3.6))
-    bottom = 0.75 + 0.22 * math.ceil(6 / legend_cols)  # x labels, then up to six legend entries
+    bottom = 0.75 + 0.22 * math.ceil(8 / legend_cols)  # x labels, then up to eight legend entries
     height = top + bottom + nrow * ph + (nrow - 1) * gapy
     fig = new_figure((width, height), layout=None)
     axes = fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False)
@@ -265,6 +266,12 @@ def _draw_step(
             marks.extend(max(abs(lo[0]), abs(hi[0])), max(abs(lo[1]), abs(hi[1])))
         else:
             style = session_style(si)
+        if si is None and m == markers[0]:
+            raw, floor = noise_bands(r, m, len(mp))
+            if raw > 0:
+                ax.axhspan(-raw, raw, color=NOISE_BAND, lw=0, zorder=0)
+                ax.axhspan(-floor, floor, color=FLOOR_BAND, lw=0, zorder=0)
+                marks.noise_mm = float(r.row.get("path_noise_mm", 0.0))
         if len(mp) > 3:
             _mean_path(ax, mp - c, str(style["color"]), float(r.row.get(f"{m}_ellipse_r2", np.nan)), style, marks)
     if centre is None:
@@ -292,6 +299,23 @@ def _draw_step(
             color=tag,
             fontweight="bold",
         )
+
+
+NOISE_BAND, FLOOR_BAND = "0.9", "0.75"
+RAW_SIGMAS = 2.0  # the raw traces' band: ±2σ of the per-frame noise holds 95 % of a still marker's frames
+
+
+def noise_bands(r: StepResult, marker: str, mean_points: int) -> tuple[float, float]:
+    """Half-heights (mm) of the two bands drawn about a step's centre: ±2σ of the per-frame mocap noise (steps.csv:
+    ``path_noise_mm``), the spread of a raw trace that did not move; and the mean path's noise floor
+    (``NOISE_SIGMAS`` σ of a mean-path point of ``mean_points`` points), within which a path is 'flat'. (0, 0)
+    where the session's noise is unknown."""
+    noise = float(r.row.get("path_noise_mm", np.nan))
+    xy = r.paths.get(marker)
+    if not (np.isfinite(noise) and noise > 0) or xy is None or mean_points < 2:
+        return 0.0, 0.0
+    n = int(np.sum(np.all(np.isfinite(xy), axis=1)))
+    return RAW_SIGMAS * noise, NOISE_SIGMAS * mean_path_noise(noise, n, mean_points - 1)
 
 
 def _foot_style(k: int, color: str) -> dict[str, Any]:
@@ -370,6 +394,12 @@ def _handles(analyses: list[SessionAnalysis], markers: dict[int, list[str]], mar
             )
         if marks.plates:
             handles.append(Line2D([], [], color=PLATE, lw=2.2, label="plate (foot height at touchdown)"))
+        if marks.noise_mm > 0:
+            from matplotlib.patches import Patch
+
+            sigma = f"σ {marks.noise_mm:.2f} mm"
+            handles.append(Patch(color=NOISE_BAND, label=f"±{RAW_SIGMAS:g}σ mocap noise per frame ({sigma})"))
+            handles.append(Patch(color=FLOOR_BAND, label=f"mean path's noise floor (±{NOISE_SIGMAS:g}σ of its points)"))
     else:
         handles += [
             Line2D(

@@ -100,6 +100,7 @@ class NatNetMocap(StreamDriver):
         self.frame = frame or Frame(up_axis="y")  # Motive's default world frame
         super().__init__(MOCAP, mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ, self.frame), silence_timeout_s)
         self._last_stats = NatNetStats()
+        self._left_unread = 0  # frames still buffered when the client closed (never read: unrecorded)
         self._layouts: dict[tuple[int, nn.Version], nb.FrameLayout] = {}  # by packet length and version
         self._marker_cols, self._body_cols = self._columns_by_source()
 
@@ -134,10 +135,12 @@ class NatNetMocap(StreamDriver):
         if self.client is None:
             self.client = NatNetClient(self.config).connect()
         self.client.raw_frames.clear()
+        self._left_unread = 0
         self.client.keep_raw = True  # decoded many at a time in read(): see natnet.block
 
     def _close(self) -> None:
         if self.client is not None:
+            self._left_unread = len(self.client.raw_frames)
             self._sync_counters()
             self._last_stats = self.client.stats
             self.client.close()
@@ -148,11 +151,25 @@ class NatNetMocap(StreamDriver):
         if c is None:
             return
         st = c.stats
-        self.counters.dropped = st.dropped_frames
+        self.counters.dropped = st.dropped_frames + st.overflowed  # evicted from a full buffer: lost too
         self.counters.garbled = st.parse_errors
         self.counters.forged = st.forged
         if st.last_frame_ns is not None:
             self.last_receive_ns = st.last_frame_ns
+
+    def _unrecorded(self) -> int:
+        c = self.client
+        return len(c.raw_frames) if c is not None else self._left_unread
+
+    def health(self) -> dict[str, Any]:
+        """As every stream's (:meth:`StreamDriver.health`); ``received`` counts frames when :meth:`read` decodes
+        them, so the frames still buffered (``unrecorded``) are added: received = stored + unrecorded. ``ignored``:
+        datagrams that arrived before the server described itself (not decodable then)."""
+        out = super().health()
+        out["received"] += out["unrecorded"]
+        # datagrams that could not be used (frames before the server described itself): arrived, never rows
+        out["ignored"] = self.stats.ignored
+        return out
 
     def echo_sync(self) -> dict[str, Any] | None:
         """The client's ECHO table and the server's clock frequency (``ReportsEchoes``; None while there is no

@@ -30,7 +30,8 @@ from beambench.sim.engine.stepping import Trajectory
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.params import BeamParams, load_params
 from beambench.sim.models.registry import make_beam_model, model_family
-from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
+from beambench.sim.scene_params import RigParams
+from beambench.sim.scenes.contact_rig import build_contact_spec
 from beambench.sim.scenes.contact_sweep import contact_sweep
 from beambench.sim.settings import SimSettings
 

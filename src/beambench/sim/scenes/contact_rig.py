@@ -18,7 +18,7 @@ stage (beam clamp) is at the origin.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import mujoco
@@ -29,70 +29,9 @@ from beambench.acquisition.streams import CONTACT_MARKERS
 from beambench.sim.engine.stepping import INTEGRATORS, Physics, Trajectory
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.models.thermal import CP_TPU, ThermalParams, ThermalState, stage_power, thermal_state
+from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
-
-
-@dataclass(frozen=True)
-class RigParams:
-    """Contact-rig constants (SI). A parameter set may override any of them in its ``rig:`` block."""
-
-    foot_length: float = 0.0665  # m, beam tip to sole bottom
-    # m, h' of the paper: the plate's top below the sole in the beam's UNLOADED (natural, gravity-free) shape;
-    # the sag under gravity is the rig's own business (a sag larger than the gap is a preload)
-    plate_gap: float = 0.0055
-    foot_mass: float = 0.020  # kg, the load on the foot frame (paper: 20 g), at the sole unless mass_dx
-    # m, offset of that mass from the sole along x (stage travel); the paper puts the 20 g "at the lower left
-    # corner of the load frame" without giving the offset — an offset mass twists the tip
-    mass_dx: float = 0.0
-    mass_dy: float = 0.0  # m, the same along y (the beam's axis, away from the stage)
-    # the frame meets the plate at that lower corner (the paper's load frame), not below the tip: the sole sits
-    # with the load, and h' is the corner's clearance in the unloaded shape
-    sole_at_corner: bool = False
-    # kg, the load frame's own mass, spread along the foot (tip to sole); the paper gives only the 20 g load
-    frame_mass: float = 0.0
-    # deg, the beam's section turned about its own axis at the clamp: 0 = as built (width vertical at the
-    # clamp, weak bending along the stage travel, see beambench.sim.models.beam), 90 = flat face horizontal
-    # at the root (research note, issue 11); the foot still hangs plumb below the tip
-    clamp_roll_deg: float = 0.0
-    sole_radius: float = 0.003  # m
-    # N/m and N·s/m, the sole's own compliance along the foot axis (a lossy pad between the load frame and
-    # the plate: TPU sole, frame, load-cell plate mount in series); 0 = a rigid sole on the frame
-    sole_stiffness: float = 0.0
-    sole_damping: float = 0.0
-    sole_mass: float = 0.001  # kg, the part of the sole that moves with the plate (only with sole_stiffness)
-    # m, how far the compliant sole compresses before the frame bottoms out on it (a hard stop, the contact's
-    # solref); 0 = no stop
-    sole_travel: float = 0.0
-    plate_from_stage: float = 0.072  # m, informational: foot_length + the paper's 5.5 mm gap
-    friction: float = 0.5
-    contact_timeconst: float = 0.001  # s (≤ 2 ms needed; MuJoCo's default 20 ms hides the contact effects)
-    contact_dampratio: float = 1.0
-    # the contact's spring–damper discretised so that its poles at the run's timestep are those of the continuous
-    # contact (:func:`matched_solref`): the same physics, its time constant resolved at a larger timestep
-    contact_matched: bool = False
-    stage_armature: float = 1000.0  # kg, makes the stage a near-kinematic drive
-    stage_mass: float = 0.15  # kg, the physical carriage (for the motor current estimate)
-    servo_hz: float = 30.0  # bandwidth of the stage's feedback (feed-forward does the tracking)
-    vel_ramp_rate: float = 50.0  # turn/s², ODrive controller.config.vel_ramp_rate
-    torque_constant: float = 8.27 / 150  # N·m/A (D6374 150 KV)
-    friction_torque: float = 0.02  # N·m, crank + bearings (Coulomb)
-    bus_voltage: float = 24.0  # V
-    preroll_s: float = 0.5  # settle to the static equilibrium before t = 0
-    # s, the largest timestep this twin's answers are converged at (measured with
-    # benchmarks/bench_contact_convergence.py); caps the frequency policy below; 0 = the policy alone
-    max_timestep: float = 0.0
-
-    @classmethod
-    def with_overrides(cls, overrides: dict[str, Any]) -> RigParams:
-        known = {f.name for f in fields(cls)}
-        bad = set(overrides) - known
-        if bad:
-            raise ValueError(f"rig.{sorted(bad)[0]}: unknown rig parameter")
-        flags = {f.name for f in fields(cls) if f.type in (bool, "bool")}
-        values: dict[str, Any] = {k: bool(v) if k in flags else float(v) for k, v in overrides.items()}
-        return cls(**values)
-
 
 SOLIMP_D0, SOLIMP_DMAX = 0.9, 0.95  # MuJoCo's default contact impedance at zero and full penetration (solimp)
 TIMESTEP_POLICY = ((40.0, 2e-4), (80.0, 1e-4), (float("inf"), 5e-5))  # (up to Hz, dt)
