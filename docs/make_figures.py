@@ -3,7 +3,9 @@
 Each picture is made by beambench itself from shipped protocols run as a user would run them (sim backend,
 shipped parameter sets): the contact sweep, the walker sweep and the walker's speed tracking, their reports
 (``beambench analyze``), the real Rerun viewer's own screenshots (``beambench view --screenshot``, headless, needs
-a Vulkan driver) and the README's notebook example. Every PNG carries, in a PNG text chunk, a hash of the shipped
+a Vulkan driver) and the README's notebook example. The contact chart is drawn from the table its benchmark
+writes (``benchmarks/bench_contact_chart.py`` → ``sim_backend/contact_chart.csv``; its physics is not rerun
+here). Every PNG carries, in a PNG text chunk, a hash of the shipped
 files it was made from (the protocols and the parameter sets they name) and of the code that draws it (a report
 figure's module and the ``beambench.analysis`` modules it imports; the notebook example's function);
 ``tests/test_docs_images.py`` recomputes the hashes and fails when a picture was made from other defaults or
@@ -39,6 +41,7 @@ class Picture:
 
     protocols: tuple[str, ...]
     how: str
+    files: tuple[str, ...] = ()  # other shipped files it is drawn from (a benchmark's cached table)
 
 
 PICTURES: dict[str, Picture] = {
@@ -50,6 +53,11 @@ PICTURES: dict[str, Picture] = {
     "live_view_walker.png": Picture(("walker_sweep",), "beambench view --screenshot --at 151.5"),
     "tracking.png": Picture(("walker_track",), "beambench analyze: tracking.png"),
     "notebook_step.png": Picture(("contact_sweep",), "the README's notebook example"),
+    "contact_chart.png": Picture(
+        (),
+        "the contact scene's speed/accuracy chart from benchmarks/bench_contact_chart.py's table",
+        ("sim_backend/contact_chart.csv",),
+    ),
 }
 
 
@@ -131,13 +139,18 @@ def inputs_hash(name: str) -> str:
     """SHA-256 of the shipped files picture ``name`` is made from (their repository paths and bytes) and of the
     code that draws it."""
     digest = hashlib.sha256()
-    files = sorted({f for p in PICTURES[name].protocols for f in shipped_inputs(p)})
+    pic = PICTURES[name]
+    files = sorted({f for p in pic.protocols for f in shipped_inputs(p)} | {ROOT / f for f in pic.files})
     for f in files:
         digest.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
     for f in drawing_code(name):
         digest.update(f"{f.parent.name}/{f.name}".encode() + b"\0" + f.read_bytes() + b"\0")  # installed anywhere
     if PICTURES[name].how == "the README's notebook example":
         digest.update(inspect.getsource(notebook_picture).encode())
+    if not pic.protocols:  # drawn from a cached table: the function that draws it
+        from beambench.studies.contact_chart import chart_figure
+
+        digest.update(inspect.getsource(chart_figure).encode())
     return digest.hexdigest()
 
 
@@ -194,6 +207,15 @@ def notebook_picture(session: Path, out: Path) -> None:
     plt.close(fig)
 
 
+def chart_picture(name: str, out: Path) -> None:
+    """A picture drawn from a benchmark's cached table (no physics here)."""
+    import pandas as pd
+
+    from beambench.studies.contact_chart import chart_figure
+
+    chart_figure(pd.read_csv(ROOT / PICTURES[name].files[0]), out)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", default="", help="comma-separated picture names (default: all)")
@@ -227,6 +249,10 @@ def main(argv: list[str] | None = None) -> None:
                 else:
                     notebook_picture(session, out / name)
                     stamp(out / name, name)
+        for name in sorted(only):
+            if not PICTURES[name].protocols:  # drawn from a cached table (its benchmark regenerates it)
+                chart_picture(name, out / name)
+                stamp(out / name, name)
     print(f"wrote {IMG}")
 
 

@@ -43,6 +43,10 @@ class RigParams:
     friction: float = 0.5
     contact_timeconst: float = 0.001  # s (≤ 2 ms needed; MuJoCo's default 20 ms hides the contact effects)
     contact_dampratio: float = 1.0
+    # the contact's spring–damper discretised so that its poles at the run's timestep are those of the continuous
+    # contact (beambench.sim.scenes.contact_rig.matched_solref): the same physics, its time constant resolved at a
+    # larger timestep
+    contact_matched: bool = False
     stage_armature: float = 1000.0  # kg, makes the stage a near-kinematic drive
     stage_mass: float = 0.15  # kg, the physical carriage (for the motor current estimate)
     servo_hz: float = 30.0  # bandwidth of the stage's feedback (feed-forward does the tracking)

@@ -175,8 +175,9 @@ class SimOptions(_Model):
     twist_deg: float = Field(90.0, ge=-360, le=360)
     noise: bool = True
     seed: int = Field(0, ge=0, le=2**32 - 1)
-    # the walker's sweep computed as this many consecutive parts in parallel (one core each), each part after the
-    # first pre-settled at its first frequency: the state is not carried across the cuts (beambench.backends.lookahead)
+    # the sweep (walker, contact rig) computed as this many consecutive parts in parallel (one core each), each part
+    # after the first pre-settled at its first frequency: the state is not carried across the cuts; the contact rig
+    # checks each cut and moves it where the regimes differ (beambench.backends.lookahead)
     segments: int = Field(1, ge=1, le=8)
     mocap_clock: ClockModel = ClockModel()
     loadcell_clock: ClockModel = ClockModel()

@@ -33,6 +33,7 @@ from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
 
+SOLIMP_D0, SOLIMP_DMAX = 0.9, 0.95  # MuJoCo's default contact impedance at zero and full penetration (solimp)
 TIMESTEP_POLICY = ((40.0, 2e-4), (80.0, 1e-4), (float("inf"), 5e-5))  # (up to Hz, dt)
 
 
@@ -72,17 +73,16 @@ def build_contact_spec(
     spec.option.timestep = timestep
     spec.option.integrator = INTEGRATORS[integrator]
     spec.option.gravity = [0, 0, -9.81]
-    solref = [rig.contact_timeconst, rig.contact_dampratio]
     _add_plate(spec, names, -(rig.foot_length + gap_m))
     clamp = _add_stage(spec, names, rig)
     sites = add_beam(clamp, beam, twist_deg)
-    _add_foot(spec, names, spec.body(sites.tip_body), rig, solref)
+    _add_foot(spec, names, spec.body(sites.tip_body), rig, [rig.contact_timeconst, rig.contact_dampratio])
     spec.add_pair(
         name="sole_plate",
         geomname1=names.sole,
         geomname2=names.plate,
         condim=3,
-        solref=solref,
+        solref=contact_solref(rig, timestep),
         friction=[rig.friction, rig.friction, 0.005, 0.0001, 0.0001],
     )
     spec.add_actuator(
@@ -94,6 +94,38 @@ def build_contact_spec(
     )
     _add_sensors(spec, names, sites.tip_site)
     return spec
+
+
+def contact_solref(rig: RigParams, timestep: float) -> list[float]:
+    """The sole–plate pair's ``solref`` at ``timestep``: MuJoCo's (time constant, damping ratio), or with
+    :attr:`RigParams.contact_matched` the matched direct (−stiffness, −damping) of :func:`matched_solref`."""
+    if rig.contact_matched:
+        return matched_solref(rig.contact_timeconst, rig.contact_dampratio, timestep)
+    return [rig.contact_timeconst, rig.contact_dampratio]
+
+
+def matched_solref(timeconst: float, dampratio: float, h: float) -> list[float]:
+    """A direct ``solref`` (−k, −b) whose discrete contact has the poles of the continuous one at timestep ``h``.
+
+    MuJoCo's soft contact drives the penetration r as r″ = −b·r′ − k·r (at full impedance) with b = 2/tc and
+    k = 1/(tc·ζ)², a damped oscillator of ω = 1/(tc·ζ). The step evaluates that reference at the start of the step
+    and integrates semi-implicitly (v⁺ = v + h·a, r⁺ = r + h·v⁺): its map has determinant 1 − h·b and trace
+    2 − h·b − h²·k, so at h·ω ≈ 0.2 the contact rings slower and loses less per step than the continuous one (the
+    first-order timestep error of the contact fraction). Choosing b and k so that determinant and trace equal
+    those of the exact map (eigenvalues exp(λ·h)) gives the continuous oscillator's response at every step,
+    whatever ``h``; as h → 0 they tend to the plain (2/tc, 1/(tc·ζ)²). At partial impedance d < d_max MuJoCo
+    scales b by d/d_max and k by (d/d_max)² in either form, so the match holds at full impedance (d 0.95)."""
+    w = SOLIMP_D0 / SOLIMP_DMAX / (timeconst * dampratio)  # the continuous contact's ω at impedance d0
+    x = dampratio * w * h
+    det = np.exp(-2.0 * x)
+    if dampratio < 1.0:
+        trace = 2.0 * np.exp(-x) * np.cos(w * h * np.sqrt(1.0 - dampratio**2))
+    else:
+        trace = 2.0 * np.exp(-x) * np.cosh(w * h * np.sqrt(dampratio**2 - 1.0))
+    b = (1.0 - det) / h
+    k = (1.0 + det - trace) / h**2
+    scale = SOLIMP_DMAX / SOLIMP_D0  # at the shallow penetrations of this contact MuJoCo applies d0/d_max of each
+    return [-float(k * scale**2), -float(b * scale)]
 
 
 def _add_plate(spec: mujoco.MjSpec, names: SceneNames, plate_top: float) -> None:
@@ -259,6 +291,9 @@ class ContactRigSim(DrivenScene):
         self.spec = build_contact_spec(beam, twist_deg, gap, self.rig, integrator, h0)
         model = self.spec.compile()
         super().__init__(Physics(model))
+        if self.rig.contact_matched:  # the pair's solref follows the timestep
+            pair = model.pair("sole_plate").id
+            self.physics.on_timestep = lambda h: model.pair_solref.__setitem__(pair, contact_solref(self.rig, h))
         self.ramp = VelocityRamp(self.rig.vel_ramp_rate)
         stage_dof = self._stage_dof = int(model.jnt_dofadr[model.joint("stage").id])
         # the slider's own inertia: armature + the stage body (the beam acts on it as an external load)
@@ -291,6 +326,18 @@ class ContactRigSim(DrivenScene):
             power = stage_power(traj.t, ch["markers"][:, 0, 0], ch["pull_x"])
             th.heat(power, len(traj) * self.physics.timestep)
         return traj
+
+    def step_cost(self, hz: float) -> float:
+        """The physics' relative cost per simulated second at ``hz``: steps per second at the timestep it runs
+        (``CostsByFrequency``: the sim rig balances its segments with it)."""
+        h = self.fixed_timestep or self.timestep_for(abs(hz))
+        return 1e-4 / h
+
+    def same_regime(self, a: Trajectory, b: Trajectory, hz: float) -> bool:
+        """Two runs of one step in the same regime (``ChecksCuts``: the sim rig checks each segment cut with it)."""
+        from beambench.sim.scenes.contact_regimes import steps_agree  # that module builds on this one
+
+        return steps_agree(a, b, hz)
 
     def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         omega, theta = self.ramp.plan(n, h)
