@@ -28,6 +28,7 @@ from beambench.acquisition.protocol.scenes import CONTACT
 from beambench.acquisition.streams import CONTACT_MARKERS
 from beambench.sim.engine.stepping import INTEGRATORS, Physics, Trajectory
 from beambench.sim.models.beam import BeamModel, add_beam
+from beambench.sim.models.hysteretic import HystereticDamping
 from beambench.sim.models.thermal import CP_TPU, ThermalParams, ThermalState, stage_power, thermal_state
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
@@ -51,6 +52,10 @@ class RigParams:
     sole_at_corner: bool = False
     # kg, the load frame's own mass, spread along the foot (tip to sole); the paper gives only the 20 g load
     frame_mass: float = 0.0
+    # m, the load frame as one rigid body: its own mass at the frame's centroid (halfway down the bar, halfway to
+    # the corner) with an isotropic inertia frame_mass * frame_gyration**2 about it; 0 = the mass spread along the
+    # bar (a thin rod: gyration foot_length/sqrt(12) about the horizontal axes, none about the bar)
+    frame_gyration: float = 0.0
     # deg, the beam's section turned about its own axis at the clamp: 0 = as built (width vertical at the
     # clamp, weak bending along the stage travel, see beambench.sim.models.beam), 90 = flat face horizontal
     # at the root (research note, issue 11); the foot still hangs plumb below the tip
@@ -206,14 +211,21 @@ def _add_foot(spec: mujoco.MjSpec, names: SceneNames, tip: mujoco.MjsBody, rig: 
     corner = rig.sole_at_corner
     offset = (abs(rig.mass_dx) > 0 or abs(rig.mass_dy) > 0) and not corner
     invisible = dict(contype=0, conaffinity=0)
+    rigid_frame = rig.frame_gyration > 0 and rig.frame_mass > 0
     tip.add_geom(
         type=mujoco.mjtGeom.mjGEOM_CAPSULE,
         fromto=at(0, 0, 0) + at(0, 0, -(rig.foot_length - 2 * r)),
         size=[0.002, 0, 0],
-        mass=rig.frame_mass,
+        mass=0.0 if rigid_frame else rig.frame_mass,
         rgba=[0.9, 0.5, 0.1, 1],
         **invisible,
     )
+    if rigid_frame:  # welded to the tip (no joint): the frame's mass and inertia, given rather than from a shape
+        dx, dy = (rig.mass_dx, rig.mass_dy) if corner else (0.0, 0.0)
+        frame = tip.add_body(name="load_frame", pos=at(dx / 2, dy / 2, -rig.foot_length / 2))
+        frame.explicitinertial = True
+        frame.mass = rig.frame_mass
+        frame.inertia = [rig.frame_mass * rig.frame_gyration**2] * 3
     sole_at = at(rig.mass_dx if corner else 0, rig.mass_dy if corner else 0, -(rig.foot_length - r))
     if corner:  # the frame's lower cross bar, from below the tip to the corner (visual)
         tip.add_geom(
@@ -322,12 +334,19 @@ class ContactRigSim(DrivenScene):
         # the slider's own inertia: armature + the stage body (the beam acts on it as an external load)
         self._m_stage = float(model.dof_armature[stage_dof] + model.body("stage").mass[0])
         self.servo = KinematicServo(model, "stage_servo", self._m_stage, self.rig.servo_hz, integrator, h0)
+        # beam.loss_factor > 0: the beam's dampers follow the drive frequency (sim.models.hysteretic), not beta
+        loss = float(getattr(beam.params, "loss_factor", 0.0))
+        self.damping = HystereticDamping.of(model, loss) if loss > 0 else None
+        if self.damping is not None:
+            self.damping.at(model, 0.0)
         self.physics.reset_to_equilibrium(self.rig.preroll_s, np.zeros(1))
 
     # --- commands -------------------------------------------------------------------------------------
     def set_frequency(self, hz: float) -> None:
         """New crank-speed setpoint (turn/s = Hz); also picks the timestep the frequency needs."""
         self.ramp.setpoint = float(hz)
+        if self.damping is not None:
+            self.damping.at(self.physics.model, hz)
         if self.fixed_timestep is None:
             self.physics.set_timestep(self.timestep_for(max(abs(hz), abs(self.ramp.omega))))
 
@@ -393,6 +412,7 @@ class ContactRigSim(DrivenScene):
             "amplitude_m": self.amplitude,
             "rig_params": asdict(self.rig),
             "integrator": self.integrator,
+            **({"loss_factor": self.damping.loss_factor} if self.damping is not None else {}),
             "timestep": self.fixed_timestep if self.fixed_timestep else "auto",
             "timestep_policy": "fixed"
             if self.fixed_timestep
