@@ -188,6 +188,7 @@ def search(n: int, csv_path: Path, jobs: int, scheduler: str | None, per_task: i
     """Screen Sobol indices 0…n−1 not yet in ``csv_path``, appending each finished point's row."""
     from beambench.studies.executor import chunks, make_executor, run_tasks
 
+    write_shipped(csv_path)
     done = {int(r["index"]) for r in read_rows(csv_path)}
     todo = [i for i in range(n) if i not in done]
     print(f"{len(done)} points in {csv_path}; {len(todo)} to screen", flush=True)
@@ -218,6 +219,14 @@ def search(n: int, csv_path: Path, jobs: int, scheduler: str | None, per_task: i
 
         with make_executor(jobs, scheduler) as pool:
             run_tasks(pool.executor, screen_task, chunks(todo, per_task), on_done)
+
+
+def write_shipped(csv_path: Path) -> None:
+    """The shipped point's screen map (the figure's first row), beside the CSV, unless it is there."""
+    dest = csv_path.with_name(csv_path.stem + "_shipped.txt")
+    if not dest.exists():
+        csv_path.parent.mkdir(parents=True, exist_ok=True)
+        dest.write_text(screen_point_values({})["map"] + "\n")
 
 
 def _fmt(v) -> str:

@@ -34,6 +34,7 @@ class Picture:
 
     protocols: tuple[str, ...]
     how: str
+    data: tuple[str, ...] = ()  # results a benchmark wrote (repository paths): the picture is drawn from them
 
 
 PICTURES: dict[str, Picture] = {
@@ -45,6 +46,11 @@ PICTURES: dict[str, Picture] = {
     "live_view_walker.png": Picture(("walker_sweep",), "beambench view --screenshot --at 150"),
     "tracking.png": Picture(("walker_track",), "beambench analyze: tracking.png"),
     "notebook_step.png": Picture(("contact_sweep",), "the README's notebook example"),
+    "contact_search.png": Picture(
+        (),
+        "the box search's CSV (benchmarks/bench_contact_search.py)",
+        ("docs/data/contact_search.csv", "docs/data/contact_search_shipped.txt"),
+    ),
 }
 
 
@@ -71,10 +77,25 @@ def shipped_inputs(protocol: str) -> list[Path]:
 def inputs_hash(name: str) -> str:
     """SHA-256 of the shipped files picture ``name`` is made from (their repository paths and bytes)."""
     digest = hashlib.sha256()
-    files = sorted({f for p in PICTURES[name].protocols for f in shipped_inputs(p)})
+    files = sorted({f for p in PICTURES[name].protocols for f in shipped_inputs(p)} | data_files(name))
     for f in files:
         digest.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
     return digest.hexdigest()
+
+
+def data_files(name: str) -> set[Path]:
+    """The benchmark results picture ``name`` is drawn from."""
+    return {ROOT / d for d in PICTURES[name].data}
+
+
+def contact_search_picture(out: Path) -> None:
+    """The box search's coverage and best points, from its CSV (the search is not re-run here)."""
+    from beambench.sim.scenes.contact_screen import SCREEN_FREQUENCIES
+    from beambench.studies.contact_search_figure import plot_contact_search
+
+    csv, shipped_txt = (ROOT / d for d in PICTURES["contact_search.png"].data)
+    shipped = shipped_txt.read_text().strip()
+    plot_contact_search(csv, out, SCREEN_FREQUENCIES, shipped_map=shipped)
 
 
 def read_stamp(png: Path) -> str | None:
@@ -141,6 +162,9 @@ def main(argv: list[str] | None = None) -> None:
     IMG.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="beambench-docs-") as tmp:
         out = Path(tmp)
+        for name in sorted(n for n in only if PICTURES[n].data):  # drawn from a benchmark's results, no run
+            contact_search_picture(out / name)
+            stamp(out / name, name)
         os.environ["BEAMBENCH_USER_DIR"] = str(out / "user")
         wanted = {p for n in only for p in PICTURES[n].protocols}
         for protocol in ("contact_sweep", "walker_sweep", "walker_track"):

@@ -111,7 +111,7 @@ class BeamParams:
         bad = []
         for key, b in self.bounds.items():
             v = self.value(key)
-            if key in MODEL_OPTIONS and v == 0:  # an option that is off: its range applies when it is on
+            if key in MODEL_OPTIONS and not v:  # an option that is off (0 or not given): its range applies when on
                 continue
             if v is None:
                 bad.append(f"{key}: bounded but not given")

@@ -294,9 +294,13 @@ def write_contact_protocol(
 # (one round on two workers, ~50 s for the shipped 280 s sweep at 5e-5 s) reserved first; the coarse stage gets
 # the rest (its lines and landmark steps all of it) less the fine maps of the best two points, which (and the
 # preload's bracket) run only if they fit before the verify's reserve; the verdict's seed spread is the verify's
-# two seeds
+# two seeds. The coarse maps are the box search's cheap screen (beambench.sim.scenes.contact_screen): 2 Hz steps,
+# 0.4 + 0.6 s windows, about a quarter of a 1 Hz, 0.8 + 1.2 s map's cost, so the coarse stage affords ~5x the maps
 CONTACT_QUICK: tuple[tuple[str, Any], ...] = (
-    ("budget_s", 105.0),
+    ("budget_s", 110.0),
+    ("coarse_step_hz", 2.0),
+    ("coarse_settle_s", 0.4),
+    ("coarse_record_s", 0.6),
     ("plan_finish", True),
     ("spread_seeds", 2),
     ("line_share", 0.55),
