@@ -94,8 +94,8 @@ def contact_search_picture(out: Path) -> None:
     from beambench.studies.contact_search_figure import plot_contact_search
 
     csv, shipped_txt = (ROOT / d for d in PICTURES["contact_search.png"].data)
-    shipped = shipped_txt.read_text().strip()
-    plot_contact_search(csv, out, SCREEN_FREQUENCIES, shipped_map=shipped)
+    code, met = shipped_txt.read_text().split()
+    plot_contact_search(csv, out, SCREEN_FREQUENCIES, shipped=(code, int(met)))
 
 
 def read_stamp(png: Path) -> str | None:

@@ -18,18 +18,38 @@ LANDMARK_LABELS = {
     "sign_26": "tangential −\nat 26 Hz",
     "sign_40": "tangential +\nat 40 Hz",
 }
-REGIME_COLOURS = {"C": "#1b7837", "1": "#a6dba0", "h": "#2166ac", "t": "#b2182b", "q": "#f4a582", ".": "#bababa"}
-REGIME_NAMES = {"C": "continuous", "1": "1 per cycle", "h": "½", "t": "⅓", "q": "¼", ".": "irregular / other"}
+REGIME_COLOURS = {
+    "C": "#1b7837",
+    "1": "#a6dba0",
+    "2": "#fdb863",
+    "h": "#2166ac",
+    "t": "#b2182b",
+    "q": "#f4a582",
+    ".": "#bababa",
+}
+REGIME_NAMES = {
+    "C": "continuous",
+    "1": "1 per cycle",
+    "2": "2 per cycle",
+    "h": "½",
+    "t": "⅓",
+    "q": "¼",
+    ".": "irregular / other",
+}
 NO_CONTACT = "#ffffff"
 
 
 def plot_contact_search(
-    csv_path: str | Path, out: str | Path, frequencies: tuple[float, ...], shipped_map: str | None = None, top: int = 12
+    csv_path: str | Path,
+    out: str | Path,
+    frequencies: tuple[float, ...],
+    shipped: tuple[str, int] | None = None,
+    top: int = 12,
 ) -> Path:
     """Left: the fraction of the points meeting each landmark (all points; β against the loss factor; the frame's
-    mass spread against a rigid frame). Right: the maps of the ``top`` points by landmarks met (``shipped_map``,
-    the shipped point's screen, first), one row each, coloured by regime at the screen's ``frequencies``."""
-    df = pd.read_csv(csv_path, dtype={"map": str})
+    mass spread against a rigid frame). Right: the maps of the ``top`` points by landmarks met (``shipped``: the
+    shipped point's screen map and landmarks met, first), one row each, coloured by regime at the screen's ``frequencies``."""
+    df = pd.read_csv(csv_path, dtype={"map": str}).fillna({"map": ""})
     n = len(df)
     fig = new_figure(figsize=(13, 5.6))
     left, right = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
@@ -52,17 +72,21 @@ def plot_contact_search(
     left.set_ylim(0, 1)
     left.legend(fontsize=8, loc="upper right")
     resting = float((df["preload_mm"] > 0).mean()) if n else 0.0
-    left.set_title(f"the physical box, {n} Sobol points (foot resting on the plate at rest: {resting:.0%})", fontsize=10)
+    screened = int(df["screened"].sum())
+    left.set_title(
+        f"the physical box: {n} Sobol points, the foot resting on the plate at rest in {resting:.0%};\n"
+        f"{screened} screened, {n - screened} hanging > 1.5 mm clear (meet none)",
+        fontsize=10,
+    )
 
     best = df.sort_values(["met", "index"], ascending=[False, True]).head(top)
-    rows = ([("shipped", shipped_map, None)] if shipped_map else []) + [
+    rows = ([("shipped", *shipped)] if shipped else []) + [
         (f"#{int(r['index'])}", str(r["map"]), int(r["met"])) for _, r in best.iterrows()
     ]
     for j, (label, code, count) in enumerate(rows):
         for k, c in enumerate(code[: len(frequencies)]):
-            right.add_patch(_cell(k, j, REGIME_COLOURS.get(c, NO_CONTACT if c == "-" else "#e08214")))
-        tag = f"{label}  {count}/5" if count is not None else label
-        right.text(-0.3, j + 0.5, tag, ha="right", va="center", fontsize=8)
+            right.add_patch(_cell(k, j, REGIME_COLOURS.get(c, NO_CONTACT if c == "-" else REGIME_COLOURS["."])))
+        right.text(-0.3, j + 0.5, f"{label}  {count}/5", ha="right", va="center", fontsize=8)
     right.set_xlim(0, len(frequencies))
     right.set_ylim(len(rows), 0)
     right.set_xticks(np.arange(len(frequencies)) + 0.5, [f"{f:g}" for f in frequencies], fontsize=7)
