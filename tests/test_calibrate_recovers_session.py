@@ -60,7 +60,7 @@ def test_a_quick_calibration_recovers_a_hidden_twins_regime_map(tmp_path: Path) 
     )
     assert res.returncode in (0, 3), res.stderr
     report = json.loads(next(out.glob("*_report.json")).read_text())
-    assert report["evaluations"] >= 5, report["evaluations"]
+    assert report["evaluations"]["new"] >= 5, report["evaluations"]
     assert report["history"][-1]["stage"] == "verify"  # the map below is the written protocol's own run
     marks = [v for v in report["verdict"]["targets"] if v["unit"] == "Hz"]
     assert marks, report["verdict"]  # the session has landmarks (its lowest 1/2 at 18 Hz: measured)
