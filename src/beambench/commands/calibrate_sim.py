@@ -100,7 +100,12 @@ def sim(
         str | None, typer.Option("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")
     ] = None,
     budget_s: Annotated[float, typer.Option("--budget-s", help="Wall-time budget of the search (s).")] = 540.0,
-    quick: Annotated[bool, typer.Option("--quick", help="A smaller, faster search (contact rig: ~2 min).")] = False,
+    quick: Annotated[
+        bool,
+        typer.Option(
+            "--quick", help="A smaller, faster search: about 2 min on two free cores (contact rig and walker)."
+        ),
+    ] = False,
     name: Annotated[
         str | None, typer.Option("--name", help="Output name (default: <session or targets>_calibrated).")
     ] = None,
