@@ -96,3 +96,17 @@ def test_the_rigid_frame_keeps_the_mass_and_adds_inertia_that_lowers_every_natur
     for lo, hi in zip(freqs[1:], freqs[:-1]):
         assert np.all(lo <= hi * (1 + 1e-6)), (lo, hi)
     assert freqs[-1][0] < freqs[0][0] * 0.995  # and the frame's inertia shows in the lowest beam mode
+
+
+def test_the_walkers_legs_take_the_same_loss_factor_at_its_drive_frequency():
+    """The same beam on the walker: its two legs' hinges (and nothing else) damped at the rotor's frequency."""
+    from beambench.sim.scenes.walker import WalkerSim
+
+    sim = WalkerSim(make_beam_model("rod5g", replace(PHYSICAL, loss_factor=0.08)))
+    m = sim.physics.model
+    assert sim.damping is not None and len(sim.damping.dofs) == 30  # 2 legs x 5 joints x 3 hinges
+    assert all(m.joint(j).name.startswith(("left_", "right_")) for j in range(m.njnt) if m.jnt_stiffness[j] > 0)
+    for hz in (23.0, 65.0):
+        sim.set_frequency(hz)
+        np.testing.assert_allclose(m.dof_damping[sim.damping.dofs] * 2 * np.pi * hz / sim.damping.stiffness, 0.08)
+    sim.physics.close()
