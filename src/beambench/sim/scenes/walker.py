@@ -37,8 +37,8 @@ from beambench.acquisition.protocol.schema import ConfigError
 from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.common.errors import BeambenchError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
-from beambench.sim.models.hysteretic import HystereticDamping
 from beambench.sim.models.beam import BeamModel, add_beam, qinv, qmul, quat_x, quat_y
+from beambench.sim.models.hysteretic import HystereticDamping
 from beambench.sim.models.registry import UnknownModelError, model_family
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
