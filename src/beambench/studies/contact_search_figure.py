@@ -63,14 +63,20 @@ def plot_contact_search(
     keys = list(LANDMARK_LABELS)
     width = 0.8 / len(groups)
     x = np.arange(len(keys) + 1)
+    top_frac = 0.0
     for i, (name, g) in enumerate(groups.items()):
-        frac = [g[f"met_{k}"].mean() if len(g) else 0.0 for k in keys]
-        frac.append(float((g["met"] >= 3).mean()) if len(g) else 0.0)
-        left.bar(x + (i - len(groups) / 2 + 0.5) * width, frac, width, label=f"{name} ({len(g)})")
+        counts = [int(g[f"met_{k}"].sum()) for k in keys] + [int((g["met"] >= 3).sum())]
+        frac = [c / len(g) if len(g) else 0.0 for c in counts]
+        top_frac = max(top_frac, *frac)
+        xs = x + (i - len(groups) / 2 + 0.5) * width
+        left.bar(xs, frac, width, label=f"{name} ({len(g)})")
+        if i == 0:  # the whole sample's counts over its bars
+            for xi, fi, c in zip(xs, frac, counts):
+                left.text(xi, fi, str(c), ha="center", va="bottom", fontsize=7)
     left.set_xticks(x, [*LANDMARK_LABELS.values(), "3 or more\nof the 5"], fontsize=8)
-    left.set_ylabel("fraction of points meeting it")
-    left.set_ylim(0, 1)
-    left.legend(fontsize=8, loc="upper right")
+    left.set_ylabel("fraction of points meeting it (count over the first bar)")
+    left.set_ylim(0, max(0.05, 1.3 * top_frac))
+    left.legend(fontsize=8, loc="upper left")
     resting = float((df["preload_mm"] > 0).mean()) if n else 0.0
     screened = int(df["screened"].sum())
     left.set_title(
