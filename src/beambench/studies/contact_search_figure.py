@@ -71,8 +71,8 @@ def plot_contact_search(
         xs = x + (i - len(groups) / 2 + 0.5) * width
         left.bar(xs, frac, width, label=f"{name} ({len(g)})")
         if i == 0:  # the whole sample's counts over its bars
-            for xi, fi, c in zip(xs, frac, counts):
-                left.text(xi, fi, str(c), ha="center", va="bottom", fontsize=7)
+            for xi, fi, count in zip(xs, frac, counts):
+                left.text(xi, fi, str(count), ha="center", va="bottom", fontsize=7)
     left.set_xticks(x, [*LANDMARK_LABELS.values(), "3 or more\nof the 5"], fontsize=8)
     left.set_ylabel("fraction of points meeting it (count over the first bar)")
     left.set_ylim(0, max(0.05, 1.3 * top_frac))
@@ -86,12 +86,12 @@ def plot_contact_search(
     )
 
     best = df.sort_values(["met", "index"], ascending=[False, True]).head(top)
-    rows = ([("shipped", *shipped)] if shipped else []) + [
-        (f"#{int(r['index'])}", str(r["map"]), int(r["met"])) for _, r in best.iterrows()
-    ]
+    rows: list[tuple[str, str, int]] = [("shipped", shipped[0], shipped[1])] if shipped else []
+    rows += [(f"#{int(r['index'])}", str(r["map"]), int(r["met"])) for _, r in best.iterrows()]
     for j, (label, code, count) in enumerate(rows):
-        for k, c in enumerate(code[: len(frequencies)]):
-            right.add_patch(_cell(k, j, REGIME_COLOURS.get(c, NO_CONTACT if c == "-" else REGIME_COLOURS["."])))
+        for k, step in enumerate(code[: len(frequencies)]):
+            colour = REGIME_COLOURS.get(step, NO_CONTACT if step == "-" else REGIME_COLOURS["."])
+            right.add_patch(_cell(k, j, colour))
         right.text(-0.3, j + 0.5, f"{label}  {count}/5", ha="right", va="center", fontsize=8)
     right.set_xlim(0, len(frequencies))
     right.set_ylim(len(rows), 0)
@@ -99,8 +99,8 @@ def plot_contact_search(
     right.set_yticks([])
     right.set_xlabel("drive frequency (Hz), the screen's stepped sweep")
     right.set_title("the points meeting the most landmarks (met of 5): regime per step", fontsize=10)
-    for c, name in REGIME_NAMES.items():
-        right.bar(0, 0, color=REGIME_COLOURS[c], label=name)
+    for regime, name in REGIME_NAMES.items():
+        right.bar(0, 0, color=REGIME_COLOURS[regime], label=name)
     right.bar(0, 0, color=NO_CONTACT, edgecolor="#999999", label="no contact")
     right.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.12))
     fig.tight_layout()
