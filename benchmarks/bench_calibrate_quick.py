@@ -7,10 +7,9 @@
    file is replaced by the shipped ``physical`` set, so the calibration's prior is the shipped twin, not the
    hidden one (the truth is kept beside it as ``hidden_truth.yaml``).
 
-Per case: the command's wall time, its CPU seconds (user + sys of it and its workers: on 2 idle cores its wall time is
-about half of that) and the load average before and after (``os.getloadavg``), its evaluations, the fitted values,
-the verdict, whether each landmark of the targets is within 2 Hz on the winner's map, and for the session the hidden
-values against the reported intervals.
+Per case: the command's wall time and the load average before and after (``os.getloadavg``), its evaluations, the
+fitted values, the verdict, whether each landmark of the targets is within 2 Hz on the winner's map, and for the
+session the hidden values against the reported intervals.
 
     python benchmarks/bench_calibrate_quick.py --out /tmp/bench_calibrate_quick [--cases paper,session]
 
@@ -22,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 from pathlib import Path
 
 import yaml
@@ -77,24 +75,15 @@ def hidden_session(out: Path) -> tuple[Path, dict[str, float]]:
     }
 
 
-def _children_cpu() -> float:
-    """CPU seconds (user + sys) of the finished child processes (the command and its worker pool)."""
-    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return ru.ru_utime + ru.ru_stime
-
-
 def calibrate(label: str, args: list[str], out: Path, truth: dict[str, float] | None) -> dict:
     load0 = os.getloadavg()[0]
-    cpu0 = _children_cpu()
     res, wall = beambench("calibrate", "sim", *args, "--quick", "--workers", "2", "--out", str(out / label))
-    cpu = _children_cpu() - cpu0
     load1 = os.getloadavg()[0]
     report = json.loads(next((out / label).glob("*_report.json")).read_text())
     ivals = (report["identifiability"].get("intervals") or {}).get("unknowns", {})
     row = {
         "case": label,
         "wall_s": round(wall, 1),
-        "cpu_s": round(cpu, 1),  # user + sys of the command and its workers: / 2 is its wall time on 2 idle cores
         "load_average": [round(load0, 2), round(load1, 2)],
         "evaluations": report["evaluations"],
         "parameters": report["parameters"],
