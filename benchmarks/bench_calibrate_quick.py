@@ -8,7 +8,8 @@
    hidden one (the truth is kept beside it as ``hidden_truth.yaml``).
 
 Per case: the command's wall time and the load average before and after (``os.getloadavg``), its evaluations, the
-fitted values, the verdict, and for the session the hidden values against the reported intervals.
+fitted values, the verdict, whether each landmark of the targets is within 2 Hz on the winner's map, and for the
+session the hidden values against the reported intervals.
 
     python benchmarks/bench_calibrate_quick.py --out /tmp/bench_calibrate_quick [--cases paper,session]
 
@@ -91,6 +92,12 @@ def calibrate(label: str, args: list[str], out: Path, truth: dict[str, float] | 
             f"{v['target']}: twin {v['twin']} {'met' if v['met'] else 'missed'}" for v in report["verdict"]["targets"]
         ],
         "intervals": ivals,
+        # the session's (or the paper's) landmarks against the winner's map: the regime map recovered within 2 Hz?
+        "landmarks_within_2_hz": {
+            v["target"]: v["twin"] is not None and abs(v["twin"] - v["wanted"]) <= 2.0
+            for v in report["verdict"]["targets"]
+            if v["unit"] == "Hz"
+        },
         "last_line": res.stderr.strip().splitlines()[-1],
     }
     if truth is not None:

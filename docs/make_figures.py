@@ -25,6 +25,7 @@ import os
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,7 +42,7 @@ class Picture:
 
     protocols: tuple[str, ...]
     how: str
-    files: tuple[str, ...] = ()  # other shipped files it is drawn from (a benchmark's cached table)
+    data: tuple[str, ...] = ()  # results a benchmark wrote (repository paths): the picture is drawn from them
 
 
 PICTURES: dict[str, Picture] = {
@@ -57,6 +58,11 @@ PICTURES: dict[str, Picture] = {
         (),
         "the contact scene's speed/accuracy chart from benchmarks/bench_contact_chart.py's table",
         ("sim_backend/contact_chart.csv",),
+    ),
+    "contact_search.png": Picture(
+        (),
+        "the box search's CSV (benchmarks/bench_contact_search.py)",
+        ("docs/data/contact_search.csv", "docs/data/contact_search_shipped.txt"),
     ),
 }
 
@@ -139,19 +145,32 @@ def inputs_hash(name: str) -> str:
     """SHA-256 of the shipped files picture ``name`` is made from (their repository paths and bytes) and of the
     code that draws it."""
     digest = hashlib.sha256()
-    pic = PICTURES[name]
-    files = sorted({f for p in pic.protocols for f in shipped_inputs(p)} | {ROOT / f for f in pic.files})
+    files = sorted({f for p in PICTURES[name].protocols for f in shipped_inputs(p)} | data_files(name))
     for f in files:
         digest.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
     for f in drawing_code(name):
         digest.update(f"{f.parent.name}/{f.name}".encode() + b"\0" + f.read_bytes() + b"\0")  # installed anywhere
     if PICTURES[name].how == "the README's notebook example":
         digest.update(inspect.getsource(notebook_picture).encode())
-    if not pic.protocols:  # drawn from a cached table: the function that draws it
-        from beambench.studies.contact_chart import chart_figure
-
-        digest.update(inspect.getsource(chart_figure).encode())
+    if name in DRAWN_FROM_DATA:  # drawn from a benchmark's table: the functions that draw it
+        for fn in DRAWN_FROM_DATA[name]():
+            digest.update(inspect.getsource(fn).encode())
     return digest.hexdigest()
+
+
+def data_files(name: str) -> set[Path]:
+    """The benchmark results picture ``name`` is drawn from."""
+    return {ROOT / d for d in PICTURES[name].data}
+
+
+def contact_search_picture(out: Path) -> None:
+    """The box search's coverage and best points, from its CSV (the search is not re-run here)."""
+    from beambench.sim.scenes.contact_screen import SCREEN_FREQUENCIES
+    from beambench.studies.contact_search_figure import plot_contact_search
+
+    csv, shipped_txt = (ROOT / d for d in PICTURES["contact_search.png"].data)
+    code, met = shipped_txt.read_text().split()
+    plot_contact_search(csv, out, SCREEN_FREQUENCIES, shipped=(code, int(met)))
 
 
 def read_stamp(png: Path) -> str | None:
@@ -207,13 +226,36 @@ def notebook_picture(session: Path, out: Path) -> None:
     plt.close(fig)
 
 
-def chart_picture(name: str, out: Path) -> None:
-    """A picture drawn from a benchmark's cached table (no physics here)."""
+def chart_picture(out: Path) -> None:
+    """The contact chart, from its benchmark's table (no physics here)."""
     import pandas as pd
 
     from beambench.studies.contact_chart import chart_figure
 
-    chart_figure(pd.read_csv(ROOT / PICTURES[name].files[0]), out)
+    chart_figure(pd.read_csv(ROOT / PICTURES["contact_chart.png"].data[0]), out)
+
+
+def _chart_code() -> list[Callable]:
+    from beambench.studies.contact_chart import chart_figure
+
+    return [chart_picture, chart_figure]
+
+
+def _search_code() -> list[Callable]:
+    from beambench.studies.contact_search_figure import plot_contact_search
+
+    return [contact_search_picture, plot_contact_search]
+
+
+# pictures drawn from a benchmark's results: their drawing (here), and the code whose source their stamp hashes
+DRAWERS: dict[str, Callable[[Path], None]] = {
+    "contact_chart.png": chart_picture,
+    "contact_search.png": contact_search_picture,
+}
+DRAWN_FROM_DATA: dict[str, Callable[[], list[Callable]]] = {
+    "contact_chart.png": _chart_code,
+    "contact_search.png": _search_code,
+}
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -227,6 +269,9 @@ def main(argv: list[str] | None = None) -> None:
     IMG.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="beambench-docs-") as tmp:
         out = Path(tmp)
+        for name in sorted(n for n in only if n in DRAWERS):  # drawn from a benchmark's results, no run
+            DRAWERS[name](out / name)
+            stamp(out / name, name)
         os.environ["BEAMBENCH_USER_DIR"] = str(out / "user")
         wanted = {p for n in only for p in PICTURES[n].protocols}
         for protocol in ("contact_sweep", "walker_sweep", "walker_track"):
@@ -249,10 +294,6 @@ def main(argv: list[str] | None = None) -> None:
                 else:
                     notebook_picture(session, out / name)
                     stamp(out / name, name)
-        for name in sorted(only):
-            if not PICTURES[name].protocols:  # drawn from a cached table (its benchmark regenerates it)
-                chart_picture(name, out / name)
-                stamp(out / name, name)
     print(f"wrote {IMG}")
 
 

@@ -13,8 +13,9 @@ from beambench.backends.lookahead import Lookahead, cut_points, script
 from beambench.backends.sim import build_scene
 from beambench.session.slices import sim_slice
 from beambench.sim.engine.stepping import Trajectory
-from beambench.sim.scenes.contact_regimes import ContactTwin, stepped_regime_map, steps_agree
+from beambench.sim.scenes.contact_regimes import ContactTwin, stepped_regime_map
 from beambench.sim.scenes.contact_rig import ContactRigSim
+from beambench.sim.scenes.step_regime import steps_agree
 from beambench.sim.settings import SimSettings
 
 TWIN = ContactTwin("rod5g", "physical")

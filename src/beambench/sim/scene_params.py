@@ -26,6 +26,10 @@ class RigParams:
     sole_at_corner: bool = False
     # kg, the load frame's own mass, spread along the foot (tip to sole); the paper gives only the 20 g load
     frame_mass: float = 0.0
+    # m, the load frame as one rigid body: its own mass at the frame's centroid (halfway down the bar, halfway to
+    # the corner) with an isotropic inertia frame_mass * frame_gyration**2 about it; 0 = the mass spread along the
+    # bar (a thin rod: gyration foot_length/sqrt(12) about the horizontal axes, none about the bar)
+    frame_gyration: float = 0.0
     # deg, the beam's section turned about its own axis at the clamp: 0 = as built (width vertical at the
     # clamp, weak bending along the stage travel, see beambench.sim.models.beam), 90 = flat face horizontal
     # at the root (research note, issue 11); the foot still hangs plumb below the tip

@@ -78,8 +78,8 @@ def run_point(p: ChartPoint, freqs: tuple[float, ...] = CHART_FREQS) -> list[dic
     """One point's reduced stepped sweep: a row per step (:data:`COLUMNS`)."""
     from beambench.acquisition.streams import CONTACT_MARKERS
     from beambench.sim.engine.stepping import quiet_mujoco_warnings
-    from beambench.sim.scenes.contact_regimes import Classifier, StepWindow
     from beambench.sim.scenes.contact_rig import ContactRigSim
+    from beambench.sim.scenes.step_regime import Classifier, StepWindow
 
     bm, rig = twin_for(p.model, p.formulation).build()  # type: ignore[attr-defined]
     plate_top = -(rig.foot_length + rig.plate_gap)

@@ -72,6 +72,9 @@ class BeamParams:
     thickness: float = 0.003
     twist_deg: float = 90.0
     beta: float = 6e-4  # s, stiffness-proportional damping of continuum models (b = beta * k)
+    # material loss factor (tan delta); > 0: the contact rig's hinges get the equivalent viscous damping at the
+    # drive frequency, b = loss_factor * k / omega, instead of beta (beambench.sim.models.hysteretic)
+    loss_factor: float = 0.0
     material: Material = field(default_factory=Material)
     rig: dict[str, Any] = field(default_factory=dict)  # optional overrides of rig parameters (foot, contact)
     # optional overrides of the walker's parameters (WalkerParams); a set without them gives the walker ``rig``
@@ -109,6 +112,8 @@ class BeamParams:
         bad = []
         for key, b in self.bounds.items():
             v = self.value(key)
+            if key in MODEL_OPTIONS and not v:  # an option that is off (0 or not given): its range applies when on
+                continue
             if v is None:
                 bad.append(f"{key}: bounded but not given")
             elif not b.contains(v):
@@ -179,6 +184,10 @@ def params_family(model: object) -> str:
     return "rod" if re.fullmatch(r"rod(\d+g?s?)?", text) else text
 
 
+# bounded numbers that switch a model option on when > 0 (0 = off, the set's other numbers apply): their range
+# holds only when they are on
+MODEL_OPTIONS = frozenset({"beam.loss_factor", "rig.frame_gyration"})
+
 # The physical range of each beam number (SI), whatever a set's own ``bounds:`` say: (low, high, low excluded).
 # A printed beam is centimetres long and grams heavy; these are orders of magnitude around it, so a typo
 # (k = 1e300, E < 0, density 0) is refused before MuJoCo turns it into NaN.
@@ -195,6 +204,7 @@ PHYSICAL: dict[str, tuple[float, float, bool, str]] = {
     "thickness": (0.0, 1.0, True, "m"),
     "twist_deg": (-720.0, 720.0, False, "deg"),
     "beta": (0.0, 1.0, True, "s"),
+    "loss_factor": (0.0, 2.0, False, ""),
     "material.youngs_modulus": (1e3, 1e12, False, "Pa"),
     "material.poisson": (-1.0, 0.5, True, ""),
     "material.density": (1.0, 1e5, False, "kg/m³"),

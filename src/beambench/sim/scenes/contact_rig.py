@@ -28,12 +28,15 @@ from beambench.acquisition.protocol.scenes import CONTACT
 from beambench.acquisition.streams import CONTACT_MARKERS
 from beambench.sim.engine.stepping import INTEGRATORS, Physics, Trajectory
 from beambench.sim.models.beam import BeamModel, add_beam
+from beambench.sim.models.hysteretic import HystereticDamping
 from beambench.sim.models.thermal import CP_TPU, ThermalParams, ThermalState, stage_power, thermal_state
 from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
 
 SOLIMP_D0, SOLIMP_DMAX = 0.9, 0.95  # MuJoCo's default contact impedance at zero and full penetration (solimp)
+
+
 TIMESTEP_POLICY = ((40.0, 2e-4), (80.0, 1e-4), (float("inf"), 5e-5))  # (up to Hz, dt)
 
 
@@ -180,14 +183,21 @@ def _add_foot(spec: mujoco.MjSpec, names: SceneNames, tip: mujoco.MjsBody, rig: 
     corner = rig.sole_at_corner
     offset = (abs(rig.mass_dx) > 0 or abs(rig.mass_dy) > 0) and not corner
     invisible = dict(contype=0, conaffinity=0)
+    rigid_frame = rig.frame_gyration > 0 and rig.frame_mass > 0
     tip.add_geom(
         type=mujoco.mjtGeom.mjGEOM_CAPSULE,
         fromto=at(0, 0, 0) + at(0, 0, -(rig.foot_length - 2 * r)),
         size=[0.002, 0, 0],
-        mass=rig.frame_mass,
+        mass=0.0 if rigid_frame else rig.frame_mass,
         rgba=[0.9, 0.5, 0.1, 1],
         **invisible,
     )
+    if rigid_frame:  # welded to the tip (no joint): the frame's mass and inertia, given rather than from a shape
+        dx, dy = (rig.mass_dx, rig.mass_dy) if corner else (0.0, 0.0)
+        frame = tip.add_body(name="load_frame", pos=at(dx / 2, dy / 2, -rig.foot_length / 2))
+        frame.explicitinertial = True
+        frame.mass = rig.frame_mass
+        frame.inertia = [rig.frame_mass * rig.frame_gyration**2] * 3
     sole_at = at(rig.mass_dx if corner else 0, rig.mass_dy if corner else 0, -(rig.foot_length - r))
     if corner:  # the frame's lower cross bar, from below the tip to the corner (visual)
         tip.add_geom(
@@ -299,12 +309,19 @@ class ContactRigSim(DrivenScene):
         # the slider's own inertia: armature + the stage body (the beam acts on it as an external load)
         self._m_stage = float(model.dof_armature[stage_dof] + model.body("stage").mass[0])
         self.servo = KinematicServo(model, "stage_servo", self._m_stage, self.rig.servo_hz, integrator, h0)
+        # beam.loss_factor > 0: the beam's dampers follow the drive frequency (sim.models.hysteretic), not beta
+        loss = float(beam.params.loss_factor)
+        self.damping = HystereticDamping.of(model, loss) if loss > 0 else None
+        if self.damping is not None:
+            self.damping.at(model, 0.0)
         self.physics.reset_to_equilibrium(self.rig.preroll_s, np.zeros(1))
 
     # --- commands -------------------------------------------------------------------------------------
     def set_frequency(self, hz: float) -> None:
         """New crank-speed setpoint (turn/s = Hz); also picks the timestep the frequency needs."""
         self.ramp.setpoint = float(hz)
+        if self.damping is not None:
+            self.damping.at(self.physics.model, hz)
         if self.fixed_timestep is None:
             self.physics.set_timestep(self.timestep_for(max(abs(hz), abs(self.ramp.omega))))
 
@@ -335,7 +352,7 @@ class ContactRigSim(DrivenScene):
 
     def same_regime(self, a: Trajectory, b: Trajectory, hz: float) -> bool:
         """Two runs of one step in the same regime (``ChecksCuts``: the sim rig checks each segment cut with it)."""
-        from beambench.sim.scenes.contact_regimes import steps_agree  # that module builds on this one
+        from beambench.sim.scenes.step_regime import steps_agree
 
         return steps_agree(a, b, hz)
 
@@ -382,6 +399,7 @@ class ContactRigSim(DrivenScene):
             "amplitude_m": self.amplitude,
             "rig_params": asdict(self.rig),
             "integrator": self.integrator,
+            **({"loss_factor": self.damping.loss_factor} if self.damping is not None else {}),
             "timestep": self.fixed_timestep if self.fixed_timestep else "auto",
             "timestep_policy": "fixed"
             if self.fixed_timestep

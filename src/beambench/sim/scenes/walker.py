@@ -38,6 +38,7 @@ from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.common.errors import BeambenchError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, qinv, qmul, quat_x, quat_y
+from beambench.sim.models.hysteretic import HystereticDamping
 from beambench.sim.models.registry import UnknownModelError, model_family
 from beambench.sim.scene_params import WalkerParams
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
@@ -323,6 +324,11 @@ class WalkerSim(DrivenScene):
         self.ramp = VelocityRamp(self.rig.vel_ramp_rate)
         inertia = self.rig.rotor_inertia + self.rig.eccentric_mass * self.rig.eccentric_radius**2
         self.servo = KinematicServo(model, "rotor_servo", inertia, self.rig.servo_hz, integrator, h)
+        # beam.loss_factor > 0: the legs' dampers follow the drive frequency (sim.models.hysteretic), not beta
+        loss = float(beam.params.loss_factor)
+        self.damping = HystereticDamping.of(model, loss) if loss > 0 else None
+        if self.damping is not None:
+            self.damping.at(model, 0.0)
         self._preroll()
 
     def _preroll(self) -> None:
@@ -344,6 +350,8 @@ class WalkerSim(DrivenScene):
 
     def set_frequency(self, hz: float) -> None:
         self.ramp.setpoint = float(hz)
+        if self.damping is not None:
+            self.damping.at(self.physics.model, hz)
 
     def model_warnings(self) -> list[str]:
         """What makes this walker no robot (``WarnsOfModel``): legs whose feet fold under it (:func:`leg_fold`)."""

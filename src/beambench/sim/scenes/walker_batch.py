@@ -12,6 +12,7 @@ The speed needs ~3 s from rest to reach its steady value (23 / 65 Hz, research12
 
 from __future__ import annotations
 
+import copy
 import os
 from collections.abc import Sequence
 from dataclasses import replace
@@ -74,6 +75,11 @@ def steady_speeds(
         _, theta = ramp.plan(nstep, h)
         ctrl[i, :, 0] = servo.controls(wp.spin * theta, h)[0]
     body = slice(int(m.sensor_adr[m.sensor("body").id]), int(m.sensor_adr[m.sensor("body").id]) + 3)
+    models: mujoco.MjModel | list[mujoco.MjModel] = m
+    if sim.damping is not None:  # a loss factor: each frequency's legs damped at that frequency
+        models = [copy.copy(m) for _ in freqs]
+        for model, f in zip(models, freqs):
+            sim.damping.at(model, f)
     datas = [mujoco.MjData(m) for _ in range(max(1, min(nthread, len(freqs))))]
     state = np.repeat(state0[None], len(freqs), axis=0)
     warm: np.ndarray | None = np.repeat(d0.qacc_warmstart[None], len(freqs), axis=0)
@@ -81,7 +87,7 @@ def steady_speeds(
     with rollout.Rollout(nthread=len(datas) if len(datas) > 1 else 0) as roll:
         for a in range(0, nstep, CHUNK):
             b = min(nstep, a + CHUNK)
-            s_out, sens = roll.rollout(m, datas, state, ctrl[:, a:b], initial_warmstart=warm, nstep=b - a)
+            s_out, sens = roll.rollout(models, datas, state, ctrl[:, a:b], initial_warmstart=warm, nstep=b - a)
             rows.append(sens[:, ::stride, body])
             state, warm = s_out[:, -1], None
     sim.physics.close()

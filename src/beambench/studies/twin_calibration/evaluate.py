@@ -65,6 +65,10 @@ class SearchSettings:
     # last batch's time) leaves less than the later stages' expected time (from the measured cost per simulated
     # second: Search.reserve_s). False: the stages stop *starting* work at shares of the budget
     plan_finish: bool = False
+    # with plan_finish: the verify stage's written-protocol run is expected to cost this many times a search map per
+    # simulated second (plus search.WRITTEN_EXTRA_S): the session's pipeline, file and analysis, and two runs on
+    # two workers contending for more than their core
+    written_factor: float = 1.5
 
     @classmethod
     def quick(cls, **kw: Any) -> SearchSettings:

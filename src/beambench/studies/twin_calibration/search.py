@@ -94,10 +94,9 @@ RunAt = Callable[[int], SimSettings | WrittenRun]  # the winner's run at its own
 COARSE_SHARE = 0.55
 FINE_SHARE = 0.85
 BRACKET_SHARE = 0.9
-# With ``SearchSettings.plan_finish`` the verify stage's written-protocol run is expected to cost this many times a
-# search map per simulated second, plus WRITTEN_EXTRA_S (the session's pipeline, file and analysis; two runs on two
-# workers contend for more than their core), so the budget reserves it before the coarse stage ends
-WRITTEN_FACTOR = 1.5
+# With ``SearchSettings.plan_finish`` the verify stage's written-protocol run is expected to cost
+# ``SearchSettings.written_factor`` times a search map per simulated second, plus WRITTEN_EXTRA_S, so the budget
+# reserves it before the coarse stage ends
 WRITTEN_EXTRA_S = 3.0
 
 
@@ -225,7 +224,7 @@ class Search:
         extra = max(0, st.spread_seeds - 2)
         if self.rig.verify is not None and st.verify_top > 0:
             vfreqs, vsim = self.rig.verify(self.base)
-            run_s = len(vfreqs) * (vsim.settle_s + vsim.record_s) * rate * WRITTEN_FACTOR + WRITTEN_EXTRA_S
+            run_s = len(vfreqs) * (vsim.settle_s + vsim.record_s) * rate * st.written_factor + WRITTEN_EXTRA_S
             return out + math.ceil(2 * st.verify_top / w) * run_s + math.ceil(extra / w) * run_s
         return out + math.ceil(max(0, st.spread_seeds - 1) / w) * fine_s
 
