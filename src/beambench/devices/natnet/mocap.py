@@ -100,6 +100,7 @@ class NatNetMocap(StreamDriver):
         self.frame = frame or Frame(up_axis="y")  # Motive's default world frame
         super().__init__(MOCAP, mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ, self.frame), silence_timeout_s)
         self._last_stats = NatNetStats()
+        self._last_flood = ""
         self._layouts: dict[tuple[int, nn.Version], nb.FrameLayout] = {}  # by packet length and version
         self._marker_cols, self._body_cols = self._columns_by_source()
 
@@ -139,8 +140,9 @@ class NatNetMocap(StreamDriver):
     def _close(self) -> None:
         if self.client is not None:
             self._sync_counters()
-            self._last_stats = self.client.stats
             self.client.close()
+            self._last_stats = self.client.stats
+            self._last_flood = self.client.refused.flood()
             self.client = None
 
     def _sync_counters(self) -> None:
@@ -177,6 +179,14 @@ class NatNetMocap(StreamDriver):
 
     def identity(self) -> dict[str, Any]:
         return self.client.info() if self.client is not None else {}
+
+    def health(self) -> dict[str, Any]:
+        """The base counters, the datagrams the kernel dropped unread, and a flood named (``flood``; "" if none)."""
+        c = self.client
+        if c is not None:
+            self._sync_counters()
+        flood = c.flood() if c is not None else self._last_flood
+        return super().health() | {"kernel_dropped": self.stats.kernel_dropped, "flood": flood}
 
     def check(self) -> None:
         c = self.client

@@ -121,6 +121,7 @@ class OdriveCanMotor(TelemetryStream):
         self.poll_period_s = timing.poll_period_s
         self.telemetry_timeout_s = timing.telemetry_timeout_s
         self._bus = bus
+        self._closed_bus: can.BusABC | None = None
         self._own_bus = bus is None if own_bus is None else own_bus
         self._receiver: threading.Thread | None = None
         self._receiver_stop = threading.Event()
@@ -220,6 +221,7 @@ class OdriveCanMotor(TelemetryStream):
         if self._own_bus and self._bus is not None:
             with contextlib.suppress(Exception):
                 self._bus.shutdown()
+            self._closed_bus = self._bus  # its counters stay readable (health after close)
             self._bus = None
         self._closed = True
 
@@ -343,11 +345,20 @@ class OdriveCanMotor(TelemetryStream):
 
     # ------------------------------------------------------------------ feeder thread
     def _feed_loop(self) -> None:
-        """Feed the watchdog while armed, poll Iq and bus voltage, watch the heartbeat."""
+        """Feed the watchdog while armed, poll Iq and bus voltage, watch the heartbeat: on a schedule of its own
+        (deadlines every period, not a period after the work), in a thread that shares no queue with receiving —
+        the receive thread holds the lock only for one frame's bookkeeping, so a flood of input cannot delay a
+        feed by more than that."""
         period = min(self.feed_period_s, self.poll_period_s)
-        next_poll = time.monotonic()
+        next_poll = next_wake = time.monotonic()
         asked_errors = False
-        while not self._feeder_stop.wait(period):
+        while True:
+            next_wake += period
+            now = time.monotonic()
+            if next_wake < now:  # late (the host stalled): the next wake-up is a period from now, not a burst
+                next_wake = now + period
+            if self._feeder_stop.wait(next_wake - now):
+                return
             if self._tx_paused:
                 continue
             now_ns = time.monotonic_ns()
@@ -423,14 +434,17 @@ class OdriveCanMotor(TelemetryStream):
         """Counters for the session: telemetry rows received, CAN frames that failed to parse, send errors; and
         what a transport that accepts only the device's endpoint refused (``forged``; on a real CAN bus any
         node may send, so 0)."""
-        bus = self._bus
-        forged, garbled = (bus.forged, bus.garbled) if isinstance(bus, RefusesForeign) else (0, 0)
+        bus = self._bus if self._bus is not None else self._closed_bus
+        refuses = isinstance(bus, RefusesForeign)
+        forged, garbled = (bus.forged, bus.garbled) if refuses else (0, 0)
+        flood = {"kernel_dropped": bus.kernel_dropped, "flood": bus.flood()} if refuses else {}
         with self._cond:
             return {
                 "received": self.rows_received,
                 "dropped": 0,  # CAN Simple frames carry no sequence number: losses cannot be counted
                 "garbled": self.parse_errors + garbled,
                 "forged": forged,
+                **flood,
                 "frames_received": self.rx_count,
                 "frames_sent": self.tx_count,
                 "send_errors": len(self.send_errors),
