@@ -227,7 +227,11 @@ def _peer_entry(fd: int) -> None:
         spec = conn.recv()
     except EOFError:
         return
-    _peer_main(conn, spec)
+    try:
+        _peer_main(conn, spec)
+    except BaseException as exc:  # building the peers failed (the physics' compile out of memory …): one line
+        with contextlib.suppress(BaseException):
+            conn.send(("error", _failure(exc)))
 
 
 @dataclasses.dataclass
@@ -315,8 +319,20 @@ def _peer_main(conn: Connection, spec: PeerSpec) -> None:
     except (EOFError, OSError, KeyboardInterrupt):  # the parent went away (killed: SIGKILL, a crash)
         if peers.started:
             _await_watchdog(peers.odrive, peers.config.watchdog_timeout_s)
+    except BaseException as exc:  # a peer failed (a thread that cannot start): one line to the parent, no traceback
+        with contextlib.suppress(BaseException):
+            conn.send(("error", _failure(exc)))
     finally:
         _stop_peers(conn, peers)
+
+
+def _failure(exc: BaseException) -> str:
+    """What stopped the peers, in one line: out of memory named as such."""
+    from beambench.common.out_of_memory import out_of_memory
+
+    reason = out_of_memory(exc)
+    text = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ""
+    return f"out of memory ({reason})" if reason else f"{type(exc).__name__}: {text}"
 
 
 def _serve(conn: Connection, peers: _Peers, inject: dict[str, Any]) -> None:
@@ -476,6 +492,8 @@ class PeerProcess:
             kind, value = self._conn.recv()
         except (EOFError, OSError):
             raise self._lost() from None
+        if kind == "error":  # a peer failed (its one line)
+            raise DeviceFault(f"emulated peers: {value}")
         if kind != what:
             raise DeviceFault(f"emulated peers: expected {what!r}, got {kind!r}")
         return value
