@@ -95,7 +95,7 @@ print(json.dumps({"status": result.status, "message": result.message, **seen, "s
 
 
 def _env() -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=str(ROOT / "src"), PYTHONUNBUFFERED="1")
+    return dict(os.environ, PYTHONPATH=os.environ.get("PYTHONPATH") or str(ROOT / "src"), PYTHONUNBUFFERED="1")
 
 
 @pytest.mark.slow
