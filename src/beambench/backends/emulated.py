@@ -367,7 +367,7 @@ def _stop_peers(conn: Connection, peers: _Peers) -> None:
     motive, mcu, physics, odrive = peers.motive, peers.mcu, peers.physics, peers.odrive
     if peers.stop_mcu is not None:
         peers.stop_mcu.cancel()
-    for peer in (mcu, motive, physics, odrive):
+    for peer in (mcu, motive, odrive):  # the senders first; the physics (nothing samples it now) after the report
         with contextlib.suppress(Exception):
             peer.stop()
     with contextlib.suppress(Exception):
@@ -394,6 +394,8 @@ def _stop_peers(conn: Connection, peers: _Peers) -> None:
         conn.send(("report", report))
     with contextlib.suppress(Exception):
         conn.close()
+    with contextlib.suppress(Exception):
+        physics.stop()
 
 
 def _await_watchdog(odrive: Any, timeout_s: float) -> None:
@@ -427,6 +429,10 @@ class _Snapshot:
 
     def snapshot(self) -> dict[str, Any]:
         return self._peers.odrive_snapshot()
+
+
+REPORT_TIMEOUT_S = 3.0  # how long stopping the peers waits for their report
+EXIT_GRACE_S = 0.5  # then for their process to end before it is killed
 
 
 class PeerProcess:
@@ -521,21 +527,25 @@ class PeerProcess:
         return dict(self._ask("snapshot"))
 
     def stop(self) -> None:
-        """Stop the peers and keep their report. Idempotent."""
+        """Stop the peers and keep their report; bounded: at most :data:`REPORT_TIMEOUT_S` for the report (the
+        peers stop their senders first, then report), then :data:`EXIT_GRACE_S` for the process to end, then it is
+        killed (it has stopped everything; its interpreter's teardown is not worth a run's exit waiting for it,
+        nor is a peer that hangs). Idempotent."""
         with self._lock:
             if self.report is None and self._alive():
                 with contextlib.suppress(Exception):
                     self._conn.send(("stop", None))
-                    deadline = time.monotonic() + 10.0
+                    deadline = time.monotonic() + REPORT_TIMEOUT_S
                     while self.report is None and self._conn.poll(max(0.0, deadline - time.monotonic())):
                         kind, value = self._conn.recv()
                         if kind == "report":
                             self.report = value
             try:
-                self._proc.wait(timeout=5.0)
+                self._proc.wait(timeout=EXIT_GRACE_S)
             except subprocess.TimeoutExpired:
-                self._proc.kill()
-                self._proc.wait(timeout=2.0)
+                self._proc.kill()  # SIGKILL: ends even a stopped (SIGSTOP) process
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    self._proc.wait(timeout=2.0)
             with contextlib.suppress(Exception):
                 self._conn.close()
             if self.report is not None:
