@@ -7,16 +7,20 @@ import os
 import sys
 from typing import NoReturn
 
+from beambench.common import early_signals
+
+early_signals.hold()  # a stop signal during the imports below is taken by the command, not lost in a traceback
+
 # beambench never draws with MuJoCo's OpenGL (its figures are matplotlib's, its live view Rerun's). Left unset,
 # importing mujoco imports GLFW, and GLFW's import starts a `python -c` probe of its library version: a process
 # start per command, and a probe that outlives a killed parent prints a BrokenPipeError traceback on the run's
 # stderr. Set before the commands import mujoco; a user's own MUJOCO_GL wins.
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-import typer
+import typer  # noqa: E402  (after hold(): the imports below take a second or more)
 
-from beambench import __version__
-from beambench.commands import (
+from beambench import __version__  # noqa: E402
+from beambench.commands import (  # noqa: E402
     EXIT_STOPPED,
     HELP_MARKUP,
     STANDALONE,
@@ -30,7 +34,7 @@ from beambench.commands import (
     run,
     sweep,
 )
-from beambench.common.out_of_memory import out_of_memory, preload_blas
+from beambench.common.out_of_memory import out_of_memory, preload_blas  # noqa: E402
 
 
 def _version(value: bool) -> None:
@@ -71,6 +75,9 @@ for _module in COMMAND_MODULES:
 def main() -> None:
     """The ``beambench`` entry point: usage errors come out as one line like every other error (exit 2)."""
     STANDALONE["process"] = True
+    # the commands that take stop signals themselves take the ones that came while importing; for the others they
+    # are raised again now
+    early_signals.release(sys.argv[1:2] == ["run"] or sys.argv[1:3] == ["calibrate", "sim"])
     try:
         _main_inner()
     except KeyboardInterrupt:  # Ctrl-C before a command took its signals (imports): one line, never exit 130

@@ -50,6 +50,7 @@ from beambench.acquisition.capabilities import (
 from beambench.acquisition.hub import Hub, SinkFailure
 from beambench.acquisition.monitors import Monitor
 from beambench.acquisition.protocol.plan import Step
+from beambench.common import early_signals
 from beambench.common.out_of_memory import out_of_memory
 
 
@@ -194,6 +195,8 @@ def stop_on_signals(stop: StopSignal | None = None, *, then_ignore: bool = False
             if signum in DEFAULT_SIGNALS and current is not signal.SIG_DFL:
                 continue  # ignored on purpose (nohup), or someone else's (a profiler): left alone
             old[signum] = signal.signal(signum, handler)
+        for signum in early_signals.take():  # a stop while the command line was importing
+            stop.request(signum)
         yield stop
     finally:
         for signum, previous in old.items():

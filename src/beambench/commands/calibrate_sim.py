@@ -4,6 +4,8 @@ the last stderr line the verdict (every target met, or the misses with what limi
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -45,20 +47,61 @@ def _fail(message: str) -> NoReturn:
     raise typer.Exit(2)
 
 
-def _interrupted(log: Path) -> NoReturn:
+def _interrupted(log: Path | None) -> NoReturn:
     """One line saying where the finished evaluations are and how to resume; exit 130 (interrupted: 3 is taken
-    by "written, but not within tolerance")."""
+    by "written, but not within tolerance"). ``log`` is None when the stop came before the log was named."""
+    import contextlib
     import shlex
     import sys
 
-    kept = sum(1 for _ in log.open("rb")) if log.is_file() else 0
+    kept = sum(1 for _ in log.open("rb")) if log is not None and log.is_file() else 0
     again = shlex.join(["beambench", *sys.argv[1:]]) if sys.argv[1:2] == ["calibrate"] else "the same command"
-    typer.echo(
-        f"beambench: calibration interrupted: {kept} evaluations kept in {log}; to resume, run {again} "
-        "again (same --out and --name): they are reused",
-        err=True,
-    )
+    where = f"{kept} evaluations kept in {log}" if log is not None else "before its first evaluation"
+    with contextlib.suppress(OSError):  # a closed terminal (SIGHUP) cannot take it: the exit code still tells
+        typer.echo(
+            f"beambench: calibration interrupted: {where}; to resume, run {again} again (same --out and --name): "
+            "they are reused",
+            err=True,
+        )
     raise typer.Exit(EXIT_INTERRUPTED)
+
+
+@contextmanager
+def _interrupt_on_signals() -> Iterator[list[int]]:
+    """While inside, the stop signals interrupt the calibration as Ctrl-C does (a ``KeyboardInterrupt`` in the main
+    thread: the search stops its workers and keeps its log), taken as ``run`` takes them: SIGINT, SIGTERM and
+    SIGQUIT always — also where a shell started the command as a background job, which ignores SIGINT —, the
+    others where their disposition is the default. Only the first raises; later ones are counted in the list
+    yielded (a second Ctrl-C cannot cut the workers' shutdown short). After, they stay ignored: the command is
+    about to say its last line and exit."""
+    import signal
+    import threading
+
+    from beambench.acquisition.runner import ALWAYS_SIGNALS, DEFAULT_SIGNALS
+    from beambench.common import early_signals
+
+    got: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield got
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        got.append(signum)
+        if len(got) == 1:
+            raise KeyboardInterrupt
+
+    taken = [
+        s for s in ALWAYS_SIGNALS + DEFAULT_SIGNALS if s in ALWAYS_SIGNALS or signal.getsignal(s) is signal.SIG_DFL
+    ]
+    for signum in taken:
+        signal.signal(signum, handler)
+    try:
+        if early_signals.take():  # a stop while the command line was importing
+            handler(signal.SIGINT, None)
+        yield got
+    finally:
+        for signum in taken:
+            signal.signal(signum, signal.SIG_IGN)
 
 
 def default_out() -> Path:
@@ -115,6 +158,29 @@ def sim(
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
     runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
     whether the twin reached it."""
+    log: list[Path] = []  # the evaluation log, once named
+    with _interrupt_on_signals() as got:
+        try:
+            _sim(session, targets, out, workers, scheduler, budget_s, quick, name, free, log)
+        except KeyboardInterrupt:  # a stop signal, from the first line on: every finished evaluation is kept
+            _interrupted(log[0] if log else None)
+        if got:  # a stop that landed where it could not raise (a cleanup that swallowed it): still said
+            _interrupted(log[0] if log else None)
+
+
+def _sim(
+    session: Path | None,
+    targets: Path | None,
+    out: Path | None,
+    workers: int | None,
+    scheduler: str | None,
+    budget_s: float,
+    quick: bool,
+    name: str | None,
+    free: str | None,
+    log: list[Path],
+) -> None:
+    """The body of :func:`sim`; ``log`` gets the evaluation log's path as soon as it is known."""
     from dataclasses import replace
 
     from rich.progress import BarColumn, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -144,6 +210,7 @@ def sim(
     except ValueError as exc:
         _fail(str(exc))
     out_dir = out or default_out()
+    log.append(out_dir / f"{name}.evals.jsonl")
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -167,8 +234,6 @@ def sim(
         report = write_report(result, tg, out_dir, name)
     except (BeambenchError, ExecutorError) as exc:
         _fail(str(exc))
-    except KeyboardInterrupt:  # Ctrl-C: every finished evaluation is in the log, which a rerun reuses
-        _interrupted(out_dir / f"{name}.evals.jsonl")
     _finish(result, report)
 
 
