@@ -27,7 +27,7 @@ PROTOCOL = "name: mem\nsweep: {frequencies: [6]}\nsettle_s: 0.5\nrecord_s: 1.0\n
 # An emulated run whose process runs out of memory once the motor is armed and turning: a consumer thread lowers
 # the address-space limit to what the process maps now (plus 16 MiB) and fills it, holding the memory until the
 # run has commanded the idle (and a little longer), then prints what happened as JSON.
-ARMED_SCRIPT = r'''
+ARMED_SCRIPT = r"""
 import json, resource, sys, threading, time
 from pathlib import Path
 from beambench.acquisition.hub import Hub
@@ -91,7 +91,7 @@ t.join(30)
 odrive = rig.peers[0].odrive.snapshot()
 print(json.dumps({"status": result.status, "message": result.message, **seen, "send_errors": list(rig.motor.send_errors),
                   "odrive_state": odrive["state"], "odrive_axis_error": odrive["axis_error"]}))
-'''
+"""
 
 
 def _env() -> dict[str, str]:

@@ -121,7 +121,6 @@ class OdriveCanMotor(TelemetryStream):
         self.poll_period_s = timing.poll_period_s
         self.telemetry_timeout_s = timing.telemetry_timeout_s
         self._bus = bus
-        self._closed_bus: can.BusABC | None = None
         self._own_bus = bus is None if own_bus is None else own_bus
         self._receiver: threading.Thread | None = None
         self._receiver_stop = threading.Event()
@@ -221,7 +220,6 @@ class OdriveCanMotor(TelemetryStream):
         if self._own_bus and self._bus is not None:
             with contextlib.suppress(Exception):
                 self._bus.shutdown()
-            self._closed_bus = self._bus  # its counters stay readable (health after close)
             self._bus = None
         self._closed = True
 
@@ -345,18 +343,15 @@ class OdriveCanMotor(TelemetryStream):
 
     # ------------------------------------------------------------------ feeder thread
     def _feed_loop(self) -> None:
-        """Feed the watchdog while armed, poll Iq and bus voltage, watch the heartbeat: on a schedule of its own
-        (deadlines every period, not a period after the work), in a thread that shares no queue with receiving —
-        the receive thread holds the lock only for one frame's bookkeeping, so a flood of input cannot delay a
-        feed by more than that."""
+        """Feed the watchdog while armed, poll Iq and bus voltage, watch the heartbeat, on deadlines of its own;
+        receiving holds the lock for one frame's bookkeeping at a time, so a flood cannot hold a feed back."""
         period = min(self.feed_period_s, self.poll_period_s)
         next_poll = next_wake = time.monotonic()
         asked_errors = False
         while True:
             next_wake += period
             now = time.monotonic()
-            if next_wake < now:  # late (the host stalled): the next wake-up is a period from now, not a burst
-                next_wake = now + period
+            next_wake = max(next_wake, now)  # late (the host stalled): wake now, not a burst to catch up
             if self._feeder_stop.wait(next_wake - now):
                 return
             if self._tx_paused:
@@ -433,11 +428,12 @@ class OdriveCanMotor(TelemetryStream):
     def health(self) -> dict[str, Any]:
         """Counters for the session: telemetry rows received, CAN frames that failed to parse, send errors; and
         what a transport that accepts only the device's endpoint refused (``forged``; on a real CAN bus any
-        node may send, so 0)."""
-        bus = self._bus if self._bus is not None else self._closed_bus
-        refuses = isinstance(bus, RefusesForeign)
-        forged, garbled = (bus.forged, bus.garbled) if refuses else (0, 0)
-        flood = {"kernel_dropped": bus.kernel_dropped, "flood": bus.flood()} if refuses else {}
+        node may send, so 0), dropped unread (``kernel_dropped``) and the flood it names (``flood``)."""
+        bus = self._bus
+        forged, garbled = (bus.forged, bus.garbled) if isinstance(bus, RefusesForeign) else (0, 0)
+        flood: dict[str, Any] = (
+            {"kernel_dropped": bus.kernel_dropped, "flood": bus.flood()} if isinstance(bus, RefusesForeign) else {}
+        )
         with self._cond:
             return {
                 "received": self.rows_received,
