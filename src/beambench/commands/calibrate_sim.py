@@ -164,6 +164,10 @@ def sim(
             _sim(session, targets, out, workers, scheduler, budget_s, quick, name, free, log)
         except KeyboardInterrupt:  # a stop signal, from the first line on: every finished evaluation is kept
             _interrupted(log[0] if log else None)
+        except Exception:
+            if got:  # what the interrupt became where it landed (in a C extension's init: an ImportError)
+                _interrupted(log[0] if log else None)
+            raise
         if got:  # a stop that landed where it could not raise (a cleanup that swallowed it): still said
             _interrupted(log[0] if log else None)
 

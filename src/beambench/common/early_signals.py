@@ -30,14 +30,17 @@ def hold() -> None:
 
 
 def release(taken_by_command: bool) -> None:
-    """Put the dispositions back; signals recorded meanwhile stay for :func:`take` if ``taken_by_command``, else
-    they are raised again now (a Ctrl-C then ends the command as it would have)."""
+    """For a command that takes stop signals itself (``taken_by_command``): nothing changes — the signals stay
+    recorded until the command installs its own handlers and :func:`take` s what came (so none falls between the
+    two, where a Ctrl-C would end it silently with exit 130). For the others: the dispositions are put back and
+    what was recorded is raised again now (a Ctrl-C then ends the command as it would have)."""
+    if taken_by_command:
+        return
     for signum, previous in _previous.items():
         signal.signal(signum, previous if previous is not None else signal.SIG_DFL)
     _previous.clear()
-    if not taken_by_command:
-        for signum in take():
-            signal.raise_signal(signum)
+    for signum in take():
+        signal.raise_signal(signum)
 
 
 def take() -> list[int]:
