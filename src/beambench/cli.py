@@ -34,7 +34,7 @@ from beambench.commands import (  # noqa: E402
     run,
     sweep,
 )
-from beambench.common.out_of_memory import out_of_memory, preload_blas  # noqa: E402
+from beambench.common.out_of_memory import memory_limited, out_of_memory, preload_blas  # noqa: E402
 
 
 def _version(value: bool) -> None:
@@ -95,7 +95,9 @@ def main() -> None:
             os._exit(code)
         raise
     except BaseException as exc:  # out of memory even for the one line (the handlers below allocate): a line built
-        if out_of_memory(exc) is None:  # at start, and no interpreter shutdown (it would need memory too)
+        # at start, and no interpreter shutdown (it would need memory too); under a memory limit an extension that
+        # fails to allocate may not even set its error (SystemError: "error return without exception set")
+        if out_of_memory(exc) is None and not (isinstance(exc, SystemError) and memory_limited()):
             raise
         _out_of_memory_exit(None)
 

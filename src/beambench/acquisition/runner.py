@@ -436,6 +436,8 @@ class Runner:
                 self.rig.motor.idle()
                 if isinstance(self.rig.motor, ConfirmsIdle):
                     said = result.idle = self.rig.motor.confirm_idle()
+            except MemoryError:  # the idle frames went out (they need no memory); its confirmation could not
+                said = result.idle = "motor commanded to idle (out of memory: not confirmed)"
             except Exception as exc:  # the idle attempt must not hide the original problem
                 self._log_event(self.rig.clock.now_ns(), "error", f"idle failed: {exc}")
             self._log_event(self.rig.clock.now_ns(), "idle", said)

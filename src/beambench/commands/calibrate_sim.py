@@ -71,8 +71,8 @@ def _interrupt_on_signals() -> Iterator[list[int]]:
     """While inside, the stop signals interrupt the calibration as Ctrl-C does (a ``KeyboardInterrupt`` in the main
     thread: the search stops its workers and keeps its log), taken as ``run`` takes them: SIGINT, SIGTERM and
     SIGQUIT always — also where a shell started the command as a background job, which ignores SIGINT —, the
-    others where their disposition is the default. Only the first raises; later ones are counted in the list
-    yielded (a second Ctrl-C cannot cut the workers' shutdown short). After, they stay ignored: the command is
+    others where their disposition is the default. Only the first raises (one that came while the command line
+    was importing is in the list yielded, for the caller to raise); later ones are counted in the list yielded (a second Ctrl-C cannot cut the workers' shutdown short). After, they stay ignored: the command is
     about to say its last line and exit."""
     import signal
     import threading
@@ -96,8 +96,7 @@ def _interrupt_on_signals() -> Iterator[list[int]]:
     for signum in taken:
         signal.signal(signum, handler)
     try:
-        if early_signals.take():  # a stop while the command line was importing
-            handler(signal.SIGINT, None)
+        got += early_signals.take()  # a stop while the command line was importing: the caller raises it
         yield got
     finally:
         for signum in taken:
@@ -161,6 +160,8 @@ def sim(
     log: list[Path] = []  # the evaluation log, once named
     with _interrupt_on_signals() as got:
         try:
+            if got:
+                raise KeyboardInterrupt
             _sim(session, targets, out, workers, scheduler, budget_s, quick, name, free, log)
         except KeyboardInterrupt:  # a stop signal, from the first line on: every finished evaluation is kept
             _interrupted(log[0] if log else None)

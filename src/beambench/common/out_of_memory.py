@@ -7,7 +7,7 @@ Each is a resource running out, not a bug, and gets one line instead of a traceb
 
 from __future__ import annotations
 
-__all__ = ["out_of_memory"]
+__all__ = ["memory_limited", "out_of_memory", "preload_blas"]
 
 _NO_MEMORY = ("could not allocate memory", "cannot allocate memory", "failed to map segment", "can't start new thread")
 _CHAIN = 8  # how far down __cause__/__context__ to look
@@ -28,6 +28,13 @@ def out_of_memory(exc: BaseException) -> str | None:
     return None
 
 
+def memory_limited() -> bool:
+    """Does this process run under an address-space limit (``prlimit --as``, ``ulimit -v``)?"""
+    import resource
+
+    return resource.getrlimit(resource.RLIMIT_AS)[0] != resource.RLIM_INFINITY
+
+
 class _BlasFailed(Exception):
     """Raised by the SIGINT handler of :func:`preload_blas`: OpenBLAS signalled that it could not start."""
 
@@ -42,10 +49,9 @@ def preload_blas() -> str | None:
     its own process when it cannot start its threads, which would end the command as if by Ctrl-C (exit 130).
     Returns what ran out if that happened (or the import ran out of memory), else None. Without a limit it does
     nothing (the command imports them when it needs them). Main thread only."""
-    import resource
     import signal
 
-    if resource.getrlimit(resource.RLIMIT_AS)[0] == resource.RLIM_INFINITY:
+    if not memory_limited():
         return None
     previous = signal.signal(signal.SIGINT, _blas_failed)
     try:
