@@ -9,7 +9,8 @@ from typing import NoReturn
 
 from beambench.common import early_signals
 
-early_signals.hold()  # a stop signal during the imports below is taken by the command, not lost in a traceback
+if __name__ == "__main__" or os.path.basename(sys.argv[0]) == "beambench":  # the program (not a test's import)
+    early_signals.hold()  # a stop signal during the imports below is taken by the command, not lost in a traceback
 
 # beambench never draws with MuJoCo's OpenGL (its figures are matplotlib's, its live view Rerun's). Left unset,
 # importing mujoco imports GLFW, and GLFW's import starts a `python -c` probe of its library version: a process
@@ -17,10 +18,10 @@ early_signals.hold()  # a stop signal during the imports below is taken by the c
 # stderr. Set before the commands import mujoco; a user's own MUJOCO_GL wins.
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-import typer  # noqa: E402  (after hold(): the imports below take a second or more)
+import typer
 
-from beambench import __version__  # noqa: E402
-from beambench.commands import (  # noqa: E402
+from beambench import __version__
+from beambench.commands import (
     EXIT_STOPPED,
     HELP_MARKUP,
     STANDALONE,
@@ -34,7 +35,7 @@ from beambench.commands import (  # noqa: E402
     run,
     sweep,
 )
-from beambench.common.out_of_memory import memory_limited, out_of_memory, preload_blas  # noqa: E402
+from beambench.common.out_of_memory import memory_limited, out_of_memory, preload_blas
 
 
 def _version(value: bool) -> None:
