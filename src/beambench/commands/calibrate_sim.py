@@ -72,12 +72,14 @@ def _interrupt_on_signals() -> Iterator[list[int]]:
     thread: the search stops its workers and keeps its log), taken as ``run`` takes them: SIGINT, SIGTERM and
     SIGQUIT always — also where a shell started the command as a background job, which ignores SIGINT —, the
     others where their disposition is the default. Only the first raises (one that came while the command line
-    was importing is in the list yielded, for the caller to raise); later ones are counted in the list yielded (a second Ctrl-C cannot cut the workers' shutdown short). After, they stay ignored: the command is
-    about to say its last line and exit."""
+    was importing is in the list yielded, for the caller to raise); later ones are counted in the list yielded (a
+    second Ctrl-C cannot cut the workers' shutdown short). After, they stay ignored when this is the command line
+    (it is about to say its last line and exit); called in-process (a test), the handlers are put back."""
     import signal
     import threading
 
     from beambench.acquisition.runner import ALWAYS_SIGNALS, DEFAULT_SIGNALS
+    from beambench.commands import STANDALONE
     from beambench.common import early_signals
 
     got: list[int] = []
@@ -93,14 +95,13 @@ def _interrupt_on_signals() -> Iterator[list[int]]:
     taken = [
         s for s in ALWAYS_SIGNALS + DEFAULT_SIGNALS if s in ALWAYS_SIGNALS or signal.getsignal(s) is signal.SIG_DFL
     ]
-    for signum in taken:
-        signal.signal(signum, handler)
+    previous = {signum: signal.signal(signum, handler) for signum in taken}
     try:
         got += early_signals.take()  # a stop while the command line was importing: the caller raises it
         yield got
     finally:
-        for signum in taken:
-            signal.signal(signum, signal.SIG_IGN)
+        for signum, before in previous.items():
+            signal.signal(signum, signal.SIG_IGN if STANDALONE["process"] or before is None else before)
 
 
 def default_out() -> Path:
