@@ -87,6 +87,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from beambench.commands import EXIT_MISSED
+
 CASE1_PROTOCOL = """name: twin_gap
 description: twin-made session with another gap and seed (calibration benchmark target)
 rig: contact
@@ -101,14 +103,14 @@ sim: {{model: prb3, params: paper, plate_gap_mm: {gap}, twist_deg: 90, noise: tr
 
 
 def sh(*args: str, timeout: float = 3600) -> tuple[subprocess.CompletedProcess, float]:
-    """``beambench ARGS`` in a subprocess; a failure raises (``calibrate sim``'s exit 3, written but a target
-    missed, is a result: its report's verdict says which)."""
+    """``beambench ARGS`` in a subprocess; a failure raises (``calibrate sim``'s ``EXIT_MISSED``, written but a
+    target missed, is a result: its report's verdict says which)."""
     t0 = time.perf_counter()
     res = subprocess.run(
         [sys.executable, "-m", "beambench.cli", *args], capture_output=True, text=True, timeout=timeout
     )
     wall = time.perf_counter() - t0
-    if res.returncode != 0 and not (args[:2] == ("calibrate", "sim") and res.returncode == 3):
+    if res.returncode != 0 and not (args[:2] == ("calibrate", "sim") and res.returncode == EXIT_MISSED):
         raise RuntimeError(f"beambench {' '.join(args)} failed ({res.returncode}): {res.stderr[-2000:]}")
     return res, wall
 

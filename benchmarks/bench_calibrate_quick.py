@@ -45,8 +45,8 @@ def hidden_session(out: Path) -> tuple[Path, dict[str, float]]:
     from beambench.common.resources import shipped_dir
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scene_params import RigParams
     from beambench.sim.scenes.contact_regimes import static_sag
-    from beambench.sim.scenes.contact_rig import RigParams
 
     out.mkdir(parents=True, exist_ok=True)
     shipped = shipped_dir("sim_backend") / "rod_physical.yaml"

@@ -61,7 +61,7 @@ def verify(protocol: Path, targets: dict[float, float]) -> dict[float, float]:
     from beambench.acquisition.protocol.schema import load_protocol
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
-    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scene_params import WalkerParams
     from beambench.sim.scenes.walker_batch import steady_speeds
 
     proto, _ = load_protocol(protocol)
@@ -110,7 +110,7 @@ def main() -> None:
             "twin": got,
             "error_pct": err,
             "within_30pct": all(abs(e) <= 30 for e in err.values()),
-            "verdict": report.get("verdict"),  # the calibrator's own (exit 3 when a speed is missed)
+            "verdict": report.get("verdict"),  # the calibrator's own (exit 5, EXIT_MISSED, when a speed is missed)
             "protocol": str(protocol),
         }
         rows.append(row)

@@ -66,8 +66,8 @@ def contact_keys(bounds: dict) -> list[str]:
 def point_twin(values: dict[str, float]):
     """The shipped twin with ``values`` (bounds keys → SI) applied: beam fields, material, rig overrides."""
     from beambench.sim.models.params import load_params
+    from beambench.sim.scene_params import RigParams
     from beambench.sim.scenes.contact_regimes import ContactTwin
-    from beambench.sim.scenes.contact_rig import RigParams
 
     params = load_params("physical", "rod")
     rig = {**params.rig}

@@ -115,8 +115,8 @@ def main() -> None:
 
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scene_params import RigParams
     from beambench.sim.scenes.contact_regimes import ContactTwin, regime_map, static_sag, transitions
-    from beambench.sim.scenes.contact_rig import RigParams
     from beambench.sim.settings import SimSettings
 
     base = load_params(args.params, "prb3")

@@ -27,8 +27,9 @@ import pandas as pd
 from beambench.analysis.trajectory import mean_path
 from beambench.sim.models.params import BeamParams, load_params
 from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.contact_regimes import ContactTwin, regime_map, transitions
-from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
+from beambench.sim.scenes.contact_rig import build_contact_spec
 from beambench.sim.scenes.contact_sweep import contact_sweep
 from beambench.sim.settings import SimSettings
 

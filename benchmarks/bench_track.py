@@ -1,11 +1,14 @@
 """Benchmark: speed tracking on the sim walker against issue 25's goals, each from one run.
 
-    python benchmarks/bench_track.py [--out DIR] [--mismatch foot_mass=0.0033]
+    python benchmarks/bench_track.py [--out DIR] [--mismatch foot_mass=0.0022] [--profiles]
 
 1. ``protocols/walker_track.yaml`` as shipped (``map: twin``: its own sweep first, then the profile).
 2. A map from a *different* twin (``--mismatch``: a walker parameter changed, default the foot 10 % heavier): its
    sweep (the shipped protocol's) with that parameter set, then the same profile on the calibrated twin with
    feed-forward alone and with feedback.
+
+3. ``--profiles``: more profiles on run 1's map (:data:`PROFILES`: steps up and down, stops, through zero, backward),
+   with how many segments settle within 1 s.
 
 Per run and segment: target, mean speed, RMS error after ``track.settle_s`` against its tolerance (15 % of
 |target|, 10 mm/s below 60 mm/s), settling and direction times, highest frequency; a verdict per goal. Writes
@@ -41,6 +44,23 @@ def _run(text: str, path: Path):
     return analyze_session(read_session(path)).track, wall
 
 
+PROFILES = {  # (target mm/s, hold s): within the shipped map's reach (forward to ~+120, backward to ~-75 mm/s)
+    "slow-downs and a stop": [(100, 4), (0, 3), (60, 3), (90, 3), (30, 3)],
+    "through zero and backward": [(-40, 4), (80, 4), (-20, 4), (0, 3), (50, 3), (-30, 3)],
+}
+
+
+def _profiles(shipped: dict, map_path: Path, out: Path, limit: float) -> None:
+    """Each of :data:`PROFILES` on the map of run 1; per segment its settling time, the count within 1 s."""
+    for name, profile in PROFILES.items():
+        p = {**shipped, "track": {**shipped["track"], "map": str(map_path)}}
+        p["track"]["segments"] = [{"speed_mm_s": v, "hold_s": h} for v, h in profile]
+        track, wall = _run(yaml.safe_dump(p), out / f"profile_{len(profile)}_{profile[0][0]}.h5")
+        _verdict(f"profile: {name}", track, limit, wall)
+        quick = sum(s["settling_s"] <= 1.0 for s in track.segments)
+        print(f" settled within 1 s: {quick} of {len(track.segments)} segments")
+
+
 def _verdict(name: str, track, limit_hz: float, wall: float) -> bool:
     print(f"\n{name}  ({wall:.0f} s wall)")
     print(" seg  target   mean    RMS  tol  settle  direction  max Hz  goal")
@@ -64,7 +84,8 @@ def _verdict(name: str, track, limit_hz: float, wall: float) -> bool:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--mismatch", default="foot_mass=0.0033", help="walker parameter of the other twin, NAME=VALUE")
+    ap.add_argument("--mismatch", default="foot_mass=0.0022", help="walker parameter of the other twin, NAME=VALUE")
+    ap.add_argument("--profiles", action="store_true", help="also run PROFILES on run 1's map")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "src"))
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_track_"))
@@ -80,11 +101,16 @@ def main() -> None:
     own, wall = _run(yaml.safe_dump(shipped), out / "own.h5")
     ok = _verdict("walker_track as shipped (map: twin)", own, limit, wall)
     draw_tracking([own], ["beambench run walker_track (map: twin)"], out / "tracking.png")
+    if args.profiles:
+        _profiles(shipped, out / "own_map.h5", out, limit)
+
+    from beambench.sim.models.registry import model_family
 
     name, value = args.mismatch.split("=")
-    params = yaml.safe_load((ROOT / "sim_backend" / "prb3_paper.yaml").read_text())
-    params.update(name="other_twin", rig={name: float(value)})
-    (user / "sim_backend" / "prb3_other_twin.yaml").write_text(yaml.safe_dump(params))
+    family = model_family(shipped["sim"]["model"])  # the shipped walker's parameter set, one walker value changed
+    params = yaml.safe_load((ROOT / "sim_backend" / f"{family}_{shipped['sim']['params']}.yaml").read_text())
+    params.update(name="other_twin", walker={**params.get("walker", {}), name: float(value)})
+    (user / "sim_backend" / f"{family}_other_twin.yaml").write_text(yaml.safe_dump(params))
     sweep = {k: v for k, v in shipped.items() if k != "track"}
     sweep["sim"] = {**shipped["sim"], "params": "other_twin"}
     from beambench.acquisition.protocol.schema import parse_protocol

@@ -76,7 +76,7 @@ VARIANTS: list[tuple[str, dict[str, float]]] = [
 
 def _speed(beam, f: float, settle: float, record: float, **overrides: float) -> tuple[float, float]:
     """(steady forward speed mm/s from a settled robot, wall s per simulated s)."""
-    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scene_params import WalkerParams
     from beambench.sim.scenes.walker_batch import RAMP_RATE, STEADY_SETTINGS, steady_speeds
 
     wp = replace(WalkerParams(), **overrides)
@@ -167,7 +167,7 @@ def shipped_walker():
     """The shipped walker sweep's legs and walker parameters (rod5g on the physical set, its walker block)."""
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
-    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scene_params import WalkerParams
 
     physical = load_params("physical", model="rod")
     return make_beam_model("rod5g", physical), WalkerParams.with_overrides(physical.walker)
@@ -225,7 +225,7 @@ def main() -> None:
 
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
-    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scene_params import WalkerParams
     from beambench.sim.scenes.walker_batch import RECORD_S, STEADY_SETTLE_S
 
     beam = make_beam_model("prb3", load_params())

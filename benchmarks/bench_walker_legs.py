@@ -34,7 +34,8 @@ sys.path.insert(0, str(ROOT / "src"))
 from beambench.common.resources import user_dir
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
-from beambench.sim.scenes.walker import WalkerParams, WalkerSim, sole_load
+from beambench.sim.scene_params import WalkerParams
+from beambench.sim.scenes.walker import WalkerSim, sole_load
 from beambench.sim.scenes.walker_batch import steady_speeds
 from beambench.sim.settings import SimSettings
 

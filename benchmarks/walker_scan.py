@@ -20,7 +20,7 @@ FREQUENCIES = (15.0, 23.0, 30.0, 50.0, 65.0)
 def main() -> None:
     from beambench.sim.models.params import load_params
     from beambench.sim.models.registry import make_beam_model
-    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scene_params import WalkerParams
     from beambench.sim.scenes.walker_batch import steady_speeds
     from beambench.sim.settings import SimSettings
 

@@ -3,9 +3,13 @@
 Each picture is made by beambench itself from shipped protocols run as a user would run them (sim backend,
 shipped parameter sets): the contact sweep, the walker sweep and the walker's speed tracking, their reports
 (``beambench analyze``), the real Rerun viewer's own screenshots (``beambench view --screenshot``, headless, needs
-a Vulkan driver) and the README's notebook example. Every PNG carries, in a PNG text chunk, a hash of the shipped
-files it was made from (the protocols and the parameter sets they name); ``tests/test_docs_images.py`` recomputes
-the hashes from the shipped files and fails when a picture was made from other defaults than those shipped.
+a Vulkan driver) and the README's notebook example. The contact chart is drawn from the table its benchmark
+writes (``benchmarks/bench_contact_chart.py`` → ``sim_backend/contact_chart.csv``; its physics is not rerun
+here). Every PNG carries, in a PNG text chunk, a hash of the shipped
+files it was made from (the protocols and the parameter sets they name) and of the code that draws it (a report
+figure's module and the ``beambench.analysis`` modules it imports; the notebook example's function);
+``tests/test_docs_images.py`` recomputes the hashes and fails when a picture was made from other defaults or
+other drawing code than those shipped.
 
 ``--only NAME[,NAME]`` remakes the named pictures only (their runs are still made).
 """
@@ -13,7 +17,10 @@ the hashes from the shipped files and fails when a picture was made from other d
 from __future__ import annotations
 
 import argparse
+import ast
 import hashlib
+import importlib.util
+import inspect
 import os
 import subprocess
 import sys
@@ -34,6 +41,7 @@ class Picture:
 
     protocols: tuple[str, ...]
     how: str
+    files: tuple[str, ...] = ()  # other shipped files it is drawn from (a benchmark's cached table)
 
 
 PICTURES: dict[str, Picture] = {
@@ -41,10 +49,15 @@ PICTURES: dict[str, Picture] = {
     "report_forces.png": Picture(("contact_sweep",), "beambench analyze: forces.png"),
     "report_contact_frequency.png": Picture(("contact_sweep",), "beambench analyze: contact_frequency.png"),
     "report_walking_speed.png": Picture(("walker_sweep",), "beambench analyze: walking_speed.png"),
-    "live_view_contact.png": Picture(("contact_sweep",), "beambench view --screenshot --at 140"),
-    "live_view_walker.png": Picture(("walker_sweep",), "beambench view --screenshot --at 150"),
+    "live_view_contact.png": Picture(("contact_sweep",), "beambench view --screenshot --at 145"),
+    "live_view_walker.png": Picture(("walker_sweep",), "beambench view --screenshot --at 151.5"),
     "tracking.png": Picture(("walker_track",), "beambench analyze: tracking.png"),
     "notebook_step.png": Picture(("contact_sweep",), "the README's notebook example"),
+    "contact_chart.png": Picture(
+        (),
+        "the contact scene's speed/accuracy chart from benchmarks/bench_contact_chart.py's table",
+        ("sim_backend/contact_chart.csv",),
+    ),
 }
 
 
@@ -68,12 +81,76 @@ def shipped_inputs(protocol: str) -> list[Path]:
     return files
 
 
+DRAWING_PACKAGE = "beambench.analysis"  # a figure's imports followed into the hash: those inside this package
+
+
+def _runtime_imports(path: Path) -> set[str]:
+    """The ``beambench.analysis`` modules a source file imports when it runs (not those under ``TYPE_CHECKING``):
+    ``from a.b import c`` names ``a.b.c`` where that is a module, else ``a.b``."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    skip = {
+        id(n)
+        for node in ast.walk(tree)
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+        for n in ast.walk(node)
+    }
+    out: set[str] = set()
+    for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names if a.name.startswith(DRAWING_PACKAGE)}
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith(DRAWING_PACKAGE):
+            module = node.module or ""
+            out |= {f"{module}.{a.name}" if _is_module(f"{module}.{a.name}") else module for a in node.names}
+    return out
+
+
+def _is_module(name: str) -> bool:
+    try:
+        return importlib.util.find_spec(name) is not None
+    except (ImportError, AttributeError):  # a parent that is a module, not a package
+        return False
+
+
+def drawing_code(name: str) -> list[Path]:
+    """The source files that draw picture ``name``: a report figure's module and, transitively, the
+    ``beambench.analysis`` modules it imports; none for the others (the notebook's function is hashed apart)."""
+    how = PICTURES[name].how
+    if not how.startswith("beambench analyze: "):
+        return []
+    from beambench.analysis.figures import FIGURES
+
+    key = how.removeprefix("beambench analyze: ").removesuffix(".png")
+    todo, seen = [FIGURES[key].draw.__module__], set()
+    while todo:
+        mod = todo.pop()
+        if mod in seen:
+            continue
+        seen.add(mod)
+        spec = importlib.util.find_spec(mod)
+        if spec is not None and spec.origin:
+            todo += sorted(_runtime_imports(Path(spec.origin)) - seen)
+    files = {importlib.util.find_spec(m).origin for m in seen}  # type: ignore[union-attr]
+    return sorted(Path(f) for f in files if f)
+
+
 def inputs_hash(name: str) -> str:
-    """SHA-256 of the shipped files picture ``name`` is made from (their repository paths and bytes)."""
+    """SHA-256 of the shipped files picture ``name`` is made from (their repository paths and bytes) and of the
+    code that draws it."""
     digest = hashlib.sha256()
-    files = sorted({f for p in PICTURES[name].protocols for f in shipped_inputs(p)})
+    pic = PICTURES[name]
+    files = sorted({f for p in pic.protocols for f in shipped_inputs(p)} | {ROOT / f for f in pic.files})
     for f in files:
         digest.update(str(f.relative_to(ROOT)).encode() + b"\0" + f.read_bytes() + b"\0")
+    for f in drawing_code(name):
+        digest.update(f"{f.parent.name}/{f.name}".encode() + b"\0" + f.read_bytes() + b"\0")  # installed anywhere
+    if PICTURES[name].how == "the README's notebook example":
+        digest.update(inspect.getsource(notebook_picture).encode())
+    if not pic.protocols:  # drawn from a cached table: the function that draws it
+        from beambench.studies.contact_chart import chart_figure
+
+        digest.update(inspect.getsource(chart_figure).encode())
     return digest.hexdigest()
 
 
@@ -130,6 +207,15 @@ def notebook_picture(session: Path, out: Path) -> None:
     plt.close(fig)
 
 
+def chart_picture(name: str, out: Path) -> None:
+    """A picture drawn from a benchmark's cached table (no physics here)."""
+    import pandas as pd
+
+    from beambench.studies.contact_chart import chart_figure
+
+    chart_figure(pd.read_csv(ROOT / PICTURES[name].files[0]), out)
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", default="", help="comma-separated picture names (default: all)")
@@ -163,6 +249,10 @@ def main(argv: list[str] | None = None) -> None:
                 else:
                     notebook_picture(session, out / name)
                     stamp(out / name, name)
+        for name in sorted(only):
+            if not PICTURES[name].protocols:  # drawn from a cached table (its benchmark regenerates it)
+                chart_picture(name, out / name)
+                stamp(out / name, name)
     print(f"wrote {IMG}")
 
 

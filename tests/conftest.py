@@ -2,9 +2,12 @@
 
 - :func:`shared_path` / :func:`require_shared`: the shared fixtures (independent NatNet packets and captures, the
   ODrive DBC) live outside the repository, in ``$BEAMBENCH_SHARED`` if set, else ``../shared`` beside the checkout.
-  Every test that reads them goes through here and skips with the reason when they are absent.
+  Every test that reads them goes through here and skips with the reason when they are absent, or fails when the
+  environment variable ``CI`` is set (:func:`skip_unless_ci`: CI must run every test).
 - Every test runs with ``$BEAMBENCH_USER_DIR`` pointing at a temporary folder, so nothing a test runs (calibrate,
   fit, …) writes into the real per-user folder.
+- :func:`wait_until` / :func:`holds_for`: the one way a test waits on real time (a thread, a socket, a child
+  process): poll a condition until it holds, or check that it keeps holding for a while; no fixed sleeps.
 - The soak tier (``@pytest.mark.soak``): more repetitions of a race check, at other random moments, than the
   default run's one or few. Deselected unless ``--soak`` is given (``make soak``; CI runs it after ``make test``).
   Every Hypothesis test belongs to it too: the default run makes a fifth of its examples (at least 50,
@@ -15,14 +18,18 @@ from __future__ import annotations
 
 import os
 import subprocess
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NoReturn, TypeVar
 
 import pytest
 
 from beambench.common.resources import USER_DIR_ENV
 
+T = TypeVar("T")
+E = TypeVar("E", bound=BaseException)
 SHARED_ENV = "BEAMBENCH_SHARED"
 REPO = Path(__file__).resolve().parents[1]
 
@@ -38,12 +45,52 @@ def shared_path(*parts: str) -> Path:
     return shared_root().joinpath(*parts)
 
 
+def skip_unless_ci(reason: str) -> NoReturn:
+    """Skip the test with ``reason``; under CI (``$CI`` set) fail it instead: CI has what every test needs."""
+    if os.environ.get("CI"):
+        pytest.fail(f"CI must run this test: {reason}")
+    pytest.skip(reason)
+
+
 def require_shared(*parts: str) -> Path:
-    """The existing shared file or folder ``parts``, or skip the test saying where it was looked for."""
+    """The existing shared file or folder ``parts``, or skip the test saying where it was looked for (fail in CI)."""
     path = shared_path(*parts)
     if not path.exists():
-        pytest.skip(f"shared fixture {path} not found (set ${SHARED_ENV} or put the shared folder at ../shared)")
+        skip_unless_ci(f"shared fixture {path} not found (set ${SHARED_ENV} or put the shared folder at ../shared)")
     return path
+
+
+def wait_until(condition: Callable[[], T], timeout_s: float = 10.0, what: str = "", interval_s: float = 0.01) -> T:
+    """Poll ``condition`` until it returns something true, and return that; fail after ``timeout_s`` naming
+    ``what`` (generous: a loaded machine is slow, a quick one returns at once)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = condition()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what or condition}")
+        time.sleep(interval_s)
+
+
+def holds_for(condition: Callable[[], object], duration_s: float, what: str = "", interval_s: float = 0.01) -> None:
+    """Poll ``condition`` for ``duration_s``: it must be true at every poll (something that must keep holding
+    while time passes, e.g. a watchdog kept fed past its timeout)."""
+    end = time.monotonic() + duration_s
+    while True:
+        assert condition(), f"stopped holding: {what or condition}"
+        if time.monotonic() >= end:
+            return
+        time.sleep(interval_s)
+
+
+def raised(call: Callable[[], object], kind: type[E]) -> E | None:
+    """The ``kind`` exception ``call()`` raises, or None (a condition for :func:`wait_until`: a fault reported)."""
+    try:
+        call()
+    except kind as exc:
+        return exc
+    return None
 
 
 def descendants(pid: int) -> list[int]:

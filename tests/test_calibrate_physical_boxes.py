@@ -10,8 +10,8 @@ import pytest
 
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.contact_regimes import static_sag
-from beambench.sim.scenes.contact_rig import RigParams
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration import get_rig
 from beambench.studies.twin_calibration.contact import calibrated_params, contact_boxes, physical_gap

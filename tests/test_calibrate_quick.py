@@ -47,7 +47,7 @@ def test_a_quick_contact_search_ends_within_its_budget_with_its_verify_stage(mon
     t0 = time.perf_counter()
     res = _beambench("calibrate", "sim", "--targets", str(t), "--out", str(out), "--quick", "--budget-s", str(budget))
     wall = time.perf_counter() - t0
-    assert res.returncode in (0, 3), res.stderr
+    assert res.returncode in (0, 5), res.stderr  # 5: written, a target missed
     assert wall <= budget + 1.0, f"{wall:.1f} s for a {budget:g} s budget"
     rep = json.loads((out / "t_calibrated_report.json").read_text())
     stages = [h["stage"] for h in rep["history"]]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from beambench.commands.calibrate_sim import EXIT_INTERRUPTED
+from beambench.commands import EXIT_STOPPED
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = ROOT / "calibration" / "paper_contact_targets.yaml"
@@ -72,7 +72,7 @@ def _stop_at(tmp_path: Path, sig: signal.Signals, after_s: float, ignored: bool)
     text = err.read_text(errors="replace")
     said = [ln for ln in text.replace("\r", "\n").splitlines() if ln.startswith("beambench:")]
     why = f"{sig.name} after {after_s:.2f} s (SIGINT ignored at start: {ignored}): {text[-2000:]}"
-    assert proc.returncode == EXIT_INTERRUPTED, why
+    assert proc.returncode == EXIT_STOPPED, why
     assert len(said) == 1 and "calibration interrupted" in said[0], why
     assert f"to resume, run beambench calibrate sim --targets {TARGETS}" in said[0], why
     assert "Traceback" not in text and "leaked semaphore" not in text and "resource_tracker" not in text, why

@@ -1,5 +1,5 @@
 """``beambench calibrate sim`` knows its limits: a verdict per target (met within its tolerance or missed, and the
-unknown at its bound that limits a miss), exit 3 for "written, but not within tolerance", exit 0 only when every
+unknown at its bound that limits a miss), exit 5 (EXIT_MISSED) for "written, but not within tolerance", exit 0 only when every
 target is met, and a search that never leaves the unknowns' bounds. The end-to-end cases run the real command on
 a toy rig whose map's transitions are known functions of two bounded unknowns (instant maps; the search, log,
 verdict and report are the calibrator's own), registered in place of the contact rig for the test."""
@@ -18,6 +18,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from beambench.commands import EXIT_MISSED
 from beambench.studies.executor import Pool
 from beambench.studies.twin_calibration import RIGS, CalibratableRig, CalibrationBase, Unknown
 from beambench.studies.twin_calibration.contact import contact_summary
@@ -119,12 +120,12 @@ def _assert_inside_bounds(log: Path) -> None:
             assert u.lo <= rec["values"][u.name] <= u.hi, rec["values"]
 
 
-def test_an_unreachable_target_is_named_with_its_limiting_unknown_and_exits_3(toy, tmp_path):
+def test_an_unreachable_target_is_named_with_its_limiting_unknown_and_exits_5(toy, tmp_path):
     res, out = _calibrate(
         tmp_path,
         "rig: contact\ncontinuous_below_hz: 17\nhalf_at_hz: 32\nthird_at_hz: 66\ntangential_sign: {35: -1, 65: 1}\n",
     )
-    assert res.returncode == 3, res.stderr
+    assert res.returncode == EXIT_MISSED == 5, res.stderr
     last = res.stderr.strip().splitlines()[-1]
     assert last.startswith("beambench: not within tolerance: 1 of 5 targets missed: third_at_hz twin 61 Hz vs 66 Hz")
     assert "w at its upper bound 2" in last, last
@@ -206,7 +207,7 @@ def test_a_miss_that_another_noise_seed_meets_is_the_twins_own_spread_not_a_boun
     monkeypatch.setitem(RIGS, "contact", replace(TOY, simulate=noisy_simulate))
     monkeypatch.setattr("beambench.studies.executor.make_executor", _threads)
     res, out = _calibrate(tmp_path, "rig: contact\ncontinuous_below_hz: 17\nhalf_at_hz: 32\nthird_at_hz: 66\n")
-    assert res.returncode == 3, res.stderr
+    assert res.returncode == EXIT_MISSED == 5, res.stderr
     last = res.stderr.strip().splitlines()[-1]
     assert "third_at_hz twin 61 Hz vs 66 Hz" in last, last
     assert "the twin's own seed-to-seed spread covers it (58 … 66 Hz over 3 noise seeds, 1 within tolerance" in last
@@ -315,3 +316,16 @@ def test_the_maps_figure_places_each_step_at_its_label_as_the_table_reads_it():
     assert _label_level({"regime": "1", "contacts_per_cycle": 1.0, "in_contact_fraction": 0.9}) == regime_level("1")
     assert _label_level({"regime": "1/2", "contacts_per_cycle": 0.55}) == regime_level("1/2") == 1.0
     assert _label_level({"regime": "irregular", "contacts_per_cycle": 0.6}) == regime_level("irregular", 0.6)
+
+
+def test_quick_help_states_each_rigs_budget_from_its_own_settings():
+    """``--quick``'s time in ``--help`` is each rig's quick budget (one figure, never a copy that drifts)."""
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+    from beambench.studies.twin_calibration.evaluate import quick_budget_s
+
+    res = CliRunner().invoke(app, ["calibrate", "sim", "--help"], env={"COLUMNS": "300"})
+    text = " ".join(res.output.split())
+    for rig in RIGS.values():
+        assert f"{rig.name} rig {quick_budget_s(rig) / 60:.1f} min" in text, text

@@ -9,8 +9,9 @@ import pytest
 
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.contact_regimes import static_sag
-from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
+from beambench.sim.scenes.contact_rig import build_contact_spec
 from beambench.sim.scenes.free_beam import equilibrium_qpos
 
 

@@ -8,7 +8,8 @@ import numpy as np
 
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
-from beambench.sim.scenes.contact_rig import ContactRigSim, RigParams
+from beambench.sim.scene_params import RigParams
+from beambench.sim.scenes.contact_rig import ContactRigSim
 
 
 def _rig(clamp_roll_deg: float, dt: float, gap_m: float = 0.002) -> ContactRigSim:

@@ -1,6 +1,7 @@
 """Documentation pictures match what a fresh clone shows: each PNG in docs/img was made by
-``python docs/make_figures.py`` from the shipped protocols and parameter sets as they are now (the hash of those
-files stored in the PNG equals the hash of the shipped files), and every picture a page shows exists."""
+``python docs/make_figures.py`` from the shipped protocols and parameter sets and with the drawing code as they are
+now (the hash of those files stored in the PNG equals the hash of the shipped files), and every picture a page
+shows exists."""
 
 from __future__ import annotations
 
@@ -44,8 +45,29 @@ def test_the_hash_follows_the_shipped_inputs(tmp_path: Path) -> None:
     names = [str(f.relative_to(ROOT)) for f in files]
     assert "protocols/contact_sweep.yaml" in names
     assert any(n.startswith("sim_backend/") for n in names), names
-    assert mf.inputs_hash("report_forces.png") == mf.inputs_hash("live_view_contact.png")
+    assert mf.inputs_hash("live_view_contact.png") != mf.inputs_hash("live_view_walker.png")
     assert mf.inputs_hash("report_forces.png") != mf.inputs_hash("tracking.png")
+
+
+def test_the_hash_follows_the_code_that_draws_the_picture(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A report figure's stamp covers its module and the beambench.analysis modules it imports when it runs, so a
+    change to how a picture is drawn makes it stale as a change of protocol does."""
+    mf = _make_figures()
+    names = {f"{f.parent.name}/{f.name}" for f in mf.drawing_code("report_forces.png")}
+    assert {"figures/forces.py", "figures/style.py", "figures/registry.py", "analysis/path_shape.py"} <= names
+    assert "analysis/session_analysis.py" not in names  # imported for type checking only
+    assert "contact_frequency.py" in {f.name for f in mf.drawing_code("report_contact_frequency.png")}
+    # same protocol, other drawing code: other stamps
+    assert mf.inputs_hash("report_forces.png") != mf.inputs_hash("report_trajectories.png")
+    assert mf.inputs_hash("report_forces.png") != mf.inputs_hash("live_view_contact.png")
+    # one byte more in a drawing module changes the stamp
+    copy = tmp_path / "figures" / "forces.py"
+    copy.parent.mkdir()
+    copy.write_bytes(next(f for f in mf.drawing_code("report_forces.png") if f.name == "forces.py").read_bytes())
+    monkeypatch.setattr(mf, "drawing_code", lambda name: [copy])
+    before = mf.inputs_hash("report_forces.png")
+    copy.write_bytes(copy.read_bytes() + b"# a change\n")
+    assert mf.inputs_hash("report_forces.png") != before
 
 
 @pytest.mark.parametrize("page", _pages(), ids=lambda p: p.name)

@@ -16,9 +16,12 @@ from typer.testing import CliRunner
 
 from beambench.acquisition.protocol.schema import load_rig_file
 from beambench.cli import app
+from beambench.common.vulkan import VulkanReport
 from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
 from beambench.emulators.motive import MotiveEmulator
-from beambench.session.doctor import Machine, check_machine, failed, kernel_has_can
+from beambench.session import doctor
+from beambench.session.doctor import Machine, check_machine, failed, kernel_has_can, vulkan_row
+from beambench.session.viewer import vulkan_available
 
 IP_OUTPUT = """3: can0: <NOARP,UP,LOWER_UP,ECHO> mtu 16 qdisc pfifo_fast state UP mode DEFAULT group default qlen 10
     link/can  promiscuity 0 minmtu 0 maxmtu 0
@@ -73,10 +76,15 @@ class World:
         return Machine(load_rig_file(self.rig), self.tmp, self.root, str(self.bin), **kw)
 
 
+SOFTWARE_VULKAN = VulkanReport("/usr/lib/x86_64-linux-gnu/libvulkan.so.1", ["llvmpipe (CPU (software))"])
+NO_VULKAN_DRIVER = VulkanReport("/usr/lib/x86_64-linux-gnu/libvulkan.so.1", [], "no Vulkan driver found")
+
+
 @pytest.fixture
 def world(tmp_path, monkeypatch):
-    for var in ("VK_ICD_FILENAMES", "VK_DRIVER_FILES"):
-        monkeypatch.delenv(var, raising=False)
+    # The Vulkan driver is a part of the test's machine like /sys and PATH: the loader's answer is faked (the real
+    # loader is asked by the tests at the end of this module, which hold on a machine with or without Vulkan).
+    monkeypatch.setattr(doctor, "vulkan_devices", lambda: SOFTWARE_VULKAN)
     with (
         MotiveEmulator(command_port=0, multicast=False, wait_for_client=False) as motive,
         EmulatedLoadCellMCU() as mcu,
@@ -132,8 +140,7 @@ def _take_away(world: World, part: str, monkeypatch) -> dict:
     elif part == "no disk space":
         return {"min_free_gb": 1e9}
     elif part == "no Vulkan driver":
-        monkeypatch.setenv("VK_ICD_FILENAMES", str(world.tmp / "none.json"))
-        monkeypatch.setenv("VK_DRIVER_FILES", str(world.tmp / "none.json"))
+        monkeypatch.setattr(doctor, "vulkan_devices", lambda: NO_VULKAN_DRIVER)
     elif part == "no rerun program":
         (world.bin / "rerun").unlink()
     elif part == "another rerun version":
@@ -206,8 +213,27 @@ def test_the_viewer_asks_the_vulkan_loader_not_fixed_paths(monkeypatch, tmp_path
     for var in ("VK_ICD_FILENAMES", "VK_DRIVER_FILES"):
         monkeypatch.setenv(var, str(tmp_path / "none.json"))
     assert not vulkan_available()
-    with pytest.raises(ViewerUnavailable, match="needs a Vulkan driver: no Vulkan driver found"), HeadlessViewer():
+    # the loader's own words: no driver behind an installed loader, or no loader at all on this machine
+    said = "needs a Vulkan driver: (no Vulkan driver found|no Vulkan loader \\(libvulkan.so.1\\) on the library path)"
+    with pytest.raises(ViewerUnavailable, match=said), HeadlessViewer():
         pass
+
+
+def test_the_vulkan_row_is_the_real_loaders_answer_on_this_machine(monkeypatch, tmp_path):
+    """Unfaked: the row says what this machine's loader says (ok with a device, or missing with the install line),
+    and drivers named by VK_ICD_FILENAMES that do not exist make it missing whether or not a loader is installed."""
+    for var in ("VK_ICD_FILENAMES", "VK_DRIVER_FILES"):
+        monkeypatch.delenv(var, raising=False)
+    row = vulkan_row()
+    if vulkan_available():
+        assert row.state == "ok" and "via " in row.found, row
+    else:
+        assert row.state == "missing" and "apt-get install mesa-vulkan-drivers libvulkan1" in row.todo, row
+    for var in ("VK_ICD_FILENAMES", "VK_DRIVER_FILES"):
+        monkeypatch.setenv(var, str(tmp_path / "none.json"))
+    row = vulkan_row()
+    assert row.state == "missing" and not row.required, row
+    assert "no Vulkan" in row.found, row
 
 
 def test_the_viewer_row_finds_the_rerun_program_the_sdk_wheel_ships(monkeypatch, tmp_path):

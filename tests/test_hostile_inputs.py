@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from beambench.common.yaml_config import ConfigError, parse_yaml
-from conftest import cli, one_line_error
+from conftest import cli, one_line_error, skip_unless_ci
 
 BASE = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
 
@@ -329,11 +329,11 @@ def test_the_headless_viewer_listens_on_loopback_only():
     from beambench.session.viewer import HeadlessViewer, ViewerUnavailable, vulkan_available
 
     if not vulkan_available():
-        pytest.skip("no Vulkan driver for the headless viewer")
+        skip_unless_ci("no Vulkan driver for the headless viewer")
     try:
         viewer = HeadlessViewer().__enter__()
     except ViewerUnavailable as exc:
-        pytest.skip(str(exc))
+        skip_unless_ci(str(exc))
     try:
         assert viewer._proc is not None
         addresses = _listening_addresses(viewer._proc.pid)

@@ -184,6 +184,16 @@ def test_shared_fixtures_are_found_through_the_environment_variable(tmp_path, mo
     assert shared_path("fixtures") == REPO.parent / "shared" / "fixtures"
 
 
+def test_a_missing_shared_fixture_skips_here_and_fails_in_ci(tmp_path, monkeypatch):
+    monkeypatch.setenv(SHARED_ENV, str(tmp_path))  # an empty shared folder
+    monkeypatch.delenv("CI", raising=False)
+    with pytest.raises(pytest.skip.Exception, match="not found"):
+        require_shared("fixtures", "natnet", "x.bin")
+    monkeypatch.setenv("CI", "1")
+    with pytest.raises(pytest.fail.Exception, match="CI must run this test"):
+        require_shared("fixtures", "natnet", "x.bin")
+
+
 @pytest.mark.skipif(shutil.which("make") is None, reason="make is not installed")
 def test_quick_start_make_targets_build_a_venv_from_the_project_and_run_the_sweep():
     res = subprocess.run(

@@ -33,13 +33,13 @@ sim: {seed: 3, plate_gap_mm: 1.0}  # the foot reaches the plate within a short r
 WALKER = """
 name: lv_walker
 rig: walker
-sweep: {frequencies: [50, 60]}
-settle_s: 0.3
-record_s: 0.7
+sweep: {frequencies: [65]}
+settle_s: 0.5
+record_s: 4.0
 amplitude_mm: 2.0
 limits: {max_frequency_hz: 80, max_current_a: 6}
 sim: {model: prb3, seed: 2, segments: 1}
-"""
+"""  # walks about 0.5 m: framed on everything seen, the walker ended a speck (0.00 % of the view in leg colour)
 MIN_BEAM_FRACTION = 0.003  # of the 3-D view's pixels in colour (the old view: 0.0002 at the contact sweep's 140 s)
 MIN_PLATE_FRACTION = 0.005  # brown (the plate's box), of the contact rig's 3-D view
 
@@ -79,6 +79,12 @@ def colour_fraction(png: bytes) -> float:
     """Share of pixels in colour (not grey: channel spread > 40 of 255)."""
     a = _pixels(png)
     return float(np.mean(a.max(axis=-1) - a.min(axis=-1) > 40))
+
+
+def leg_fraction(png: bytes) -> float:
+    """Share of the beam's (the legs') yellow pixels, shaded (not the orange tip or the brown plate)."""
+    r, g, b = np.moveaxis(_pixels(png), -1, 0)
+    return float(np.mean((r > 150) & (g > 0.6 * r) & (g < 0.95 * r) & (b < 0.6 * r)))
 
 
 def brown_fraction(png: bytes) -> float:
@@ -132,6 +138,24 @@ def test_walker_view_has_no_plate_panels(sessions, tmp_path):
     names = set(views)
     assert not [n for n in names if "Plate" in n or "Load cell" in n], names
     assert {"Body speed (mm/s)", "Body position (mm)"} <= names and any("Drive frequency (Hz)" in n for n in names)
+
+
+def test_the_walker_stays_in_view_with_its_legs_as_it_walks_away(sessions, tmp_path):
+    """Seen from the frame that follows the body, the walker's legs fill the same share of the 3-D view early,
+    midway and at the end of a 0.5 m walk (a speck before: the eye framed the whole walk)."""
+    rrd = sessions["walker"].with_suffix(".rrd")
+    with HeadlessViewer(rrd, window=(1280, 720)) as viewer:
+        state = viewer.open()
+        spatial = next(v for v in state.views if v.view_class == "3D")
+        legs = [
+            leg_fraction(viewer.screenshot(tmp_path / f"walker_{at:g}.png", at=at, view_id=spatial.view_id))
+            for at in (0.5, 2.5, 4.4)
+        ]
+        blueprint = viewer.client.get_blueprint().blueprint
+    origin = blueprint[f"/view/{spatial.view_id}"]["ViewBlueprint"]["space_origin"]
+    assert origin == "/mocap/follow", origin
+    assert min(legs) >= 0.004, legs  # both legs readable (~0.9 % of the view here)
+    assert max(legs) <= 1.6 * min(legs), legs  # the same size at every moment
 
 
 def test_view_screenshot_command_writes_the_viewer_picture(sessions, tmp_path):

@@ -97,6 +97,73 @@ def test_plate_sits_at_the_foots_contact_height(touching):
     assert foot_z.min() - 0.5 <= top <= np.median(foot_z), (top, foot_z.min(), np.median(foot_z))
 
 
+# the physical contact twin at 20 and 25 Hz: foot gaps of exactly a tenth of a drive period (5 and 4 force samples),
+# where the contact rule's count turns on the last digit of the frequency and of the window's times
+AT_THE_EDGE = """
+name: edge
+rig: contact
+sweep: {frequencies: [20, 25]}
+settle_s: 2.0
+record_s: 5.0
+amplitude_mm: 2.0
+limits: {max_frequency_hz: 40}
+sim: {model: rod5g, params: physical, twist_deg: 90, noise: true, seed: 0}
+"""
+
+
+def _finished_numbers(rrd) -> dict[int, tuple[str, str]]:
+    """Step number (1-based) → (regime, contacts per cycle as shown) of the step panel's "Last finished" line."""
+    texts = _column(_chunks(rrd)["/step"], "TextDocument:text")
+    found = {}
+    for t in texts:
+        m = re.search(
+            r"Last finished: step (\d+) \([^)]*\): regime \*\*([^*]+)\*\* \(([\d.]+) contacts/cycle\)", str(t[0])
+        )
+        if m:
+            found[int(m.group(1))] = (m.group(2), m.group(3))
+    return found
+
+
+def test_step_panel_contacts_per_cycle_are_the_reports_live_and_replayed(tmp_path):
+    """The live panel's contacts per cycle is the report's (steps.csv) for every step: the analysis's own
+    computation on the same window (it read 0.07 and 0.52 where the report has 0.14 and 0.59 here)."""
+    proto = tmp_path / "edge.yaml"
+    proto.write_text(AT_THE_EDGE)
+    res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--name", "e", "--rerun", "save"])
+    assert res.exit_code == 0, res.output
+    session = tmp_path / "e.h5"
+    table = analyze_session(read_session(session)).table
+    expected = {i + 1: (str(r.regime), f"{r.contacts_per_cycle:.2f}") for i, r in enumerate(table.itertuples())}
+    assert all(float(n) > 0 for _, n in expected.values()), expected  # contacts to count
+    assert _finished_numbers(session.with_suffix(".rrd")) == expected  # the run's own recording (live order)
+    replayed = replay_session(session, "save", tmp_path / "replay.rrd")
+    assert replayed is not None and _finished_numbers(replayed) == expected
+
+
+def test_the_step_panel_shows_the_measured_frequency_of_the_step_in_sight(touching):
+    """At a step's start the panel says "settling", never the last step's speed beside the new command; once
+    half a second of the step exists, the measured frequency is this step's own (within 2 % of the command by
+    the step's end); after the last step, the panel says it ended (motor samples stamped after the end do not
+    bring the running step back)."""
+    batches = _chunks(touching.with_suffix(".rrd"))["/step"]
+    texts = [str(t[0]) for t in _column(batches, "TextDocument:text")]
+    times = np.asarray(_column(batches, "session_time"), "timedelta64[ns]").astype(np.int64)
+    last = texts[max(range(len(texts)), key=lambda i: (times[i], i))]  # what the viewer shows at the end
+    assert "Between steps" in last and "Last finished: step 2" in last, last
+    by_step: dict[int, list[str]] = {}
+    for text in texts:
+        m = re.search(r"## Step (\d+) of", text)
+        if m and "measured" in text:
+            by_step.setdefault(int(m.group(1)), []).append(text)
+    assert set(by_step) == {1, 2}, by_step
+    for step, shown in by_step.items():
+        assert "measured: settling" in shown[0], shown[0]  # the new command, nothing from the step before
+        m = re.search(r"commanded ([\d.]+) Hz · measured ([\d.]+) Hz", shown[-1])
+        assert m, shown[-1]
+        commanded, measured = float(m.group(1)), float(m.group(2))
+        assert abs(measured - commanded) <= 0.02 * commanded, (step, shown[-1])
+
+
 def test_step_panel_regimes_are_the_analysis_regimes_live_and_replayed(touching, tmp_path):
     table = analyze_session(read_session(touching)).table
     expected = {i + 1: str(r) for i, r in enumerate(table["regime"])}

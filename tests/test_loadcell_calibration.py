@@ -285,3 +285,42 @@ def test_cli_takes_the_port_from_the_rig_file(tmp_path):
         )
     assert "Tare (" in r.output and "samples" in r.output  # it read the emulated board named in the rig file
     assert r.exit_code == 2 and "within the noise" in r.stderr  # nobody put the weights on
+
+
+class _PlateWithLostFrames:
+    """A stream (in memory, on the host's real clock) of a 1 kHz plate whose frames sampled between ``lost_from``
+    and ``lost_to`` seconds after it starts never reach the host (a stall that overflowed the MCU's buffer), and
+    with ``every_s`` only one frame in each ``every_s`` seconds reaches it."""
+
+    def __init__(self, lost_from: float, lost_to: float, every_s: float = 0.001) -> None:
+        self.t0 = time.monotonic_ns()
+        self.sent = 0
+        self.lost = (lost_from, lost_to)
+        self.every = round(every_s * 1e3)
+
+    def read(self):
+        from beambench.acquisition.batch import Batch
+
+        due = int((time.monotonic_ns() - self.t0) * 1e-6)
+        k = np.arange(self.sent, due)
+        self.sent = due
+        t = k * 1e-3
+        k = k[((t < self.lost[0]) | (t >= self.lost[1])) & (k % self.every == 0)]
+        dev = k * 1e-3
+        counts = np.tile([100.0, 200.0, 300.0, 400.0], (len(k), 1)) + (k % 7)[:, None]
+        return Batch("loadcell", self.t0 + np.rint(dev * 1e9).astype(np.int64), dev, {"data": counts})
+
+
+def test_a_window_whose_frames_were_lost_is_recorded_again_while_the_plate_streams():
+    """A busy host can lose the few frames of a short window (the MCU's buffer overflows): the load is still on,
+    so the next window is recorded instead of failing the calibration; a plate whose every window is lost says so."""
+    from beambench.devices.loadcell.calibrate import WINDOW_TRIES, CalibrationAborted, record
+
+    plate = _PlateWithLostFrames(0.0, 0.25)  # the first window (0-0.1 s) and the next ones up to 0.25 s are lost
+    rec = record(plate, 0.0, 0.1)  # type: ignore[arg-type]
+    assert 50 <= len(rec.samples) <= 100, len(rec.samples)  # one window's worth (1 kHz), not zero
+    np.testing.assert_allclose(rec.mean, [103.0, 203.0, 303.0, 403.0], atol=0.5)
+    with pytest.raises(CalibrationAborted, match=f"in {WINDOW_TRIES} windows of 0.1 s while the plate streamed"):
+        record(_PlateWithLostFrames(0.0, 0.0, every_s=1.0), 0.0, 0.1)  # type: ignore[arg-type]  # a frame a second
+    with pytest.raises(CalibrationAborted, match="is the MCU connected and running"):  # silent: not a lost window
+        record(_PlateWithLostFrames(0.0, 60.0), 0.0, 0.1)  # type: ignore[arg-type]

@@ -2,7 +2,6 @@
 
 import math
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -13,6 +12,7 @@ from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibratio
 from beambench.acquisition.streams import LOADCELL, loadcell_spec
 from beambench.devices.loadcell.driver import SerialLoadCells, Unwrap32
 from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock
+from conftest import holds_for, raised, wait_until
 
 SENS = np.array([[20000.0, 1000.0], [21000.0, -800.0], [500.0, 19000.0], [-300.0, 20500.0]])
 PLATE = LoadCellCalibration(tare=np.array([1200.0, -800.0, 450.0, -300.0]), sensitivity=SENS)
@@ -40,19 +40,23 @@ def acquire(
             mcu.start()
         else:
             mcu.start()
-            time.sleep(head_start_s)
+            wait_until(lambda: mcu.injected.frames >= head_start_s * mcu.rate_hz, what="the board's head start")
             lc.start()
-        t_end = time.monotonic() + seconds
-        while time.monotonic() < t_end:
-            time.sleep(0.1)
-            batches.append(lc.read())  # ~10 batches per second, as the runner reads
+        until = mcu.injected.frames + seconds * mcu.rate_hz
+
+        def read() -> bool:  # ~10 batches per second, as the runner reads
+            batches.append(lc.read())
+            return mcu.injected.frames >= until
+
+        wait_until(read, timeout_s=seconds + 10, what=f"{seconds:g} s of frames", interval_s=0.1)
         mcu.stop()
-        deadline, seen, still = time.monotonic() + 5.0, -1, 0
-        while time.monotonic() < deadline and still < 3:  # until the driver has read everything that was sent
-            time.sleep(0.05)
-            now = lc.stats()["bytes_in"]
-            still = still + 1 if now == seen and mcu.flushed() else 0
-            seen = now
+        bytes_in: list[int] = []
+
+        def drained() -> bool:  # the driver has read everything that was sent: 3 polls with nothing new
+            bytes_in.append(lc.stats()["bytes_in"] if mcu.flushed() else -len(bytes_in) - 1)
+            return len(bytes_in) >= 3 and len(set(bytes_in[-3:])) == 1
+
+        wait_until(drained, timeout_s=5, what="every byte sent", interval_s=0.05)
         batches.append(lc.read())
     finally:
         lc.stop()
@@ -166,9 +170,9 @@ def test_port_that_disappears_raises_device_fault_after_handing_out_its_samples(
     lc = SerialLoadCells(mcu.open())
     lc.start()
     mcu.start()
-    time.sleep(0.3)
+    wait_until(lambda: lc.stats()["samples_queued"] > 100, what="100 samples")
     mcu.close()  # the board is unplugged
-    time.sleep(0.3)
+    wait_until(lambda: lc.stats()["fault"], what="the port's failure")
     try:
         first = lc.read()
         assert len(first) > 50
@@ -228,12 +232,12 @@ def test_a_silence_found_by_check_is_not_raised_again_by_the_final_read():
     try:
         lc.start()
         mcu.start()
-        time.sleep(0.3)
+        wait_until(lambda: lc.stats()["samples_queued"] > 200, what="200 samples")
         mcu.stop()
-        time.sleep(0.6)  # silent for longer than the timeout
-        with pytest.raises(DeviceFault, match="silent") as found:
-            lc.check()  # the runner's check() finds it first
-        assert f"on {port}" in str(found.value)  # which board: the port it is on
+        found = wait_until(
+            lambda: raised(lc.check, DeviceFault), what="the silence"
+        )  # the runner's check() finds it first
+        assert "silent" in str(found) and f"on {port}" in str(found)  # which board: the port it is on
         drained = [lc.read(), lc.read()]  # what arrived before the silence, then nothing: no second raise
         assert len(drained[0]) > 100 and len(drained[1]) == 0
         with pytest.raises(DeviceFault, match="silent"):
@@ -261,16 +265,12 @@ def test_a_reader_that_got_no_cpu_does_not_make_a_streaming_board_silent():
         read = ser.read
         ser.read = lambda n=1: (awake.wait(), read(n))[1]  # type: ignore[method-assign]
         mcu.start()
-        deadline = time.monotonic() + 10.0
-        while lc.last_receive_ns is None and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert lc.last_receive_ns is not None, "no frame arrived"
+        wait_until(lambda: lc.last_receive_ns is not None, what="a first frame")
         awake.clear()  # the reader stops at its next read; the board keeps sending
-        time.sleep(0.5)  # 5 timeouts without a frame read
-        lc.check()  # not silent: nobody was listening
-        time.sleep(0.7)  # 12 timeouts: a reader asleep that long is hung
-        with pytest.raises(DeviceFault, match="silent"):
-            lc.check()
+        # 5 timeouts without a frame read: not silent, nobody was listening
+        holds_for(lambda: raised(lc.check, DeviceFault) is None, 0.5, "no fault while the reader is held")
+        hung = wait_until(lambda: raised(lc.check, DeviceFault), what="the hung reader")  # over 10 timeouts: hung
+        assert "silent" in str(hung)
     finally:
         awake.set()
         lc.stop()

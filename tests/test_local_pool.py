@@ -79,3 +79,16 @@ def test_workers_see_the_owners_environment_and_folder_as_they_are_when_the_pool
         env = pool.executor.submit(os.getenv, "BEAMBENCH_USER_DIR").result()
         cwd = pool.executor.submit(os.getcwd).result()
     assert env == str(tmp_path / "user") and Path(cwd) == tmp_path
+
+
+def test_an_error_in_the_pools_block_ends_a_worker_mid_task_at_once():
+    """An error (or Ctrl-C) while a worker is inside a minute-long task: the pool stops its workers (SIGTERM) and
+    the block ends within seconds, the worker gone."""
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match="stop"), make_executor(2) as pool:
+        pids = {f.result() for f in [pool.executor.submit(os.getpid) for _ in range(8)]}
+        for _ in range(2):
+            pool.executor.submit(time.sleep, 60)
+        raise RuntimeError("stop")
+    assert time.monotonic() - t0 < 20  # the tasks would have taken 60 s
+    assert pids and not any(process_alive(p) for p in pids), pids

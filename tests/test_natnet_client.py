@@ -19,6 +19,7 @@ from beambench.devices.natnet.client import NatNetClient, NatNetConfig, NatNetEr
 from beambench.devices.natnet.mocap import MarkerSource, NatNetMocap
 from beambench.devices.receive_time import mono_minus_real_ns
 from beambench.emulators.motive import EmulatorClock, MotiveEmulator
+from conftest import holds_for, wait_until
 
 MARKERS = ("stage", "tip", "foot")
 VERSIONS = ("3.0", "4.0", "4.1")
@@ -47,13 +48,17 @@ def config_for(emu: MotiveEmulator, **kw) -> NatNetConfig:  # type: ignore[no-un
     return NatNetConfig(server_address="127.0.0.1", command_port=emu.command_address[1], multicast=emu.multicast, **kw)
 
 
-def collect(mocap: NatNetMocap, seconds: float) -> list:
-    batches, end = [], time.monotonic() + seconds
-    while time.monotonic() < end:
-        time.sleep(0.05)
+def collect(mocap: NatNetMocap, through_frame: int) -> list:
+    """Read the mocap's batches (as the runner does) until one holds frame ``through_frame`` or a later one."""
+    batches: list = []
+
+    def read() -> bool:
         b = mocap.read()
         if len(b):
             batches.append(b)
+        return bool(batches) and int(batches[-1].columns["frame"][-1]) >= through_frame
+
+    wait_until(read, what=f"frame {through_frame}", interval_s=0.05)
     return batches
 
 
@@ -75,7 +80,7 @@ def test_stream_counts_injected_drops_and_occlusions_exactly(version, multicast)
         assert isinstance(mocap, Stream) and mocap.name == MOCAP
         mocap.start()
         try:
-            batches = collect(mocap, 0.8)
+            batches = collect(mocap, first + 230)
             stats = mocap.stats
             info = mocap.identity()
         finally:
@@ -128,7 +133,7 @@ def test_garbage_packets_are_counted_and_never_stop_the_stream():
             for g in garbage:
                 junk.sendto(g, ("127.0.0.1", port))
             junk.close()
-            time.sleep(0.3)
+            wait_until(lambda: client.stats.forged == len(garbage) and client.stats.frames > before + 50, what="junk")
             client.check()
             # not from the server: dropped unread and counted as forged (issue 13.5), never a parse error
             assert client.stats.forged == len(garbage) and client.stats.parse_errors == 0
@@ -144,10 +149,8 @@ def test_bitstream_version_can_be_requested_from_a_4_x_server():
         with NatNetClient(cfg) as client:
             assert client.version == nn.V3_0 and emu.stream_version == nn.V3_0
             assert client.server_info.natnet_version == (4, 1, 0, 0)
-            deadline = time.monotonic() + 5.0  # 20 frames take 56 ms at 360 Hz; a busy machine may take longer
-            while client.stats.frames <= 20 and time.monotonic() < deadline:
-                time.sleep(0.01)
-            assert client.stats.frames > 20 and client.stats.parse_errors == 0
+            wait_until(lambda: client.stats.frames > 20, what="20 frames")  # 56 ms at 360 Hz
+            assert client.stats.parse_errors == 0
         assert "Bitstream,3.0" in emu.requests
 
 
@@ -183,12 +186,13 @@ def test_frames_in_the_new_bitstream_that_beat_the_reply_are_decoded_in_it(keep_
     with emulator("4.1", multicast=False, reply_delay_s=0.08) as emu, NatNetClient(config_for(emu)) as client:
         client.keep_raw = keep_raw
         before = client.stats.frames
-        deadline = time.monotonic() + 5.0
-        while client.stats.frames + len(client.raw_frames) <= before + 20 and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_until(lambda: client.stats.frames + len(client.raw_frames) > before + 20, what="20 frames")
         client.set_bitstream_version("3.0")
         assert client.version == nn.V3_0 and emu.stream_version == nn.V3_0
-        time.sleep(0.1)
+        if keep_raw:
+            wait_until(lambda: nn.V3_0 in {v for _, _, v in list(client.raw_frames)}, what="frames in 3.0")
+        else:
+            wait_until(lambda: client.stats.frames > before + 40, what="40 frames")
         client.check()
         assert client.stats.parse_errors == 0, client.stats.last_error
         if keep_raw:  # the raw frames carry the version each one is in: all decode
@@ -211,10 +215,7 @@ def test_echo_round_trips_give_a_clock_offset_by_minimum_rtt():
         cfg = config_for(emu, echo_interval_s=0.02, initial_echoes=10)
         with NatNetClient(cfg) as client:
             client.keep_frames = True
-            deadline = time.monotonic() + 5.0  # 0.4 s unloaded; a loaded machine (parallel tests) may take longer
-            time.sleep(0.4)
-            while (len(client.echoes) < 15 or len(client.frames) <= 50) and time.monotonic() < deadline:
-                time.sleep(0.05)
+            wait_until(lambda: len(client.echoes) >= 15 and len(client.frames) > 50, what="15 echoes")  # ~0.4 s
             echoes = list(client.echoes)
             best = client.best_echo()
             table = client.echo_table()
@@ -231,36 +232,34 @@ def test_echo_round_trips_give_a_clock_offset_by_minimum_rtt():
 
 
 def test_rigid_body_mapping_and_tracking_loss():
-    occl = {130: [0, 1], 131: [2]}
+    occl = {330: [0, 1], 331: [2]}  # late enough for a slow handshake on a loaded machine
     with emulator("4.1", multicast=False, rigid_bodies={5: [0, 1, 2]}, occlude=occl) as emu:
         mocap = NatNetMocap(("body", "tip"), config_for(emu), marker_map={"body": "rb:5", "tip": "1:2"})
         mocap.start()
         try:
-            b = concat(collect(mocap, 0.6))
+            b = concat(collect(mocap, 341))
             md = mocap.client.model_def
         finally:
             mocap.stop()
     assert [d.id for d in md.rigid_bodies()] == [5]
     assert md.rigid_bodies()[0].markers[1].name == "tip"  # 4.x rigid-body descriptions carry marker names
     frames = b.columns["frame"].tolist()
-    i130, i131, i140 = frames.index(130), frames.index(131), frames.index(140)
-    assert b.columns["occluded"][i130].tolist() == [True, True]  # 2 of 3 rigid-body markers hidden: not tracked
-    assert b.columns["occluded"][i131].tolist() == [False, False]  # one hidden: still tracked; tip visible
+    assert frames[0] < 330, frames[0]
+    i_two_hidden, i_one_hidden, i_later = frames.index(330), frames.index(331), frames.index(340)
+    assert b.columns["occluded"][i_two_hidden].tolist() == [True, True]  # 2 of 3 rigid-body markers hidden: not tracked
+    assert b.columns["occluded"][i_one_hidden].tolist() == [False, False]  # one hidden: still tracked; tip visible
     assert b.columns["occluded"].sum() == 2
-    np.testing.assert_allclose(b.columns["data"][i140, 0], moving(139 / 360).mean(axis=0), atol=1e-7)
-    np.testing.assert_allclose(b.columns["data"][i140, 1], moving(139 / 360)[1], atol=1e-7)
+    np.testing.assert_allclose(b.columns["data"][i_later, 0], moving(339 / 360).mean(axis=0), atol=1e-7)
+    np.testing.assert_allclose(b.columns["data"][i_later, 1], moving(339 / 360)[1], atol=1e-7)
 
 
 def test_unicast_server_keeps_clients_that_send_keepalives():
     with emulator("4.0", multicast=False, unicast_timeout_s=0.3) as emu:
         with NatNetClient(config_for(emu, keepalive_interval_s=0.1)) as client:
-            time.sleep(0.5)
-            n1 = client.stats.frames
-            time.sleep(0.4)
+            n1 = wait_until(lambda: client.stats.frames, what="the first frame")
+            holds_for(lambda: len(emu.clients) == 1, 0.6, "the server keeps the client")  # twice its timeout
             assert client.stats.frames > n1 + 80  # past the server's 0.3 s timeout, still fed
-            assert len(emu.clients) == 1
-        time.sleep(0.1)
-        assert emu.clients == {}  # DISCONNECT on close
+        wait_until(lambda: emu.clients == {}, what="DISCONNECT on close")
 
 
 def test_ping_reports_the_server():
@@ -326,12 +325,21 @@ def test_a_failing_position_source_stops_the_emulator_visibly():
         NatNetClient(config_for(emu)) as client,
     ):
         emu.set_positions(broken)
-        time.sleep(0.2)
+        wait_until(lambda: _stopped(emu), what="the emulator to stop")
         with pytest.raises(RuntimeError, match="shape"):
             emu.check()
+        counts: list[int] = []  # the frames in flight when it stopped are read: 5 polls in a row with no new one
+        wait_until(lambda: counts.append(client.stats.frames) or counts[-5:].count(counts[-1]) == 5, interval_s=0.03)
         n = client.stats.frames
-        time.sleep(0.1)
-        assert client.stats.frames == n  # nothing more arrives
+        holds_for(lambda: client.stats.frames == n, 0.2, "nothing more arrives")
+
+
+def _stopped(emu: MotiveEmulator) -> bool:
+    try:
+        emu.check()
+    except RuntimeError:
+        return True
+    return False
 
 
 @pytest.mark.parametrize("multicast", [False, True])
@@ -346,9 +354,7 @@ def test_each_frame_carries_the_kernels_receive_time_not_the_time_it_was_read(mu
 
     clock = EmulatorClock(offset_s=0.0, drift_ppm=0.0, latency_s=0.0)
     with emulator("4.1", multicast=multicast, clock=clock) as emu, NatNetClient(config_for(emu), on_frame=on_frame):
-        deadline = time.monotonic() + 10.0
-        while len(seen) < 400 and time.monotonic() < deadline:
-            time.sleep(0.02)
+        wait_until(lambda: len(seen) >= 400, what="400 frames", interval_s=0.02)
     rows = np.array(seen[50:400], dtype=np.float64)
     assert len(rows) >= 300
     stamp_s, read_s, sent_s = rows[:, 0] * 1e-9, rows[:, 1] * 1e-9, rows[:, 2] / clock.frequency_hz
@@ -387,10 +393,7 @@ def test_a_server_frame_that_beats_its_serverinfo_is_not_counted_as_forged():
     with emu:
         client = NatNetClient(config_for(emu)).connect()
         try:
-            deadline = time.monotonic() + 5
-            while client.stats.frames < 20 and time.monotonic() < deadline:
-                time.sleep(0.02)
-            assert client.stats.frames >= 20
+            wait_until(lambda: client.stats.frames >= 20, what="20 frames")
             assert client.stats.forged == 0, client.stats
             assert client.stats.ignored >= 1  # the early frame: read, and left out (no version yet)
         finally:

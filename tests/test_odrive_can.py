@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import re
 import time
 import uuid
 from pathlib import Path
@@ -14,6 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from beambench.acquisition.batch import Batch
 from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
 from beambench.acquisition.streams import motor_spec
 from beambench.devices.odrive import cansimple as cs
@@ -33,20 +35,24 @@ from beambench.emulators.odrive_can import (
     OdriveAxisModel,
     OdriveEmulatorConfig,
 )
-from conftest import fuzz_examples
+from conftest import fuzz_examples, holds_for, raised, wait_until
 
 NODE = 3
 CAL_S = 0.25
 LIMITS = MotorLimits(max_frequency_hz=10.0, max_current_a=5.0, amplitude_mm=2.0)
 
 
-def wait_for(pred, timeout=3.0, what="condition"):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return
-        time.sleep(0.01)
-    raise AssertionError(f"timed out waiting for {what}")
+def read_rows(stream, n: int, done=None) -> Batch:  # type: ignore[no-untyped-def]
+    """Read ``stream`` (as the runner does, every 20 ms) until it gave more than ``n`` rows and ``done`` holds
+    for them; all of them."""
+    batches: list[Batch] = []
+
+    def enough() -> bool:
+        batches.append(stream.read())
+        return sum(map(len, batches)) > n and (done is None or done(Batch.concat(batches)))
+
+    wait_until(enough, what=f"{n} rows", interval_s=0.02)
+    return Batch.concat(batches)
 
 
 def log_frames(path: Path) -> list[can.Message]:
@@ -139,9 +145,9 @@ def test_velocity_ramps_to_setpoint_and_telemetry_is_a_motor_batch(motor, emu):
     motor.arm(LIMITS)
     motor.read()
     motor.set_frequency(8.0)
-    wait_for(lambda: emu.snapshot()["vel_setpoint"] == 8.0, what="the ramp to reach 8 turn/s")
-    time.sleep(0.8)  # the PI loop overshoots a little after the ramp, then settles (~0.1 s time constant)
-    batch = motor.read()
+    wait_until(lambda: emu.snapshot()["vel_setpoint"] == 8.0, what="the ramp to reach 8 turn/s")
+    # the PI loop overshoots a little after the ramp, then settles (~0.1 s time constant)
+    batch = read_rows(motor, 20, lambda b: b.columns["velocity"][-1] == pytest.approx(8.0, rel=0.01))
     motor.check()
     spec = motor_spec()
     assert set(batch.columns) == set(spec.columns)
@@ -184,8 +190,7 @@ def test_telemetry_is_stamped_at_arrival_not_when_the_receive_thread_handles_it(
     with OdriveCanMotor(channel, "virtual", NODE) as m:
         before = mono_minus_real_ns()
         m.start()
-        time.sleep(1.0)
-        batch = m.read()
+        batch = read_rows(m, 50)
         after = mono_minus_real_ns()
     assert len(batch) > 50
     gaps_ms = np.diff(batch.host_time_ns) * 1e-6
@@ -232,23 +237,16 @@ def test_unsafe_limits_are_refused_before_anything_is_sent(channel, emu, tmp_pat
 def test_watchdog_expires_when_feeding_stops(motor, emu):
     motor.arm(LIMITS)
     motor.set_frequency(3.0)
-    time.sleep(0.4)  # longer than the 0.3 s watchdog: the feeder keeps it alive
-    motor.check()
+    # longer than the 0.3 s watchdog: the feeder keeps it alive
+    holds_for(lambda: raised(motor.check, DeviceFault) is None, 0.4, "no fault while fed")
+    assert emu.snapshot()["state"] == AxisState.CLOSED_LOOP_CONTROL
     motor.stop_feeding()
-    wait_for(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="watchdog idle")
+    wait_until(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="watchdog idle")
     snap = emu.snapshot()
     assert snap["axis_error"] == AxisError.WATCHDOG_TIMER_EXPIRED
     t_idle = emu.model.transitions[-1][0]
     assert t_idle - emu.model.last_feed >= 0.3  # it expired only after 0.3 s without a frame
-    with pytest.raises(DeviceFault, match="WATCHDOG_TIMER_EXPIRED"):
-        wait_for_fault(motor)
-
-
-def wait_for_fault(motor, timeout=2.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        motor.check()
-        time.sleep(0.01)
+    assert "WATCHDOG_TIMER_EXPIRED" in str(wait_until(lambda: raised(motor.check, DeviceFault), 2.0))
 
 
 def test_heartbeat_lost_raises_device_fault(motor, emu):
@@ -256,20 +254,18 @@ def test_heartbeat_lost_raises_device_fault(motor, emu):
     motor.check()
     emu.stop()
     t_stop = time.monotonic()
-    with pytest.raises(DeviceFault, match="heartbeat lost") as err:
-        wait_for_fault(motor)
+    err = wait_until(lambda: raised(motor.check, DeviceFault), 3.0, "the heartbeat loss")
     assert time.monotonic() - t_stop > 1.0 - 0.1  # the last heartbeat may predate the stop by one period
-    assert "> 1000 ms" in str(err.value)  # the default: ten 100 ms heartbeat periods
+    assert "heartbeat lost" in str(err) and "> 1000 ms" in str(err)  # the default: ten 100 ms periods
 
 
 def test_estop(motor, emu):
     motor.arm(LIMITS)
     motor.set_frequency(4.0)
     motor.estop()
-    wait_for(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="estop idle")
+    wait_until(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="estop idle")
     assert emu.snapshot()["axis_error"] == AxisError.ESTOP_REQUESTED
-    with pytest.raises(DeviceFault, match="ESTOP_REQUESTED"):
-        wait_for_fault(motor)
+    assert "ESTOP_REQUESTED" in str(wait_until(lambda: raised(motor.check, DeviceFault), 2.0))
     with pytest.raises(DeviceFault):
         motor.set_frequency(1.0)  # disarmed
     motor.arm(LIMITS)  # arm clears errors and recovers
@@ -280,15 +276,12 @@ def test_estop(motor, emu):
 def test_injected_motor_error_is_named(motor, emu):
     motor.arm(LIMITS)
     emu.inject_error(motor=0x1000)  # CURRENT_LIMIT_VIOLATION
-    with pytest.raises(DeviceFault, match=r"MOTOR_FAILED.*motor error 0x1000"):
-        end = time.monotonic() + 2.0
-        while time.monotonic() < end:
-            try:
-                motor.check()
-            except DeviceFault as exc:
-                if "0x1000" in str(exc):  # the RTR answer for the motor error has arrived
-                    raise
-            time.sleep(0.01)
+
+    def named() -> DeviceFault | None:  # the RTR answer for the motor error has arrived
+        fault = raised(motor.check, DeviceFault)
+        return fault if fault is not None and "0x1000" in str(fault) else None
+
+    assert re.search(r"MOTOR_FAILED.*motor error 0x1000", str(wait_until(named, 3.0, "the motor error")))
 
 
 def test_idle_on_exit_from_context_manager_after_exception(channel, emu):
@@ -296,7 +289,7 @@ def test_idle_on_exit_from_context_manager_after_exception(channel, emu):
         m.arm(LIMITS)
         m.set_frequency(5.0)
         raise RuntimeError("boom")
-    wait_for(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="idle after exception")
+    wait_until(lambda: emu.snapshot()["state"] == AxisState.IDLE, what="idle after exception")
     assert emu.snapshot()["axis_error"] == 0  # a commanded idle, not a watchdog trip
     assert emu.snapshot()["input_vel"] == 0.0
 
@@ -304,8 +297,7 @@ def test_idle_on_exit_from_context_manager_after_exception(channel, emu):
 def test_close_after_fault_idles_and_is_idempotent(motor, emu, tmp_path):
     motor.arm(LIMITS)
     emu.inject_error(encoder=0x4)
-    with pytest.raises(DeviceFault):
-        wait_for_fault(motor)
+    wait_until(lambda: raised(motor.check, DeviceFault), 2.0, "the encoder fault")
     motor.idle()
     motor.idle()
     motor.close()
@@ -333,7 +325,8 @@ def test_can_log_has_the_traffic(numbered_channel, tmp_path, suffix):
     ):
         m.arm(LIMITS)
         m.set_frequency(2.0)
-        time.sleep(0.3)
+        m.start()
+        read_rows(m, 10)  # telemetry flows while the log records
     t_end = time.time()
     frames = log_frames(path)
     parsed = [cs.parse_message(f) for f in frames]  # every logged frame is valid CAN Simple
@@ -410,8 +403,7 @@ def test_axis_idled_by_someone_else_is_a_fault(channel, motor, emu):
     motor.arm(LIMITS)
     with can.Bus(interface="virtual", channel=channel) as other_host:
         other_host.send(cs.to_can(NODE, cs.SetAxisState(AxisState.IDLE)))
-    with pytest.raises(DeviceFault, match="left closed loop"):
-        wait_for_fault(motor)
+    assert "left closed loop" in str(wait_until(lambda: raised(motor.check, DeviceFault), 2.0))
 
 
 def test_bad_log_suffix_is_refused_up_front(tmp_path):
@@ -425,13 +417,5 @@ def test_the_first_fault_report_reads_the_error_register_first(motor, emu, kind,
     on the spot (was ``motor error 0x0``: the value before the RTR answer arrived)."""
     motor.arm(LIMITS)
     emu.inject_error(**{kind: code})
-    end = time.monotonic() + 3.0
-    first = None
-    while first is None and time.monotonic() < end:
-        try:
-            motor.check()
-        except DeviceFault as exc:
-            first = str(exc)
-        time.sleep(0.001)
-    assert first is not None, "no fault reported"
+    first = str(wait_until(lambda: raised(motor.check, DeviceFault), 3.0, "a fault", interval_s=0.001))
     assert f"{kind} error {code:#x}" in first, first

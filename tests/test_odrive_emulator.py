@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import statistics
 import uuid
 
 import can
@@ -206,6 +205,7 @@ def test_cyclic_messages_and_rtr_on_a_virtual_bus():
     assert {node for _, node, _ in parsed} == {4}
     hb_t = [t for t, _, m in parsed if isinstance(m, cs.Heartbeat)]
     enc_t = [t for t, _, m in parsed if isinstance(m, cs.EncoderEstimates)]
-    # cyclic rates of the firmware defaults; medians keep a busy CI machine from flaking this
-    assert statistics.median(np.diff(hb_t)) == pytest.approx(0.100, abs=0.02)
-    assert statistics.median(np.diff(enc_t)) == pytest.approx(0.010, abs=0.003)
+    # cyclic rates of the firmware defaults, as messages per second over the second recorded: a starved emulator
+    # sends what fell due late rather than skipping it, so the rates hold on a busy machine
+    assert (len(hb_t) - 1) / (hb_t[-1] - hb_t[0]) == pytest.approx(10.0, rel=0.15)
+    assert (len(enc_t) - 1) / (enc_t[-1] - enc_t[0]) == pytest.approx(100.0, rel=0.1)

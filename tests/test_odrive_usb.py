@@ -1,7 +1,9 @@
 """OdriveUsbMotor's mapping logic only (limits → config properties, frequency → input_vel, watchdog, idle).
 
 The ``odrive`` package's libusb layer cannot run here (no device, no USB), so these tests use a plain
-in-process stand-in with the firmware 0.5.x property tree; the real USB path is not exercised.
+in-process stand-in with the firmware 0.5.x property tree; the real USB path is not exercised. Every property the
+stand-in has, and every one the driver writes or calls, is checked against the firmware's own interface file
+(``odrive-interface-0.5.6.yaml`` in the shared fixtures): a misspelt or invented name fails the test.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import time
 
 import numpy as np
 import pytest
+import yaml
 
 from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
 from beambench.acquisition.streams import motor_spec
@@ -23,8 +26,67 @@ from beambench.devices.odrive.cansimple import (
     InputMode,
 )
 from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming, ping
+from conftest import require_shared
 
 LIMITS = MotorLimits(max_frequency_hz=20.0, max_current_a=8.0, amplitude_mm=2.0)
+FIRMWARE_INTERFACE = ("fixtures", "odrive", "odrive-interface-0.5.6.yaml")
+STAND_IN_OWN = {"feeds", "cal_s", "cal_end", "last_feed"}  # the stand-in's bookkeeping, not firmware properties
+KNOWN: set[str] = set()  # every property path (``odrv.axis0.controller.input_vel``) and call (``….clear_errors()``)
+UNKNOWN: list[str] = []  # names the stand-in or the driver used that the firmware does not have
+
+
+def interface_paths(doc: dict, root: str = "ODrive3", prefix: str = "odrv") -> set[str]:
+    """The property paths and function calls of the firmware's interface definition, from ``root`` down."""
+    interfaces, paths = doc["interfaces"], set()
+
+    def lookup(name: str, scope: str) -> tuple[dict | None, str]:  # a type name, from the innermost scope out
+        parts = scope.split(".")
+        for i in range(len(parts), -1, -1):
+            full = ".".join([*parts[:i], name])
+            if full in interfaces:
+                return interfaces[full], full
+        return None, scope
+
+    def walk(iface: dict, scope: str, at: str, depth: int) -> None:
+        if depth > 8:
+            return
+        if "implements" in iface:
+            base, base_scope = lookup(iface["implements"], scope)
+            if base is not None:
+                walk(base, base_scope, at, depth + 1)
+        paths.update(f"{at}.{name}()" for name in iface.get("functions") or {})
+        for name, spec in (iface.get("attributes") or {}).items():
+            paths.add(f"{at}.{name}")
+            if isinstance(spec, dict) and "attributes" in spec:  # an inline interface (``config``)
+                walk(spec, scope, f"{at}.{name}", depth + 1)
+                continue
+            kind = spec.get("type") if isinstance(spec, dict) else spec
+            if isinstance(kind, str) and not kind.startswith("readonly"):
+                sub, sub_scope = lookup(kind, scope)
+                if sub is not None:
+                    walk(sub, sub_scope, f"{at}.{name}", depth + 1)
+
+    walk(interfaces[root], root, prefix, 0)
+    return paths
+
+
+@pytest.fixture(autouse=True, scope="module")
+def firmware_interface():
+    KNOWN.update(interface_paths(yaml.safe_load(require_shared(*FIRMWARE_INTERFACE).read_text())))
+    assert {"odrv.axis0.controller.input_vel", "odrv.axis1.watchdog_feed()", "odrv.clear_errors()"} <= KNOWN
+
+
+@pytest.fixture(autouse=True)
+def only_firmware_names():
+    UNKNOWN.clear()
+    yield
+    assert UNKNOWN == [], f"not in the 0.5.6 firmware's interface: {UNKNOWN}"
+
+
+def _firmware_name(path: str) -> None:
+    if path not in KNOWN:
+        UNKNOWN.append(path)
+        raise AttributeError(f"{path}: the ODrive 0.5.6 firmware has no such property")
 
 
 class Node:
@@ -34,9 +96,12 @@ class Node:
         object.__setattr__(self, "_path", path)
         object.__setattr__(self, "_log", log)
         for k, v in props.items():
+            if k not in STAND_IN_OWN:
+                _firmware_name(f"{path}.{k}")
             object.__setattr__(self, k, v)
 
     def __setattr__(self, name, value) -> None:
+        _firmware_name(f"{self._path}.{name}")
         self._log.append((f"{self._path}.{name}", value))
         object.__setattr__(self, name, value)
 
@@ -116,6 +181,7 @@ class StandInAxis(Node):
             object.__setattr__(self, "current_state", int(AxisState.IDLE))
 
     def watchdog_feed(self):
+        _firmware_name(f"{self._path}.watchdog_feed()")
         self._watchdog()
         object.__setattr__(self, "feeds", self.feeds + 1)
         object.__setattr__(self, "last_feed", time.monotonic())
@@ -141,6 +207,7 @@ class StandInODrive(Node):
         object.__setattr__(self, "axis1", StandInAxis("odrv.axis1", log))
 
     def clear_errors(self):
+        _firmware_name("odrv.clear_errors()")
         self._log.append(("odrv.clear_errors()", None))
         for ax in (self.axis0, self.axis1):
             object.__setattr__(ax, "error", 0)
@@ -318,7 +385,9 @@ def test_a_stalled_host_is_named_not_blamed_on_the_usb_link(tmp_path):
     script.write_text(
         "import sys, time\n"
         f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
-        "from test_odrive_usb import StandInODrive, LIMITS\n"
+        "import yaml\n"
+        "from test_odrive_usb import KNOWN, LIMITS, StandInODrive, interface_paths\n"
+        f"KNOWN.update(interface_paths(yaml.safe_load(open({str(require_shared(*FIRMWARE_INTERFACE))!r}).read())))\n"
         "from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming\n"
         "from beambench.acquisition.capabilities import DeviceFault\n"
         "m = OdriveUsbMotor(odrv=StandInODrive(), timing=UsbMotorTiming(poll_period_s=0.005))\n"

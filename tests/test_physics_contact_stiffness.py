@@ -11,7 +11,8 @@ import pytest
 
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
-from beambench.sim.scenes.contact_rig import ContactRigSim, RigParams
+from beambench.sim.scene_params import RigParams
+from beambench.sim.scenes.contact_rig import ContactRigSim
 
 K_RANGE = (7e3, 1.2e5)  # N/m, the physical range the bound's source argues
 

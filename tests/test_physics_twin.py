@@ -12,7 +12,8 @@ import pytest
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.models.rod import RodParams, add_rod, natural_frequencies
-from beambench.sim.scenes.contact_rig import ContactRigSim, RigParams
+from beambench.sim.scene_params import RigParams
+from beambench.sim.scenes.contact_rig import ContactRigSim
 
 PHYSICAL = load_params("physical", model="rod")
 MODEL = "rod5g"  # the shipped protocols' model (protocols/contact_sweep.yaml, walker_sweep.yaml)

@@ -11,8 +11,9 @@ import pytest
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
+from beambench.sim.scene_params import WalkerParams
 from beambench.sim.scenes import walker
-from beambench.sim.scenes.walker import WalkerLegError, WalkerParams, WalkerSim, check_leg_model, measure_speed
+from beambench.sim.scenes.walker import WalkerLegError, WalkerSim, check_leg_model, measure_speed
 from beambench.sim.scenes.walker_batch import steady_speeds
 from test_walker_leg_statics import walker_normal_forces
 

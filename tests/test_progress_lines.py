@@ -15,15 +15,9 @@ import time
 from rich.console import Console
 
 from beambench.common.console import PROGRESS_ENV, LogProgress
+from conftest import wait_until
 
 STAMP = re.compile(r"^(\d\d):(\d\d):(\d\d) (.*)$")
-
-
-def _wait_for(predicate, timeout_s: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not predicate():
-        assert time.monotonic() < deadline, "condition not met in time"
-        time.sleep(0.01)
 
 
 def test_plain_lines_arrive_while_the_task_runs_and_a_last_one_at_the_end(monkeypatch):
@@ -34,7 +28,7 @@ def test_plain_lines_arrive_while_the_task_runs_and_a_last_one_at_the_end(monkey
         assert progress.plain
         task = progress.add_task("[bold]fitting", total=10, err="best 1 mm")
         progress.update(task, completed=3)
-        _wait_for(lambda: out.getvalue().count("\n") >= 2)  # lines while the task is still running
+        wait_until(lambda: out.getvalue().count("\n") >= 2, 60)  # lines while the task is still running
         running = out.getvalue()
         progress.update(task, completed=10)
     lines = out.getvalue().splitlines()
@@ -83,3 +77,21 @@ def test_a_run_on_a_pipe_prints_timestamped_progress_during_the_run(tmp_path):
     # lines come while the run goes on: the first at least one interval before the last (not one burst at the end)
     assert progress[-1][0] - progress[0][0] >= 0.1, progress
     assert stdout[0].strip().endswith(".h5")
+
+
+def test_a_budgeted_search_says_its_time_left_each_time_the_line_is_shown(monkeypatch):
+    """``calibrate sim``'s line: the same generation's line shown twice still moves, with the time left of its
+    budget (a ``TimeLeft`` field reads the clock when shown), then says the budget is spent."""
+    from beambench.common.console import TimeLeft, plain_line
+
+    now = [100.0]
+    left = TimeLeft(150.0, clock=lambda: now[0])
+    progress = LogProgress(console=Console(file=io.StringIO(), force_terminal=False, width=200))
+    task = progress.add_task("coarse gen 1: best coarse J 1.541 (8 run, 0 reused)", total=None, left=left)
+    first = plain_line(progress.tasks[task])
+    now[0] += 70.0
+    second = plain_line(progress.tasks[task])
+    now[0] += 90.0
+    third = plain_line(progress.tasks[task])
+    assert "2:30 left of the 150 s budget" in first and "1:20 left of the 150 s budget" in second, (first, second)
+    assert "150 s budget spent: finishing" in third

@@ -75,9 +75,9 @@ def _walker_mocap() -> StreamSpec:
 
 
 def _collapsing_walk(n: int = 3600) -> tuple[np.ndarray, np.ndarray]:
-    """10 s of a walker that folds its legs and sinks through the floor while it slides 0.3 m forward (m)."""
+    """10 s of a walker that folds its legs and sinks through the floor while it walks 1.5 m forward (m)."""
     t = np.arange(n) / 360.0
-    x = 0.03 * t
+    x = 0.15 * t + 0.004 * np.sin(2 * np.pi * 20 * t)  # 150 mm/s, swinging ±4 mm at the drive frequency
     sink_z = np.clip(0.03 - 0.01 * t, -0.04, None)  # the body from 30 mm above the floor to 40 mm below it
     body = np.stack([x, np.zeros(n), sink_z], 1)
     left = np.stack([x + 0.02 * np.sin(40 * t), np.full(n, 0.05), np.zeros(n)], 1)
@@ -85,10 +85,28 @@ def _collapsing_walk(n: int = 3600) -> tuple[np.ndarray, np.ndarray]:
     return t, np.stack([body, left, right], 1)
 
 
-def test_the_3d_eye_frames_the_whole_walker_scene_from_outside_whatever_the_body_does(tmp_path):
-    """A body that sinks below the floor with folded legs and walks away: the eye tracks nothing, stays outside
-    the scene's box and sees all of it, and is framed anew when the scene outgrows the first framing."""
-    sink = RerunSink("save", "walk", tmp_path / "walk.rrd", t0_ns=0, rig="walker")
+def _follow_frame(rrd) -> tuple[np.ndarray, np.ndarray]:
+    """The walker view's frame as the recording holds it: times (s) and translations (mm) of /mocap/follow."""
+    times, values = [], []
+    for chunk in rc.RrdReader(rrd).stream():
+        if chunk.entity_path == "/mocap/follow" and not chunk.is_static:
+            batch = chunk.to_record_batch().to_pydict()
+            times.append(np.asarray(batch["session_time"], "timedelta64[ns]").astype(np.int64) * 1e-9)
+            values.append(np.asarray([v[0] for v in batch["Transform3D:translation"]], float))
+    assert times, "no /mocap/follow transform in the recording"
+    t, v = np.concatenate(times), np.concatenate(values)
+    order = np.argsort(t, kind="stable")
+    return t[order], v[order]
+
+
+def test_the_walker_view_follows_the_body_and_its_eye_sees_all_of_it_whatever_the_body_does(tmp_path):
+    """A body that walks 1.5 m while it sinks below the floor with folded legs: the view's frame (read back from
+    the recording) follows the body over the floor, so seen from it every marker stays in one small box, framed
+    on the walker alone; the eye stays outside that box and sees all of it; a fall through the floor is not followed."""
+    from beambench.sinks.rerun_layout import spatial_view
+
+    rrd = tmp_path / "walk.rrd"
+    sink = RerunSink("save", "walk", rrd, t0_ns=0, rig="walker")
     sink.open([_walker_mocap()])
     t, pos = _collapsing_walk()
     framings = []
@@ -99,20 +117,27 @@ def test_the_3d_eye_frames_the_whole_walker_scene_from_outside_whatever_the_body
         if not framings or sink._framed is not framings[-1]:
             framings.append(sink._framed)
     sink.close()
-    assert len(framings) >= 2  # the 0.3 m walk outgrew the first framing
+    ft, follow = _follow_frame(rrd)
+    k = np.searchsorted(ft, t + 1e-9, side="right") - 1  # the frame in force at each mocap frame (latest at)
+    assert np.all(k >= 0)
+    rel = pos * 1e3 - follow[k][:, None, :]
+    assert np.ptp(pos[:, 0, 0]) * 1e3 > 1400  # the walker walked away ...
+    assert np.ptp(rel[:, :, 0]) < 120 and np.ptp(rel[:, :, 1]) < 110  # ... and stays in view, legs and all
+    assert np.allclose(follow[:, 2], 0.0)  # over the floor only: the sinking body is not followed down
+    assert all(hi[0] - lo[0] < 120 for lo, hi in framings), framings  # no framing holds the walk, only the walker
     scene = sink._scene
     assert scene is not None
     lo, hi = scene.extent()
     cam = scene.camera(lo, hi)
-    assert cam.track is None  # nothing pulls the eye along (into a collapsing body)
+    points_mm = rel.reshape(-1, 3)
+    assert np.all(points_mm >= lo - 1.0) and np.all(points_mm <= hi + 1.0)
     eye, target = np.array(cam.position), np.array(cam.look_target)
-    points_mm = pos.reshape(-1, 3) * 1e3
-    assert np.all(points_mm >= lo - 1e-3) and np.all(points_mm <= hi + 1e-3)
     assert np.any(eye < lo) or np.any(eye > hi)  # outside the scene's box
     axis = (target - eye) / np.linalg.norm(target - eye)
     rays = (points_mm - eye) / np.linalg.norm(points_mm - eye, axis=1, keepdims=True)
     assert np.degrees(np.arccos(np.clip(rays @ axis, -1, 1))).max() < 30  # all of it inside a 60° view cone
-    assert cam.grid_height_mm <= points_mm[:, 2].min() + 1e-6  # the grid at the scene's lowest level
+    view = spatial_view(sink.layout, cam)
+    assert str(view.origin) == "/mocap/follow" and not cam.grid  # seen from the follow frame, over its own floor
 
 
 def test_the_step_panel_tells_a_standstill_from_a_walk():
@@ -127,7 +152,7 @@ def test_the_step_panel_tells_a_standstill_from_a_walk():
     for index, speed in ((0, 0.0), (1, 20.0)):
         t0 = 3.0 * index
         panel.step(StepRecord(index, 50.0, int(t0 * 1e9)), t0)
-        panel.body(t0 + t, speed * t + 4.0 * np.sin(2 * np.pi * 50 * t))
+        panel.body(((t0 + t) * 1e9).astype(np.int64), speed * t + 4.0 * np.sin(2 * np.pi * 50 * t))
         panel.step(StepRecord(index, 50.0, int(t0 * 1e9), int(t0 * 1e9), int((t0 + 3) * 1e9), status="done"), t0 + 3)
         if index == 0:
             assert "+0.0 mm/s**: no net walking (the body swings ±4 mm in place)" in panel.last_done

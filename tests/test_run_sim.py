@@ -45,6 +45,20 @@ def test_stdout_is_only_the_paths_with_the_session_last(short_run):
     assert stdout.splitlines() == [str(out / "s.rrd"), str(out / "s.h5")]
 
 
+def test_a_run_without_a_display_writes_no_recording_unless_asked(tmp_path, monkeypatch):
+    """Headless, ``run`` without ``--rerun`` writes the session only (an .rrd is twice its size) and says on
+    stderr how to see it; stdout is the session path alone."""
+    for var in ("DISPLAY", "WAYLAND_DISPLAY"):
+        monkeypatch.delenv(var, raising=False)
+    proto = tmp_path / "short.yaml"
+    proto.write_text(SHORT)
+    res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--name", "s"])
+    assert res.exit_code == 0, res.output
+    assert res.stdout.splitlines() == [str(tmp_path / "s.h5")]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.h5", "short.yaml"]
+    assert "no live view" in res.stderr and "beambench view" in res.stderr and "--rerun save" in res.stderr
+
+
 def test_session_sample_counts_steps_and_general(short_run):
     out, _ = short_run
     s = read_session(out / "s.h5")

@@ -276,12 +276,29 @@ def test_a_protocol_file_given_to_sweep_says_so():
 
 
 def test_every_shipped_file_loads_with_its_own_command():
-    for f in PROTOCOLS.glob("*.yaml"):
-        text = f.read_text()
-        if "scene:" in text:
-            load_sweep(f)
+    """Each shipped file is a protocol (``beambench run``: steps to drive) or a sweep file (``beambench sweep``:
+    scene points and frequencies), named as its file, and the other command refuses it with one line."""
+    import yaml
+
+    from beambench.acquisition.protocol.plan import plan
+
+    files = sorted(PROTOCOLS.glob("*.yaml"))
+    assert len(files) >= 6, files  # the shipped protocols and sweep files (README: "Shipped protocols")
+    kinds = {}
+    for f in files:
+        if "scene" in yaml.safe_load(f.read_text()):  # a sweep file names its scene at the top level
+            spec = load_sweep(f)
+            assert spec.name == f.stem and spec.scene_points() and spec.frequency_values(), f
+            with pytest.raises(ConfigError, match="this is a sweep file"):
+                load_protocol(f)
+            kinds[f.stem] = "sweep"
         else:
-            load_protocol(f)
+            protocol, _ = load_protocol(f)
+            assert protocol.name == f.stem and plan(protocol), f
+            with pytest.raises(SweepError, match="this is a protocol file"):
+                load_sweep(f)
+            kinds[f.stem] = "protocol"
+    assert set(kinds.values()) == {"protocol", "sweep"}, kinds
 
 
 # --- point 3: truncated and foreign session files ----------------------------------------------------

@@ -43,7 +43,7 @@ def test_another_scenes_option_is_refused_with_the_scene_that_takes_it():
     option, reason = catalogue.foreign_option("release", {"segments"}, "rig")
     assert (option, reason) == (
         "segments",
-        "applies to rig: walker only (the release scene does not settle into a steady gait)",
+        "applies to rig: contact or walker only (the release scene does not settle into a steady gait)",
     )
 
 

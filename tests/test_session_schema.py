@@ -229,9 +229,9 @@ def test_a_killed_runs_unended_step_and_unwritten_rows_still_read(sessions, tmp_
     shutil.copy(sessions["contact"], path)
     with h5py.File(path, "r+") as f:
         _set_steps(f, "t_end_ns", -1)
-        ds = f["acquisition/mocap/host_time_ns"]
-        rows = len(ds)
-        ds.resize((rows + 50,))  # extended, never written: zeros
+        rows = len(f["acquisition/mocap/host_time_ns"])
+        for ds in f["acquisition/mocap"].values():  # the writer extends every column of a batch: zeros, never written
+            ds.resize((rows + 50, *ds.shape[1:]))
     s = read_session(path)
     assert (s.steps["t_end_ns"] == -1).all() and len(s.streams["mocap"]) == rows
 

@@ -1,6 +1,6 @@
 """Every stop signal stops a run: at random moments, many times, from a Python parent process, on the sim and
 the emulated backend — SIGINT, SIGTERM, SIGHUP (a closed terminal), SIGQUIT and the others the runner takes
-(:data:`beambench.acquisition.runner.STOP_SIGNALS`).
+(:data:`beambench.acquisition.stop_signals.STOP_SIGNALS`).
 
 A signal handler only sets a flag; the runner acts on it at its next poll, idles the motor, then saves. Every
 interrupted run must exit 3 (EXIT_STOPPED) without a traceback and with one line on stderr naming the signal, leave
@@ -38,9 +38,9 @@ from pathlib import Path
 import h5py
 import pytest
 
-from beambench.acquisition.runner import signal_name
+from beambench.acquisition.stop_signals import signal_name
 from beambench.sinks.hdf5 import read_session
-from conftest import last_requested_state
+from conftest import last_requested_state, wait_until
 
 # Long enough that no run can finish before its signal (200 steps x 0.5 s of rig time).
 ENDLESS = """
@@ -60,7 +60,7 @@ ZYGOTE = textwrap.dedent(
         req = json.loads(line)
         pid = os.fork()
         if pid == 0:
-            from beambench.acquisition.runner import STOP_SIGNALS
+            from beambench.acquisition.stop_signals import STOP_SIGNALS
             for s in STOP_SIGNALS:  # as in a fresh interpreter started from a terminal (whatever started pytest)
                 signal.signal(s, signal.SIG_DFL)
             signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -89,11 +89,9 @@ def _env() -> dict[str, str]:
 
 
 def _wait_for_file(path: Path, alive, timeout: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not path.exists():
-        if not alive() or time.monotonic() > deadline:
-            raise AssertionError(f"{path} never appeared")
-        time.sleep(0.01)
+    """Wait until ``path`` exists; fail at once if the process that writes it (``alive``) is gone."""
+    wait_until(lambda: path.exists() or not alive(), timeout, f"{path}")
+    assert path.exists(), f"{path} never appeared"
 
 
 # The lanes of _signal_runs check their files from three threads of this process. One CI run (h5py 3.16,
@@ -175,7 +173,7 @@ class Zygote:
 
 
 def _default_dispositions() -> None:
-    from beambench.acquisition.runner import STOP_SIGNALS
+    from beambench.acquisition.stop_signals import STOP_SIGNALS
 
     for s in STOP_SIGNALS:
         signal.signal(s, signal.SIG_DFL)
@@ -341,7 +339,7 @@ def test_every_signal_at_more_moments_on_the_emulated_rig_leaves_the_odrive_idle
 
 def test_the_runner_takes_every_signal_that_ends_a_process_by_default():
     """The list the README gives; and a signal ignored on purpose (nohup's SIGHUP) stays ignored."""
-    from beambench.acquisition.runner import STOP_SIGNALS, stop_on_signals
+    from beambench.acquisition.stop_signals import STOP_SIGNALS, stop_on_signals
 
     for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM", "SIGXCPU"):
         assert getattr(signal, name) in STOP_SIGNALS
@@ -422,7 +420,7 @@ def _sim_runner(tmp_path: Path, stop=None, on_progress=None):
 
 
 def test_a_stop_requested_before_the_run_starts_idles_and_saves(tmp_path):
-    from beambench.acquisition.runner import StopSignal
+    from beambench.acquisition.stop_signals import StopSignal
 
     stop = StopSignal()
     stop.request(signal.SIGTERM)

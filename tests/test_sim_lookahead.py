@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.runner import record_polls, wait_polls
-from beambench.backends.lookahead import cut_points, script
+from beambench.backends.lookahead import Lookahead, cut_points, script
 from beambench.backends.sim import SimRig
 from beambench.cli import app
 from beambench.session.slices import sim_slice
@@ -102,13 +102,91 @@ def test_a_run_that_leaves_the_schedule_continues_from_where_it_left():
 
 
 def test_segments_are_refused_for_other_rigs(tmp_path):
-    proto = tmp_path / "c.yaml"
+    proto = tmp_path / "r.yaml"
     proto.write_text(
-        "name: c\nrig: contact\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.1\nsim: {segments: 2}\n"
+        "name: r\nrig: release\nsweep: {frequencies: [0]}\nsettle_s: 0.1\nrecord_s: 0.1\nrelease: {load_g: 200}\n"
+        "limits: {max_frequency_hz: 1, max_current_a: 10, max_amplitude_mm: 3}\nsim: {model: prb3, segments: 2}\n"
     )
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])
     assert res.exit_code == 2
-    assert "sim.segments" in res.output and "walker only" in res.output
+    assert "sim.segments" in res.output and "contact or walker only" in res.output
+
+
+CONTACT = """
+name: c
+rig: contact
+sweep: {frequencies: [%s]}
+settle_s: 0.2
+record_s: 0.3
+amplitude_mm: 2.0
+limits: {max_frequency_hz: 40, max_current_a: 10}
+sim: {model: rod5g, params: physical, noise: false, segments: 2}
+"""
+
+
+def contact_script(freqs: str) -> tuple[object, list, list]:
+    """A contact protocol's scene (the shipped twin), its script of scene calls and the planned cut."""
+    from beambench.backends.sim import build_scene
+
+    sim = sim_slice(parse_protocol(CONTACT % freqs))
+    scene = build_scene(sim)
+    plan = [(float(f), [0.2, 0.3]) for f in freqs.split(",")]
+    calls = script(plan, 0, 500_000_000)
+    return sim, scene, calls
+
+
+def take_all(look: Lookahead) -> list:
+    rows = []
+    for kind, t_ns, hz in look.calls:
+        assert look.expects(kind, t_ns, hz)
+        rows.append(look.take(rows[-1] if rows and rows[-1] is not None else None))
+    look.stop()
+    return rows
+
+
+def test_a_contact_cut_refused_at_every_step_runs_in_one_piece():
+    from beambench.backends.sim import build_scene
+
+    sim, scene, calls = contact_script("30, 31, 32, 33")
+    cuts = cut_points(calls, 2, 0.5)
+    look = Lookahead(scene, calls, cuts, [build_scene(sim)], presettle_s=0.5, walk_axis=None, agree=lambda *_: False)
+    rows = take_all(look)
+    _, plain_scene, _ = contact_script("30, 31, 32, 33")
+    plain = []
+    for kind, t_ns, hz in calls:
+        if kind == "cmd":
+            plain_scene.set_frequency(hz)
+        plain.append(None if kind == "cmd" else plain_scene.advance_to(t_ns * 1e-9))
+    assert look.cut_times_ns == [] and look.checks[0]["cut_s"] is None  # every step compared, none agreed
+    later = [hz for i, (kind, _, hz) in enumerate(calls) if kind == "cmd" and i >= cuts[0]]
+    assert look.checks[0]["steps_compared_hz"] == later and len(later) >= 2
+    for a, b in zip(rows, plain):
+        assert (a is None) == (b is None)
+        if a is not None:  # the carried state all the way: the same rows as one piece, bit for bit
+            np.testing.assert_array_equal(a.channels["force_nt"], b.channels["force_nt"])
+
+
+def test_a_contact_cut_moves_to_the_step_after_the_first_that_agrees():
+    from beambench.backends.sim import build_scene
+
+    sim, scene, calls = contact_script("30, 31, 32, 33, 34, 35")
+    cuts = cut_points(calls, 2, 0.5)
+    seen: list[float] = []
+
+    def second_agrees(a, b, hz):  # refuses the planned cut's step, accepts the next one
+        seen.append(hz)
+        return len(seen) > 1
+
+    look = Lookahead(scene, calls, cuts, [build_scene(sim)], presettle_s=0.5, walk_axis=None, agree=second_agrees)
+    rows = take_all(look)
+    cmds = [i for i, c in enumerate(calls) if c[0] == "cmd"]
+    moved = cmds[cmds.index(cuts[0]) + 2]  # two steps compared: the caller switches at the command after them
+    assert look.cut_times_ns == [calls[moved][1]]
+    assert seen == [calls[cuts[0]][2], calls[cuts[0]][2] + 1]
+    theta = np.concatenate([r.channels["theta"] for r in rows if r is not None])
+    x = np.concatenate([r.channels["markers"][:, 0, 0] for r in rows if r is not None])
+    np.testing.assert_allclose(x, 0.002 * np.sin(theta), atol=2e-5)  # stage and crank agree across the cut
+    assert np.all(np.diff(theta) > -np.pi)  # the motor angle continues by whole turns, never back
 
 
 @pytest.fixture(scope="module")
@@ -147,3 +225,25 @@ def test_a_segmented_sweep_walks_on_without_a_jump_at_the_cut(segmented):
     motor = s.streams["motor"]
     pos = np.asarray(motor.columns["position"], float)
     assert np.all(np.diff(pos) > 0) and np.diff(pos).max() < 1.0  # the motor angle continues across the cut (turns)
+
+
+def test_progress_counts_the_work_of_every_parallel_segment():
+    """A sweep cut into two segments: before the runner takes anything, the rig reports what both workers computed
+    (every step, all the rig time), so progress does not sit at the first segment's share and then jump to the end."""
+    import time
+
+    rig = SimRig(sim_slice(walker("40, 45, 50, 55", 0.3, 0.4, segments=2)))
+    rig.open()
+    rig.motor.arm(MotorLimits(max_frequency_hz=80, max_current_a=6, amplitude_mm=2.0))
+    try:
+        assert rig.computed_ahead() is None  # nothing announced: nothing computed ahead
+        rig.anticipate([(hz, [0.3, 0.4]) for hz in (40, 45, 50, 55)])
+        deadline = time.monotonic() + 120
+        while (rig.computed_ahead() or (0.0, 0))[1] < 4:
+            assert time.monotonic() < deadline, rig.computed_ahead()
+            time.sleep(0.02)
+        seconds, steps = rig.computed_ahead()  # type: ignore[misc]
+        assert steps == 4 and seconds == pytest.approx(4 * 0.7)
+        assert rig.clock.now_ns() == 0  # the runner has taken none of it
+    finally:
+        rig.close()

@@ -79,7 +79,7 @@ def test_processing_round_trip(tmp_path):
 
 def test_long_event_messages_are_truncated_not_fatal(tmp_path):
     path = tmp_path / "s.h5"
-    w = SessionWriter(path, {})
+    w = SessionWriter(path, {"protocol": "name: x\n"})  # a session always holds its protocol
     w.open([])
     w.event(1, "fault", "x" * 1000)
     w.close()

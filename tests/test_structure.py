@@ -158,3 +158,24 @@ def test_the_calibration_result_is_built_by_keyword_and_its_budget_shares_are_na
         if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "over"
     ]
     assert shares and all(not isinstance(ast.parse(c).body[0].value.args[0], ast.Constant) for c in shares), shares  # type: ignore[attr-defined]
+
+
+# getattr with a default probes what a platform or a library may lack (a signal, a C loader, a socket option, an
+# exception's optional field); our own objects have typed fields whose defaults are declared once
+PROBED = {"signal", "yaml", "socket", "exc", "self._bus"}
+
+
+def test_no_silent_default_read_of_our_own_objects() -> None:
+    found = []
+    for path in _modules():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Name)
+                and node.func.id == "getattr"
+                and len(node.args) == 3
+                and isinstance(node.args[1], ast.Constant)  # a field by name (a key looked up is another matter)
+                and ast.unparse(node.args[0]) not in PROBED
+            ):
+                found.append(f"{_name(path)}:{node.lineno} {ast.unparse(node)}")
+    assert found == []

@@ -65,16 +65,17 @@ class Plant:
 
 
 def drive(ctl: TrackController, plant: Plant, profile: list[tuple[float, float]], lost: tuple[float, float] = (0, 0)):
-    """Run a profile (target, hold s); rows (t, target, plant speed, commanded Hz, mode)."""
+    """Run a profile (target, hold s); rows (t, target, plant speed, commanded Hz, mode, a step under way)."""
     rows = []
     dt = ctl.c.control_s
     for seg, (target, hold) in enumerate(profile):
         ctl.set_target(target, seg)
         for _ in range(round(hold / dt)):
             ctl.write(plant.run(dt, seen=not (lost[0] <= plant.t < lost[1])))
+            stepping = ctl.stepping
             d = ctl.update(round(plant.t * 1e9))
             plant.cmd = d.frequency_hz
-            rows.append((plant.t, target, plant.v, d.frequency_hz, d.mode))
+            rows.append((plant.t, target, plant.v, d.frequency_hz, d.mode, stepping))
     return np.array(rows)
 
 
@@ -122,13 +123,42 @@ def test_feedback_tracks_a_plant_unlike_its_map_where_feed_forward_alone_does_no
     assert max(segment_errors(ff)) > 1.2, segment_errors(ff)
     assert fb[:, 3].max() <= MAX_HZ
     steps = np.diff(fb[:, 3])
-    assert np.abs(steps).max() <= 45.0 * 0.05 + 1e-9  # the rate limit
+    feedback = fb[1:, 5] == 0  # outside a segment's step (which may jump: the motor's ramp limits it)
+    assert np.abs(steps[feedback]).max() <= 45.0 * 0.05 + 1e-9  # the feedback's rate limit
     t0 = 0.0
     for target, hold in PROFILE:  # the direction is right within 1.5 s of each change
         k = (fb[:, 0] > t0 + 1.5) & (fb[:, 0] <= t0 + hold)
         if target:
             assert (np.sign(fb[k, 2]) == np.sign(target)).all()
         t0 += hold
+
+
+def settling_times(rows: np.ndarray, profile: list[tuple[float, float]]) -> list[float]:
+    """Per segment, the time after its start from which the plant's speed stays within the tolerance."""
+    out, t0 = [], 0.0
+    for target, hold in profile:
+        k = (rows[:, 0] > t0) & (rows[:, 0] <= t0 + hold)
+        tol = 10.0 if abs(target) < 60 else 0.15 * abs(target)
+        ok = np.abs(rows[k, 2] - target) <= tol
+        bad = np.flatnonzero(~ok)
+        out.append(math.nan if not ok[-1] else float(rows[k, 0][bad[-1] + 1] - t0) if len(bad) else 0.0)
+        t0 += hold
+    return out
+
+
+def test_a_slow_down_brakes_past_the_bands_zero_edge_and_settles_sooner():
+    """A walker whose body lags its drive by ~1 s (the sim walker's does): a step from 120 to 20 mm/s drives the
+    frequency straight past the forward band's zero edge into backward speeds (braking), then hands over to
+    feedback, and settles within 1.3 s; feedback alone through the band (the frequency held at the zero edge at
+    most, rate limited) took 1.75 s."""
+    profile = [(120.0, 4.0), (20.0, 3.0)]
+    ctl = controller(synthetic_map())
+    rows = drive(ctl, Plant(tau=1.0), profile)
+    forward_zero_edge = 25.0  # the synthetic map's forward band starts at 25 Hz (speed 0)
+    braking = (rows[:, 0] > 4.0) & (rows[:, 3] < forward_zero_edge - 1)
+    assert braking.any(), "the slow-down never commanded a backward speed"
+    assert settling_times(rows, profile)[1] <= 1.3, settling_times(rows, profile)
+    assert abs(rows[-10:, 2].mean() - 20.0) < 2.0  # and it holds the target afterwards
 
 
 def test_a_known_plant_is_tracked_to_its_map_exactly():
@@ -191,6 +221,16 @@ def twin_map_session(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Sp
     path = out / "map.h5"
     assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
     return path, map_from_session(path)
+
+
+def test_a_map_session_is_about_the_size_the_dry_run_says(twin_map_session):
+    """The dry run of a ``map: twin`` protocol names the map's size from SESSION_BYTES_PER_RIG_S: a written map
+    (7 steps of 2 s) is within 30 % of it."""
+    from beambench.session.estimate import SESSION_BYTES_PER_RIG_S
+
+    map_path, _ = twin_map_session
+    per_rig_s = map_path.stat().st_size / (7 * 2.0)
+    assert 0.7 * SESSION_BYTES_PER_RIG_S <= per_rig_s <= 1.3 * SESSION_BYTES_PER_RIG_S, per_rig_s
 
 
 def _track_text(map_path: Path, segments: list[tuple[float, float]], extra: str = "") -> str:
@@ -292,3 +332,28 @@ def test_the_same_controller_drives_the_emulated_walker_through_the_real_drivers
     k = (mt > 3.0) & (mt < 4.0)
     assert np.median(np.abs(motor.columns["velocity_setpoint"][k] - cmd[k])) < 0.5  # the ODrive got each command
     assert motor.columns["velocity_setpoint"][-1] == 0 and "idle" in set(s.events["kind"])
+
+
+def test_a_twin_map_run_names_its_two_phases_and_the_map_it_keeps(tmp_path):
+    """``map: twin``: the log says phase 1 (the map's sweep, where its session goes, its size, kept) and phase 2
+    (the profile), so a long first phase is not a mystery."""
+    from typer.testing import CliRunner
+
+    from beambench.cli import app
+
+    proto = tmp_path / "t.yaml"
+    proto.write_text(
+        f"name: t\nrig: walker\nsweep: {{frequencies: [40, 46]}}\nsettle_s: 0.5\nrecord_s: 0.5\n{SIM}"
+        "track: {map: twin, segments: [{speed_mm_s: 0, hold_s: 1.5}]}\n"
+    )
+    res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--name", "t", "--rerun", "off"])
+    assert res.exit_code == 0, res.output
+    said = " ".join(res.stderr.split())
+    kept = tmp_path / "t_map.h5"
+    assert kept.is_file()
+    assert (
+        f"phase 1 of 2, the speed map (track.map: twin): this protocol's sweep on the sim, 2 steps, 2 s of rig time, into {kept}"
+        in said
+    )
+    assert f"speed map: {kept} (" in said and f"MB, kept: track.map: {kept} reuses it without the sweep)" in said
+    assert "phase 2 of 2, the profile: 1 segment, 1.5 s of rig time on the sim backend" in said, said

@@ -24,7 +24,8 @@ from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.models.rod import RodParams
-from beambench.sim.scenes.walker import WalkerParams, WalkerSim, sole_load
+from beambench.sim.scene_params import WalkerParams
+from beambench.sim.scenes.walker import WalkerSim, sole_load
 
 ROOT = Path(__file__).resolve().parents[1]
 PHYSICAL = load_params("physical", model="rod")

@@ -10,7 +10,8 @@ import pytest
 
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
-from beambench.sim.scenes.walker import WalkerParams, WalkerSim, leg_fold
+from beambench.sim.scene_params import WalkerParams
+from beambench.sim.scenes.walker import WalkerSim, leg_fold
 from beambench.sim.scenes.walker_batch import steady_speeds
 from beambench.sim.settings import SimSettings
 

@@ -13,8 +13,9 @@ into an HDF5 session, on a MuJoCo twin of the rig (``sim``), emulated devices or
     df = resample_session(s, 1000) # every stream on one clock-corrected 1 kHz timeline, with the step index
 
 Packages, top to bottom (imports point down): ``commands`` (the CLI), ``studies`` (fits and sweeps on the sim),
-``session`` (one run wired together), ``rigs`` and ``analysis``, ``sinks`` (the session file, the live view) and
-``emulators``, ``sim`` and ``devices``, ``acquisition`` (batches, streams, protocol, runner), ``common``.
+``session`` (one run wired together), ``backends`` (the sim, emulated and hardware rigs) and ``analysis``, ``sinks``
+(the session file, the live view) and ``emulators``, ``sim`` and ``devices``, ``acquisition`` (batches, streams,
+protocol, runner), ``common``; docs/architecture.md draws the pipeline.
 """
 
 __version__ = "0.1.0"

@@ -172,6 +172,17 @@ class Anticipates(Protocol):
 
 
 @runtime_checkable
+class ReportsComputedAhead(Protocol):
+    """A rig that computes the announced run ahead, possibly in parallel parts (the sim rig's segments): how far,
+    so progress counts every part's work and not only what the runner has taken so far."""
+
+    def computed_ahead(self) -> tuple[float, int] | None:
+        """(seconds of rig time computed since the announced schedule began, over every part; steps whose rows are
+        all computed), or None when nothing is being computed ahead."""
+        ...
+
+
+@runtime_checkable
 class HasSilenceTimeouts(Protocol):
     """A rig whose streams each have a silence timeout (s) from the rig file, watched by a monitor per stream."""
 

@@ -10,9 +10,12 @@ with ``drift = drift_ppm·1e-6``. A device that samples every ``1/rate`` of *its
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, overload
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from beambench.acquisition.protocol.schema import ClockModel
 
 __all__ = ["DriftingClock"]
 
@@ -52,6 +55,6 @@ class DriftingClock:
         return nominal_hz * self.scale
 
     @classmethod
-    def from_model(cls, model: Any) -> DriftingClock:
-        """From anything with ``offset_s`` and ``drift_ppm`` (the protocol's ClockModel, an EmulatorClock)."""
-        return cls(float(getattr(model, "offset_s", 0.0)), float(getattr(model, "drift_ppm", 0.0)))
+    def from_model(cls, model: ClockModel) -> DriftingClock:
+        """From the protocol's clock model (``sim.*_clock``)."""
+        return cls(model.offset_s, model.drift_ppm)

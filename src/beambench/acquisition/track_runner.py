@@ -23,7 +23,8 @@ from beambench.acquisition.control.speed_controller import (
 )
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import Step
-from beambench.acquisition.runner import ProgressCallback, Runner, StopSignal, wait_polls
+from beambench.acquisition.runner import ProgressCallback, Runner, wait_polls
+from beambench.acquisition.stop_signals import StopSignal
 
 
 class TrackRunner(Runner):

@@ -11,7 +11,7 @@ Notebook use::
 
 Modules: ``signals`` (sine fit), ``trajectory`` (stage frame, ellipses, sense of travel), ``contact`` (contact
 events, ratios, regimes), ``walking`` (body speed, foot stance), ``release`` (decay fit of a release test),
-``session`` (per-step driver, ``/processing``), ``figures`` (one module per report figure, registered by rig;
+``session_analysis`` (per-step driver, ``/processing``), ``sync`` (device→host clock fits), ``figures`` (one module per report figure, registered by rig;
 imports matplotlib), ``report`` (the figures of a session's rig and the HTML), ``synthetic`` (sessions with a
 known truth for tests and demos).
 """

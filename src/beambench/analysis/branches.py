@@ -23,6 +23,8 @@ import numpy as np
 import pandas as pd
 from scipy import special  # Student's t through special.stdtrit: scipy.stats costs ~1 s to import
 
+from beambench.acquisition.protocol.plan import Step
+
 SPREAD_METRICS = (
     "contacts_per_cycle",
     "contact_frequency_hz",
@@ -34,13 +36,18 @@ SPREAD_METRICS = (
 COVERAGE = 2.0  # hysteresis: the branches differ by more than this many standard errors of their difference
 
 
-def step_labels(srow: Any) -> dict[str, Any]:
-    """The ``/steps`` row's direction, kind and repeat (defaults for sessions recorded without them)."""
-    return {
-        "direction": str(getattr(srow, "direction", "") or "up"),
-        "kind": str(getattr(srow, "kind", "") or "sweep"),
-        "repeat": int(getattr(srow, "repeat", 0)),
-    }
+def with_step_labels(steps: pd.DataFrame) -> pd.DataFrame:
+    """``/steps`` with a direction, kind and repeat on every row: a session recorded without them (or with an
+    empty label) takes the step plan's defaults (:class:`~beambench.acquisition.protocol.plan.Step`)."""
+    blank = Step(index=0, frequency_hz=0.0, settle_s=0.0, record_s=0.0)
+    defaults: dict[str, str | int] = {"direction": blank.direction, "kind": blank.kind, "repeat": blank.repeat}
+    out = steps.copy()
+    for name, default in defaults.items():
+        if name not in out:
+            out[name] = default
+        elif isinstance(default, str):
+            out[name] = out[name].replace("", default)
+    return out
 
 
 def most_common(values: pd.Series) -> str:

@@ -21,18 +21,11 @@ from beambench.analysis.drift import drift_table
 from beambench.analysis.figures import FIGURES, FigureSpec, ReportOptions
 from beambench.analysis.figures.style import R2_SENSE_MIN, SESSION_COLORS
 from beambench.analysis.release import release_table
+from beambench.analysis.report_notes import completeness_notes, contact_notes
 from beambench.analysis.session_analysis import SessionAnalysis
 from beambench.sinks.hdf5 import session_warnings
 
 __all__ = ["SESSION_COLORS", "SUMMARY_COLUMNS", "figures_of", "make_report", "summary_table", "write_html"]
-
-
-def no_contact_anywhere(a: SessionAnalysis) -> bool:
-    """A contact-rig session with load-cell data whose foot touched the plate in none of its steps."""
-    t = a.table
-    if a.rig != "contact" or "n_contacts" not in t or not len(t):
-        return False
-    return bool((t["n_contacts"].fillna(0) == 0).all())
 
 
 # ---------------------------------------------------------------------------------------------- html/csv
@@ -143,21 +136,6 @@ def _sorted(t: pd.DataFrame) -> pd.DataFrame:
     return t.sort_values("frequency_hz", kind="stable") if "frequency_hz" in t else t
 
 
-def _no_contact_notes(analyses: list[SessionAnalysis]) -> list[str]:
-    """A note at the top for each session whose foot never touched the plate (contact figures are then empty)."""
-    notes = []
-    for a in analyses:
-        if no_contact_anywhere(a):
-            who = "" if len(analyses) == 1 else f" in {html.escape(a.label)}"
-            notes.append(
-                "<p class='note'><strong>No contact anywhere" + who + ":</strong> the foot never touched the plate "
-                "in any step (the normal force stayed below the contact threshold), so there are no contact "
-                "regimes, touchdowns or contact forces to show. Lower <code>sim.plate_gap_mm</code> or raise "
-                "<code>amplitude_mm</code> to bring the foot onto the plate.</p>"
-            )
-    return notes
-
-
 def _warning_banners(analyses: list[SessionAnalysis]) -> list[str]:
     """A banner at the top for each warning a session's run gave (``/general/warnings``)."""
     banners = []
@@ -189,8 +167,9 @@ def write_html(
         ".note{background:#fff4e0;border-left:4px solid #ff7f0e;padding:0.6em 1em}"
         ".warn{background:#fde8e8;border-left:4px solid #d62728;padding:0.6em 1em}</style></head><body>",
         f"<h1>{title}</h1>",
+        *completeness_notes(analyses),
         *_warning_banners(analyses),
-        *_no_contact_notes(analyses),
+        *contact_notes(analyses),
         f"<p>Per-step results: the main columns are at the end of this page; all of them are in "
         f"<a href='{csv_name}'>{csv_name}</a>. Record windows only (t_settled → t_end of each step), "
         "all streams on the host clock through the fitted device clocks.</p>",

@@ -17,7 +17,7 @@ import pandas as pd
 import yaml
 
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
-from beambench.analysis.branches import annotate_branches, step_labels
+from beambench.analysis.branches import annotate_branches, with_step_labels
 from beambench.analysis.contact import (
     ContactParams,
     Contacts,
@@ -26,8 +26,9 @@ from beambench.analysis.contact import (
 )
 from beambench.analysis.drift import drift_corrected
 from beambench.analysis.path_shape import annotate_inversions, path_noise, shape_columns
-from beambench.analysis.signals import NAN_SINE, fit_sinusoid, velocity
+from beambench.analysis.signals import velocity
 from beambench.analysis.speed_tracking import TrackResult, track_result
+from beambench.analysis.step_contacts import analysis_frequency, motor_frequency, stage_sine
 from beambench.analysis.sync import (
     NS,
     ClockFit,
@@ -52,7 +53,7 @@ from beambench.analysis.trajectory import (
     stage_frame,
 )
 from beambench.analysis.walking import body_speed
-from beambench.sinks.hdf5_read import StreamData
+from beambench.sinks.hdf5_read import StreamData, run_ending
 from beambench.sinks.session_frames import flat_names, step_of
 
 
@@ -111,6 +112,7 @@ class SessionAnalysis:
     edge_check: EdgeCheck | None = None
     name: str = ""
     track: TrackResult | None = None  # speed tracking (track: sessions), beambench.analysis.speed_tracking
+    ending: tuple[str, str] | None = None  # the run's closing event (kind, message); None: the file has none
 
     @property
     def sync_table(self) -> pd.DataFrame:
@@ -404,7 +406,8 @@ def analyze_session(
     ctx = StepContext(rig, amplitude_mm, len(streams.force_t) > 0, options, frame, forward)
     results: list[StepResult] = []
     n_steps, last_ns = len(session.steps), streams.last_ns
-    for k, srow in enumerate(session.steps.itertuples(index=False)):
+    steps: Any = with_step_labels(session.steps)  # a session's own columns: read by name
+    for k, srow in enumerate(steps.itertuples(index=False)):
         a = int(srow.t_settled_ns)
         b = int(srow.t_end_ns) if int(srow.t_end_ns) > 0 else last_ns
         results.append(_analyze_step(srow, a, b, streams.window(a, b) if 0 <= a < b else None, ctx))
@@ -432,6 +435,7 @@ def analyze_session(
         residual_t,
         _edge_check(session, fits),
         track=track,
+        ending=run_ending(session.events),
     )
 
 
@@ -468,7 +472,9 @@ def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepCo
         "step": int(srow.index),
         "frequency_hz": f_cmd,
         "status": str(srow.status),
-        **step_labels(srow),
+        "direction": str(srow.direction),
+        "kind": str(srow.kind),
+        "repeat": int(srow.repeat),
         "t_settled_s": a / NS if a >= 0 else np.nan,
         "record_s": (b - a) / NS if a >= 0 else np.nan,
     }
@@ -497,22 +503,18 @@ def _analyze_step(srow: Any, a: int, b: int, arr: StepArrays | None, ctx: StepCo
 def _drive(row: dict[str, Any], arr: StepArrays, ctx: StepContext, f_cmd: float) -> float:
     """Motor speed (crank turn/s = Hz), the stage's measured frequency and amplitude; returns the frequency the
     rest of the step is analysed at (measured, else the motor's, else the commanded)."""
-    v = arr.motor_velocity
-    row["motor_frequency_hz"] = float(np.nanmean(np.abs(v))) if np.isfinite(v).any() else np.nan
+    row["motor_frequency_hz"] = motor_frequency(arr.motor_velocity)
     iq = arr.motor_current
     row["motor_current_rms_a"] = float(np.sqrt(np.nanmean(iq**2))) if np.isfinite(iq).any() else np.nan
     stage = arr.marker(ctx.options.stage_marker)
-    sine = NAN_SINE
     if stage is not None and ctx.frame is not None:
         row["mocap_valid_fraction"] = float(np.isfinite(stage).all(axis=1).mean()) if len(stage) else 0.0
-        disp = (stage - np.nanmean(stage, axis=0)) @ ctx.frame.drive if len(stage) else np.zeros(0)
-        sine = fit_sinusoid(arr.t_mocap, disp, f_cmd if f_cmd > 0 else None)
+    sine = stage_sine(arr.t_mocap, stage, ctx.frame, f_cmd)
     row["measured_frequency_hz"] = sine.frequency_hz
     row["frequency_error_hz"] = sine.frequency_hz - f_cmd
     row["stage_amplitude_mm"] = sine.amplitude * 1e3
     row["commanded_amplitude_mm"] = ctx.amplitude_mm if stage is not None else np.nan
-    f_use = sine.frequency_hz if np.isfinite(sine.frequency_hz) and sine.frequency_hz > 0 else row["motor_frequency_hz"]
-    return float(f_use) if np.isfinite(f_use) and f_use > 0 else f_cmd
+    return analysis_frequency(sine, row["motor_frequency_hz"], f_cmd)
 
 
 def _paths(res: StepResult, arr: StepArrays, ctx: StepContext, f_use: float) -> None:

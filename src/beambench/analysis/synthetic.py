@@ -77,6 +77,8 @@ class SynthSession:
     seed: int = 0
     batch_s: float = 0.5
     natnet_echo: bool = False  # store ECHO exchanges with Motive (QPC clock = the mocap device clock)
+    interrupted_in: int | None = None  # a SIGINT half-way through this step's record window: it is cut short
+    # ("aborted"), the later steps never run and the last event is the runner's "interrupted"
 
 
 def _schedule(cfg: SynthSession) -> list[tuple[float, float, float]]:
@@ -244,6 +246,12 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
     rng = np.random.default_rng(cfg.seed)
     sched = _schedule(cfg)
     t_end = sched[-1][2] + 0.2
+    k_stop = cfg.interrupted_in
+    rows = sched  # the step rows written: every step, else those up to the one cut short
+    if k_stop is not None:
+        t_stop = sched[k_stop][1] + cfg.record_s / 2
+        rows = [*sched[:k_stop], (sched[k_stop][0], sched[k_stop][1], t_stop)]
+        t_end = t_stop + 0.2
     cal = cfg.calibration or default_calibration()
     names = WALKER_MARKERS if cfg.rig == "walker" else CONTACT_MARKERS
     specs = [mocap_spec(names), motor_spec()] + ([loadcell_spec()] if cfg.rig == "contact" else [])
@@ -317,12 +325,16 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
                             b.stream, b.host_time_ns[sel], b.device_time[sel], {k: v[sel] for k, v in b.columns.items()}
                         )
                     )
-            for i, (s0, s1, s2) in enumerate(sched):
+            for i, (s0, s1, s2) in enumerate(rows):
                 if lo <= s2 * NS < hi:
                     st = cfg.steps[i]
                     times = (int(s0 * NS), int(s1 * NS), int(s2 * NS))
-                    writer.step(StepRecord(i, st.frequency_hz, *times, "done", st.direction, st.kind, st.repeat))
-        writer.event(int(t_end * NS), "stop", "synthetic session complete")
+                    status = "aborted" if i == k_stop else "done"
+                    writer.step(StepRecord(i, st.frequency_hz, *times, status, st.direction, st.kind, st.repeat))
+        if k_stop is None:
+            writer.event(int(t_end * NS), "stop", "synthetic session complete")
+        else:
+            writer.event(int(t_end * NS), "interrupted", "interrupted by user (SIGINT)")
     finally:
         writer.close()
     return path

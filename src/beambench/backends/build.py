@@ -4,10 +4,12 @@ rig file), each from its slices of the protocol (:class:`RigSlices`, cut by :mod
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from beambench.acquisition.capabilities import Rig
+from beambench.acquisition.protocol.backends import BACKEND_INFO, backend_info
 from beambench.acquisition.protocol.schema import Backend
 from beambench.sim.protocol_slice import SimSlice
 
@@ -24,6 +26,32 @@ class RigSlices:
     """A closed-loop speed profile (``track:``): the sim computes nothing ahead."""
 
 
+@dataclass(frozen=True)
+class BuildOptions:
+    """What a backend's rig builder may use besides the slices."""
+
+    realtime: bool = False
+    rig_file: Path | None = None
+    can_log: Path | None = None
+
+
+RigBuilder = Callable[[RigSlices, BuildOptions], Rig]
+BUILDERS: dict[str, RigBuilder] = {}
+"""Each backend's rig builder, by backend name (:data:`beambench.acquisition.protocol.backends.BACKEND_INFO`)."""
+
+
+def rig_builder(backend: str) -> Callable[[RigBuilder], RigBuilder]:
+    """Register how ``backend`` (a name of the backend catalogue) builds its rig."""
+
+    def add(build: RigBuilder) -> RigBuilder:
+        if backend not in BACKEND_INFO or backend in BUILDERS:
+            raise ValueError(f"backend {backend!r}: not in the backend catalogue, or registered twice")
+        BUILDERS[backend] = build
+        return build
+
+    return add
+
+
 def build_rig(
     slices: RigSlices,
     backend: Backend,
@@ -32,17 +60,30 @@ def build_rig(
     can_log: Path | None = None,
 ) -> Rig:
     """The rig for ``backend``; drivers are imported lazily so the sim needs no hardware packages."""
-    if backend == "hardware":
-        from beambench.backends.hardware import build_device_rig
-
-        return build_device_rig(slices.markers, rig_file=rig_file, can_log=can_log)
-    if slices.sim is None:
+    if backend_info(backend).simulates and slices.sim is None:
         raise ValueError(f"the {backend} backend needs a simulation slice")
-    if backend == "sim":
-        from beambench.backends.sim import build_sim_rig
+    return BUILDERS[backend](slices, BuildOptions(realtime, rig_file, can_log))
 
-        # closed-loop tracking commands every few ms: a chunk computed ahead would only be undone
-        return build_sim_rig(slices.sim, realtime=realtime, prefetch=not slices.tracking)
+
+@rig_builder("hardware")
+def _hardware(slices: RigSlices, opts: BuildOptions) -> Rig:
+    from beambench.backends.hardware import build_device_rig
+
+    return build_device_rig(slices.markers, rig_file=opts.rig_file, can_log=opts.can_log)
+
+
+@rig_builder("sim")
+def _sim(slices: RigSlices, opts: BuildOptions) -> Rig:
+    from beambench.backends.sim import build_sim_rig
+
+    assert slices.sim is not None  # build_rig checked it
+    # closed-loop tracking commands every few ms: a chunk computed ahead would only be undone
+    return build_sim_rig(slices.sim, realtime=opts.realtime, prefetch=not slices.tracking)
+
+
+@rig_builder("emulated")
+def _emulated(slices: RigSlices, opts: BuildOptions) -> Rig:
     from beambench.backends.emulated import build_emulated_rig
 
-    return build_emulated_rig(slices.sim, can_log=can_log, rig_file=rig_file)
+    assert slices.sim is not None
+    return build_emulated_rig(slices.sim, can_log=opts.can_log, rig_file=opts.rig_file)

@@ -653,8 +653,7 @@ def build_emulated_rig(
         raise
     return DeviceRig(
         motor,
-        mocap,
-        loadcells,
+        {"mocap": mocap, "loadcells": loadcells},
         "emulated",
         peers=[peers],
         extra_identity={"emulated": {"scene": ready["scene"], "can_channel": channel, "peers": "own process (spawn)"}},

@@ -1,16 +1,14 @@
-"""Rigs of real drivers: ``hardware`` (the lab's devices, wired by the rig file) and ``emulated`` (the same
-drivers against wire-level emulated peers on this machine, driven in real time by the MuJoCo physics).
-
-Emulated wiring: Motive on UDP loopback (unicast, a free port), the ODrive on a python-can virtual bus (a
-channel of its own), the load-cell MCU on a pseudo-terminal. A physics thread advances the sim scene to the
-wall clock every few milliseconds, following the emulated ODrive's crank speed, and the emulators read
-marker positions and plate force from it.
+"""The rig of real drivers: :class:`DeviceRig` (a motor and its streams on the wall clock, opened, checked and
+closed together) and :func:`build_device_rig`, which wires the lab's devices from the rig file
+(``calibration/rig.yaml``). The emulated backend (:mod:`beambench.backends.emulated`) builds the same
+:class:`DeviceRig` with its drivers pointed at wire-level peers on this machine.
 """
 
 from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -26,9 +24,8 @@ from beambench.acquisition.capabilities import (
 )
 from beambench.acquisition.protocol.schema import (
     ConfigError,
-    LoadCellWiring,
-    NatNetWiring,
     OdriveWiring,
+    RigFile,
     load_rig_file,
 )
 from beambench.common.resources import shipped_dir
@@ -55,23 +52,24 @@ class WallClock:
 
 
 class DeviceRig:
-    """Clock, motor and streams of real drivers, plus whatever must be stopped after them (emulators)."""
+    """A motor and named streams of real drivers on the wall clock, plus whatever must be stopped after them
+    (emulators). Opening, checking, closing, health and identity loop over the streams; each is also reachable
+    by its name (``rig.mocap``), as an ophyd device's components are."""
 
     idle_tail_s = 0.3  # recorded after the idle command, so the session shows the motor stopping
 
     def __init__(
         self,
         motor: Motor,
-        mocap: Stream,
-        loadcells: Stream,
+        streams: Mapping[str, Stream],
         backend: str,
         peers: list[Any] | None = None,
         extra_identity: dict[str, Any] | None = None,
     ) -> None:
         self.clock = WallClock()
         self.motor = motor
-        self.mocap, self.loadcells = mocap, loadcells
-        self.streams: list[Stream] = [motor, mocap, loadcells]
+        self.named: dict[str, Stream] = dict(streams)  # name in the rig's identity → stream
+        self.streams: list[Stream] = [motor, *self.named.values()]
         self.backend = backend
         self.peers = peers or []
         self._extra = extra_identity or {}
@@ -95,6 +93,12 @@ class DeviceRig:
             self.close()
             raise
 
+    def __getattr__(self, name: str) -> Stream:
+        named = self.__dict__.get("named", {})
+        if name in named:
+            return named[name]
+        raise AttributeError(f"{type(self).__name__} has no attribute or stream {name!r}")
+
     def close(self) -> None:
         if self._closed:
             return
@@ -102,7 +106,7 @@ class DeviceRig:
         with contextlib.suppress(Exception):
             self.motor.idle()
         self._keep_echoes()
-        for s in (self.mocap, self.loadcells):
+        for s in self.named.values():
             with contextlib.suppress(Exception):
                 s.stop()
         self._after_run["devices"] = self.device_health()
@@ -116,13 +120,13 @@ class DeviceRig:
     def check(self) -> None:
         """Raise :class:`DeviceFault` if any device failed or went silent: the motor first, then each stream."""
         self.motor.check()
-        for s in (self.mocap, self.loadcells):
+        for s in self.named.values():
             s.check()
 
     def silence_timeouts(self) -> dict[str, float]:
         """Each stream's silence timeout (s), for :func:`beambench.acquisition.monitors.build_monitors`."""
         out: dict[str, float] = {}
-        for s in (self.mocap, self.loadcells):
+        for s in self.named.values():
             if isinstance(s, HasSilenceTimeout) and s.silence_timeout_s is not None:
                 out[s.name] = float(s.silence_timeout_s)
         return out
@@ -137,13 +141,14 @@ class DeviceRig:
         return out
 
     def _keep_echoes(self) -> None:
-        """The mocap's ECHO table (``ReportsEchoes``), kept before the driver stops, for the clock fit."""
-        if not isinstance(self.mocap, ReportsEchoes):
-            return
-        with contextlib.suppress(Exception):
-            sync = self.mocap.echo_sync()
-            if sync is not None:
-                self._after_run = {"sync": {"natnet_echo": sync}}
+        """The mocap's ECHO table (a stream that ``ReportsEchoes``), kept before the driver stops, for the clock
+        fit."""
+        for s in self.named.values():
+            if isinstance(s, ReportsEchoes):
+                with contextlib.suppress(Exception):
+                    sync = s.echo_sync()
+                    if sync is not None:
+                        self._after_run = {"sync": {"natnet_echo": sync}}
 
     def after_run(self) -> dict[str, Any]:
         """The NatNet ECHO table (for the clock fit) and every driver's counters (``devices``), known once the
@@ -152,7 +157,7 @@ class DeviceRig:
 
     def identity(self) -> dict[str, Any]:
         out: dict[str, Any] = {"backend": self.backend}
-        for key, dev in (("motor", self.motor), ("mocap", self.mocap), ("loadcells", self.loadcells)):
+        for key, dev in (("motor", self.motor), *self.named.items()):
             out[key] = dev.identity() if isinstance(dev, Identifies) else type(dev).__name__
         out.update(self._extra)
         return out
@@ -185,10 +190,29 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
     )
 
 
-def _make_mocap(nn: NatNetWiring, markers: tuple[str, ...], frame: Frame) -> Stream:
+StreamFactory = Callable[[RigFile, tuple[str, ...]], Stream]
+DEVICE_STREAMS: dict[str, StreamFactory] = {}
+"""How the hardware rig builds each of its streams from the rig file and the scene's markers, by name."""
+
+
+def device_stream(name: str) -> Callable[[StreamFactory], StreamFactory]:
+    """Register a stream of the hardware rig: ``name`` is its key in the rig's identity (and ``rig.<name>``)."""
+
+    def add(make: StreamFactory) -> StreamFactory:
+        if name in DEVICE_STREAMS:
+            raise ValueError(f"device stream {name!r} registered twice")
+        DEVICE_STREAMS[name] = make
+        return make
+
+    return add
+
+
+@device_stream("mocap")
+def _make_mocap(rig: RigFile, markers: tuple[str, ...]) -> Stream:
     from beambench.devices.natnet.mocap import NatNetMocap
 
-    section = nn.model_dump()
+    frame = Frame(**rig.geometry.model_dump())
+    section = rig.natnet.model_dump()
     silence = section.pop("silence_timeout_s", None)
     missing = [m for m in markers if m not in section["markers"]]
     if missing:
@@ -196,9 +220,11 @@ def _make_mocap(nn: NatNetWiring, markers: tuple[str, ...], frame: Frame) -> Str
     return NatNetMocap.from_rig(section, markers=markers, frame=frame, silence_timeout_s=silence)
 
 
-def _make_loadcells(lc: LoadCellWiring) -> Stream:
+@device_stream("loadcells")
+def _make_loadcells(rig: RigFile, markers: tuple[str, ...]) -> Stream:
     from beambench.devices.loadcell.driver import SerialLoadCells
 
+    lc = rig.loadcell
     return SerialLoadCells(lc.port, lc.baudrate, silence_timeout_s=lc.silence_timeout_s)
 
 
@@ -209,8 +235,7 @@ def build_device_rig(markers: tuple[str, ...], rig_file: Path | None = None, can
     rig = load_rig_file(path)
     return DeviceRig(
         _make_motor(rig.odrive, can_log),
-        _make_mocap(rig.natnet, markers, Frame(**rig.geometry.model_dump())),
-        _make_loadcells(rig.loadcell),
+        {name: make(rig, markers) for name, make in DEVICE_STREAMS.items()},
         "hardware",
         extra_identity={"rig_file": path.read_text()},
     )

@@ -19,6 +19,16 @@ cut — the gait's phase, the body's height and tilt jump there, at the start of
 each part after the first starts at its first frequency already walking instead of ramping up from the previous
 step's frequency. The per-step settle window is what makes the steps' speeds comparable either way (each step's
 speed is a steady one measured after it).
+
+Checked cuts (the contact rig, a scene that ``ChecksCuts``): its state forgets the past only where its regime is
+robust, not in the lift-off band where a micrometre flips the label. So the part before a cut runs on past it step
+by step beside the part after it (started from rest, ramped up, pre-settled), and the scene compares each such
+step run both ways (:meth:`~beambench.sim.scenes.drive.ChecksCuts.same_regime`). At the first step that agrees the
+caller switches parts, at the next step's command (the agreed step's rows are the carried ones); until then the
+cut moves on, and a part that never agrees is run by the part before it (its stretch in one piece). Nothing is
+shifted along a walking axis there; the motor angle continues by whole turns, so the stage still sits at the
+crank's sine. The checks go to ``/general/sim_segments`` (``cut_checks``: where each cut was planned, where it was
+taken, the steps compared).
 """
 
 from __future__ import annotations
@@ -98,9 +108,13 @@ def physics_time_after(calls: list[Call], t_phys: float, h: float) -> float:
     return t_phys
 
 
+Agree = Callable[[Trajectory, Trajectory, float], bool]  # (carried rows, restarted rows, Hz) of one step: same regime?
+
+
 @dataclass
 class _Segment:
-    """One worker: script calls ``first``..``last − 1`` on ``scene`` (pre-settled first unless it is the rig's)."""
+    """One worker: script calls ``first``..``last − 1`` on ``scene`` (pre-settled first unless it is the rig's);
+    with a cut check, then on past ``last`` until the next segment's cut is decided."""
 
     scene: DrivenScene
     first: int
@@ -112,6 +126,9 @@ class _Segment:
     error: BaseException | None = None
     thread: threading.Thread | None = None
     cpu_s: float = 0.0  # the worker thread's CPU time
+    # per segment before it (its index): the call from which the caller, taking that segment's rows, takes this
+    # one's instead, or None: the cut was refused at every step of this stretch (that segment ran it)
+    verdict: dict[int, int | None] = field(default_factory=dict)
 
 
 class Lookahead:
@@ -125,10 +142,15 @@ class Lookahead:
         cuts: list[int] | None = None,
         clones: list[DrivenScene] | None = None,
         presettle_s: float = PRESETTLE_S,
-        walk_axis: int = 0,
+        walk_axis: int | None = 0,
+        agree: Agree | None = None,
     ) -> None:
         self.calls = calls
         self.walk_axis = walk_axis
+        self.agree = agree
+        self.checks: list[
+            dict[str, Any]
+        ] = []  # each cut's check: where it was asked, where it went, the steps compared
         self.next = 0  # the next call the caller expects
         self.start = scene.snapshot()  # the state before the first call
         self.last_snap: tuple | None = None
@@ -149,8 +171,12 @@ class Lookahead:
             else:
                 t_phys = physics_time_after(calls[:a], float(scene.physics.time), h)
                 seg = _Segment(clones[j - 1], a, b, (calls[a][2], presettle_s, t_phys))
+                if agree is None:
+                    seg.verdict[j - 1] = a
             self.segments.append(seg)
         self._seg = 0  # the segment the caller takes from
+        self._pending_join: tuple[_Segment, int] | None = None  # the segment just switched to, from which call
+        self.cuts_taken: list[int] = []  # the calls where the caller switched to the next segment
         for seg in self.segments:
             seg.thread = threading.Thread(target=self._work, args=(seg,), name="sim-lookahead", daemon=True)
             seg.thread.start()
@@ -168,27 +194,118 @@ class Lookahead:
                 seg.scene.physics.data.time = t_phys  # continue on the run's time axis
             bounded = seg is self.segments[0]
             for i in range(seg.first, seg.last):
-                with self._cv:
-                    while bounded and not self._stop and i - self.next >= MAX_AHEAD:
-                        self._cv.wait()
-                    if self._stop:
-                        return
-                kind, t_ns, hz = self.calls[i]
-                if kind == "cmd":
-                    seg.scene.set_frequency(hz)
-                    out = None
-                else:
-                    out = seg.scene.advance_to(t_ns * 1e-9)
-                snap = seg.scene.snapshot()
-                with self._cv:
-                    seg.results[i] = (out, snap)
-                    seg.done = i + 1
-                    seg.cpu_s = time.thread_time() - c0
-                    self._cv.notify_all()
+                if not self._call(seg, i, bounded, c0):
+                    return
+            if self.agree is not None:
+                self._check_cuts(seg, c0)
         except BaseException as exc:  # handed to the caller in take()
             with self._cv:
                 seg.error = exc
                 self._cv.notify_all()
+
+    def _call(self, seg: _Segment, i: int, bounded: bool, c0: float) -> bool:
+        """Make script call ``i`` on ``seg``'s scene and keep its rows and state; False once stopped."""
+        with self._cv:
+            while bounded and not self._stop and i - self.next >= MAX_AHEAD:
+                self._cv.wait()
+            if self._stop:
+                return False
+        kind, t_ns, hz = self.calls[i]
+        if kind == "cmd":
+            seg.scene.set_frequency(hz)
+            out = None
+        else:
+            out = seg.scene.advance_to(t_ns * 1e-9)
+        snap = seg.scene.snapshot()
+        with self._cv:
+            seg.results[i] = (out, snap)
+            seg.done = i + 1
+            seg.cpu_s = time.thread_time() - c0
+            self._cv.notify_all()
+        return True
+
+    def _step_end(self, i: int) -> int:
+        """The index of the first command after call ``i`` (the end of the step that call ``i`` starts)."""
+        return next((j for j in range(i + 1, len(self.calls)) if self.calls[j][0] == "cmd"), len(self.calls))
+
+    def _rows(self, seg: _Segment, a: int, b: int) -> Trajectory | None:
+        parts = [seg.results[j][0] for j in range(a, b) if j in seg.results and seg.results[j][0] is not None]
+        return Trajectory.concat([p for p in parts if p is not None]) if parts else None
+
+    def _check_cuts(self, seg: _Segment, c0: float) -> None:
+        """Past its own stretch, ``seg`` runs on step by step beside the next segment (which started from rest at
+        the cut): the first step on which both give the same regime (``agree``) is where the caller switches, at
+        the step after it. A segment that never agrees is merged: ``seg`` runs its stretch and checks the next."""
+        me = self.segments.index(seg)
+        k = me + 1
+        i = seg.last
+        asked = i
+        compared: list[float] = []
+        while k < len(self.segments):
+            nxt = self.segments[k]
+            e = self._step_end(i)
+            for j in range(i, e):
+                if not self._call(seg, j, False, c0):
+                    return
+            with self._cv:
+                while nxt.done < e and nxt.error is None and not self._stop:
+                    self._cv.wait()
+                if self._stop:
+                    return
+            a, b = self._rows(seg, i, e), self._rows(nxt, i, e) if nxt.error is None else None
+            hz = self.calls[i][2]
+            compared.append(hz)
+            if a is not None and b is not None and self.agree is not None and self.agree(a, b, hz):
+                with self._cv:
+                    nxt.verdict[me] = e
+                    self.checks.append({"asked_s": self._t(asked), "cut_s": self._t(e), "steps_compared_hz": compared})
+                    self._cv.notify_all()
+                return
+            i = e
+            if i >= nxt.last:  # refused at every step of its stretch: run it here, check the next cut
+                with self._cv:
+                    nxt.verdict[me] = None
+                    self.checks.append({"asked_s": self._t(asked), "cut_s": None, "steps_compared_hz": compared})
+                    self._cv.notify_all()
+                k, asked, compared = k + 1, i, []
+
+    def _t(self, i: int) -> float | None:
+        return round(self.calls[i][1] * 1e-9, 9) if i < len(self.calls) else None
+
+    def _owner(self, i: int) -> _Segment:
+        """The segment whose rows call ``i`` takes (waits for a cut's check); called with the lock held."""
+        k = self._seg + 1
+        while k < len(self.segments):
+            seg, nxt = self.segments[self._seg], self.segments[k]
+            if i < nxt.first:
+                break
+            if self._seg not in nxt.verdict:  # its check is still running
+                if seg.error is not None:
+                    raise seg.error
+                self._cv.wait()
+                continue
+            at = nxt.verdict[self._seg]
+            if at is None:  # refused: the current segment ran that stretch too
+                k += 1
+                continue
+            if i < at:
+                break
+            self._seg = k
+            self._pending_join = (nxt, at)
+            self.cuts_taken.append(at)
+            k += 1
+        return self.segments[self._seg]
+
+    def _join_row(self, seg: _Segment, at: int) -> dict[str, np.ndarray] | None:
+        """The row that ``seg``'s rows from call ``at`` on continue (its pre-settle's last, or its row before
+        ``at``); drops its rows before ``at`` (never taken). Called with the lock held, once ``seg`` made call ``at``."""
+        row: dict[str, np.ndarray] | None = seg.join_row
+        if at != seg.first or row is None:
+            prev = self._rows(seg, at - 1, at)
+            row = {k: prev.channels[k][-1] for k in ("markers", "theta")} if prev is not None else None
+        for j in [j for j in seg.results if j < at]:
+            del seg.results[j]
+        return row
 
     # --- caller -----------------------------------------------------------------------------------------
     def expects(self, kind: str, t_ns: int, hz: float = 0.0) -> bool:
@@ -199,26 +316,30 @@ class Lookahead:
         """The next call's rows (None for a command), waiting for its worker. ``last_rows``: the rows taken so far
         (their last row is where a new segment's rows are stitched on)."""
         i = self.next
-        if self._seg + 1 < len(self.segments) and i >= self.segments[self._seg + 1].first:
-            self._seg += 1
-        seg = self.segments[self._seg]
         with self._cv:
+            self._pending_join = None
+            seg = self._owner(i)
             while seg.done <= i and seg.error is None:
                 self._cv.wait()
             if seg.error is not None and seg.done <= i:
                 raise seg.error
+            join = self._join_row(*self._pending_join) if self._pending_join is not None else None
             out, snap = seg.results.pop(i)
             self.last_snap = snap
             self.next = i + 1
             self._cv.notify_all()
-        if i == seg.first and seg.join_row is not None and last_rows is not None and len(last_rows):
-            self.offset = {
-                "x": float(
-                    last_rows.channels["markers"][-1, 0, self.walk_axis] - seg.join_row["markers"][0, self.walk_axis]
-                ),
-                "theta": float(last_rows.channels["theta"][-1] - seg.join_row["theta"]),
-            }
+        if join is not None and last_rows is not None and len(last_rows):
+            self.offset = self._offset_to(last_rows, join)
         return None if out is None else shifted(out, self.offset, self.walk_axis)
+
+    def _offset_to(self, last: Trajectory, row: dict[str, np.ndarray]) -> dict[str, float]:
+        """Offsets continuing ``last``'s final row with ``row``: along the walking axis (none without one) and the
+        motor angle; without a walking axis by whole turns only, so the crank's phase stays the stage's."""
+        dtheta = float(last.channels["theta"][-1] - row["theta"])
+        if self.walk_axis is None:
+            return {"x": 0.0, "theta": 2 * np.pi * round(dtheta / (2 * np.pi))}
+        ax = self.walk_axis
+        return {"x": float(last.channels["markers"][-1, 0, ax] - row["markers"][0, ax]), "theta": dtheta}
 
     @property
     def scene(self) -> DrivenScene:
@@ -227,7 +348,10 @@ class Lookahead:
 
     @property
     def cut_times_ns(self) -> list[int]:
-        return [self.calls[s.first][1] for s in self.segments[1:]]
+        """Where the caller switched segments so far (all planned cuts while none is checked)."""
+        if self.agree is None:
+            return [self.calls[s.first][1] for s in self.segments[1:]]
+        return [self.calls[i][1] for i in self.cuts_taken if i < len(self.calls)]
 
     def stop(self) -> tuple | None:
         """Stop every worker; the state after the last call taken (None: none taken — then :attr:`start`)."""
@@ -240,7 +364,24 @@ class Lookahead:
         return self.last_snap
 
 
-def shifted(tr: Trajectory, offset: dict[str, float], axis: int) -> Trajectory:
+def computed(look: Lookahead) -> tuple[float, int]:
+    """(seconds of rig time whose rows are computed, over every segment; step commands whose rows up to the next
+    command, or the segment's end, are all computed). A later segment's pre-settle is not counted."""
+    seconds, steps = 0.0, 0
+    calls = look.calls
+    with look._cv:
+        done = [(seg.first, min(seg.done, seg.last)) for seg in look.segments]  # not a checked cut's overlap
+    for (first, upto), seg in zip(done, look.segments):
+        if upto <= first:
+            continue
+        seconds += (calls[upto - 1][1] - calls[first][1]) * 1e-9
+        cmds = [i for i in range(first, seg.last) if calls[i][0] == "cmd"]
+        ends = [*cmds[1:], seg.last]
+        steps += sum(1 for end in ends if end <= upto)
+    return seconds, steps
+
+
+def shifted(tr: Trajectory, offset: dict[str, float], axis: int | None) -> Trajectory:
     """``tr`` with ``offset["x"]`` added to every marker along ``axis`` and ``offset["theta"]`` to the motor angle."""
     if not offset["x"] and not offset["theta"]:
         return tr
@@ -263,4 +404,5 @@ def info(look: Lookahead) -> dict[str, Any]:
         "calls_taken": look.next,
         "calls_planned": len(look.calls),
         "worker_cpu_s": [round(seg.cpu_s, 2) for seg in look.segments],
+        **({"cut_checks": look.checks} if look.agree is not None else {}),
     }

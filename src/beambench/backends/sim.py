@@ -7,8 +7,9 @@ With ``prefetch`` the next chunk (same length, same command) is computed on a wo
 stores the last one (MuJoCo releases the GIL); a command or a different wait undoes it from a snapshot, so
 the data are identical with and without prefetch. Once the runner announces the run's schedule
 (:meth:`SimRig.anticipate`), a worker computes the whole script ahead instead (:mod:`beambench.backends.lookahead`;
-same data), and with ``sim.segments: n`` (walker) n workers compute consecutive parts of the sweep in parallel,
-each later part pre-settled at its first frequency (what that changes: the lookahead module's docstring).
+same data), and with ``sim.segments: n`` (walker, contact rig) n workers compute consecutive parts of the sweep in
+parallel, each later part pre-settled at its first frequency (what that changes, and the contact rig's check of
+each cut: the lookahead module's docstring).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from beambench.sim.engine.stepping import Trajectory, quiet_mujoco_warnings
 from beambench.sim.models.registry import UnknownModelError, beam_model
 from beambench.sim.protocol_slice import SimSlice
 from beambench.sim.scenes import SceneConfig
-from beambench.sim.scenes.drive import CostsByFrequency, DrivenScene, VelocityRamp, WarmsUp
+from beambench.sim.scenes.drive import ChecksCuts, CostsByFrequency, DrivenScene, VelocityRamp, WarmsUp
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
 
@@ -148,7 +149,12 @@ class SimRig:
         cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, cost)
         clones = [build_scene(self.sim) for _ in cuts]
         self._scenes += clones
-        self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
+        if isinstance(self.scene, ChecksCuts):  # each cut checked; the rig does not walk: no marker offset
+            self._look = lookahead.Lookahead(
+                self.scene, calls, cuts, clones, walk_axis=None, agree=self.scene.same_regime
+            )
+        else:
+            self._look = lookahead.Lookahead(self.scene, calls, cuts, clones)
 
     def _drop_lookahead(self) -> None:
         """The run left the script: stop the workers, continue from the state after the last call taken."""
@@ -164,6 +170,11 @@ class SimRig:
         self.scene.restore(snap if snap is not None else look.start)
         if len(look.segments) > 1:
             self._look_info = lookahead.info(look)
+
+    def computed_ahead(self) -> tuple[float, int] | None:
+        """How far the workers have computed the announced run (``ReportsComputedAhead``): every segment's share."""
+        look = self._look
+        return None if look is None else lookahead.computed(look)
 
     def model_warnings(self) -> list[str]:
         """The scene's own (``WarnsOfModel``): e.g. the physical twin's walker on legs that fold."""

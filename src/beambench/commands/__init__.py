@@ -14,13 +14,34 @@ import typer
 if TYPE_CHECKING:
     from rich.console import Console
 
-# Exit codes of every command (README, "Exit codes"). All below 128: a shell reads 128 + N as "killed by signal
-# N", which a run stopped through its stop path (motor idled, session closed) is not.
+# Exit codes of every command (docs/commands.md, "Exit codes": a test checks that table against EXIT_CODES). All
+# below 128: a shell reads 128 + N as "killed by signal N", which a command stopped through its stop path (motor
+# idled, session closed, evaluations kept) is not.
 EXIT_OK = 0
-EXIT_FAULT = 1  # a device fault or an error during the run (session saved)
-EXIT_USAGE = 2  # bad input: a flag, a file, a field (nothing moved)
-EXIT_STOPPED = 3  # stopped by a signal (SIGINT, SIGTERM, SIGHUP, SIGQUIT, …): motor idled, session saved
+EXIT_FAULT = 1  # a device fault or an error during the work (run: session saved, motor idled; doctor: a part missing)
+EXIT_USAGE = 2  # bad input: a flag, a file, a field (nothing moved, nothing written)
+EXIT_STOPPED = 3  # stopped by a signal (Ctrl-C everywhere; run: also SIGTERM, SIGHUP, SIGQUIT, …): cleanly
 EXIT_SINK = 4  # a sink failed (a full disk): motor idled, the session holds what was written before
+EXIT_MISSED = 5  # calibrate sim: written, but a target is not met within its tolerance
+
+# The codes each command exits with (0, 2 and 3 are every command's: done, bad input, Ctrl-C; 1 too when memory
+# runs out, cli.main): the table of docs/commands.md is checked against this, and each command module's code
+# against its commands' rows (tests/test_exit_codes.py).
+EVERY = (EXIT_OK, EXIT_FAULT, EXIT_USAGE, EXIT_STOPPED)
+EXIT_CODES: dict[str, tuple[int, ...]] = {
+    "run": (*EVERY, EXIT_SINK),
+    "view": EVERY,
+    "analyze": EVERY,
+    "compare": EVERY,
+    "devices": EVERY,
+    "doctor": EVERY,
+    "calibrate loadcells": EVERY,
+    "calibrate sim": (*EVERY, EXIT_MISSED),
+    "natnet decode": EVERY,
+    "bench models": EVERY,
+    "fit": EVERY,
+    "sweep": EVERY,
+}
 
 # True in the ``beambench`` process itself (cli.main), which exits after the command: signals may then stay
 # ignored after a run. False when a command is invoked in-process (tests, notebooks): everything is restored.

@@ -132,11 +132,11 @@ def _load(path: Path, options: AnalysisOptions, progress, write: bool, session: 
 def _check_outputs(folder: Path, sessions: list[Path], write: bool) -> None:
     """The sessions exist, then every place analyze writes, checked before it writes anything: the report folder,
     and (``write``) each session it stores results in (``/processing``). One line, exit 2."""
-    from beambench.common.outputs import unwritable_file, unwritable_folder
+    from beambench.common.outputs import output_folder_problem, unwritable_file
 
     for path in sessions:  # a missing input is the first thing to say, before where the output would go
         _must_exist(path)
-    problem = unwritable_folder(folder)
+    problem = output_folder_problem(folder)  # a link there (planted at the default name) is a taken name
     if problem:
         fail(f"{problem}: the report folder (give another with --out)")
     for path in sessions if write else []:

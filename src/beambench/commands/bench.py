@@ -52,8 +52,11 @@ def models(
 ) -> None:
     """The fidelity ladder (see ``_MODELS_HELP``)."""
     out = out or default_out()
-    if out.exists() and not out.is_dir():
-        fail(f"--out = {str(out)!r}: exists and is not a folder")
+    from beambench.common.outputs import output_folder_problem
+
+    problem = output_folder_problem(out)  # a link at the folder or inside it is a taken name
+    if problem:
+        fail(f"--out: {problem}")
     if threads < 0:
         fail(f"--threads = {threads}: must be >= 0")
     try:

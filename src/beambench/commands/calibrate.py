@@ -60,7 +60,7 @@ def loadcells(
         "--out",
         metavar="FILE.yaml",
         help=f"Where to save (default: calibration/{OUT_NAME} in the per-user folder, "
-        f"calibration/{EMULATE_OUT_NAME} with --emulate; see README, 'Where files go').",
+        f"calibration/{EMULATE_OUT_NAME} with --emulate; see docs/commands.md, 'Where files go').",
     ),
     loads: list[str] = typer.Option(
         [],
@@ -107,6 +107,7 @@ def loadcells(
     if not emulate and port is None:
         port, baudrate, out = _wired_port(rig, baudrate, out)
     out = out or default_out(emulate)
+    _check_out(out)  # before the operator applies a single load
     console = stderr_console()
     ask = _asker(console, unattended=yes and load_list is not None)
     mcu = _emulated_mcu(console) if emulate else None
@@ -211,19 +212,39 @@ def _confirm_save(console: Console, out: Path) -> bool:
     return save
 
 
+def _check_out(out: Path) -> None:
+    """One line and exit 2 unless the calibration can be saved at ``out`` (a regular file or a new one, not a link,
+    in a folder that takes it), probed before any load is asked for."""
+    from beambench.common.outputs import output_file_problem
+
+    problem = output_file_problem(out)
+    if problem:
+        fail(f"--out = {str(out)!r}: {problem.removeprefix(f'{out}: ')}")
+
+
 def _save(cal: LoadCellCalibration, out: Path, console: Console) -> None:
+    """Save to ``out``; if that still fails (the disk filled meanwhile), the calibration goes to stdout as the
+    YAML it would have saved, so the measured matrix is not lost, and the command fails (exit 1)."""
+    from beambench.common.outputs import output_file_problem
+
     try:
+        problem = output_file_problem(out)  # checked again: the place may have changed during the walk
+        if problem:
+            raise OSError(problem)
         out.parent.mkdir(parents=True, exist_ok=True)
         cal.save(out)
     except OSError as exc:
-        fail(f"{out}: cannot save calibration ({exc.strerror or exc})")
+        typer.echo(f"# not saved: the calibration measured (save it as a .yaml file)\n{cal.to_yaml()}", nl=False)
+        fail(f"{out}: cannot save calibration ({exc.strerror or exc}); it is printed above", code=1)
     console.print(f"saved {out}", soft_wrap=True)
     typer.echo(str(out))
 
 
 def register(app: typer.Typer) -> None:
     """Add ``beambench calibrate loadcells``."""
-    sub = sub_app("Calibrate rig sensors.")
+    sub = sub_app(
+        "Calibrate the rig's load cells (loadcells) or fit the twin's unknowns to a session or published numbers (sim)."
+    )
     sub.command("loadcells")(loadcells)
     register_sim(sub)
     app.add_typer(sub, name="calibrate")

@@ -12,15 +12,16 @@ from typing import Annotated, Any, NoReturn
 import typer
 from typer.core import TyperCommand, TyperOption
 
-EXIT_MISSED = 3
-EXIT_INTERRUPTED = 130  # Ctrl-C or another stop signal; the evaluations so far are kept and reused
+from beambench.commands import EXIT_FAULT, EXIT_MISSED, EXIT_OK, EXIT_STOPPED, EXIT_USAGE
+
 EPILOG = (
-    "Exit status: 0 written, every target met within its tolerance; 2 bad input (one line, nothing written); "
-    "3 written, but not within tolerance (the last line names each missed target, the twin's value and the "
-    "unknown that limits it: one at its bound, or no unknown moves it far enough); 130 interrupted (Ctrl-C: "
-    "the evaluation log is kept, the same command with the same --out resumes). Tolerances: the targets file's "
-    "tolerance_hz (transitions, default ± 2 Hz) or tolerance_fraction (walker speeds, default ± 30 %); a "
-    "tangential sign must match."
+    f"Exit status: {EXIT_OK} written, every target met within its tolerance; {EXIT_FAULT} an error during the "
+    f"search; {EXIT_USAGE} bad input (one line, nothing written); {EXIT_STOPPED} stopped (Ctrl-C: the evaluation "
+    "log is kept, the same command with the same --out resumes); "
+    f"{EXIT_MISSED} written, but not within tolerance (the last line names each missed target, the twin's value "
+    "and the unknown that limits it: one at its bound, or no unknown moves it far enough). Every command's codes: "
+    "docs/commands.md, 'Exit codes'. Tolerances: the targets file's tolerance_hz (transitions, default ± 2 Hz) or "
+    "tolerance_fraction (walker speeds, default ± 30 %); a tangential sign must match."
 )
 
 
@@ -30,26 +31,28 @@ FREE_HELP = (
 
 
 class _SimCommand(TyperCommand):
-    """``calibrate sim`` whose ``--free`` help lists each rig's unknowns from the calibration registry, imported
-    only when the help is shown (it costs seconds: every other command starts without it)."""
+    """``calibrate sim`` whose ``--free`` and ``--quick`` help list each rig's unknowns and quick budget from the
+    calibration registry, imported only when the help is shown (it costs seconds: every other command starts without it)."""
 
     def format_help(self, ctx: Any, formatter: Any) -> None:  # typer's own (vendored) click types
-        from beambench.studies.twin_calibration import unknowns_help
+        from beambench.studies.twin_calibration import quick_help, unknowns_help
 
         for param in self.params:
             if param.name == "free" and isinstance(param, TyperOption):
                 param.help = f"{FREE_HELP} Unknowns: {unknowns_help()}."
+            if param.name == "quick" and isinstance(param, TyperOption):
+                param.help = quick_help()  # from each rig's quick budget: the one figure, never a copy
         super().format_help(ctx, formatter)
 
 
 def _fail(message: str) -> NoReturn:
     typer.echo(f"beambench: error: {message}", err=True)
-    raise typer.Exit(2)
+    raise typer.Exit(EXIT_USAGE)
 
 
 def _interrupted(log: Path | None) -> NoReturn:
-    """One line saying where the finished evaluations are and how to resume; exit 130 (interrupted: 3 is taken
-    by "written, but not within tolerance"). ``log`` is None when the stop came before the log was named."""
+    """One line saying where the finished evaluations are and how to resume; exit :data:`EXIT_STOPPED` (as every
+    command stopped by Ctrl-C). ``log`` is None when the stop came before the log was named."""
     import contextlib
     import shlex
     import sys
@@ -63,7 +66,7 @@ def _interrupted(log: Path | None) -> NoReturn:
             "they are reused",
             err=True,
         )
-    raise typer.Exit(EXIT_INTERRUPTED)
+    raise typer.Exit(EXIT_STOPPED)
 
 
 @contextmanager
@@ -78,7 +81,7 @@ def _interrupt_on_signals() -> Iterator[list[int]]:
     import signal
     import threading
 
-    from beambench.acquisition.runner import ALWAYS_SIGNALS, DEFAULT_SIGNALS
+    from beambench.acquisition.stop_signals import ALWAYS_SIGNALS, DEFAULT_SIGNALS
     from beambench.commands import STANDALONE
     from beambench.common import early_signals
 
@@ -143,7 +146,7 @@ def sim(
         str | None, typer.Option("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")
     ] = None,
     budget_s: Annotated[float, typer.Option("--budget-s", help="Wall-time budget of the search (s).")] = 540.0,
-    quick: Annotated[bool, typer.Option("--quick", help="A smaller, faster search (contact rig: ~2 min).")] = False,
+    quick: Annotated[bool, typer.Option("--quick", help="A smaller, faster search.")] = False,
     name: Annotated[
         str | None, typer.Option("--name", help="Output name (default: <session or targets>_calibrated).")
     ] = None,
@@ -217,6 +220,7 @@ def _sim(
         _fail(str(exc))
     out_dir = out or default_out()
     log.append(out_dir / f"{name}.evals.jsonl")
+    _check_outputs(out_dir, name)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -231,6 +235,7 @@ def _sim(
         BarColumn(),
         TextColumn("{task.completed} runs"),
         TimeElapsedColumn(),
+        TextColumn("{task.fields[left]}"),  # the search's time left of its budget (a TimeLeft)
     )
     try:
         with LogProgress(*cols, console=console, transient=False) as progress:
@@ -241,6 +246,27 @@ def _sim(
     except (BeambenchError, ExecutorError) as exc:
         _fail(str(exc))
     _finish(result, report)
+
+
+CALIBRATION_OUTPUTS = (  # what a calibration named NAME writes into its folder
+    "{}.evals.jsonl",
+    "{}_params.yaml",
+    "{}.yaml",
+    "{}_report.json",
+    "{}_report.md",
+    "{}_objective.png",
+    "{}_maps.png",
+    "{}_verify",
+)
+
+
+def _check_outputs(out_dir: Path, name: str) -> None:
+    """The folder takes files and none of the calibration's outputs is a link (planted where they go)."""
+    from beambench.common.outputs import output_folder_problem
+
+    problem = output_folder_problem(out_dir, tuple(f.format(name) for f in CALIBRATION_OUTPUTS))
+    if problem:
+        _fail(f"--out: {problem}")
 
 
 def _free_unknowns(free: str | None, rig: str) -> tuple[str, ...] | None:
@@ -262,7 +288,7 @@ def _free_unknowns(free: str | None, rig: str) -> tuple[str, ...] | None:
 
 def _finish(result: Any, report: Path) -> None:
     """The summary and one line per target (stderr), the protocol's path (stdout), then the verdict as the last
-    line (stderr); exit 3 when a target is missed."""
+    line (stderr); exit :data:`EXIT_MISSED` when a target is missed."""
     from beambench.studies.twin_calibration.verdict import all_met, closing_line
 
     twin = ", ".join(f"{k} {v}" for k, v in result.summary.items() if k != "map" and not isinstance(v, dict))

@@ -7,7 +7,7 @@ from typing import Any
 
 import typer
 
-from beambench.commands import fail
+from beambench.commands import EXIT_FAULT, fail
 
 
 def register(app: typer.Typer) -> None:
@@ -54,7 +54,7 @@ def register(app: typer.Typer) -> None:
             table.add_row(name, "[green]yes" if found else "[red]no", escape(details))
         Console().print(table)
         if not all(r.get("found") for r in results.values()):
-            raise typer.Exit(1)
+            raise typer.Exit(EXIT_FAULT)
 
 
 def ping_all(rig: Any) -> dict[str, dict[str, Any]]:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from beambench.commands import fail
+from beambench.commands import EXIT_FAULT, fail
 
 STATE_STYLE = {"ok": "[green]ok", "missing": "[red]missing", "advice": "[yellow]advice"}
 
@@ -55,4 +55,4 @@ def register(app: typer.Typer) -> None:
             table.add_row(r.part, STATE_STYLE[r.state] + need, r.found, r.todo)
         Console(width=None if sys.stdout.isatty() else LOG_WIDTH).print(table)  # a log keeps whole lines
         if failed(rows):
-            raise typer.Exit(1)
+            raise typer.Exit(EXIT_FAULT)

@@ -47,7 +47,7 @@ class FitArgs:
         "--params-dir",
         metavar="DIR",
         help="Where to write the parameter set (default: sim_backend/ in the per-user folder, where `sim.params` "
-        "finds it; see README, 'Where files go').",
+        "finds it; see docs/commands.md, 'Where files go').",
     )
     no_write: bool = typer.Option(False, "--no-write", help="Do not write a parameter set or /processing.")
     method: str = typer.Option(
@@ -103,6 +103,7 @@ def fit(args: FitArgs) -> None:
         data = load_release_session(session, register=args.register)
     except FitError as exc:
         fail(str(exc))
+    _check_outputs(args, models, name, out)
     try:  # after the session is read: a refused session leaves no folder behind
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -149,6 +150,26 @@ def _checked(args: FitArgs) -> list[str]:
         if not ok:
             fail(f"{opt} = {value}: out of range")
     return models
+
+
+def _check_outputs(args: FitArgs, models: list[str], name: str, out: Path) -> None:
+    """Every place fit writes, before the fit: the output folder and the parameter sets (never through a link,
+    into a folder that takes files); one line and exit 2."""
+    from beambench.common.outputs import output_file_problem, output_folder_problem
+    from beambench.common.resources import user_dir
+    from beambench.sim.models.registry import canonical_model, model_family
+
+    stem = args.session.stem
+    problem = output_folder_problem(out, (f"fit_{stem}.png", f"fit_{stem}.json"))
+    if problem:
+        fail(f"{problem}: the fit's folder (give another with --out)")
+    if args.no_write:
+        return
+    directory = args.params_dir or user_dir("sim_backend")
+    for m in models:
+        problem = output_file_problem(directory / f"{model_family(canonical_model(m))}_{name}.yaml")
+        if problem:
+            fail(f"{problem}: the parameter set (give another --name or --params-dir)")
 
 
 def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
@@ -223,14 +244,28 @@ def _print_results(results, data, console) -> None:
     from beambench.studies.fit_sysid import UNITS
 
     conf = f"{results[0].confidence:.0%}" if results else "95%"
+    # truth and error: only where the session's own twin is the fitted model (a sim session of it); else no columns
+    known = any(r.truth.get("model") == r.model for r in results)
+    made_by = next((str(r.truth["model"]) for r in results if r.truth.get("model")), None)
+    truth_note = (
+        "error: fitted vs the generating model (sim sessions)"
+        if known
+        else f"no truth column: this session's twin is {made_by}, not the fitted model"
+        if made_by
+        else "no truth column: a measured session"
+    )
     t = Table(
         title=f"Release-test fit ({len(data.t)} samples × {len(data.names)} tip markers)",
         caption=f"fitted ± the half-width of its {conf} confidence interval (mujoco.sysid.calculate_intervals: "
-        "noise only, not model error); error: fitted vs the generating model (sim sessions); paper: "
-        f"{PAPER_MAE_MM} mm mean error against its rig",
+        f"noise only, not model error); {truth_note}; paper: {PAPER_MAE_MM} mm mean error against its rig",
     )
-    for col in ("model", "parameter", f"fitted ± {conf} interval", "truth", "error"):
+    cols = ("model", "parameter", f"fitted ± {conf} interval", *(("truth", "error") if known else ()))
+    for col in cols:
         t.add_column(col, justify="right")
+
+    def row(*cells: str, end_section: bool = False) -> None:
+        t.add_row(*cells[: len(cols)], end_section=end_section)
+
     for r in results:
         same = r.truth.get("model") == r.model
         for key, v in r.values.items():
@@ -238,13 +273,13 @@ def _print_results(results, data, console) -> None:
             tv = r.truth.get(key) if same else None
             err = f"{(v / tv - 1) * 100:+.2f} %" if tv else ""
             shown = value_with_interval(r, key) if key in r.intervals else f"{v * sc:.5g} {unit}"
-            t.add_row(r.model, key, shown, f"{tv * sc:.5g} {unit}" if tv is not None else "", err)
+            row(r.model, key, shown, f"{tv * sc:.5g} {unit}" if tv is not None else "", err)
         if "release_shift_s" in r.intervals:
-            t.add_row(r.model, "release shift", value_with_interval(r, "release_shift_s"), "", "")
-        t.add_row(r.model, "RMS error (mm)", f"{r.rms_mm:.3f}", "", "")
-        t.add_row(r.model, "mean marker error (mm)", f"{r.mae_mm:.3f}", "", "")
-        t.add_row(r.model, "method", f"{r.method}: {r.nfev} rollouts, {r.generations} steps", "", "")
-        t.add_row(r.model, "wall time (s)", f"{r.wall_s:.1f}", "", "", end_section=True)
+            row(r.model, "release shift", value_with_interval(r, "release_shift_s"), "", "")
+        row(r.model, "RMS error (mm)", f"{r.rms_mm:.3f}", "", "")
+        row(r.model, "mean marker error (mm)", f"{r.mae_mm:.3f}", "", "")
+        row(r.model, "method", f"{r.method}: {r.nfev} rollouts, {r.generations} steps", "", "")
+        row(r.model, "wall time (s)", f"{r.wall_s:.1f}", "", "", end_section=True)
     console.print(t)
     for r in results:
         for key, where in r.at_bounds.items():

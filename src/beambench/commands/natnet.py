@@ -49,6 +49,12 @@ def decode(
         fail(f"--ports {ports!r}: expected port numbers separated by commas, e.g. 1510,1511")
     if not capture.is_file():
         fail(f"{capture}: no such file")
+    if out is not None:
+        from beambench.common.outputs import output_file_problem
+
+        problem = output_file_problem(out)  # before decoding: a link, a device, a folder, no folder
+        if problem:
+            fail(f"--out: {problem}")
     try:
         decoded = decode_capture(capture, natnet_version, port_list)
     except CaptureError as exc:

@@ -17,6 +17,7 @@ from beambench.sinks import RerunMode
 
 if TYPE_CHECKING:
     from beambench.acquisition.protocol.schema import Protocol
+    from beambench.sim.selection import Plan
 
 
 def has_display() -> bool:
@@ -24,7 +25,15 @@ def has_display() -> bool:
 
 
 def default_rerun_mode() -> RerunMode:
-    return "spawn" if has_display() else "save"
+    """``run``'s live view: the viewer where there is a display, else none (the session holds every sample;
+    ``beambench view`` replays it, ``--rerun save`` writes an ``.rrd``: about twice the session's size)."""
+    return "spawn" if has_display() else "off"
+
+
+NO_VIEW_NOTE = (
+    "no display: no live view (beambench view SESSION.h5 replays the session; --rerun save writes an .rrd, "
+    "about 10 MB a minute of contact sweep)"
+)
 
 
 def resolve_protocol(given: Path) -> Path:
@@ -57,8 +66,8 @@ def run(
     rerun: RerunMode | None = typer.Option(
         None,
         "--rerun",
-        help="Live view: spawn a viewer, connect to one, save an .rrd, or off (default: spawn "
-        "with a display, else save).",
+        help="Live view: spawn a viewer, connect to one, save an .rrd beside the session (about 10 MB a minute), "
+        "or off (default: spawn with a display, else off; `beambench view` replays any session later).",
     ),
     realtime: bool = typer.Option(False, "--realtime", help="Pace the simulation to the wall clock."),
     dry_run: bool = typer.Option(
@@ -83,7 +92,7 @@ def run(
     """
     from beambench.acquisition.protocol.plan import session_path, summary
     from beambench.acquisition.protocol.schema import load_protocol
-    from beambench.session.checks import check_protocol
+    from beambench.session.checks import validate
 
     protocol_file = resolve_protocol(protocol_file)
     try:
@@ -91,7 +100,7 @@ def run(
         chosen: Backend = backend or protocol.backend
         if chosen not in BACKENDS:  # typer checks the flag; this guards a bad protocol value
             raise ConfigError("<cli>", "--backend", chosen, f"must be one of {', '.join(BACKENDS)}")
-        check_protocol(protocol, str(protocol_file), chosen, can_log)  # every field, dry run included
+        checked = validate(protocol, chosen, str(protocol_file), can_log)  # every field, dry run included
         from_protocol = rig_file is None and protocol.rig_file is not None
         rig_file = rig_file or protocol_rig_file(protocol, protocol_file)  # --rig, else the protocol's rig_file
         if rig_file is not None:  # every input file too: kind, size, fields
@@ -105,14 +114,17 @@ def run(
                 raise ConfigError(f"{protocol_file}: rig_file: {exc}") from None
         mode: RerunMode = rerun or default_rerun_mode()
         if dry_run:
-            print_dry_run(summary(protocol, chosen), expected_run_time(protocol, chosen, realtime))
+            sim_plan = checked.slices.sim.plan if checked.slices.sim is not None else None
+            print_dry_run(summary(protocol, chosen), expected_run_time(protocol, chosen, sim_plan, realtime))
             return
         path = session_path(protocol, chosen, out, name)
     except ConfigError as exc:
         fail(str(exc))
     from beambench.session.run import RigStartError, RunRequest, run_request
 
-    request = RunRequest(protocol, text, chosen, path, mode, realtime, rig_file, can_log)
+    if rerun is None and mode == "off":
+        typer.echo(f"beambench: note: {NO_VIEW_NOTE}", err=True)
+    request = RunRequest(protocol, text, chosen, path, mode, realtime, rig_file, can_log, validated=checked)
     try:
         # the run is over: a late signal must not kill the process before its result (the real command only)
         result = run_request(request, then_ignore_signals=STANDALONE["process"])
@@ -164,21 +176,50 @@ def report_run(
     raise typer.Exit(RUN_EXIT_CODES.get(status, EXIT_FAULT))
 
 
-def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) -> str:
-    """How long the run will take here, in words: real time on emulated and hardware (and the sim with
-    --realtime); on the sim, the stepping time from the measured timing table where the rig has one."""
+def expected_run_time(protocol: Protocol, backend: str, sim_plan: Plan | None, realtime: bool = False) -> str:
+    """How long the run will take here, in words. A ``track:`` protocol with ``map: twin`` runs in two phases, both
+    counted: its sweep on the sim first (the speed map, written beside the session), then the profile.
+    ``sim_plan``: the measured timing table's plan of ``protocol`` on the sim (from its validation), if any."""
+    if protocol.track is None or protocol.track.map != "twin":
+        return _phase_time(protocol, backend, sim_plan, realtime)[1]
+    from beambench.acquisition.protocol.plan import plan
+    from beambench.session.estimate import SESSION_BYTES_PER_RIG_S
+    from beambench.session.slices import sim_slice
+    from beambench.session.track_map import map_sweep
+
+    sweep, _ = map_sweep(protocol)
+    sweep_steps, profile_steps = plan(sweep), plan(protocol)
+    sweep_rig_s = sum(s.duration_s for s in sweep_steps)
+    try:
+        sweep_plan = sim_slice(sweep).plan
+    except ConfigError:
+        sweep_plan = None
+    map_s, map_how = _phase_time(sweep, "sim", sweep_plan, False)
+    profile_s, profile_how = _phase_time(protocol, backend, sim_plan, realtime)
+    total = "" if map_s is None or profile_s is None else f"{_about(map_s + profile_s)} in two phases:"
+    return (
+        f"{total}\n  1. the speed map (track.map: twin): this protocol's sweep on the sim, {len(sweep_steps)} steps, "
+        f"{sweep_rig_s:g} s of rig time: {map_how}; written to <session>_map.h5 beside the session "
+        f"(about {sweep_rig_s * SESSION_BYTES_PER_RIG_S / 1e6:.0f} MB), kept, not reused by the next run "
+        "(track.map: <that file> reuses it)"
+        f"\n  2. the profile: {len(profile_steps)} segments, {sum(s.duration_s for s in profile_steps):g} s of rig "
+        f"time on the {backend} backend: {profile_how}"
+    )
+
+
+def _phase_time(
+    protocol: Protocol, backend: str, sim_plan: Plan | None, realtime: bool = False
+) -> tuple[float | None, str]:
+    """(seconds or None, in words) for one run: real time on emulated and hardware (and the sim with --realtime);
+    on the sim, the stepping time from the measured timing table where the rig has one (``sim_plan``), else from
+    timing a short stretch of its physics here (the one part of a dry run that loads MuJoCo)."""
+    from beambench.acquisition.protocol.backends import backend_info
     from beambench.acquisition.protocol.plan import plan
 
     steps = plan(protocol)
     total = sum(s.duration_s for s in steps)
-    if backend != "sim" or realtime:
-        return f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
-    from beambench.session.slices import sim_slice
-
-    try:
-        sim_plan = sim_slice(protocol).plan
-    except ConfigError:
-        sim_plan = None
+    if not backend_info(backend).simulated_clock or realtime:
+        return total, f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
     if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
         from beambench.common.errors import BeambenchError
         from beambench.session.estimate import probe_run_time
@@ -186,32 +227,38 @@ def expected_run_time(protocol: Protocol, backend: str, realtime: bool = False) 
         try:
             est = probe_run_time(protocol)
         except BeambenchError as exc:  # the run itself would say so; the dry run still prints its plan
-            return f"not estimated ({exc})"
+            return None, f"not estimated ({exc})"
         parts = f"; {est.parallel} segments in parallel" if est.parallel > 1 else ""
         warn = "".join(f"\nwarning: {w}" for w in est.warnings)
-        return (
-            f"about {_duration(est.wall_s)} of stepping ({protocol.sim.model}; measured here: "
+        return est.wall_s, (
+            f"{_about(est.wall_s)} of stepping ({protocol.sim.model}; measured here: "
             f"{est.wall_per_s * 1e3:.0f} ms per simulated second at {est.probe_hz:g} Hz{parts}), plus recording "
             f"overhead{warn}"
         )
     wall = sum(s.duration_s / 10.0 * sim_plan.wall_s_per_10s[s.frequency_hz] for s in steps)
-    return (
-        f"about {_duration(wall)} of stepping ({sim_plan.model}, {sim_plan.integrator}; from the measured timing "
+    return wall, (
+        f"{_about(wall)} of stepping ({sim_plan.model}, {sim_plan.integrator}; from the measured timing "
         f"table {sim_plan.table}, on the machine that measured it), plus recording overhead"
     )
 
 
 def _duration(seconds: float) -> str:
+    """A time in words: "under 1 s", "12 s", "2.5 min"."""
     if seconds < 1:
         return "under 1 s"
-    if seconds < 90:
-        return f"{seconds:.0f} s"
-    return f"{seconds / 60:.1f} min"
+    return f"{seconds:.0f} s" if seconds < 90 else f"{seconds / 60:.1f} min"
+
+
+def _about(seconds: float) -> str:
+    """An estimated time in words: "under 1 s", "about 12 s", "about 2.5 min"."""
+    return _duration(seconds) if seconds < 1 else f"about {_duration(seconds)}"
 
 
 def print_dry_run(s: dict, expected: str) -> None:
     from rich.console import Console
     from rich.table import Table
+
+    from beambench.acquisition.protocol.scenes import scene_info
 
     t = Table(title=f"Dry run: {s['protocol']} on the {s['rig']} rig ({s['backend']} backend) — nothing moves")
     t.add_column("step", justify="right")
@@ -228,7 +275,7 @@ def print_dry_run(s: dict, expected: str) -> None:
     con = Console(soft_wrap=True)  # the dry run's table is its result: stdout
     con.print(t)
     lim = s["limits"]
-    if s["rig"] == "release":  # the release test drives nothing: its load is what it is about
+    if not scene_info(s["rig"]).driven:  # the release test drives nothing: its load is what it is about
         drive = f"no drive: a {s['release_load_g']:g} g tip load released"
     elif targets:
         drive = f"max frequency: chosen by the speed controller, <= {lim['max_frequency_hz']:g} Hz   "
@@ -277,7 +324,7 @@ def view(
         return
     if at is not None:
         fail("--at needs --screenshot")
-    mode = rerun or default_rerun_mode()
+    mode = rerun or ("spawn" if has_display() else "save")  # asked to view: without a display, a file
     if mode == "off":
         fail("--rerun = 'off': view needs spawn, connect or save")
     rrd = None
@@ -310,6 +357,11 @@ def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) ->
         fail(f"{png.parent}: no such folder for the screenshot")
     if rrd is not None and rrd.exists():
         fail(f"{rrd}: exists; give another --out (view never overwrites a recording)")
+    from beambench.common.outputs import output_file_problem
+
+    problem = output_file_problem(png)  # a picture may be replaced, never written through a link or into a device
+    if problem:
+        fail(f"--screenshot: {problem}")
     for path, option in ((png, "--screenshot"), (rrd, "--out")):
         if path is not None and not path.exists():
             check_writable(path, option)
@@ -343,7 +395,7 @@ def check_writable(path: Path, option: str) -> None:
 def free_path(path: Path) -> Path:
     """``path``, or ``<stem>_1<suffix>``, ``_2`` … whichever does not exist yet."""
     k, candidate = 1, path
-    while candidate.exists():
+    while candidate.exists() or candidate.is_symlink():  # a link, even a dangling one, is a taken name
         candidate = path.with_name(f"{path.stem}_{k}{path.suffix}")
         k += 1
     return candidate

@@ -82,6 +82,7 @@ def sweep(
     if dry_run:
         _print_plan(spec, out)
         return
+    _check_outputs(out)
     console = stderr_console()
     with LogProgress(
         TextColumn("[bold]{task.description}"),
@@ -152,6 +153,17 @@ def _checked_spec(
     except (SweepError, ShippedFileError) as exc:
         fail(str(exc))
     return spec
+
+
+def _check_outputs(out: Path) -> None:
+    """The table, its parts folder and its figure: none a link, in a folder that takes files (one line, exit 2)."""
+    from beambench.common.outputs import output_file_problem, output_folder_problem
+    from beambench.studies.sweep import parts_dir
+
+    names = (out.name, parts_dir(out).name, out.with_suffix(".png").name)
+    problem = output_folder_problem(out.parent, names) or output_file_problem(out)
+    if problem:
+        fail(f"--out: {problem}")
 
 
 def _print_plan(spec: SweepSpec, out: Path) -> None:

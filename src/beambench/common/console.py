@@ -8,6 +8,7 @@ import os
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from rich.progress import Progress
@@ -92,6 +93,21 @@ class LogProgress(Progress):
             out = self.console.file
             out.write("".join(f"{stamp} {line}\n" for line in lines))
             out.flush()
+
+
+class TimeLeft:
+    """A progress field that says, each time it is shown, the time left of a wall-time budget (``str()`` reads the
+    clock): "1:20 left of the 150 s budget", then "150 s budget spent: finishing" once it is over."""
+
+    def __init__(self, budget_s: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.budget_s, self.clock = budget_s, clock
+        self.start = clock()
+
+    def __str__(self) -> str:
+        left = round(self.budget_s - (self.clock() - self.start))
+        if left <= 0:
+            return f"{self.budget_s:g} s budget spent: finishing"
+        return f"{left // 60}:{left % 60:02d} left of the {self.budget_s:g} s budget"
 
 
 def plain_line(task: Task) -> str:

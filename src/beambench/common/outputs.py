@@ -1,6 +1,11 @@
 """Where a command will write, checked before it writes anything: a read-only folder or file is one line up
 front, not a traceback after half the outputs were written (``analyze`` once stored ``/processing`` in the session,
-then failed on the report folder)."""
+then failed on the report folder).
+
+No command writes through a symbolic link: an output folder or file of a command (a report folder, a fit folder, a
+calibration, a parameter set, a table) that is a link — dangling or not — is a taken name, as a session file's is
+for ``run``; so is a link inside an output folder the command fills. A link planted where a default output goes
+cannot redirect what a command writes."""
 
 from __future__ import annotations
 
@@ -8,7 +13,7 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["unwritable_file", "unwritable_folder"]
+__all__ = ["output_file_problem", "output_folder_problem", "unwritable_file", "unwritable_folder"]
 
 
 def unwritable_folder(folder: Path) -> str | None:
@@ -41,3 +46,41 @@ def unwritable_file(path: Path) -> str | None:
     except OSError as exc:
         return f"{path}: cannot write into it ({exc.strerror or exc})"
     return None
+
+
+def _link(path: Path) -> str:
+    return f"{path}: a symbolic link; beambench never writes through one (remove it or choose another name)"
+
+
+def output_folder_problem(folder: Path, names: tuple[str, ...] | None = None) -> str | None:
+    """Why ``folder`` cannot be a command's output folder, or None: a symbolic link, not a folder, a folder that
+    cannot take files, or a link among the entries the command writes into it (``names``; None: any entry, for a
+    folder whose every file is the command's own, a report's)."""
+    folder = Path(folder)
+    if folder.is_symlink():
+        return _link(folder)
+    if folder.exists() and not folder.is_dir():
+        return f"{folder}: not a folder"
+    if folder.is_dir():
+        try:
+            entries = [folder / n for n in names] if names is not None else list(folder.iterdir())
+        except OSError as exc:
+            return f"{folder}: cannot list it ({exc.strerror or exc})"
+        link = next((p for p in entries if p.is_symlink()), None)
+        if link is not None:
+            return _link(link)
+    return unwritable_folder(folder)
+
+
+def output_file_problem(path: Path) -> str | None:
+    """Why a command cannot write the file ``path`` (a new one, or one it replaces), or None: a symbolic link,
+    not a regular file (a folder, a device such as ``/dev/full``, a FIFO), a file it cannot write, or a folder
+    that cannot take it. Probed for real and nothing left behind, so it runs before any work."""
+    path = Path(path)
+    if path.is_symlink():
+        return _link(path)
+    if path.exists():
+        if not path.is_file():
+            return f"{path}: not a regular file (a folder, a device or a pipe)"
+        return unwritable_file(path)
+    return unwritable_folder(path.parent)

@@ -42,9 +42,9 @@ __all__ = ["Counters", "StreamDriver"]
 class Counters:
     """What a driver saw on its wire, for ``/general/devices/<stream>`` and the event log."""
 
-    received: int = 0  # samples (frames, rows) delivered
-    dropped: int = 0  # samples the device sent that never arrived (gaps in its sequence or frame numbers)
-    garbled: int = 0  # frames or datagrams that arrived but failed to decode (CRC, parse errors)
+    received: int = 0  # samples (frames, rows) received (``unrecorded`` in health(): those never read)
+    dropped: int = 0  # samples the device sent that never arrived (gaps in its numbering), or a full buffer evicted
+    garbled: int = 0  # frames, datagrams or stretches of bytes that arrived but failed to decode (CRC, parse, noise)
     forged: int = 0  # datagrams from a sender that is not the device the handshake found
 
     def as_dict(self) -> dict[str, int]:
@@ -191,13 +191,21 @@ class StreamDriver:
         return awake
 
     def health(self) -> dict[str, Any]:
-        """The counters, the fault if any, and the age of the last sample (s), for the session."""
+        """The counters, the fault if any, and the age of the last sample (s), for the session. ``unrecorded``: rows
+        received but never handed out by :meth:`read` (they arrived after the run's last read, while it closed),
+        so every row received is either in the session or counted here: ``received - unrecorded`` rows stored."""
         last = self.last_receive_ns
         return {
             **self.counters.as_dict(),
+            "unrecorded": self._unrecorded(),
             "fault": self._fault or "",
             "silence_timeout_s": self.silence_timeout_s if self.silence_timeout_s is not None else float("nan"),
         } | ({"last_receive_age_s": (time.monotonic_ns() - last) * 1e-9} if last is not None else {})
+
+    def _unrecorded(self) -> int:
+        """Rows received and still waiting for :meth:`read` (see :meth:`health`)."""
+        with self._lock:
+            return len(self._rows)
 
     # -- for subclasses ------------------------------------------------------------------------------------
     def _reset(self) -> None:

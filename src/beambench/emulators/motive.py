@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from beambench.acquisition.clocks import DriftingClock
+from beambench.acquisition.protocol.schema import ClockModel
 from beambench.devices.natnet import protocol as nn
 
 __all__ = ["APP_VERSIONS", "EmulatorClock", "MotiveEmulator"]
@@ -66,15 +67,9 @@ class EmulatorClock:
         return max(0, round(self.seconds(host_s) * self.frequency_hz))
 
     @classmethod
-    def from_model(cls, model: object, frequency_hz: int = 10_000_000) -> EmulatorClock:
-        """From a :class:`beambench.acquisition.protocol.schema.ClockModel` (or anything with the same attributes)."""
-        return cls(
-            float(getattr(model, "offset_s", 0.0)),
-            float(getattr(model, "drift_ppm", 0.0)),
-            float(getattr(model, "jitter_s", 0.0)),
-            float(getattr(model, "latency_s", 0.0005)),
-            frequency_hz,
-        )
+    def from_model(cls, model: ClockModel, frequency_hz: int = 10_000_000) -> EmulatorClock:
+        """From the protocol's clock model (``sim.mocap_clock``)."""
+        return cls(model.offset_s, model.drift_ppm, model.jitter_s, model.latency_s, frequency_hz)
 
 
 def _still(n: int) -> PositionSource:

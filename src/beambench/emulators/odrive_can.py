@@ -483,8 +483,8 @@ class EmulatedOdrive:
                 with self._lock:
                     now = self._clock()
                     m = self.model
-                    if hb_period > 0 and now >= m.silent_until:
-                        next_hb = self._late_heartbeats(next_hb, hb_period, now)
+                    if now >= m.silent_until:
+                        next_hb, next_enc = self._late_cyclic((next_hb, hb_period), (next_enc, enc_period), now)
                     m.advance(now)
                     if frame is not None and now >= silent_until:
                         self._on_frame(frame)
@@ -510,17 +510,23 @@ class EmulatedOdrive:
             if not (self._stop.is_set() and isinstance(exc, (can.CanError, OSError))):
                 self.error = exc
 
-    def _late_heartbeats(self, next_hb: float, period: float, now: float) -> float:
-        """Heartbeats that fell due while this thread got no CPU, each saying the axis's state at its own due time
-        (a device's timeline does not skip because its emulator was starved); the last one due is left to the
-        caller, at ``now``. At most a second's worth; returns the next due time."""
-        for _ in range(max(1, round(1.0 / period))):
-            if next_hb + period > now:
+    def _late_cyclic(self, hb: tuple[float, float], enc: tuple[float, float], now: float) -> tuple[float, float]:
+        """Cyclic messages (heartbeat, encoder estimates; each ``(next due, period)``) that fell due while this
+        thread got no CPU, in the order they fell due, each saying the axis's state at its own due time: a device's
+        timeline (and its message rates) does not skip because its emulator was starved. The last one of each due is
+        left to the caller, at ``now``. At most a second's worth; returns the next due times."""
+        due = [hb[0], enc[0]]
+        periods = (hb[1], enc[1])
+        send = (self.model.heartbeat, self.model.estimates)
+        for _ in range(sum(max(1, round(1.0 / p)) for p in periods if p > 0)):
+            late = [i for i in (0, 1) if periods[i] > 0 and due[i] + periods[i] <= now]
+            if not late:
                 break
-            self.model.advance(next_hb)
-            self._send(self.model.heartbeat())
-            next_hb += period
-        return next_hb
+            i = min(late, key=lambda j: due[j])
+            self.model.advance(due[i])
+            self._send(send[i]())
+            due[i] += periods[i]
+        return due[0], due[1]
 
     def _stall_due(self, frame: can.Message) -> float:
         if self._stall is None:

@@ -1,24 +1,48 @@
 """Everything about a run that can be checked before anything moves, dry run included (one-line errors).
 
-The protocol model (:mod:`beambench.acquisition.protocol.schema`) checks each field on its own; here go the checks that
-need the rest of the package: the beam model name against the registry, that the parameter set exists and
-loads, the limits, and the run's options (``--can-log``).
+The protocol model (:mod:`beambench.acquisition.protocol.schema`) checks each field on its own; :func:`validate`
+does the rest, once, and returns what the run is built from (:class:`Validated`: the step plan, each layer's
+slices, the motor limits): the limits, the beam model name against the registry, that the parameter set exists and
+loads, the scene's options and timestep plan, and the run's options (``--can-log``). Nothing here loads MuJoCo or
+python-can, so a dry run checks every field without them.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 
-from beambench.acquisition.protocol.plan import check_limits
-from beambench.acquisition.protocol.schema import ConfigError, Protocol
+from beambench.acquisition.capabilities import MotorLimits
+from beambench.acquisition.protocol.backends import backend_info, backends_with
+from beambench.acquisition.protocol.plan import Step, check_limits, motor_limits, plan
+from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
+from beambench.backends.build import RigSlices
 from beambench.common.yaml_config import shorten
-from beambench.devices.odrive.can_motor import LOG_SUFFIXES
+from beambench.devices.odrive.can_log_formats import LOG_SUFFIXES
+from beambench.session.slices import rig_slices
 from beambench.sim.models.params import BeamParams, ParamsError, load_params
 from beambench.sim.models.registry import model_family
-from beambench.sim.scenes.contact_rig import RigParams
-from beambench.sim.scenes.walker import WalkerParams
+from beambench.sim.scene_params import RigParams, WalkerParams
+
+
+@dataclass(frozen=True)
+class Validated:
+    """A protocol checked for one backend, and what its run is built from."""
+
+    steps: list[Step]
+    """The step plan (:func:`beambench.acquisition.protocol.plan.plan`)."""
+    slices: RigSlices
+    """What the backend builds its rig from (the simulation slice with its timestep plan, the wired markers)."""
+    limits: MotorLimits
+    """What the runner holds the motor to."""
+
+
+def validate(protocol: Protocol, backend: Backend, file: str = "<protocol>", can_log: Path | None = None) -> Validated:
+    """Check ``protocol`` for a run on ``backend`` (with ``--can-log``): the first problem is a one-line
+    :class:`ConfigError` naming the field; else the run's plan, slices and limits."""
+    _check_fields(protocol, file, backend, can_log)
+    return Validated(plan(protocol), rig_slices(protocol, backend), motor_limits(protocol))
 
 
 def _reason(exc: Exception) -> str:
@@ -64,7 +88,7 @@ def can_log_problem(path: Path) -> str | None:
     return None
 
 
-def check_protocol(protocol: Protocol, file: str, backend: str | None = None, can_log: Path | None = None) -> None:
+def _check_fields(protocol: Protocol, file: str, backend: str | None = None, can_log: Path | None = None) -> None:
     """Raise :class:`ConfigError` for the first problem: limits, ``sim.model``, ``sim.params``, ``--can-log``."""
     check_limits(protocol, file)
     sim = protocol.sim
@@ -80,10 +104,9 @@ def check_protocol(protocol: Protocol, file: str, backend: str | None = None, ca
         raise ConfigError(file, "sim.params", sim.params, _reason(exc)) from None
     _check_overrides(params, protocol.rig, file, sim.params)
     if can_log is not None:
-        if backend == "sim":
-            raise ConfigError(
-                "<cli>", "--can-log", str(can_log), "needs an ODrive on CAN (--backend emulated or hardware)"
-            )
+        if backend is not None and not backend_info(backend).devices:
+            on_can = " or ".join(backends_with("devices"))
+            raise ConfigError("<cli>", "--can-log", str(can_log), f"needs an ODrive on CAN (--backend {on_can})")
         if can_log.suffix.lower() not in LOG_SUFFIXES:
             raise ConfigError("<cli>", "--can-log", shorten(str(can_log)), f"use a {' or '.join(LOG_SUFFIXES)} file")
         problem = can_log_problem(can_log)

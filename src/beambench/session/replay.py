@@ -15,6 +15,7 @@ import numpy as np
 
 from beambench.acquisition.batch import Batch, StepRecord
 from beambench.analysis.session_analysis import session_calibration
+from beambench.analysis.step_contacts import window_contacts
 from beambench.sinks import RerunMode
 from beambench.sinks.hdf5 import SessionFile, read_session
 from beambench.sinks.rerun_view import RerunSink
@@ -41,6 +42,7 @@ def replay_session(session_path: Path, mode: RerunMode, out: Path | None = None)
         calibration=session_calibration(session.general),
         rig=str(session.general.get("rig") or "") or None,
         total_steps=len(session.steps) or None,
+        step_contacts=window_contacts,
     )
     sink.open([s.spec for s in session.streams.values()])
     steps = _step_records(session)

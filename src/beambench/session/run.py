@@ -15,19 +15,27 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from beambench.acquisition.capabilities import DeviceFault, HasSilenceTimeouts, ReportsAfterRun, Rig, WarnsOfModel
+from beambench.acquisition.capabilities import (
+    DeviceFault,
+    HasSilenceTimeouts,
+    ReportsAfterRun,
+    ReportsComputedAhead,
+    Rig,
+    WarnsOfModel,
+)
 from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
-from beambench.acquisition.protocol.plan import motor_limits, plan
+from beambench.acquisition.protocol.backends import backend_info
+from beambench.acquisition.protocol.plan import plan
 from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
-from beambench.acquisition.runner import Runner, RunResult, StopSignal, stop_on_signals
+from beambench.acquisition.runner import Runner, RunResult
+from beambench.acquisition.stop_signals import StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
 from beambench.common.console import LogProgress, stderr_console
 from beambench.common.errors import BeambenchError
-from beambench.session.checks import check_protocol
+from beambench.session.checks import Validated, validate
 from beambench.session.provenance import provenance
-from beambench.session.slices import rig_slices
 from beambench.session.track_map import track_setup
 from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
 from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
@@ -46,6 +54,9 @@ class RunRequest:
     rig_file: Path | None = None
     can_log: Path | None = None
     show_progress: bool = True
+    label: str = ""  # before each progress description: the phase of a run in two (``speed map: ``)
+    validated: Validated | None = None
+    """The protocol already checked for ``backend`` (:func:`beambench.session.checks.validate`); None: checked here."""
 
 
 class RigStartError(BeambenchError):
@@ -70,16 +81,37 @@ def run_session(
     )
 
 
+def _count(n: int, what: str) -> str:
+    return f"{n} {what}{'' if n == 1 else 's'}"
+
+
+def _say(show: bool, text: str) -> None:
+    """A note on stderr (with the progress; a terminal gone only loses it)."""
+    if show:
+        with contextlib.suppress(OSError):
+            stderr_console().print(text, soft_wrap=True, markup=False, highlight=False)
+
+
 def _run_twin(sweep: Protocol, text: str, path: Path, show_progress: bool) -> tuple[str, str]:
-    """A ``track: map: twin`` run's sweep on the sim (:func:`beambench.session.track_map.twin_map`)."""
-    result = run_session(sweep, text, "sim", path, show_progress=show_progress)
+    """A ``track: map: twin`` run's first phase, its sweep on the sim (:func:`beambench.session.track_map.twin_map`),
+    said as such with where its session goes."""
+    steps = plan(sweep)
+    _say(
+        show_progress,
+        f"phase 1 of 2, the speed map (track.map: twin): this protocol's sweep on the sim, {_count(len(steps), 'step')}, "
+        f"{sum(s.duration_s for s in steps):g} s of rig time, into {path}",
+    )
+    result = run_request(RunRequest(sweep, text, "sim", path, show_progress=show_progress, label="speed map: "))
+    if result.status == "completed":
+        size = path.stat().st_size / 1e6 if path.is_file() else 0.0
+        _say(show_progress, f"speed map: {path} ({size:.1f} MB, kept: track.map: {path} reuses it without the sweep)")
     return result.status, result.message
 
 
 def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunResult:
     """Run one :class:`RunRequest`.
 
-    From the first line on, every stop signal (:data:`beambench.acquisition.runner.STOP_SIGNALS`: SIGINT, SIGTERM,
+    From the first line on, every stop signal (:data:`beambench.acquisition.stop_signals.STOP_SIGNALS`: SIGINT, SIGTERM,
     SIGHUP, SIGQUIT, …) only requests a stop: a signal while the rig opens still yields a session that ends
     ``interrupted`` with the motor idled. A rig that cannot start raises :class:`RigStartError`; a session file
     that cannot be created or written at the start, :class:`~beambench.acquisition.hub.SinkFailure`.
@@ -89,11 +121,10 @@ def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunRe
         return _run_session(request, stop)
 
 
-def _open_rig(req: RunRequest) -> Rig:
+def _open_rig(req: RunRequest, checked: Validated) -> Rig:
     """Build and open the rig; a device or peer lost meanwhile is one :class:`RigStartError` (rig closed)."""
     try:
-        slices = rig_slices(req.protocol, req.backend)
-        rig = build_rig(slices, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
+        rig = build_rig(checked.slices, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
         rig.open()
     except (DeviceFault, OSError, EOFError) as exc:
         if isinstance(exc, ConfigError):
@@ -103,19 +134,33 @@ def _open_rig(req: RunRequest) -> Rig:
     return rig
 
 
+def _announce_profile(req: RunRequest) -> None:
+    """A ``track: map: twin`` run's second phase, its profile, said as such (the map was phase 1)."""
+    track = req.protocol.track
+    if track is None or track.map != "twin":
+        return
+    rig_s = sum(s.duration_s for s in plan(req.protocol))
+    _say(
+        req.show_progress,
+        f"phase 2 of 2, the profile: {_count(len(track.segments), 'segment')}, {rig_s:g} s of rig time on the "
+        f"{req.backend} backend, into {req.path}",
+    )
+
+
 def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
     protocol, path, backend = req.protocol, req.path, req.backend
-    check_protocol(protocol, "<protocol>", backend, req.can_log)
+    checked = req.validated or validate(protocol, backend, can_log=req.can_log)
     tracking = track_setup(protocol, path, _run_twin, req.show_progress) if protocol.track is not None else None
+    _announce_profile(req)
     reserved = path.with_suffix(".rrd") if req.rerun_mode == "save" else None
     if reserved is not None:
         _reserve(reserved)
     try:
-        rig = _open_rig(req)
+        rig = _open_rig(req, checked)
     except BaseException:
         _unreserve(reserved)
         raise
-    steps = plan(protocol)
+    steps = checked.steps
     try:
         general = {
             "protocol": req.protocol_text,
@@ -144,6 +189,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         if tracking is not None:
             sinks.append(tracking.controller)
         if req.rerun_mode != "off":
+            from beambench.analysis.step_contacts import window_contacts
             from beambench.sinks.rerun_view import RerunSink
 
             sinks.append(
@@ -155,6 +201,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                     calibration=default_calibration(),  # the one stored in /general: forces in N live
                     rig=protocol.rig,
                     total_steps=len(steps),
+                    step_contacts=window_contacts,  # the step panel's regimes are the report's
                 )
             )
         hub = Hub(sinks, critical=(writer,))
@@ -164,16 +211,24 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
         _unreserve(reserved)  # the run never started: no empty recording left behind
         raise
     with _progress(req.show_progress) as progress:
-        task = progress.add_task("starting", total=sum(s.duration_s for s in steps))
+        task = progress.add_task(f"{req.label}starting", total=sum(s.duration_s for s in steps))
+        taken = [0.0, 0.0]  # rig seconds the runner has taken, rig seconds shown (never going back)
+        what = "segment" if tracking is not None else "step"
 
         def on_progress(index: int, freq: float, waited: float) -> None:
+            taken[0] += waited
+            done, desc = taken[0], f"{req.label}{what} {index + 1}/{len(steps)}  {round(freq, 1):g} Hz"
+            ahead = rig.computed_ahead() if isinstance(rig, ReportsComputedAhead) else None
+            if ahead is not None and ahead[0] > done:  # parallel parts computed further: count all their work
+                done, desc = ahead[0], f"{req.label}{min(ahead[1], len(steps))}/{len(steps)} steps computed"
+            taken[1] = done = max(done, taken[1])
             with contextlib.suppress(OSError):  # a hung-up terminal (SIGHUP) must not end the run's shutdown
-                progress.update(task, advance=waited, description=f"step {index + 1}/{len(steps)}  {freq:g} Hz")
+                progress.update(task, completed=done, description=desc)
 
         # Batches are ~10 per second of wall time: on a sim running 10-20x faster than real time, 1 s rig-time polls
         # (each poll's HDF5 appends and flush cost ~10 ms; the data do not depend on the poll: the sim clock advances
         # the physics in its own chunks of at most 0.5 s either way).
-        poll_s = 1.0 if backend == "sim" and not req.realtime else 0.1
+        poll_s = 1.0 if backend_info(backend).simulated_clock and not req.realtime else 0.1
         runner: Runner = (
             tracking.runner(rig, hub, steps, on_progress, stop)
             if tracking is not None
@@ -181,7 +236,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
                 rig,
                 hub,
                 steps,
-                motor_limits(protocol),
+                checked.limits,
                 poll_s=poll_s,
                 on_progress=on_progress,
                 monitors=[*monitors],

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel
 
+from beambench.acquisition.protocol.backends import backend_info
 from beambench.acquisition.protocol.scenes import SceneInfo, foreign_option, runnable_names, scene_info
 from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol, SimOptions
 from beambench.backends.build import RigSlices
@@ -25,7 +26,7 @@ def rig_slices(protocol: Protocol, backend: Backend) -> RigSlices:
     """What ``backend`` builds its rig from: the simulation slice (not on hardware: its ``sim:`` options do not
     apply there) and the markers the mocap is wired to."""
     return RigSlices(
-        sim=None if backend == "hardware" else sim_slice(protocol),
+        sim=sim_slice(protocol) if backend_info(backend).simulates else None,
         markers=scene_info(protocol.rig).wired_markers,
         tracking=protocol.track is not None,
     )

@@ -26,7 +26,8 @@ from beambench.acquisition.control.speed_map import SpeedMap, SpeedMapError
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import Step, motor_limits
 from beambench.acquisition.protocol.schema import ConfigError, Protocol
-from beambench.acquisition.runner import ProgressCallback, StopSignal
+from beambench.acquisition.runner import ProgressCallback
+from beambench.acquisition.stop_signals import StopSignal
 from beambench.acquisition.track_runner import TrackRunner
 
 DEFAULT_MOCAP_LOST_S = 0.25  # with monitors.mocap_lost_s: null the controller still never drives blind longer
@@ -87,18 +88,31 @@ def load_map(spec: str) -> SpeedMap:
 TwinRunner = Callable[[Protocol, str, Path, bool], tuple[str, str]]
 
 
-def twin_map(
-    protocol: Protocol, session_path: Path, run_twin: TwinRunner, show_progress: bool = True
-) -> tuple[SpeedMap, Path]:
-    """Run the protocol's sweep on the sim (its ``sim:`` section) into ``<session>_map.h5`` with ``run_twin``;
-    its speed map."""
+def map_sweep(protocol: Protocol) -> tuple[Protocol, str]:
+    """The sweep a ``map: twin`` protocol runs first (its own ``sweep:`` on the sim backend), and its text."""
     sweep = protocol.model_copy(update={"track": None, "backend": "sim"})
     text = yaml.safe_dump(sweep.model_dump(mode="json", exclude={"track"}, exclude_none=True), sort_keys=False)
+    return sweep, text
+
+
+def map_path(session_path: Path) -> Path:
+    """Where a ``map: twin`` run writes its map: ``<session>_map.h5`` beside the session (numbered if taken)."""
     path = session_path.with_name(f"{session_path.stem}_map.h5")
     k = 1
     while path.exists():
         path = session_path.with_name(f"{session_path.stem}_map_{k}.h5")
         k += 1
+    return path
+
+
+def twin_map(
+    protocol: Protocol, session_path: Path, run_twin: TwinRunner, show_progress: bool = True
+) -> tuple[SpeedMap, Path]:
+    """Run the protocol's sweep on the sim (its ``sim:`` section) into ``<session>_map.h5`` with ``run_twin``;
+    its speed map. The map's session is kept (a later protocol's ``track.map: <that file>`` reuses it without the
+    sweep); a run never reuses one by itself."""
+    sweep, text = map_sweep(protocol)
+    path = map_path(session_path)
     status, message = run_twin(sweep, text, path, show_progress)
     if status != "completed":
         raise ConfigError("<protocol>", "track.map", "twin", f"the twin's sweep {status}: {message}")

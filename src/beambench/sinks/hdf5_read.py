@@ -57,8 +57,9 @@ def _stored_eof(path: Path, size: int) -> int | None:
     return None
 
 
-def check_session_file(path: str | Path) -> None:
-    """Fail fast, with one line, on anything that is not a complete HDF5 session file.
+def check_session_file(path: str | Path) -> bool:
+    """Fail fast, with one line, on anything that is not a complete HDF5 session file. True if the file was closed
+    by its writer; False if it is still open for writing (a live run, or a run killed before it closed the file).
 
     A SWMR reader retries metadata reads on a truncated file without end, so this runs before it: the size,
     the HDF5 signature, then a plain (non-SWMR) open, which HDF5 refuses at once on a truncated file. A file
@@ -78,6 +79,8 @@ def check_session_file(path: str | Path) -> None:
     try:
         with h5py.File(path, "r") as f:
             missing = [g for g in SESSION_GROUPS if g not in f]
+    except RuntimeError as exc:  # a damaged superblock ("bad superblock version number") is h5py's RuntimeError
+        raise SessionFileError(f"{path}: not a readable HDF5 file ({str(exc)[:120]})") from None
     except OSError as exc:
         text = str(exc)
         if "truncated" in text:
@@ -87,9 +90,10 @@ def check_session_file(path: str | Path) -> None:
         eof = _stored_eof(path, size)
         if eof is not None and size < eof:
             raise SessionFileError(f"{path}: truncated ({size} of {eof} bytes): an incomplete copy?") from None
-        return  # being written, or killed mid-run: the SWMR reader handles it
+        return False  # being written, or killed mid-run: the SWMR reader handles it
     if missing:
         raise SessionFileError(f"{path}: not a beambench session (no /{missing[0]} in the file)")
+    return True
 
 
 SWMR_READ_ATTEMPTS = 20  # HDF5's default (100, with growing waits) makes a cut file look like a hang
@@ -126,10 +130,10 @@ def _open_swmr(path: Path) -> h5py.File:
 
 
 def _open_session(path: Path) -> h5py.File:
-    check_session_file(path)
+    closed = check_session_file(path)
     try:
         f = _open_swmr(path)
-    except OSError as exc:
+    except (OSError, RuntimeError) as exc:
         if "not already open for SWMR writing" in str(exc):
             raise SessionFileError(f"{path}: the run was killed before it started recording (no data)") from None
         raise SessionFileError(f"{path}: not a readable session ({str(exc)[:120]})") from None
@@ -138,7 +142,7 @@ def _open_session(path: Path) -> h5py.File:
         f.close()
         raise SessionFileError(f"{path}: not a beambench session (no /{missing[0]} in the file)")
     try:  # kinds, dtypes, shapes, times, text: one line naming the HDF5 path, before anything is read
-        check_schema(f, path.stat().st_size)
+        check_schema(f, path.stat().st_size, closed)
     except SessionSchemaError as exc:
         f.close()
         raise SessionFileError(f"{path}: {exc}") from None
@@ -205,6 +209,20 @@ def session_warnings(general: dict[str, Any]) -> list[str]:
     return [str(w) for w in stored] if isinstance(stored, list) else []
 
 
+ENDING_KINDS = ("stop", "interrupted", "fault", "failed", "error")  # the runner's closing event, one per run
+
+
+def run_ending(events: pd.DataFrame | None) -> tuple[str, str] | None:
+    """The run's closing event (kind, message) from ``/events``; None where there is none (a killed run)."""
+    if events is None or not len(events) or "kind" not in events:
+        return None
+    closing = events[events["kind"].astype(str).isin(ENDING_KINDS)]
+    if not len(closing):
+        return None
+    last = closing.iloc[-1]
+    return str(last["kind"]), str(last.get("message", ""))
+
+
 def _read_general(g: h5py.Group) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for key, item in g.items():
@@ -218,8 +236,9 @@ def _read_general(g: h5py.Group) -> dict[str, Any]:
 
 
 def _read_stream(name: str, g: h5py.Group, geometry: dict[str, Any] | None = None) -> StreamData:
-    # Reading host_time_ns last-to-first is unnecessary: trim every column to the shortest, since a
-    # live writer may have grown one dataset of a batch but not yet the next.
+    # A closed file holds as many rows in every column (the schema check refuses it otherwise); a file still being
+    # written (or left open by a killed run) may have grown one dataset of a batch but not yet the next: every
+    # column is cut to the rows they all hold.
     cols: dict[str, np.ndarray] = {}
     specs: dict[str, ColumnSpec] = {}
     for key, ds in g.items():
@@ -298,4 +317,8 @@ def read_processing(path: str | Path, name: str) -> pd.DataFrame:
             if ds.dtype.kind in "OS":  # text: variable-length (older sessions) or fixed-length UTF-8 bytes
                 v = np.array([x.decode("utf-8") if isinstance(x, bytes) else x for x in v])
             data[key] = v
+    lengths = {key: len(v) if np.ndim(v) else 1 for key, v in data.items()}
+    if len(set(lengths.values())) > 1:  # a table holds one value per row in every column
+        (k0, n0), (k1, n1) = min(lengths.items(), key=lambda kv: kv[1]), max(lengths.items(), key=lambda kv: kv[1])
+        raise SessionFileError(f"{path}: /processing/{name}/{k0}: {n0} rows, but {k1} has {n1}: not a table")
     return pd.DataFrame(data)

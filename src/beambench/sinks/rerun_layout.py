@@ -200,13 +200,13 @@ def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
 
 @dataclass(frozen=True)
 class Camera:
-    """Where the 3-D view's eye starts (mm, stream frame) and where the grid (the floor or plate level) lies."""
+    """Where the 3-D view's eye starts (mm, the view's frame) and where the grid (the floor or plate level) lies."""
 
     position: tuple[float, float, float]
     look_target: tuple[float, float, float]
     grid_height_mm: float  # along the up axis
     grid_spacing_mm: float
-    track: str | None = None  # an entity the eye follows (the walker's body)
+    grid: bool = True  # the walker draws its own floor lines, fixed in the world, instead
 
 
 def series_styles(layout: RigLayout) -> dict[str, rr.SeriesLines]:
@@ -237,10 +237,14 @@ def _time_series(p: Panel) -> rrb.TimeSeriesView:
     )
 
 
+FOLLOW_ORIGIN = "/mocap/follow"  # the walker's view frame (:data:`beambench.sinks.rerun_scene.FOLLOW_ENTITY`)
+
+
 def spatial_view(layout: RigLayout, camera: Camera | None) -> rrb.Spatial3DView:
-    """The 3-D view: markers, beam, trails (and plate or floor), the eye framed on the beam."""
+    """The 3-D view: markers, beam, trails (and plate or floor), the eye framed on the beam. The walker's is seen
+    from the frame that follows its body (everything under ``/mocap`` is drawn relative to it)."""
     if layout.body is not None:
-        what = "body and legs over the floor, body trail"
+        what = "body and legs, followed over the floor, body trail"
     else:
         what = " → ".join(layout.chains[0]) if layout.chains else "markers"
         what += ", plate (brown)" if layout.plate else ""
@@ -252,15 +256,20 @@ def spatial_view(layout: RigLayout, camera: Camera | None) -> rrb.Spatial3DView:
             position=camera.position,
             look_target=camera.look_target,
             eye_up=tuple(up),
-            tracking_entity=camera.track,
         )
         kwargs["line_grid"] = rrb.LineGrid3D(
-            visible=True,
+            visible=camera.grid,
             spacing=camera.grid_spacing_mm,
             plane=rr.components.Plane3D(tuple(up), distance=camera.grid_height_mm),
             color=[90, 90, 90, 110],
         )
-    return rrb.Spatial3DView(origin="/mocap", name=f"Beam: {what} (mm)", **kwargs)  # type: ignore[arg-type]
+    origin = FOLLOW_ORIGIN if layout.body is not None else "/mocap"
+    return rrb.Spatial3DView(
+        origin=origin,
+        contents="/mocap/**",
+        name=f"Beam: {what} (mm)",
+        **kwargs,  # type: ignore[arg-type]
+    )
 
 
 def blueprint(layout: RigLayout, camera: Camera | None = None, live: bool = True) -> rrb.Blueprint:

@@ -2,7 +2,8 @@
 
 Entities (millimetres in the mocap stream's frame): ``mocap/<marker>`` (labelled Points3D, one per frame),
 ``mocap/beam/<end>`` (LineStrips3D through the markers, one per frame), ``mocap/trail/<foot>`` (a short fading
-trail), ``mocap/plate`` (Boxes3D, plate rigs), ``mocap/body_trail`` and ``mocap/floor`` (walker); ``body/forward``
+trail), ``mocap/plate`` (Boxes3D, plate rigs), ``mocap/body_trail``, ``mocap/floor``, ``mocap/floor_lines`` and
+``mocap/follow`` (walker: the Transform3D of the frame its 3-D view follows the body in); ``body/forward``
 and ``body/speed`` (walker, mm and mm/s); ``force/normal`` and ``force/tangential`` (Scalars, newtons, through
 the load-cell calibration), ``loadcell/<channel>`` (raw counts), ``motor/velocity``, ``motor/velocity_setpoint``
 and ``motor/iq_measured``; ``step`` (TextDocument: step i of N, commanded and measured frequency, the last
@@ -34,9 +35,9 @@ import rerun as rr
 from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
 from beambench.sinks import RerunMode
 from beambench.sinks.rerun_layout import TIMELINE, RigLayout, blueprint, layout_of, series_styles
-from beambench.sinks.rerun_scene import Scene3D
+from beambench.sinks.rerun_scene import FOLLOW_ENTITY, Scene3D
 from beambench.sinks.rerun_spawn import spawn_viewer, viewer_url
-from beambench.sinks.rerun_step import StepPanel
+from beambench.sinks.rerun_step import StepContacts, StepPanel
 
 if TYPE_CHECKING:
     from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
@@ -65,7 +66,7 @@ def view_coordinates(up_axis: str) -> rr.components.ViewCoordinates:
 class _Pending:
     """Columns of one entity waiting to go out in one ``send_columns`` call."""
 
-    kind: str  # "scalars", "points", "strips" (a line strip per row) or "segments" (several per row)
+    kind: str  # "scalars", "points", "translations", "strips" (a line strip per row) or "segments" (several per row)
     times: list[np.ndarray] = field(default_factory=list)
     values: list[np.ndarray] = field(default_factory=list)
     nbytes: int = 0
@@ -76,7 +77,9 @@ class RerunSink:
 
     ``calibration`` turns the load cells' raw counts into plate forces (N) shown beside them; without it only
     the counts are shown. ``rig`` (the session's rig name) and ``total_steps`` shape the layout and the step
-    panel; the layout itself comes from the streams' specs."""
+    panel; the layout itself comes from the streams' specs. ``step_contacts``: the analysis's computation of a
+    step's contacts (:data:`beambench.sinks.rerun_step.StepContacts`), so the step panel says what the report
+    says."""
 
     def __init__(
         self,
@@ -87,6 +90,7 @@ class RerunSink:
         calibration: LoadCellCalibration | None = None,
         rig: str | None = None,
         total_steps: int | None = None,
+        step_contacts: StepContacts | None = None,
     ) -> None:
         if mode == "off":
             raise ValueError("mode 'off' needs no sink")
@@ -108,6 +112,7 @@ class RerunSink:
         self._pending: dict[str, _Pending] = {}
         self.layout: RigLayout = layout_of([], rig)
         self._scene: Scene3D | None = None
+        self._step_contacts = step_contacts
         self._steps = StepPanel(self.rec, total_steps, t0_ns)
         self._blueprint_sent = False
         self._framed: tuple[np.ndarray, np.ndarray] | None = None  # the box the 3-D eye was framed on
@@ -123,7 +128,12 @@ class RerunSink:
             self.rec.connect_grpc()
         self._specs = {s.name: s for s in specs}
         self.layout = layout_of(specs, self.rig)
+        self._steps = StepPanel(
+            self.rec, self.total_steps, self.t0_ns, self._step_contacts, self.layout.markers, self.layout.up_axis
+        )
         self.rec.log("mocap", view_coordinates(self.layout.up_axis), static=True)
+        if self.layout.body is not None:  # the walker's view frame: its up is the stream's
+            self.rec.log(FOLLOW_ENTITY, view_coordinates(self.layout.up_axis), static=True)
         for entity, style in series_styles(self.layout).items():
             self.rec.log(entity, style, static=True)
         if self.layout.markers:
@@ -157,17 +167,23 @@ class RerunSink:
                 for j, label in enumerate(cs.labels):
                     self._send(f"{batch.stream}/{label}", "scalars", t, col[:, j].astype(float))
         if batch.stream == "motor" and "velocity" in batch.columns:
-            self._steps.motor(t, batch.columns["velocity"])
+            self._steps.motor(batch.host_time_ns, batch.columns["velocity"])
         if batch.stream == "loadcell" and self.calibration is not None and "data" in batch.columns:
             force = self.calibration.force_from_counts(batch.columns["data"])
             if self.layout.plate:
                 for j, label in enumerate(FORCE_LABELS):
                     self._send(f"force/{label}", "scalars", t, force[:, j])
-                self._steps.force(t, force[:, 0])
+                self._steps.force(batch.host_time_ns, force[:, 0])
                 if self._scene is not None:
                     self._scene.contacts(t, force[:, 0])
 
     def _write_mocap(self, batch: Batch, t: np.ndarray) -> None:
+        if self.layout.plate and self._step_contacts is not None:  # the stage's frequency for the step's contacts
+            data = np.asarray(batch.columns["data"], float)
+            occluded = batch.columns.get("occluded")
+            if occluded is not None and len(occluded) == len(data):  # as the analysis reads it: NaN where not seen
+                data = np.where(np.asarray(occluded, bool)[..., None], np.nan, data)
+            self._steps.mocap(batch.host_time_ns, data)
         pos_mm = (batch.columns["data"] * 1000.0).astype(np.float32)
         if self._scene is not None:
             self._scene.write(t, pos_mm)
@@ -183,7 +199,7 @@ class RerunSink:
         body = self.layout.body
         if body is not None:
             j = self.layout.markers.index(body)
-            self._steps.body(t, pos_mm[:, j, :] @ self.layout.forward_vector())
+            self._steps.body(batch.host_time_ns, pos_mm[:, j, :] @ self.layout.forward_vector())
 
     def step(self, record: StepRecord) -> None:
         """A protocol step started or ended: the step panel (and, at its end, the step's regime or speed)."""
@@ -212,6 +228,8 @@ class RerunSink:
             flat = values.reshape(-1, values.shape[-2], 3)  # equal-length strips: Rerun's numpy path
             strips = rr.LineStrips3D.columns(strips=flat).partition(np.full(len(values), per_row, np.int32))
             self.rec.send_columns(entity, [times], strips)
+        elif p.kind == "translations":
+            self.rec.send_columns(entity, [times], rr.Transform3D.columns(translation=values))
         else:
             self.rec.send_columns(entity, [times], rr.Scalars.columns(scalars=values))
 

@@ -1,9 +1,10 @@
 """The schema of a session file, checked when it is opened: an edited, damaged or foreign file fails here with
 one line naming the HDF5 path and the problem, before any command reads, draws or writes anything.
 
-Checked: the kind of every object (group or dataset, hard links only), dtypes and shapes, labels that match
-their axis, monotonic host times, step and event times inside the recorded data's span (plus a margin), the
-``/general`` text (JSON entries, the protocol's YAML, the rig, the axis names) and ``/processing``. No dataset
+Checked: the kind of every object (group or dataset, hard links only), dtypes and shapes, one row per sample in
+every column of a stream (a closed file), labels that match their axis, host times that run forwards, step and
+event times inside the recorded data's span (plus a margin), the ``/general`` text (the protocol there, JSON
+entries, the protocol's YAML, the rig, the axis names) and ``/processing``. No dataset
 may claim more bytes than the file holds, so nothing read from a file allocates beyond its size.
 """
 
@@ -27,7 +28,9 @@ TIME_MARGIN_NS = 60 * 10**9  # how far outside the data a step or event may lie 
 MAX_SPAN_NS = 7 * 86400 * 10**9  # a week: longer than any run; view draws the span in 1 s windows
 SPAN_FACTOR = 20  # a stream's host times span at most this many times what its rows take at its nominal rate
 BYTES_SLACK = 1 << 20  # rows a live writer has extended but not yet written (HDF5 reads them as zeros)
-HOST_JITTER_NS = 50_000_000  # receive-time jitter a stream may show: a step back by more is refused
+HOST_JITTER_NS = 50_000_000  # receive-time jitter: no row lies further behind any row before it
+MAX_BACK_FRACTION = 0.25  # of a stream's steps between rows, at most this many may go back (jitter is now and then)
+MIN_BACK_STEPS = 8  # so a short stream may show a few (a stream of 10 rows, 2 batches)
 MAX_DEPTH = 12  # /general nesting (a hard link to a parent group would otherwise recurse forever)
 MIN_STEP_FIELDS = {"index": "iu", "frequency_hz": "fiu", "t_start_ns": "i", "t_settled_ns": "i", "t_end_ns": "i"}
 STEP_FIELDS = {**MIN_STEP_FIELDS, "status": "S", "direction": "S", "kind": "S", "repeat": "iu"}
@@ -41,9 +44,10 @@ class SessionSchemaError(ValueError):
         super().__init__(f"{where}: {problem}")
 
 
-def check_schema(f: h5py.File, size: int) -> None:
+def check_schema(f: h5py.File, size: int, closed: bool = True) -> None:
     """Raise :class:`SessionSchemaError` on the first thing in ``f`` (a file of ``size`` bytes) that is not a
-    beambench session as the readers expect it."""
+    beambench session as the readers expect it. ``closed``: the file was closed by its writer (not a file being
+    written, nor one a killed run left open), so every column of a stream holds the same number of rows."""
     budget = size + BYTES_SLACK
     links = set(f)  # every link's name, a dangling one too (``name in f`` is False for those)
     for name in ("general", "acquisition", "processing"):
@@ -54,7 +58,8 @@ def check_schema(f: h5py.File, size: int) -> None:
         _hard_link(f, name)
         _kind(f[name], f"/{name}", h5py.Dataset)
     _check_general(f["general"], "/general", 0, budget)
-    spans = [_check_stream(g, f"/acquisition/{name}", budget) for name, g in _members(f["acquisition"], "/acquisition")]
+    acquisition = _members(f["acquisition"], "/acquisition")
+    spans = [_check_stream(g, f"/acquisition/{name}", budget, closed) for name, g in acquisition]
     steps = _table(f["steps"], "/steps", STEP_FIELDS, MIN_STEP_FIELDS, "status", budget)
     events = _table(f["events"], "/events", EVENT_FIELDS, EVENT_FIELDS, "kind", budget)
     _check_times(spans, steps, events)
@@ -120,19 +125,19 @@ def _check_general(g: h5py.Group, where: str, depth: int, budget: int) -> None:
 
 
 def _check_general_values(g: h5py.Group, where: str) -> None:
+    if not isinstance(g.get("protocol"), h5py.Dataset):  # every reader takes the rig, steps' plan … from it
+        raise SessionSchemaError(f"{where}/protocol", "missing; a session holds the protocol it ran")
     for key in ("up_axis", "forward_axis", "geometry/up_axis", "geometry/forward_axis"):
         if isinstance(g.get(key), h5py.Dataset):
             value = _text(g[key], f"{where}/{key}").strip()
             if value and not AXIS.match(value):
                 raise SessionSchemaError(f"{where}/{key}", f"{value[:20]!r} is not an axis (x, y, z, -x, +y …)")
-    protocol_rig = None
-    if isinstance(g.get("protocol"), h5py.Dataset):
-        try:
-            proto = yaml.safe_load(_text(g["protocol"], f"{where}/protocol"))
-        except yaml.YAMLError as exc:
-            problem = str(getattr(exc, "problem", None) or "syntax error")
-            raise SessionSchemaError(f"{where}/protocol", f"not YAML ({problem})") from None
-        protocol_rig = proto.get("rig") if isinstance(proto, dict) else None
+    try:
+        proto = yaml.safe_load(_text(g["protocol"], f"{where}/protocol"))
+    except yaml.YAMLError as exc:
+        problem = str(getattr(exc, "problem", None) or "syntax error")
+        raise SessionSchemaError(f"{where}/protocol", f"not YAML ({problem})") from None
+    protocol_rig = proto.get("rig") if isinstance(proto, dict) else None
     rig = _text(g["rig"], f"{where}/rig").strip() if isinstance(g.get("rig"), h5py.Dataset) else None
     if rig is not None and not RIG.match(rig):
         raise SessionSchemaError(f"{where}/rig", f"{rig[:20]!r} is not a rig name")
@@ -143,12 +148,13 @@ def _check_general_values(g: h5py.Group, where: str) -> None:
 
 
 # --- /acquisition ------------------------------------------------------------------------------------------
-def _check_stream(g: Any, where: str, budget: int) -> tuple[int, int, int] | None:
+def _check_stream(g: Any, where: str, budget: int, closed: bool) -> tuple[int, int, int] | None:
     """The stream's checks; returns the first and last host time of its recorded rows and the longest span its
     rows allow, if it has rows."""
     _kind(g, where, h5py.Group)
     _check_stream_attrs(g, where)
     columns = dict(_members(g, where))
+    _check_group_labels(g, where, len(columns))
     for name in ("host_time_ns", "device_time"):
         if name not in columns:
             raise SessionSchemaError(f"{where}/{name}", "missing")
@@ -166,6 +172,8 @@ def _check_stream(g: Any, where: str, budget: int) -> tuple[int, int, int] | Non
         raise SessionSchemaError(f"{where}/host_time_ns", f"{columns['host_time_ns'].dtype}, expected int64 ns")
     if where == "/acquisition/mocap":
         _check_mocap(columns, where)
+    if closed:
+        _check_rows(columns, where)
     return _host_span(columns["host_time_ns"][()], f"{where}/host_time_ns", float(g.attrs.get("rate_hz", 0.0)))
 
 
@@ -181,14 +189,43 @@ def _check_stream_attrs(g: h5py.Group, where: str) -> None:
                 raise SessionSchemaError(f"{where} {key}", f"{str(value)[:20]!r} is not an axis (x, y, z, -x, +y …)")
 
 
-def _check_labels(ds: h5py.Dataset, where: str) -> None:
-    if "labels" not in ds.attrs:
-        return
-    labels = np.asarray(ds.attrs["labels"])
+def _label_list(obj: Any, where: str) -> np.ndarray | None:
+    """The ``labels`` attribute of ``obj`` as a list of names, None without one."""
+    if "labels" not in obj.attrs:
+        return None
+    labels = np.asarray(obj.attrs["labels"])
     if labels.ndim != 1 or labels.dtype.kind not in "OSU" or any(not isinstance(x, (str, bytes)) for x in labels):
         raise SessionSchemaError(f"{where} labels", "expected a list of names")
+    return labels
+
+
+def _check_group_labels(g: h5py.Group, where: str, columns: int) -> None:
+    """A group's ``labels`` (the writer puts none there; a tool may) name its columns, one each."""
+    labels = _label_list(g, where)
+    if labels is not None and len(labels) != columns:
+        raise SessionSchemaError(f"{where} labels", f"{len(labels)} names for a group of {columns} columns")
+
+
+def _check_labels(ds: h5py.Dataset, where: str) -> None:
+    labels = _label_list(ds, where)
+    if labels is None:
+        return
     if ds.ndim < 2 or ds.shape[1] != len(labels):
         raise SessionSchemaError(f"{where} labels", f"{len(labels)} names for rows of shape {ds.shape[1:]}")
+
+
+def _check_rows(columns: dict[str, h5py.Dataset], where: str) -> None:
+    """Every column holds one row per sample: as many rows as ``host_time_ns``. The writer appends a batch to every
+    column and closes the file at a flush, so a closed file whose columns differ was edited or damaged (a reader
+    would otherwise cut every column to the shortest, silently). A file still open for writing may differ by the
+    rows of the write in progress: there the reader keeps the rows every column holds."""
+    rows = columns["host_time_ns"].shape[0]
+    for name, ds in columns.items():
+        if ds.shape[0] != rows:
+            raise SessionSchemaError(
+                f"{where}/{name}",
+                f"{ds.shape[0]} rows, but host_time_ns has {rows}: one row per sample in every column",
+            )
 
 
 def _check_mocap(columns: dict[str, h5py.Dataset], where: str) -> None:
@@ -209,15 +246,8 @@ def _host_span(host: np.ndarray, where: str, rate_hz: float) -> tuple[int, int, 
     real = host[keep]
     if len(real) == 0:
         return None
-    # receive stamps jitter (a sample's host time is its batch's receive time less its place in the batch), so a
-    # stamp may fall a little behind the one before; a jump back by more than HOST_JITTER_NS is a file out of order
-    back = np.flatnonzero(np.diff(real) < -HOST_JITTER_NS)
-    if len(back):
-        i = int(np.flatnonzero(keep)[back[0] + 1])
-        raise SessionSchemaError(
-            where, f"goes back in time at row {i}; host times only increase (up to {HOST_JITTER_NS // 10**6} ms jitter)"
-        )
-    lo, hi = int(real[0]), int(real[-1])
+    _check_order(real, np.flatnonzero(keep), where)
+    lo, hi = int(real.min()), int(real.max())
     allowed = MAX_SPAN_NS
     if rate_hz > 0:  # the rows' own duration bounds it (view draws the span in 1 s windows: no week of them)
         allowed = min(allowed, int(SPAN_FACTOR * len(real) / rate_hz * 1e9) + TIME_MARGIN_NS)
@@ -225,6 +255,32 @@ def _host_span(host: np.ndarray, where: str, rate_hz: float) -> tuple[int, int, 
         rows = f"{len(real)} rows at {rate_hz:g} Hz" if rate_hz > 0 else f"{len(real)} rows"
         raise SessionSchemaError(where, f"spans {(hi - lo) * 1e-9:.6g} s with {rows}: not a run's host times")
     return lo, hi, allowed
+
+
+def _check_order(real: np.ndarray, rows: np.ndarray, where: str) -> None:
+    """Host times run forwards, with jitter: receive stamps (a sample's host time is its batch's receive time less
+    its place in the batch) may fall a little behind earlier ones, now and then. Refused: a row more than
+    ``HOST_JITTER_NS`` behind any row before it (so steps back add up: a stream that runs backwards in small steps
+    fails as soon as it is 50 ms behind its latest time), and more than ``MAX_BACK_FRACTION`` of the steps between
+    rows going back (jitter happens at some batch boundaries, not at every row)."""
+    if len(real) < 2:
+        return
+    behind = np.maximum.accumulate(real) - real
+    late = np.flatnonzero(behind > HOST_JITTER_NS)
+    if len(late):
+        i = int(late[0])
+        raise SessionSchemaError(
+            where,
+            f"goes back in time at row {int(rows[i])} ({behind[i] * 1e-6:.6g} ms behind an earlier row); host times "
+            f"only increase (up to {HOST_JITTER_NS // 10**6} ms jitter)",
+        )
+    back = int(np.count_nonzero(np.diff(real) < 0))
+    if back > max(MIN_BACK_STEPS, MAX_BACK_FRACTION * (len(real) - 1)):
+        raise SessionSchemaError(
+            where,
+            f"goes back in time at {back} of {len(real) - 1} steps between rows; receive jitter goes back now and "
+            f"then (at most {MAX_BACK_FRACTION:.0%} of the steps), a host clock runs forwards",
+        )
 
 
 # --- /steps, /events and their times -----------------------------------------------------------------------
@@ -293,7 +349,9 @@ def _check_processing(g: h5py.Group, budget: int) -> None:
     for name, table in _members(g, "/processing"):
         where = f"/processing/{name}"
         _kind(table, where, h5py.Group)
-        for key, ds in _members(table, where):
+        members = _members(table, where)
+        _check_group_labels(table, where, len(members))
+        for key, ds in members:
             _kind(ds, f"{where}/{key}", h5py.Dataset)
             _bounded(ds, f"{where}/{key}", budget)
             if ds.dtype.names is not None or (
@@ -307,3 +365,7 @@ def _check_processing(g: h5py.Group, budget: int) -> None:
                 cols = None
             if not isinstance(cols, list) or not all(isinstance(c, str) for c in cols):
                 raise SessionSchemaError(f"{where} columns", "expected a JSON list of column names")
+            if sorted(cols) != sorted(key for key, _ in members):
+                raise SessionSchemaError(
+                    f"{where} columns", f"names {len(cols)} columns, the group holds {len(members)}"
+                )

@@ -19,7 +19,7 @@ import pandas as pd
 from beambench.common.types import Floats
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.registry import beam_model
-from beambench.sim.scenes.contact_rig import RigParams
+from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.contact_sweep import contact_sweep
 from beambench.sim.settings import SimSettings
 

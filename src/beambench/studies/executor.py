@@ -22,6 +22,7 @@ Work is submitted in *tasks* of several simulations each (:func:`chunks`; ~10–
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import math
 import multiprocessing
@@ -30,6 +31,7 @@ import select
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from contextlib import contextmanager
@@ -114,16 +116,18 @@ def make_executor(
     n = workers or local_cores()
     if n < 1:
         raise ExecutorError(f"workers = {n}: must be >= 1")
+    ctx = _worker_context(preload)
+    started = ctx.SimpleQueue()  # each worker's pid, put there as it starts
     pool = ProcessPoolExecutor(
         max_workers=n,
-        mp_context=_worker_context(preload),
+        mp_context=ctx,
         initializer=_worker_init,
-        initargs=(os.getpid(), dict(os.environ), os.getcwd()),
+        initargs=(os.getpid(), dict(os.environ), os.getcwd(), started),
     )
     try:
         yield Pool(pool, n, f"local process pool, {n} workers")
     except BaseException:  # Ctrl-C, a stop signal, an error: do not wait minutes for a running evaluation
-        _stop_workers(pool)
+        _stop_workers(pool, started)
         # the pool is broken now; its manager thread fails the pending futures itself (cancelling them as well
         # races it on Python 3.11: InvalidStateError in that thread)
         pool.shutdown(wait=True)
@@ -131,21 +135,44 @@ def make_executor(
     pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _stop_workers(pool: ProcessPoolExecutor, timeout_s: float = 5.0) -> None:
+def _stop_workers(pool: ProcessPoolExecutor, started: Any, timeout_s: float = 5.0) -> None:
     """Terminate the pool's worker processes (SIGTERM, then SIGKILL after ``timeout_s``): a worker inside a long
-    native simulation call would otherwise finish it before the pool could shut down."""
+    native simulation call would otherwise finish it before the pool could shut down. ``started`` holds the pid of
+    every worker the pool started (:func:`_worker_init` puts it there)."""
     if hasattr(pool, "terminate_workers"):  # Python >= 3.14
         pool.terminate_workers()
         return
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    for proc in procs:
-        if proc.is_alive():
-            proc.terminate()
-    for proc in procs:
-        proc.join(timeout_s)
-        if proc.is_alive():
-            proc.kill()
-            proc.join(timeout_s)
+    pids = set()
+    while not started.empty():
+        pids.add(started.get())
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        for pid in pids:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, sig)
+        pids = {pid for pid in pids if not _ended(pid, timeout_s)}
+        if not pids:
+            return
+
+
+def _ended(pid: int, timeout_s: float) -> bool:
+    """Whether process ``pid`` ends within ``timeout_s`` (watched through a pidfd; without one, polled)."""
+    if hasattr(os, "pidfd_open"):
+        try:
+            fd = os.pidfd_open(pid)
+        except ProcessLookupError:
+            return True
+        try:
+            return bool(select.select([fd], [], [], timeout_s)[0])
+        finally:
+            os.close(fd)
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        time.sleep(0.05)
+    return False
 
 
 def _worker_context(preload: Sequence[str]) -> multiprocessing.context.BaseContext:
@@ -160,10 +187,11 @@ def _worker_context(preload: Sequence[str]) -> multiprocessing.context.BaseConte
     return ctx
 
 
-def _worker_init(owner: int, environ: dict[str, str], cwd: str) -> None:
-    """Worker initializer: the owner's environment and working folder as they are now (a forked worker has the
-    fork server's, from when that started: a per-user folder set since would be missed), then
-    :func:`_die_with_owner`."""
+def _worker_init(owner: int, environ: dict[str, str], cwd: str, started: Any) -> None:
+    """Worker initializer: its pid into ``started`` (the owner stops its workers by it), the owner's environment
+    and working folder as they are now (a forked worker has the fork server's, from when that started: a per-user
+    folder set since would be missed), then :func:`_die_with_owner`."""
+    started.put(os.getpid())
     if dict(os.environ) != environ:
         os.environ.clear()
         os.environ.update(environ)

@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from beambench.acquisition.protocol.backends import BACKEND_INFO
 from beambench.common.errors import BeambenchError
 from beambench.common.names import check_name
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
@@ -122,11 +123,7 @@ def load_release_session(
     (:func:`register_to_model`); None = only for sessions not made by the sim (whose frame is the model's).
     Raises :class:`FitError` for sessions that are not release tests."""
     from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
-    from beambench.analysis.session_analysis import (
-        fit_session_clocks,
-        mocap_markers,
-        stream_host_times,
-    )
+    from beambench.analysis.session_analysis import fit_session_clocks, mocap_markers, stream_host_times
     from beambench.sinks.hdf5 import SessionFileError, read_session
 
     try:
@@ -158,9 +155,9 @@ def load_release_session(
     model = ident.get("model", {}) if isinstance(ident, dict) else {}
     rel_s = model.get("release_time_s") if isinstance(model, dict) else None
     t = (t_ns - t_ns[0]) / NS
-    if rel_s is not None and ident.get("backend") == "sim":
-        # the sim's host clock is the simulated time since open(); the release is known exactly
-        t = t_ns / NS - float(rel_s)
+    backend = BACKEND_INFO.get(str(ident.get("backend")))
+    if rel_s is not None and backend is not None and backend.simulated_clock:
+        t = t_ns / NS - float(rel_s)  # the clock is the simulated time since open(): the release is known exactly
         uncertainty = RELEASE_SEARCH_SIM_S
     else:
         t = t - detect_release(t, tip)
@@ -189,7 +186,7 @@ def load_release_session(
         raise FitError(
             f"{path}: {seen} mocap frames with a tip marker within -{pre_s:g} … +{post_s:g} s of the release"
         )
-    if register if register is not None else ident.get("backend") != "sim":
+    if register if register is not None else backend is None or not backend.model_frame:
         data = register_to_model(data)[0]
     return data
 

@@ -8,12 +8,23 @@ Each control tick (``control.control_s`` of rig time) :meth:`TrackController.upd
   walker keeps stepping in place; feedback holds it there); from rest (no band yet) it stands at 0 Hz (the motor
   holds the crank still).
 - **feed-forward**: the band's frequency whose measured speed is the target.
+- **step** (a new segment): the walker's body takes a second or more to follow its drive (the sim walker's
+  momentum), so a step is not left to feedback on a measured speed that lags: the body's speed is predicted — a
+  first-order lag (``body_tau_s``) behind the map's speed at the motor's frequency (its telemetry; without it a ramp
+  at ``rate_hz_s``), started from the measured speed and pulled toward it at :data:`OBSERVE_PER_S` — and the drive
+  is set at once (the motor's own velocity ramp is the only limit) to the map's frequency for ``target + lead ×
+  (target − predicted)``: past the target, so the body gets there sooner. That speed may lie beyond the band's zero
+  edge, in the map's run through zero that holds the band: a slow-down brakes with backward speeds. The step ends
+  when the predicted or the measured speed is within :data:`HANDOVER_MM_S` of the target, or the measured one went
+  past it (a body faster than the model), or after 4 ``body_tau_s``; the frequency then goes straight to the
+  feedback's.
 - **feedback** (PI, in speed units): ``u = target + kp·e + I`` with ``e = target − measured``, then the band's
   frequency for ``u``. Working in speed and inverting through the map keeps the loop gain near ``kp`` however
   steep the map is locally. ``u`` is clipped to the band's speeds (its frequency edges); the integrator does not
   grow while clipped, while the rate limit holds the frequency back, or while the error is a transient's (larger
-  than ``integrate_within`` × |target| + 10 mm/s): anti-windup.
-- **rate limit**: the commanded frequency moves by at most ``rate_hz_s`` per second (the motor's ramp follows).
+  than ``integrate_within`` × |target| + 10 mm/s): anti-windup. The integrator is kept from segment to segment
+  within a band (a map off by a steady amount stays corrected) and reset when the band changes.
+- **rate limit**: the feedback's corrections move the commanded frequency by at most ``rate_hz_s`` per second.
 - **measured speed**: least-squares slope of the body marker along the forward axis over the last
   ``window_periods`` drive periods (within ``min_window_s``..``max_window_s``), against the mocap's own timestamps.
 - **mocap lost** (no body sample for a tick): the frequency is held and the integrator frozen; after
@@ -34,10 +45,13 @@ import numpy as np
 from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
 from beambench.acquisition.control.speed_map import Band, SpeedMap
 from beambench.acquisition.protocol.schema import TrackControl
-from beambench.acquisition.streams import MOCAP
+from beambench.acquisition.streams import MOCAP, MOTOR
 
 TRACK = "track"
 INTEGRATE_ABS_MM_S = 10.0  # the integrator's error band: control.integrate_within × |target| + this
+OBSERVE_PER_S = 4.0  # the prediction's pull toward the measured speed (1/s): the model's error does not grow
+HANDOVER_MM_S = 5.0  # a step ends when the predicted or measured speed is this close to the target (then PI)
+MOTOR_FRESH_S = 0.2  # motor telemetry older than this is not used (then the motor is taken to ramp at rate_hz_s)
 BODY_MARKER = "body"
 
 # modes (the ``mode`` column)
@@ -151,6 +165,13 @@ class TrackController:
         self.f_cmd = 0.0
         self._last_tick_ns: int | None = None
         self._lost_since: int | None = None
+        self._motor: tuple[int, float] | None = None  # (host time ns, measured |velocity| Hz) of the last motor row
+        self._pending = False  # a new segment: its step starts at the next tick
+        self._leading = False  # a step in progress: the lead drives the predicted speed to the target
+        self._stepped_at = 0  # when the step started (ns)
+        self._step_sign = 1.0  # the step's direction: +1 speeding up (forward), -1 slowing down
+        self.v_hat: float | None = None  # the predicted body speed (mm/s)
+        self._f_motor = 0.0  # the motor's frequency: its telemetry, else a ramp at rate_hz_s toward the command
 
     # --- sink -----------------------------------------------------------------------------------------
     def open(self, specs: list[StreamSpec]) -> None:
@@ -165,6 +186,11 @@ class TrackController:
             self._fwd = _axis(mocap.frame.forward_axis)
 
     def write(self, batch: Batch) -> None:
+        if batch.stream == MOTOR and len(batch) and "velocity" in batch.columns:
+            v = float(np.asarray(batch.columns["velocity"], float)[-1])
+            if math.isfinite(v):
+                self._motor = (int(batch.host_time_ns[-1]), abs(v))
+            return
         if batch.stream != MOCAP or not len(batch) or self._body is None:
             return
         pos = np.asarray(batch.columns["data"], float)[:, self._body]
@@ -193,10 +219,56 @@ class TrackController:
         if band is None or self.band is None or band.index != self.band.index:
             self.integral = 0.0
         self.band, self.target, self.segment = band, float(speed_mm_s), segment
+        self._pending = True
         return self.feedforward()
+
+    @property
+    def stepping(self) -> bool:
+        """A new segment's step is under way (its next tick, or its lead): the frequency may jump."""
+        return self._pending or self._leading
 
     def feedforward(self) -> float:
         return 0.0 if self.band is None else min(self.band.frequency_for(self.target), self.max_hz)
+
+    def _motor_frequency(self, now_ns: int, dt: float) -> float:
+        """The motor's drive frequency: its telemetry when fresh, else a ramp at ``rate_hz_s`` toward the command."""
+        motor = self._motor
+        if motor is not None and now_ns - motor[0] <= MOTOR_FRESH_S * 1e9:
+            self._f_motor = motor[1]
+        else:
+            step = self.c.rate_hz_s * dt
+            self._f_motor = min(max(self.f_cmd, self._f_motor - step), self._f_motor + step)
+        return self._f_motor
+
+    def _predict(self, now_ns: int, dt: float, measured: float) -> float:
+        """The body speed one tick on: a first-order lag (``body_tau_s``) behind the map's speed at the motor's
+        frequency, started from the measured speed at each step."""
+        if self._pending or self.v_hat is None:
+            self.v_hat = measured if math.isfinite(measured) else (self.v_hat or 0.0)
+        else:
+            v_map = self.map.speed_at(self._motor_frequency(now_ns, dt))
+            self.v_hat += (v_map - self.v_hat) * min(dt / self.c.body_tau_s, 1.0)
+            if math.isfinite(measured):  # an observer: a body faster or slower than the model pulls it along
+                self.v_hat += (measured - self.v_hat) * min(OBSERVE_PER_S * dt, 1.0)
+        return self.v_hat
+
+    def _lead(self, now_ns: int, measured: float) -> float | None:
+        """During a step: the frequency that drives the predicted speed to the target (None: the step is over: the
+        predicted or the measured speed got there, or the measured one went past it)."""
+        band, v_hat = self.band, self.v_hat
+        assert band is not None and v_hat is not None
+        e_hat = self.target - v_hat
+        arrived = math.isfinite(measured) and (
+            abs(self.target - measured) <= HANDOVER_MM_S or (self.target - measured) * self._step_sign < 0
+        )
+        if abs(e_hat) <= HANDOVER_MM_S or arrived or now_ns - self._stepped_at > 4 * self.c.body_tau_s * 1e9:
+            self._leading = False
+            return None
+        # past the target within the band, or within the run through zero speed that holds it: braking a forward
+        # walk may command the backward speeds beyond its band's zero edge (and a sign change gets there sooner)
+        run = self.map.stand_band(band, self.max_hz) or band
+        u = run.clip(self.target + self.c.lead * e_hat + self.integral)
+        return min(run.frequency_for(u), self.max_hz)
 
     def window_s(self) -> float:
         f = max(self.f_cmd, 1e-6)
@@ -219,11 +291,22 @@ class TrackController:
             self.f_cmd, mode = 0.0, LOST  # stand: never drive blind
         elif not fresh:
             mode = HOLDING  # hold the last frequency, the integrator frozen
-        elif self.band is None:
-            self.f_cmd, mode = self._rate_limited(0.0, dt), STANDING
         else:
-            mode = TRACKING
-            self.f_cmd = self._rate_limited(self._desired(measured, dt), dt)
+            mode = STANDING if self.band is None else TRACKING
+            v_hat = self._predict(now_ns, dt, measured)
+            if self._pending:  # a new segment: its step (the motor's own ramp is the only limit)
+                self._pending, self._leading, self._stepped_at = False, self.band is not None, now_ns
+                self._step_sign = 1.0 if self.target >= v_hat else -1.0  # v_hat: the speed measured at the step
+            leading = self._leading
+            lead = self._lead(now_ns, measured) if leading else None
+            if self.band is None:
+                self.f_cmd = 0.0
+            elif lead is not None:
+                self.f_cmd = lead
+            elif leading:  # the step is over: straight back from the lead's overdrive to the feedback's frequency
+                self.f_cmd = self._desired(measured, dt)
+            else:
+                self.f_cmd = self._rate_limited(self._desired(measured, dt), dt)
         band = -1 if self.band is None else self.band.index
         return Decision(now_ns, self.target, measured, ff, self.f_cmd, self.integral, band, mode, self.segment)
 

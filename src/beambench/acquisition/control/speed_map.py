@@ -121,6 +121,10 @@ class SpeedMap:
             out_i.append(bool(flagged[k].any()))
         return cls(tuple(out_f), tuple(out_v), tuple(out_i), source)
 
+    def speed_at(self, hz: float) -> float:
+        """The map's speed at ``hz`` (interpolated; 0 at 0 Hz, the last point's speed above the map)."""
+        return float(np.interp(hz, (0.0, *self.freqs_hz), (0.0, *self.speeds_mm_s)))
+
     def bands(self, max_frequency_hz: float = np.inf) -> list[Band]:
         """Every band (see the module docstring), by ascending frequency."""
         f = np.asarray(self.freqs_hz)

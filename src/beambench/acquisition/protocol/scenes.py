@@ -116,6 +116,7 @@ CONTACT = declare(
             "tolerance_mm": "has no measured table",
             "gap_mm": "has no plate",
             "thermal_drift": "has no thermal-drift model",
+            "segments": "does not settle into a steady gait",
         },
         plate=True,
         stage=True,

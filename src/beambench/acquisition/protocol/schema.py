@@ -175,8 +175,9 @@ class SimOptions(_Model):
     twist_deg: float = Field(90.0, ge=-360, le=360)
     noise: bool = True
     seed: int = Field(0, ge=0, le=2**32 - 1)
-    # the walker's sweep computed as this many consecutive parts in parallel (one core each), each part after the
-    # first pre-settled at its first frequency: the state is not carried across the cuts (beambench.backends.lookahead)
+    # the sweep (walker, contact rig) computed as this many consecutive parts in parallel (one core each), each part
+    # after the first pre-settled at its first frequency: the state is not carried across the cuts; the contact rig
+    # checks each cut and moves it where the regimes differ (beambench.backends.lookahead)
     segments: int = Field(1, ge=1, le=8)
     mocap_clock: ClockModel = ClockModel()
     loadcell_clock: ClockModel = ClockModel()
@@ -210,7 +211,7 @@ class TrackControl(_Model):
     """The speed controller's settings (:mod:`beambench.acquisition.control.speed_controller`); the defaults suit the walker."""
 
     feedback: bool = True  # false: feed-forward from the map alone
-    kp: float = Field(1.5, ge=0, le=10)  # proportional gain on the speed error (mm/s per mm/s)
+    kp: float = Field(1.0, ge=0, le=10)  # proportional gain on the speed error (mm/s per mm/s)
     ki_per_s: float = Field(2.0, ge=0, le=50)  # integral gain (1/s)
     # the integrator runs only while |error| <= integrate_within × |target| + 10 mm/s (not during big transients)
     integrate_within: float = Field(0.25, ge=0, le=10)
@@ -219,6 +220,10 @@ class TrackControl(_Model):
     window_periods: float = Field(4.0, gt=0, le=100)  # measured speed: slope over this many drive periods
     min_window_s: float = Field(0.15, gt=0, le=10)
     max_window_s: float = Field(0.5, gt=0, le=10)
+    # after a step: the body's speed taken as a first-order lag (time constant body_tau_s) behind the map's speed at
+    # the motor's frequency, and driven past the target by lead × the predicted error until it gets there
+    body_tau_s: float = Field(1.0, gt=0, le=10)
+    lead: float = Field(1.5, ge=0, le=10)
 
 
 class Track(_Model):
@@ -252,21 +257,29 @@ class Output(_Model):
         return v
 
 
+NAME_FIELDS = ("protocol", "rig", "backend", "date")  # the fields an ``output.name`` template may use
+
+
 def format_name(template: str, protocol: str, rig: str, backend: str, date: str) -> str:
     """Fill an ``output.name`` template; any template problem is a ValueError with one short line."""
     try:
-        _check_format_specs(template)
+        _check_template(template)
         return template.format(protocol=protocol, rig=rig, backend=backend, date=date)
     except (KeyError, IndexError, ValueError, AttributeError, TypeError) as exc:
-        known = "{protocol}, {rig}, {backend}, {date}"
+        known = ", ".join(f"{{{f}}}" for f in NAME_FIELDS)
         raise ValueError(f"bad template ({type(exc).__name__}: {str(exc)[:60]}); use {known}") from None
 
 
-def _check_format_specs(template: str) -> None:
-    """Refuse a width or precision that would make a name longer than :data:`MAX_NAME_BYTES` before formatting
-    (``{protocol:>300000000}`` would build 300 MB first) and nested fields in a format spec."""
+def _check_template(template: str) -> None:
+    """Refuse, before formatting, any field but the documented :data:`NAME_FIELDS` (so no attribute or index access,
+    ``{protocol.__class__}``, and no positional ``{}``), a width or precision that would make a name longer than
+    :data:`MAX_NAME_BYTES` (``{protocol:>300000000}`` would build 300 MB first) and nested fields in a spec."""
     for _, field, spec, _ in string.Formatter().parse(template):
-        if field is None or not spec:
+        if field is None:
+            continue
+        if field not in NAME_FIELDS:
+            raise ValueError(f"unknown field {{{field[:24]}}}")
+        if not spec:
             continue
         if "{" in spec or "}" in spec:
             raise ValueError(f"nested field in {spec[:12]!r}")

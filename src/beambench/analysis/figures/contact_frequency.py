@@ -1,7 +1,10 @@
-"""Contact frequency against the drive frequency, coloured by regime, with f, f/2, f/3 guides (paper Fig. 1b)."""
+"""Contact frequency against the drive frequency, coloured by regime, with f, f/2, f/3 guides and the paper's
+measured regimes beside them (paper Fig. 1b, Sec. IV-A), so where the session agrees with the paper and where it
+does not both show."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -21,6 +24,8 @@ from beambench.analysis.figures.style import (
     wrapped,
 )
 
+PAPER = "#bcbd22"  # the paper's measured regimes
+
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
@@ -31,6 +36,9 @@ if TYPE_CHECKING:
     "contact_frequency",
     rigs=("contact",),
     caption="Touchdowns per second against the drive frequency (paper Fig. 1b). Guides at f, f/2, f/3. "
+    "Broad pale bands: the paper's measured regimes (Sec. IV-A: continuous contact below 18 Hz, one contact per "
+    "cycle to 26 Hz, one per two cycles to 38 Hz, one per three to 44 Hz); the title counts the steps whose "
+    "regime is the paper's at their frequency. "
     "Hollow points at 0: continuous contact or none. A sweep both ways: ▲ up, ▼ down, red bands where the branches "
     "differ (hysteresis: regime, or contacts per cycle beyond noise); repeats: every repeat a point, "
     "their mean ± 1 std as a bar; "
@@ -42,6 +50,65 @@ def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) ->
         return None
     fig.savefig(path)
     return path
+
+
+@dataclass(frozen=True)
+class PaperRegime:
+    """One of the paper's measured contact regimes: contacts per drive cycle (0: continuous contact) over a band
+    of drive frequencies (Hz)."""
+
+    from_hz: float
+    to_hz: float
+    per_cycle: float
+    label: str
+
+
+# Paper Sec. IV-A (and Fig. 1b): the foot never leaves the plate below 18 Hz; the contact frequency follows f
+# to 26 Hz, drops to f/2 at 26 Hz and to f/3 at 38 Hz; the measured range ends at 44 Hz.
+PAPER_REGIMES = (
+    PaperRegime(0.0, 18.0, 0.0, "continuous"),
+    PaperRegime(18.0, 26.0, 1.0, "1"),
+    PaperRegime(26.0, 38.0, 0.5, "1/2"),
+    PaperRegime(38.0, 44.0, 1 / 3, "1/3"),
+)
+
+
+def paper_regime(frequency_hz: float) -> str:
+    """The paper's regime at a drive frequency (the higher band at a shared edge), "" outside its range."""
+    for band in reversed(PAPER_REGIMES):
+        if band.from_hz <= frequency_hz <= band.to_hz:
+            return band.label
+    return ""
+
+
+def paper_agreement(t: pd.DataFrame) -> tuple[int, int]:
+    """Sweep steps whose regime is the paper's at their frequency, of the steps inside the paper's range."""
+    if "regime" not in t or "frequency_hz" not in t:
+        return 0, 0
+    expected = t["frequency_hz"].astype(float).map(paper_regime)
+    inside = expected != ""
+    return int((t["regime"].astype(str)[inside] == expected[inside]).sum()), int(inside.sum())
+
+
+def _paper_bands(ax: Any, fmax: float) -> None:
+    """The paper's regimes as broad pale bands along f, f/2, f/3 (and along 0 where the contact is continuous)."""
+    for i, band in enumerate(PAPER_REGIMES):
+        hi = min(band.to_hz, fmax)
+        if hi <= band.from_hz:
+            continue
+        xs = np.array([band.from_hz, hi])
+        ax.plot(
+            xs,
+            xs * band.per_cycle,
+            color=PAPER,
+            lw=9,
+            alpha=0.35,
+            solid_capstyle="butt",
+            zorder=1,
+            label="paper (Sec. IV-A): regime measured" if i == 0 else None,
+        )
+    for edge in sorted({b.from_hz for b in PAPER_REGIMES if 0 < b.from_hz <= fmax}):
+        ax.axvline(edge, color=PAPER, lw=0.8, ls=(0, (2, 2)), zorder=1)
 
 
 def contact_frequency_figure(analyses: list[SessionAnalysis]) -> Figure | None:
@@ -56,6 +123,7 @@ def contact_frequency_figure(analyses: list[SessionAnalysis]) -> Figure | None:
     for k, ls in ((1, "-"), (2, "--"), (3, ":")):
         ax.plot(xs, xs / k, color="0.6", ls=ls, lw=1)
         ax.text(xs[-1], xs[-1] / k, " f" if k == 1 else f" f/{k}", va="center", color="0.4")
+    _paper_bands(ax, fmax * 1.05)
     single = len(tables) == 1
     for si, (a, t) in enumerate(tables):
         y = t["contact_frequency_hz"].fillna(0.0)
@@ -83,9 +151,18 @@ def contact_frequency_figure(analyses: list[SessionAnalysis]) -> Figure | None:
     ax.set_xlim(0, max(fmax, 1.0) * 1.12)
     ax.set_ylim(bottom=-0.02 * max(fmax, 1.0))
     names = "" if single else "\n" + " vs ".join(a.label for a, _ in tables)
-    ax.set_title(wrapped("Contact frequency vs input frequency" + names, float(fig.get_figwidth()) - 0.8))
+    agree = [paper_agreement(_sweep_rows(t)) for _, t in tables]
+    said = "; ".join(f"{n} of {m}" for n, m in agree if m)
+    if said:
+        said = f"\nthe paper's regime at {said} steps of its range (≤ {PAPER_REGIMES[-1].to_hz:g} Hz)"
+    ax.set_title(wrapped("Contact frequency vs input frequency" + names + said, float(fig.get_figwidth()) - 0.8))
     legend_below(fig, ax)
     return fig
+
+
+def _sweep_rows(t: pd.DataFrame) -> pd.DataFrame:
+    """The sweep's steps (reference steps repeat one frequency and would weigh it many times)."""
+    return t[t["kind"] == "sweep"] if "kind" in t else t
 
 
 def _branches(ax: Any, t: pd.DataFrame) -> None:

@@ -20,6 +20,7 @@ from beambench.analysis.figures.style import (
     marker_name,
     new_figure,
     primary_marker,
+    wrapped,
 )
 
 if TYPE_CHECKING:
@@ -98,6 +99,30 @@ def ellipse_figure(analyses: list[SessionAnalysis]) -> Figure | None:
         if unsure.any():
             label = f"sense uncertain (ellipse R² < {R2_SENSE_MIN:g}){sfx}"
             axes[1].scatter(f[unsure], tilt[unsure], s=size * 1.6, marker="$?$", c=UNCERTAIN, label=label)
+        noise = float(t["path_noise_mm"].iloc[0]) if "path_noise_mm" in t and len(t) else float("nan")
+        if len(analyses) == 1 and np.isfinite(noise) and noise > 0:
+            axes[0].axhline(
+                4 * noise,
+                color=UNCERTAIN,
+                ls=":",
+                lw=1.2,
+                label=f"mocap noise: ±2σ per frame ({4 * noise:.2f} mm wide)",
+            )
+        why = why_uncertain(t, m)
+        if len(analyses) == 1 and why:  # below the points: the axis extended to hold it
+            lo, hi = axes[1].get_ylim()
+            axes[1].set_ylim(lo - 0.55 * (hi - lo), hi)
+            axes[1].text(
+                0.02,
+                0.02,
+                wrapped(why, 5.0, 8.5),
+                transform=axes[1].transAxes,
+                fontsize=8.5,
+                va="bottom",
+                ha="left",
+                bbox=dict(boxstyle="round", fc="white", ec=UNCERTAIN, alpha=0.9),
+                zorder=6,
+            )
     if not anything:
         return None
     axes[0].set(xlabel="drive frequency (Hz)", ylabel="axis length (mm)", title="Axis lengths")
@@ -110,6 +135,28 @@ def ellipse_figure(analyses: list[SessionAnalysis]) -> Figure | None:
     fig.suptitle(" / ".join(dict.fromkeys(titles)) + ": first-harmonic ellipse")
     legend_below(fig, axes, ncol=4)
     return fig
+
+
+def why_uncertain(t: pd.DataFrame, m: str) -> str:
+    """Why no step's sense is certain, when none is (every ellipse R² below ``R2_SENSE_MIN``): the R² range and, where
+    the session's mocap noise is known, the path's size against the noise's spread; "" when some step's is."""
+    r2 = t.get(f"{m}_ellipse_r2", pd.Series(np.nan, index=t.index)).astype(float)
+    fitted = r2[np.isfinite(r2)]
+    if not len(fitted) or (fitted >= R2_SENSE_MIN).any():
+        return ""
+    text = (
+        f"No step's tilt or sense is certain: the ellipse explains less than {R2_SENSE_MIN:.0%} of the path at every "
+        f"step (R² {fitted.min():.2f}–{fitted.max():.2f})."
+    )
+    noise = float(t["path_noise_mm"].iloc[0]) if "path_noise_mm" in t else float("nan")
+    major = t.get(f"{m}_major_mm", pd.Series(np.nan, index=t.index)).astype(float)
+    if np.isfinite(noise) and noise > 0 and np.isfinite(major).any():
+        text += (
+            f" The {marker_name(m)} moves {np.nanmin(major):.2f}–{np.nanmax(major):.2f} mm (major axis) where the "
+            f"mocap noise spreads a still marker over {4 * noise:.2f} mm (±2σ per frame, steps.csv: path_noise_mm): "
+            "the noise is most of the path."
+        )
+    return text
 
 
 def unwrapped_tilt(tilt_deg: pd.Series, sure: pd.Series | None = None) -> pd.Series:

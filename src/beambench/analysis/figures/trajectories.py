@@ -28,7 +28,7 @@ from beambench.analysis.figures.style import (
     session_style,
     step_frequency,
 )
-from beambench.analysis.path_shape import NOISE_SIGMAS
+from beambench.analysis.path_shape import NOISE_SIGMAS, mean_path_noise
 from beambench.analysis.trajectory import mean_path
 
 if TYPE_CHECKING:
@@ -79,6 +79,7 @@ class _Marks:
     arrows: list[tuple[Any, float, float, float, str]] = field(default_factory=list)  # ax, x, y, sign, colour
     plates: list[tuple[Any, float, str]] = field(default_factory=list)  # ax, height, colour
     uncertain: bool = False
+    noise_mm: float = 0.0  # the mocap noise σ per frame the bands are drawn from (0: no bands)
 
     def extend(self, x: float, y: float) -> None:
         self.xh, self.yh = max(self.xh, x), max(self.yh, y)
@@ -151,6 +152,8 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
             r = next((r for r in a.steps if r.frequency_hz == f and set(markers[id(a)]) & set(r.paths)), None)
             if r is not None:
                 _draw_step(ax, r, markers[id(a)], None if single else si, plate_up.get(id(a)), marks, walker)
+                if single and a.track is None:  # a track's frequency moves within a step: no steady noise estimate
+                    _noise_bands(ax, r, markers[id(a)][0], marks)
                 note = shape_note(a, r, markers[id(a)][0]) if single else ""
         ax.set_title(f"{f:g} Hz{note}", pad=2, y=1.0)  # a fixed y skips measuring tick labels (slow)
     exaggeration = _limits(marks)
@@ -178,12 +181,30 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
     notes = [subset] if subset else []
     if plate_up and any(abs(y) > marks.yh for _, y, _ in marks.plates):
         notes.append("no contact in panels without a plate line: the plate is further below")
-    fig.suptitle("\n".join([title, *notes]), y=1 - 0.1 / height, va="top")
     handles = _handles(analyses, markers, marks, single)
     ncol = fitting_columns([str(h.get_label()) for h in handles], float(fig.get_figwidth()), legend_cols)
+    height = _legend_room(fig, height, math.ceil(len(handles) / ncol))
+    fig.suptitle("\n".join([title, *notes]), y=1 - 0.1 / height, va="top")
     fig.legend(handles=handles, loc="lower center", ncol=ncol, bbox_to_anchor=(0.5, 0.0))
     fig.savefig(path)
     return path
+
+
+LEGEND_ROW, XLABELS = 0.22, 0.75  # in: one legend row; the x tick labels and label below the lowest panels
+
+
+def _legend_room(fig: Figure, height: float, rows: int) -> float:
+    """Make the figure taller where its legend's ``rows`` need more room below the panels than the grid left
+    (the panels keep their size); returns the figure's height (in)."""
+    sp = fig.subplotpars
+    bottom, top = sp.bottom * height, (1 - sp.top) * height
+    extra = XLABELS + LEGEND_ROW * rows - bottom
+    if extra <= 0:
+        return height
+    new = height + extra
+    fig.set_size_inches(float(fig.get_figwidth()), new)
+    fig.subplots_adjust(bottom=(bottom + extra) / new, top=1 - top / new)
+    return new
 
 
 def _grid(n: int) -> tuple[Figure, Any, int, int, float]:
@@ -197,7 +218,7 @@ def _grid(n: int) -> tuple[Figure, Any, int, int, float]:
     pw = (width - left - right - (ncol - 1) * gapx) / ncol
     ph = pw * BOX
     legend_cols = max(1, int(width // 3.6))
-    bottom = 0.75 + 0.22 * math.ceil(6 / legend_cols)  # x labels, then up to six legend entries
+    bottom = XLABELS + LEGEND_ROW * math.ceil(6 / legend_cols)  # x labels, then six legend entries (more: grown)
     height = top + bottom + nrow * ph + (nrow - 1) * gapy
     fig = new_figure((width, height), layout=None)
     axes = fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False)
@@ -294,6 +315,35 @@ def _draw_step(
         )
 
 
+NOISE_BAND, FLOOR_BAND = "0.9", "0.75"
+RAW_SIGMAS = 2.0  # the raw traces' band: ±2σ of the per-frame noise holds 95 % of a still marker's frames
+
+
+def _noise_bands(ax: Any, r: StepResult, marker: str, marks: _Marks) -> None:
+    """The two noise bands of :func:`noise_bands` behind a step's paths, about its centre."""
+    if marker not in r.paths:
+        return
+    mp = mean_path(r.t_mocap, r.paths[marker], _contact_period_cycles(r) / step_frequency(r))
+    raw, floor = noise_bands(r, marker, len(mp))
+    if raw > 0:
+        ax.axhspan(-raw, raw, color=NOISE_BAND, lw=0, zorder=0)
+        ax.axhspan(-floor, floor, color=FLOOR_BAND, lw=0, zorder=0)
+        marks.noise_mm = float(r.row.get("path_noise_mm", 0.0))
+
+
+def noise_bands(r: StepResult, marker: str, mean_points: int) -> tuple[float, float]:
+    """Half-heights (mm) of the two bands drawn about a step's centre: ±2σ of the per-frame mocap noise (steps.csv:
+    ``path_noise_mm``), the spread of a raw trace that did not move; and the mean path's noise floor
+    (``NOISE_SIGMAS`` σ of a mean-path point of ``mean_points`` points), within which a path is 'flat'. (0, 0)
+    where the session's noise is unknown."""
+    noise = float(r.row.get("path_noise_mm", np.nan))
+    xy = r.paths.get(marker)
+    if not (np.isfinite(noise) and noise > 0) or xy is None or mean_points < 2:
+        return 0.0, 0.0
+    n = int(np.sum(np.all(np.isfinite(xy), axis=1)))
+    return RAW_SIGMAS * noise, NOISE_SIGMAS * mean_path_noise(noise, n, mean_points - 1)
+
+
 def _foot_style(k: int, color: str) -> dict[str, Any]:
     """The walker's feet in one panel: the first broad and pale underneath, the second thin and dashed on top
     (mirrored legs trace nearly the same path, and one must not hide the other)."""
@@ -370,6 +420,12 @@ def _handles(analyses: list[SessionAnalysis], markers: dict[int, list[str]], mar
             )
         if marks.plates:
             handles.append(Line2D([], [], color=PLATE, lw=2.2, label="plate (foot height at touchdown)"))
+        if marks.noise_mm > 0:
+            from matplotlib.patches import Patch
+
+            sigma = f"σ {marks.noise_mm:.2f} mm"
+            handles.append(Patch(color=NOISE_BAND, label=f"±{RAW_SIGMAS:g}σ mocap noise per frame ({sigma})"))
+            handles.append(Patch(color=FLOOR_BAND, label=f"mean path's noise floor (±{NOISE_SIGMAS:g}σ of its points)"))
     else:
         handles += [
             Line2D(

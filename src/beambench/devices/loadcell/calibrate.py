@@ -69,6 +69,7 @@ def _noise_floor(std: np.ndarray) -> float:
 
 
 NO_SAMPLES_S = 5.0  # how long past its window a recording waits for a late (or a starved host's) first sample
+WINDOW_TRIES = 3  # windows recorded in turn while the plate streams but one comes back empty (frames lost in a stall)
 
 
 def record(stream: Stream, settle_s: float, duration_s: float, from_seq: int | None = None) -> Recording:
@@ -76,14 +77,29 @@ def record(stream: Stream, settle_s: float, duration_s: float, from_seq: int | N
 
     Each frame is placed on the host's clock by the MCU's own stamp plus the least-delayed host-minus-MCU offset
     seen, so frames still in transit at the Enter (a host that reads late) count as before it, whenever read.
+    A plate that streams but whose frames of the window were lost (a host or link stall that overflowed the MCU's
+    transmit buffer) is recorded again, right after, up to ``WINDOW_TRIES`` windows: the load is on and settled.
     ``from_seq``: the first MCU frame (sequence number) that carries the step's load, when it is known (the
     emulated plate): the settle and the window are then counted in the MCU's own frames."""
+    if from_seq is not None:
+        return _record_frames(stream, settle_s, duration_s, from_seq)
+    for _ in range(WINDOW_TRIES):
+        rec = _record_window(stream, settle_s, duration_s)
+        if rec is not None:
+            return rec
+        settle_s = 0.0
+    raise CalibrationAborted(
+        f"no load-cell samples in {WINDOW_TRIES} windows of {duration_s:g} s while the plate streamed: frames are "
+        "lost (a busy host or USB link?); close other programs or record longer (--duration)"
+    )
+
+
+def _record_window(stream: Stream, settle_s: float, duration_s: float) -> Recording | None:
+    """One host-clock window; None when the plate streamed but no frame of the window arrived."""
     import numpy as np
 
     from beambench.acquisition.batch import Batch
 
-    if from_seq is not None:
-        return _record_frames(stream, settle_s, duration_s, from_seq)
     start_ns = time.monotonic_ns() + round(settle_s * 1e9)
     end_ns = start_ns + round(duration_s * 1e9)
     batches: list[Batch] = []
@@ -105,9 +121,7 @@ def record(stream: Stream, settle_s: float, duration_s: float, from_seq: int | N
     on_host = np.asarray(b.device_time) * 1e9 + offset_ns
     keep = (on_host >= start_ns) & (on_host < end_ns)
     if not np.any(keep):
-        raise CalibrationAborted(
-            f"no load-cell samples in the {duration_s:g} s window after the settle: is the MCU connected and running?"
-        )
+        return None
     return Recording(np.asarray(b.columns["data"], dtype=np.float64)[keep])
 
 

@@ -24,7 +24,7 @@ from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import LOADCELL, LOADCELL_RATE_HZ, loadcell_spec
 from beambench.common.oserrors import serial_open_problem
 from beambench.devices.base import StreamDriver
-from beambench.devices.loadcell.protocol import CRC_NAME, VERSION, Frame, StreamDecoder
+from beambench.devices.loadcell.protocol import CRC_NAME, FRAME_LEN, VERSION, Frame, StreamDecoder
 
 DEFAULT_BAUDRATE = 921_600
 # After the first bytes arrive the reader waits this long and reads everything then waiting: at 1 kHz a wake-up
@@ -158,7 +158,9 @@ class SerialLoadCells(StreamDriver):
             frames = self.decoder.feed(data)
             st = self.decoder.stats
             self.counters.dropped = st.lost_frames
-            self.counters.garbled = st.crc_errors + st.truncated
+            # every stretch of bytes that was no frame (a CRC error or a truncated frame is one), and every
+            # frame of a version this driver does not read
+            self.counters.garbled = st.junk_runs + st.unsupported
         self._push([(now, f) for f in frames], now)
 
     def _failure(self, exc: Exception) -> str:
@@ -203,6 +205,16 @@ class SerialLoadCells(StreamDriver):
                 f"{self.name}: {missing} of {expected} frames lost ({100 * missing / expected:.1f} % > "
                 f"{100 * self.max_lost_fraction:g} %): another program reading {self.port}, or a failing link?"
             )
+
+    def health(self) -> dict[str, Any]:
+        """As every stream's, plus the bytes that were no frame (``junk_bytes``; before the first frame only more
+        than a port opened mid-frame leaves)."""
+        with self._lock:
+            st = self.decoder.stats
+            junk = (
+                st.bytes_discarded + st.unsupported_bytes + (st.startup_bytes if st.startup_bytes >= FRAME_LEN else 0)
+            )
+        return {**super().health(), "junk_bytes": junk}
 
     def check(self, silence_s: float | None = None) -> None:
         """Raise :class:`DeviceFault` if the port failed or no frame arrived for ``silence_s`` (default: the

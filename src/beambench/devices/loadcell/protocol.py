@@ -30,7 +30,9 @@ Decoding rules (:class:`StreamDecoder`):
   a single byte, so no valid frame hidden behind a false sync is ever lost.
 - Bytes outside valid frames are counted as discarded. Before the first valid frame (the decoder has not yet
   locked onto the stream, e.g. a port opened mid-frame) they are counted as ``startup_bytes`` and no errors
-  are counted.
+  are counted. Each stretch of discarded bytes between two valid frames (a corrupted or truncated frame, noise
+  on the line, bytes another program wrote) counts one ``junk_runs``; so does a start before the first frame
+  longer than one frame (more than a port opened mid-frame explains).
 - Sequence numbers: a forward jump counts one gap and ``jump - 1`` lost frames; a backward step (MCU reset,
   duplicate) counts a ``seq_reset``.
 
@@ -125,6 +127,7 @@ class DecoderStats:
     seq_resets: int = 0
     bytes_discarded: int = 0
     startup_bytes: int = 0
+    junk_runs: int = 0  # stretches of bytes that were no frame (see the module docstring)
     last_version: int | None = None
 
     def as_dict(self) -> dict[str, int | None]:
@@ -138,6 +141,7 @@ class StreamDecoder:
         self.stats = DecoderStats()
         self._buf = bytearray()
         self._last_seq: int | None = None
+        self._in_junk = False  # the last bytes consumed were discarded (a junk run is open)
 
     @property
     def pending(self) -> int:
@@ -153,6 +157,7 @@ class StreamDecoder:
         self.stats = DecoderStats()
         self._buf = bytearray()
         self._last_seq = None
+        self._in_junk = False
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
         """Append ``data`` and return every frame completed by it, in order. Never raises, never waits."""
@@ -218,6 +223,7 @@ class StreamDecoder:
         st = self.stats
         st.frames += 1
         st.last_version = version
+        self._in_junk = False
         last = self._last_seq
         if last is not None:
             jump = (seq - last) % _U32
@@ -262,7 +268,13 @@ class StreamDecoder:
     def _discard(self, k: int) -> None:
         if k <= 0:
             return
+        st = self.stats
         if self.locked:
-            self.stats.bytes_discarded += k
+            st.bytes_discarded += k
+            if not self._in_junk:
+                st.junk_runs += 1
+                self._in_junk = True
         else:
-            self.stats.startup_bytes += k
+            if st.startup_bytes < FRAME_LEN <= st.startup_bytes + k:
+                st.junk_runs += 1  # more than a port opened mid-frame leaves: junk before the first frame
+            st.startup_bytes += k

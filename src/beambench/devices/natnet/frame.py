@@ -277,8 +277,8 @@ class FrameOfData:
         if v >= V4_1:
             p_s, p_f = r.unpack(_PRECISION, "precision timestamp")
         params = r.unpack(_I16, "frame params")[0]
-        if r.remaining() == 4:  # Motive ends frames with a 4-byte end-of-data tag (0); tolerate its absence
-            r.pos += 4
+        r.need(4, "end-of-data tag")  # Motive ends every frame with a 4-byte tag (0): a frame without it is cut short
+        r.pos += 4
         return cls(
             frame_number,
             msets,

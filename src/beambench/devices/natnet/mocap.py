@@ -101,6 +101,7 @@ class NatNetMocap(StreamDriver):
         super().__init__(MOCAP, mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ, self.frame), silence_timeout_s)
         self._last_stats = NatNetStats()
         self._last_flood = ""
+        self._left_unread = 0  # frames still buffered when the client closed (never read: unrecorded)
         self._layouts: dict[tuple[int, nn.Version], nb.FrameLayout] = {}  # by packet length and version
         self._marker_cols, self._body_cols = self._columns_by_source()
 
@@ -135,10 +136,12 @@ class NatNetMocap(StreamDriver):
         if self.client is None:
             self.client = NatNetClient(self.config).connect()
         self.client.raw_frames.clear()
+        self._left_unread = 0
         self.client.keep_raw = True  # decoded many at a time in read(): see natnet.block
 
     def _close(self) -> None:
         if self.client is not None:
+            self._left_unread = len(self.client.raw_frames)
             self._sync_counters()
             self.client.close()
             self._last_stats = self.client.stats
@@ -150,11 +153,31 @@ class NatNetMocap(StreamDriver):
         if c is None:
             return
         st = c.stats
-        self.counters.dropped = st.dropped_frames
+        self.counters.dropped = st.dropped_frames + st.overflowed  # evicted from a full buffer: lost too
         self.counters.garbled = st.parse_errors
         self.counters.forged = st.forged
         if st.last_frame_ns is not None:
             self.last_receive_ns = st.last_frame_ns
+
+    def _unrecorded(self) -> int:
+        c = self.client
+        return len(c.raw_frames) if c is not None else self._left_unread
+
+    def health(self) -> dict[str, Any]:
+        """As every stream's (:meth:`StreamDriver.health`); ``received`` counts frames when :meth:`read` decodes
+        them, so the frames still buffered (``unrecorded``) are added: received = stored + unrecorded. ``ignored``:
+        datagrams that arrived before the server described itself (not decodable then). ``kernel_dropped``: datagrams
+        the kernel dropped unread (a full buffer); ``flood``: a flood named ("" if none)."""
+        c = self.client
+        if c is not None:
+            self._sync_counters()
+        out = super().health()
+        out["received"] += out["unrecorded"]
+        # datagrams that could not be used (frames before the server described itself): arrived, never rows
+        out["ignored"] = self.stats.ignored
+        out["kernel_dropped"] = self.stats.kernel_dropped
+        out["flood"] = c.flood() if c is not None else self._last_flood
+        return out
 
     def echo_sync(self) -> dict[str, Any] | None:
         """The client's ECHO table and the server's clock frequency (``ReportsEchoes``; None while there is no
@@ -179,14 +202,6 @@ class NatNetMocap(StreamDriver):
 
     def identity(self) -> dict[str, Any]:
         return self.client.info() if self.client is not None else {}
-
-    def health(self) -> dict[str, Any]:
-        """The base counters, the datagrams the kernel dropped unread, and a flood named (``flood``; "" if none)."""
-        c = self.client
-        if c is not None:
-            self._sync_counters()
-        flood = c.flood() if c is not None else self._last_flood
-        return super().health() | {"kernel_dropped": self.stats.kernel_dropped, "flood": flood}
 
     def check(self) -> None:
         c = self.client

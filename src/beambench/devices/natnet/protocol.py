@@ -172,11 +172,17 @@ class Connect:
     @classmethod
     def parse(cls, r: _Reader, version: Version | None) -> Connect:
         if r.remaining() < Sender.SIZE:  # some clients send just "Ping\0"; Motive accepts that
-            raw = bytes(r.data[r.pos : r.end]).split(b"\0", 1)[0]
+            raw, nul, rest = bytes(r.data[r.pos : r.end]).partition(b"\0")
+            if not nul or rest:  # a sender block cut short, not a name
+                raise NatNetParseError(
+                    f"connect payload of {r.remaining()} bytes: neither a {Sender.SIZE}-byte sender block nor a name"
+                )
             r.pos = r.end
             return cls(Sender(raw.decode("utf-8", errors="replace")))
         sender = Sender.read(r)
         sub, bv = False, None
+        if 0 < r.remaining() < 5:
+            raise NatNetParseError(f"connect options of {r.remaining()} bytes, not 5 (cut short)")
         if r.remaining() >= 5:
             sub = r.data[r.pos] != 0
             r.pos += 1
@@ -226,7 +232,7 @@ class ServerInfo:
     @classmethod
     def parse(cls, r: _Reader, version: Version | None) -> ServerInfo:
         sender = Sender.read(r)
-        if r.remaining() < _SERVER_TAIL.size:  # pre-3.0 servers send the sender block only
+        if r.remaining() == 0 and sender.natnet_version < Version(3):  # pre-3.0 servers send the sender block only
             return cls(sender)
         freq, port, mc, *grp = r.unpack(_SERVER_TAIL, "server connection info")
         return cls(sender, freq, port, mc, ".".join(str(g) for g in grp))

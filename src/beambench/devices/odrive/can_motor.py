@@ -56,6 +56,7 @@ from beambench.acquisition.streams import MOTOR
 from beambench.common.oserrors import can_open_problem
 from beambench.devices.odrive import cansimple as cs
 from beambench.devices.odrive.can_log import TrafficLog
+from beambench.devices.odrive.can_log_formats import LOG_SUFFIXES
 from beambench.devices.odrive.can_timing import (
     MAX_FRAMES_PER_WAKE,
     RECEIVE_COALESCE_S,
@@ -76,7 +77,6 @@ from beambench.devices.receive_time import mono_minus_real_ns
 DEFAULT_TIMING = CanMotorTiming()
 IDLE_SEND_TRIES = 5  # each idle frame is sent up to this many times (a full TX queue, no memory for a moment)
 IDLE_RETRY_S = 0.02
-LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc", ".csv")  # python-can writers that keep direction or ids
 
 _ERROR_REGISTERS = (cs.Cmd.GET_MOTOR_ERROR, cs.Cmd.GET_ENCODER_ERROR, cs.Cmd.GET_CONTROLLER_ERROR)
 
@@ -155,6 +155,7 @@ class OdriveCanMotor(TelemetryStream):
         self._fault: str | None = None
         self.rx_count = 0
         self.rows_received = 0
+        self.rows_evicted = 0  # telemetry rows a full buffer dropped before anyone read them
         self._telemetry_ns: int | None = None  # host time of the newest Encoder_Estimates
         self._streaming_ns: int | None = None  # when the telemetry stream started
         self.tx_count = 0
@@ -309,6 +310,8 @@ class OdriveCanMotor(TelemetryStream):
                 self._telemetry_ns = host_ns
                 if self._streaming:
                     self.rows_received += 1
+                    if len(self._rows) == self._rows.maxlen:  # a full buffer evicts its oldest row: lost
+                        self.rows_evicted += 1
                     dev_t = frame.timestamp if frame.timestamp else host_ns * 1e-9
                     hb = self._hb
                     self._rows.append(
@@ -348,12 +351,8 @@ class OdriveCanMotor(TelemetryStream):
         period = min(self.feed_period_s, self.poll_period_s)
         next_poll = next_wake = time.monotonic()
         asked_errors = False
-        while True:
-            next_wake += period
-            now = time.monotonic()
-            next_wake = max(next_wake, now)  # late (the host stalled): wake now, not a burst to catch up
-            if self._feeder_stop.wait(next_wake - now):
-                return
+        while not self._feeder_stop.wait(max(0.0, next_wake + period - time.monotonic())):
+            next_wake = max(next_wake + period, time.monotonic() - period)  # late (a stall): no burst to catch up
             if self._tx_paused:
                 continue
             now_ns = time.monotonic_ns()
@@ -437,7 +436,10 @@ class OdriveCanMotor(TelemetryStream):
         with self._cond:
             return {
                 "received": self.rows_received,
-                "dropped": 0,  # CAN Simple frames carry no sequence number: losses cannot be counted
+                "unrecorded": len(self._rows),  # received, never read (arrived while the run closed)
+                # CAN Simple frames carry no sequence number: losses on the bus cannot be counted; rows a full
+                # buffer evicted can
+                "dropped": self.rows_evicted,
                 "garbled": self.parse_errors + garbled,
                 "forged": forged,
                 **flood,

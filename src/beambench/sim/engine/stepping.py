@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -70,6 +70,8 @@ class Physics:
         self._spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
         self._roll = rollout.Rollout(nthread=0)
         self._state = np.empty(mujoco.mj_stateSize(model, self._spec))
+        # called with the new timestep after every change (a scene whose model depends on it: matched contacts)
+        self.on_timestep: Callable[[float], None] | None = None
         self.sensor_slices = {
             mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_SENSOR, i): slice(int(a), int(a + d))
             for i, (a, d) in enumerate(zip(model.sensor_adr, model.sensor_dim))
@@ -84,6 +86,8 @@ class Physics:
         return float(self.model.opt.timestep)
 
     def set_timestep(self, h: float) -> None:
+        if h != self.model.opt.timestep and self.on_timestep is not None:
+            self.on_timestep(h)
         self.model.opt.timestep = h
 
     def snapshot(self) -> tuple[np.ndarray, np.ndarray, float]:

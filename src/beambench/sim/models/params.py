@@ -10,6 +10,7 @@ select it with ``sim.params: <name>`` in a protocol.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -142,7 +143,7 @@ def has_params(name: str, model: str) -> bool:
             data, _ = load_yaml_file(path)  # kind and size checked before the read
         except ConfigError:
             return False
-        return isinstance(data, dict) and str(data.get("model", "prb3")) == model
+        return isinstance(data, dict) and params_family(data.get("model", "prb3")) == model
     return name in available(model)
 
 
@@ -165,7 +166,17 @@ def load_params(name: str = "paper", model: str = "prb3") -> BeamParams:
     data, _ = load_yaml_file(path, ParamsError)
     if not isinstance(data, dict):
         raise ParamsError(f"{path}: expected a mapping with a beam block")
+    says = data.get("model", "prb3")  # sets written before the field are PRB3's
+    if params_family(says) != model:
+        raise ParamsError(f"{path}: model: {str(says)[:20]}, not a {model} parameter set (a {model} model runs)")
     return params_from_dict(data, str(path))
+
+
+def params_family(model: object) -> str:
+    """The family a parameter set's ``model:`` names (``rod``, ``rod10``, ``rod3g`` → ``rod``; ``prb3``), or the
+    text itself when it names none (then it matches no family)."""
+    text = str(model)
+    return "rod" if re.fullmatch(r"rod(\d+g?s?)?", text) else text
 
 
 # The physical range of each beam number (SI), whatever a set's own ``bounds:`` say: (low, high, low excluded).

@@ -8,12 +8,14 @@ parameter files, ``sim_backend/<family>_<set>.yaml``. To add a model, see ``docs
 
 from __future__ import annotations
 
-from typing import Literal, get_args
+from typing import TYPE_CHECKING, Literal, get_args
 
 from beambench.common.errors import BeambenchError
-from beambench.sim.models.beam import PRB3, BeamModel
+from beambench.sim.models.names import ROD_NAME
 from beambench.sim.models.params import BeamParams, load_params
-from beambench.sim.models.rod import ROD_NAME, make_rod_model
+
+if TYPE_CHECKING:
+    from beambench.sim.models.beam import BeamModel
 
 Family = Literal["prb3", "rod"]
 FAMILIES: tuple[Family, ...] = get_args(Family)
@@ -55,6 +57,9 @@ def is_rod(name: str) -> bool:
 
 def make_beam_model(name: str, params: BeamParams) -> BeamModel:
     """The model called ``name``: ``prb3``, or a segmented rod ``rod<N>[g][s]`` (:mod:`beambench.sim.models.rod`)."""
+    from beambench.sim.models.beam import PRB3  # MuJoCo loads here, not with the name checks above
+    from beambench.sim.models.rod import make_rod_model
+
     if model_family(name) == "rod":
         return make_rod_model(name, params)
     return PRB3(params)

@@ -26,7 +26,6 @@ and the thickness along x at the root (weak bending toward x, the stage's direct
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import asdict, dataclass, replace
 from typing import Any
 
@@ -35,6 +34,7 @@ import numpy as np
 
 from beambench.common.types import Floats
 from beambench.sim.models.beam import BeamModel, BeamSites, qinv, qmul, quat_x
+from beambench.sim.models.names import ROD_NAME
 from beambench.sim.models.params import BeamParams, Material
 
 
@@ -75,7 +75,7 @@ class RodParams:
             youngs_modulus=m.youngs_modulus,
             poisson=m.poisson,
             density=density,
-            beta=getattr(beam, "beta", 6e-4),
+            beta=beam.beta,
             nodes=nodes,
         )
 
@@ -286,9 +286,6 @@ class RodModel(BeamModel):
                 "mass": r.mass,
             },
         }
-
-
-ROD_NAME = re.compile(r"rod(\d+)(g?)(s?)")
 
 
 def make_rod_model(name: str, params: BeamParams) -> RodModel:

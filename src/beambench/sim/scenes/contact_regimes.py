@@ -26,10 +26,12 @@ from beambench.acquisition.forces.contact_events import ContactParams, force_con
 from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.streams import CONTACT_MARKERS, LOADCELL_RATE_HZ, MOCAP_RATE_HZ
 from beambench.common.types import Floats
+from beambench.sim.engine.stepping import Trajectory
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.params import BeamParams, load_params
 from beambench.sim.models.registry import make_beam_model, model_family
-from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
+from beambench.sim.scene_params import RigParams
+from beambench.sim.scenes.contact_rig import build_contact_spec
 from beambench.sim.scenes.contact_sweep import contact_sweep
 from beambench.sim.settings import SimSettings
 
@@ -249,6 +251,33 @@ def stepped_regime_map(
     finally:
         scene.physics.close()
     return _regime_table(rows, rig.plate_gap)
+
+
+CUT_CONTACT_FRACTION = 0.03  # in-contact fractions this close count as one regime at a cut (the convergence criterion)
+
+
+def steps_agree(a: Trajectory, b: Trajectory, frequency_hz: float, settle_fraction: float = 1 / 3) -> bool:
+    """Do two runs of one step (rows of :class:`ContactRigSim`, e.g. the state carried from the sweep and the
+    same step started from rest) land in the same regime? Both classified as :func:`stepped_regime_map` does
+    (noise off) after the step's first ``settle_fraction``: the same label and in-contact fractions within
+    :data:`CUT_CONTACT_FRACTION`. Where a tiny change of state flips the label (the lift-off band), they differ."""
+    rows = []
+    for tr in (a, b):
+        t0 = float(tr.t[0]) + settle_fraction * float(tr.t[-1] - tr.t[0])
+        keep = tr.t > t0
+        if keep.sum() < 2:
+            return False
+        h = float(np.median(np.diff(tr.t[keep])))
+        f = tr.channels["force_nt"][keep]
+        if not np.isfinite(f).all():
+            return False
+        foot_x = tr.channels["markers"][keep, CONTACT_MARKERS.index("foot"), 0]
+        w = StepWindow(frequency_hz, h, float(tr.t[keep][0]) - h, f[:, 0], f[:, 1], foot_x)
+        rows.append(Classifier().classify(w))
+    return bool(
+        rows[0]["regime"] == rows[1]["regime"]
+        and abs(rows[0]["in_contact_fraction"] - rows[1]["in_contact_fraction"]) <= CUT_CONTACT_FRACTION
+    )
 
 
 def _regime_table(rows: list[dict], plate_gap_m: float) -> pd.DataFrame:

@@ -18,7 +18,7 @@ stage (beam clamp) is at the origin.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from typing import Any
 
 import mujoco
@@ -29,68 +29,11 @@ from beambench.acquisition.streams import CONTACT_MARKERS
 from beambench.sim.engine.stepping import INTEGRATORS, Physics, Trajectory
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.models.thermal import CP_TPU, ThermalParams, ThermalState, stage_power, thermal_state
+from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
 
-
-@dataclass(frozen=True)
-class RigParams:
-    """Contact-rig constants (SI). A parameter set may override any of them in its ``rig:`` block."""
-
-    foot_length: float = 0.0665  # m, beam tip to sole bottom
-    # m, h' of the paper: the plate's top below the sole in the beam's UNLOADED (natural, gravity-free) shape;
-    # the sag under gravity is the rig's own business (a sag larger than the gap is a preload)
-    plate_gap: float = 0.0055
-    foot_mass: float = 0.020  # kg, the load on the foot frame (paper: 20 g), at the sole unless mass_dx
-    # m, offset of that mass from the sole along x (stage travel); the paper puts the 20 g "at the lower left
-    # corner of the load frame" without giving the offset — an offset mass twists the tip
-    mass_dx: float = 0.0
-    mass_dy: float = 0.0  # m, the same along y (the beam's axis, away from the stage)
-    # the frame meets the plate at that lower corner (the paper's load frame), not below the tip: the sole sits
-    # with the load, and h' is the corner's clearance in the unloaded shape
-    sole_at_corner: bool = False
-    # kg, the load frame's own mass, spread along the foot (tip to sole); the paper gives only the 20 g load
-    frame_mass: float = 0.0
-    # deg, the beam's section turned about its own axis at the clamp: 0 = as built (width vertical at the
-    # clamp, weak bending along the stage travel, see beambench.sim.models.beam), 90 = flat face horizontal
-    # at the root (research note, issue 11); the foot still hangs plumb below the tip
-    clamp_roll_deg: float = 0.0
-    sole_radius: float = 0.003  # m
-    # N/m and N·s/m, the sole's own compliance along the foot axis (a lossy pad between the load frame and
-    # the plate: TPU sole, frame, load-cell plate mount in series); 0 = a rigid sole on the frame
-    sole_stiffness: float = 0.0
-    sole_damping: float = 0.0
-    sole_mass: float = 0.001  # kg, the part of the sole that moves with the plate (only with sole_stiffness)
-    # m, how far the compliant sole compresses before the frame bottoms out on it (a hard stop, the contact's
-    # solref); 0 = no stop
-    sole_travel: float = 0.0
-    plate_from_stage: float = 0.072  # m, informational: foot_length + the paper's 5.5 mm gap
-    friction: float = 0.5
-    contact_timeconst: float = 0.001  # s (≤ 2 ms needed; MuJoCo's default 20 ms hides the contact effects)
-    contact_dampratio: float = 1.0
-    stage_armature: float = 1000.0  # kg, makes the stage a near-kinematic drive
-    stage_mass: float = 0.15  # kg, the physical carriage (for the motor current estimate)
-    servo_hz: float = 30.0  # bandwidth of the stage's feedback (feed-forward does the tracking)
-    vel_ramp_rate: float = 50.0  # turn/s², ODrive controller.config.vel_ramp_rate
-    torque_constant: float = 8.27 / 150  # N·m/A (D6374 150 KV)
-    friction_torque: float = 0.02  # N·m, crank + bearings (Coulomb)
-    bus_voltage: float = 24.0  # V
-    preroll_s: float = 0.5  # settle to the static equilibrium before t = 0
-    # s, the largest timestep this twin's answers are converged at (measured with
-    # benchmarks/bench_contact_convergence.py); caps the frequency policy below; 0 = the policy alone
-    max_timestep: float = 0.0
-
-    @classmethod
-    def with_overrides(cls, overrides: dict[str, Any]) -> RigParams:
-        known = {f.name for f in fields(cls)}
-        bad = set(overrides) - known
-        if bad:
-            raise ValueError(f"rig.{sorted(bad)[0]}: unknown rig parameter")
-        flags = {f.name for f in fields(cls) if f.type in (bool, "bool")}
-        values: dict[str, Any] = {k: bool(v) if k in flags else float(v) for k, v in overrides.items()}
-        return cls(**values)
-
-
+SOLIMP_D0, SOLIMP_DMAX = 0.9, 0.95  # MuJoCo's default contact impedance at zero and full penetration (solimp)
 TIMESTEP_POLICY = ((40.0, 2e-4), (80.0, 1e-4), (float("inf"), 5e-5))  # (up to Hz, dt)
 
 
@@ -130,17 +73,16 @@ def build_contact_spec(
     spec.option.timestep = timestep
     spec.option.integrator = INTEGRATORS[integrator]
     spec.option.gravity = [0, 0, -9.81]
-    solref = [rig.contact_timeconst, rig.contact_dampratio]
     _add_plate(spec, names, -(rig.foot_length + gap_m))
     clamp = _add_stage(spec, names, rig)
     sites = add_beam(clamp, beam, twist_deg)
-    _add_foot(spec, names, spec.body(sites.tip_body), rig, solref)
+    _add_foot(spec, names, spec.body(sites.tip_body), rig, [rig.contact_timeconst, rig.contact_dampratio])
     spec.add_pair(
         name="sole_plate",
         geomname1=names.sole,
         geomname2=names.plate,
         condim=3,
-        solref=solref,
+        solref=contact_solref(rig, timestep),
         friction=[rig.friction, rig.friction, 0.005, 0.0001, 0.0001],
     )
     spec.add_actuator(
@@ -152,6 +94,38 @@ def build_contact_spec(
     )
     _add_sensors(spec, names, sites.tip_site)
     return spec
+
+
+def contact_solref(rig: RigParams, timestep: float) -> list[float]:
+    """The sole–plate pair's ``solref`` at ``timestep``: MuJoCo's (time constant, damping ratio), or with
+    :attr:`RigParams.contact_matched` the matched direct (−stiffness, −damping) of :func:`matched_solref`."""
+    if rig.contact_matched:
+        return matched_solref(rig.contact_timeconst, rig.contact_dampratio, timestep)
+    return [rig.contact_timeconst, rig.contact_dampratio]
+
+
+def matched_solref(timeconst: float, dampratio: float, h: float) -> list[float]:
+    """A direct ``solref`` (−k, −b) whose discrete contact has the poles of the continuous one at timestep ``h``.
+
+    MuJoCo's soft contact drives the penetration r as r″ = −b·r′ − k·r (at full impedance) with b = 2/tc and
+    k = 1/(tc·ζ)², a damped oscillator of ω = 1/(tc·ζ). The step evaluates that reference at the start of the step
+    and integrates semi-implicitly (v⁺ = v + h·a, r⁺ = r + h·v⁺): its map has determinant 1 − h·b and trace
+    2 − h·b − h²·k, so at h·ω ≈ 0.2 the contact rings slower and loses less per step than the continuous one (the
+    first-order timestep error of the contact fraction). Choosing b and k so that determinant and trace equal
+    those of the exact map (eigenvalues exp(λ·h)) gives the continuous oscillator's response at every step,
+    whatever ``h``; as h → 0 they tend to the plain (2/tc, 1/(tc·ζ)²). At partial impedance d < d_max MuJoCo
+    scales b by d/d_max and k by (d/d_max)² in either form, so the match holds at full impedance (d 0.95)."""
+    w = SOLIMP_D0 / SOLIMP_DMAX / (timeconst * dampratio)  # the continuous contact's ω at impedance d0
+    x = dampratio * w * h
+    det = np.exp(-2.0 * x)
+    if dampratio < 1.0:
+        trace = 2.0 * np.exp(-x) * np.cos(w * h * np.sqrt(1.0 - dampratio**2))
+    else:
+        trace = 2.0 * np.exp(-x) * np.cosh(w * h * np.sqrt(dampratio**2 - 1.0))
+    b = (1.0 - det) / h
+    k = (1.0 + det - trace) / h**2
+    scale = SOLIMP_DMAX / SOLIMP_D0  # at the shallow penetrations of this contact MuJoCo applies d0/d_max of each
+    return [-float(k * scale**2), -float(b * scale)]
 
 
 def _add_plate(spec: mujoco.MjSpec, names: SceneNames, plate_top: float) -> None:
@@ -317,6 +291,9 @@ class ContactRigSim(DrivenScene):
         self.spec = build_contact_spec(beam, twist_deg, gap, self.rig, integrator, h0)
         model = self.spec.compile()
         super().__init__(Physics(model))
+        if self.rig.contact_matched:  # the pair's solref follows the timestep
+            pair = model.pair("sole_plate").id
+            self.physics.on_timestep = lambda h: model.pair_solref.__setitem__(pair, contact_solref(self.rig, h))
         self.ramp = VelocityRamp(self.rig.vel_ramp_rate)
         stage_dof = self._stage_dof = int(model.jnt_dofadr[model.joint("stage").id])
         # the slider's own inertia: armature + the stage body (the beam acts on it as an external load)
@@ -349,6 +326,18 @@ class ContactRigSim(DrivenScene):
             power = stage_power(traj.t, ch["markers"][:, 0, 0], ch["pull_x"])
             th.heat(power, len(traj) * self.physics.timestep)
         return traj
+
+    def step_cost(self, hz: float) -> float:
+        """The physics' relative cost per simulated second at ``hz``: steps per second at the timestep it runs
+        (``CostsByFrequency``: the sim rig balances its segments with it)."""
+        h = self.fixed_timestep or self.timestep_for(abs(hz))
+        return 1e-4 / h
+
+    def same_regime(self, a: Trajectory, b: Trajectory, hz: float) -> bool:
+        """Two runs of one step in the same regime (``ChecksCuts``: the sim rig checks each segment cut with it)."""
+        from beambench.sim.scenes.contact_regimes import steps_agree  # that module builds on this one
+
+        return steps_agree(a, b, hz)
 
     def _plan(self, n: int, h: float) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         omega, theta = self.ramp.plan(n, h)

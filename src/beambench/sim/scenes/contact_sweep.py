@@ -26,7 +26,8 @@ from beambench.common.types import Floats
 from beambench.sim.engine.batch import rollout_batch, thread_count, window
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.models.registry import beam_model
-from beambench.sim.scenes.contact_rig import RigParams, build_contact_spec
+from beambench.sim.scene_params import RigParams
+from beambench.sim.scenes.contact_rig import build_contact_spec
 from beambench.sim.scenes.free_beam import equilibrium_qpos, slider_inertia, stage_controls
 from beambench.sim.scenes.registry import BatchJob, BatchTask, ContactTrace, JobRun, batched
 from beambench.sim.settings import SimSettings

@@ -96,6 +96,15 @@ class CostsByFrequency(Protocol):
 
 
 @runtime_checkable
+class ChecksCuts(Protocol):
+    """A scene whose state forgets its past only where its regime is robust (the contact rig): the sim rig cuts a
+    sweep into parallel segments only where a step run on from the carried state and the same step started from
+    rest agree (:meth:`same_regime`), and otherwise moves the cut to a later step."""
+
+    def same_regime(self, a: Trajectory, b: Trajectory, hz: float) -> bool: ...
+
+
+@runtime_checkable
 class WarmsUp(Protocol):
     """A scene whose beam may warm with the drive power (the contact rig's ``sim.thermal_drift``): its state, or
     None when the drift is off."""

@@ -33,7 +33,7 @@ from beambench.sim.engine.stepping import Physics, integrator_enum, quiet_mujoco
 from beambench.sim.models.beam import BeamModel, add_beam
 from beambench.sim.models.params import BeamParams
 from beambench.sim.models.registry import default_params, make_beam_model
-from beambench.sim.scenes.contact_rig import RigParams
+from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.drive import DrivenScene, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
 

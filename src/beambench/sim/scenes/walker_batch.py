@@ -21,8 +21,9 @@ import numpy as np
 from mujoco import rollout
 
 from beambench.sim.models.beam import BeamModel
+from beambench.sim.scene_params import WalkerParams
 from beambench.sim.scenes.drive import KinematicServo, VelocityRamp
-from beambench.sim.scenes.walker import WalkerParams, WalkerSim
+from beambench.sim.scenes.walker import WalkerSim
 from beambench.sim.settings import SimSettings
 
 STEADY_SETTLE_S = 3.0  # s after the ramp before the speed is steady (see the module docstring)

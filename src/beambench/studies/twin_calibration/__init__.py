@@ -8,7 +8,7 @@
 - :mod:`.search`: the search (lines, landmark steps, evolution, refine, verify), the same for every rig;
   :mod:`.evaluate`: the evaluation log, the evaluator, the settings; :mod:`.landmark_steps`;
 - :mod:`.checks`, :mod:`.verdict`: each target with its tolerance, and after the search whether the twin met it
-  and what limits a miss (the command exits 3 then); :mod:`.intervals`: the unknowns' intervals;
+  and what limits a miss (the command exits 5 then); :mod:`.intervals`: the unknowns' intervals;
 - :mod:`.report`, :mod:`.protocol_out`: what a calibration writes; :mod:`.targets`: what it fits to;
   :mod:`.written_run`: running a written protocol as its user will.
 
@@ -19,7 +19,14 @@ objective=..., base=..., write=..., summary=..., checks=...))``, imported below;
 """
 
 from beambench.studies.twin_calibration import contact, walker
-from beambench.studies.twin_calibration.evaluate import EvalLog, Evaluator, Interrupted, Point, SearchSettings
+from beambench.studies.twin_calibration.evaluate import (
+    EvalLog,
+    Evaluator,
+    Interrupted,
+    Point,
+    SearchSettings,
+    quick_help,
+)
 from beambench.studies.twin_calibration.report import write_report
 from beambench.studies.twin_calibration.rig import (
     RIGS,
@@ -46,6 +53,7 @@ __all__ = [
     "calibrate",
     "contact",
     "get_rig",
+    "quick_help",
     "register_rig",
     "unknowns_help",
     "walker",

@@ -40,7 +40,7 @@ class RigValue:
     si: float = 1.0
 
     def __call__(self, params: BeamParams) -> float:
-        from beambench.sim.scenes.contact_rig import RigParams
+        from beambench.sim.scene_params import RigParams
 
         return float(getattr(RigParams.with_overrides(params.rig), self.field)) / self.si
 
@@ -52,7 +52,7 @@ def neutral(params: BeamParams) -> float:
 
 def scale_friction(params: BeamParams, value: float) -> BeamParams:
     """The sole's friction scaled from the prior's own (its rig block, else the scene's default)."""
-    from beambench.sim.scenes.contact_rig import RigParams
+    from beambench.sim.scene_params import RigParams
 
     friction = float(RigParams.with_overrides(params.rig).friction) * float(value)
     return replace(params, rig={**params.rig, "friction": friction})
@@ -190,8 +190,8 @@ def contact_boxes(base: CalibrationBase) -> dict[str, tuple[float, float]]:
     without bounds. (The preload box is the gap's at the prior's sag; :func:`simulate_contact` keeps the gap
     inside h' wherever the other unknowns move the sag.)"""
     from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scene_params import RigParams
     from beambench.sim.scenes.contact_regimes import static_sag
-    from beambench.sim.scenes.contact_rig import RigParams
 
     p = prior_params(base)
     b = p.bounds
@@ -249,8 +249,8 @@ def simulate_contact(
     stepped run of the same protocol: a calibration fitted on them missed its targets once run
     (bench_calibrate.py's history)."""
     from beambench.sim.models.registry import make_beam_model
+    from beambench.sim.scene_params import RigParams
     from beambench.sim.scenes.contact_regimes import ContactTwin, static_sag, stepped_regime_map
-    from beambench.sim.scenes.contact_rig import RigParams
 
     params = calibrated_params(base, values)
     beam = make_beam_model(base.model, params)

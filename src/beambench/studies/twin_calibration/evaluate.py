@@ -18,7 +18,7 @@ import pandas as pd
 from beambench.common.jsonl import append_record, read_records
 from beambench.sim.settings import SimSettings
 from beambench.studies.executor import Pool, run_tasks
-from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, get_rig
+from beambench.studies.twin_calibration.rig import RIGS, CalibratableRig, CalibrationBase, get_rig
 from beambench.studies.twin_calibration.targets import Targets
 from beambench.studies.unknowns import Unknown
 
@@ -356,3 +356,18 @@ def identifiability(points: list[Point], free: list[Unknown]) -> dict[str, Any]:
         ]
         out["method"] = "covariance of the near-best points (unknowns scaled to their search range)"
     return out
+
+
+def quick_budget_s(rig: CalibratableRig) -> float:
+    """The wall-time budget of ``rig``'s ``--quick`` search (its own quick settings over ``SearchSettings.quick``'s):
+    the one figure ``calibrate sim --help`` states for ``--quick``."""
+    return float(SearchSettings.quick(**dict(rig.quick)).budget_s)
+
+
+def quick_help() -> str:
+    """``--quick``'s time per rig, for ``calibrate sim --help``, from each rig's quick budget."""
+    budgets = ", ".join(f"{rig.name} rig {quick_budget_s(rig) / 60:.1f} min" for rig in RIGS.values())
+    return (
+        f"A smaller, faster search: a wall-time budget of {budgets}, plus start-up and the last batch; on a "
+        "loaded machine fewer evaluations fit in it and its last runs take longer (docs/performance.md)."
+    )

@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from beambench.common.console import TimeLeft
 from beambench.sim.settings import SimSettings
 from beambench.studies.executor import Pool
 from beambench.studies.twin_calibration.evaluate import (
@@ -140,7 +141,11 @@ class Search:
         self.best: Point | None = None  # the best newly evaluated point (the coarse stage's early stop)
         self.stage_best: dict[str, float] = {}  # per stage: its objectives are comparable only within it
         self.progress = progress
-        self.task = progress.add_task("calibrating", total=None) if progress is not None else None
+        self.task = (  # the time left of the budget, read each time the line is shown (LogProgress, TimeLeft)
+            progress.add_task("calibrating", total=None, left=TimeLeft(settings.budget_s))
+            if progress is not None
+            else None
+        )
         self.bracketed = next((u for u in self.free if u.name == rig.bracket), None)
         self.t_record = self.last_batch_s = 0.0  # when the last batch was recorded, how long it took (over())
 

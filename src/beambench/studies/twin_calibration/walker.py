@@ -48,7 +48,7 @@ if TYPE_CHECKING:
 SPEED_FLOOR_MM_S = 20.0
 MISSING_LANDMARK = 3.0  # objective share of a landmark the twin's curve does not have (no reversal, no forward peak)
 LANDMARK_NAMES = {"reverses_at_hz": "speed reverses (backward → forward)", "peak_at_hz": "fastest forward at"}
-WALKER_UNKNOWNS = (  # the walker's foot mass, friction, offset radius (beambench.sim.scenes.walker.WalkerParams)
+WALKER_UNKNOWNS = (  # the walker's foot mass, friction, offset radius (beambench.sim.scene_params.WalkerParams)
     Unknown(
         "foot_mass",
         0.001,
@@ -187,7 +187,7 @@ def simulate_walker(
 ) -> dict:
     """Steady body speeds at ``frequencies`` for the fitted ``values`` (runs in a worker)."""
     from beambench.sim.models.registry import make_beam_model
-    from beambench.sim.scenes.walker import WalkerParams
+    from beambench.sim.scene_params import WalkerParams
     from beambench.sim.scenes.walker_batch import steady_speeds
 
     params = apply_values(_prior(base), WALKER_UNKNOWNS, values)
@@ -223,7 +223,7 @@ def write_walker_protocol(
         prior=base.params,
         model=base.model,
         shipped_protocol="walker_sweep.yaml",
-        params_note=f"; the {block} block\n# overrides the walker's parameters (beambench.sim.scenes.walker.WalkerParams).",
+        params_note=f"; the {block} block\n# overrides the walker's parameters (beambench.sim.scene_params.WalkerParams).",
         protocol_note=f"sim.params points at the calibrated parameter set (foot mass, friction and offset radius in its {block} block).",
         rig_label="walker",
     )

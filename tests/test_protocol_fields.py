@@ -1,0 +1,72 @@
+"""What a protocol may name: ``output.name`` uses only the documented fields (no attribute or index access on them,
+whatever they are), and a parameter set is used only by a model of the family its file says (docs/safety.md,
+"Inputs")."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+from beambench.acquisition.protocol.schema import NAME_FIELDS, ConfigError, parse_protocol
+from beambench.common.resources import USER_DIR_ENV, shipped_dir
+from conftest import cli, one_line_error
+
+BASE = "name: p\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.1\n"
+
+
+@pytest.mark.parametrize(
+    "template",
+    [
+        "{protocol.__class__.__mro__}",
+        "{protocol.__class__}",
+        "{rig.upper}",
+        "{date[0]}",
+        "{backend[__class__]}",
+        "{protocol.__len__.__self__}",
+        "{}",
+        "{1}",
+        "x_{protocol}_{Protocol}",
+    ],
+)
+def test_a_name_template_uses_only_the_documented_fields(template, tmp_path):
+    with pytest.raises(ConfigError) as exc:
+        parse_protocol(BASE + f'output: {{name: "{template}"}}\n', "p.yaml")
+    assert exc.value.field == "output.name" and "\n" not in str(exc.value)
+    proto = tmp_path / "p.yaml"
+    proto.write_text(BASE + f'output: {{name: "{template}"}}\n')
+    one_line_error(*cli("run", str(proto), "--out", str(tmp_path / "data"), "--rerun", "off"), "output.name")
+    assert not (tmp_path / "data").exists()
+
+
+def test_every_documented_field_and_its_format_spec_still_name_a_session():
+    template = "_".join(f"{{{f}}}" for f in NAME_FIELDS) + "_{date:>20}"
+    p = parse_protocol(BASE + f'output: {{name: "{template}"}}\n', "p.yaml")
+    assert p.output.name == template
+
+
+def _rod_set_as(tmp: Path, name: str) -> Path:
+    """The shipped rod parameter set (its file says ``model: rod``) copied to ``name``."""
+    path = tmp / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy(shipped_dir("sim_backend") / "rod_paper.yaml", path)
+    return path
+
+
+@pytest.mark.parametrize("given", ["a path", "a named set"])
+def test_a_parameter_set_of_another_model_family_is_refused(given, tmp_path, monkeypatch):
+    monkeypatch.setenv(USER_DIR_ENV, str(tmp_path / "user"))
+    if given == "a path":
+        params = str(_rod_set_as(tmp_path, "rod_params.yaml"))
+    else:  # named like a PRB3 set, in the user's folder where `sim.params: <name>` finds it
+        _rod_set_as(tmp_path / "user" / "sim_backend", "prb3_renamed.yaml")
+        params = "renamed"
+    proto = tmp_path / "p.yaml"
+    proto.write_text(BASE + f"sim: {{model: prb3, params: {params}}}\n")
+    line = one_line_error(*cli("run", str(proto), "--dry-run"), "model: rod", "prb3")
+    assert "rod_params.yaml" in line or "prb3_renamed.yaml" in line, line
+    proto.write_text(BASE + f"sim: {{model: rod5, params: {params}}}\n")
+    if given == "a path":  # the same file for a rod: its own family, accepted
+        code, out = cli("run", str(proto), "--dry-run")
+        assert code == 0, out

@@ -1,0 +1,141 @@
+"""The run's logic on an in-memory rig with a manual clock (tests/fake_rig.py): step timing, what the hub fans
+out, monitor pauses and their limit, faults, sink failures and stop requests, exactly and without waiting."""
+
+from __future__ import annotations
+
+import pytest
+
+from beambench.acquisition.capabilities import MotorLimits
+from beambench.acquisition.hub import Hub
+from beambench.acquisition.monitors import MocapLost
+from beambench.acquisition.protocol.plan import Step
+from beambench.acquisition.runner import Runner
+from beambench.acquisition.stop_signals import StopSignal
+from beambench.acquisition.streams import LOADCELL, MOCAP, MOTOR
+from fake_rig import NS, START_NS, FakeRig, RecordingSink
+
+LIMITS = MotorLimits(max_frequency_hz=20.0, max_current_a=5.0, amplitude_mm=2.0)
+STEPS = [Step(0, 5.0, 0.5, 1.0), Step(1, 10.0, 0.5, 1.0), Step(2, 15.0, 0.3, 0.7)]
+
+
+def _run(rig: FakeRig, steps=STEPS, monitors=(), sinks=None, critical=True, **kw):  # type: ignore[no-untyped-def]
+    sink = RecordingSink()
+    others = list(sinks or [])
+    hub = Hub([sink, *others], critical=(sink,) if critical else ())
+    hub.open([s.describe() for s in rig.streams])
+    rig.open()
+    monitors = list(monitors)
+    for m in monitors:
+        hub.sinks.append(m)
+        m.open([s.describe() for s in rig.streams])
+    result = Runner(rig, hub, steps, LIMITS, poll_s=0.1, monitors=monitors, **kw).run()
+    return result, sink
+
+
+def test_steps_run_in_order_for_exactly_their_windows_and_every_sample_reaches_the_sinks():
+    rig = FakeRig()
+    result, sink = _run(rig)
+    assert result.status == "completed" and result.steps_done == 3
+    t = 0.0
+    for step in STEPS:  # each step: commanded at its start, settled after settle_s, ended after record_s
+        rec = sink.steps[step.index]
+        assert rec.status == "done" and rec.frequency_hz == step.frequency_hz
+        assert (rec.t_start_ns - START_NS) / NS == pytest.approx(t)
+        assert (rec.t_settled_ns - rec.t_start_ns) / NS == pytest.approx(step.settle_s)
+        assert (rec.t_end_ns - rec.t_settled_ns) / NS == pytest.approx(step.record_s)
+        t += step.duration_s
+    commands = [(round(at, 9), what, hz) for at, what, hz in rig.motor.commands]
+    assert commands[:4] == [
+        (0.0, "arm", 0.0),
+        (0.0, "frequency", 5.0),
+        (1.5, "frequency", 10.0),
+        (3.0, "frequency", 15.0),
+    ]
+    assert commands[4][1] == "idle" and rig.calls == ["open", "close"]  # idled by the runner, then closed
+    # every sample up to the end of the run, exactly once (rate × duration + the sample at t = 0)
+    total = sum(s.duration_s for s in STEPS)
+    for stream, rate in ((MOCAP, rig.mocap.spec.rate_hz), (LOADCELL, rig.loadcell.spec.rate_hz)):
+        assert sink.rows(stream) == round(total * rate) + 1, stream
+    assert sink.rows(MOTOR) == round(total * rig.motor.spec.rate_hz) + 1
+    assert sink.kinds()[:2] == ["start", "armed"] and sink.kinds()[-1] == "stop" and sink.closed
+    assert "idle" in sink.kinds()
+
+
+def test_a_mocap_gap_pauses_the_record_window_and_the_step_records_that_much_longer():
+    """Mocap silent from 0.8 s to 1.3 s of rig time (inside step 0's record window, 0.5-1.5 s): the monitor
+    (0.2 s timeout) pauses the window when the gap exceeds the timeout and resumes with the first frame; the
+    window's clock stops meanwhile, and the polls that counted bad data before the pause are taken back."""
+    rig = FakeRig(mocap={"silent": [(0.8, 1.3)]})
+    result, sink = _run(rig, steps=[Step(0, 5.0, 0.5, 1.0)], monitors=[MocapLost(0.2)])
+    assert result.status == "completed"
+    kinds = sink.kinds()
+    assert kinds.count("pause") == 1 and kinds.count("resume") == 1
+    paused = next(t for k, t, _ in sink.events if k == "pause")
+    resumed = next(t for k, t, _ in sink.events if k == "resume")
+    frame_s = 1 / rig.mocap.spec.rate_hz  # the last frame came one period before the gap
+    assert 0.8 - frame_s + 0.2 < paused <= 0.8 + 0.2 + 0.1 + 1e-9  # the first poll that sees a gap over the timeout
+    assert 1.3 <= resumed <= 1.3 + 0.1 + 1e-9  # the first poll with good data again
+    rec = sink.steps[0]
+    recorded_s = (rec.t_end_ns - rec.t_settled_ns) / NS
+    # 1 s of good data: the window ran 1 s plus the bad stretch (0.8 s → resumed), to poll granularity
+    assert recorded_s == pytest.approx(1.0 + (resumed - 0.8), abs=0.1 + 1e-9)
+    assert recorded_s > 1.0 + 0.5
+
+
+def test_a_pause_longer_than_the_limit_stops_the_run_as_a_fault_with_the_motor_idled():
+    rig = FakeRig(mocap={"silent": [(0.7, 99.0)]})
+    result, sink = _run(
+        rig, steps=[Step(0, 5.0, 0.5, 1.0), Step(1, 6.0, 0.5, 1.0)], monitors=[MocapLost(0.2)], max_pause_s=1.0
+    )
+    assert result.status == "fault" and "max_pause_s" in result.message and result.steps_done == 0
+    assert sink.steps[0].status == "fault" and 1 not in sink.steps
+    stopped_at = (sink.steps[0].t_end_ns - START_NS) / NS
+    assert 0.7 + 0.2 + 1.0 < stopped_at <= 0.7 + 0.2 + 1.0 + 0.3  # timeout, then the pause limit, in polls
+    idle_at = next(at for at, what, _ in rig.motor.commands if what == "idle")
+    assert idle_at == pytest.approx(stopped_at) and rig.calls[-1] == "close"
+
+
+def test_a_device_fault_mid_step_idles_the_motor_and_marks_the_step():
+    rig = FakeRig(motor_fault_at_s=2.05)  # during step 1's settle window (1.5-2.0 s is settle: 2.05 is record)
+    result, sink = _run(rig)
+    assert result.status == "fault" and "failed at 2.05 s" in result.message and result.steps_done == 1
+    assert sink.steps[0].status == "done" and sink.steps[1].status == "fault" and 2 not in sink.steps
+    assert (sink.steps[1].t_end_ns - START_NS) / NS == pytest.approx(2.1)  # the poll that found it
+    whats = [what for _, what, _ in rig.motor.commands]
+    assert whats[-2:] == ["idle", "idle"]  # the runner's idle, then the rig's on close
+    assert sink.kinds()[-1] == "fault"
+
+
+def test_a_critical_sink_that_fails_stops_the_run_and_a_viewer_that_fails_does_not():
+    class BrokenViewer(RecordingSink):
+        label = "viewer"
+
+        def write(self, batch):  # type: ignore[no-untyped-def]
+            raise RuntimeError("viewer gone")
+
+    rig = FakeRig()
+    result, sink = _run(rig, sinks=[BrokenViewer()])
+    assert result.status == "completed" and len(sink.steps) == 3  # the viewer dropped, the run went on
+    rig = FakeRig()
+    failing = RecordingSink(fail_on=lambda b: (b.host_time_ns[-1] - START_NS) / NS > 2.0)
+    hub = Hub([failing], critical=(failing,))
+    hub.open([s.describe() for s in rig.streams])
+    rig.open()
+    result = Runner(rig, hub, STEPS, LIMITS, poll_s=0.1).run()
+    assert result.status == "failed" and "no space left on device" in result.message
+    assert failing.steps[1].status == "failed" and rig.motor.commands[-2][1] == "idle" and failing.closed
+
+
+def test_a_stop_request_between_polls_interrupts_the_run_at_the_next_poll():
+    stop = StopSignal()
+    rig = FakeRig()
+
+    def progress(index: int, hz: float, waited: float) -> None:
+        if index == 1 and rig.clock.now_ns() - START_NS >= 2.2 * NS:
+            stop.request()
+
+    result, sink = _run(rig, stop=stop, on_progress=progress)
+    assert result.status == "interrupted" and result.steps_done == 1
+    assert sink.steps[1].status == "aborted"
+    assert (sink.steps[1].t_end_ns - START_NS) / NS == pytest.approx(2.2)  # no poll after the request
+    assert [w for _, w, _ in rig.motor.commands].count("frequency") == 2
