@@ -98,8 +98,13 @@ def main() -> None:
     except BaseException as exc:  # out of memory even for the one line (the handlers below allocate): a line built
         # at start, and no interpreter shutdown (it would need memory too); under a memory limit an extension that
         # fails to allocate may not even set its error (SystemError: "error return without exception set")
-        if out_of_memory(exc) is None and not (isinstance(exc, SystemError) and memory_limited()):
-            raise
+        if not isinstance(exc, MemoryError):  # checked first: the check below allocates
+            try:
+                oom = out_of_memory(exc) is not None or (isinstance(exc, SystemError) and memory_limited())
+            except MemoryError:
+                oom = True
+            if not oom:
+                raise
         _out_of_memory_exit(None)
 
 
@@ -114,12 +119,15 @@ def _out_of_memory_exit(reason: str | None) -> NoReturn:
         line = f"beambench: error: out of memory ({reason}); give the command more memory\n".encode() if reason else b""
     except MemoryError:
         line = b""
-    with contextlib.suppress(BaseException):
-        sys.stdout.flush()
-    with contextlib.suppress(BaseException):
-        sys.stderr.flush()
-    with contextlib.suppress(BaseException):
+    for flush in (sys.stdout.flush, sys.stderr.flush):  # plain try: a context manager is an allocation
+        try:  # noqa: SIM105
+            flush()
+        except BaseException:
+            pass
+    try:  # noqa: SIM105
         os.write(2, line or _OUT_OF_MEMORY)
+    except BaseException:
+        pass
     os._exit(1)
 
 
