@@ -5,6 +5,12 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+from typing import NoReturn
+
+from beambench.common import early_signals
+
+if __name__ == "__main__" or os.path.basename(sys.argv[0]) == "beambench":  # the program (not a test's import)
+    early_signals.hold()  # a stop signal during the imports below is taken by the command, not lost in a traceback
 
 # beambench never draws with MuJoCo's OpenGL (its figures are matplotlib's, its live view Rerun's). Left unset,
 # importing mujoco imports GLFW, and GLFW's import starts a `python -c` probe of its library version: a process
@@ -16,7 +22,6 @@ import typer
 
 from beambench import __version__
 from beambench.commands import (
-    EXIT_FAULT,
     EXIT_STOPPED,
     HELP_MARKUP,
     STANDALONE,
@@ -30,7 +35,7 @@ from beambench.commands import (
     run,
     sweep,
 )
-from beambench.common.out_of_memory import out_of_memory
+from beambench.common.out_of_memory import memory_limited, out_of_memory, preload_blas
 
 
 def _version(value: bool) -> None:
@@ -71,8 +76,15 @@ for _module in COMMAND_MODULES:
 def main() -> None:
     """The ``beambench`` entry point: usage errors come out as one line like every other error (exit 2)."""
     STANDALONE["process"] = True
+    # the commands that take stop signals themselves take the ones that came while importing; for the others they
+    # are raised again now
+    early_signals.release(sys.argv[1:2] == ["run"] or sys.argv[1:3] == ["calibrate", "sim"])
     try:
         _main_inner()
+    except KeyboardInterrupt:  # Ctrl-C before a command took its signals (imports): one line, never exit 130
+        with contextlib.suppress(OSError):
+            typer.echo("beambench: aborted", err=True)
+        sys.exit(EXIT_STOPPED)
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
         hdf5 = sys.modules.get("beambench.sinks.hdf5")
@@ -83,9 +95,46 @@ def main() -> None:
                 sys.stderr.flush()
             os._exit(code)
         raise
+    except BaseException as exc:  # out of memory even for the one line (the handlers below allocate): a line built
+        # at start, and no interpreter shutdown (it would need memory too); under a memory limit an extension that
+        # fails to allocate may not even set its error (SystemError: "error return without exception set")
+        if not isinstance(exc, MemoryError):  # checked first: the check below allocates
+            try:
+                oom = out_of_memory(exc) is not None or (isinstance(exc, SystemError) and memory_limited())
+            except MemoryError:
+                oom = True
+            if not oom:
+                raise
+        _out_of_memory_exit(None)
+
+
+_OUT_OF_MEMORY = b"beambench: error: out of memory; give the command more memory\n"  # built before it is needed
+
+
+def _out_of_memory_exit(reason: str | None) -> NoReturn:
+    """One line (naming ``reason`` if the memory for it is there), exit 1 at once: with no memory left the
+    interpreter's own shutdown fails with lines of its own and exit 120. A run that had armed the motor idled it
+    on its way out; its session file is closed."""
+    try:
+        line = f"beambench: error: out of memory ({reason}); give the command more memory\n".encode() if reason else b""
+    except MemoryError:
+        line = b""
+    for flush in (sys.stdout.flush, sys.stderr.flush):  # plain try: a context manager is an allocation
+        try:  # noqa: SIM105
+            flush()
+        except BaseException:
+            pass
+    try:  # noqa: SIM105
+        os.write(2, line or _OUT_OF_MEMORY)
+    except BaseException:
+        pass
+    os._exit(1)
 
 
 def _main_inner() -> None:
+    blas = preload_blas()  # under a memory limit: OpenBLAS failing to start its threads is not a Ctrl-C
+    if blas is not None:
+        _out_of_memory_exit(blas)
     try:
         code = app(standalone_mode=False, prog_name="beambench")
     except typer.Abort:  # click's answer to KeyboardInterrupt or EOFError outside a run (a prompt, the imports)
@@ -98,9 +147,7 @@ def _main_inner() -> None:
             reason = out_of_memory(exc)
             if reason is None:
                 raise
-            with contextlib.suppress(OSError):  # a run that had armed the motor idled it on its way out
-                typer.echo(f"beambench: error: out of memory ({reason}); give the command more memory", err=True)
-            sys.exit(EXIT_FAULT)
+            _out_of_memory_exit(reason)
         ctx = getattr(exc, "ctx", None)
         if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:  # bare ``beambench`` or a group
             typer.echo(ctx.get_help())

@@ -72,10 +72,16 @@ class ReportsHealth(Protocol):
 @runtime_checkable
 class RefusesForeign(Protocol):
     """A transport that accepts only its device's endpoint: ``forged`` datagrams came from any other sender,
-    ``garbled`` ones from the device but were no frame (the emulated rig's loopback CAN bus)."""
+    ``garbled`` ones from the device but were no frame, ``kernel_dropped`` ones the kernel dropped unread (its
+    buffer full); :meth:`flood` names a flood (the emulated rig's loopback CAN bus)."""
 
     forged: int
     garbled: int
+    kernel_dropped: int
+
+    def flood(self) -> str:
+        """``flood: N datagrams from host:port dropped …`` when the transport was flooded, else ""."""
+        ...
 
 
 @runtime_checkable

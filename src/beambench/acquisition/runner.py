@@ -134,7 +134,7 @@ class Runner:
                 if self.stop.requested:  # a fault raised while stopping (e.g. a device closed under us)
                     result = RunResult("interrupted", self.steps_done, f"{self.stop.reason}; then {exc}")
                 else:
-                    result = RunResult("fault", self.steps_done, f"device fault: {exc}")
+                    result = RunResult("fault", self.steps_done, f"device fault: {exc}{self._during_flood()}")
             except MemoryError:  # the shutdown below idles the motor without allocating; then one line
                 result = RunResult("error", self.steps_done, "out of memory (MemoryError)")
             except RuntimeError as exc:
@@ -161,6 +161,31 @@ class Runner:
                 text = f"{stream}: {lost} frames lost of {lost + got} ({100 * lost / (lost + got):.1f} %)"
                 self._log_event(now_ns, "lost", text)
                 result.warnings.append(text)
+
+    def _say_flood(self, now_ns: int, health: dict[str, dict[str, Any]], result: RunResult) -> None:
+        """A link flooded with datagrams not from its device: a ``flood`` event naming the sender and how many were
+        dropped, and a warning (said on stderr), once per link at the end of the run."""
+        for stream, counts in sorted(health.items()):
+            flood = counts.get("flood")
+            if isinstance(flood, str) and flood:
+                text = f"{stream}: {flood}"
+                self._log_event(now_ns, "flood", text)
+                if "during a flood" not in result.message:  # a fault's line names it already
+                    result.warnings.append(text)
+
+    def _during_flood(self) -> str:
+        """``; during a flood: …`` when a link was flooded (a fault then follows from the frames the flood pushed
+        out of the buffers, not from the device), else ""."""
+        if not isinstance(self.rig, ReportsDeviceHealth):
+            return ""
+        try:
+            health = self.rig.device_health()
+        except Exception:
+            return ""
+        floods = [
+            f"{stream}: {c['flood'].removeprefix('flood: ')}" for stream, c in sorted(health.items()) if c.get("flood")
+        ]
+        return f" (during a flood: {'; '.join(floods)})" if floods else ""
 
     def _log_event(self, now_ns: int, kind: str, message: str) -> None:
         """An event during the shutdown: a sink failing now is in ``hub.failure``, never raised."""
@@ -301,6 +326,8 @@ class Runner:
                 self.rig.motor.idle()
                 if isinstance(self.rig.motor, ConfirmsIdle):
                     said = result.idle = self.rig.motor.confirm_idle()
+            except MemoryError:  # the idle frames went out (they need no memory); its confirmation could not
+                said = result.idle = "motor commanded to idle (out of memory: not confirmed)"
             except Exception as exc:  # the idle attempt must not hide the original problem
                 self._log_event(self.rig.clock.now_ns(), "error", f"idle failed: {exc}")
             self._log_event(self.rig.clock.now_ns(), "idle", said)
@@ -327,9 +354,10 @@ class Runner:
                 except Exception as exc:
                     health = {"error": {"message": str(exc)}}
                 for stream, counts in sorted(health.items()):
-                    listed = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+                    listed = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()) if k != "flood")  # its own event
                     self._log_event(now, "devices", f"{stream}: {listed}")
                 self._say_lost(now, health, result)
+                self._say_flood(now, health, result)
             kind = {"completed": "stop"}.get(result.status, result.status)
             if result.status != "failed" and self.hub.failure is not None:
                 kind, result.message = "failed", f"{self.hub.failure}; the run had {result.status}: {result.message}"

@@ -24,6 +24,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from beambench.common import early_signals
+
 
 class StopSignal:
     """A stop request: set by the signal handlers (or by :meth:`request`), read by the runner at every poll."""
@@ -124,6 +126,8 @@ def stop_on_signals(stop: StopSignal | None = None, *, then_ignore: bool = False
             if signum in DEFAULT_SIGNALS and current is not signal.SIG_DFL:
                 continue  # ignored on purpose (nohup), or someone else's (a profiler): left alone
             old[signum] = signal.signal(signum, handler)
+        for signum in early_signals.take():  # a stop while the command line was importing
+            stop.request(signum)
         yield stop
     finally:
         for signum, previous in old.items():

@@ -227,7 +227,11 @@ def _peer_entry(fd: int) -> None:
         spec = conn.recv()
     except EOFError:
         return
-    _peer_main(conn, spec)
+    try:
+        _peer_main(conn, spec)
+    except BaseException as exc:  # building the peers failed (the physics' compile out of memory …): one line
+        with contextlib.suppress(BaseException):
+            conn.send(("error", _failure(exc)))
 
 
 @dataclasses.dataclass
@@ -315,8 +319,20 @@ def _peer_main(conn: Connection, spec: PeerSpec) -> None:
     except (EOFError, OSError, KeyboardInterrupt):  # the parent went away (killed: SIGKILL, a crash)
         if peers.started:
             _await_watchdog(peers.odrive, peers.config.watchdog_timeout_s)
+    except BaseException as exc:  # a peer failed (a thread that cannot start): one line to the parent, no traceback
+        with contextlib.suppress(BaseException):
+            conn.send(("error", _failure(exc)))
     finally:
         _stop_peers(conn, peers)
+
+
+def _failure(exc: BaseException) -> str:
+    """What stopped the peers, in one line: out of memory named as such."""
+    from beambench.common.out_of_memory import out_of_memory
+
+    reason = out_of_memory(exc)
+    text = str(exc).strip().splitlines()[0][:200] if str(exc).strip() else ""
+    return f"out of memory ({reason})" if reason else f"{type(exc).__name__}: {text}"
 
 
 def _serve(conn: Connection, peers: _Peers, inject: dict[str, Any]) -> None:
@@ -351,7 +367,7 @@ def _stop_peers(conn: Connection, peers: _Peers) -> None:
     motive, mcu, physics, odrive = peers.motive, peers.mcu, peers.physics, peers.odrive
     if peers.stop_mcu is not None:
         peers.stop_mcu.cancel()
-    for peer in (mcu, motive, physics, odrive):
+    for peer in (mcu, motive, odrive):  # the senders first; the physics (nothing samples it now) after the report
         with contextlib.suppress(Exception):
             peer.stop()
     with contextlib.suppress(Exception):
@@ -378,6 +394,8 @@ def _stop_peers(conn: Connection, peers: _Peers) -> None:
         conn.send(("report", report))
     with contextlib.suppress(Exception):
         conn.close()
+    with contextlib.suppress(Exception):
+        physics.stop()
 
 
 def _await_watchdog(odrive: Any, timeout_s: float) -> None:
@@ -411,6 +429,10 @@ class _Snapshot:
 
     def snapshot(self) -> dict[str, Any]:
         return self._peers.odrive_snapshot()
+
+
+REPORT_TIMEOUT_S = 3.0  # how long stopping the peers waits for their report
+EXIT_GRACE_S = 0.5  # then for their process to end before it is killed
 
 
 class PeerProcess:
@@ -476,6 +498,8 @@ class PeerProcess:
             kind, value = self._conn.recv()
         except (EOFError, OSError):
             raise self._lost() from None
+        if kind == "error":  # a peer failed (its one line)
+            raise DeviceFault(f"emulated peers: {value}")
         if kind != what:
             raise DeviceFault(f"emulated peers: expected {what!r}, got {kind!r}")
         return value
@@ -503,21 +527,25 @@ class PeerProcess:
         return dict(self._ask("snapshot"))
 
     def stop(self) -> None:
-        """Stop the peers and keep their report. Idempotent."""
+        """Stop the peers and keep their report; bounded: at most :data:`REPORT_TIMEOUT_S` for the report (the
+        peers stop their senders first, then report), then :data:`EXIT_GRACE_S` for the process to end, then it is
+        killed (it has stopped everything; its interpreter's teardown is not worth a run's exit waiting for it,
+        nor is a peer that hangs). Idempotent."""
         with self._lock:
             if self.report is None and self._alive():
                 with contextlib.suppress(Exception):
                     self._conn.send(("stop", None))
-                    deadline = time.monotonic() + 10.0
+                    deadline = time.monotonic() + REPORT_TIMEOUT_S
                     while self.report is None and self._conn.poll(max(0.0, deadline - time.monotonic())):
                         kind, value = self._conn.recv()
                         if kind == "report":
                             self.report = value
             try:
-                self._proc.wait(timeout=5.0)
+                self._proc.wait(timeout=EXIT_GRACE_S)
             except subprocess.TimeoutExpired:
-                self._proc.kill()
-                self._proc.wait(timeout=2.0)
+                self._proc.kill()  # SIGKILL: ends even a stopped (SIGSTOP) process
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    self._proc.wait(timeout=2.0)
             with contextlib.suppress(Exception):
                 self._conn.close()
             if self.report is not None:

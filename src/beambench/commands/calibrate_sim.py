@@ -4,6 +4,8 @@ the last stderr line the verdict (every target met, or the misses with what limi
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any, NoReturn
 
@@ -48,20 +50,61 @@ def _fail(message: str) -> NoReturn:
     raise typer.Exit(EXIT_USAGE)
 
 
-def _interrupted(log: Path) -> NoReturn:
+def _interrupted(log: Path | None) -> NoReturn:
     """One line saying where the finished evaluations are and how to resume; exit :data:`EXIT_STOPPED` (as every
-    command stopped by Ctrl-C)."""
+    command stopped by Ctrl-C). ``log`` is None when the stop came before the log was named."""
+    import contextlib
     import shlex
     import sys
 
-    kept = sum(1 for _ in log.open("rb")) if log.is_file() else 0
+    kept = sum(1 for _ in log.open("rb")) if log is not None and log.is_file() else 0
     again = shlex.join(["beambench", *sys.argv[1:]]) if sys.argv[1:2] == ["calibrate"] else "the same command"
-    typer.echo(
-        f"beambench: calibration interrupted: {kept} evaluations kept in {log}; to resume, run {again} "
-        "again (same --out and --name): they are reused",
-        err=True,
-    )
+    where = f"{kept} evaluations kept in {log}" if log is not None else "before its first evaluation"
+    with contextlib.suppress(OSError):  # a closed terminal (SIGHUP) cannot take it: the exit code still tells
+        typer.echo(
+            f"beambench: calibration interrupted: {where}; to resume, run {again} again (same --out and --name): "
+            "they are reused",
+            err=True,
+        )
     raise typer.Exit(EXIT_STOPPED)
+
+
+@contextmanager
+def _interrupt_on_signals() -> Iterator[list[int]]:
+    """While inside, the stop signals interrupt the calibration as Ctrl-C does (a ``KeyboardInterrupt`` in the main
+    thread: the search stops its workers and keeps its log), taken as ``run`` takes them: SIGINT, SIGTERM and
+    SIGQUIT always — also where a shell started the command as a background job, which ignores SIGINT —, the
+    others where their disposition is the default. Only the first raises (one that came while the command line
+    was importing is in the list yielded, for the caller to raise); later ones are counted in the list yielded (a
+    second Ctrl-C cannot cut the workers' shutdown short). After, they stay ignored when this is the command line
+    (it is about to say its last line and exit); called in-process (a test), the handlers are put back."""
+    import signal
+    import threading
+
+    from beambench.acquisition.stop_signals import ALWAYS_SIGNALS, DEFAULT_SIGNALS
+    from beambench.commands import STANDALONE
+    from beambench.common import early_signals
+
+    got: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield got
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        got.append(signum)
+        if len(got) == 1:
+            raise KeyboardInterrupt
+
+    taken = [
+        s for s in ALWAYS_SIGNALS + DEFAULT_SIGNALS if s in ALWAYS_SIGNALS or signal.getsignal(s) is signal.SIG_DFL
+    ]
+    previous = {signum: signal.signal(signum, handler) for signum in taken}
+    try:
+        got += early_signals.take()  # a stop while the command line was importing: the caller raises it
+        yield got
+    finally:
+        for signum, before in previous.items():
+            signal.signal(signum, signal.SIG_IGN if STANDALONE["process"] or before is None else before)
 
 
 def default_out() -> Path:
@@ -118,6 +161,35 @@ def sim(
     """Fit the twin's unknowns so that it reproduces a session's per-step results or a targets file; writes a
     runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
     whether the twin reached it."""
+    log: list[Path] = []  # the evaluation log, once named
+    with _interrupt_on_signals() as got:
+        try:
+            if got:
+                raise KeyboardInterrupt
+            _sim(session, targets, out, workers, scheduler, budget_s, quick, name, free, log)
+        except KeyboardInterrupt:  # a stop signal, from the first line on: every finished evaluation is kept
+            _interrupted(log[0] if log else None)
+        except Exception:
+            if got:  # what the interrupt became where it landed (in a C extension's init: an ImportError)
+                _interrupted(log[0] if log else None)
+            raise
+        if got:  # a stop that landed where it could not raise (a cleanup that swallowed it): still said
+            _interrupted(log[0] if log else None)
+
+
+def _sim(
+    session: Path | None,
+    targets: Path | None,
+    out: Path | None,
+    workers: int | None,
+    scheduler: str | None,
+    budget_s: float,
+    quick: bool,
+    name: str | None,
+    free: str | None,
+    log: list[Path],
+) -> None:
+    """The body of :func:`sim`; ``log`` gets the evaluation log's path as soon as it is known."""
     from dataclasses import replace
 
     from rich.progress import BarColumn, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -147,6 +219,7 @@ def sim(
     except ValueError as exc:
         _fail(str(exc))
     out_dir = out or default_out()
+    log.append(out_dir / f"{name}.evals.jsonl")
     _check_outputs(out_dir, name)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -172,8 +245,6 @@ def sim(
         report = write_report(result, tg, out_dir, name)
     except (BeambenchError, ExecutorError) as exc:
         _fail(str(exc))
-    except KeyboardInterrupt:  # Ctrl-C: every finished evaluation is in the log, which a rerun reuses
-        _interrupted(out_dir / f"{name}.evals.jsonl")
     _finish(result, report)
 
 

@@ -7,7 +7,7 @@ Each is a resource running out, not a bug, and gets one line instead of a traceb
 
 from __future__ import annotations
 
-__all__ = ["out_of_memory"]
+__all__ = ["memory_limited", "out_of_memory", "preload_blas"]
 
 _NO_MEMORY = ("could not allocate memory", "cannot allocate memory", "failed to map segment", "can't start new thread")
 _CHAIN = 8  # how far down __cause__/__context__ to look
@@ -25,4 +25,44 @@ def out_of_memory(exc: BaseException) -> str | None:
         if any(m in text.lower() for m in _NO_MEMORY):
             return f"{type(seen).__name__}: {text[:160]}"
         seen = seen.__cause__ or seen.__context__
+    return None
+
+
+def memory_limited() -> bool:
+    """Does this process run under an address-space limit (``prlimit --as``, ``ulimit -v``)?"""
+    import resource
+
+    return resource.getrlimit(resource.RLIMIT_AS)[0] != resource.RLIM_INFINITY
+
+
+class _BlasFailed(Exception):
+    """Raised by the SIGINT handler of :func:`preload_blas`: OpenBLAS signalled that it could not start."""
+
+
+def _blas_failed(signum: int, frame: object) -> None:
+    raise _BlasFailed  # ends the import at once: OpenBLAS carries on without its threads and may hang
+
+
+def preload_blas() -> str | None:
+    """Under an address-space limit (``prlimit --as``, ``ulimit -v``), import numpy now, with SIGINT taken as
+    OpenBLAS failing: OpenBLAS, loaded with it, prints its own lines and raises SIGINT at
+    its own process when it cannot start its threads, which would end the command as if by Ctrl-C (exit 130).
+    Returns what ran out if that happened (or the import ran out of memory), else None. Without a limit it does
+    nothing (the command imports them when it needs them). Main thread only."""
+    import signal
+
+    if not memory_limited():
+        return None
+    previous = signal.signal(signal.SIGINT, _blas_failed)
+    try:
+        import numpy  # noqa: F401  (SciPy's own OpenBLAS is not loaded here: under a tight limit its start spins)
+    except _BlasFailed:
+        return "OpenBLAS could not start its threads"
+    except Exception as exc:  # under the limit an import fails in many shapes (a SystemError, an ImportError)
+        reason = out_of_memory(exc)
+        if reason is None and not isinstance(exc, ImportError):
+            raise
+        return reason
+    finally:
+        signal.signal(signal.SIGINT, previous)
     return None

@@ -6,8 +6,10 @@ a two-ended bus: one UDP socket bound to ``127.0.0.1`` (never a wider interface)
 socket and accepting datagrams from that socket only, so the driver and the emulator hear only each other, as on a
 real bus (the watchdog is not fed by the emulator's own heartbeats). A datagram from any other sender (another
 program on this machine) is dropped and counted (``forged``), one that is not a python-can frame too
-(``garbled``) — as the NatNet client does with its mocap datagrams. Frames are packed as python-can's
-``udp_multicast`` interface packs them.
+(``garbled``) — as the NatNet client does with its mocap datagrams. Refused datagrams are counted by sender and the
+kernel's drops (a buffer filled by a flood) read, so that a flood is named (:meth:`flood`). The receive buffer is
+asked for :data:`RECEIVE_BUFFER` bytes, so that a burst of junk does not push the device's frames out. Frames are
+packed as python-can's ``udp_multicast`` interface packs them.
 
 Each end binds a free port of its own (port 0); the other end learns it in the rig's handshake (:meth:`connect`).
 """
@@ -22,10 +24,13 @@ from typing import Any
 import can
 from can.interfaces.udp_multicast.utils import pack_message, unpack_message
 
+from beambench.devices.foreign import ForeignSenders
+
 __all__ = ["LOOPBACK", "LoopbackCanBus"]
 
 LOOPBACK = "127.0.0.1"
 MAX_DATAGRAM = 4096
+RECEIVE_BUFFER = 4 << 20  # asked for; the kernel caps it at net.core.rmem_max
 
 
 class LoopbackCanBus(can.BusABC):
@@ -35,6 +40,7 @@ class LoopbackCanBus(can.BusABC):
     def __init__(self, port: int = 0, peer_port: int | None = None, host: str = LOOPBACK, **kwargs: Any) -> None:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
             self._sock.bind((host, port))
         except OSError as exc:
             self._sock.close()
@@ -44,7 +50,7 @@ class LoopbackCanBus(can.BusABC):
         self._peer: tuple[str, int] | None = None
         self._packed: dict[int, tuple[can.Message, bytes]] = {}  # keep_packed(): id -> (message, its datagram)
         self.received = 0  # frames accepted from the other end
-        self.forged = 0  # datagrams from any other sender: dropped
+        self.refused = ForeignSenders()  # datagrams from any other sender (dropped), by sender; the kernel's drops
         self.garbled = 0  # datagrams from the other end that are no python-can frame: dropped
         self.channel_info = f"loopback UDP {host}:{self.port}"
         super().__init__(channel=f"{host}:{self.port}", **kwargs)
@@ -63,7 +69,7 @@ class LoopbackCanBus(can.BusABC):
             return None, False
         data, sender = self._sock.recvfrom(MAX_DATAGRAM)
         if self._peer is None or sender[:2] != self._peer:
-            self.forged += 1
+            self.refused.add(sender)
             return None, False
         try:
             msg = unpack_message(data, check=True)
@@ -88,9 +94,30 @@ class LoopbackCanBus(can.BusABC):
         process may have none left)."""
         self._packed[id(msg)] = (msg, pack_message(msg))
 
+    @property
+    def forged(self) -> int:
+        """Datagrams from any sender but the other end (dropped)."""
+        return self.refused.total
+
+    @property
+    def kernel_dropped(self) -> int:
+        """Datagrams the kernel dropped before this end read them (its receive buffer full)."""
+        self._note_kernel()
+        return self.refused.kernel_dropped
+
+    def flood(self) -> str:
+        """``flood: N datagrams from host:port dropped …`` when this end was flooded, else ""."""
+        self._note_kernel()
+        return self.refused.flood()
+
+    def _note_kernel(self) -> None:
+        if self._sock.fileno() >= 0:  # the last count read stays after the socket closed
+            self.refused.note_kernel(self._sock)
+
     def fileno(self) -> int:
         return self._sock.fileno()
 
     def shutdown(self) -> None:
         super().shutdown()
+        self._note_kernel()  # the last count, before the socket is gone
         self._sock.close()

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from beambench.acquisition.capabilities import DeviceFault
+from beambench.devices.foreign import ForeignSenders
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.receive_time import enable_receive_timestamps, mono_minus_real_ns, recv_stamped
 
@@ -109,6 +110,7 @@ class NatNetStats:
     echoes: int = 0
     overflowed: int = 0  # frames pushed out of the receive buffer because nobody read them in time
     forged: int = 0  # datagrams from a sender that is not the server the handshake found (dropped)
+    kernel_dropped: int = 0  # datagrams the kernel dropped before they were read (receive buffer full)
     last_frame_ns: int | None = None  # host monotonic time of the newest frame
     first_frame_number: int | None = None
     last_frame_number: int | None = None
@@ -124,6 +126,7 @@ class NatNetClient:
         self.config = config or NatNetConfig()
         self.on_frame = on_frame
         self.stats = NatNetStats()
+        self.refused = ForeignSenders()  # the forged datagrams by sender, and the kernel's drops: names a flood
         self.server_info: nn.ServerInfo | None = None
         self.model_def: nn.ModelDef | None = None
         self.frame_rate: float | None = None
@@ -258,6 +261,7 @@ class NatNetClient:
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
         self._thread = None
+        self.note_kernel_drops()  # the last count, before the sockets are gone
         for s in (self._data, self._cmd):
             if s is not None:
                 with contextlib.suppress(OSError):
@@ -418,16 +422,21 @@ class NatNetClient:
         return sock is self._cmd and addr[0] == self._server_ip and self.server_info is None
 
     def _forged(self, addr: tuple[str, int]) -> None:
-        st = self.stats
-        st.forged += 1
-        if st.forged == 1 or st.forged % 1000 == 0:
-            log.warning(
-                "NatNet: dropped %d datagram(s) not from the server %s (latest from %s:%d)",
-                st.forged,
-                self._server_ip,
-                addr[0],
-                addr[1],
-            )
+        """A datagram not from the server: dropped, counted by sender (bounded work; the run names a flood once,
+        at its end: :meth:`flood`)."""
+        self.stats.forged += 1
+        self.refused.add(addr)
+
+    def note_kernel_drops(self) -> int:
+        """The kernel's count of datagrams it dropped for this client's sockets before they were read."""
+        self.refused.note_kernel(self._cmd, self._data)
+        self.stats.kernel_dropped = self.refused.kernel_dropped
+        return self.stats.kernel_dropped
+
+    def flood(self) -> str:
+        """``flood: N datagrams from host:port dropped …`` when the client's sockets were flooded, else ""."""
+        self.note_kernel_drops()
+        return self.refused.flood()
 
     def _timers(self) -> None:
         if self.server_info is None or self._cmd is None:

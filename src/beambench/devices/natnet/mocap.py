@@ -100,6 +100,7 @@ class NatNetMocap(StreamDriver):
         self.frame = frame or Frame(up_axis="y")  # Motive's default world frame
         super().__init__(MOCAP, mocap_spec(self.markers, rate_hz or MOCAP_RATE_HZ, self.frame), silence_timeout_s)
         self._last_stats = NatNetStats()
+        self._last_flood = ""
         self._left_unread = 0  # frames still buffered when the client closed (never read: unrecorded)
         self._layouts: dict[tuple[int, nn.Version], nb.FrameLayout] = {}  # by packet length and version
         self._marker_cols, self._body_cols = self._columns_by_source()
@@ -142,8 +143,9 @@ class NatNetMocap(StreamDriver):
         if self.client is not None:
             self._left_unread = len(self.client.raw_frames)
             self._sync_counters()
-            self._last_stats = self.client.stats
             self.client.close()
+            self._last_stats = self.client.stats
+            self._last_flood = self.client.refused.flood()
             self.client = None
 
     def _sync_counters(self) -> None:
@@ -164,11 +166,17 @@ class NatNetMocap(StreamDriver):
     def health(self) -> dict[str, Any]:
         """As every stream's (:meth:`StreamDriver.health`); ``received`` counts frames when :meth:`read` decodes
         them, so the frames still buffered (``unrecorded``) are added: received = stored + unrecorded. ``ignored``:
-        datagrams that arrived before the server described itself (not decodable then)."""
+        datagrams that arrived before the server described itself (not decodable then). ``kernel_dropped``: datagrams
+        the kernel dropped unread (a full buffer); ``flood``: a flood named ("" if none)."""
+        c = self.client
+        if c is not None:
+            self._sync_counters()
         out = super().health()
         out["received"] += out["unrecorded"]
         # datagrams that could not be used (frames before the server described itself): arrived, never rows
         out["ignored"] = self.stats.ignored
+        out["kernel_dropped"] = self.stats.kernel_dropped
+        out["flood"] = c.flood() if c is not None else self._last_flood
         return out
 
     def echo_sync(self) -> dict[str, Any] | None:

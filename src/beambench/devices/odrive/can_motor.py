@@ -346,11 +346,13 @@ class OdriveCanMotor(TelemetryStream):
 
     # ------------------------------------------------------------------ feeder thread
     def _feed_loop(self) -> None:
-        """Feed the watchdog while armed, poll Iq and bus voltage, watch the heartbeat."""
+        """Feed the watchdog while armed, poll Iq and bus voltage, watch the heartbeat, on deadlines of its own;
+        receiving holds the lock for one frame's bookkeeping at a time, so a flood cannot hold a feed back."""
         period = min(self.feed_period_s, self.poll_period_s)
-        next_poll = time.monotonic()
+        next_poll = next_wake = time.monotonic()
         asked_errors = False
-        while not self._feeder_stop.wait(period):
+        while not self._feeder_stop.wait(max(0.0, next_wake + period - time.monotonic())):
+            next_wake = max(next_wake + period, time.monotonic() - period)  # late (a stall): no burst to catch up
             if self._tx_paused:
                 continue
             now_ns = time.monotonic_ns()
@@ -425,9 +427,12 @@ class OdriveCanMotor(TelemetryStream):
     def health(self) -> dict[str, Any]:
         """Counters for the session: telemetry rows received, CAN frames that failed to parse, send errors; and
         what a transport that accepts only the device's endpoint refused (``forged``; on a real CAN bus any
-        node may send, so 0)."""
+        node may send, so 0), dropped unread (``kernel_dropped``) and the flood it names (``flood``)."""
         bus = self._bus
         forged, garbled = (bus.forged, bus.garbled) if isinstance(bus, RefusesForeign) else (0, 0)
+        flood: dict[str, Any] = (
+            {"kernel_dropped": bus.kernel_dropped, "flood": bus.flood()} if isinstance(bus, RefusesForeign) else {}
+        )
         with self._cond:
             return {
                 "received": self.rows_received,
@@ -437,6 +442,7 @@ class OdriveCanMotor(TelemetryStream):
                 "dropped": self.rows_evicted,
                 "garbled": self.parse_errors + garbled,
                 "forged": forged,
+                **flood,
                 "frames_received": self.rx_count,
                 "frames_sent": self.tx_count,
                 "send_errors": len(self.send_errors),
