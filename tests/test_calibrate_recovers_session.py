@@ -55,10 +55,8 @@ def test_a_quick_calibration_recovers_a_hidden_twins_regime_map(tmp_path: Path) 
     params.write_text(shipped)  # the session's parameter file as the calibration reads it: the shipped prior
 
     out = tmp_path / "cal"
-    res = _beambench(
-        "calibrate", "sim", str(session), "--quick", "--workers", "2", "--budget-s", "45", "--out", str(out)
-    )
-    assert res.returncode in (0, 3), res.stderr
+    res = _beambench("calibrate", "sim", str(session), "--quick", "--workers", "2", "--out", str(out))
+    assert res.returncode in (0, 5), res.stderr  # 5: written, a target missed (the tangential share may be)
     report = json.loads(next(out.glob("*_report.json")).read_text())
     assert report["evaluations"]["new"] >= 5, report["evaluations"]
     assert report["history"][-1]["stage"] == "verify"  # the map below is the written protocol's own run
