@@ -143,6 +143,14 @@ CASES: dict[str, tuple[Any, str]] = {  # name: (edit, what the one line names)
     "geometry_up_axis_q": (lambda f: _text(f, "general/geometry/up_axis", "q"), "/general/geometry/up_axis"),
     "mocap_reshaped": (lambda f: _mocap(f, "reshape"), "/acquisition/mocap/data"),
     "mocap_as_strings": (lambda f: _mocap(f, "strings"), "/acquisition/mocap/data"),
+    "mocap_frame_as_columns": (  # Hypothesis found it: sync's frame offset took a 2-D column (a TypeError)
+        lambda f: _replace(f, "acquisition/mocap/frame", f["acquisition/mocap/frame"][()].reshape(-1, 1)),
+        "/acquisition/mocap/frame",
+    ),
+    "loadcell_seq_as_columns": (
+        lambda f: _replace(f, "acquisition/loadcell/seq", f["acquisition/loadcell/seq"][()].reshape(-1, 1)),
+        "/acquisition/loadcell/seq",
+    ),
     "step_end_at_2^62": (lambda f: _set_steps(f, "t_end_ns", 2**62), "t_end_ns"),
     "step_start_at_-2^62": (lambda f: _set_steps(f, "t_start_ns", -(2**62)), "t_start_ns"),
     "host_time_last_at_2^62": (

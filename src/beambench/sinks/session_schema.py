@@ -19,6 +19,9 @@ import h5py
 import numpy as np
 import yaml
 
+from beambench.acquisition.batch import ColumnSpec
+from beambench.acquisition.streams import LOADCELL, MOCAP, MOTOR, loadcell_spec, mocap_spec, motor_spec
+
 __all__ = ["AXIS", "SessionSchemaError", "check_schema"]
 
 AXIS = re.compile(r"^[+-]?[xyz]$")
@@ -168,6 +171,10 @@ def _check_stream(g: Any, where: str, budget: int, closed: bool) -> tuple[int, i
     for name in ("host_time_ns", "device_time"):
         if columns[name].ndim != 1:
             raise SessionSchemaError(f"{where}/{name}", f"shape {columns[name].shape}, expected one value per row")
+    for name, spec in _standard_columns(where).items():  # a standard stream's columns keep their row shape
+        if name in columns and columns[name].ndim != 1 + len(spec.shape):
+            want = "one value per row" if not spec.shape else f"rows of {len(spec.shape)} dimensions"
+            raise SessionSchemaError(f"{where}/{name}", f"shape {columns[name].shape}, expected {want}")
     if columns["host_time_ns"].dtype.kind != "i":
         raise SessionSchemaError(f"{where}/host_time_ns", f"{columns['host_time_ns'].dtype}, expected int64 ns")
     if where == "/acquisition/mocap":
@@ -175,6 +182,13 @@ def _check_stream(g: Any, where: str, budget: int, closed: bool) -> tuple[int, i
     if closed:
         _check_rows(columns, where)
     return _host_span(columns["host_time_ns"][()], f"{where}/host_time_ns", float(g.attrs.get("rate_hz", 0.0)))
+
+
+def _standard_columns(where: str) -> dict[str, ColumnSpec]:
+    """The columns of the standard stream at ``where`` (mocap, load cells, motor; none for another stream)."""
+    name = where.rsplit("/", 1)[-1]
+    specs = {MOCAP: lambda: mocap_spec(("m",)), LOADCELL: loadcell_spec, MOTOR: motor_spec}
+    return specs[name]().columns if name in specs else {}
 
 
 def _check_stream_attrs(g: h5py.Group, where: str) -> None:
