@@ -60,6 +60,27 @@ def require_shared(*parts: str) -> Path:
     return path
 
 
+# the shipped release test with short windows: a real release session in about a second of sim
+SHORT_RELEASE = (
+    (REPO / "protocols" / "release_test.yaml")
+    .read_text()
+    .replace("settle_s: 0.5", "settle_s: 0.2")
+    .replace("record_s: 1.0", "record_s: 0.5")
+)
+
+
+def record_sim_sessions(out: Path, protocols: dict[str, str]) -> dict[str, Path]:
+    """Each protocol text run on the sim backend into ``out/<name>.h5`` (no viewer, no progress)."""
+    from beambench.acquisition.protocol.schema import parse_protocol
+    from beambench.session.run import run_session
+
+    made = {}
+    for name, text in protocols.items():
+        made[name] = out / f"{name}.h5"
+        run_session(parse_protocol(text), text, "sim", made[name], rerun_mode="off", show_progress=False)
+    return made
+
+
 def wait_until(condition: Callable[[], T], timeout_s: float = 10.0, what: str = "", interval_s: float = 0.01) -> T:
     """Poll ``condition`` until it returns something true, and return that; fail after ``timeout_s`` naming
     ``what`` (generous: a loaded machine is slow, a quick one returns at once)."""

@@ -15,29 +15,14 @@ import pytest
 import yaml
 
 from beambench.common.resources import USER_DIR_ENV
-from conftest import cli, one_line_error
+from conftest import SHORT_RELEASE, cli, one_line_error, record_sim_sessions
 
 CONTACT = "name: t\nsweep: {frequencies: [5]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-ROOT = Path(__file__).resolve().parents[1]
-RELEASE = (
-    (ROOT / "protocols" / "release_test.yaml")
-    .read_text()
-    .replace("settle_s: 0.5", "settle_s: 0.2")
-    .replace("record_s: 1.0", "record_s: 0.5")
-)
 
 
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory) -> dict[str, Path]:
-    from beambench.acquisition.protocol.schema import parse_protocol
-    from beambench.session.run import run_session
-
-    out = tmp_path_factory.mktemp("real")
-    made = {}
-    for rig, text in (("contact", CONTACT), ("release", RELEASE)):
-        made[rig] = out / f"{rig}.h5"
-        run_session(parse_protocol(text), text, "sim", made[rig], rerun_mode="off", show_progress=False)
-    return made
+    return record_sim_sessions(tmp_path_factory.mktemp("real"), {"contact": CONTACT, "release": SHORT_RELEASE})
 
 
 @pytest.fixture()

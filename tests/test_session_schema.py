@@ -24,30 +24,15 @@ from typer.testing import CliRunner
 from beambench.cli import app
 from beambench.sinks.hdf5 import SessionFileError, read_session
 from beambench.studies.twin_calibration.targets import CalibrationInputError, session_targets
-from conftest import fuzz_examples
+from conftest import SHORT_RELEASE, fuzz_examples, record_sim_sessions
 
-ROOT = Path(__file__).resolve().parents[1]
 CONTACT = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
-RELEASE = (
-    (ROOT / "protocols" / "release_test.yaml")
-    .read_text()
-    .replace("settle_s: 0.5", "settle_s: 0.2")
-    .replace("record_s: 1.0", "record_s: 0.5")
-)
 
 
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory) -> dict[str, Path]:
     """A contact sweep (two steps) and a release test, recorded by the sim backend."""
-    from beambench.acquisition.protocol.schema import parse_protocol
-    from beambench.session.run import run_session
-
-    out = tmp_path_factory.mktemp("real")
-    made = {}
-    for rig, text in (("contact", CONTACT), ("release", RELEASE)):
-        made[rig] = out / f"{rig}.h5"
-        run_session(parse_protocol(text), text, "sim", made[rig], rerun_mode="off", show_progress=False)
-    return made
+    return record_sim_sessions(tmp_path_factory.mktemp("real"), {"contact": CONTACT, "release": SHORT_RELEASE})
 
 
 def _commands(path: Path, rig: str) -> list[list[str]]:
