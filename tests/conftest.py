@@ -81,6 +81,16 @@ def record_sim_sessions(out: Path, protocols: dict[str, str]) -> dict[str, Path]
     return made
 
 
+def unwritable_folder(tmp_path: Path) -> Path:
+    """A folder no file can be created in: /proc/self even for root; chmod 500 for a normal user."""
+    if os.geteuid() == 0:
+        return Path("/proc/self")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    return ro
+
+
 def wait_until(condition: Callable[[], T], timeout_s: float = 10.0, what: str = "", interval_s: float = 0.01) -> T:
     """Poll ``condition`` until it returns something true, and return that; fail after ``timeout_s`` naming
     ``what`` (generous: a loaded machine is slow, a quick one returns at once)."""

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from beambench.common.yaml_config import ConfigError, parse_yaml
-from conftest import cli, one_line_error, skip_unless_ci
+from conftest import cli, one_line_error, skip_unless_ci, unwritable_folder
 
 BASE = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
 
@@ -432,21 +432,9 @@ def test_calibrate_loadcells_loads_must_be_finite(tmp_path, loads):
     assert tree(tmp_path) == []
 
 
-def _unwritable_folder(tmp_path: Path) -> Path:
-    """A folder no file can be created in: /proc/self even for root; chmod 500 for a normal user."""
-    import os
-
-    if os.geteuid() == 0:
-        return Path("/proc/self")
-    ro = tmp_path / "ro"
-    ro.mkdir()
-    ro.chmod(0o500)
-    return ro
-
-
 @pytest.mark.parametrize("where", ["missing", "unwritable"])
 def test_view_out_in_a_folder_that_takes_no_file_is_one_line(short_session, tmp_path, where):
-    folder = tmp_path / "nonexistent" if where == "missing" else _unwritable_folder(tmp_path)
+    folder = tmp_path / "nonexistent" if where == "missing" else unwritable_folder(tmp_path)
     before = tree(short_session.parent)
     code, out = cli("view", str(short_session), "--rerun", "save", "--out", str(folder / "x.rrd"))
     one_line_error(code, out, "--out")

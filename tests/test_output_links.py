@@ -6,7 +6,6 @@ measured calibration."""
 
 from __future__ import annotations
 
-import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -15,7 +14,7 @@ import pytest
 import yaml
 
 from beambench.common.resources import USER_DIR_ENV
-from conftest import SHORT_RELEASE, cli, one_line_error, record_sim_sessions
+from conftest import SHORT_RELEASE, cli, one_line_error, record_sim_sessions, unwritable_folder
 
 CONTACT = "name: t\nsweep: {frequencies: [5]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
 
@@ -117,22 +116,12 @@ def test_view_never_records_into_a_link_named_like_its_default_recording(session
 
 
 # --- calibrate loadcells --out: checked first, the matrix printed if saving still fails -------------------------
-def _unwritable_folder(tmp_path: Path) -> Path:
-    """A folder no file can be created in: /proc/self even for root; chmod 500 for a normal user."""
-    if os.geteuid() == 0:
-        return Path("/proc/self")
-    ro = tmp_path / "ro"
-    ro.mkdir()
-    ro.chmod(0o500)
-    return ro
-
-
 @pytest.mark.parametrize("place", ["/dev/full", "a folder", "a read-only folder", "a missing folder's file"])
 def test_calibrate_loadcells_out_is_checked_before_any_load(place, tmp_path):
     out = {
         "/dev/full": Path("/dev/full"),
         "a folder": tmp_path,
-        "a read-only folder": _unwritable_folder(tmp_path) / "c.yaml",
+        "a read-only folder": unwritable_folder(tmp_path) / "c.yaml",
         "a missing folder's file": Path("/proc/self/nothing/c.yaml"),
     }[place]
     code, output = cli("calibrate", "loadcells", "--emulate", "--yes", "--out", str(out))
