@@ -33,6 +33,8 @@ class BuildOptions:
     realtime: bool = False
     rig_file: Path | None = None
     can_log: Path | None = None
+    scheduler: str | None = None
+    """A Dask scheduler's address: the sim computes a segmented sweep's later parts on that cluster."""
 
 
 RigBuilder = Callable[[RigSlices, BuildOptions], Rig]
@@ -58,11 +60,12 @@ def build_rig(
     realtime: bool = False,
     rig_file: Path | None = None,
     can_log: Path | None = None,
+    scheduler: str | None = None,
 ) -> Rig:
     """The rig for ``backend``; drivers are imported lazily so the sim needs no hardware packages."""
     if backend_info(backend).simulates and slices.sim is None:
         raise ValueError(f"the {backend} backend needs a simulation slice")
-    return BUILDERS[backend](slices, BuildOptions(realtime, rig_file, can_log))
+    return BUILDERS[backend](slices, BuildOptions(realtime, rig_file, can_log, scheduler))
 
 
 @rig_builder("hardware")
@@ -78,7 +81,7 @@ def _sim(slices: RigSlices, opts: BuildOptions) -> Rig:
 
     assert slices.sim is not None  # build_rig checked it
     # closed-loop tracking commands every few ms: a chunk computed ahead would only be undone
-    return build_sim_rig(slices.sim, realtime=opts.realtime, prefetch=not slices.tracking)
+    return build_sim_rig(slices.sim, realtime=opts.realtime, prefetch=not slices.tracking, scheduler=opts.scheduler)
 
 
 @rig_builder("emulated")

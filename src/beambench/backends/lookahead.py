@@ -37,7 +37,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -48,6 +48,19 @@ PRESETTLE_S = 3.5  # s a segment's own scene walks at its first frequency (after
 MAX_AHEAD = 16  # script calls the first segment may run ahead of the run (the later ones run freely)
 
 Call = tuple[str, int, float]  # ("cmd", rig time ns, Hz) or ("adv", rig time ns, 0.0)
+
+
+class SegmentScene(Protocol):
+    """What a segment's worker calls on its scene: a :class:`DrivenScene` here, or one computed on a Dask worker
+    (:class:`~beambench.backends.remote_scene.RemoteScene`)."""
+
+    def set_frequency(self, hz: float) -> None: ...
+
+    def advance_to(self, t_target: float) -> Trajectory: ...
+
+    def snapshot(self) -> tuple: ...
+
+    def presettle(self, hz: float, seconds: float, t_phys: float) -> dict[str, np.ndarray]: ...
 
 
 def script(schedule: list[tuple[float, list[float]]], now_ns: int, max_chunk_ns: int) -> list[Call]:
@@ -116,7 +129,7 @@ class _Segment:
     """One worker: script calls ``first``..``last − 1`` on ``scene`` (pre-settled first unless it is the rig's);
     with a cut check, then on past ``last`` until the next segment's cut is decided."""
 
-    scene: DrivenScene
+    scene: SegmentScene
     first: int
     last: int
     presettle: tuple[float, float, float] | None = None  # (Hz, seconds, physics time to continue from)
@@ -125,7 +138,7 @@ class _Segment:
     join_row: dict[str, np.ndarray] | None = None  # the pre-settle's last row (markers, theta)
     error: BaseException | None = None
     thread: threading.Thread | None = None
-    cpu_s: float = 0.0  # the worker thread's CPU time
+    cpu_s: float = 0.0  # the worker thread's CPU time (and a remote scene's worker's)
     # per segment before it (its index): the call from which the caller, taking that segment's rows, takes this
     # one's instead, or None: the cut was refused at every step of this stretch (that segment ran it)
     verdict: dict[int, int | None] = field(default_factory=dict)
@@ -140,7 +153,7 @@ class Lookahead:
         scene: DrivenScene,
         calls: list[Call],
         cuts: list[int] | None = None,
-        clones: list[DrivenScene] | None = None,
+        clones: list[SegmentScene] | None = None,
         presettle_s: float = PRESETTLE_S,
         walk_axis: int | None = 0,
         agree: Agree | None = None,
@@ -186,12 +199,7 @@ class Lookahead:
         c0 = time.thread_time()
         try:
             if seg.presettle is not None:
-                hz, seconds, t_phys = seg.presettle
-                seg.scene.set_frequency(hz)
-                ramp_s = hz / seg.scene.ramp.rate
-                pre = seg.scene.advance_to(float(seg.scene.physics.time) + ramp_s + seconds)
-                seg.join_row = {k: pre.channels[k][-1].copy() for k in ("markers", "theta")}
-                seg.scene.physics.data.time = t_phys  # continue on the run's time axis
+                seg.join_row = seg.scene.presettle(*seg.presettle)
             bounded = seg is self.segments[0]
             for i in range(seg.first, seg.last):
                 if not self._call(seg, i, bounded, c0):
@@ -220,7 +228,7 @@ class Lookahead:
         with self._cv:
             seg.results[i] = (out, snap)
             seg.done = i + 1
-            seg.cpu_s = time.thread_time() - c0
+            seg.cpu_s = time.thread_time() - c0 + getattr(seg.scene, "cpu_s", 0.0)  # a remote scene's worker too
             self._cv.notify_all()
         return True
 
@@ -342,7 +350,7 @@ class Lookahead:
         return {"x": float(last.channels["markers"][-1, 0, ax] - row["markers"][0, ax]), "theta": dtheta}
 
     @property
-    def scene(self) -> DrivenScene:
+    def scene(self) -> SegmentScene:
         """The scene whose state follows the last call taken."""
         return self.segments[self._seg].scene
 

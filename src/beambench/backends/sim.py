@@ -9,7 +9,8 @@ the data are identical with and without prefetch. Once the runner announces the 
 (:meth:`SimRig.anticipate`), a worker computes the whole script ahead instead (:mod:`beambench.backends.lookahead`;
 same data), and with ``sim.segments: n`` (walker, contact rig) n workers compute consecutive parts of the sweep in
 parallel, each later part pre-settled at its first frequency (what that changes, and the contact rig's check of
-each cut: the lookahead module's docstring).
+each cut: the lookahead module's docstring). With ``scheduler`` (a Dask scheduler's address) the later parts are
+computed on that cluster's workers (:mod:`beambench.backends.remote_scene`; same data).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.protocol.schema import ClockModel, ConfigError
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
 from beambench.backends import lookahead
+from beambench.backends.remote_scene import RemoteScene, connect, remote_scenes
 from beambench.backends.sim_devices import (
     DeviceClock,
     SimClock,
@@ -57,9 +59,17 @@ class SimRig:
     """Clock, motor and streams of a simulated rig (``Rig`` protocol)."""
 
     def __init__(
-        self, sim: SimSlice, realtime: bool = False, scene: DrivenScene | None = None, prefetch: bool = True
+        self,
+        sim: SimSlice,
+        realtime: bool = False,
+        scene: DrivenScene | None = None,
+        prefetch: bool = True,
+        scheduler: str | None = None,
     ) -> None:
         self.sim = sim
+        # the later segments' scenes on a Dask cluster: connected here, so a wrong address stops before the run
+        self._client: Any = connect(scheduler) if scheduler and sim.segments > 1 and prefetch else None
+        self._remote: list[RemoteScene] = []
         noise = sim.settings.noise
         # MuJoCo's warnings from the build (its preroll) to close() are collected, not printed: a diverging state
         # stops the run in check()
@@ -69,6 +79,8 @@ class SimRig:
             self.scene = scene or build_scene(sim)
         except BaseException:
             self._quiet.close()
+            if self._client is not None:
+                self._client.close()
             raise
         seeds = np.random.SeedSequence(sim.settings.seed).spawn(3)
         rng_mocap, rng_lc, rng_motor = (np.random.default_rng(s) for s in seeds)
@@ -134,6 +146,10 @@ class SimRig:
                 dev.stop()
             for scene in self._scenes:
                 scene.physics.close()
+            for remote in self._remote:
+                remote.close()
+            if self._client is not None:
+                self._client.close()
             self._quiet.close()
             self._state = "closed"
 
@@ -147,8 +163,15 @@ class SimRig:
         segments = self.sim.segments if self._own_scene else 1
         cost = self.scene.step_cost if isinstance(self.scene, CostsByFrequency) else None
         cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, cost)
-        clones = [build_scene(self.sim) for _ in cuts]
-        self._scenes += clones
+        clones: list[lookahead.SegmentScene]
+        if self._client is not None:
+            remote = remote_scenes(self._client, self.sim, len(cuts))
+            self._remote += remote
+            clones = list(remote)
+        else:
+            local = [build_scene(self.sim) for _ in cuts]
+            self._scenes += local
+            clones = list(local)
         if isinstance(self.scene, ChecksCuts):  # each cut checked; the rig does not walk: no marker offset
             self._look = lookahead.Lookahead(
                 self.scene, calls, cuts, clones, walk_axis=None, agree=self.scene.same_regime
@@ -164,7 +187,12 @@ class SimRig:
         self._look = None
         snap = look.stop()
         if look.scene is not self.scene:  # a later segment's scene holds the state now
-            self.scene = look.scene
+            held = look.scene
+            if isinstance(held, RemoteScene):  # computed on the cluster: the run goes on here, from its state
+                held = build_scene(self.sim)
+                self._scenes.append(held)
+            assert isinstance(held, DrivenScene)
+            self.scene = held
             self._offset = dict(look.offset)
             self.motor.ramp = cast(VelocityRamp, _ShiftedRamp(self.scene.ramp, self._offset["theta"]))
         self.scene.restore(snap if snap is not None else look.start)
@@ -313,6 +341,7 @@ class _ShiftedRamp:
         return getattr(self._ramp, name)
 
 
-def build_sim_rig(sim: SimSlice, realtime: bool = False, prefetch: bool = True) -> SimRig:
-    """The sim backend's rig for a protocol's simulation slice (contact rig, walker or release test)."""
-    return SimRig(sim, realtime=realtime, prefetch=prefetch)
+def build_sim_rig(sim: SimSlice, realtime: bool = False, prefetch: bool = True, scheduler: str | None = None) -> SimRig:
+    """The sim backend's rig for a protocol's simulation slice (contact rig, walker or release test); with
+    ``scheduler``, a segmented sweep's later parts are computed on that Dask cluster."""
+    return SimRig(sim, realtime=realtime, prefetch=prefetch, scheduler=scheduler)

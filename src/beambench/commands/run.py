@@ -82,6 +82,13 @@ def run(
     can_log: Path | None = typer.Option(
         None, "--can-log", metavar="FILE", help="Record all CAN traffic to this .asc or .blf file (ODrive over CAN)."
     ),
+    scheduler: str | None = typer.Option(
+        None,
+        "--scheduler",
+        metavar="ADDRESS",
+        help="Compute a segmented sim sweep's later parts (sim.segments > 1) on a Dask cluster: its scheduler "
+        "address, tcp://HOST:PORT (needs the 'cluster' extra; default: local threads). Same data.",
+    ),
 ) -> None:
     """Run a frequency sweep: step the motor, record mocap, load cells and motor telemetry to an HDF5 session.
 
@@ -101,6 +108,8 @@ def run(
         if chosen not in BACKENDS:  # typer checks the flag; this guards a bad protocol value
             raise ConfigError("<cli>", "--backend", chosen, f"must be one of {', '.join(BACKENDS)}")
         checked = validate(protocol, chosen, str(protocol_file), can_log)  # every field, dry run included
+        if scheduler is not None:
+            check_scheduler(scheduler, chosen, protocol)
         from_protocol = rig_file is None and protocol.rig_file is not None
         rig_file = rig_file or protocol_rig_file(protocol, protocol_file)  # --rig, else the protocol's rig_file
         if rig_file is not None:  # every input file too: kind, size, fields
@@ -124,7 +133,9 @@ def run(
 
     if rerun is None and mode == "off":
         typer.echo(f"beambench: note: {NO_VIEW_NOTE}", err=True)
-    request = RunRequest(protocol, text, chosen, path, mode, realtime, rig_file, can_log, validated=checked)
+    request = RunRequest(
+        protocol, text, chosen, path, mode, realtime, rig_file, can_log, validated=checked, scheduler=scheduler
+    )
     try:
         # the run is over: a late signal must not kill the process before its result (the real command only)
         result = run_request(request, then_ignore_signals=STANDALONE["process"])
@@ -135,6 +146,20 @@ def run(
     except MemoryError:  # outside the runner (opening, closing): the rig's close has idled the motor
         fail("run error: out of memory (MemoryError) (motor idled)", EXIT_FAULT)
     report_run(result.status, result.message, path, mode == "save", result.warnings, result.idle)
+
+
+def check_scheduler(scheduler: str, backend: Backend, protocol: Protocol) -> None:
+    """``--scheduler`` computes a segmented sweep's later parts: the sim backend, ``sim.segments`` > 1, a sweep
+    computed ahead (not ``track:``), not paced to the wall clock; otherwise a ConfigError naming it."""
+    if backend != "sim":
+        why = f"the {backend} backend runs in real time; --scheduler computes a sim sweep's segments"
+    elif protocol.sim.segments < 2:
+        why = "the sweep runs in one piece (sim.segments: 1); --scheduler computes its later segments"
+    elif protocol.track is not None:
+        why = "a track: run computes nothing ahead; --scheduler computes a sweep's later segments"
+    else:
+        return
+    raise ConfigError("<cli>", "--scheduler", scheduler, why)
 
 
 def protocol_rig_file(protocol: Protocol, protocol_file: Path) -> Path | None:

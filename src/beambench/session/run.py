@@ -57,6 +57,8 @@ class RunRequest:
     label: str = ""  # before each progress description: the phase of a run in two (``speed map: ``)
     validated: Validated | None = None
     """The protocol already checked for ``backend`` (:func:`beambench.session.checks.validate`); None: checked here."""
+    scheduler: str | None = None
+    """A Dask scheduler's address: the sim computes a segmented sweep's later parts on that cluster."""
 
 
 class RigStartError(BeambenchError):
@@ -124,7 +126,7 @@ def run_request(request: RunRequest, then_ignore_signals: bool = False) -> RunRe
 def _open_rig(req: RunRequest, checked: Validated) -> Rig:
     """Build and open the rig; a device or peer lost meanwhile is one :class:`RigStartError` (rig closed)."""
     try:
-        rig = build_rig(checked.slices, req.backend, realtime=req.realtime, rig_file=req.rig_file, can_log=req.can_log)
+        rig = build_rig(checked.slices, req.backend, req.realtime, req.rig_file, req.can_log, scheduler=req.scheduler)
         rig.open()
     except (DeviceFault, OSError, EOFError) as exc:
         if isinstance(exc, ConfigError):

@@ -18,6 +18,7 @@ import numpy as np
 from beambench.sim.engine.stepping import Physics, Trajectory
 
 if TYPE_CHECKING:
+    from beambench.sim.models.hysteretic import HystereticDamping
     from beambench.sim.models.thermal import ThermalState
 
 
@@ -123,6 +124,7 @@ class DrivenScene:
     markers: tuple[str, ...] = ()  # the mocap markers' sensor names, in stream order
     rig: MotorConstants  # the scene's constants (RigParams, WalkerParams): the sim motor reads its electrics
     ramp: VelocityRamp  # the crank speed the motor command drives
+    damping: HystereticDamping | None = None  # a loss-factor beam: its dampers follow the drive frequency
 
     def __init__(self, physics: Physics) -> None:
         self.physics = physics
@@ -149,10 +151,24 @@ class DrivenScene:
         return self.physics.snapshot(), extra
 
     def restore(self, snap: tuple) -> None:
+        """Back to ``snap``, also on another copy of the scene (a segment's, computed elsewhere): the dampers of a
+        loss-factor beam follow the restored setpoint, as :meth:`set_frequency` set them."""
         phys, extra = snap
         self.physics.restore(phys)
         for name, fields in extra.items():
             vars(getattr(self, name)).update(fields)  # in place: devices hold references to these objects
+        if self.damping is not None:
+            self.damping.at(self.physics.model, self.ramp.setpoint)
+
+    def presettle(self, hz: float, seconds: float, t_phys: float) -> dict[str, np.ndarray]:
+        """A later segment's start: from the current state ramp to ``hz``, settle ``seconds`` there, then continue
+        on the run's time axis at ``t_phys``. Returns the last settled row's markers and motor angle (where the
+        segment's rows are stitched on)."""
+        self.set_frequency(hz)
+        pre = self.advance_to(self.physics.time + hz / self.ramp.rate + seconds)
+        row = {k: pre.channels[k][-1].copy() for k in ("markers", "theta")}
+        self.physics.data.time = t_phys
+        return row
 
     def set_frequency(self, hz: float) -> None:
         """A new crank-speed setpoint (turn/s), effective from the scene's current time."""
