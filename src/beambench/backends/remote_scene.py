@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.protocol.schema import ConfigError
 from beambench.sim.engine.stepping import Trajectory, quiet_mujoco_warnings
 from beambench.sim.protocol_slice import SimSlice
@@ -84,23 +85,33 @@ class SceneActor:
 class RemoteScene:
     """The local handle of a :class:`SceneActor`: the calls a segment's worker makes (``SegmentScene``), each
     waiting for its result; :meth:`snapshot` is the state after the last call, kept from its answer, and
-    :attr:`cpu_s` the CPU time the worker spent on the calls."""
+    :attr:`cpu_s` the CPU time the worker spent on the calls. A worker or cluster lost is a
+    :class:`DeviceFault` (the runner idles the motor and keeps what was recorded)."""
 
     def __init__(self, client: Any, sim: SimSlice, worker: str | None = None) -> None:
         where = {"workers": [worker], "allow_other_workers": False} if worker else {}
-        self._actor = client.submit(SceneActor, sim, actor=True, pure=False, **where).result()
-        self._snap: tuple = self._actor.snapshot().result()
+        try:
+            self._actor = client.submit(SceneActor, sim, actor=True, pure=False, **where).result()
+        except Exception as exc:
+            raise _lost(exc) from None
+        self._snap: tuple = self._ask("snapshot")
         self.cpu_s = 0.0
 
+    def _ask(self, method: str, *args: float) -> Any:
+        try:
+            return getattr(self._actor, method)(*args).result()
+        except Exception as exc:
+            raise _lost(exc) from None
+
     def set_frequency(self, hz: float) -> None:
-        self._snap, self.cpu_s = self._actor.set_frequency(hz).result()
+        self._snap, self.cpu_s = self._ask("set_frequency", hz)
 
     def advance_to(self, t_target: float) -> Trajectory:
-        rows, self._snap, self.cpu_s = self._actor.advance_to(t_target).result()
+        rows, self._snap, self.cpu_s = self._ask("advance_to", t_target)
         return rows
 
     def presettle(self, hz: float, seconds: float, t_phys: float) -> dict[str, np.ndarray]:
-        row, self._snap, self.cpu_s = self._actor.presettle(hz, seconds, t_phys).result()
+        row, self._snap, self.cpu_s = self._ask("presettle", hz, seconds, t_phys)
         return row
 
     def snapshot(self) -> tuple:
@@ -109,6 +120,10 @@ class RemoteScene:
     def close(self) -> None:
         with contextlib.suppress(Exception):  # a cluster gone at the end loses nothing: the rows are here
             self._actor.close().result()
+
+
+def _lost(exc: BaseException) -> DeviceFault:
+    return DeviceFault(f"sim: the Dask worker computing a sweep segment failed ({type(exc).__name__}: {exc})")
 
 
 def remote_scenes(client: Any, sim: SimSlice, n: int) -> list[RemoteScene]:
