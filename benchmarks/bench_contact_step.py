@@ -26,20 +26,22 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def options() -> dict[str, dict[str, int | float]]:
-    """Each candidate: ``MjOption`` fields set on top of the shipped scene's (whose flags skip unused stages)."""
-    stages = mujoco.mjtDisableBit
+def options(shipped_flags: int) -> dict[str, dict[str, int | float]]:
+    """Each candidate: ``MjOption`` fields set on top of the shipped scene's (PGS, unused stages skipped)."""
+    island = int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
+    newton = int(mujoco.mjtSolver.mjSOL_NEWTON)
     return {
         "shipped": {},
-        "every stage on (MuJoCo's defaults)": {"disableflags": 0},
-        "islands only off": {"disableflags": int(stages.mjDSBL_ISLAND)},
+        "Newton solver": {"solver": newton},
+        "Newton, every stage on (MuJoCo's defaults)": {"solver": newton, "disableflags": 0},
+        "Newton, islands on": {"solver": newton, "disableflags": shipped_flags & ~island},
+        "CG solver": {"solver": int(mujoco.mjtSolver.mjSOL_CG)},
         "dense Jacobian": {"jacobian": int(mujoco.mjtJacobian.mjJAC_DENSE)},
         "sparse Jacobian": {"jacobian": int(mujoco.mjtJacobian.mjJAC_SPARSE)},
-        "CG solver": {"solver": int(mujoco.mjtSolver.mjSOL_CG)},
-        "PGS solver": {"solver": int(mujoco.mjtSolver.mjSOL_PGS)},
-        "Newton, 3 iterations": {"iterations": 3},
-        "Newton, 5 line-search iterations": {"ls_iterations": 5},
-        "tolerance 1e-6": {"tolerance": 1e-6},
+        "Newton, 3 iterations": {"solver": newton, "iterations": 3},
+        "Newton, 5 line-search iterations": {"solver": newton, "ls_iterations": 5},
+        "PGS, tolerance 1e-6": {"tolerance": 1e-6},
+        "PGS, 20 iterations": {"iterations": 20},
     }
 
 
@@ -77,7 +79,7 @@ def main() -> None:
     shipped = {
         k: getattr(opt, k) for k in ("disableflags", "jacobian", "solver", "iterations", "ls_iterations", "tolerance")
     }
-    variants = options()
+    variants = options(int(opt.disableflags))
     for hz in args.hz:
         scene.set_frequency(hz)
         scene.advance_to(scene.physics.time + 3.0)
