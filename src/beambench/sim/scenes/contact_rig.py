@@ -36,7 +36,7 @@ from beambench.sim.scenes.registry import SceneConfig, register
 
 SOLIMP_D0, SOLIMP_DMAX = 0.9, 0.95  # MuJoCo's default contact impedance at zero and full penetration (solimp)
 # The constraint solver. PGS solves the same regularised (soft-contact, pyramidal-cone) problem as Newton, to the
-# same tolerance, 7–9 % cheaper a step here (one contact pair, 16 dof; bench_contact_step.py). Its trajectories part
+# same tolerance, 8–10 % cheaper a step here (one contact pair, 16 dof; bench_contact_step.py). Its trajectories part
 # from Newton's only where the sweep is chaotic: the shipped sweep with PGS meets the convergence criterion against
 # Newton at 2.5e-5 s (the same 18 labels from 23 Hz, contact fractions within 0.020 outside the lift-off band,
 # tangential force within 1.4–5.3 % from 25 Hz; docs/performance.md, "One step").
