@@ -47,3 +47,21 @@ def test_a_scene_with_a_joint_limit_keeps_its_limits():
     assert not flags & int(OFF.mjDSBL_LIMIT)  # the sole's travel stop is a limit row
     assert flags & int(OFF.mjDSBL_EQUALITY)  # what the scene lacks is still skipped
     scene.physics.close()
+
+
+def test_a_state_restored_on_another_copy_of_a_loss_factor_scene_damps_at_its_drive_frequency():
+    """A segment computed elsewhere hands its state to a fresh copy of the scene (``beambench run --scheduler``):
+    the copy's beam dampers follow the restored drive frequency, so it continues with the same physics."""
+    from dataclasses import replace
+
+    params = replace(load_params("physical", "rod"), loss_factor=0.12)
+    ran, fresh = (ContactRigSim(make_beam_model("rod5g", params), gap_m=0.01, timestep=1e-4) for _ in range(2))
+    ran.set_frequency(26.0)
+    ran.advance_to(0.05)
+    fresh.restore(ran.snapshot())
+    dofs = ran.damping.dofs
+    np.testing.assert_array_equal(fresh.physics.model.dof_damping[dofs], ran.physics.model.dof_damping[dofs])
+    assert fresh.physics.model.dof_damping[dofs].max() > 0
+    np.testing.assert_array_equal(fresh.advance_to(0.1).channels["markers"], ran.advance_to(0.1).channels["markers"])
+    for scene in (ran, fresh):
+        scene.physics.close()
