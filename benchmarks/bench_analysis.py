@@ -111,7 +111,7 @@ def sync_accuracy() -> None:
 
     from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.analysis.session_analysis import fit_session_clocks
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     path = run_protocol(SYNC, "bench_sync_5min")
     s = read_session(path)

@@ -211,7 +211,7 @@ def notebook_picture(session: Path, out: Path) -> None:
     import matplotlib.pyplot as plt
 
     from beambench.analysis import resample_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     s = read_session(session)
     df = resample_session(s, 1000)

@@ -11,7 +11,7 @@ from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
 from beambench.analysis.branches import annotate_branches
 from beambench.analysis.session_analysis import analyze_session
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 
 def _plan(text: str) -> list[tuple[float, str, str, int]]:

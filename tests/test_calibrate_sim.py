@@ -294,7 +294,7 @@ def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
     from beambench.analysis.session_analysis import analyze_session
     from beambench.sim.scenes.contact_regimes import ContactTwin, stepped_regime_map
     from beambench.sim.settings import SimSettings
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     freqs = [16, 20, 24, 28, 32, 36]
     proto = tmp_path / "stepped.yaml"

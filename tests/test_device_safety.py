@@ -18,7 +18,8 @@ from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.odrive.cansimple import AxisState
 from beambench.session.slices import sim_slice
-from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
+from beambench.sinks.session_file.reader import read_session
+from beambench.sinks.session_file.writer import SessionWriter, append_general
 
 PROTOCOL = """
 name: safety

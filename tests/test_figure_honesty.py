@@ -10,7 +10,7 @@ from matplotlib.collections import PolyCollection
 
 from beambench.analysis.session_analysis import SessionAnalysis, analyze_session
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 
 def _analysis(path) -> SessionAnalysis:

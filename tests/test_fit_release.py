@@ -28,7 +28,7 @@ from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.analysis.release import Decay, fit_decay, tip_displacement
 from beambench.cli import app
 from beambench.sim.models.params import load_params
-from beambench.sinks.hdf5 import read_processing
+from beambench.sinks.session_file.reader import read_processing
 from beambench.studies.fit import (
     FitError,
     FitOptions,

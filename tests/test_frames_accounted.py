@@ -96,7 +96,8 @@ def run(request, tmp_path_factory):
     from beambench.acquisition.runner import Runner, StopSignal
     from beambench.backends.emulated import build_emulated_rig
     from beambench.session.slices import sim_slice
-    from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
+    from beambench.sinks.session_file.reader import read_session
+    from beambench.sinks.session_file.writer import SessionWriter, append_general
 
     protocol = parse_protocol(PROTOCOL)
     rig = build_emulated_rig(sim_slice(protocol), inject={"loadcell_garbage": 0.02})

@@ -245,7 +245,7 @@ def test_a_run_whose_physics_diverges_stops_with_one_line_motor_idle_session_sav
     """Stiff springs on a near-massless beam at a 10 ms explicit-Euler step: MuJoCo's bad-QACC reset."""
     import h5py
 
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     params = tmp_path / "stiff.yaml"
     params.write_text("model: prb3\nbeam: {k: 100, k_twist: 100, b: 1.0e-6, b_twist: 0, mass: 1.0e-4}\n")
@@ -305,7 +305,7 @@ def xvfb_display(tmp_path):
 def test_a_spawned_viewer_listens_on_loopback_only(xvfb_display, monkeypatch):
     import socket
 
-    from beambench.sinks.rerun_spawn import rerun_binary, spawn_viewer
+    from beambench.sinks.viewer.spawn import rerun_binary, spawn_viewer
 
     if rerun_binary() is None:
         pytest.skip("the rerun viewer binary is missing")

@@ -17,7 +17,7 @@ import beambench
 from beambench.cli import app
 from beambench.common import resources
 from beambench.sim.models.params import available, load_params
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 from conftest import REPO, SHARED_ENV, require_shared, shared_path
 
 TINY = """

@@ -15,8 +15,8 @@ from beambench.acquisition.streams import CONTACT_MARKERS, WALKER_MARKERS, loadc
 from beambench.analysis.session_analysis import analyze_session
 from beambench.cli import app
 from beambench.session.replay import replay_session
-from beambench.sinks.hdf5 import read_session
-from beambench.sinks.rerun_layout import layout_of
+from beambench.sinks.session_file.reader import read_session
+from beambench.sinks.viewer.layout import layout_of
 
 # a 1 mm gap: the foot reaches the plate within a short run (regimes 1 and 1/2)
 TOUCHING = """

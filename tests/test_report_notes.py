@@ -116,7 +116,8 @@ def test_a_sim_run_stopped_by_sigint_reports_the_steps_it_never_ran(tmp_path):
     from beambench.analysis.session_analysis import analyze_session
     from beambench.backends.sim import SimRig
     from beambench.session.slices import sim_slice
-    from beambench.sinks.hdf5 import SessionWriter, read_session
+    from beambench.sinks.session_file.reader import read_session
+    from beambench.sinks.session_file.writer import SessionWriter
 
     protocol = parse_protocol(SHORT_SWEEP)
     rig = SimRig(sim_slice(protocol))

@@ -110,7 +110,7 @@ matplotlib.use("svg")
 before = dict(matplotlib.rcParams)
 from beambench.analysis.report import make_report
 from beambench.analysis.session_analysis import analyze_session
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 make_report([analyze_session(read_session({str(touching)!r}))], {str(tmp_path / "r")!r})
 assert matplotlib.get_backend() == "svg", matplotlib.get_backend()
 assert dict(matplotlib.rcParams) == before

@@ -6,7 +6,7 @@ import numpy as np
 import rerun.chunk as rc
 
 from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
-from beambench.sinks.rerun_view import SAVE_CHUNK_SECONDS, RerunSink
+from beambench.sinks.viewer.sink import SAVE_CHUNK_SECONDS, RerunSink
 
 MOTOR = StreamSpec("motor", 100.0, {"velocity": ColumnSpec(unit="turn/s")})
 
@@ -42,7 +42,7 @@ def test_a_speed_tracking_run_shows_target_measured_and_commanded_in_the_live_vi
     """A run with the speed controller's stream gets its panels, and its columns reach the recording (the
     controller's band, mode and integrator do not: they are not what a panel plots)."""
     from beambench.acquisition.control.speed_controller import track_spec
-    from beambench.sinks.rerun_layout import layout_of
+    from beambench.sinks.viewer.layout import layout_of
 
     spec = track_spec(0.1)
     layout = layout_of([MOTOR, spec], rig="walker")
@@ -103,7 +103,7 @@ def test_the_walker_view_follows_the_body_and_its_eye_sees_all_of_it_whatever_th
     """A body that walks 1.5 m while it sinks below the floor with folded legs: the view's frame (read back from
     the recording) follows the body over the floor, so seen from it every marker stays in one small box, framed
     on the walker alone; the eye stays outside that box and sees all of it; a fall through the floor is not followed."""
-    from beambench.sinks.rerun_layout import spatial_view
+    from beambench.sinks.viewer.layout import spatial_view
 
     rrd = tmp_path / "walk.rrd"
     sink = RerunSink("save", "walk", rrd, t0_ns=0, rig="walker")
@@ -145,7 +145,7 @@ def test_the_step_panel_tells_a_standstill_from_a_walk():
     import rerun as rr
 
     from beambench.acquisition.batch import StepRecord
-    from beambench.sinks.rerun_step import StepPanel
+    from beambench.sinks.viewer.step import StepPanel
 
     panel = StepPanel(rr.RecordingStream("step-test"), 2, t0_ns=0)
     t = np.arange(0, 3, 1 / 360)

@@ -16,7 +16,7 @@ import rerun.chunk as rc
 from typer.testing import CliRunner
 
 from beambench.cli import app
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 SHORT = """
 name: short

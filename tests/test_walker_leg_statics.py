@@ -203,7 +203,7 @@ def test_the_fold_warning_is_kept_in_the_session_and_shown_atop_the_report(tmp_p
     from typer.testing import CliRunner
 
     from beambench.cli import app
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     proto = folding_protocol(tmp_path)
     res = CliRunner().invoke(app, ["run", str(proto), "--out", str(tmp_path), "--rerun", "off"])

@@ -2,7 +2,7 @@
 
 Notebook use::
 
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
     from beambench.analysis import analyze_session, resample_session
 
     s = read_session("data/contact_sweep_sim_….h5")

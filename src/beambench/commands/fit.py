@@ -292,7 +292,7 @@ def _print_results(results, data, console) -> None:
 def _write_processing(session: Path, result, console) -> None:
     import numpy as np
 
-    from beambench.sinks.hdf5 import write_processing
+    from beambench.sinks.session_file.writer import write_processing
 
     nan = (float("nan"), float("nan"))
     bounds = np.array([result.intervals.get(k, nan) for k in result.values], float).reshape(-1, 2)

@@ -13,7 +13,7 @@ import typer
 from beambench.acquisition.protocol.schema import BACKENDS, Backend, ConfigError
 from beambench.commands import EXIT_FAULT, EXIT_OK, EXIT_SINK, EXIT_STOPPED, STANDALONE, fail
 from beambench.common.resources import shipped_names
-from beambench.sinks import RerunMode
+from beambench.sinks.viewer import RerunMode
 
 if TYPE_CHECKING:
     from beambench.acquisition.protocol.schema import Protocol
@@ -334,7 +334,7 @@ def view(
             fail(f"{rrd}: exists; give another --out (view never overwrites a recording)")
         check_writable(rrd, "--out")
     from beambench.session.replay import replay_session
-    from beambench.sinks.hdf5 import SessionFileError
+    from beambench.sinks.session_file.reader import SessionFileError
 
     try:
         written = replay_session(session, mode, rrd)
@@ -349,7 +349,7 @@ def view(
 def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) -> None:
     """``view --screenshot``: the picture's path on stdout, or one line saying what is missing."""
     from beambench.session.viewer import ViewerUnavailable, session_screenshot
-    from beambench.sinks.hdf5 import SessionFileError
+    from beambench.sinks.session_file.reader import SessionFileError
 
     if png.suffix.lower() != ".png":
         fail(f"{png}: --screenshot writes a PNG (give FILE.png)")

@@ -37,8 +37,9 @@ from beambench.common.errors import BeambenchError
 from beambench.session.checks import Validated, validate
 from beambench.session.provenance import provenance
 from beambench.session.track_map import track_setup
-from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
-from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
+from beambench.sinks.session_file.reader import SessionFileError
+from beambench.sinks.session_file.writer import SessionWriter, append_general
+from beambench.sinks.viewer import RerunMode  # rerun itself is imported only when a viewer is wanted
 
 
 @dataclass(frozen=True)
@@ -190,7 +191,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
             sinks.append(tracking.controller)
         if req.rerun_mode != "off":
             from beambench.analysis.step_contacts import window_contacts
-            from beambench.sinks.rerun_view import RerunSink
+            from beambench.sinks.viewer.sink import RerunSink
 
             sinks.append(
                 RerunSink(

@@ -55,7 +55,7 @@ def map_from_table(table: pd.DataFrame, source: str) -> SpeedMap:
 def map_from_session(path: Path) -> SpeedMap:
     """Analyse a walker session and take its speed map."""
     from beambench.analysis.session_analysis import analyze_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     try:
         session = read_session(path)

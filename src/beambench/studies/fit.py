@@ -124,7 +124,7 @@ def load_release_session(
     Raises :class:`FitError` for sessions that are not release tests."""
     from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
     from beambench.analysis.session_analysis import fit_session_clocks, mocap_markers, stream_host_times
-    from beambench.sinks.hdf5 import SessionFileError, read_session
+    from beambench.sinks.session_file.reader import SessionFileError, read_session
 
     try:
         s = read_session(path)

@@ -285,7 +285,7 @@ def session_targets(path: str | Path) -> Targets:
     """Per-step targets of a measured (or twin-made) session, analysed with :mod:`beambench.analysis.session_analysis`;
     the release-test fit it holds (``/processing/fit``) or the parameter set it ran with is the prior."""
     from beambench.analysis.session_analysis import analyze_session
-    from beambench.sinks.hdf5 import SessionFileError, read_session
+    from beambench.sinks.session_file.reader import SessionFileError, read_session
 
     p = Path(path)
     if not p.is_file():

@@ -19,7 +19,7 @@ import rerun as rr
 
 from beambench.acquisition.batch import StepRecord
 from beambench.acquisition.forces.contact_events import ContactSummary, force_regime
-from beambench.sinks.rerun_layout import TIMELINE
+from beambench.sinks.viewer.layout import TIMELINE
 
 MEASURED_SPAN_S = 0.5  # the measured frequency: mean motor velocity over the last half second of the step
 MEASURED_EVERY_S = 0.5  # a batch longer than this (a saved file's) updates the panel at this spacing

@@ -1,6 +1,6 @@
 """The HDF5 session file's reader: checks a file is a whole session before HDF5 sees it, opens it in SWMR mode
 (a file being written, or cut off by a kill, reads too) and returns a :class:`SessionFile`. The layout is the
-writer's (:mod:`beambench.sinks.hdf5`).
+writer's (:mod:`beambench.sinks.session_file.writer`).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import pandas as pd
 from beambench.acquisition.batch import ColumnSpec, Frame, StreamSpec
 from beambench.common.inputs import check_input_file
 from beambench.common.yaml_config import ConfigError
-from beambench.sinks.session_schema import SessionSchemaError, check_schema
+from beambench.sinks.session_file.schema import SessionSchemaError, check_schema
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -188,15 +188,15 @@ class SessionFile:
 
     def to_pandas(self, stream: str) -> pd.DataFrame:
         """One stream as a DataFrame with named columns (``foot_x``, ``lc0``, ``axis_state`` …), ``step`` and
-        units in ``df.attrs["units"]`` (:func:`beambench.sinks.session_frames.stream_frame`)."""
-        from beambench.sinks.session_frames import stream_frame
+        units in ``df.attrs["units"]`` (:func:`beambench.sinks.session_file.frames.stream_frame`)."""
+        from beambench.sinks.session_file.frames import stream_frame
 
         return stream_frame(self, stream)
 
     def to_xarray(self) -> xr.Dataset:
         """The session as one xarray Dataset (dimensions time, marker, axis; attributes from ``/general``;
-        :func:`beambench.sinks.session_frames.session_dataset`)."""
-        from beambench.sinks.session_frames import session_dataset
+        :func:`beambench.sinks.session_file.frames.session_dataset`)."""
+        from beambench.sinks.session_file.frames import session_dataset
 
         return session_dataset(self)
 

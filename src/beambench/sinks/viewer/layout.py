@@ -237,7 +237,7 @@ def _time_series(p: Panel) -> rrb.TimeSeriesView:
     )
 
 
-FOLLOW_ORIGIN = "/mocap/follow"  # the walker's view frame (:data:`beambench.sinks.rerun_scene.FOLLOW_ENTITY`)
+FOLLOW_ORIGIN = "/mocap/follow"  # the walker's view frame (:data:`beambench.sinks.viewer.scene.FOLLOW_ENTITY`)
 
 
 def spatial_view(layout: RigLayout, camera: Camera | None) -> rrb.Spatial3DView:
