@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.scenes.release import G, release_batch, release_models
-from beambench.studies.fit import (
+from beambench.studies.fit.release import (
     PAPER_MAE_MM,
     FitOptions,
     ParamSpace,

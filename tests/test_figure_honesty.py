@@ -194,8 +194,8 @@ def test_compare_refuses_sessions_of_different_rigs(tmp_path):
 def test_fit_figure_legend_sits_below_the_traces_in_the_report_style(tmp_path):
     from matplotlib.figure import Figure
 
-    from beambench.studies import fit
-    from beambench.studies.fit_figure import plot_fit
+    from beambench.studies.fit import release as fit
+    from beambench.studies.fit.figure import plot_fit
 
     t = np.linspace(0, 0.1, 40)
     m = np.random.default_rng(0).random((40, 3, 3)) * 1e-3

@@ -1,4 +1,4 @@
-"""``beambench fit SESSION.h5``: identify the beam model from a release-test session (:mod:`beambench.studies.fit`)."""
+"""``beambench fit SESSION.h5``: identify the beam model from a release-test session (:mod:`beambench.studies.fit.release`)."""
 
 from __future__ import annotations
 
@@ -91,8 +91,8 @@ def fit(args: FitArgs) -> None:
     from rich.console import Console
 
     from beambench.common.console import stderr_console
-    from beambench.studies.fit import FitError, load_release_session
-    from beambench.studies.fit_figure import plot_fit
+    from beambench.studies.fit.figure import plot_fit
+    from beambench.studies.fit.release import FitError, load_release_session
 
     models = _checked(args)
     session = args.session
@@ -136,7 +136,7 @@ def _checked(args: FitArgs) -> list[str]:
         fail("--free-l1 applies to the prb3 model")
     if not args.session.is_file():
         fail(f"{args.session}: no such session file")
-    from beambench.studies.fit import METHODS
+    from beambench.studies.fit.release import METHODS
 
     if args.method not in METHODS:
         fail(f"--method = {args.method[:40]!r}: one of {', '.join(METHODS)}")
@@ -177,7 +177,7 @@ def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
     from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 
     from beambench.common.console import LogProgress
-    from beambench.studies.fit import FitError, FitOptions, fit_release
+    from beambench.studies.fit.release import FitError, FitOptions, fit_release
 
     options = FitOptions(
         method=args.method,
@@ -213,7 +213,7 @@ def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
 def _write_outputs(args: FitArgs, results: list, name: str, out: Path, fig: Path, console: Any) -> None:
     """The parameter sets (and /processing), the JSON report; their paths on stdout."""
     from beambench.common.resources import user_dir
-    from beambench.studies.fit import write_param_set
+    from beambench.studies.fit.release import write_param_set
 
     session = args.session
     report = {"session": str(session), "results": [r.summary() for r in results], "figure": str(fig)}
@@ -240,8 +240,8 @@ def _write_outputs(args: FitArgs, results: list, name: str, out: Path, fig: Path
 def _print_results(results, data, console) -> None:
     from rich.table import Table
 
-    from beambench.studies.fit import PAPER_MAE_MM, value_with_interval
-    from beambench.studies.fit_sysid import UNITS
+    from beambench.studies.fit.release import PAPER_MAE_MM, value_with_interval
+    from beambench.studies.fit.sysid import UNITS
 
     conf = f"{results[0].confidence:.0%}" if results else "95%"
     # truth and error: only where the session's own twin is the fitted model (a sim session of it); else no columns
