@@ -85,8 +85,8 @@ def test_the_twist_sweep_title_names_the_tip_and_the_drive_frequency(tmp_path):
     import pandas as pd
     from matplotlib.figure import Figure
 
-    from beambench.studies.sweep import SweepSpec
-    from beambench.studies.sweep_figure import plot_sweep
+    from beambench.studies.sweep.figure import plot_sweep
+    from beambench.studies.sweep.run import SweepSpec
 
     spec = SweepSpec.model_validate(
         {

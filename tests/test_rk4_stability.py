@@ -45,7 +45,7 @@ def test_a_diverged_rk4_run_is_explained():
 
 
 def test_a_one_point_rk4_sweep_stores_the_reason():
-    from beambench.studies.sweep import SweepSpec, run_local
+    from beambench.studies.sweep.run import SweepSpec, run_local
 
     spec = SweepSpec.model_validate(
         {

@@ -24,7 +24,7 @@ from beambench.common.yaml_config import MAX_FILE_BYTES, parse_yaml
 from beambench.sim.models.params import ParamsError, params_from_dict
 from beambench.sinks.session_file.reader import SessionFileError, read_session
 from beambench.sinks.session_file.writer import SessionWriter
-from beambench.studies.sweep import SweepError, load_sweep
+from beambench.studies.sweep.run import SweepError, load_sweep
 from conftest import cli, one_line_error
 
 ROOT = Path(__file__).resolve().parents[1]

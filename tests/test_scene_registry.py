@@ -66,8 +66,8 @@ def test_a_sweep_task_is_a_typed_frozen_value_that_pickles():
     import dataclasses
     import pickle
 
-    from beambench.studies.sweep import SweepSpec, make_tasks, plan
-    from beambench.studies.sweep_scenes import Job, SweepTask
+    from beambench.studies.sweep.run import SweepSpec, make_tasks, plan
+    from beambench.studies.sweep.task import Job, SweepTask
 
     spec = SweepSpec.model_validate({"scene": "contact", "points": [{"gap_mm": 1.0}], "frequencies": [5, 10]})
     tasks = make_tasks(spec, plan(spec), 1)
