@@ -7,8 +7,8 @@ import matplotlib.image as mpimg
 import pandas as pd
 
 from beambench.common.resources import shipped_dir
-from beambench.studies.ladder import summarize
-from beambench.studies.ladder_figures import default_model_sentence, plot_speed_accuracy, plot_stability_map
+from beambench.studies.ladder.figures import default_model_sentence, plot_speed_accuracy, plot_stability_map
+from beambench.studies.ladder.run import summarize
 from beambench.studies.sweep.figure import axis_label, plot_sweep
 from beambench.studies.sweep.run import SweepSpec
 

@@ -68,8 +68,8 @@ def test_the_quick_speed_accuracy_chart_says_what_it_measured(tmp_path):
     import pandas as pd
     from matplotlib.figure import Figure
 
-    from beambench.studies.ladder import QUICK, TWIN_MODEL, summarize
-    from beambench.studies.ladder_figures import ladder_note, plot_speed_accuracy
+    from beambench.studies.ladder.figures import ladder_note, plot_speed_accuracy
+    from beambench.studies.ladder.run import QUICK, TWIN_MODEL, summarize
 
     assert TWIN_MODEL == "rod5g" and TWIN_MODEL in QUICK.models
     rows = []

@@ -256,7 +256,7 @@ matplotlib.use("svg")  # a user's own choice (a notebook's inline backend, say) 
 import numpy as np, pandas as pd
 from beambench.studies.fit import figure as fit_figure, release as fit
 from beambench.studies.sweep import figure as sweep_figure, run as sweep
-from beambench.studies import ladder_figures
+from beambench.studies.ladder import figures as ladder_figures
 out = sys.argv[1]
 spec = sweep.SweepSpec.model_validate({"grid": {"twist_deg": [0, 90]}, "frequencies": [10, 15]})
 df = pd.DataFrame({"twist_deg": [0, 0, 90, 90], "frequency_hz": [10, 15, 10, 15], "tip_major_mm": [1, 2, 3, 4],
