@@ -7,10 +7,11 @@ import pandas as pd
 import pytest
 
 from beambench.acquisition.protocol.plan import plan
-from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.analysis.branches import annotate_branches
 from beambench.analysis.session_analysis import analyze_session
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
+from beambench.common.yaml_config import ConfigError
 from beambench.sinks.session_file.reader import read_session
 
 

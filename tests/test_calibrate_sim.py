@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from beambench.sim.scenes.contact_regimes import transitions
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration import (
     RIGS,
@@ -25,13 +26,7 @@ from beambench.studies.twin_calibration import (
 )
 from beambench.studies.twin_calibration.contact import simulate_contact
 from beambench.studies.twin_calibration.contact_objective import contact_objective, regime_level
-from beambench.studies.twin_calibration.targets import (
-    CalibrationInputError,
-    Targets,
-    load_targets,
-    parse_targets,
-    transitions,
-)
+from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets, load_targets, parse_targets
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER = REPO / "calibration" / "paper_contact_targets.yaml"

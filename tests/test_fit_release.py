@@ -33,8 +33,6 @@ from beambench.studies.fit.release import (
     FitError,
     FitOptions,
     FitResult,
-    ParamSpace,
-    ReleaseData,
     ReleaseObjective,
     ReleaseTest,
     default_base,
@@ -43,6 +41,7 @@ from beambench.studies.fit.release import (
     load_release_session,
     synthetic_release,
 )
+from beambench.studies.fit.space import ParamSpace, ReleaseData
 
 ROOT = Path(__file__).resolve().parents[1]
 NOISE = 3e-4  # m per coordinate

@@ -93,7 +93,8 @@ def run(request, tmp_path_factory):
     from beambench.acquisition.hub import Hub
     from beambench.acquisition.protocol.plan import motor_limits, plan
     from beambench.acquisition.protocol.schema import parse_protocol
-    from beambench.acquisition.runner import Runner, StopSignal
+    from beambench.acquisition.runner import Runner
+    from beambench.acquisition.stop_signals import StopSignal
     from beambench.backends.emulated import build_emulated_rig
     from beambench.session.slices import sim_slice
     from beambench.sinks.session_file.reader import read_session

@@ -391,12 +391,14 @@ def test_printable_strips_escape_sequences_and_controls(raw, shown):
 
 
 def test_natnet_decode_prints_no_escape_sequence_a_server_sent(tmp_path):
+    from beambench.devices.natnet import frame as nf
     from beambench.devices.natnet import protocol as nn
+    from beambench.devices.natnet import wire as nw
     from test_natnet_capture import write_pcap
 
-    sender = nn.Sender(HOSTILE, nn.Version(3, 1, 0, 0), nn.V4_1)
+    sender = nn.Sender(HOSTILE, nw.Version(3, 1, 0, 0), nw.V4_1)
     info = nn.ServerInfo(sender, 1_000_000, 1511, True, "239.255.42.99")
-    frame = nn.FrameOfData(7, timestamp=0.1, mid_exposure=1, data_received=2, transmit=3)
+    frame = nf.FrameOfData(7, timestamp=0.1, mid_exposure=1, data_received=2, transmit=3)
     path = tmp_path / "hostile.pcap"
     write_pcap(path, [(1.0, nn.encode(info), 1510, 50000), (1.1, nn.encode(frame, (4, 1)), 1511, 50000)])
     code, out = cli("natnet", "decode", str(path), "--out", str(tmp_path / "f.csv"))

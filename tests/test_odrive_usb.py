@@ -18,13 +18,13 @@ import yaml
 
 from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
 from beambench.acquisition.streams import motor_spec
-from beambench.devices.odrive.can_motor import LimitError
 from beambench.devices.odrive.cansimple import (
     AxisError,
     AxisState,
     ControlMode,
     InputMode,
 )
+from beambench.devices.odrive.telemetry import LimitError
 from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming, ping
 from conftest import require_shared
 

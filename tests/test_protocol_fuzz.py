@@ -9,7 +9,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from beambench.acquisition.protocol.plan import plan, summary
-from beambench.acquisition.protocol.schema import ConfigError, Protocol, parse_protocol
+from beambench.acquisition.protocol.schema import Protocol, parse_protocol
+from beambench.common.yaml_config import ConfigError
 from conftest import fuzz_examples
 
 VALID = """

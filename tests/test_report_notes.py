@@ -111,7 +111,8 @@ def test_a_sim_run_stopped_by_sigint_reports_the_steps_it_never_ran(tmp_path):
     from beambench.acquisition.hub import Hub
     from beambench.acquisition.protocol.plan import motor_limits, plan
     from beambench.acquisition.protocol.schema import parse_protocol
-    from beambench.acquisition.runner import Runner, StopSignal
+    from beambench.acquisition.runner import Runner
+    from beambench.acquisition.stop_signals import StopSignal
     from beambench.analysis.report_notes import completeness_note, run_completeness
     from beambench.analysis.session_analysis import analyze_session
     from beambench.backends.sim import SimRig

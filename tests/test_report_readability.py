@@ -15,7 +15,8 @@ from matplotlib import colors as mcolors
 from matplotlib import image as mimage
 from typer.testing import CliRunner
 
-from beambench.analysis.report import SESSION_COLORS, SUMMARY_COLUMNS, summary_table
+from beambench.analysis.figures.style import SESSION_COLORS
+from beambench.analysis.report import SUMMARY_COLUMNS, summary_table
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
 from beambench.cli import app
 

@@ -19,8 +19,8 @@ import h5py
 import pytest
 
 from beambench.acquisition.protocol.plan import session_path
-from beambench.acquisition.protocol.schema import ConfigError, load_protocol, parse_protocol
-from beambench.common.yaml_config import MAX_FILE_BYTES, parse_yaml
+from beambench.acquisition.protocol.schema import load_protocol, parse_protocol
+from beambench.common.yaml_config import MAX_FILE_BYTES, ConfigError, parse_yaml
 from beambench.sim.models.params import ParamsError, params_from_dict
 from beambench.sinks.session_file.reader import SessionFileError, read_session
 from beambench.sinks.session_file.writer import SessionWriter

@@ -6,8 +6,9 @@ from __future__ import annotations
 import pytest
 
 from beambench.acquisition.protocol import scenes as catalogue
-from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.streams import CONTACT_MARKERS, WALKER_MARKERS
+from beambench.common.yaml_config import ConfigError
 from beambench.sim import scenes
 
 

@@ -14,8 +14,9 @@ import pytest
 from beambench.acquisition.batch import Batch, Frame
 from beambench.acquisition.control.speed_controller import LOST, TRACKING, TrackController, track_spec
 from beambench.acquisition.control.speed_map import SpeedMap
-from beambench.acquisition.protocol.schema import ConfigError, TrackControl, parse_protocol
+from beambench.acquisition.protocol.schema import TrackControl, parse_protocol
 from beambench.acquisition.streams import WALKER_MARKERS, mocap_spec
+from beambench.common.yaml_config import ConfigError
 
 MAX_HZ = 60.0
 

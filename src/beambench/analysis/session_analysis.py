@@ -16,14 +16,10 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from beambench.acquisition.forces.contact_events import ContactParams, Contacts, force_contacts
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.analysis.branches import annotate_branches, with_step_labels
-from beambench.analysis.contact import (
-    ContactParams,
-    Contacts,
-    force_contacts,
-    touchdown_velocity,
-)
+from beambench.analysis.contact import touchdown_velocity
 from beambench.analysis.drift import drift_corrected
 from beambench.analysis.path_shape import annotate_inversions, path_noise, shape_columns
 from beambench.analysis.signals import velocity

@@ -606,7 +606,8 @@ def build_emulated_rig(
     from beambench.devices.loadcell.driver import SerialLoadCells
     from beambench.devices.natnet.client import NatNetConfig
     from beambench.devices.natnet.mocap import NatNetMocap
-    from beambench.devices.odrive.can_motor import CanMotorTiming, OdriveCanMotor
+    from beambench.devices.odrive.can_motor import OdriveCanMotor
+    from beambench.devices.odrive.can_timing import CanMotorTiming
     from beambench.emulators.canbus import LoopbackCanBus
     from beambench.emulators.motive import MOTIVE_GEOMETRY
 

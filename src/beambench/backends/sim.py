@@ -24,7 +24,7 @@ import numpy as np
 from beambench.acquisition.capabilities import DeviceFault, Stream, WarnsOfModel
 from beambench.acquisition.forces.loadcell_calibration import default_calibration
 from beambench.acquisition.protocol.scenes import scene_info
-from beambench.acquisition.protocol.schema import ClockModel, ConfigError
+from beambench.acquisition.protocol.schema import ClockModel
 from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
 from beambench.backends import lookahead
 from beambench.backends.sim_devices import (
@@ -34,6 +34,7 @@ from beambench.backends.sim_devices import (
     SimMocap,
     SimMotor,
 )
+from beambench.common.yaml_config import ConfigError
 from beambench.sim import scenes
 from beambench.sim.engine.stepping import Trajectory, quiet_mujoco_warnings
 from beambench.sim.models.registry import UnknownModelError, beam_model

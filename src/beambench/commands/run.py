@@ -10,9 +10,10 @@ from typing import TYPE_CHECKING
 
 import typer
 
-from beambench.acquisition.protocol.schema import BACKENDS, Backend, ConfigError
+from beambench.acquisition.protocol.schema import BACKENDS, Backend
 from beambench.commands import EXIT_FAULT, EXIT_OK, EXIT_SINK, EXIT_STOPPED, STANDALONE, fail
 from beambench.common.resources import shipped_names
+from beambench.common.yaml_config import ConfigError
 from beambench.sinks.viewer import RerunMode
 
 if TYPE_CHECKING:

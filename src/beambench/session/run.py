@@ -28,12 +28,13 @@ from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.protocol.backends import backend_info
 from beambench.acquisition.protocol.plan import plan
-from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
+from beambench.acquisition.protocol.schema import Backend, Protocol
 from beambench.acquisition.runner import Runner, RunResult
 from beambench.acquisition.stop_signals import StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
 from beambench.common.console import LogProgress, stderr_console
 from beambench.common.errors import BeambenchError
+from beambench.common.yaml_config import ConfigError
 from beambench.session.checks import Validated, validate
 from beambench.session.provenance import provenance
 from beambench.session.track_map import track_setup

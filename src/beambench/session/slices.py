@@ -11,8 +11,9 @@ from pydantic import BaseModel
 
 from beambench.acquisition.protocol.backends import backend_info
 from beambench.acquisition.protocol.scenes import SceneInfo, foreign_option, runnable_names, scene_info
-from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol, SimOptions
+from beambench.acquisition.protocol.schema import Backend, Protocol, SimOptions
 from beambench.backends.build import RigSlices
+from beambench.common.yaml_config import ConfigError
 from beambench.sim.models.params import has_params
 from beambench.sim.models.registry import model_family
 from beambench.sim.protocol_slice import AUTO_TOLERANCE_MM, DeviceClocks, SimSlice

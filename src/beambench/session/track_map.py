@@ -25,10 +25,11 @@ from beambench.acquisition.control.speed_controller import TrackController, trac
 from beambench.acquisition.control.speed_map import SpeedMap, SpeedMapError
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import Step, motor_limits
-from beambench.acquisition.protocol.schema import ConfigError, Protocol
+from beambench.acquisition.protocol.schema import Protocol
 from beambench.acquisition.runner import ProgressCallback
 from beambench.acquisition.stop_signals import StopSignal
 from beambench.acquisition.track_runner import TrackRunner
+from beambench.common.yaml_config import ConfigError
 
 DEFAULT_MOCAP_LOST_S = 0.25  # with monitors.mocap_lost_s: null the controller still never drives blind longer
 

@@ -8,8 +8,9 @@ from datetime import datetime
 from pathlib import Path
 
 from beambench.acquisition.capabilities import MotorLimits
-from beambench.acquisition.protocol.schema import ConfigError, Protocol, format_name
+from beambench.acquisition.protocol.schema import Protocol, format_name
 from beambench.common.names import check_name
+from beambench.common.yaml_config import ConfigError
 
 
 @dataclass(frozen=True)

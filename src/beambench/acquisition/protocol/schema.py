@@ -36,7 +36,7 @@ Integrator = Literal["euler", "implicitfast", "implicit", "rk4", "discrete"]
 BACKENDS: tuple[str, ...] = get_args(Backend)
 
 
-__all__ = ["BACKENDS", "ConfigError", "Protocol", "RigFile", "load_protocol", "load_rig_file", "parse_protocol"]
+__all__ = ["BACKENDS", "Protocol", "RigFile", "load_protocol", "load_rig_file", "parse_protocol"]
 
 MAX_STEPS = 10_000  # a sweep longer than this is a typo (1e-9 Hz steps), not a measurement
 # the lowest drive frequency (Hz) other than 0: one period in 100 s; 1e-320 Hz is a typo, not a measurement

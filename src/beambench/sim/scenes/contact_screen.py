@@ -21,8 +21,9 @@ import numpy as np
 import pandas as pd
 
 from beambench.acquisition.streams import CONTACT_MARKERS
+from beambench.sim.scene_params import RigParams
 from beambench.sim.scenes.contact_regimes import IRREGULAR, ContactTwin, _regime_table
-from beambench.sim.scenes.contact_rig import ContactRigSim, RigParams
+from beambench.sim.scenes.contact_rig import ContactRigSim
 from beambench.sim.scenes.step_regime import Classifier, StepWindow
 
 SCREEN_FREQUENCIES = (4.0, 10.0, 14.0, 16.0, 18.0, 20.0, 22.0, 24.0, 26.0, 28.0, 30.0, 32.0, 34.0, 36.0, 38.0, 40.0)

@@ -33,9 +33,9 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.protocol.scenes import WALKER
-from beambench.acquisition.protocol.schema import ConfigError
 from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.common.errors import BeambenchError
+from beambench.common.yaml_config import ConfigError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, qinv, qmul, quat_x, quat_y
 from beambench.sim.models.hysteretic import HystereticDamping

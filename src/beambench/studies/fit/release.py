@@ -122,8 +122,9 @@ def load_release_session(
     on the sim, else detected from the data. ``register``: map the mocap frame onto the model's
     (:func:`register_to_model`); None = only for sessions not made by the sim (whose frame is the model's).
     Raises :class:`FitError` for sessions that are not release tests."""
-    from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.analysis.session_analysis import fit_session_clocks, mocap_markers, stream_host_times
+    from beambench.common.yaml_config import ConfigError
     from beambench.sinks.session_file.reader import SessionFileError, read_session
 
     try:
