@@ -83,8 +83,8 @@ def fit(args: FitArgs) -> None:
     fitted tip paths, writes a JSON report, and saves each fit (intervals in its source and fit notes) as a
     named parameter set in the per-user folder that protocols select with `sim.params`.
 
-    Measured (benchmarks/bench_fit_sysid.py: synthetic release tests, 0.3 mm noise, 0.35 s, 2 threads, load 5.5
-    on 2 cores): rod5 sysid 4.0 s / 54 rollouts vs de 30.5 s / 533; PRB3 sysid 1.3 s / 39 vs de 27.1 s / 1158;
+    Measured (benchmarks/bench_fit_sysid.py: synthetic release tests, 0.3 mm noise, 0.35 s, 2 threads,
+    median of 3): rod5 sysid 4.0 s / 54 rollouts vs de 30.5 s / 533; PRB3 sysid 1.3 s / 39 vs de 27.1 s / 1158;
     both reach the noise floor (0.50 mm RMS), intervals E ±0.13 %, β ±1.0 %, k ±0.9 %, b ±2.4 %, l2 ±1.8 %.
     Intervals count marker noise, not model error.
     """

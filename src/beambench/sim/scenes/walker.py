@@ -57,7 +57,7 @@ class WalkerLegError(BeambenchError, ValueError):
 
 def check_leg_model(name: str) -> None:
     """Refuse leg models of a family the walker cannot build (every known family builds today: PRB3 and the
-    segmented rods; issue 22 puts the contact rig's physical rod on the walker, docs/walker-twin.md)."""
+    segmented rods; the shipped walker stands on the contact rig's physical rod, docs/walker-twin.md)."""
     try:
         family = model_family(name)
     except UnknownModelError as exc:
