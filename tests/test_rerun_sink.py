@@ -8,7 +8,7 @@ import rerun.chunk as rc
 from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
 from beambench.sinks.rerun_view import SAVE_CHUNK_SECONDS, RerunSink
 
-MOTOR = StreamSpec("motor", 100.0, {"velocity": ColumnSpec(unit="turn/s")})
+MOTOR = StreamSpec("motor", 100.0, {"velocity": ColumnSpec(unit="turn/s", plotted=True)})
 
 
 def test_a_slow_stream_is_sent_at_least_every_chunk_span_of_session_time(tmp_path):
