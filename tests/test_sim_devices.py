@@ -142,7 +142,7 @@ def test_clocks_by_stream_name_and_the_older_per_stream_keys_are_one_setting():
     old = sim_slice(protocol(f"mocap_clock: {clk}, motor_clock: {{latency_s: 0.002}}"))
     assert new == old and new.clocks.of("mocap").drift_ppm == 80.0 and new.clocks.of("motor").latency_s == 0.002
     assert new.clocks.of("loadcell") == sim_slice(protocol()).clocks.of("loadcell")  # not named: the default
-    with pytest.raises(ConfigError, match="mocap_clock and clocks.mocap both given"):
+    with pytest.raises(ConfigError, match=r"mocap_clock and clocks\.mocap both given"):
         protocol(f"mocap_clock: {clk}, clocks: {{mocap: {clk}}}")
     with pytest.raises(ConfigError) as exc:
         sim_slice(protocol(f"clocks: {{mocpa: {clk}}}"))

@@ -107,14 +107,25 @@ def test_the_new_stream_is_in_the_session_on_its_own_clock_and_measures_the_mark
     assert devices["laser"]["rate_hz"] == 2000.0 and devices["laser"]["clock"]["offset_s"] == OFFSET_S
 
 
-def test_the_new_stream_is_in_the_rerun_recording(laser_run):
-    s = read_session(laser_run[0])
+def _rows(rrd: Path) -> dict[str, int]:
     rows: dict[str, int] = {}
-    for chunk in rc.RrdReader(laser_run[1]).stream():
+    for chunk in rc.RrdReader(rrd).stream():
         if not chunk.is_static:
             rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    return rows
+
+
+def test_the_new_stream_is_in_the_rerun_recording_and_its_replay(package_with_laser, laser_run):
+    session, rrd = laser_run
+    s = read_session(session)
+    rows = _rows(rrd)
     assert rows["/laser/data"] == len(s.streams["laser"])
     assert rows["/motor/velocity"] == len(s.streams["motor"])  # the rig's own panels are still fed
+    # the session file keeps what the view plots: a replay shows the stream too
+    replay = rrd.with_name("replay.rrd")
+    res = _beambench(package_with_laser, "view", str(session), "--rerun", "save", "--out", str(replay), cwd=rrd.parent)
+    assert res.returncode == 0, res.stderr
+    assert _rows(replay)["/laser/data"] == len(s.streams["laser"])
 
 
 def test_a_clock_for_a_stream_nobody_registered_is_one_line(package_with_laser, tmp_path):
