@@ -59,7 +59,7 @@ def test_rig_satisfies_the_protocols(two_seconds):
     assert isinstance(rig, Rig)
     assert [s.name for s in rig.streams] == ["motor", "mocap", "loadcell"]
     assert rig.mocap.describe() == mocap_spec(CONTACT_MARKERS)
-    assert rig.loadcells.describe() == loadcell_spec() and rig.motor.describe() == motor_spec()
+    assert rig.loadcell.describe() == loadcell_spec() and rig.motor.describe() == motor_spec()
 
 
 def test_exact_sample_counts_and_contiguous_reads(two_seconds):
@@ -173,7 +173,7 @@ def test_noise_off_gives_exact_tare_counts_without_contact():
     rig.open()
     out = run(rig, 25.0, 1.0)
     rig.close()
-    tare = np.round(rig.loadcells.cal.tare).astype(np.int32)
+    tare = np.round(rig.loadcell.cal.tare).astype(np.int32)
     assert np.all(out["loadcell"].columns["data"] == tare)
 
 

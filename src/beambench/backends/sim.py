@@ -99,11 +99,10 @@ class SimRig:
         self._offset = {"x": 0.0, "theta": 0.0}  # added to the rows once a later segment's scene took over
 
     def __getattr__(self, name: str) -> SampledStream:
-        """A simulated stream by its name (``rig.mocap``); ``rig.loadcells`` as on a device rig."""
+        """A simulated stream by its name (``rig.mocap``, ``rig.loadcell``)."""
         named = self.__dict__.get("named", {})
-        key = LOADCELL if name == "loadcells" else name
-        if key in named:
-            return named[key]
+        if name in named:
+            return named[name]
         raise AttributeError(f"{type(self).__name__} has no attribute or stream {name!r}")
 
     def open(self) -> None:
