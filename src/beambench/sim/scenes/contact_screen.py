@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from beambench.acquisition.streams import CONTACT_MARKERS
-from beambench.sim.scenes.contact_regimes import IRREGULAR, ContactTwin, _regime_table
+from beambench.sim.scenes.contact_regimes import IRREGULAR, ContactTwin, regime_table
 from beambench.sim.scenes.contact_rig import ContactRigSim, RigParams
 from beambench.sim.scenes.step_regime import Classifier, StepWindow
 
@@ -78,6 +78,6 @@ def screen_map(
             lift.append(max(0.0, float(np.max(xyz[:, 2]) - plate_top)) * 1e3)
     finally:
         scene.physics.close()
-    table = _regime_table(rows, rig.plate_gap)
+    table = regime_table(rows, rig.plate_gap)
     table["liftoff_mm"] = lift
     return table
