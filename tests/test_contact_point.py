@@ -12,7 +12,7 @@ from beambench.sim.scenes.contact_screen import converged_dt, point_twin
 
 def test_bounds_keys_land_in_the_beam_its_material_and_the_rig():
     twin = point_twin({"beam.beta": 2e-3, "beam.material.youngs_modulus": 60e6, "rig.friction": 0.7, "damping": 1.0})
-    beam, rig = twin.build()
+    _, rig = twin.build()
     assert twin.params.beta == 2e-3 and twin.params.material.youngs_modulus == 60e6
     assert rig.friction == 0.7
     shipped = load_params("physical", "rod")
