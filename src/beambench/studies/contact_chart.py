@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -342,11 +343,11 @@ def chart_figure(table: pd.DataFrame, out: Path) -> None:
                 facecolors=c if filled else "none",
                 edgecolors=c,
             )
-        for r in at.itertuples():  # the shipped default, ringed
-            y = getattr(r, col, np.nan)
+        for star in at.itertuples():  # the shipped default, ringed
+            y = getattr(star, col, np.nan)
             if np.isfinite(y):
                 ax.scatter(
-                    r.cpu_s_per_sim_s,
+                    star.cpu_s_per_sim_s,
                     max(y, 1e-3) if log else y,
                     marker="*",
                     s=260,
@@ -381,7 +382,7 @@ def chart_figure(table: pd.DataFrame, out: Path) -> None:
     plt.close(fig)
 
 
-def _front_panel(ax, table: pd.DataFrame, shipped: ChartPoint, colours: dict[str, str]) -> None:  # type: ignore[no-untyped-def]
+def _front_panel(ax: Any, table: pd.DataFrame, shipped: ChartPoint, colours: dict[str, str]) -> None:
     """The shipped physics' front: its points' cost against their in-contact-fraction error from the finest run,
     the cheapest-so-far envelope, the tolerance, and the shipped default with what (if anything) beats it."""
     s, beaten_by = front_check(table, shipped)

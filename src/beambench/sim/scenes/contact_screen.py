@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -49,7 +50,7 @@ def point_twin(values: Mapping[str, float], base: str = "physical") -> ContactTw
 
     params = load_params(base, "rod")
     rig = {**params.rig}
-    beam: dict[str, float] = {}
+    beam: dict[str, Any] = {}
     material: dict[str, float] = {}
     for key, v in values.items():
         block, _, name = key.partition(".")
