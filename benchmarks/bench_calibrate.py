@@ -121,7 +121,7 @@ def analyze(session: Path, out: Path) -> pd.DataFrame:
 
 
 def transitions(steps: pd.DataFrame) -> dict:
-    from beambench.studies.twin_calibration.targets import transitions as tr
+    from beambench.sim.scenes.contact_regimes import transitions as tr
 
     return tr(steps["frequency_hz"].to_numpy(float), list(steps["regime"].fillna("").astype(str)))
 

@@ -61,7 +61,7 @@ def steps(session: Path) -> pd.DataFrame:
 
 def segments_info(session: Path) -> dict:
     """The session's ``/general/sim_segments`` (where the cut was planned and taken, the workers' CPU)."""
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     return dict(read_session(session).general.get("sim_segments") or {})
 

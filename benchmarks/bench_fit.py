@@ -34,15 +34,15 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.scenes.release import G, release_batch, release_models
-from beambench.studies.fit import (
+from beambench.studies.fit.release import (
     PAPER_MAE_MM,
     FitOptions,
-    ParamSpace,
     default_base,
     fit_release,
     load_release_session,
     synthetic_release,
 )
+from beambench.studies.fit.space import ParamSpace
 
 TRUTH = {"k": 0.30, "b": 0.0035, "l2": 0.027}
 

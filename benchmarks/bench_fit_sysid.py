@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT / "src"))
 
 import numpy as np
 
-from beambench.studies.fit import FitOptions, ReleaseTest, default_base, fit_release, synthetic_release
+from beambench.studies.fit.release import FitOptions, ReleaseTest, default_base, fit_release, synthetic_release
 
 NOISE = 3e-4
 TEST = ReleaseTest(post_s=0.35, timestep=2e-4)

@@ -2,7 +2,7 @@
 
     python benchmarks/bench_models.py [--out bench_out/models_full] [--part all|ladder|contact|contact-timing] [--ship]
 
-- ladder: every model × integrator × timestep on the free beam (see ``beambench.studies.ladder``): CSVs, the
+- ladder: every model × integrator × timestep on the free beam (see ``beambench.studies.ladder.run``): CSVs, the
   speed-vs-accuracy chart and the stability map in ``--out``; ``--ship`` copies the table to
   ``sim_backend/ladder_table.csv`` (what ``beambench.sim.selection`` reads).
 - contact: the contact table (PRB3, 1 mm gap: foot-path error vs a 2.5e-5 s run, contacts per cycle, wall
@@ -32,13 +32,13 @@ ROOT = Path(__file__).resolve().parents[1]
 def ladder_part(out: Path, ship: bool) -> dict:
     from dataclasses import replace
 
-    from beambench.studies.ladder import (
+    from beambench.studies.ladder.figures import write_outputs
+    from beambench.studies.ladder.run import (
         FULL,
         pareto,
         run_ladder,
         summarize,
     )
-    from beambench.studies.ladder_figures import write_outputs
 
     t0 = time.perf_counter()
     last = [0.0]

@@ -22,7 +22,9 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from beambench.emulators.motive import MotiveEmulator
 
 CAPTURE = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "natnet" / "traffic.pcapng"
@@ -53,16 +55,16 @@ def main() -> None:
         rows.append(
             (
                 "real capture frames (3.0, 6 markers)",
-                rate(lambda: sum(1 for p in real if nn.decode(p, nn.V3_0)), args.repeats),
+                rate(lambda: sum(1 for p in real if nn.decode(p, nw.V3_0)), args.repeats),
             )
         )
     else:
         print(f"(skipping the real capture: {CAPTURE} not found)")
 
     emu = MotiveEmulator(version="4.1", rigid_bodies={1: [0, 1, 2]})
-    small = [nn.encode(emu.make_frame(k, 1.0 + k / 360, 1.001 + k / 360, set()), nn.V4_1) for k in range(2000)]
+    small = [nn.encode(emu.make_frame(k, 1.0 + k / 360, 1.001 + k / 360, set()), nw.V4_1) for k in range(2000)]
     rows.append(
-        ("emulator frames (4.1, 3 markers)", rate(lambda: sum(1 for p in small if nn.decode(p, nn.V4_1)), args.repeats))
+        ("emulator frames (4.1, 3 markers)", rate(lambda: sum(1 for p in small if nn.decode(p, nw.V4_1)), args.repeats))
     )
 
     # the mocap stream's path: the packets of one 100 ms poll (36 frames at 360 Hz) to a Batch
@@ -76,25 +78,25 @@ def main() -> None:
 
     def one_by_one() -> int:
         for chunk in chunks:
-            mocap.to_batch([(0, nn.decode(p, nn.V4_1)) for p in chunk], None)  # type: ignore[misc]
+            mocap.to_batch([(0, nn.decode(p, nw.V4_1)) for p in chunk], None)  # type: ignore[misc]
         return len(small)
 
     def in_blocks() -> int:
         for chunk in chunks:
-            mocap.raw_to_batch([(0, p, nn.V4_1) for p in chunk], client)
+            mocap.raw_to_batch([(0, p, nw.V4_1) for p in chunk], client)
         return len(small)
 
     rows.append(("mocap stream, codec + to_batch per frame", rate(one_by_one, args.repeats)))
     rows.append(("mocap stream, 36-frame blocks (natnet.block)", rate(in_blocks, args.repeats)))
 
-    crowd = nn.FrameOfData(
+    crowd = nf.FrameOfData(
         1,
-        rigid_bodies=tuple(nn.RigidBody(i, (0.1, 0.2, 0.3), (0.0, 0.0, 0.0, 1.0), 1e-4, 1) for i in range(10)),
-        labeled_markers=tuple(nn.LabeledMarker((1 << 16) | i, (0.1, 0.2, 0.3), 0.014, 2, 1e-4) for i in range(200)),
+        rigid_bodies=tuple(nf.RigidBody(i, (0.1, 0.2, 0.3), (0.0, 0.0, 0.0, 1.0), 1e-4, 1) for i in range(10)),
+        labeled_markers=tuple(nf.LabeledMarker((1 << 16) | i, (0.1, 0.2, 0.3), 0.014, 2, 1e-4) for i in range(200)),
     )
-    big = [nn.encode(crowd, nn.V4_1)] * 300
+    big = [nn.encode(crowd, nw.V4_1)] * 300
     rows.append(
-        ("crowded frames (4.1, 200 markers)", rate(lambda: sum(1 for p in big if nn.decode(p, nn.V4_1)), args.repeats))
+        ("crowded frames (4.1, 200 markers)", rate(lambda: sum(1 for p in big if nn.decode(p, nw.V4_1)), args.repeats))
     )
 
     if CAPTURE.is_file():

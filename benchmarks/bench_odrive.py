@@ -20,7 +20,8 @@ from pathlib import Path
 
 from beambench.acquisition.capabilities import MotorLimits
 from beambench.devices.odrive import cansimple as cs
-from beambench.devices.odrive.can_motor import CanMotorTiming, OdriveCanMotor
+from beambench.devices.odrive.can_motor import OdriveCanMotor
+from beambench.devices.odrive.can_timing import CanMotorTiming
 from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
 
 DBC = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "odrive" / "odrive-cansimple.dbc"

@@ -171,7 +171,7 @@ def session_paths(path: str, frequencies: tuple[float, ...] = (16.0, 26.0, 40.0)
     of the foot's phase-averaged path in the world x–z plane (the mocap's, with its noise) over 1, 2 and 3 drive
     periods (read the one of the step's contact period from ``beambench analyze``'s regime)."""
     from beambench.acquisition.streams import CONTACT_MARKERS
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     s = read_session(path)
     mocap = s.streams["mocap"]

@@ -147,8 +147,9 @@ def main() -> None:
     from beambench.acquisition.runner import Runner
     from beambench.backends.emulated import build_emulated_rig
     from beambench.session.slices import sim_slice
-    from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
-    from beambench.sinks.rerun_view import RerunSink
+    from beambench.sinks.session_file.reader import read_session
+    from beambench.sinks.session_file.writer import SessionWriter, append_general
+    from beambench.sinks.viewer.sink import RerunSink
 
     total_s = args.minutes * 60.0
     n_steps = max(1, int(np.ceil(total_s / 600.0)))  # record_s is at most an hour; ten-minute steps

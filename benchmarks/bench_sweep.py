@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from beambench.studies.executor import make_executor, run_tasks
-from beambench.studies.sweep import SweepSpec, run_sweep
+from beambench.studies.sweep.run import SweepSpec, run_sweep
 
 SPEC = SweepSpec.model_validate(
     {

@@ -34,7 +34,7 @@ def _run(text: str, path: Path):
     from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.analysis.session_analysis import analyze_session
     from beambench.session.run import run_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     t0 = time.perf_counter()
     result = run_session(parse_protocol(text), text, "sim", path, show_progress=False)

@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.analysis.contact import (
+from beambench.acquisition.forces.contact_events import (
     ContactParams,
     detect_contacts,
     hysteresis,
     regime_fraction,
     regime_label,
     summarize_contacts,
-    touchdown_velocity,
 )
+from beambench.analysis.contact import touchdown_velocity
 
 FS = 1000.0
 

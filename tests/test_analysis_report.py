@@ -15,7 +15,7 @@ from beambench.analysis.synthetic import (
     write_synthetic_session,
 )
 from beambench.cli import app
-from beambench.sinks.hdf5 import read_processing
+from beambench.sinks.session_file.reader import read_processing
 
 runner = CliRunner()
 

@@ -19,7 +19,7 @@ from beambench.analysis.synthetic import (
     SynthStep,
     write_synthetic_session,
 )
-from beambench.sinks.hdf5 import read_processing, read_session
+from beambench.sinks.session_file.reader import read_processing, read_session
 
 CLOCKS = {
     "mocap": SynthClock(offset_s=0.005, drift_ppm=50.0, jitter_s=0.0004),

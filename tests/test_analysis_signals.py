@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.analysis.signals import fit_sinusoid, runs, velocity
+from beambench.acquisition.forces.contact_events import runs
+from beambench.analysis.signals import fit_sinusoid, velocity
 
 
 @pytest.mark.parametrize("f_true", [1.0, 7.3, 26.0, 44.9])

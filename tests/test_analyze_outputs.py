@@ -88,7 +88,7 @@ def test_a_session_in_a_read_only_folder_is_one_line(session, tmp_path, read_onl
 def test_analysing_again_does_not_grow_the_session(session, tmp_path):
     """What analyze stores (write_results), three times: the second and third leave the size as it was."""
     from beambench.analysis.session_analysis import analyze_session, write_results
-    from beambench.sinks.hdf5 import read_processing, read_session
+    from beambench.sinks.session_file.reader import read_processing, read_session
 
     copy = tmp_path / "s.h5"
     shutil.copy(session, copy)

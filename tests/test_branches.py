@@ -7,11 +7,12 @@ import pandas as pd
 import pytest
 
 from beambench.acquisition.protocol.plan import plan
-from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.analysis.branches import annotate_branches
 from beambench.analysis.session_analysis import analyze_session
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
-from beambench.sinks.hdf5 import read_session
+from beambench.common.yaml_config import ConfigError
+from beambench.sinks.session_file.reader import read_session
 
 
 def _plan(text: str) -> list[tuple[float, str, str, int]]:

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from beambench.sim.scenes.contact_regimes import transitions
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration import (
     RIGS,
@@ -25,13 +26,7 @@ from beambench.studies.twin_calibration import (
 )
 from beambench.studies.twin_calibration.contact import simulate_contact
 from beambench.studies.twin_calibration.contact_objective import contact_objective, regime_level
-from beambench.studies.twin_calibration.targets import (
-    CalibrationInputError,
-    Targets,
-    load_targets,
-    parse_targets,
-    transitions,
-)
+from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets, load_targets, parse_targets
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER = REPO / "calibration" / "paper_contact_targets.yaml"
@@ -294,7 +289,7 @@ def test_the_calibrators_map_is_the_stepped_runs_map(tmp_path):
     from beambench.analysis.session_analysis import analyze_session
     from beambench.sim.scenes.contact_regimes import ContactTwin, stepped_regime_map
     from beambench.sim.settings import SimSettings
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     freqs = [16, 20, 24, 28, 32, 36]
     proto = tmp_path / "stepped.yaml"

@@ -20,7 +20,7 @@ import pytest
 
 from beambench.commands import EXIT_MISSED
 from beambench.studies.executor import Pool
-from beambench.studies.twin_calibration import RIGS, CalibratableRig, CalibrationBase, Unknown
+from beambench.studies.twin_calibration import RIGS, CalibratableRig, CalibrationBase
 from beambench.studies.twin_calibration.contact import contact_summary
 from beambench.studies.twin_calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
 from beambench.studies.twin_calibration.targets import CalibrationInputError, parse_targets
@@ -32,6 +32,7 @@ from beambench.studies.twin_calibration.verdict import (
     limiting_unknown,
 )
 from beambench.studies.twin_calibration.walker import walker_checks
+from beambench.studies.unknowns import Unknown
 
 TOY_FREQS = [float(f) for f in range(3, 71)]
 TOY_UNKNOWNS = (Unknown("u", 0.0, 1.0), Unknown("w", 0.5, 2.0, log=True))

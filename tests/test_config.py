@@ -5,7 +5,8 @@ from pathlib import Path
 import pytest
 
 from beambench.acquisition.protocol.plan import check_limits, plan, session_path, summary
-from beambench.acquisition.protocol.schema import ConfigError, load_protocol, parse_protocol
+from beambench.acquisition.protocol.schema import load_protocol, parse_protocol
+from beambench.common.yaml_config import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = """

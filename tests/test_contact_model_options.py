@@ -13,7 +13,8 @@ from beambench.sim.models.hysteretic import HystereticDamping
 from beambench.sim.models.params import load_params
 from beambench.sim.models.registry import make_beam_model
 from beambench.sim.models.rod import natural_frequencies
-from beambench.sim.scenes.contact_rig import ContactRigSim, RigParams, build_contact_spec
+from beambench.sim.scene_params import RigParams
+from beambench.sim.scenes.contact_rig import ContactRigSim, build_contact_spec
 from beambench.sim.scenes.release import build_release_spec
 
 PHYSICAL = load_params("physical", "rod")

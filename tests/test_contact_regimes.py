@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from beambench.analysis.contact import ContactParams, force_regime
+from beambench.acquisition.forces.contact_events import ContactParams, force_regime
 from beambench.sim.scenes.contact_regimes import REGIME_MAP_COLUMNS, ContactTwin, regime_map, transitions
 from beambench.sim.settings import SimSettings
 

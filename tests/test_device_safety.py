@@ -15,10 +15,13 @@ from beambench.acquisition.protocol.plan import motor_limits, plan
 from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
+from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from beambench.devices.odrive.cansimple import AxisState
 from beambench.session.slices import sim_slice
-from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
+from beambench.sinks.session_file.reader import read_session
+from beambench.sinks.session_file.writer import SessionWriter, append_general
 
 PROTOCOL = """
 name: safety
@@ -54,8 +57,8 @@ def _run(tmp_path, name, inject=None, during=None):
 
 def _forged_frame(number: int) -> bytes:
     """A well-formed NatNet 4.1 frame with the emulator's marker ids, every marker 9 m away."""
-    markers = tuple(nn.LabeledMarker((1 << 16) | (i + 1), (9.0, 9.0, 9.0), 0.014, 2, 0.0) for i in range(3))
-    return nn.encode(nn.FrameOfData(number, labeled_markers=markers, timestamp=number / 360), nn.V4_1)
+    markers = tuple(nf.LabeledMarker((1 << 16) | (i + 1), (9.0, 9.0, 9.0), 0.014, 2, 0.0) for i in range(3))
+    return nn.encode(nf.FrameOfData(number, labeled_markers=markers, timestamp=number / 360), nw.V4_1)
 
 
 @pytest.fixture(scope="module")

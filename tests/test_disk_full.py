@@ -21,7 +21,7 @@ import h5py
 import numpy as np
 import pytest
 
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 from conftest import last_requested_state, tmpfs
 
 ENDLESS = """
@@ -138,7 +138,7 @@ def test_a_disk_that_stays_full_still_ends_in_one_line_without_a_crash(tmp_path,
     last flush, without rows of zeros."""
     script = tmp_path / "tiny_reserve.py"
     script.write_text(
-        "import sys\nimport beambench.sinks.hdf5 as h\nh.SPACE_RESERVE_BYTES = 8192\nimport beambench.cli\n"
+        "import sys\nimport beambench.sinks.session_file.writer as h\nh.SPACE_RESERVE_BYTES = 8192\nimport beambench.cli\n"
         "sys.argv = ['beambench', *sys.argv[1:]]\nbeambench.cli.main()\n"
     )
     code, err, took, path, _ = _run_until_disk_full(tmp_path, small_disk, "sim", "off", "t", script=script)
@@ -170,13 +170,13 @@ def test_a_disk_too_full_to_start_is_one_line_and_exit_2(tmp_path, small_disk):
 def test_rows_the_file_extended_but_never_received_are_not_data(tmp_path):
     """Every reader goes through read_session, which drops host_time_ns == 0 rows (HDF5's fill value), except a
     first row at 0 before real rows (the sim clock starts at 0); and step or event rows without a status or kind."""
-    from beambench.sinks.hdf5 import real_rows
+    from beambench.sinks.session_file.reader import real_rows
 
     assert real_rows(np.array([0, 5, 6, 0, 0])).tolist() == [True, True, True, False, False]
     assert real_rows(np.array([3, 0, 7])).tolist() == [True, False, True]
     assert real_rows(np.array([0, 0])).tolist() == [False, False]
     from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
-    from beambench.sinks.hdf5 import SessionWriter
+    from beambench.sinks.session_file.writer import SessionWriter
 
     spec = StreamSpec("motor", 100.0, {"v": ColumnSpec((), "<f8", "turn/s")}, "s")
     w = SessionWriter(tmp_path / "z.h5", {"protocol": "x"})
@@ -198,7 +198,7 @@ def test_after_a_failed_write_the_close_rewrites_every_step_row_from_memory(tmp_
     found a session closed after a full disk with no step row at all. At a close after a failure, the writer
     writes /steps again from the records it was given."""
     from beambench.acquisition.batch import StepRecord
-    from beambench.sinks.hdf5 import SessionWriter
+    from beambench.sinks.session_file.writer import SessionWriter
 
     w = SessionWriter(tmp_path / "s.h5", {"protocol": "x"})
     w.open([])

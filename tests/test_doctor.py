@@ -240,7 +240,7 @@ def test_the_viewer_row_finds_the_rerun_program_the_sdk_wheel_ships(monkeypatch,
     """On this machine (root /) the doctor asks for the viewer beambench itself starts: the wheel's own ``rerun``,
     found with nothing on PATH (an environment used without activating it)."""
     from beambench.session.doctor import rerun_row
-    from beambench.sinks.rerun_spawn import rerun_binary
+    from beambench.sinks.viewer.spawn import rerun_binary
 
     shipped = rerun_binary()
     if shipped is None or "rerun_cli" not in str(shipped):

@@ -11,9 +11,10 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.analysis.drift import drift_corrected, drift_table, linear_trend
 from beambench.cli import app
+from beambench.common.yaml_config import ConfigError
 from beambench.sim.models.thermal import ThermalParams, ThermalState
 
 CONTACT = "rig: contact\nsweep: {frequencies: [10, 14]}\nsettle_s: 0.2\nrecord_s: 0.2\n"

@@ -84,7 +84,7 @@ def test_with_drift_off_no_reference_trend_is_significant(sessions):
     from beambench.analysis import analyze_session
     from beambench.analysis.drift import drift_table
     from beambench.analysis.figures.trajectories import shape_note
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     a = analyze_session(read_session(sessions["off"]))
     table = drift_table(a.table)

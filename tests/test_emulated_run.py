@@ -16,7 +16,8 @@ from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.session.run import run_session
 from beambench.session.slices import sim_slice
-from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
+from beambench.sinks.session_file.reader import read_session
+from beambench.sinks.session_file.writer import SessionWriter, append_general
 
 PROTOCOL = """
 name: emu

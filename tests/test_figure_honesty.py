@@ -10,7 +10,7 @@ from matplotlib.collections import PolyCollection
 
 from beambench.analysis.session_analysis import SessionAnalysis, analyze_session
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 
 def _analysis(path) -> SessionAnalysis:
@@ -85,8 +85,8 @@ def test_the_twist_sweep_title_names_the_tip_and_the_drive_frequency(tmp_path):
     import pandas as pd
     from matplotlib.figure import Figure
 
-    from beambench.studies.sweep import SweepSpec
-    from beambench.studies.sweep_figure import plot_sweep
+    from beambench.studies.sweep.figure import plot_sweep
+    from beambench.studies.sweep.run import SweepSpec
 
     spec = SweepSpec.model_validate(
         {
@@ -194,8 +194,8 @@ def test_compare_refuses_sessions_of_different_rigs(tmp_path):
 def test_fit_figure_legend_sits_below_the_traces_in_the_report_style(tmp_path):
     from matplotlib.figure import Figure
 
-    from beambench.studies import fit
-    from beambench.studies.fit_figure import plot_fit
+    from beambench.studies.fit import release as fit
+    from beambench.studies.fit.figure import plot_fit
 
     t = np.linspace(0, 0.1, 40)
     m = np.random.default_rng(0).random((40, 3, 3)) * 1e-3

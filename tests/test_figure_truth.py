@@ -10,11 +10,11 @@ import pandas as pd
 import pytest
 from matplotlib.figure import Figure
 
-from beambench.analysis.contact import ContactParams, force_contacts
+from beambench.acquisition.forces.contact_events import ContactParams, force_contacts
 from beambench.analysis.session_analysis import SessionAnalysis, StepResult, analyze_session
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
 from beambench.analysis.trajectory import mean_path
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 # ------------------------------------------------------------------------------------------------- forces
 

@@ -7,10 +7,10 @@ import matplotlib.image as mpimg
 import pandas as pd
 
 from beambench.common.resources import shipped_dir
-from beambench.studies.ladder import summarize
-from beambench.studies.ladder_figures import default_model_sentence, plot_speed_accuracy, plot_stability_map
-from beambench.studies.sweep import SweepSpec
-from beambench.studies.sweep_figure import axis_label, plot_sweep
+from beambench.studies.ladder.figures import default_model_sentence, plot_speed_accuracy, plot_stability_map
+from beambench.studies.ladder.run import summarize
+from beambench.studies.sweep.figure import axis_label, plot_sweep
+from beambench.studies.sweep.run import SweepSpec
 
 
 def test_swept_columns_are_named_in_words_with_units():

@@ -28,13 +28,11 @@ from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.analysis.release import Decay, fit_decay, tip_displacement
 from beambench.cli import app
 from beambench.sim.models.params import load_params
-from beambench.sinks.hdf5 import read_processing
-from beambench.studies.fit import (
+from beambench.sinks.session_file.reader import read_processing
+from beambench.studies.fit.release import (
     FitError,
     FitOptions,
     FitResult,
-    ParamSpace,
-    ReleaseData,
     ReleaseObjective,
     ReleaseTest,
     default_base,
@@ -43,6 +41,7 @@ from beambench.studies.fit import (
     load_release_session,
     synthetic_release,
 )
+from beambench.studies.fit.space import ParamSpace, ReleaseData
 
 ROOT = Path(__file__).resolve().parents[1]
 NOISE = 3e-4  # m per coordinate
@@ -294,7 +293,7 @@ def test_registration_maps_a_mocap_frame_onto_the_model():
     """Data recorded in another frame (Motive: y up) comes back to the model's frame from its rest pose."""
     from scipy.spatial.transform import Rotation
 
-    from beambench.studies.fit import register_to_model
+    from beambench.studies.fit.release import register_to_model
 
     data = synthetic_release(default_base("prb3"), noise_m=1e-4, seed=4)
     rot = Rotation.from_euler("xyz", [90, 10, -25], degrees=True).as_matrix()

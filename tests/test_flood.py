@@ -20,7 +20,8 @@ from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.odrive.cansimple import AxisError, AxisState
 from beambench.session.slices import sim_slice
-from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
+from beambench.sinks.session_file.reader import read_session
+from beambench.sinks.session_file.writer import SessionWriter, append_general
 from conftest import last_requested_state
 
 PROTOCOL = """

@@ -93,10 +93,12 @@ def run(request, tmp_path_factory):
     from beambench.acquisition.hub import Hub
     from beambench.acquisition.protocol.plan import motor_limits, plan
     from beambench.acquisition.protocol.schema import parse_protocol
-    from beambench.acquisition.runner import Runner, StopSignal
+    from beambench.acquisition.runner import Runner
+    from beambench.acquisition.stop_signals import StopSignal
     from beambench.backends.emulated import build_emulated_rig
     from beambench.session.slices import sim_slice
-    from beambench.sinks.hdf5 import SessionWriter, append_general, read_session
+    from beambench.sinks.session_file.reader import read_session
+    from beambench.sinks.session_file.writer import SessionWriter, append_general
 
     protocol = parse_protocol(PROTOCOL)
     rig = build_emulated_rig(sim_slice(protocol), inject={"loadcell_garbage": 0.02})

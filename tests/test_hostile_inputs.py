@@ -245,7 +245,7 @@ def test_a_run_whose_physics_diverges_stops_with_one_line_motor_idle_session_sav
     """Stiff springs on a near-massless beam at a 10 ms explicit-Euler step: MuJoCo's bad-QACC reset."""
     import h5py
 
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     params = tmp_path / "stiff.yaml"
     params.write_text("model: prb3\nbeam: {k: 100, k_twist: 100, b: 1.0e-6, b_twist: 0, mass: 1.0e-4}\n")
@@ -305,7 +305,7 @@ def xvfb_display(tmp_path):
 def test_a_spawned_viewer_listens_on_loopback_only(xvfb_display, monkeypatch):
     import socket
 
-    from beambench.sinks.rerun_spawn import rerun_binary, spawn_viewer
+    from beambench.sinks.viewer.spawn import rerun_binary, spawn_viewer
 
     if rerun_binary() is None:
         pytest.skip("the rerun viewer binary is missing")
@@ -391,12 +391,14 @@ def test_printable_strips_escape_sequences_and_controls(raw, shown):
 
 
 def test_natnet_decode_prints_no_escape_sequence_a_server_sent(tmp_path):
+    from beambench.devices.natnet import frame as nf
     from beambench.devices.natnet import protocol as nn
+    from beambench.devices.natnet import wire as nw
     from test_natnet_capture import write_pcap
 
-    sender = nn.Sender(HOSTILE, nn.Version(3, 1, 0, 0), nn.V4_1)
+    sender = nn.Sender(HOSTILE, nw.Version(3, 1, 0, 0), nw.V4_1)
     info = nn.ServerInfo(sender, 1_000_000, 1511, True, "239.255.42.99")
-    frame = nn.FrameOfData(7, timestamp=0.1, mid_exposure=1, data_received=2, transmit=3)
+    frame = nf.FrameOfData(7, timestamp=0.1, mid_exposure=1, data_received=2, transmit=3)
     path = tmp_path / "hostile.pcap"
     write_pcap(path, [(1.0, nn.encode(info), 1510, 50000), (1.1, nn.encode(frame, (4, 1)), 1511, 50000)])
     code, out = cli("natnet", "decode", str(path), "--out", str(tmp_path / "f.csv"))

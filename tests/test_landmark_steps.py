@@ -19,12 +19,12 @@ from beambench.studies.twin_calibration import (
     EvalLog,
     Evaluator,
     SearchSettings,
-    Unknown,
     register_rig,
 )
 from beambench.studies.twin_calibration.contact_objective import contact_landmarks, contact_objective
 from beambench.studies.twin_calibration.landmark_steps import LandmarkPlan, fit_local_linear, landmark_steps, solve_step
 from beambench.studies.twin_calibration.targets import parse_targets
+from beambench.studies.unknowns import Unknown
 
 # ------------------------------------------------------------------------------------------------ the model
 

@@ -18,7 +18,8 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from beambench.cli import app
-from beambench.session.viewer import HeadlessViewer, rerun_binary, vulkan_available
+from beambench.session.viewer import HeadlessViewer, vulkan_available
+from beambench.sinks.viewer.spawn import rerun_binary
 
 CONTACT = """
 name: lv_contact

@@ -15,8 +15,8 @@ from beambench.acquisition.streams import CONTACT_MARKERS, WALKER_MARKERS, loadc
 from beambench.analysis.session_analysis import analyze_session
 from beambench.cli import app
 from beambench.session.replay import replay_session
-from beambench.sinks.hdf5 import read_session
-from beambench.sinks.rerun_layout import layout_of
+from beambench.sinks.session_file.reader import read_session
+from beambench.sinks.viewer.layout import layout_of
 
 # a 1 mm gap: the foot reaches the plate within a short run (regimes 1 and 1/2)
 TOUCHING = """
@@ -58,7 +58,9 @@ def _finished(rrd) -> dict[int, str]:
     texts = _column(_chunks(rrd)["/step"], "TextDocument:text")
     found = {}
     for t in texts:
-        m = re.search(r"Last finished: step (\d+) \([^)]*\): (?:regime|speed) \*\*([^*]+)\*\*", str(t[0]))
+        m = re.search(
+            r"Last finished: step (\d+) of \d+ \(index \d+\) at [^:]*: (?:regime|speed) \*\*([^*]+)\*\*", str(t[0])
+        )
         if m:
             found[int(m.group(1))] = m.group(2)
     return found
@@ -117,7 +119,8 @@ def _finished_numbers(rrd) -> dict[int, tuple[str, str]]:
     found = {}
     for t in texts:
         m = re.search(
-            r"Last finished: step (\d+) \([^)]*\): regime \*\*([^*]+)\*\* \(([\d.]+) contacts/cycle\)", str(t[0])
+            r"Last finished: step (\d+) of \d+ \(index \d+\) at [^:]*: regime \*\*([^*]+)\*\* \(([\d.]+) contacts/cycle\)",
+            str(t[0]),
         )
         if m:
             found[int(m.group(1))] = (m.group(2), m.group(3))

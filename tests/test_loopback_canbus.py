@@ -19,7 +19,7 @@ from can.interfaces.udp_multicast.utils import pack_message
 
 from beambench.devices.odrive import cansimple as cs
 from beambench.emulators.canbus import LoopbackCanBus
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 
 def drain(bus: can.BusABC, timeout: float = 0.3) -> list[can.Message]:

@@ -37,7 +37,7 @@ from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.odrive.cansimple import AxisState
 from beambench.session.slices import sim_slice
-from beambench.sinks.hdf5 import SessionWriter
+from beambench.sinks.session_file.writer import SessionWriter
 
 PROTOCOL = "name: oom\nsweep: {frequencies: [6]}\nsettle_s: 0.5\nrecord_s: 6.0\nsim: {seed: 2}\nmonitors: {mocap_lost_s: null}\n"
 protocol = parse_protocol(PROTOCOL)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 from conftest import tmpfs
 
 SHORT = """

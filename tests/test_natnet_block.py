@@ -11,7 +11,9 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from beambench.devices.natnet import block as nb
+from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from beambench.devices.natnet.client import NatNetClient
 from beambench.devices.natnet.mocap import NatNetMocap
 from beambench.devices.natnet.pcap import read_udp
@@ -21,27 +23,27 @@ MARKERS = ("base", "tip", "body")
 MAP = {"base": "1:1", "tip": "1:2", "body": "rb:7"}
 
 
-def make_frame(k: int, rng: random.Random, n_markers: int = 4, set_name: str = "beam") -> nn.FrameOfData:
+def make_frame(k: int, rng: random.Random, n_markers: int = 4, set_name: str = "beam") -> nf.FrameOfData:
     """A frame with every section the codec knows filled, and values that change with ``k``."""
 
     def v3() -> tuple[float, float, float]:
         return (rng.uniform(-1, 1), rng.uniform(-1, 1), rng.uniform(0, 2))
 
-    def rb(i: int) -> nn.RigidBody:
-        return nn.RigidBody(i, v3(), (0.0, 0.0, 0.0, 1.0), rng.uniform(0, 1e-3), rng.choice((0, 1)))
+    def rb(i: int) -> nf.RigidBody:
+        return nf.RigidBody(i, v3(), (0.0, 0.0, 0.0, 1.0), rng.uniform(0, 1e-3), rng.choice((0, 1)))
 
     lms = tuple(
-        nn.LabeledMarker((1 << 16) | (i + 1), v3(), 0.014, rng.choice((0x02, 0x03, 0x0A)), rng.uniform(0, 1e-4))
+        nf.LabeledMarker((1 << 16) | (i + 1), v3(), 0.014, rng.choice((0x02, 0x03, 0x0A)), rng.uniform(0, 1e-4))
         for i in range(n_markers)
     )
-    return nn.FrameOfData(
+    return nf.FrameOfData(
         frame_number=1000 + k,
-        marker_sets=(nn.MarkerSetData(set_name, (v3(), v3())), nn.MarkerSetData("all", (v3(),))),
+        marker_sets=(nf.MarkerSetData(set_name, (v3(), v3())), nf.MarkerSetData("all", (v3(),))),
         other_markers=(v3(),),
         rigid_bodies=(rb(7), rb(9)),
-        skeletons=(nn.SkeletonData(3, (rb(1),)),),
+        skeletons=(nf.SkeletonData(3, (rb(1),)),),
         labeled_markers=lms,
-        force_plates=(nn.AnalogData(1, ((1.0, 2.0), (3.0, 4.0))),),
+        force_plates=(nf.AnalogData(1, ((1.0, 2.0), (3.0, 4.0))),),
         timecode=k,
         timestamp=1.0 + k / 360,
         mid_exposure=10_000_000 + 27_778 * k,
@@ -53,7 +55,7 @@ def make_frame(k: int, rng: random.Random, n_markers: int = 4, set_name: str = "
     )
 
 
-def packets(version: nn.Version, n: int = 20, seed: int = 0, **kw) -> list[bytes]:  # type: ignore[no-untyped-def]
+def packets(version: nw.Version, n: int = 20, seed: int = 0, **kw) -> list[bytes]:  # type: ignore[no-untyped-def]
     rng = random.Random(seed)
     return [nn.encode(make_frame(k, rng, **kw), version) for k in range(n)]
 
@@ -64,11 +66,11 @@ def _same_floats(block_values: np.ndarray, codec_values: list) -> None:
     np.testing.assert_array_equal(np.asarray(block_values, dtype=float), np.asarray(codec_values, dtype=float))
 
 
-def assert_block_equals_codec(block: nb.FrameBlock, pkts: list[bytes], version: nn.Version) -> None:
+def assert_block_equals_codec(block: nb.FrameBlock, pkts: list[bytes], version: nw.Version) -> None:
     frames = [nn.decode(p, version) for p in pkts]
     assert len(block) == len(frames)
     for i, f in enumerate(frames):
-        assert isinstance(f, nn.FrameOfData)
+        assert isinstance(f, nf.FrameOfData)
         assert block.frame_number[i] == f.frame_number
         assert block.suffix["timestamp"][i] == f.timestamp
         assert block.suffix["mid_exposure"][i] == f.mid_exposure
@@ -83,7 +85,7 @@ def assert_block_equals_codec(block: nb.FrameBlock, pkts: list[bytes], version: 
         assert rb["params"].tolist() == [b.params for b in f.rigid_bodies]
 
 
-@pytest.mark.parametrize("version", [nn.V3_0, nn.V4_0, nn.V4_1])
+@pytest.mark.parametrize("version", [nw.V3_0, nw.V4_0, nw.V4_1])
 def test_a_block_has_the_codecs_values_in_every_version(version):
     pkts = packets(version)
     assert len({len(p) for p in pkts}) == 1  # one layout
@@ -94,7 +96,7 @@ def test_a_block_has_the_codecs_values_in_every_version(version):
 
 
 def test_another_layout_is_left_to_the_codec():
-    v = nn.V4_1
+    v = nw.V4_1
     base = packets(v, n=6)
     renamed = packets(v, n=3, seed=1, set_name="bean")  # same length, another name: another layout
     more = packets(v, n=3, seed=2, n_markers=5)  # another length
@@ -108,16 +110,16 @@ def test_another_layout_is_left_to_the_codec():
 
 def test_the_real_motive_capture_decodes_the_same_in_blocks():
     capture = require_shared("fixtures", "natnet", "traffic.pcapng")
-    frames = [g.payload for g in read_udp(capture, [1511]) if nn.peek_message_id(g.payload) == nn.MessageId.FRAMEOFDATA]
+    frames = [g.payload for g in read_udp(capture, [1511]) if nn.peek_message_id(g.payload) == nw.MessageId.FRAMEOFDATA]
     assert len(frames) > 100
     by_length: dict[int, list[bytes]] = {}
     for p in frames:
         by_length.setdefault(len(p), []).append(p)
     decoded = 0
     for group in by_length.values():
-        block, matches = nb.decode_block(group, nb.frame_layout(group[0], nn.V3_0))
+        block, matches = nb.decode_block(group, nb.frame_layout(group[0], nw.V3_0))
         assert matches[0]
-        assert_block_equals_codec(block, [p for p, m in zip(group, matches, strict=True) if m], nn.V3_0)
+        assert_block_equals_codec(block, [p for p, m in zip(group, matches, strict=True) if m], nw.V3_0)
         decoded += len(block)
     assert decoded > 0.9 * len(frames)
 
@@ -128,7 +130,7 @@ def test_the_real_motive_capture_decodes_the_same_in_blocks():
 def test_a_damaged_packet_is_never_misread(edits):
     """Bytes changed anywhere: either the block reads the values the codec reads, or it leaves the packet to
     the codec (which may reject it); a packet the codec rejects is never taken."""
-    v = nn.V4_1
+    v = nw.V4_1
     template = packets(v, n=1)[0]
     layout = nb.frame_layout(template, v)
     damaged = bytearray(template)
@@ -138,7 +140,7 @@ def test_a_damaged_packet_is_never_misread(edits):
     assert layout.fits(bytes(damaged)) == matches[0]
     try:
         nn.decode(bytes(damaged), v)
-    except nn.NatNetParseError:
+    except nw.NatNetParseError:
         assert not matches[0]
         return
     if matches[0]:
@@ -148,7 +150,7 @@ def test_a_damaged_packet_is_never_misread(edits):
 def test_the_mocap_stream_is_the_same_from_raw_frames_and_from_decoded_ones():
     """Raw frames in several layouts, with a garbled one among them, in arrival order → the same Batch as the
     decoded frames give; the garbled one is counted and left out, frame gaps are counted as dropped."""
-    v = nn.V4_1
+    v = nw.V4_1
     rng = random.Random(3)
     frames = [make_frame(k, rng, n_markers=3 + (k // 7) % 2, set_name="beam" if k % 5 else "bean") for k in range(40)]
     frames = [f for f in frames if f.frame_number != 1010]  # one dropped frame
@@ -175,7 +177,7 @@ def test_the_mocap_stream_is_the_same_from_raw_frames_and_from_decoded_ones():
 
 
 def test_device_time_from_mid_exposure_ticks_in_blocks():
-    v = nn.V4_1
+    v = nw.V4_1
     pkts = packets(v, n=5)
     client = NatNetClient()
     batch = NatNetMocap(MARKERS, marker_map=MAP).raw_to_batch([(i, p, v) for i, p in enumerate(pkts)], client)

@@ -19,7 +19,10 @@ import pytest
 from typer.testing import CliRunner
 
 from beambench.cli import app
+from beambench.devices.natnet import frame as nf
+from beambench.devices.natnet import modeldef as nm
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from beambench.devices.natnet.capture import decode_capture, frames_table
 from beambench.devices.natnet.pcap import CaptureError, read_udp
 from conftest import fuzz_examples, require_shared, shared_path
@@ -91,7 +94,7 @@ def test_all_518_frames_decode_in_order(decoded):
     numbers = [f.frame_number for _, f in decoded.frames]
     assert numbers == list(range(162734, 162734 + 518))
     assert (decoded.parse_errors, decoded.dropped_frames, decoded.out_of_order) == (0, 0, 0)
-    assert decoded.version == nn.V3_0 and decoded.version_source == "SERVERINFO"
+    assert decoded.version == nw.V3_0 and decoded.version_source == "SERVERINFO"
     assert decoded.server_info.app_name == "Motive" and decoded.server_info.clock_frequency > 0
     assert decoded.frame_rate_hz == pytest.approx(120.0, rel=1e-6)  # the capture's FrameRate answer is 120 Hz
     for _, f in decoded.frames:  # the same scene throughout: one valid rigid body, six labeled markers
@@ -145,7 +148,7 @@ def test_capture_holds_the_handshake(decoded):
     assert kinds.count("FrameOfData") == 518 and kinds.count("EchoResponse") == 9
     rate = next(m for m in msgs if isinstance(m, nn.Response) and len(m.payload_bytes) == 4)
     assert rate.as_float() == 120.0  # the "FrameRate" answer
-    md = next(m for m in msgs if isinstance(m, nn.ModelDef))
+    md = next(m for m in msgs if isinstance(m, nm.ModelDef))
     assert md.rigid_bodies()[0].name == "RaceQuad"
     first_frame = next(g.payload for g in read_udp(CAPTURE, [1511]) if nn.peek_message_id(g.payload) == 7)
     if (FIXTURES / "mocapframe_packet_v3.bin").is_file():
@@ -220,10 +223,10 @@ def write_pcap(path: Path, datagrams: list[tuple[float, bytes, int, int]], mtu: 
 
 
 def test_pcap_with_fragments_and_no_serverinfo_needs_the_version(tmp_path):
-    big = nn.FrameOfData(
+    big = nf.FrameOfData(
         10,
         labeled_markers=tuple(
-            nn.LabeledMarker((1 << 16) | i, (i * 0.01, 0.5, -0.25), 0.014, 2, 0.0) for i in range(200)
+            nf.LabeledMarker((1 << 16) | i, (i * 0.01, 0.5, -0.25), 0.014, 2, 0.0) for i in range(200)
         ),
         timestamp=10 / 360,
         mid_exposure=100,
@@ -232,7 +235,7 @@ def test_pcap_with_fragments_and_no_serverinfo_needs_the_version(tmp_path):
         precision_seconds=5,
         precision_fraction=7,
     )
-    small = nn.FrameOfData(12, timestamp=12 / 360, mid_exposure=110, data_received=210, transmit=310)
+    small = nf.FrameOfData(12, timestamp=12 / 360, mid_exposure=110, data_received=210, transmit=310)
     packets = [nn.encode(big, (4, 1)), nn.encode(small, (4, 1)), b"\x07\x00\x05\x00junk"]
     assert len(packets[0]) > 1500  # must be reassembled from IPv4 fragments
     path = tmp_path / "unicast.pcap"
@@ -240,8 +243,8 @@ def test_pcap_with_fragments_and_no_serverinfo_needs_the_version(tmp_path):
     with pytest.raises(ValueError, match="--natnet-version"):
         decode_capture(path)
     d = decode_capture(path, "4.1")
-    assert d.version_source == "option" and d.version == nn.V4_1
-    assert [f for _, f in d.frames] == [nn.decode(p, nn.V4_1) for p in packets[:2]]
+    assert d.version_source == "option" and d.version == nw.V4_1
+    assert [f for _, f in d.frames] == [nn.decode(p, nw.V4_1) for p in packets[:2]]
     assert len(d.frames[0][1].labeled_markers) == 200
     assert (d.dropped_frames, d.parse_errors) == (1, 1)
     df = frames_table(d)
@@ -298,7 +301,7 @@ def test_an_empty_first_fragment_does_not_hang_the_decoder(tmp_path):
     reassembly loop spin forever; now it is dropped and the good frames around it still decode."""
     import dpkt
 
-    good = nn.encode(nn.FrameOfData(5, timestamp=5 / 360, mid_exposure=1, data_received=2, transmit=3), (4, 1))
+    good = nn.encode(nf.FrameOfData(5, timestamp=5 / 360, mid_exposure=1, data_received=2, transmit=3), (4, 1))
     udp = bytes(dpkt.udp.UDP(sport=1511, dport=50000, data=good, ulen=8 + len(good)))
     path = tmp_path / "empty_fragment.pcap"
     with path.open("wb") as fh:
@@ -313,7 +316,7 @@ def test_an_empty_first_fragment_does_not_hang_the_decoder(tmp_path):
 def test_ticks_above_2_63_fit_the_frame_table(tmp_path):
     """Issue 13.8: QPC tick fields are uint64 on the wire; a value above 2**63 raised TypeError in the table."""
     big = 2**63 + 12345
-    frame = nn.FrameOfData(3, timestamp=0.01, mid_exposure=big, data_received=big + 1, transmit=2**64 - 1)
+    frame = nf.FrameOfData(3, timestamp=0.01, mid_exposure=big, data_received=big + 1, transmit=2**64 - 1)
     path = tmp_path / "ticks.pcap"
     write_pcap(path, [(1.0, nn.encode(frame, (4, 1)), 1511, 50000)])
     d = _decode_within(path, version="4.1")

@@ -14,7 +14,9 @@ import pytest
 
 from beambench.acquisition.capabilities import Stream
 from beambench.acquisition.streams import MOCAP
+from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from beambench.devices.natnet.client import NatNetClient, NatNetConfig, NatNetError, ping
 from beambench.devices.natnet.mocap import MarkerSource, NatNetMocap
 from beambench.devices.receive_time import mono_minus_real_ns
@@ -119,7 +121,7 @@ def test_garbage_packets_are_counted_and_never_stop_the_stream():
         try:
             port = client._cmd.getsockname()[1]  # unicast frames come to the command socket
             junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            good = nn.encode(nn.FrameOfData(1, timestamp=1.0), nn.V4_1)
+            good = nn.encode(nf.FrameOfData(1, timestamp=1.0), nw.V4_1)
             garbage = [
                 b"",
                 b"\x07",
@@ -147,7 +149,7 @@ def test_bitstream_version_can_be_requested_from_a_4_x_server():
     with emulator("4.1", multicast=False) as emu:
         cfg = config_for(emu, bitstream_version="3.0")
         with NatNetClient(cfg) as client:
-            assert client.version == nn.V3_0 and emu.stream_version == nn.V3_0
+            assert client.version == nw.V3_0 and emu.stream_version == nw.V3_0
             assert client.server_info.natnet_version == (4, 1, 0, 0)
             wait_until(lambda: client.stats.frames > 20, what="20 frames")  # 56 ms at 360 Hz
             assert client.stats.parse_errors == 0
@@ -158,23 +160,23 @@ def test_a_frame_encoded_before_a_bitstream_change_is_still_read_after_it():
     """The server's stream thread may encode a frame in the old bitstream, then its command thread switches and
     replies, then the older frame goes out: just after the change such a frame is decoded in the old version (a
     parse error before). Later, only the new version counts."""
-    frame = nn.FrameOfData(
+    frame = nf.FrameOfData(
         frame_number=99_999,
-        marker_sets=(nn.MarkerSetData("beam", ((0.1, 0.2, 0.3), (0.4, 0.5, 0.6))),),
-        labeled_markers=(nn.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.015625, 2, 0.0),),
+        marker_sets=(nf.MarkerSetData("beam", ((0.1, 0.2, 0.3), (0.4, 0.5, 0.6))),),
+        labeled_markers=(nf.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.015625, 2, 0.0),),
         timestamp=1.0,
     )
-    old = nn.encode(frame, nn.V4_1)
-    with pytest.raises(nn.NatNetParseError):
-        nn.decode(old, nn.V3_0)  # the premise: in the new version this packet does not parse
+    old = nn.encode(frame, nw.V4_1)
+    with pytest.raises(nw.NatNetParseError):
+        nn.decode(old, nw.V3_0)  # the premise: in the new version this packet does not parse
     with emulator("4.1", multicast=False) as emu, NatNetClient(config_for(emu, bitstream_version="3.0")) as client:
-        assert client.version == nn.V3_0
+        assert client.version == nw.V3_0
         client.keep_frames = True
         errors = client.stats.parse_errors
         client._handle(old, time.monotonic_ns())  # as the receive thread hands it a datagram from the server
         assert client.stats.parse_errors == errors
         assert any(f.frame_number == 99_999 for _, f in list(client.frames))
-        client._previous_bitstream = (nn.V4_1, time.monotonic_ns() - 1)  # the grace is over
+        client._previous_bitstream = (nw.V4_1, time.monotonic_ns() - 1)  # the grace is over
         client._handle(old, time.monotonic_ns())
         assert client.stats.parse_errors == errors + 1
 
@@ -188,18 +190,18 @@ def test_frames_in_the_new_bitstream_that_beat_the_reply_are_decoded_in_it(keep_
         before = client.stats.frames
         wait_until(lambda: client.stats.frames + len(client.raw_frames) > before + 20, what="20 frames")
         client.set_bitstream_version("3.0")
-        assert client.version == nn.V3_0 and emu.stream_version == nn.V3_0
+        assert client.version == nw.V3_0 and emu.stream_version == nw.V3_0
         if keep_raw:
-            wait_until(lambda: nn.V3_0 in {v for _, _, v in list(client.raw_frames)}, what="frames in 3.0")
+            wait_until(lambda: nw.V3_0 in {v for _, _, v in list(client.raw_frames)}, what="frames in 3.0")
         else:
             wait_until(lambda: client.stats.frames > before + 40, what="40 frames")
         client.check()
         assert client.stats.parse_errors == 0, client.stats.last_error
         if keep_raw:  # the raw frames carry the version each one is in: all decode
             raw = list(client.raw_frames)
-            assert {v for _, _, v in raw} == {nn.V4_1, nn.V3_0}
+            assert {v for _, _, v in raw} == {nw.V4_1, nw.V3_0}
             for _, packet, v in raw:
-                assert isinstance(nn.decode(packet, v), nn.FrameOfData)
+                assert isinstance(nn.decode(packet, v), nf.FrameOfData)
         else:
             assert client.stats.frames > before + 40
 
@@ -291,8 +293,8 @@ def test_marker_sources_parse():
 def test_timestamp_device_time_and_empty_reads():
     mocap = NatNetMocap(MARKERS, device_time="timestamp")
     assert len(mocap.read()) == 0 and mocap.describe().columns["data"].shape == (3, 3)
-    f = nn.FrameOfData(
-        720, timestamp=2.0, mid_exposure=5, labeled_markers=(nn.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.01, 2, 0.0),)
+    f = nf.FrameOfData(
+        720, timestamp=2.0, mid_exposure=5, labeled_markers=(nf.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.01, 2, 0.0),)
     )
     b = mocap.to_batch([(123, f)], clock_frequency=10)
     assert b.device_time.tolist() == [2.0] and b.host_time_ns.tolist() == [123]
@@ -349,7 +351,7 @@ def test_each_frame_carries_the_kernels_receive_time_not_the_time_it_was_read(mu
     it, while the read comes up to 20 ms later."""
     seen: list[tuple[int, int, int]] = []  # (host stamp, read time, the server's transmit ticks)
 
-    def on_frame(host_ns: int, f: nn.FrameOfData) -> None:
+    def on_frame(host_ns: int, f: nf.FrameOfData) -> None:
         seen.append((host_ns, time.monotonic_ns(), f.transmit))
 
     clock = EmulatorClock(offset_s=0.0, drift_ppm=0.0, latency_s=0.0)
@@ -379,7 +381,7 @@ class _FrameBeforeServerInfo(MotiveEmulator):
 
     def _command(self, msg, addr, now_ticks):  # type: ignore[no-untyped-def]
         if isinstance(msg, nn.Connect) and not isinstance(msg, nn.Discovery) and self._data is not None:
-            self._data.sendto(nn.encode(nn.FrameOfData(1, timestamp=0.0), self.stream_version), addr)
+            self._data.sendto(nn.encode(nf.FrameOfData(1, timestamp=0.0), self.stream_version), addr)
             time.sleep(0.02)
         super()._command(msg, addr, now_ticks)
 

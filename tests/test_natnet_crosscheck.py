@@ -13,6 +13,7 @@ import time
 import pytest
 
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from beambench.emulators.motive import MotiveEmulator
 
 natnet = pytest.importorskip("natnet", reason="the PyPI 'natnet' package (dev-only cross-check) is not installed")
@@ -57,7 +58,7 @@ def test_pypi_natnet_client_decodes_our_emulator_over_multicast(version):
                 time.sleep(0.05)
         finally:
             client.shutdown()
-    v = nn.Version.parse(version)
+    v = nw.Version.parse(version)
     sent = {f.frame_number: nn.decode(nn.encode(f, v), v) for f in list(emu.sent)}  # as float32 on the wire
     assert len(received) > 50
     ms = descriptions[0].marker_sets[0]

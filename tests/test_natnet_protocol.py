@@ -11,10 +11,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from beambench.devices.natnet import frame as nf
+from beambench.devices.natnet import modeldef as nm
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from conftest import fuzz_examples, require_shared
 
-V30, V40, V41 = nn.V3_0, nn.V4_0, nn.V4_1
+V30, V40, V41 = nw.V3_0, nw.V4_0, nw.V4_1
 
 
 def fixture(name: str) -> bytes:
@@ -29,7 +32,7 @@ def test_connect_and_discovery_packets_decode_and_reencode_byte_exact():
         raw = fixture(name)
         msg = nn.decode(raw)
         assert type(msg) is kind
-        assert msg.sender == nn.Sender("NatNetLib", nn.Version(3, 0, 0, 0), nn.Version(3, 0, 0, 0))
+        assert msg.sender == nn.Sender("NatNetLib", nw.Version(3, 0, 0, 0), nw.Version(3, 0, 0, 0))
         assert msg.bitstream_version is None
         assert nn.encode(msg) == raw
 
@@ -58,13 +61,13 @@ def test_request_modeldef_and_modeldef():
     assert nn.decode(fixture("requestmodeldef_packet_v3.bin")) == nn.RequestModelDef()
     raw = fixture("modeldef_packet_v3.bin")
     md = nn.decode(raw, V30)
-    assert isinstance(md, nn.ModelDef)
+    assert isinstance(md, nm.ModelDef)
     rb, ms, all_ = md.datasets
-    assert isinstance(rb, nn.RigidBodyDescription)
+    assert isinstance(rb, nm.RigidBodyDescription)
     assert (rb.name, rb.id, rb.parent_id, rb.offset, len(rb.markers)) == ("RaceQuad", 2, -1, (0.0, 0.0, 0.0), 5)
     assert rb.markers[0].offset == pytest.approx((0.16116, 0.03505, -0.03218), abs=1e-5)
     assert [m.active_label for m in rb.markers] == [0] * 5
-    assert ms == nn.MarkerSetDescription("RaceQuad", ("Marker1", "Marker2", "Marker3", "Marker4", "Marker5"))
+    assert ms == nm.MarkerSetDescription("RaceQuad", ("Marker1", "Marker2", "Marker3", "Marker4", "Marker5"))
     assert all_.marker_names == tuple(f"RaceQuad_{i}" for i in range(1, 6))
     assert nn.encode(md, V30) == raw
 
@@ -72,7 +75,7 @@ def test_request_modeldef_and_modeldef():
 def test_mocap_frame_packet():
     raw = fixture("mocapframe_packet_v3.bin")
     f = nn.decode(raw, V30)
-    assert isinstance(f, nn.FrameOfData)
+    assert isinstance(f, nf.FrameOfData)
     assert f.frame_number == 162734
     assert f.marker_sets == ()
     assert len(f.other_markers) == 5
@@ -116,12 +119,12 @@ def test_mocap_frame_with_an_occluded_marker():
 
 def test_frame_needs_a_version_and_wrong_version_is_a_parse_error():
     raw = fixture("mocapframe_packet_v3.bin")
-    with pytest.raises(nn.NatNetParseError, match="version"):
+    with pytest.raises(nw.NatNetParseError, match="version"):
         nn.decode(raw)
-    with pytest.raises(nn.NatNetParseError):
+    with pytest.raises(nw.NatNetParseError):
         nn.decode(raw, V41)  # 4.1 expects section sizes: the v3 bytes cannot parse as 4.1
-    with pytest.raises(nn.NatNetParseError, match="unsupported"):
-        nn.decode(raw, nn.Version(2, 9))
+    with pytest.raises(nw.NatNetParseError, match="unsupported"):
+        nn.decode(raw, nw.Version(2, 9))
 
 
 def test_every_truncation_of_the_real_packets_raises_the_parse_error_only():
@@ -140,7 +143,7 @@ def test_every_truncation_of_the_real_packets_raises_the_parse_error_only():
             cut = cut[:2] + struct.pack("<H", max(0, n - 4)) + cut[4:] if n >= 4 else cut  # consistent header
             try:
                 nn.decode(cut, V30)
-            except nn.NatNetParseError:
+            except nw.NatNetParseError:
                 continue
             decoded.append(n)
         # the one cut that is itself a valid message: a connect of the client's name alone ("NatNetLib\0"), the
@@ -159,24 +162,24 @@ u64 = st.integers(0, 2**64 - 1)
 u32 = st.integers(0, 2**32 - 1)
 i16 = st.integers(-(2**15), 2**15 - 1)
 name = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="\0"), max_size=12)
-rigid_body = st.builds(nn.RigidBody, i32, vec3, quat, f32, i16)
-labeled = st.builds(nn.LabeledMarker, i32, vec3, f32, i16, f32)
-analog = st.builds(nn.AnalogData, i32, st.lists(st.lists(f32, max_size=3).map(tuple), max_size=3).map(tuple))
+rigid_body = st.builds(nf.RigidBody, i32, vec3, quat, f32, i16)
+labeled = st.builds(nf.LabeledMarker, i32, vec3, f32, i16, f32)
+analog = st.builds(nf.AnalogData, i32, st.lists(st.lists(f32, max_size=3).map(tuple), max_size=3).map(tuple))
 asset = st.builds(
-    nn.AssetData,
+    nf.AssetData,
     i32,
     st.lists(rigid_body, max_size=2).map(tuple),
-    st.lists(st.builds(nn.AssetMarker, i32, vec3, f32, i16, f32), max_size=2).map(tuple),
+    st.lists(st.builds(nf.AssetMarker, i32, vec3, f32, i16, f32), max_size=2).map(tuple),
 )
 frames = st.builds(
-    nn.FrameOfData,
+    nf.FrameOfData,
     frame_number=i32,
-    marker_sets=st.lists(st.builds(nn.MarkerSetData, name, st.lists(vec3, max_size=3).map(tuple)), max_size=2).map(
+    marker_sets=st.lists(st.builds(nf.MarkerSetData, name, st.lists(vec3, max_size=3).map(tuple)), max_size=2).map(
         tuple
     ),
     other_markers=st.lists(vec3, max_size=3).map(tuple),
     rigid_bodies=st.lists(rigid_body, max_size=3).map(tuple),
-    skeletons=st.lists(st.builds(nn.SkeletonData, i32, st.lists(rigid_body, max_size=2).map(tuple)), max_size=2).map(
+    skeletons=st.lists(st.builds(nf.SkeletonData, i32, st.lists(rigid_body, max_size=2).map(tuple)), max_size=2).map(
         tuple
     ),
     assets=st.lists(asset, max_size=2).map(tuple),
@@ -195,7 +198,7 @@ frames = st.builds(
 )
 
 
-def as_sent(frame: nn.FrameOfData, v: nn.Version) -> nn.FrameOfData:
+def as_sent(frame: nf.FrameOfData, v: nw.Version) -> nf.FrameOfData:
     """What a frame looks like after a trip through version ``v`` (fields that version lacks drop out)."""
     if v >= V41:
         return frame
@@ -218,19 +221,19 @@ def test_frames_round_trip_in_every_version(frame, v):
 
 
 rb_desc = st.builds(
-    nn.RigidBodyDescription,
+    nm.RigidBodyDescription,
     name,
     i32,
     i32,
     vec3,
-    st.lists(st.builds(nn.RigidBodyMarker, vec3, i32, name), max_size=3).map(tuple),
+    st.lists(st.builds(nm.RigidBodyMarker, vec3, i32, name), max_size=3).map(tuple),
 )
 descriptions = st.one_of(
-    st.builds(nn.MarkerSetDescription, name, st.lists(name, max_size=4).map(tuple)),
+    st.builds(nm.MarkerSetDescription, name, st.lists(name, max_size=4).map(tuple)),
     rb_desc,
-    st.builds(nn.SkeletonDescription, name, i32, st.lists(rb_desc, max_size=2).map(tuple)),
+    st.builds(nm.SkeletonDescription, name, i32, st.lists(rb_desc, max_size=2).map(tuple)),
     st.builds(
-        nn.ForcePlateDescription,
+        nm.ForcePlateDescription,
         i32,
         name,
         f32,
@@ -242,28 +245,28 @@ descriptions = st.one_of(
         i32,
         st.lists(name, max_size=3).map(tuple),
     ),
-    st.builds(nn.DeviceDescription, i32, name, name, i32, i32, st.lists(name, max_size=3).map(tuple)),
-    st.builds(nn.CameraDescription, name, vec3, quat),
+    st.builds(nm.DeviceDescription, i32, name, name, i32, i32, st.lists(name, max_size=3).map(tuple)),
+    st.builds(nm.CameraDescription, name, vec3, quat),
     st.builds(
-        nn.AssetDescription,
+        nm.AssetDescription,
         name,
         i32,
         i32,
         st.lists(rb_desc, max_size=2).map(tuple),
-        st.lists(st.builds(nn.MarkerDescription, name, i32, vec3, f32, i16), max_size=2).map(tuple),
+        st.lists(st.builds(nm.MarkerDescription, name, i32, vec3, f32, i16), max_size=2).map(tuple),
     ),
 )
 
 
-def desc_as_sent(d, v: nn.Version):  # type: ignore[no-untyped-def]
+def desc_as_sent(d, v: nw.Version):  # type: ignore[no-untyped-def]
     """Rigid-body marker names exist from 4.0 on."""
     from dataclasses import replace
 
     if v >= V40:
         return d
-    if isinstance(d, nn.RigidBodyDescription):
+    if isinstance(d, nm.RigidBodyDescription):
         return replace(d, markers=tuple(replace(m, name="") for m in d.markers))
-    if isinstance(d, (nn.SkeletonDescription, nn.AssetDescription)):
+    if isinstance(d, (nm.SkeletonDescription, nm.AssetDescription)):
         return replace(d, rigid_bodies=tuple(desc_as_sent(r, v) for r in d.rigid_bodies))
     return d
 
@@ -271,19 +274,19 @@ def desc_as_sent(d, v: nn.Version):  # type: ignore[no-untyped-def]
 @settings(max_examples=fuzz_examples(100), deadline=None)
 @given(st.lists(descriptions, max_size=4), st.sampled_from([V30, V40, V41]))
 def test_modeldef_round_trips_in_every_version(datasets, v):
-    md = nn.ModelDef(tuple(datasets))
+    md = nm.ModelDef(tuple(datasets))
     back = nn.decode(nn.encode(md, v), v)
-    assert back == nn.ModelDef(tuple(desc_as_sent(d, v) for d in datasets))
+    assert back == nm.ModelDef(tuple(desc_as_sent(d, v) for d in datasets))
 
 
 def test_simple_messages_round_trip():
-    sender = nn.Sender("beambench", nn.Version(0, 1), nn.Version(4, 1))
+    sender = nn.Sender("beambench", nw.Version(0, 1), nw.Version(4, 1))
     for msg in [
         nn.Connect(sender),
-        nn.Connect(sender, False, nn.Version(4, 0)),
+        nn.Connect(sender, False, nw.Version(4, 0)),
         nn.Discovery(sender),
         nn.ServerInfo(
-            nn.Sender("Motive", nn.Version(3, 1), nn.Version(4, 1)), 10_000_000, 1511, False, "239.255.42.99"
+            nn.Sender("Motive", nw.Version(3, 1), nw.Version(4, 1)), 10_000_000, 1511, False, "239.255.42.99"
         ),
         nn.Request("FrameRate"),
         nn.Response.of_float(360.0),
@@ -302,13 +305,13 @@ def test_simple_messages_round_trip():
         assert nn.decode(nn.encode(msg, V41), V41) == msg, msg
     assert nn.decode(nn.encode(nn.Response.of_float(360.0))).as_float() == 360.0
     assert nn.decode(nn.encode(nn.Response.of_text("Bitstream,4.1"))).as_text() == "Bitstream,4.1"
-    with pytest.raises(nn.NatNetParseError):
+    with pytest.raises(nw.NatNetParseError):
         nn.Response.of_text("long text").as_int()
 
 
 def test_4_1_sections_skip_newer_fields_but_reject_overruns():
-    frame = nn.FrameOfData(
-        7, labeled_markers=(nn.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.015625, 2, 0.0),), timestamp=1.0
+    frame = nf.FrameOfData(
+        7, labeled_markers=(nf.LabeledMarker(65537, (1.0, 2.0, 3.0), 0.015625, 2, 0.0),), timestamp=1.0
     )
     packet = bytearray(nn.encode(frame, V41))
     # labeled markers: header(4) + frame number(4) + 5 empty sections (count, size) before it
@@ -321,16 +324,16 @@ def test_4_1_sections_skip_newer_fields_but_reject_overruns():
     assert nn.decode(bytes(grown), V41).labeled_markers == frame.labeled_markers  # unknown trailing field skipped
     shrunk = bytearray(packet)
     struct.pack_into("<i", shrunk, at + 4, 20)
-    with pytest.raises(nn.NatNetParseError, match="overran"):
+    with pytest.raises(nw.NatNetParseError, match="overran"):
         nn.decode(bytes(shrunk), V41)
 
 
 def test_version_parse():
-    assert nn.Version.parse("4.1") == (4, 1, 0, 0)
-    assert str(nn.Version.parse("3.0.0.0")) == "3.0.0.0"
+    assert nw.Version.parse("4.1") == (4, 1, 0, 0)
+    assert str(nw.Version.parse("3.0.0.0")) == "3.0.0.0"
     for bad in ("", "x", "1.2.3.4.5", "300.1"):
         with pytest.raises(ValueError):
-            nn.Version.parse(bad)
+            nw.Version.parse(bad)
 
 
 # ------------------------------------------------------------------------------------------ fuzz
@@ -338,11 +341,11 @@ def test_version_parse():
 # a time bound per example: a decoder that loops or blows up on a bad length fails it (a generous one: this is
 # not a speed test, speed is in benchmarks/)
 BOUND = timedelta(seconds=5)
-VERSIONS = st.sampled_from([None, V30, V40, V41, nn.Version(4, 2), nn.Version(2, 9), nn.Version(5, 0)])
+VERSIONS = st.sampled_from([None, V30, V40, V41, nw.Version(4, 2), nw.Version(2, 9), nw.Version(5, 0)])
 
 
 def check_only_parse_error(packet: bytes, version) -> None:  # type: ignore[no-untyped-def]
-    with contextlib.suppress(nn.NatNetParseError):
+    with contextlib.suppress(nw.NatNetParseError):
         nn.decode(packet, version)
 
 
@@ -373,7 +376,7 @@ def test_fuzz_mutated_valid_frames(frame, v, data):
 @settings(max_examples=fuzz_examples(120), deadline=BOUND)
 @given(st.lists(descriptions, max_size=3), st.sampled_from([V30, V40, V41]), st.data())
 def test_fuzz_mutated_modeldefs(datasets, v, data):
-    packet = bytearray(nn.encode(nn.ModelDef(tuple(datasets)), v))
+    packet = bytearray(nn.encode(nm.ModelDef(tuple(datasets)), v))
     for _ in range(data.draw(st.integers(1, 4))):
         i = data.draw(st.integers(0, len(packet) - 1))
         packet[i] = data.draw(st.integers(0, 255))
@@ -381,6 +384,6 @@ def test_fuzz_mutated_modeldefs(datasets, v, data):
 
 
 def test_nan_and_inf_floats_decode_without_error():
-    frame = nn.FrameOfData(1, other_markers=((math.nan, math.inf, -math.inf),), timestamp=math.nan)
+    frame = nf.FrameOfData(1, other_markers=((math.nan, math.inf, -math.inf),), timestamp=math.nan)
     back = nn.decode(nn.encode(frame, V40), V40)
     assert math.isnan(back.other_markers[0][0]) and math.isinf(back.other_markers[0][1])

@@ -12,7 +12,7 @@ import pytest
 import beambench
 from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.analysis import analyze_session, resample_session, write_results
-from beambench.sinks.hdf5 import read_processing, read_session
+from beambench.sinks.session_file.reader import read_processing, read_session
 
 PROTOCOL = "name: nb\nrig: contact\nsweep: {frequencies: [5, 26]}\nsettle_s: 0.2\nrecord_s: 0.3\nsim: {seed: 3}\n"
 
@@ -28,8 +28,8 @@ def session_file(tmp_path_factory) -> Path:
 
 
 def test_the_package_and_its_reading_functions_are_documented():
-    from beambench.sinks import session_frames
-    from beambench.sinks.hdf5 import SessionFile
+    from beambench.sinks.session_file import frames as session_frames
+    from beambench.sinks.session_file.reader import SessionFile
 
     assert beambench.__doc__ and "to_pandas" in beambench.__doc__
     for f in (SessionFile.to_pandas, SessionFile.to_xarray, resample_session, read_processing, session_frames):

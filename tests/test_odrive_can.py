@@ -19,16 +19,11 @@ from beambench.acquisition.batch import Batch
 from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
 from beambench.acquisition.streams import motor_spec
 from beambench.devices.odrive import cansimple as cs
-from beambench.devices.odrive.can_motor import (
-    RECEIVE_COALESCE_S,
-    CanMotorTiming,
-    LimitError,
-    OdriveCanMotor,
-    receive_ns,
-)
+from beambench.devices.odrive.can_motor import OdriveCanMotor
 from beambench.devices.odrive.can_ping import ping
+from beambench.devices.odrive.can_timing import RECEIVE_COALESCE_S, CanMotorTiming, receive_ns
 from beambench.devices.odrive.cansimple import AxisError, AxisState
-from beambench.devices.odrive.telemetry import MAX_VEL_LIMIT
+from beambench.devices.odrive.telemetry import MAX_VEL_LIMIT, LimitError
 from beambench.devices.receive_time import mono_minus_real_ns
 from beambench.emulators.odrive_can import (
     EmulatedOdrive,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 ENDLESS = """
 name: endless

@@ -11,8 +11,8 @@ from typer.testing import CliRunner
 
 from beambench.sim import selection as select
 from beambench.sim.scenes.free_beam import FREE_BEAM_SETTINGS, frequency_sweep
-from beambench.studies.ladder import LadderConfig, run_ladder, summarize
-from beambench.studies.ladder_figures import place_labels, write_outputs
+from beambench.studies.ladder.figures import place_labels, write_outputs
+from beambench.studies.ladder.run import LadderConfig, run_ladder, summarize
 
 TINY = LadderConfig(
     models=("prb3", "rod3g"),

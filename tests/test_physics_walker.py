@@ -164,9 +164,10 @@ def test_protocol_selects_the_named_set_and_refuses_unknown_legs():
     """The shipped protocol runs the physical set's walker block on rod5g legs (issue 22); `sim.model: prb3,
     sim.params: paper` the effective (PRB3) calibrated defaults, `walker_paper_guesses` the paper_guesses set; an
     unknown leg model is a one-line ConfigError before anything is built."""
-    from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.backends.sim import build_scene
     from beambench.common.resources import shipped_dir
+    from beambench.common.yaml_config import ConfigError
     from beambench.session.slices import sim_slice
 
     text = (shipped_dir("protocols") / "walker_sweep.yaml").read_text()

@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from beambench.acquisition.protocol.schema import NAME_FIELDS, ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import NAME_FIELDS, parse_protocol
 from beambench.common.resources import USER_DIR_ENV, shipped_dir
+from beambench.common.yaml_config import ConfigError
 from conftest import cli, one_line_error
 
 BASE = "name: p\nsweep: {frequencies: [5]}\nsettle_s: 0.1\nrecord_s: 0.1\n"

@@ -9,7 +9,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from beambench.acquisition.protocol.plan import plan, summary
-from beambench.acquisition.protocol.schema import ConfigError, Protocol, parse_protocol
+from beambench.acquisition.protocol.schema import Protocol, parse_protocol
+from beambench.common.yaml_config import ConfigError
 from conftest import fuzz_examples
 
 VALID = """
@@ -53,7 +54,7 @@ FIELDS = [
 ]
 SUBFIELDS = {
     "sweep": ["start", "stop", "step", "frequencies"],
-    "sim": ["model", "params", "timestep", "seed", "twist_deg", "plate_gap_mm", "noise", "mocap_clock"],
+    "sim": ["model", "params", "timestep", "seed", "twist_deg", "plate_gap_mm", "noise", "mocap_clock", "clocks"],
     "limits": ["max_frequency_hz", "max_current_a", "max_amplitude_mm"],
     "output": ["name"],
 }

@@ -29,7 +29,7 @@ from beambench.sim.scenes.release import (
     simulate_release,
     static_equilibrium,
 )
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 ROOT = Path(__file__).resolve().parents[1]
 

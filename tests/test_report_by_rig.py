@@ -109,7 +109,7 @@ def test_release_report_has_the_decay_figure_and_frequency_and_damping_in_its_ta
     # the table shows the decay fit of the recorded tip (4 significant digits), and that fit explains the record
     from beambench.analysis.release import step_decay
     from beambench.analysis.session_analysis import analyze_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     (step,) = analyze_session(read_session(sessions["release"])).steps
     fitted = step_decay(step)

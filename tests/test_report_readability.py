@@ -15,7 +15,8 @@ from matplotlib import colors as mcolors
 from matplotlib import image as mimage
 from typer.testing import CliRunner
 
-from beambench.analysis.report import SESSION_COLORS, SUMMARY_COLUMNS, summary_table
+from beambench.analysis.figures.style import SESSION_COLORS
+from beambench.analysis.report import SUMMARY_COLUMNS, summary_table
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
 from beambench.cli import app
 
@@ -110,7 +111,7 @@ matplotlib.use("svg")
 before = dict(matplotlib.rcParams)
 from beambench.analysis.report import make_report
 from beambench.analysis.session_analysis import analyze_session
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 make_report([analyze_session(read_session({str(touching)!r}))], {str(tmp_path / "r")!r})
 assert matplotlib.get_backend() == "svg", matplotlib.get_backend()
 assert dict(matplotlib.rcParams) == before

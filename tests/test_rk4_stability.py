@@ -45,7 +45,7 @@ def test_a_diverged_rk4_run_is_explained():
 
 
 def test_a_one_point_rk4_sweep_stores_the_reason():
-    from beambench.studies.sweep import SweepSpec, run_local
+    from beambench.studies.sweep.run import SweepSpec, run_local
 
     spec = SweepSpec.model_validate(
         {
@@ -68,8 +68,8 @@ def test_the_quick_speed_accuracy_chart_says_what_it_measured(tmp_path):
     import pandas as pd
     from matplotlib.figure import Figure
 
-    from beambench.studies.ladder import QUICK, TWIN_MODEL, summarize
-    from beambench.studies.ladder_figures import ladder_note, plot_speed_accuracy
+    from beambench.studies.ladder.figures import ladder_note, plot_speed_accuracy
+    from beambench.studies.ladder.run import QUICK, TWIN_MODEL, summarize
 
     assert TWIN_MODEL == "rod5g" and TWIN_MODEL in QUICK.models
     rows = []

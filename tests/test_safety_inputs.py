@@ -19,11 +19,12 @@ import h5py
 import pytest
 
 from beambench.acquisition.protocol.plan import session_path
-from beambench.acquisition.protocol.schema import ConfigError, load_protocol, parse_protocol
-from beambench.common.yaml_config import MAX_FILE_BYTES, parse_yaml
+from beambench.acquisition.protocol.schema import load_protocol, parse_protocol
+from beambench.common.yaml_config import MAX_FILE_BYTES, ConfigError, parse_yaml
 from beambench.sim.models.params import ParamsError, params_from_dict
-from beambench.sinks.hdf5 import SessionFileError, SessionWriter, read_session
-from beambench.studies.sweep import SweepError, load_sweep
+from beambench.sinks.session_file.reader import SessionFileError, read_session
+from beambench.sinks.session_file.writer import SessionWriter
+from beambench.studies.sweep.run import SweepError, load_sweep
 from conftest import cli, one_line_error
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -43,7 +44,7 @@ BASE = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
         ("sweep: {frequencies: [5]}\nsim: {twist_deg: .nan}", "sim.twist_deg"),
         ("sweep: {frequencies: [5]}\namplitude_mm: .inf", "amplitude_mm"),
         ("sweep: {frequencies: [5]}\nsettle_s: false", "settle_s"),
-        ("sweep: {frequencies: [5]}\nsim: {mocap_clock: {drift_ppm: .nan}}", "sim.mocap_clock.drift_ppm"),
+        ("sweep: {frequencies: [5]}\nsim: {clocks: {mocap: {drift_ppm: .nan}}}", "sim.clocks.mocap.drift_ppm"),
         ("sweep: {frequencies: [5]}\nlimits: {max_frequency_hz: .nan}", "limits.max_frequency_hz"),
         ("sweep: {frequencies: ['5']}", "sweep.frequencies.0"),
     ],

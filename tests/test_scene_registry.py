@@ -6,8 +6,9 @@ from __future__ import annotations
 import pytest
 
 from beambench.acquisition.protocol import scenes as catalogue
-from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.acquisition.streams import CONTACT_MARKERS, WALKER_MARKERS
+from beambench.common.yaml_config import ConfigError
 from beambench.sim import scenes
 
 
@@ -66,8 +67,8 @@ def test_a_sweep_task_is_a_typed_frozen_value_that_pickles():
     import dataclasses
     import pickle
 
-    from beambench.studies.sweep import SweepSpec, make_tasks, plan
-    from beambench.studies.sweep_scenes import Job, SweepTask
+    from beambench.studies.sweep.run import SweepSpec, make_tasks, plan
+    from beambench.studies.sweep.task import Job, SweepTask
 
     spec = SweepSpec.model_validate({"scene": "contact", "points": [{"gap_mm": 1.0}], "frequencies": [5, 10]})
     tasks = make_tasks(spec, plan(spec), 1)

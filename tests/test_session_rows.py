@@ -21,7 +21,7 @@ import pytest
 from typer.testing import CliRunner
 
 from beambench.cli import app
-from beambench.sinks.hdf5 import SessionFileError, read_session
+from beambench.sinks.session_file.reader import SessionFileError, read_session
 from beambench.studies.twin_calibration.targets import CalibrationInputError, session_targets
 
 CONTACT = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
@@ -265,7 +265,7 @@ def test_a_damaged_or_incomplete_session_is_one_line(case, reader, session, tmp_
 
 
 def test_a_processing_table_whose_columns_differ_in_length_is_one_line(session, tmp_path):
-    from beambench.sinks.hdf5 import read_processing
+    from beambench.sinks.session_file.reader import read_processing
 
     assert len(read_processing(session, "steps")) == 2  # the analysed session: one row per step
     path = _edited(session, tmp_path, _rows("processing/steps/frequency_hz", 1))

@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from beambench.cli import app
-from beambench.sinks.hdf5 import SessionFileError, read_session
+from beambench.sinks.session_file.reader import SessionFileError, read_session
 from beambench.studies.twin_calibration.targets import CalibrationInputError, session_targets
 from conftest import SHORT_RELEASE, fuzz_examples, record_sim_sessions
 

@@ -39,7 +39,7 @@ import h5py
 import pytest
 
 from beambench.acquisition.stop_signals import signal_name
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 from conftest import last_requested_state, wait_until
 
 # Long enough that no run can finish before its signal (200 steps x 0.5 s of rig time).
@@ -407,7 +407,7 @@ def _sim_runner(tmp_path: Path, stop=None, on_progress=None):
     from beambench.acquisition.runner import Runner
     from beambench.backends.sim import SimRig
     from beambench.session.slices import sim_slice
-    from beambench.sinks.hdf5 import SessionWriter
+    from beambench.sinks.session_file.writer import SessionWriter
 
     protocol = parse_protocol(ENDLESS)
     rig = SimRig(sim_slice(protocol))

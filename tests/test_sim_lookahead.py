@@ -14,7 +14,7 @@ from beambench.backends.lookahead import Lookahead, cut_points, script
 from beambench.backends.sim import SimRig
 from beambench.cli import app
 from beambench.session.slices import sim_slice
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 WALKER = """
 name: walk

@@ -6,9 +6,10 @@ import dataclasses
 
 import pytest
 
-from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.backends.sim import build_scene
 from beambench.common.resources import shipped_dir
+from beambench.common.yaml_config import ConfigError
 from beambench.session.slices import sim_slice
 from beambench.studies.twin_calibration import get_rig
 from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets, parse_targets

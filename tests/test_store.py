@@ -7,12 +7,8 @@ import pytest
 from beambench.acquisition.batch import Batch, StepRecord
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.streams import loadcell_spec, mocap_spec
-from beambench.sinks.hdf5 import (
-    SessionWriter,
-    read_processing,
-    read_session,
-    write_processing,
-)
+from beambench.sinks.session_file.reader import read_processing, read_session
+from beambench.sinks.session_file.writer import SessionWriter, write_processing
 
 
 def _batches(n0, n):

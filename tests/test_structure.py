@@ -51,16 +51,23 @@ def test_no_layer_below_session_takes_the_whole_protocol() -> None:
     assert found == []
 
 
-def test_no_module_imports_another_packages_private_names() -> None:
-    """A leading underscore is private to its package (natnet's frame parsers share wire.py's readers)."""
+# modules whose private names their package's siblings share by design (natnet's frame parsers read with wire.py's
+# readers); any other leading underscore is private to its module
+SHARES_PRIVATE_NAMES = ("beambench.devices.natnet.wire",)
+
+
+def test_no_module_imports_another_modules_private_names() -> None:
+    """A leading underscore is private to its module, except in :data:`SHARES_PRIVATE_NAMES` (then to its package):
+    a helper another module needs gets a public name."""
     found = []
     for path in _modules():
         home = _name(path).rsplit(".", 1)[0] if path.name != "__init__.py" else _name(path)
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("beambench"):
-                there = (node.module or "").rsplit(".", 1)[0]
+                module = node.module or ""
+                shared = module in SHARES_PRIVATE_NAMES and module.rsplit(".", 1)[0] == home
                 private = [a.name for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
-                found += [f"{_name(path)}: {node.module}.{n}" for n in private if there != home]
+                found += [f"{_name(path)}: {module}.{n}" for n in private if not shared]
     assert found == []
 
 
@@ -178,4 +185,100 @@ def test_no_silent_default_read_of_our_own_objects() -> None:
                 and ast.unparse(node.args[0]) not in PROBED
             ):
                 found.append(f"{_name(path)}:{node.lineno} {ast.unparse(node)}")
+    assert found == []
+
+
+REPO = PACKAGE.parents[1]
+IMPORTERS = ("src", "tests", "benchmarks", "docs")  # every place that imports beambench
+
+
+def _top_level(tree: ast.Module) -> tuple[set[str], dict[str, str]]:
+    """The names a module defines and, for each name it imports from beambench, the module it comes from
+    (conditional and TYPE_CHECKING blocks included)."""
+    defined: set[str] = set()
+    imported: dict[str, str] = {}
+
+    def visit(body: list[ast.stmt]) -> None:
+        for node in body:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                defined.add(node.name)
+            elif isinstance(node, ast.Assign | ast.AnnAssign | ast.AugAssign):
+                targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                defined.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("beambench"):
+                imported.update({a.asname or a.name: f"{node.module}.{a.name}" for a in node.names})
+            elif isinstance(node, ast.If | ast.Try | ast.With):
+                visit(node.body)
+                visit(getattr(node, "orelse", []))
+                for handler in getattr(node, "handlers", []):
+                    visit(handler.body)
+
+    visit(tree.body)
+    return defined, imported
+
+
+def _module_files() -> dict[str, Path]:
+    return {_name(p): p for p in _modules()}
+
+
+def _may_reexport(module: str, path: Path, source: str) -> bool:
+    """Only a package's ``__init__`` may offer a name, and only one of its own submodules'."""
+    return path.name == "__init__.py" and source.startswith(module + ".")
+
+
+def test_no_module_re_exports_a_name_it_imports() -> None:
+    """``__all__`` and ``import x as x`` offer only the module's own names (a package's: its submodules')."""
+    found = []
+    for module, path in _module_files().items():
+        tree = ast.parse(path.read_text())
+        defined, imported = _top_level(tree)
+        offered: list[str] = []
+        for node in tree.body:
+            if isinstance(node, ast.Assign) and any(
+                isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets
+            ):
+                offered += [e.value for e in ast.walk(node.value) if isinstance(e, ast.Constant)]
+            if isinstance(node, ast.ImportFrom):
+                offered += [a.name for a in node.names if a.asname == a.name]
+        found += [
+            f"{module}: {name} (from {imported[name]})"
+            for name in offered
+            if name in imported and name not in defined and not _may_reexport(module, path, imported[name])
+        ]
+    assert found == []
+
+
+def _uses(tree: ast.Module, files: dict[str, Path]) -> list[tuple[int, str, str]]:
+    """(line, module, name) for every ``from beambench.M import N`` and every ``alias.N`` of a module imported as
+    ``alias`` (``from beambench.P import M as alias``, ``import beambench.M as alias``)."""
+    uses, aliases = [], {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module in files:
+            for a in node.names:
+                if f"{node.module}.{a.name}" in files:
+                    aliases[a.asname or a.name] = f"{node.module}.{a.name}"
+                else:
+                    uses.append((node.lineno, node.module, a.name))
+        elif isinstance(node, ast.Import):
+            aliases.update({a.asname: a.name for a in node.names if a.asname and a.name in files})
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases:
+            uses.append((node.lineno, aliases[node.value.id], node.attr))
+    return uses
+
+
+def test_every_import_names_the_module_a_name_lives_in() -> None:
+    """``from beambench.M import N`` and ``M.N`` (in the package, its tests, benchmarks and docs): N is defined in
+    M, is a submodule of M, or M is a package offering one of its own submodules' names; never a name M imported."""
+    files = _module_files()
+    tops = {m: _top_level(ast.parse(p.read_text())) for m, p in files.items()}
+    found = []
+    for folder in IMPORTERS:
+        for path in sorted((REPO / folder).rglob("*.py")):
+            for line, module, name in _uses(ast.parse(path.read_text()), files):
+                defined, imported = tops[module]
+                if name in defined or f"{module}.{name}" in files or name not in imported:
+                    continue
+                if not _may_reexport(module, files[module], imported[name]):
+                    found.append(f"{path.relative_to(REPO)}:{line}: {module}.{name} lives in {imported[name]}")
     assert found == []

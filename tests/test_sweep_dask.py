@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from beambench.cli import app
 from beambench.studies.executor import ExecutorError, make_executor
-from beambench.studies.sweep import SweepSpec, load_sweep, run_sweep
+from beambench.studies.sweep.run import SweepSpec, load_sweep, run_sweep
 
 # found, not imported, at collection (importing distributed costs ~0.5 s in every test worker)
 if importlib.util.find_spec("distributed") is None:

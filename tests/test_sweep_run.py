@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from beambench.cli import app
 from beambench.studies.executor import batch_size, chunks
-from beambench.studies.sweep import (
+from beambench.studies.sweep.run import (
     SweepError,
     SweepSpec,
     load_sweep,
@@ -254,7 +254,9 @@ import sys
 import matplotlib
 matplotlib.use("svg")  # a user's own choice (a notebook's inline backend, say) must survive
 import numpy as np, pandas as pd
-from beambench.studies import fit, fit_figure, ladder_figures, sweep, sweep_figure
+from beambench.studies.fit import figure as fit_figure, release as fit
+from beambench.studies.sweep import figure as sweep_figure, run as sweep
+from beambench.studies.ladder import figures as ladder_figures
 out = sys.argv[1]
 spec = sweep.SweepSpec.model_validate({"grid": {"twist_deg": [0, 90]}, "frequencies": [10, 15]})
 df = pd.DataFrame({"twist_deg": [0, 0, 90, 90], "frequency_hz": [10, 15, 10, 15], "tip_major_mm": [1, 2, 3, 4],

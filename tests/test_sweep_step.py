@@ -6,8 +6,9 @@ from __future__ import annotations
 import pytest
 from typer.testing import CliRunner
 
-from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.cli import app
+from beambench.common.yaml_config import ConfigError
 
 BASE = "name: t\nsettle_s: 0.2\nrecord_s: 0.3\nsweep: {sweep}\n"
 

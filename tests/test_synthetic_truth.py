@@ -14,7 +14,7 @@ from beambench.analysis.synthetic import (
     markers,
     write_synthetic_session,
 )
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 
 def _foot_velocity_at_touchdowns(cfg: SynthSession) -> list[float]:

@@ -14,8 +14,9 @@ import pytest
 from beambench.acquisition.batch import Batch, Frame
 from beambench.acquisition.control.speed_controller import LOST, TRACKING, TrackController, track_spec
 from beambench.acquisition.control.speed_map import SpeedMap
-from beambench.acquisition.protocol.schema import ConfigError, TrackControl, parse_protocol
+from beambench.acquisition.protocol.schema import TrackControl, parse_protocol
 from beambench.acquisition.streams import WALKER_MARKERS, mocap_spec
+from beambench.common.yaml_config import ConfigError
 
 MAX_HZ = 60.0
 
@@ -241,7 +242,7 @@ def _track_text(map_path: Path, segments: list[tuple[float, float]], extra: str 
 def test_walker_follows_a_short_profile_on_the_sim(twin_map_session, tmp_path):
     from beambench.analysis.session_analysis import analyze_session
     from beambench.session.run import run_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     map_path, speed_map = twin_map_session
     back, fwd = speed_map.reach(60)
@@ -266,7 +267,7 @@ def test_walker_follows_a_short_profile_on_the_sim(twin_map_session, tmp_path):
 def test_losing_mocap_stands_the_sim_walker(twin_map_session, tmp_path, monkeypatch):
     from beambench.backends import sim_devices
     from beambench.session.run import run_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     map_path, speed_map = twin_map_session
     sample = sim_devices.SimMocap.sample
@@ -314,7 +315,7 @@ def test_target_out_of_reach_is_refused_before_anything_moves(twin_map_session, 
 def test_the_same_controller_drives_the_emulated_walker_through_the_real_drivers(twin_map_session, tmp_path):
     """Real time: NatNet over UDP (y up, as Motive) and the ODrive over CAN; the controller cannot tell."""
     from beambench.session.run import run_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     map_path, speed_map = twin_map_session
     target = 0.5 * speed_map.reach(60)[1]

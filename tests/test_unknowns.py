@@ -8,7 +8,7 @@ import math
 import pytest
 
 from beambench.sim.models.params import load_params
-from beambench.studies.fit import ParamSpace
+from beambench.studies.fit.space import ParamSpace
 from beambench.studies.twin_calibration import SearchSettings, get_rig
 from beambench.studies.twin_calibration.contact import CONTACT_UNKNOWNS, calibrated_params
 from beambench.studies.twin_calibration.rig import CalibrationBase

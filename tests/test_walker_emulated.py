@@ -14,7 +14,8 @@ from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.backends.hardware import DEFAULT_RIG_FILE
 from beambench.session.slices import sim_slice
-from beambench.sinks.hdf5 import SessionWriter, read_session
+from beambench.sinks.session_file.reader import read_session
+from beambench.sinks.session_file.writer import SessionWriter
 
 PROTOCOL = """
 name: walker_emu

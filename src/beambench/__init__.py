@@ -4,7 +4,7 @@
 into an HDF5 session, on a MuJoCo twin of the rig (``sim``), emulated devices or the real rig; ``beambench
 --help`` lists the other commands. In a notebook::
 
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
     from beambench.analysis import resample_session
 
     s = read_session("data/contact_sweep_sim_….h5")

@@ -87,7 +87,7 @@ def main() -> None:
         sys.exit(EXIT_STOPPED)
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
-        hdf5 = sys.modules.get("beambench.sinks.hdf5")
+        hdf5 = sys.modules.get("beambench.sinks.session_file.writer")
         if hdf5 is not None and hdf5.hdf5_left_open():
             # a session file HDF5 could not close (a full disk): its exit handler would retry and crash (SIGSEGV)
             with contextlib.suppress(Exception):

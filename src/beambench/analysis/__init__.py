@@ -2,27 +2,20 @@
 
 Notebook use::
 
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
     from beambench.analysis import analyze_session, resample_session
 
     s = read_session("data/contact_sweep_sim_….h5")
     a = analyze_session(s)          # a.table: one row per step; a.fits: clock fits; a.steps: arrays
     df = resample_session(s, 1000)  # every stream on one host-clock timeline (raw data untouched)
 
-Modules: ``signals`` (sine fit), ``trajectory`` (stage frame, ellipses, sense of travel), ``contact`` (contact
-events, ratios, regimes), ``walking`` (body speed, foot stance), ``release`` (decay fit of a release test),
+Modules: ``signals`` (sine fit), ``trajectory`` (stage frame, ellipses, sense of travel), ``contact`` (touchdown velocity; the
+events, ratios and regimes are :mod:`beambench.acquisition.forces.contact_events`), ``walking`` (body speed, foot stance), ``release`` (decay fit of a release test),
 ``session_analysis`` (per-step driver, ``/processing``), ``sync`` (device→host clock fits), ``figures`` (one module per report figure, registered by rig;
 imports matplotlib), ``report`` (the figures of a session's rig and the HTML), ``synthetic`` (sessions with a
 known truth for tests and demos).
 """
 
-from beambench.analysis.contact import (
-    ContactParams,
-    Contacts,
-    detect_contacts,
-    regime_label,
-    summarize_contacts,
-)
 from beambench.analysis.session_analysis import (
     AnalysisOptions,
     SessionAnalysis,
@@ -46,8 +39,6 @@ from beambench.analysis.walking import Speed, body_speed
 
 __all__ = [
     "AnalysisOptions",
-    "ContactParams",
-    "Contacts",
     "Ellipse",
     "SessionAnalysis",
     "SineFit",
@@ -57,15 +48,12 @@ __all__ = [
     "analyze_session",
     "body_speed",
     "contacts_table",
-    "detect_contacts",
     "fit_ellipse_harmonic",
     "fit_ellipse_points",
     "fit_sinusoid",
     "mean_path",
-    "regime_label",
     "relative_trajectory",
     "resample_session",
     "stage_frame",
-    "summarize_contacts",
     "write_results",
 ]

@@ -2,43 +2,14 @@
 
 The detection itself lives in :mod:`beambench.acquisition.forces.contact_events` (pure numpy, below both the
 simulator and the analysis, so the twin's regime maps and ``beambench analyze`` classify identically);
-this module re-exports it and adds what needs the foot's motion (the velocity at touchdown).
+this module adds what needs the foot's motion (the velocity at touchdown).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from beambench.acquisition.forces.contact_events import (
-    REGIME_ORDER,
-    ContactParams,
-    Contacts,
-    ContactSummary,
-    detect_contacts,
-    force_contacts,
-    force_regime,
-    hysteresis,
-    noise_sigma,
-    regime_fraction,
-    regime_label,
-    summarize_contacts,
-)
-
-__all__ = [
-    "REGIME_ORDER",
-    "ContactParams",
-    "ContactSummary",
-    "Contacts",
-    "detect_contacts",
-    "force_contacts",
-    "force_regime",
-    "hysteresis",
-    "noise_sigma",
-    "regime_fraction",
-    "regime_label",
-    "summarize_contacts",
-    "touchdown_velocity",
-]
+__all__ = ["touchdown_velocity"]
 
 
 def touchdown_velocity(

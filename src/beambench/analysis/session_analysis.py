@@ -16,14 +16,10 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from beambench.acquisition.forces.contact_events import ContactParams, Contacts, force_contacts
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.analysis.branches import annotate_branches, with_step_labels
-from beambench.analysis.contact import (
-    ContactParams,
-    Contacts,
-    force_contacts,
-    touchdown_velocity,
-)
+from beambench.analysis.contact import touchdown_velocity
 from beambench.analysis.drift import drift_corrected
 from beambench.analysis.path_shape import annotate_inversions, path_noise, shape_columns
 from beambench.analysis.signals import velocity
@@ -53,8 +49,8 @@ from beambench.analysis.trajectory import (
     stage_frame,
 )
 from beambench.analysis.walking import body_speed
-from beambench.sinks.hdf5_read import StreamData, run_ending
-from beambench.sinks.session_frames import flat_names, step_of
+from beambench.sinks.session_file.frames import flat_names, step_of
+from beambench.sinks.session_file.reader import StreamData, run_ending
 
 
 @dataclass(frozen=True)
@@ -385,7 +381,7 @@ def analyze_session(
     options: AnalysisOptions = AnalysisOptions(),
     progress: Callable[[int, int], None] | None = None,
 ) -> SessionAnalysis:
-    """Analyse every step of a session (as returned by :func:`beambench.sinks.hdf5.read_session`)."""
+    """Analyse every step of a session (as returned by :func:`beambench.sinks.session_file.reader.read_session`)."""
     general = dict(session.general)
     proto = _protocol_dict(general)
     rig = session_rig(general)
@@ -610,7 +606,7 @@ def contacts_table(analysis: SessionAnalysis) -> pd.DataFrame:
 
 def write_results(analysis: SessionAnalysis, path: str | Path | None = None) -> None:
     """Store the per-step table, clock fits (+ residuals), contacts and the delay under ``/processing``."""
-    from beambench.sinks.hdf5 import write_processing
+    from beambench.sinks.session_file.writer import write_processing
 
     target = Path(path) if path is not None else analysis.path
     if target is None:

@@ -6,8 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beambench.acquisition.forces.contact_events import runs as runs  # re-exported (moved there)
-
 
 @dataclass(frozen=True)
 class SineFit:

@@ -1,4 +1,4 @@
-"""Synthetic sessions with a known truth, written through the real :class:`~beambench.sinks.hdf5.SessionWriter`.
+"""Synthetic sessions with a known truth, written through the real :class:`~beambench.sinks.session_file.writer.SessionWriter`.
 
 Used by the analysis tests and benchmark (and handy in notebooks): every number the analysis should recover
 — drive frequency and amplitude, the tip ellipse (axes, tilt, sense), contacts every k-th cycle, the direction
@@ -241,7 +241,7 @@ def _general(cfg: SynthSession, cal: LoadCellCalibration) -> dict[str, Any]:
 def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
     """Write a session file with the truth of ``cfg``; returns its path."""
     from beambench.acquisition.batch import StepRecord
-    from beambench.sinks.hdf5 import SessionWriter
+    from beambench.sinks.session_file.writer import SessionWriter
 
     rng = np.random.default_rng(cfg.seed)
     sched = _schedule(cfg)

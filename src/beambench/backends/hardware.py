@@ -22,13 +22,9 @@ from beambench.acquisition.capabilities import (
     ReportsHealth,
     Stream,
 )
-from beambench.acquisition.protocol.schema import (
-    ConfigError,
-    OdriveWiring,
-    RigFile,
-    load_rig_file,
-)
+from beambench.acquisition.protocol.schema import OdriveWiring, RigFile, load_rig_file
 from beambench.common.resources import shipped_dir
+from beambench.common.yaml_config import ConfigError
 
 DEFAULT_RIG_FILE = shipped_dir("calibration") / "rig.yaml"
 
@@ -173,7 +169,8 @@ def _make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
             axis=od.axis,
             timing=UsbMotorTiming(watchdog_timeout_s=od.watchdog_timeout_s),
         )
-    from beambench.devices.odrive.can_motor import CanMotorTiming, OdriveCanMotor
+    from beambench.devices.odrive.can_motor import OdriveCanMotor
+    from beambench.devices.odrive.can_timing import CanMotorTiming
 
     return OdriveCanMotor(
         od.channel,

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from beambench.acquisition.capabilities import DeviceFault
-from beambench.acquisition.protocol.schema import ConfigError
+from beambench.common.yaml_config import ConfigError
 from beambench.sim.engine.stepping import Trajectory, quiet_mujoco_warnings
 from beambench.sim.protocol_slice import SimSlice
 

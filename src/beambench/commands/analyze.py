@@ -84,7 +84,7 @@ def _must_exist(path: Path) -> None:
 
 def _read(path: Path) -> Any:
     """Read one session; a missing, foreign or empty file becomes one line and exit code 2."""
-    from beambench.sinks.hdf5 import SessionFileError, read_session
+    from beambench.sinks.session_file.reader import SessionFileError, read_session
 
     _must_exist(path)
     try:

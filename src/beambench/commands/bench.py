@@ -75,13 +75,13 @@ def models(
     )
 
     from beambench.common.console import LogProgress, stderr_console
-    from beambench.studies.ladder import (
+    from beambench.studies.ladder.figures import write_outputs
+    from beambench.studies.ladder.run import (
         FULL,
         QUICK,
         run_ladder,
         summarize,
     )
-    from beambench.studies.ladder_figures import write_outputs
 
     cfg = replace(QUICK if quick else FULL, nthread=threads or None)
     console = stderr_console()
@@ -113,7 +113,7 @@ def models(
 def _print_summary(summary, console) -> None:
     from rich.table import Table
 
-    from beambench.studies.ladder import pareto
+    from beambench.studies.ladder.run import pareto
 
     t = Table(title="Pareto front (stable over 5–45 Hz): fastest for each error level")
     for col in ("model", "integrator", "dt [s]", "nv", "mean err [mm]", "max err [mm]", "wall s / 10 s"):

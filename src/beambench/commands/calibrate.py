@@ -146,7 +146,8 @@ def loadcells(
 
 def _wired_port(rig: Path | None, baudrate: int | None, out: Path | None) -> tuple[str, int, Path]:
     """The port, baud rate and default output of the rig file (``--rig``, else the shipped ``rig.yaml``)."""
-    from beambench.acquisition.protocol.schema import ConfigError, load_rig_file
+    from beambench.acquisition.protocol.schema import load_rig_file
+    from beambench.common.yaml_config import ConfigError
 
     if rig is None:
         from beambench.backends.hardware import DEFAULT_RIG_FILE

@@ -26,9 +26,10 @@ def register(app: typer.Typer) -> None:
         from rich.markup import escape
         from rich.table import Table
 
-        from beambench.acquisition.protocol.schema import ConfigError, load_rig_file
+        from beambench.acquisition.protocol.schema import load_rig_file
         from beambench.backends.hardware import DEFAULT_RIG_FILE
         from beambench.common.text import printable
+        from beambench.common.yaml_config import ConfigError
 
         try:
             rig = load_rig_file(rig_file or DEFAULT_RIG_FILE) if not emulate else None

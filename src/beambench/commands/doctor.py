@@ -35,9 +35,10 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.table import Table
 
-        from beambench.acquisition.protocol.schema import ConfigError, load_rig_file
+        from beambench.acquisition.protocol.schema import load_rig_file
         from beambench.backends.hardware import DEFAULT_RIG_FILE
         from beambench.common.console import LOG_WIDTH
+        from beambench.common.yaml_config import ConfigError
         from beambench.session.doctor import Machine, check_machine, failed
 
         if not min_free_gb >= 0:

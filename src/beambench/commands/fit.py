@@ -1,4 +1,4 @@
-"""``beambench fit SESSION.h5``: identify the beam model from a release-test session (:mod:`beambench.studies.fit`)."""
+"""``beambench fit SESSION.h5``: identify the beam model from a release-test session (:mod:`beambench.studies.fit.release`)."""
 
 from __future__ import annotations
 
@@ -83,16 +83,16 @@ def fit(args: FitArgs) -> None:
     fitted tip paths, writes a JSON report, and saves each fit (intervals in its source and fit notes) as a
     named parameter set in the per-user folder that protocols select with `sim.params`.
 
-    Measured (benchmarks/bench_fit_sysid.py: synthetic release tests, 0.3 mm noise, 0.35 s, 2 threads, load 5.5
-    on 2 cores): rod5 sysid 4.0 s / 54 rollouts vs de 30.5 s / 533; PRB3 sysid 1.3 s / 39 vs de 27.1 s / 1158;
+    Measured (benchmarks/bench_fit_sysid.py: synthetic release tests, 0.3 mm noise, 0.35 s, 2 threads,
+    median of 3): rod5 sysid 4.0 s / 54 rollouts vs de 30.5 s / 533; PRB3 sysid 1.3 s / 39 vs de 27.1 s / 1158;
     both reach the noise floor (0.50 mm RMS), intervals E ±0.13 %, β ±1.0 %, k ±0.9 %, b ±2.4 %, l2 ±1.8 %.
     Intervals count marker noise, not model error.
     """
     from rich.console import Console
 
     from beambench.common.console import stderr_console
-    from beambench.studies.fit import FitError, load_release_session
-    from beambench.studies.fit_figure import plot_fit
+    from beambench.studies.fit.figure import plot_fit
+    from beambench.studies.fit.release import FitError, load_release_session
 
     models = _checked(args)
     session = args.session
@@ -136,7 +136,7 @@ def _checked(args: FitArgs) -> list[str]:
         fail("--free-l1 applies to the prb3 model")
     if not args.session.is_file():
         fail(f"{args.session}: no such session file")
-    from beambench.studies.fit import METHODS
+    from beambench.studies.fit.release import METHODS
 
     if args.method not in METHODS:
         fail(f"--method = {args.method[:40]!r}: one of {', '.join(METHODS)}")
@@ -177,7 +177,7 @@ def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
     from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 
     from beambench.common.console import LogProgress
-    from beambench.studies.fit import FitError, FitOptions, fit_release
+    from beambench.studies.fit.release import FitError, FitOptions, fit_release
 
     options = FitOptions(
         method=args.method,
@@ -213,7 +213,7 @@ def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
 def _write_outputs(args: FitArgs, results: list, name: str, out: Path, fig: Path, console: Any) -> None:
     """The parameter sets (and /processing), the JSON report; their paths on stdout."""
     from beambench.common.resources import user_dir
-    from beambench.studies.fit import write_param_set
+    from beambench.studies.fit.release import write_param_set
 
     session = args.session
     report = {"session": str(session), "results": [r.summary() for r in results], "figure": str(fig)}
@@ -240,8 +240,8 @@ def _write_outputs(args: FitArgs, results: list, name: str, out: Path, fig: Path
 def _print_results(results, data, console) -> None:
     from rich.table import Table
 
-    from beambench.studies.fit import PAPER_MAE_MM, value_with_interval
-    from beambench.studies.fit_sysid import UNITS
+    from beambench.studies.fit.release import PAPER_MAE_MM, value_with_interval
+    from beambench.studies.fit.sysid import UNITS
 
     conf = f"{results[0].confidence:.0%}" if results else "95%"
     # truth and error: only where the session's own twin is the fitted model (a sim session of it); else no columns
@@ -292,7 +292,7 @@ def _print_results(results, data, console) -> None:
 def _write_processing(session: Path, result, console) -> None:
     import numpy as np
 
-    from beambench.sinks.hdf5 import write_processing
+    from beambench.sinks.session_file.writer import write_processing
 
     nan = (float("nan"), float("nan"))
     bounds = np.array([result.intervals.get(k, nan) for k in result.values], float).reshape(-1, 2)

@@ -30,16 +30,16 @@ def decode(
     Prints a summary line (frames, dropped, parse errors, version, rate).
     """
     from beambench.common.text import printable
-    from beambench.devices.natnet import protocol as nn
+    from beambench.devices.natnet import wire as nw
     from beambench.devices.natnet.capture import decode_capture, frames_table
     from beambench.devices.natnet.pcap import CaptureError
 
     if natnet_version is not None:
         try:
-            v = nn.Version.parse(natnet_version)
+            v = nw.Version.parse(natnet_version)
         except ValueError:
             fail(f"--natnet-version {natnet_version!r}: expected X.Y, e.g. 3.0, 4.0 or 4.1")
-        if (v.major, v.minor) not in [(s.major, s.minor) for s in nn.SUPPORTED_VERSIONS]:
+        if (v.major, v.minor) not in [(s.major, s.minor) for s in nw.SUPPORTED_VERSIONS]:
             fail(f"--natnet-version {natnet_version}: supported are 3.0, 4.0 and 4.1")
     try:
         port_list = [int(p) for p in ports.split(",") if p.strip()]

@@ -11,7 +11,7 @@ from beambench.commands import fail
 from beambench.common.resources import shipped_names, user_dir
 
 if TYPE_CHECKING:
-    from beambench.studies.sweep import SweepSpec
+    from beambench.studies.sweep.run import SweepSpec
 
 
 def default_table(name: str) -> Path:
@@ -76,8 +76,8 @@ def sweep(
 
     from beambench.common.console import LogProgress, stderr_console
     from beambench.studies.executor import ExecutorError
-    from beambench.studies.sweep import SweepError, run_sweep
-    from beambench.studies.sweep_figure import plot_sweep
+    from beambench.studies.sweep.figure import plot_sweep
+    from beambench.studies.sweep.run import SweepError, run_sweep
 
     if dry_run:
         _print_plan(spec, out)
@@ -134,7 +134,7 @@ def _checked_spec(
 ) -> SweepSpec:
     """The sweep file's spec, after the options are checked (one line and exit 2 for anything wrong)."""
     from beambench.studies.executor import MAX_LOCAL_WORKERS
-    from beambench.studies.sweep import SweepError, load_sweep
+    from beambench.studies.sweep.run import SweepError, load_sweep
 
     if workers < 0:
         fail(f"--workers = {workers}: must be >= 0")
@@ -158,7 +158,7 @@ def _checked_spec(
 def _check_outputs(out: Path) -> None:
     """The table, its parts folder and its figure: none a link, in a folder that takes files (one line, exit 2)."""
     from beambench.common.outputs import output_file_problem, output_folder_problem
-    from beambench.studies.sweep import parts_dir
+    from beambench.studies.sweep.run import parts_dir
 
     names = (out.name, parts_dir(out).name, out.with_suffix(".png").name)
     problem = output_folder_problem(out.parent, names) or output_file_problem(out)
@@ -168,7 +168,7 @@ def _check_outputs(out: Path) -> None:
 
 def _print_plan(spec: SweepSpec, out: Path) -> None:
     """``--dry-run``: the points, how many are done and how many to do."""
-    from beambench.studies.sweep import SweepError, plan, read_table
+    from beambench.studies.sweep.run import SweepError, plan, read_table
 
     try:
         jobs = plan(spec)

@@ -1,6 +1,6 @@
 """One way to read a YAML configuration file into a pydantic model, with caps and one-line errors.
 
-Used by protocol and rig files (:mod:`beambench.acquisition.protocol.schema`), sweep files (:mod:`beambench.studies.sweep`)
+Used by protocol and rig files (:mod:`beambench.acquisition.protocol.schema`), sweep files (:mod:`beambench.studies.sweep.run`)
 and beam parameter sets (:mod:`beambench.sim.models.params`). What it guarantees, whatever the file holds:
 
 * a bounded cost: the file is at most :data:`MAX_FILE_BYTES`; nesting at most :data:`MAX_DEPTH` deep (checked on

@@ -28,11 +28,14 @@ import numpy as np
 
 from beambench.acquisition.clocks import DriftingClock
 from beambench.acquisition.protocol.schema import ClockModel
+from beambench.devices.natnet import frame as nf
+from beambench.devices.natnet import modeldef as nm
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 
 __all__ = ["APP_VERSIONS", "EmulatorClock", "MotiveEmulator"]
 
-APP_VERSIONS = {nn.V3_0: nn.Version(2, 2, 0, 0), nn.V4_0: nn.Version(3, 0, 0, 0), nn.V4_1: nn.Version(3, 1, 0, 0)}
+APP_VERSIONS = {nw.V3_0: nw.Version(2, 2, 0, 0), nw.V4_0: nw.Version(3, 0, 0, 0), nw.V4_1: nw.Version(3, 1, 0, 0)}
 
 PositionSource = Callable[[float], np.ndarray]
 
@@ -68,7 +71,7 @@ class EmulatorClock:
 
     @classmethod
     def from_model(cls, model: ClockModel, frequency_hz: int = 10_000_000) -> EmulatorClock:
-        """From the protocol's clock model (``sim.mocap_clock``)."""
+        """From the protocol's clock model (``sim.clocks.mocap``)."""
         return cls(model.offset_s, model.drift_ppm, model.jitter_s, model.latency_s, frequency_hz)
 
 
@@ -115,9 +118,9 @@ class MotiveEmulator:
     reply_delay_s: float = 0.0
 
     def __post_init__(self) -> None:
-        v = nn.Version.parse(self.version)
-        self.stream_version = nn.Version(v.major, v.minor)
-        if self.stream_version not in nn.SUPPORTED_VERSIONS:
+        v = nw.Version.parse(self.version)
+        self.stream_version = nw.Version(v.major, v.minor)
+        if self.stream_version not in nw.SUPPORTED_VERSIONS:
             raise ValueError(f"NatNet version {self.version} not emulated (3.0, 4.0, 4.1)")
         self.server_version = self.stream_version
         m = len(self.marker_names)
@@ -131,7 +134,7 @@ class MotiveEmulator:
         self.dropped_frames: list[int] = []
         self.occlusions: list[tuple[int, int]] = []  # (frame number, marker index)
         self.frames_sent = 0
-        self.sent: collections.deque[nn.FrameOfData] = collections.deque(maxlen=max(self.keep_sent, 1))
+        self.sent: collections.deque[nf.FrameOfData] = collections.deque(maxlen=max(self.keep_sent, 1))
         self.requests: list[str] = []
         self.clients: dict[tuple[str, int], _Client] = {}
         self._lock = threading.Lock()
@@ -200,26 +203,26 @@ class MotiveEmulator:
     # ------------------------------------------------------------------ command port
 
     def server_info(self) -> nn.ServerInfo:
-        sender = nn.Sender(self.app_name, APP_VERSIONS[self.server_version], nn.Version(*self.server_version))
+        sender = nn.Sender(self.app_name, APP_VERSIONS[self.server_version], nw.Version(*self.server_version))
         # multicast: the group's port; unicast: the port frames are sent from (clients accept data only from it)
         port = self.data_port if self.multicast or self._data is None else self._data.getsockname()[1]
         return nn.ServerInfo(sender, self.clock.frequency_hz, port, self.multicast, self.multicast_address)
 
-    def model_def(self) -> nn.ModelDef:
+    def model_def(self) -> nm.ModelDef:
         names = tuple(self.marker_names)
-        sets: list = [nn.MarkerSetDescription(self.asset_name, names)]
+        sets: list = [nm.MarkerSetDescription(self.asset_name, names)]
         p0 = np.asarray(self.positions(0.0), dtype=float)  # type: ignore[misc]
         for rb_id, idx in self.rigid_bodies.items():
             centre = p0[list(idx)].mean(axis=0)
             markers = tuple(
-                nn.RigidBodyMarker(
+                nm.RigidBodyMarker(
                     (float(p0[i][0] - centre[0]), float(p0[i][1] - centre[1]), float(p0[i][2] - centre[2])), 0, names[i]
                 )
                 for i in idx
             )
-            sets.append(nn.RigidBodyDescription(f"rigid_body_{rb_id}", rb_id, -1, (0.0, 0.0, 0.0), markers))
-        sets.append(nn.MarkerSetDescription("all", tuple(f"{self.asset_name}_{n}" for n in names)))
-        return nn.ModelDef(tuple(sets))
+            sets.append(nm.RigidBodyDescription(f"rigid_body_{rb_id}", rb_id, -1, (0.0, 0.0, 0.0), markers))
+        sets.append(nm.MarkerSetDescription("all", tuple(f"{self.asset_name}_{n}" for n in names)))
+        return nm.ModelDef(tuple(sets))
 
     def _reply(self, msg: nn.Message, addr: tuple[str, int]) -> None:
         if self._cmd is not None:
@@ -239,7 +242,7 @@ class MotiveEmulator:
             now_ticks = self.clock.ticks(time.monotonic())
             try:
                 msg = nn.decode(data, self.stream_version)
-            except nn.NatNetParseError:
+            except nw.NatNetParseError:
                 continue
             try:
                 self._command(msg, addr, now_ticks)
@@ -283,11 +286,11 @@ class MotiveEmulator:
             if not arg:
                 return nn.Response.of_text(f"Bitstream,{self.stream_version.short()}")
             try:
-                want = nn.Version.parse(arg)
+                want = nw.Version.parse(arg)
             except ValueError:
                 return nn.Response.of_int(-1)
-            want = nn.Version(want.major, want.minor)
-            if self.server_version.major < 4 or want not in nn.SUPPORTED_VERSIONS:
+            want = nw.Version(want.major, want.minor)
+            if self.server_version.major < 4 or want not in nw.SUPPORTED_VERSIONS:
                 return nn.Response.of_int(-1)
             self.stream_version = want
             return nn.Response.of_int(0)
@@ -326,7 +329,7 @@ class MotiveEmulator:
             hidden = set(o.get(number, ()))
         return {i for i in hidden if 0 <= i < m}
 
-    def make_frame(self, k: int, t_exposure: float, t_send: float, hidden: set[int]) -> nn.FrameOfData:
+    def make_frame(self, k: int, t_exposure: float, t_send: float, hidden: set[int]) -> nf.FrameOfData:
         """Frame ``k`` (0-based) exposed at host time ``t_exposure``, sent at ``t_send``."""
         number = self.first_frame + k
         pos = np.asarray(self.positions(k / self.rate_hz), dtype=float)  # type: ignore[misc]
@@ -337,14 +340,14 @@ class MotiveEmulator:
         for i, mid in enumerate(self.marker_ids):  # type: ignore[arg-type]
             occl = i in hidden
             params = (0x01 | 0x04 | 0x08) if occl else (0x02 | 0x08)  # occluded+model-solved | point-cloud-solved
-            lms.append(nn.LabeledMarker(mid, tuple(pos[i].tolist()), 0.014, params, 0.0 if occl else 1e-4))
+            lms.append(nf.LabeledMarker(mid, tuple(pos[i].tolist()), 0.014, params, 0.0 if occl else 1e-4))
         rbs = []
         for rb_id, idx in self.rigid_bodies.items():
             seen = [i for i in idx if i not in hidden]
             valid = len(seen) >= max(1, len(idx) - 1)  # tracked while at most one of its markers is hidden
             c = pos[list(idx)].mean(axis=0)
             rbs.append(
-                nn.RigidBody(rb_id, tuple(c.tolist()), (0.0, 0.0, 0.0, 1.0), 1e-4 if valid else 0.0, 1 if valid else 0)
+                nf.RigidBody(rb_id, tuple(c.tolist()), (0.0, 0.0, 0.0, 1.0), 1e-4 if valid else 0.0, 1 if valid else 0)
             )
         clk = self.clock
         mid_ticks = clk.ticks(t_exposure)
@@ -358,11 +361,11 @@ class MotiveEmulator:
         ff = int((elapsed % 1.0) * 30)
         timecode = (hh << 24) | (mm << 16) | (ss << 8) | ff
         sub = round(elapsed * self.rate_hz) % max(1, round(self.rate_hz / 30))
-        return nn.FrameOfData(
+        return nf.FrameOfData(
             frame_number=number,
             marker_sets=(
-                nn.MarkerSetData(self.asset_name, tuple(tuple(p) for p in pos.tolist())),
-                nn.MarkerSetData("all", tuple(tuple(p) for p in pos.tolist())),
+                nf.MarkerSetData(self.asset_name, tuple(tuple(p) for p in pos.tolist())),
+                nf.MarkerSetData("all", tuple(tuple(p) for p in pos.tolist())),
             ),
             rigid_bodies=tuple(rbs),
             labeled_markers=tuple(lms),

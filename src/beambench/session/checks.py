@@ -16,9 +16,9 @@ from pathlib import Path
 from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.protocol.backends import backend_info, backends_with
 from beambench.acquisition.protocol.plan import Step, check_limits, motor_limits, plan
-from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
+from beambench.acquisition.protocol.schema import Backend, Protocol
 from beambench.backends.build import RigSlices
-from beambench.common.yaml_config import shorten
+from beambench.common.yaml_config import ConfigError, shorten
 from beambench.devices.odrive.can_log_formats import LOG_SUFFIXES
 from beambench.session.slices import rig_slices
 from beambench.sim.models.params import BeamParams, ParamsError, load_params

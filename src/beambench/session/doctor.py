@@ -218,7 +218,7 @@ def rerun_row(m: Machine) -> Row:
     is the SDK's."""
     from importlib.metadata import PackageNotFoundError, version
 
-    from beambench.sinks.rerun_spawn import rerun_binary
+    from beambench.sinks.viewer.spawn import rerun_binary
 
     if m.path is None and m.root == Path("/"):
         shipped = rerun_binary()

@@ -16,9 +16,9 @@ import numpy as np
 from beambench.acquisition.batch import Batch, StepRecord
 from beambench.analysis.session_analysis import session_calibration
 from beambench.analysis.step_contacts import window_contacts
-from beambench.sinks import RerunMode
-from beambench.sinks.hdf5 import SessionFile, read_session
-from beambench.sinks.rerun_view import RerunSink
+from beambench.sinks.session_file.reader import SessionFile, read_session
+from beambench.sinks.viewer import RerunMode
+from beambench.sinks.viewer.sink import RerunSink
 
 WINDOW_S = 1.0
 

@@ -27,18 +27,20 @@ from beambench.acquisition.forces.loadcell_calibration import default_calibratio
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.protocol.backends import backend_info
-from beambench.acquisition.protocol.plan import plan
-from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
+from beambench.acquisition.protocol.plan import plan, step_name
+from beambench.acquisition.protocol.schema import Backend, Protocol
 from beambench.acquisition.runner import Runner, RunResult
 from beambench.acquisition.stop_signals import StopSignal, stop_on_signals
 from beambench.backends.build import build_rig
 from beambench.common.console import LogProgress, stderr_console
 from beambench.common.errors import BeambenchError
+from beambench.common.yaml_config import ConfigError
 from beambench.session.checks import Validated, validate
 from beambench.session.provenance import provenance
 from beambench.session.track_map import track_setup
-from beambench.sinks import RerunMode  # rerun itself is imported only when a viewer is wanted
-from beambench.sinks.hdf5 import SessionFileError, SessionWriter, append_general
+from beambench.sinks.session_file.reader import SessionFileError
+from beambench.sinks.session_file.writer import SessionWriter, append_general
+from beambench.sinks.viewer import RerunMode  # rerun itself is imported only when a viewer is wanted
 
 
 @dataclass(frozen=True)
@@ -192,7 +194,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
             sinks.append(tracking.controller)
         if req.rerun_mode != "off":
             from beambench.analysis.step_contacts import window_contacts
-            from beambench.sinks.rerun_view import RerunSink
+            from beambench.sinks.viewer.sink import RerunSink
 
             sinks.append(
                 RerunSink(
@@ -219,7 +221,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
 
         def on_progress(index: int, freq: float, waited: float) -> None:
             taken[0] += waited
-            done, desc = taken[0], f"{req.label}{what} {index + 1}/{len(steps)}  {round(freq, 1):g} Hz"
+            done, desc = taken[0], f"{req.label}{step_name(index, len(steps), what)}  {round(freq, 1):g} Hz"
             ahead = rig.computed_ahead() if isinstance(rig, ReportsComputedAhead) else None
             if ahead is not None and ahead[0] > done:  # parallel parts computed further: count all their work
                 done, desc = ahead[0], f"{req.label}{min(ahead[1], len(steps))}/{len(steps)} steps computed"

@@ -25,10 +25,11 @@ from beambench.acquisition.control.speed_controller import TrackController, trac
 from beambench.acquisition.control.speed_map import SpeedMap, SpeedMapError
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import Step, motor_limits
-from beambench.acquisition.protocol.schema import ConfigError, Protocol
+from beambench.acquisition.protocol.schema import Protocol
 from beambench.acquisition.runner import ProgressCallback
 from beambench.acquisition.stop_signals import StopSignal
 from beambench.acquisition.track_runner import TrackRunner
+from beambench.common.yaml_config import ConfigError
 
 DEFAULT_MOCAP_LOST_S = 0.25  # with monitors.mocap_lost_s: null the controller still never drives blind longer
 
@@ -55,7 +56,7 @@ def map_from_table(table: pd.DataFrame, source: str) -> SpeedMap:
 def map_from_session(path: Path) -> SpeedMap:
     """Analyse a walker session and take its speed map."""
     from beambench.analysis.session_analysis import analyze_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     try:
         session = read_session(path)

@@ -19,7 +19,7 @@ from types import TracebackType
 from typing import Any
 
 from beambench.common.vulkan import vulkan_devices
-from beambench.sinks.rerun_spawn import LOOPBACK, rerun_binary
+from beambench.sinks.viewer.spawn import LOOPBACK, rerun_binary
 
 LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
 WINDOW = (1600, 900)
@@ -164,7 +164,7 @@ def session_screenshot(session: Path, png: Path, at: float | None = None, rrd: P
     Returns the time shown. Raises :class:`ViewerUnavailable` (what is missing) or ``ValueError`` (``at``
     outside the session)."""
     from beambench.session.replay import replay_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     steps = read_session(session).steps
     t0 = int(steps["t_start_ns"].min()) if len(steps) else 0

@@ -32,7 +32,7 @@ class RigParams:
     frame_gyration: float = 0.0
     # deg, the beam's section turned about its own axis at the clamp: 0 = as built (width vertical at the
     # clamp, weak bending along the stage travel, see beambench.sim.models.beam), 90 = flat face horizontal
-    # at the root (research note, issue 11); the foot still hangs plumb below the tip
+    # at the root; the foot still hangs plumb below the tip
     clamp_roll_deg: float = 0.0
     sole_radius: float = 0.003  # m
     # N/m and N·s/m, the sole's own compliance along the foot axis (a lossy pad between the load frame and

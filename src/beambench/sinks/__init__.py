@@ -1,9 +1,2 @@
-"""Where batches go: the HDF5 session file (``hdf5``) and the Rerun live view (``rerun_view``).
-
-The Rerun modes are declared here, not in ``rerun_view``, so the CLI can offer them without importing rerun.
-"""
-
-from typing import Literal, get_args
-
-RerunMode = Literal["spawn", "connect", "save", "off"]
-RERUN_MODES: tuple[str, ...] = get_args(RerunMode)
+"""Where batches go: the session file (:mod:`beambench.sinks.session_file`, HDF5 written and read) and the live
+view (:mod:`beambench.sinks.viewer`, Rerun). The two never import each other."""

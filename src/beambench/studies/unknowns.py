@@ -1,7 +1,7 @@
 """The parameters a study varies, with their physical bounds, and how a value of one goes into a parameter set.
 
 One idea for every study: a calibration's unknowns (:mod:`beambench.studies.twin_calibration`), a release fit's
-variables (:mod:`beambench.studies.fit`) and a sweep's per-point overrides (:mod:`beambench.studies.sweep`) are
+variables (:mod:`beambench.studies.fit.release`) and a sweep's per-point overrides (:mod:`beambench.studies.sweep.run`) are
 each an :class:`Unknown` — a name, the box ``[lo, hi]`` the value may take (the search never leaves it), a log or
 linear search axis — whose :meth:`Unknown.apply` puts a value into a :class:`BeamParams`. The usual effects are
 an :class:`Override` (set or scale named fields: ``k``, ``material.youngs_modulus``, ``rig.frame_mass``);

@@ -8,8 +8,9 @@ from datetime import datetime
 from pathlib import Path
 
 from beambench.acquisition.capabilities import MotorLimits
-from beambench.acquisition.protocol.schema import ConfigError, Protocol, format_name
+from beambench.acquisition.protocol.schema import Protocol, format_name
 from beambench.common.names import check_name
+from beambench.common.yaml_config import ConfigError
 
 
 @dataclass(frozen=True)
@@ -30,6 +31,14 @@ class Step:
     @property
     def duration_s(self) -> float:
         return self.settle_s + self.record_s
+
+
+def step_name(index: int, total: int | None = None, word: str = "step") -> str:
+    """A step as words name it, one convention everywhere a person reads one (events, the live step panel, the
+    progress line, the report): counted from 1, with the plan's index (0-based, as ``/steps`` and ``steps.csv``
+    hold it) beside it: ``step 51 of 80 (index 50)``; without ``total``: ``step 51 (index 50)``."""
+    of = f" of {total}" if total else ""
+    return f"{word} {index + 1}{of} (index {index})"
 
 
 def _branches(protocol: Protocol) -> list[tuple[float, str]]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from beambench.analysis.contact import REGIME_ORDER
+from beambench.acquisition.forces.contact_events import REGIME_ORDER
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import (
     REGIME_COLORS,
@@ -13,9 +13,9 @@ from beambench.analysis.figures.style import (
     SESSION_COLORS,
     SESSION_MARKERS,
     by_frequency,
-    legend_below,
     new_figure,
 )
+from beambench.common.figures import legend_below
 
 if TYPE_CHECKING:
     from beambench.analysis.session_analysis import SessionAnalysis

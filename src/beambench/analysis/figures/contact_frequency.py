@@ -11,18 +11,18 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from beambench.analysis.contact import REGIME_ORDER
+from beambench.acquisition.forces.contact_events import REGIME_ORDER
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import (
     REGIME_COLORS,
     REGIME_NAMES,
     SESSION_MARKERS,
     by_frequency,
-    legend_below,
     new_figure,
     session_style,
     wrapped,
 )
+from beambench.common.figures import legend_below
 
 PAPER = "#bcbd22"  # the paper's measured regimes
 

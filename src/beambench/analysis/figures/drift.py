@@ -12,7 +12,8 @@ import pandas as pd
 
 from beambench.analysis.drift import DRIFT_METRICS, drift_table, reference_steps
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
-from beambench.analysis.figures.style import SESSION_COLORS, legend_below, new_figure
+from beambench.analysis.figures.style import SESSION_COLORS, new_figure
+from beambench.common.figures import legend_below
 
 if TYPE_CHECKING:
     from beambench.analysis.session_analysis import SessionAnalysis

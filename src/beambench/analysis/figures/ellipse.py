@@ -16,12 +16,12 @@ from beambench.analysis.figures.style import (
     SESSION_COLORS,
     UNCERTAIN,
     by_frequency,
-    legend_below,
     marker_name,
     new_figure,
     primary_marker,
     wrapped,
 )
+from beambench.common.figures import legend_below
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

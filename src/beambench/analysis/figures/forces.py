@@ -9,18 +9,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
-from beambench.acquisition.forces.contact_events import runs
-from beambench.analysis.contact import ContactParams
+from beambench.acquisition.forces.contact_events import ContactParams, runs
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
-from beambench.analysis.figures.style import (
-    REGIME_NAMES,
-    SESSION_COLORS,
-    legend_below,
-    new_figure,
-    session_style,
-    step_frequency,
-)
+from beambench.analysis.figures.style import REGIME_NAMES, SESSION_COLORS, new_figure, session_style, step_frequency
 from beambench.analysis.path_shape import period_cycles
+from beambench.common.figures import legend_below
 
 if TYPE_CHECKING:
     from beambench.analysis.session_analysis import SessionAnalysis, StepResult

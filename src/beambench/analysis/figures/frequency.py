@@ -7,7 +7,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
-from beambench.analysis.figures.style import SESSION_COLORS, by_frequency, legend_below, new_figure
+from beambench.analysis.figures.style import SESSION_COLORS, by_frequency, new_figure
+from beambench.common.figures import legend_below
 
 if TYPE_CHECKING:
     from beambench.analysis.session_analysis import SessionAnalysis

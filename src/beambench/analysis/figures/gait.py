@@ -9,15 +9,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
-from beambench.analysis.figures.style import (
-    FOOT_COLORS,
-    legend_below,
-    marker_name,
-    new_figure,
-    session_style,
-    step_frequency,
-)
+from beambench.analysis.figures.style import FOOT_COLORS, marker_name, new_figure, session_style, step_frequency
 from beambench.analysis.walking import STANCE_MM, Stance, foot_stance, ground_level
+from beambench.common.figures import legend_below
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

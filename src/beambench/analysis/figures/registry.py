@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
-from beambench.analysis.figures.style import STYLE
+from beambench.common.figures import STYLE
 
 if TYPE_CHECKING:
     from beambench.analysis.session_analysis import SessionAnalysis

@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
-from beambench.analysis.figures.style import SESSION_COLORS, legend_below, new_figure, session_style
+from beambench.analysis.figures.style import SESSION_COLORS, new_figure, session_style
 from beambench.analysis.release import step_decay
+from beambench.common.figures import legend_below
 
 if TYPE_CHECKING:
     from beambench.analysis.session_analysis import SessionAnalysis

@@ -8,10 +8,6 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 import pandas as pd
 
-from beambench.common.figures import STYLE, fitting_columns, legend_below
-
-__all__ = ["STYLE", "fitting_columns", "legend_below"]  # the report's style lives in common.figures
-
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 

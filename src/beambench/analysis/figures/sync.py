@@ -10,7 +10,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from beambench.analysis.figures.registry import FIGURES, RIGS, ReportOptions
-from beambench.analysis.figures.style import SESSION_COLORS, legend_below, new_figure
+from beambench.analysis.figures.style import SESSION_COLORS, new_figure
+from beambench.common.figures import legend_below
 
 if TYPE_CHECKING:
     from beambench.analysis.session_analysis import SessionAnalysis

@@ -21,7 +21,6 @@ from beambench.analysis.figures.style import (
     R2_SENSE_MIN,
     REGIME_COLORS,
     UNCERTAIN,
-    fitting_columns,
     marker_name,
     new_figure,
     primary_marker,
@@ -30,6 +29,7 @@ from beambench.analysis.figures.style import (
 )
 from beambench.analysis.path_shape import NOISE_SIGMAS, mean_path_noise
 from beambench.analysis.trajectory import mean_path
+from beambench.common.figures import fitting_columns
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -17,7 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 
 __all__ = ["FrameBlock", "FrameLayout", "decode_block", "frame_layout"]
 
@@ -47,7 +49,7 @@ _HEADER_BYTES = 4
 _FRAME_NUMBER = struct.Struct("<i")
 
 
-class _Recorder(nn._Reader):
+class _Recorder(nw._Reader):
     """The codec's reader, noting the bytes that decide the layout (counts, sizes, names) and where fields are."""
 
     __slots__ = ("at", "structure")
@@ -79,7 +81,7 @@ class FrameLayout:
     """Where one layout's fields lie in a packet of ``length`` bytes of NatNet ``version``."""
 
     length: int
-    version: nn.Version
+    version: nw.Version
     structure: np.ndarray  # byte offsets that decide the layout
     signature: np.ndarray  # their values in every packet of this layout
     labeled_markers: tuple[int, int]  # offset, count
@@ -92,18 +94,18 @@ class FrameLayout:
         return len(packet) == self.length and all(packet[a:b] == want for a, b, want in self.spans)
 
 
-def frame_layout(packet: bytes, version: nn.Version) -> FrameLayout:
+def frame_layout(packet: bytes, version: nw.Version) -> FrameLayout:
     """The layout of one FRAMEOFDATA packet; :class:`~beambench.devices.natnet.protocol.NatNetParseError` if it does not decode."""
     packet = bytes(packet)
     if len(packet) < _HEADER_BYTES:
-        raise nn.NatNetParseError(f"packet of {len(packet)} bytes is shorter than the 4-byte header")
+        raise nw.NatNetParseError(f"packet of {len(packet)} bytes is shorter than the 4-byte header")
     msg_id, size = struct.unpack_from("<HH", packet, 0)
-    if msg_id != nn.MessageId.FRAMEOFDATA:
-        raise nn.NatNetParseError(f"message {msg_id} is not a frame of data")
+    if msg_id != nw.MessageId.FRAMEOFDATA:
+        raise nw.NatNetParseError(f"message {msg_id} is not a frame of data")
     nn.decode(packet, version)  # every check the codec makes, with its messages
     r = _Recorder(packet, _HEADER_BYTES, _HEADER_BYTES + size)
-    nn.FrameOfData.parse(r, version)
-    sized = version >= nn.V4_1
+    nf.FrameOfData.parse(r, version)
+    sized = version >= nw.V4_1
 
     def section(what: str) -> tuple[int, int]:
         n = _FRAME_NUMBER.unpack_from(packet, r.at[f"{what} count"] - 4)[0]

@@ -12,7 +12,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from beambench.common.text import printable
+from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from beambench.devices.natnet.pcap import read_udp
 
 __all__ = ["CaptureDecode", "decode_capture", "frames_table"]
@@ -41,9 +43,9 @@ BASE_COLUMNS = (
 class CaptureDecode:
     """Frames of a capture (capture time, frame), the version used and what went wrong."""
 
-    frames: list[tuple[float, nn.FrameOfData]] = field(default_factory=list)
+    frames: list[tuple[float, nf.FrameOfData]] = field(default_factory=list)
     server_info: nn.ServerInfo | None = None
-    version: nn.Version | None = None
+    version: nw.Version | None = None
     version_source: str = ""
     datagrams: int = 0
     parse_errors: int = 0
@@ -80,24 +82,24 @@ class CaptureDecode:
 
 
 def decode_capture(
-    path: str | Path, version: str | nn.Version | None = None, ports: Iterable[int] = NATNET_PORTS
+    path: str | Path, version: str | nw.Version | None = None, ports: Iterable[int] = NATNET_PORTS
 ) -> CaptureDecode:
     """Decode every NatNet frame of a pcap/pcapng file. Raises ValueError if no version can be known."""
     grams = list(read_udp(path, ports))
     out = CaptureDecode(datagrams=len(grams))
     given = None
     if version is not None:
-        given = nn.Version.parse(version) if isinstance(version, str) else nn.Version(*version)
-        given = nn.Version(given.major, given.minor)
-    current: nn.Version | None = None
+        given = nw.Version.parse(version) if isinstance(version, str) else nw.Version(*version)
+        given = nw.Version(given.major, given.minor)
+    current: nw.Version | None = None
     for g in grams:  # the first SERVERINFO sets the version of the whole capture's start
-        if len(g.payload) >= 4 and nn.peek_message_id(g.payload) == nn.MessageId.SERVERINFO:
+        if len(g.payload) >= 4 and nn.peek_message_id(g.payload) == nw.MessageId.SERVERINFO:
             try:
                 info = nn.decode(g.payload)
-            except nn.NatNetParseError:
+            except nw.NatNetParseError:
                 continue
             out.server_info = info  # type: ignore[assignment]
-            current = nn.Version(info.natnet_version.major, info.natnet_version.minor)  # type: ignore[union-attr]
+            current = nw.Version(info.natnet_version.major, info.natnet_version.minor)  # type: ignore[union-attr]
             out.version_source = "SERVERINFO"
             if given is not None and given != current:
                 out.note = f"--natnet-version {given.short()} ignored: SERVERINFO says {current.short()}"
@@ -107,7 +109,7 @@ def decode_capture(
             raise ValueError("no SERVERINFO in the capture: give the NatNet version (--natnet-version X.Y)")
         current, out.version_source = given, "option"
     out.version = current
-    pending: nn.Version | None = None
+    pending: nw.Version | None = None
     last: int | None = None
     for g in grams:
         p = g.payload
@@ -115,9 +117,9 @@ def decode_capture(
             continue
         mid = nn.peek_message_id(p)
         try:
-            if mid == nn.MessageId.FRAMEOFDATA:
+            if mid == nw.MessageId.FRAMEOFDATA:
                 frame = nn.decode(p, current)
-                assert isinstance(frame, nn.FrameOfData)
+                assert isinstance(frame, nf.FrameOfData)
                 n = frame.frame_number
                 if last is not None:
                     if n > last + 1:
@@ -126,22 +128,22 @@ def decode_capture(
                         out.out_of_order += 1
                 last = n
                 out.frames.append((g.time, frame))
-            elif mid == nn.MessageId.REQUEST:
+            elif mid == nw.MessageId.REQUEST:
                 cmd = nn.decode(p).command  # type: ignore[union-attr]
                 name, _, arg = cmd.partition(",")
                 pending = None
                 if name.strip().lower() == "bitstream" and arg:
                     try:
-                        v = nn.Version.parse(arg)
-                        pending = nn.Version(v.major, v.minor)
+                        v = nw.Version.parse(arg)
+                        pending = nw.Version(v.major, v.minor)
                     except ValueError:
                         pending = None
-            elif mid == nn.MessageId.RESPONSE and pending is not None:
+            elif mid == nw.MessageId.RESPONSE and pending is not None:
                 resp = nn.decode(p)
                 if len(resp.payload_bytes) == 4 and resp.as_int() == 0:  # type: ignore[union-attr]
                     current = pending
                 pending = None
-        except nn.NatNetParseError as exc:
+        except nw.NatNetParseError as exc:
             out.parse_errors += 1
             if len(out.errors) < 20:
                 out.errors.append(f"t={g.time:.6f} {g.src}:{g.sport}→{g.dst}:{g.dport}: {exc}")

@@ -30,7 +30,10 @@ import numpy as np
 
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.devices.foreign import ForeignSenders
+from beambench.devices.natnet import frame as nf
+from beambench.devices.natnet import modeldef as nm
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from beambench.devices.receive_time import enable_receive_timestamps, mono_minus_real_ns, recv_stamped
 
 __all__ = ["EchoSample", "NatNetClient", "NatNetConfig", "NatNetError", "NatNetStats", "ping"]
@@ -40,7 +43,7 @@ log = logging.getLogger(__name__)
 DEFAULT_MULTICAST = "239.255.42.99"
 DEFAULT_DATA_PORT = 1511
 BITSTREAM_GRACE_NS = 500_000_000  # after a bitstream change, frames encoded before it may arrive for this long
-CLIENT_VERSION = nn.Version(0, 1, 0, 0)
+CLIENT_VERSION = nw.Version(0, 1, 0, 0)
 # After a wake-up the receive thread waits this long, so that one pass reads ~7 frames at 360 Hz: waking up per
 # frame costs more CPU than decoding it (receive thread 8.0 % of a core at 4 ms, 4.8 % at 20 ms, with the
 # emulated Motive). The kernel's receive stamps keep each frame's own arrival time.
@@ -121,22 +124,22 @@ class NatNetClient:
     """A NatNet client with one receive thread. Use as a context manager or ``connect()`` / ``close()``."""
 
     def __init__(
-        self, config: NatNetConfig | None = None, on_frame: Callable[[int, nn.FrameOfData], None] | None = None
+        self, config: NatNetConfig | None = None, on_frame: Callable[[int, nf.FrameOfData], None] | None = None
     ):
         self.config = config or NatNetConfig()
         self.on_frame = on_frame
         self.stats = NatNetStats()
         self.refused = ForeignSenders()  # the forged datagrams by sender, and the kernel's drops: names a flood
         self.server_info: nn.ServerInfo | None = None
-        self.model_def: nn.ModelDef | None = None
+        self.model_def: nm.ModelDef | None = None
         self.frame_rate: float | None = None
-        self.version: nn.Version | None = None
+        self.version: nw.Version | None = None
         self.echoes: collections.deque[EchoSample] = collections.deque(maxlen=self.config.echo_history)
-        self.frames: collections.deque[tuple[int, nn.FrameOfData]] = collections.deque(maxlen=100_000)
+        self.frames: collections.deque[tuple[int, nf.FrameOfData]] = collections.deque(maxlen=100_000)
         self.keep_frames = False
         # keep_raw: frames are kept undecoded (host ns, packet, version) for a reader that decodes many at once
         # (NatNetMocap); the reader then counts them with account_frames()
-        self.raw_frames: collections.deque[tuple[int, bytes, nn.Version]] = collections.deque(maxlen=100_000)
+        self.raw_frames: collections.deque[tuple[int, bytes, nw.Version]] = collections.deque(maxlen=100_000)
         self.keep_raw = False
         self._cmd: socket.socket | None = None
         self._data: socket.socket | None = None
@@ -146,9 +149,9 @@ class NatNetClient:
         # receive_time's 1 s age limit, the first datagrams read get the read time and the next ones their older
         # kernel stamps; a frame is then stamped no earlier than the one before it)
         self._last_host_ns = 0
-        self._pending_bitstream: nn.Version | None = None  # asked for, not yet confirmed
+        self._pending_bitstream: nw.Version | None = None  # asked for, not yet confirmed
         # after a bitstream change: the version before it and until when (monotonic ns) a frame may still be in it
-        self._previous_bitstream: tuple[nn.Version, int] | None = None
+        self._previous_bitstream: tuple[nw.Version, int] | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._serverinfo_evt = threading.Event()
@@ -198,7 +201,7 @@ class NatNetClient:
 
     def _handshake(self) -> None:
         cfg = self.config
-        hello = nn.Connect(nn.Sender(cfg.client_name, CLIENT_VERSION, nn.V4_1))
+        hello = nn.Connect(nn.Sender(cfg.client_name, CLIENT_VERSION, nw.V4_1))
         for _ in range(3):
             self.send(hello)
             if self._serverinfo_evt.wait(cfg.timeout_s / 3):
@@ -220,7 +223,7 @@ class NatNetClient:
         self.request_model_def()
         try:
             self.frame_rate = self.request("FrameRate").as_float()
-        except (NatNetError, nn.NatNetParseError) as exc:
+        except (NatNetError, nw.NatNetParseError) as exc:
             log.warning("NatNet: FrameRate request failed: %s", exc)
         for _ in range(cfg.initial_echoes):
             self.send_echo()
@@ -300,7 +303,7 @@ class NatNetClient:
             raise NatNetError(f"NatNet: server does not recognise {command!r}")
         return reply
 
-    def request_model_def(self, timeout: float | None = None) -> nn.ModelDef | None:
+    def request_model_def(self, timeout: float | None = None) -> nm.ModelDef | None:
         self._modeldef_evt.clear()
         self.send(nn.RequestModelDef())
         if not self._modeldef_evt.wait(timeout or self.config.timeout_s):
@@ -309,9 +312,9 @@ class NatNetClient:
 
     def set_bitstream_version(self, version: str) -> None:
         """Ask a NatNet 4.x server to stream another version; frames are decoded with it from then on."""
-        want = nn.Version.parse(version)
-        want = nn.Version(want.major, want.minor)
-        if want not in nn.SUPPORTED_VERSIONS:
+        want = nw.Version.parse(version)
+        want = nw.Version(want.major, want.minor)
+        if want not in nw.SUPPORTED_VERSIONS:
             raise NatNetError(f"NatNet: cannot request bitstream {want}; supported: 3.0, 4.0, 4.1")
         assert self.server_info is not None
         if self.version is not None and (self.version.major, self.version.minor) == want[:2]:
@@ -456,15 +459,15 @@ class NatNetClient:
         st.packets += 1
         try:
             mid = nn.peek_message_id(data)
-            if mid in (nn.MessageId.FRAMEOFDATA, nn.MessageId.MODELDEF) and self.version is None:
+            if mid in (nw.MessageId.FRAMEOFDATA, nw.MessageId.MODELDEF) and self.version is None:
                 st.ignored += 1
                 return
             version = self.version
-            if mid == nn.MessageId.FRAMEOFDATA and self._pending_bitstream is not None:
+            if mid == nw.MessageId.FRAMEOFDATA and self._pending_bitstream is not None:
                 version = self._transition_version(data)
-            elif mid == nn.MessageId.FRAMEOFDATA and self._previous_bitstream is not None:
+            elif mid == nw.MessageId.FRAMEOFDATA and self._previous_bitstream is not None:
                 version = self._after_switch_version(data)
-            if mid == nn.MessageId.FRAMEOFDATA and self.keep_raw:
+            if mid == nw.MessageId.FRAMEOFDATA and self.keep_raw:
                 raw = self.raw_frames
                 if len(raw) == raw.maxlen:
                     st.overflowed += 1
@@ -472,11 +475,11 @@ class NatNetClient:
                 st.last_frame_ns = host_ns
                 return
             msg = nn.decode(data, version)
-        except nn.NatNetParseError as exc:
+        except nw.NatNetParseError as exc:
             st.parse_errors += 1
             st.last_error = str(exc)
             return
-        if isinstance(msg, nn.FrameOfData):
+        if isinstance(msg, nf.FrameOfData):
             self._on_frame(host_ns, msg)
         elif isinstance(msg, nn.EchoResponse):
             with self._lock:
@@ -487,10 +490,10 @@ class NatNetClient:
         elif isinstance(msg, nn.ServerInfo):
             with self._lock:
                 if self.server_info is None:
-                    self.version = nn.Version(msg.natnet_version.major, msg.natnet_version.minor)
+                    self.version = nw.Version(msg.natnet_version.major, msg.natnet_version.minor)
                 self.server_info = msg
             self._serverinfo_evt.set()
-        elif isinstance(msg, nn.ModelDef):
+        elif isinstance(msg, nm.ModelDef):
             self.model_def = msg
             self._modeldef_evt.set()
         elif isinstance(msg, (nn.Response, nn.UnrecognizedRequest)):
@@ -502,7 +505,7 @@ class NatNetClient:
         else:
             st.ignored += 1
 
-    def _transition_version(self, data: bytes) -> nn.Version | None:
+    def _transition_version(self, data: bytes) -> nw.Version | None:
         """The version a frame that arrives while a bitstream change awaits its reply is in: the server may
         switch its stream before its reply goes out (its stream and command threads race), so a frame that does
         not decode in the current version but does in the requested one is in the requested one."""
@@ -511,7 +514,7 @@ class NatNetClient:
             return self.version
         return self._version_decoding(data, want)
 
-    def _after_switch_version(self, data: bytes) -> nn.Version | None:
+    def _after_switch_version(self, data: bytes) -> nw.Version | None:
         """Just after a bitstream change, a frame the server encoded before it may still arrive (its stream thread
         encodes, the command thread switches and replies, then the older frame goes out): a frame that does not
         decode in the new version but does in the previous one, within :data:`BITSTREAM_GRACE_NS`, is in that."""
@@ -522,17 +525,17 @@ class NatNetClient:
             return self.version
         return self._version_decoding(data, previous)
 
-    def _version_decoding(self, data: bytes, other: nn.Version) -> nn.Version | None:
+    def _version_decoding(self, data: bytes, other: nw.Version) -> nw.Version | None:
         """The current version, unless ``data`` does not decode in it but does in ``other``."""
         try:
             nn.decode(data, self.version)
-        except nn.NatNetParseError:
-            with contextlib.suppress(nn.NatNetParseError):
+        except nw.NatNetParseError:
+            with contextlib.suppress(nw.NatNetParseError):
                 nn.decode(data, other)
                 return other
         return self.version
 
-    def _switch_bitstream(self, want: nn.Version) -> None:
+    def _switch_bitstream(self, want: nw.Version) -> None:
         """Decode with ``want`` from now on, keeping the old version for frames already on their way (lock held)."""
         if self.version is not None and self.version != want:
             self._previous_bitstream = (self.version, time.monotonic_ns() + BITSTREAM_GRACE_NS)
@@ -545,12 +548,12 @@ class NatNetClient:
             want = self._pending_bitstream
             if want is None:
                 return
-            with contextlib.suppress(ValueError, nn.NatNetParseError):
+            with contextlib.suppress(ValueError, nw.NatNetParseError):
                 if reply.as_int() == 0:
                     self._switch_bitstream(want)
                     self._pending_bitstream = None
 
-    def _on_frame(self, host_ns: int, frame: nn.FrameOfData) -> None:
+    def _on_frame(self, host_ns: int, frame: nf.FrameOfData) -> None:
         st = self.stats
         self.account_frames((frame.frame_number,))
         st.last_frame_ns = host_ns

@@ -18,7 +18,9 @@ from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.streams import MOCAP, MOCAP_RATE_HZ, mocap_spec
 from beambench.devices.base import StreamDriver
 from beambench.devices.natnet import block as nb
+from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
 from beambench.devices.natnet.client import NatNetClient, NatNetConfig, NatNetStats
 
 __all__ = ["MarkerSource", "NatNetMocap", "default_marker_map"]
@@ -102,7 +104,7 @@ class NatNetMocap(StreamDriver):
         self._last_stats = NatNetStats()
         self._last_flood = ""
         self._left_unread = 0  # frames still buffered when the client closed (never read: unrecorded)
-        self._layouts: dict[tuple[int, nn.Version], nb.FrameLayout] = {}  # by packet length and version
+        self._layouts: dict[tuple[int, nw.Version], nb.FrameLayout] = {}  # by packet length and version
         self._marker_cols, self._body_cols = self._columns_by_source()
 
     def _columns_by_source(self) -> tuple[dict[int, list[int]], dict[int, list[int]]]:
@@ -234,7 +236,7 @@ class NatNetMocap(StreamDriver):
         self.counters.received += len(batch)
         return batch
 
-    def raw_to_batch(self, items: list[tuple[int, bytes, nn.Version]], client: NatNetClient) -> Batch:
+    def raw_to_batch(self, items: list[tuple[int, bytes, nw.Version]], client: NatNetClient) -> Batch:
         """Undecoded frames (host ns, packet, version), in arrival order → one Batch; frames that do not decode
         are counted as parse errors and left out. Frames of a layout seen before are decoded together
         (:mod:`~beambench.devices.natnet.block`); the rest one at a time by the codec."""
@@ -266,21 +268,21 @@ class NatNetMocap(StreamDriver):
         return Batch(self.name, host, dev, {"data": data, "frame": frame_no, "occluded": occluded})
 
     def _decode_one(
-        self, rows: tuple[np.ndarray, ...], i: int, item: tuple[int, bytes, nn.Version], client: NatNetClient
+        self, rows: tuple[np.ndarray, ...], i: int, item: tuple[int, bytes, nw.Version], client: NatNetClient
     ) -> bool:
         """Row ``i`` from one packet through the codec; False (and a parse error counted) if it does not decode."""
         try:
             frame = nn.decode(item[1], item[2])
-        except nn.NatNetParseError as exc:
+        except nw.NatNetParseError as exc:
             client.stats.parse_errors += 1
             client.stats.last_error = str(exc)
             return False
-        if not isinstance(frame, nn.FrameOfData):  # pragma: no cover - only frame packets are kept raw
+        if not isinstance(frame, nf.FrameOfData):  # pragma: no cover - only frame packets are kept raw
             return False
         self._fill_frame(rows, i, frame, client.clock_frequency)
         return True
 
-    def _layout(self, packet: bytes, version: nn.Version) -> nb.FrameLayout | None:
+    def _layout(self, packet: bytes, version: nw.Version) -> nb.FrameLayout | None:
         """The layout of ``packet``: the one cached for its length if its structure matches, else learned."""
         key = (len(packet), version)
         layout = self._layouts.get(key)
@@ -288,7 +290,7 @@ class NatNetMocap(StreamDriver):
             return layout
         try:
             layout = nb.frame_layout(packet, version)
-        except nn.NatNetParseError:
+        except nw.NatNetParseError:
             return None
         if len(self._layouts) >= 64:
             self._layouts.clear()
@@ -339,7 +341,7 @@ class NatNetMocap(StreamDriver):
             return mid_exposure / clock_frequency
         return timestamp
 
-    def _fill_frame(self, rows: tuple[np.ndarray, ...], i: int, f: nn.FrameOfData, clock_frequency: int | None) -> None:
+    def _fill_frame(self, rows: tuple[np.ndarray, ...], i: int, f: nf.FrameOfData, clock_frequency: int | None) -> None:
         """Row ``i`` from one decoded frame."""
         _, dev, data, frame, occluded = rows
         frame[i] = f.frame_number
@@ -356,7 +358,7 @@ class NatNetMocap(StreamDriver):
                     data[i, cols] = rb.position
                     occluded[i, cols] = False
 
-    def to_batch(self, items: list[tuple[int, nn.FrameOfData]], clock_frequency: int | None) -> Batch:
+    def to_batch(self, items: list[tuple[int, nf.FrameOfData]], clock_frequency: int | None) -> Batch:
         """Decoded frames (host ns, frame) → one Batch of the mocap stream."""
         if not items:
             return self._spec.empty_batch()

@@ -16,8 +16,8 @@ Any malformed or truncated packet raises :class:`NatNetParseError` and nothing e
 :func:`decode` (packet → message object) and :func:`encode` (message → packet).
 
 This module is the codec's face: the small messages and the dispatch are here, the MODELDEF descriptions in
-:mod:`.modeldef`, frames of data in :mod:`.frame`, the reader and struct layouts in :mod:`.wire`; everything
-public is importable from here.
+:mod:`.modeldef`, frames of data in :mod:`.frame`, the reader and struct layouts in :mod:`.wire`; import each
+name from the module it lives in.
 """
 
 from __future__ import annotations
@@ -26,29 +26,10 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from beambench.devices.natnet.frame import (
-    SECTIONS,
-    AnalogData,
-    AssetData,
-    AssetMarker,
     FrameOfData,
-    LabeledMarker,
-    MarkerSetData,
-    RigidBody,
-    SkeletonData,
 )
 from beambench.devices.natnet.modeldef import (
-    AssetDescription,
-    CameraDescription,
-    Description,
-    DeviceDescription,
-    ForcePlateDescription,
-    MarkerDescription,
-    MarkerSetDescription,
     ModelDef,
-    RigidBodyDescription,
-    RigidBodyMarker,
-    SkeletonDescription,
-    UnknownDescription,
 )
 from beambench.devices.natnet.wire import (
     _F32,
@@ -59,14 +40,9 @@ from beambench.devices.natnet.wire import (
     _V0,
     MAX_NAME,
     MAX_PAYLOAD,
-    SUPPORTED_VERSIONS,
-    V3_0,
-    V4_0,
     V4_1,
     MessageId,
     NatNetParseError,
-    Quat,
-    Vec3,
     Version,
     _cstr,
     _fixed,
@@ -75,53 +51,21 @@ from beambench.devices.natnet.wire import (
 )
 
 __all__ = [
-    "MAX_NAME",
-    "MAX_PAYLOAD",
-    "SECTIONS",
-    "SUPPORTED_VERSIONS",
-    "V3_0",
-    "V4_0",
-    "V4_1",
-    "AnalogData",
-    "AssetData",
-    "AssetDescription",
-    "AssetMarker",
-    "CameraDescription",
     "Connect",
-    "Description",
-    "DeviceDescription",
     "Disconnect",
     "DisconnectByTimeout",
     "Discovery",
     "EchoRequest",
     "EchoResponse",
-    "ForcePlateDescription",
-    "FrameOfData",
     "KeepAlive",
-    "LabeledMarker",
-    "MarkerDescription",
-    "MarkerSetData",
-    "MarkerSetDescription",
-    "MessageId",
     "MessageString",
-    "ModelDef",
-    "NatNetParseError",
-    "Quat",
     "Request",
     "RequestFrameOfData",
     "RequestModelDef",
     "Response",
-    "RigidBody",
-    "RigidBodyDescription",
-    "RigidBodyMarker",
     "Sender",
     "ServerInfo",
-    "SkeletonData",
-    "SkeletonDescription",
-    "UnknownDescription",
     "UnrecognizedRequest",
-    "Vec3",
-    "Version",
     "decode",
     "encode",
     "peek_message_id",

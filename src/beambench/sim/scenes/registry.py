@@ -12,7 +12,7 @@ engine (a :class:`BatchTask` in, one :class:`JobRun` of standard channels per jo
     def run(task: BatchTask) -> list[JobRun]: ...
 
 The package (:mod:`beambench.sim.scenes`) imports every scene module, so :func:`get` and :func:`batch_engine` know
-them all. The sweep (:mod:`beambench.studies.sweep_scenes`) computes its metrics from the channels a run carries,
+them all. The sweep (:mod:`beambench.studies.sweep.task`) computes its metrics from the channels a run carries,
 with no code per scene.
 """
 

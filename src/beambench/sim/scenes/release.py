@@ -10,7 +10,7 @@ Two ways in:
 
 - **Python, fast** — :func:`release_batch` releases many beams at once (one compiled model per parameter set,
   started from its loaded static equilibrium, stepped with ``mujoco.rollout`` on all cores) and returns the
-  marker paths; :func:`simulate_release` is the one-beam convenience. The fit (:mod:`beambench.studies.fit`) uses these.
+  marker paths; :func:`simulate_release` is the one-beam convenience. The fit (:mod:`beambench.studies.fit.release`) uses these.
 - **Sessions** — :class:`ReleaseSim` is the ``rig: release`` scene of the sim backend
   (``beambench run protocols/release_test.yaml``): the load hangs through the settle time and a short part
   of the record window, then is released (:func:`release_time`); motor idle, load cells read nothing.

@@ -33,9 +33,9 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.protocol.scenes import WALKER
-from beambench.acquisition.protocol.schema import ConfigError
 from beambench.acquisition.streams import WALKER_MARKERS
 from beambench.common.errors import BeambenchError
+from beambench.common.yaml_config import ConfigError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, qinv, qmul, quat_x, quat_y
 from beambench.sim.models.hysteretic import HystereticDamping
@@ -57,7 +57,7 @@ class WalkerLegError(BeambenchError, ValueError):
 
 def check_leg_model(name: str) -> None:
     """Refuse leg models of a family the walker cannot build (every known family builds today: PRB3 and the
-    segmented rods; issue 22 puts the contact rig's physical rod on the walker, docs/walker-twin.md)."""
+    segmented rods; the shipped walker stands on the contact rig's physical rod, docs/walker-twin.md)."""
     try:
         family = model_family(name)
     except UnknownModelError as exc:

@@ -37,7 +37,6 @@ from beambench.studies.twin_calibration.rig import (
     unknowns_help,
 )
 from beambench.studies.twin_calibration.search import Result, calibrate
-from beambench.studies.unknowns import Unknown
 
 __all__ = [
     "RIGS",
@@ -49,7 +48,6 @@ __all__ = [
     "Point",
     "Result",
     "SearchSettings",
-    "Unknown",
     "calibrate",
     "contact",
     "get_rig",

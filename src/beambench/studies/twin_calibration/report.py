@@ -12,10 +12,11 @@ from pathlib import Path
 
 import pandas as pd
 
+from beambench.sim.scenes.contact_regimes import IRREGULAR
 from beambench.studies.twin_calibration.contact_objective import CONTINUOUS_LEVEL, regime_level
 from beambench.studies.twin_calibration.evaluate import json_default
 from beambench.studies.twin_calibration.search import Result
-from beambench.studies.twin_calibration.targets import IRREGULAR, Targets
+from beambench.studies.twin_calibration.targets import Targets
 from beambench.studies.twin_calibration.verdict import all_met, closing_line
 
 

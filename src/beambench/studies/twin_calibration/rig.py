@@ -19,16 +19,7 @@ from beambench.studies.twin_calibration.checks import TargetCheck
 from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
 from beambench.studies.unknowns import Unknown
 
-__all__ = [
-    "RIGS",
-    "CalibratableRig",
-    "CalibrationBase",
-    "Landmarks",
-    "Unknown",
-    "get_rig",
-    "register_rig",
-    "unknowns_help",
-]
+__all__ = ["RIGS", "CalibratableRig", "CalibrationBase", "Landmarks", "get_rig", "register_rig", "unknowns_help"]
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,6 @@ from beambench.studies.executor import Pool
 from beambench.studies.twin_calibration.evaluate import (
     EvalLog,
     Evaluator,
-    Interrupted,
     OutOfTime,
     Point,
     SearchSettings,
@@ -57,7 +56,7 @@ from beambench.studies.twin_calibration.targets import CalibrationInputError, Ta
 from beambench.studies.twin_calibration.verdict import Verdict, annotate_yaml, judge
 from beambench.studies.unknowns import Unknown
 
-__all__ = ["Interrupted", "Result", "SearchSettings", "calibrate"]
+__all__ = ["Result", "calibrate"]
 
 DEFAULT_SETTINGS = SearchSettings()
 

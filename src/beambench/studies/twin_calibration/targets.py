@@ -46,12 +46,9 @@ import yaml
 from beambench.common.errors import BeambenchError
 from beambench.common.inputs import read_input_bytes
 from beambench.common.yaml_config import ConfigError, parse_yaml
-from beambench.sim.scenes.contact_regimes import CONTINUOUS, IRREGULAR, NONE, transitions
+from beambench.sim.scenes.contact_regimes import CONTINUOUS, transitions
 
 __all__ = [
-    "CONTINUOUS",
-    "IRREGULAR",
-    "NONE",
     "CalibrationInputError",
     "Targets",
     "contact_targets",
@@ -59,7 +56,6 @@ __all__ = [
     "parse_targets",
     "session_targets",
     "target_map",
-    "transitions",
 ]
 THIRD_SPAN_HZ = 4.0  # a targets file says nothing above third_at_hz + this: the ⅓ band's width is unknown
 
@@ -285,7 +281,7 @@ def session_targets(path: str | Path) -> Targets:
     """Per-step targets of a measured (or twin-made) session, analysed with :mod:`beambench.analysis.session_analysis`;
     the release-test fit it holds (``/processing/fit``) or the parameter set it ran with is the prior."""
     from beambench.analysis.session_analysis import analyze_session
-    from beambench.sinks.hdf5 import SessionFileError, read_session
+    from beambench.sinks.session_file.reader import SessionFileError, read_session
 
     p = Path(path)
     if not p.is_file():

@@ -45,7 +45,7 @@ def run_written_protocol(path: Path, seed: int | None = None) -> dict[str, Any]:
     from beambench.analysis.session_analysis import analyze_session
     from beambench.common.yaml_config import load_yaml_file
     from beambench.session.run import run_session
-    from beambench.sinks.hdf5 import read_session
+    from beambench.sinks.session_file.reader import read_session
 
     doc, _ = load_yaml_file(path)  # kind and size checked before the read
     doc["backend"] = "sim"

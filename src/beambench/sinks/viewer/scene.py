@@ -21,7 +21,7 @@ from collections.abc import Callable
 import numpy as np
 import rerun as rr
 
-from beambench.sinks.rerun_layout import TIMELINE, Camera, RigLayout
+from beambench.sinks.viewer.layout import TIMELINE, Camera, RigLayout
 
 SendColumns = Callable[[str, str, np.ndarray, np.ndarray], None]
 

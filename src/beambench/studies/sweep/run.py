@@ -54,7 +54,7 @@ from pydantic import (
 
 from beambench.acquisition.protocol.scenes import batched_names, foreign_option
 from beambench.common.yaml_config import ConfigError, load_yaml_file, validate
-from beambench.studies.sweep_scenes import Job, SweepTask, run_task
+from beambench.studies.sweep.task import Job, SweepTask, run_task
 
 SCHEMA = "beambench.sweep/1"
 

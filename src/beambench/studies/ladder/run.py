@@ -13,7 +13,7 @@ For every configuration on the free-beam scene (stage-driven, no contact):
 Every timestep in a ladder divides the reference's and the window starts on a common step, so the samples of
 every run fall exactly on reference samples: no interpolation error enters the comparison.
 :func:`run_ladder` returns the table (one row per configuration and frequency);
-:mod:`beambench.studies.ladder_figures` writes it with its two figures.
+:mod:`beambench.studies.ladder.figures` writes it with its two figures.
 """
 
 from __future__ import annotations

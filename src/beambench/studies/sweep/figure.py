@@ -9,7 +9,7 @@ from typing import Any
 import pandas as pd
 
 from beambench.common.figures import new_figure
-from beambench.studies.sweep import SweepSpec
+from beambench.studies.sweep.run import SweepSpec
 
 
 def _value_label(val: Any) -> str:

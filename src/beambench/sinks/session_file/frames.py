@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 
 
 class StreamLike(Protocol):
-    """What the frames read of a stream (a :class:`beambench.sinks.hdf5_read.StreamData`)."""
+    """What the frames read of a stream (a :class:`beambench.sinks.session_file.reader.StreamData`)."""
 
     @property
     def spec(self) -> StreamSpec: ...
@@ -43,7 +43,7 @@ class StreamLike(Protocol):
 
 
 class SessionLike(Protocol):
-    """What the frames read of a session (a :class:`beambench.sinks.hdf5_read.SessionFile`; typed structurally, so
+    """What the frames read of a session (a :class:`beambench.sinks.session_file.reader.SessionFile`; typed structurally, so
     the reader, whose ``to_pandas``/``to_xarray`` call these, is not imported back)."""
 
     @property

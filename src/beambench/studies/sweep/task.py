@@ -124,8 +124,7 @@ def _row(
 
 
 def _ellipse_cols(prefix: str, t: np.ndarray, xy_mm: np.ndarray, f: float) -> dict[str, Any]:
-    from beambench.analysis import fit_ellipse_harmonic
-    from beambench.analysis.trajectory import area_per_cycle
+    from beambench.analysis.trajectory import area_per_cycle, fit_ellipse_harmonic
 
     e = fit_ellipse_harmonic(t, xy_mm, f)
     return {
@@ -153,7 +152,7 @@ def _free_metrics(t: np.ndarray, tip: np.ndarray, stage: np.ndarray, f: float) -
 
 def _contact_metrics(trace: ContactTrace, f: float) -> dict[str, Any]:
     """Contacts per cycle from the plate's normal force at every step (``contacts_per_cycle``, ``regime`` …)."""
-    from beambench.analysis import detect_contacts, summarize_contacts
+    from beambench.acquisition.forces.contact_events import detect_contacts, summarize_contacts
 
     normal = trace.normal
     c = detect_contacts(trace.t, normal, f, foot_t_s=trace.t, foot_height_m=trace.foot_z)

@@ -12,7 +12,7 @@ from beambench.common.figures import legend_below, new_figure, shared_style
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from beambench.studies.fit import FitResult
+    from beambench.studies.fit.release import FitResult
 
 
 def plot_fit(results: Sequence[FitResult], path: str | Path, title: str = "") -> Path:

@@ -39,7 +39,7 @@ from beambench.sim.models.registry import make_beam_model
 from beambench.sim.scenes.release import G, build_release_spec, static_equilibrium
 
 if TYPE_CHECKING:
-    from beambench.studies.fit_space import ParamSpace, ReleaseData
+    from beambench.studies.fit.space import ParamSpace, ReleaseData
 
 CONFIDENCE = 0.95  # two-sided level of the reported intervals
 SHIFT = "release_shift"  # the release instant's offset (ms): data time − simulated time

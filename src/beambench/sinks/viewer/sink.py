@@ -8,7 +8,7 @@ and ``body/speed`` (walker, mm and mm/s); ``force/normal`` and ``force/tangentia
 the load-cell calibration), ``loadcell/<channel>`` (raw counts), ``motor/velocity``, ``motor/velocity_setpoint``
 and ``motor/iq_measured``; ``step`` (TextDocument: step i of N, commanded and measured frequency, the last
 step's regime or speed) and ``events`` (TextLog). Counters, states and the motor position stay in the HDF5
-session. The blueprint is made per rig from the streams' specs (:mod:`beambench.sinks.rerun_layout`) and sent
+session. The blueprint is made per rig from the streams' specs (:mod:`beambench.sinks.viewer.layout`) and sent
 with the first mocap frame, which frames the camera.
 
 Chunking: a viewer (spawn/connect) gets every batch as it comes. A saved ``.rrd`` gets each entity's columns
@@ -33,11 +33,11 @@ import numpy as np
 import rerun as rr
 
 from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
-from beambench.sinks import RerunMode
-from beambench.sinks.rerun_layout import TIMELINE, RigLayout, blueprint, layout_of, series_styles
-from beambench.sinks.rerun_scene import FOLLOW_ENTITY, Scene3D
-from beambench.sinks.rerun_spawn import spawn_viewer, viewer_url
-from beambench.sinks.rerun_step import StepContacts, StepPanel
+from beambench.sinks.viewer import RerunMode
+from beambench.sinks.viewer.layout import TIMELINE, RigLayout, blueprint, layout_of, series_styles
+from beambench.sinks.viewer.scene import FOLLOW_ENTITY, Scene3D
+from beambench.sinks.viewer.spawn import spawn_viewer, viewer_url
+from beambench.sinks.viewer.step import StepContacts, StepPanel
 
 if TYPE_CHECKING:
     from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
@@ -78,7 +78,7 @@ class RerunSink:
     ``calibration`` turns the load cells' raw counts into plate forces (N) shown beside them; without it only
     the counts are shown. ``rig`` (the session's rig name) and ``total_steps`` shape the layout and the step
     panel; the layout itself comes from the streams' specs. ``step_contacts``: the analysis's computation of a
-    step's contacts (:data:`beambench.sinks.rerun_step.StepContacts`), so the step panel says what the report
+    step's contacts (:data:`beambench.sinks.viewer.step.StepContacts`), so the step panel says what the report
     says."""
 
     def __init__(

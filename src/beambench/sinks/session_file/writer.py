@@ -1,5 +1,5 @@
 """The HDF5 session file's writer: written in SWMR mode and flushed after every poll round of batches (~10 per
-second), so a killed run stays readable; the reader is :mod:`beambench.sinks.hdf5_read`.
+second), so a killed run stays readable; the reader is :mod:`beambench.sinks.session_file.reader`.
 
 Layout (NWB-like; ``schema_version`` on the root)::
 
@@ -32,34 +32,9 @@ import numpy as np
 import pandas as pd
 
 from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
-from beambench.sinks.hdf5_read import (
-    HDF5_SIGNATURE,
-    SESSION_GROUPS,
-    SessionFile,
+from beambench.sinks.session_file.reader import (
     SessionFileError,
-    StreamData,
-    check_session_file,
-    read_processing,
-    read_session,
-    real_rows,
-    session_warnings,
 )
-
-__all__ = [  # the reader's names stay importable from here (sessions were read through this module)
-    "HDF5_SIGNATURE",
-    "SESSION_GROUPS",
-    "SessionFile",
-    "SessionFileError",
-    "SessionWriter",
-    "StreamData",
-    "append_general",
-    "check_session_file",
-    "read_processing",
-    "read_session",
-    "real_rows",
-    "session_warnings",
-    "write_processing",
-]
 
 SCHEMA_VERSION = "1.0"
 EVENT_TEXT = 240  # bytes of a fixed-length event message (SWMR datasets cannot hold variable-length strings)
@@ -393,6 +368,7 @@ def _create_stream(g: h5py.Group, spec: StreamSpec) -> None:
         ds.attrs["description"] = col.description
         if col.labels:
             ds.attrs["labels"] = list(col.labels)
+        ds.attrs["plotted"] = col.plotted
 
 
 class _Appender:

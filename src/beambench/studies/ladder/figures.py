@@ -12,7 +12,7 @@ import pandas as pd
 
 from beambench.common.figures import new_figure
 from beambench.common.types import Floats
-from beambench.studies.ladder import (
+from beambench.studies.ladder.run import (
     PAPER_FEA_S,
     PAPER_PRB_S,
     STATUSES,

@@ -6,7 +6,7 @@ the PRB3 variables by differential evolution, minimising the RMS marker error ov
     min sqrt( Σ_j Σ_i |M_i(j) − M̂_i(j)|² / (3n) )        (i: the three tip markers, j: the n samples)
 
 The objective is a sum of squares over a time series, so by default it is minimised as one
-(``method="sysid"``, :mod:`beambench.studies.fit_sysid`): MuJoCo's ``mujoco.sysid`` Levenberg–Marquardt, each
+(``method="sysid"``, :mod:`beambench.studies.fit.sysid`): MuJoCo's ``mujoco.sysid`` Levenberg–Marquardt, each
 finite-difference Jacobian one batched rollout, started from the best of one batch screening the bounds (the
 set's own values and a Latin hypercube), then ``mujoco.sysid.calculate_intervals`` gives each value's 95 %
 interval. The paper's :func:`scipy.optimize.differential_evolution` stays (``method="de"``; ``"de+sysid"`` uses a
@@ -57,8 +57,8 @@ from beambench.sim.models.registry import (
     model_family,
 )
 from beambench.sim.scenes.release import G, release_batch, release_models
-from beambench.studies.fit_space import ParamSpace, ReleaseData
-from beambench.studies.fit_sysid import CONFIDENCE, SHIFT, UNITS, ReleaseResidual, SysidFit
+from beambench.studies.fit.space import ParamSpace, ReleaseData
+from beambench.studies.fit.sysid import CONFIDENCE, SHIFT, UNITS, ReleaseResidual, SysidFit
 
 NS = 1_000_000_000
 PAPER_MAE_MM = 3.49  # the paper's final error against its rig
@@ -122,9 +122,10 @@ def load_release_session(
     on the sim, else detected from the data. ``register``: map the mocap frame onto the model's
     (:func:`register_to_model`); None = only for sessions not made by the sim (whose frame is the model's).
     Raises :class:`FitError` for sessions that are not release tests."""
-    from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
+    from beambench.acquisition.protocol.schema import parse_protocol
     from beambench.analysis.session_analysis import fit_session_clocks, mocap_markers, stream_host_times
-    from beambench.sinks.hdf5 import SessionFileError, read_session
+    from beambench.common.yaml_config import ConfigError
+    from beambench.sinks.session_file.reader import SessionFileError, read_session
 
     try:
         s = read_session(path)
@@ -372,7 +373,7 @@ COARSE_DE_TOL = 0.05  # de+sysid: the DE only finds the basin (errors' spread 5 
 @dataclass(frozen=True)
 class FitOptions:
     """How a release fit runs: ``method`` — ``sysid`` (a one-batch screen of the box for the start, then
-    ``mujoco.sysid`` least squares; :mod:`beambench.studies.fit_sysid`), ``de`` (differential evolution, the
+    ``mujoco.sysid`` least squares; :mod:`beambench.studies.fit.sysid`), ``de`` (differential evolution, the
     paper's optimizer) or ``de+sysid`` (a coarse DE, stopped at a 5 % spread of its population's errors, as the
     global start; sysid refining); ``free_l1`` (PRB3: fit l1 too); the differential evolution's ``popsize``,
     ``maxiter``, ``tol`` and ``seed``; the least squares' ``max_iters`` and the screen's size (``screen`` × the

@@ -1,6 +1,6 @@
 """What a release fit searches and what it fits: the measured markers around a release (:class:`ReleaseData`) and a
 model family's searched variables mapped onto a parameter set (:class:`ParamSpace`). Shared by the fit
-(:mod:`.fit`) and its least-squares step (:mod:`.fit_sysid`).
+(:mod:`.release`) and its least-squares step (:mod:`.sysid`).
 """
 
 from __future__ import annotations
