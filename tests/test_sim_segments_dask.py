@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from beambench.analysis.session_analysis import analyze_session
 from beambench.cli import app
-from beambench.sinks.hdf5 import read_session
+from beambench.sinks.session_file.reader import read_session
 
 CONTACT = """
 name: c
