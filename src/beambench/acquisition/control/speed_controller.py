@@ -211,7 +211,7 @@ class TrackController:
         """A new segment: choose its band (a sign change switches band and resets the integrator); returns the
         feed-forward frequency (0 to stand)."""
         if speed_mm_s == 0:
-            band = self.map.stand_band(self.band, self.max_hz)
+            band = self.map.stand_band(self.band, self.max_hz) if self.c.stop == "in_place" else None
         else:
             band = self.map.band_for(speed_mm_s, self.max_hz, self.band)
         if band is None and speed_mm_s != 0:

@@ -224,6 +224,9 @@ class TrackControl(_Model):
     # the motor's frequency, and driven past the target by lead × the predicted error until it gets there
     body_tau_s: float = Field(1.0, gt=0, le=10)
     lead: float = Field(1.5, ge=0, le=10)
+    # a target of 0: "motor" stops the drive (0 Hz, the crank held: the quickest stop), "in_place" steps in place at
+    # the map's zero crossing next to the band in use (feedback on; a walker already stepping starts again sooner)
+    stop: Literal["motor", "in_place"] = "motor"
 
 
 class Track(_Model):
