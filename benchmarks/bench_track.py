@@ -47,6 +47,7 @@ def _run(text: str, path: Path):
 PROFILES = {  # (target mm/s, hold s): within the shipped map's reach (forward to ~+120, backward to ~-75 mm/s)
     "slow-downs and a stop": [(100, 4), (0, 3), (60, 3), (90, 3), (30, 3)],
     "through zero and backward": [(-40, 4), (80, 4), (-20, 4), (0, 3), (50, 3), (-30, 3)],
+    "top speed to a stop and back": [(60, 4), (120, 3), (0, 3), (120, 3), (30, 3)],
 }
 
 
