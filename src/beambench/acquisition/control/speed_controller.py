@@ -255,9 +255,11 @@ class TrackController:
         band = self.band
         assert band is not None
         run = self.map.stand_band(band, self.max_hz) or band
-        f_motor = self._f_motor
-        if math.isfinite(measured):
-            back_s = abs(f_motor - self.feedforward()) / self.c.rate_hz_s
+        f_motor, ff = self._f_motor, self.feedforward()
+        f_lead = min(run.frequency_for(self.target + self.c.lead * (self.target - self._step_from)), self.max_hz)
+        passed = (f_motor - ff) * (f_lead - ff) >= 0  # the motor got to the target's frequency on its way to the lead's
+        if math.isfinite(measured) and passed:
+            back_s = abs(f_motor - ff) / self.c.rate_hz_s
             ahead = measured + self._accel(now_ns, measured) * (back_s + 0.5 * self.window_s())
             if abs(self.target - measured) <= HANDOVER_MM_S or (self.target - ahead) * self._step_sign <= 0:
                 self._leading = False
@@ -265,7 +267,7 @@ class TrackController:
         if now_ns - self._stepped_at > 4 * self.c.body_tau_s * 1e9:
             self._leading = False
             return None
-        return min(run.frequency_for(self.target + self.c.lead * (self.target - self._step_from)), self.max_hz)
+        return f_lead
 
     def window_s(self) -> float:
         f = max(self.f_cmd, 1e-6)
