@@ -1,6 +1,6 @@
 """Benchmark: speed tracking on the sim walker against issue 25's goals, each from one run.
 
-    python benchmarks/bench_track.py [--out DIR] [--mismatch foot_mass=0.0022] [--profiles]
+    python benchmarks/bench_track.py [--out DIR] [--mismatch foot_mass=0.0022] [--profiles] [--ramp 100]
 
 1. ``protocols/walker_track.yaml`` as shipped (``map: twin``: its own sweep first, then the profile).
 2. A map from a *different* twin (``--mismatch``: a walker parameter changed, default the foot 10 % heavier): its
@@ -9,6 +9,8 @@
 
 3. ``--profiles``: more profiles on run 1's map (:data:`PROFILES`: steps up and down, stops, through zero, backward),
    with how many segments settle within 1 s.
+4. ``--ramp R``: the shipped profile and :data:`PROFILES` on run 1's map with the twin's motor ramping at R turn/s²
+   (its ``vel_ramp_rate``; the shipped twin's is 50): how much of the settling is the motor's ramp.
 
 Per run and segment: target, mean speed, RMS error after ``track.settle_s`` against its tolerance (15 % of
 |target|, 10 mm/s below 60 mm/s), settling and direction times, highest frequency; a verdict per goal. Writes
@@ -47,16 +49,23 @@ def _run(text: str, path: Path):
 PROFILES = {  # (target mm/s, hold s): within the shipped map's reach (forward to ~+120, backward to ~-75 mm/s)
     "slow-downs and a stop": [(100, 4), (0, 3), (60, 3), (90, 3), (30, 3)],
     "through zero and backward": [(-40, 4), (80, 4), (-20, 4), (0, 3), (50, 3), (-30, 3)],
+    "top speed to a stop and back": [(60, 4), (120, 3), (0, 3), (120, 3), (30, 3)],
 }
 
 
-def _profiles(shipped: dict, map_path: Path, out: Path, limit: float) -> None:
-    """Each of :data:`PROFILES` on the map of run 1; per segment its settling time, the count within 1 s."""
-    for name, profile in PROFILES.items():
+def _profiles(
+    shipped: dict, map_path: Path, out: Path, limit: float, params: str | None = None, extra: dict | None = None
+) -> None:
+    """Each of ``extra`` and :data:`PROFILES` on the map of run 1 (the twin's parameter set ``params``, default the
+    shipped one); per segment its settling time, the count within 1 s."""
+    for name, profile in {**(extra or {}), **PROFILES}.items():
         p = {**shipped, "track": {**shipped["track"], "map": str(map_path)}}
+        if params is not None:
+            p["sim"] = {**shipped["sim"], "params": params}
         p["track"]["segments"] = [{"speed_mm_s": v, "hold_s": h} for v, h in profile]
-        track, wall = _run(yaml.safe_dump(p), out / f"profile_{len(profile)}_{profile[0][0]}.h5")
-        _verdict(f"profile: {name}", track, limit, wall)
+        tag = f"{params or 'profile'}_{len(profile)}_{profile[0][0]}"
+        track, wall = _run(yaml.safe_dump(p), out / f"{tag}.h5")
+        _verdict(f"{params or 'profile'}: {name}", track, limit, wall)
         quick = sum(s["settling_s"] <= 1.0 for s in track.segments)
         print(f" settled within 1 s: {quick} of {len(track.segments)} segments")
 
@@ -86,6 +95,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--mismatch", default="foot_mass=0.0022", help="walker parameter of the other twin, NAME=VALUE")
     ap.add_argument("--profiles", action="store_true", help="also run PROFILES on run 1's map")
+    ap.add_argument("--ramp", type=float, default=None, help="also run them with the twin's motor ramp (turn/s²)")
     args = ap.parse_args()
     sys.path.insert(0, str(ROOT / "src"))
     out = args.out or Path(tempfile.mkdtemp(prefix="bench_track_"))
@@ -106,8 +116,16 @@ def main() -> None:
 
     from beambench.sim.models.registry import model_family
 
+    family = model_family(shipped["sim"]["model"])
+    if args.ramp is not None:
+        params = yaml.safe_load((ROOT / "sim_backend" / f"{family}_{shipped['sim']['params']}.yaml").read_text())
+        params.update(name="ramp", walker={**params.get("walker", {}), "vel_ramp_rate": args.ramp})
+        (user / "sim_backend" / f"{family}_ramp.yaml").write_text(yaml.safe_dump(params))
+        shipped_profile = {"shipped": [(s["speed_mm_s"], s["hold_s"]) for s in shipped["track"]["segments"]]}
+        print(f"\nthe twin's motor ramping at {args.ramp:g} turn/s²:")
+        _profiles(shipped, out / "own_map.h5", out, limit, "ramp", shipped_profile)
+
     name, value = args.mismatch.split("=")
-    family = model_family(shipped["sim"]["model"])  # the shipped walker's parameter set, one walker value changed
     params = yaml.safe_load((ROOT / "sim_backend" / f"{family}_{shipped['sim']['params']}.yaml").read_text())
     params.update(name="other_twin", walker={**params.get("walker", {}), name: float(value)})
     (user / "sim_backend" / f"{family}_other_twin.yaml").write_text(yaml.safe_dump(params))

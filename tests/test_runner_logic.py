@@ -10,6 +10,7 @@ from beambench.acquisition.hub import Hub
 from beambench.acquisition.monitors import MocapLost
 from beambench.acquisition.protocol.plan import Step, step_name
 from beambench.acquisition.runner import Runner
+from beambench.acquisition.step_control import StepStart
 from beambench.acquisition.stop_signals import StopSignal
 from beambench.acquisition.streams import LOADCELL, MOCAP, MOTOR
 from fake_rig import NS, START_NS, FakeRig, RecordingSink
@@ -156,3 +157,52 @@ def test_a_stop_request_between_polls_interrupts_the_run_at_the_next_poll():
     assert sink.steps[1].status == "aborted"
     assert (sink.steps[1].t_end_ns - START_NS) / NS == pytest.approx(2.2)  # no poll after the request
     assert [w for _, w, _ in rig.motor.commands].count("frequency") == 2
+
+
+class Ramp:
+    """A closed-loop step control for the test: each poll 1 Hz more than the last, up to the step's frequency; a
+    step above 12 Hz is refused before anything moves."""
+
+    closed_loop = True
+
+    def __init__(self) -> None:
+        self.hz = 0.0
+        self.ticks: list[tuple[int, float]] = []
+
+    def check(self, steps: list[Step], limits: MotorLimits) -> None:
+        from beambench.acquisition.capabilities import DeviceFault
+
+        for s in steps:
+            if s.frequency_hz > 12.0:
+                raise DeviceFault(f"step {s.index}: {s.frequency_hz:g} Hz is more than this control drives")
+
+    def start(self, step: Step, now_ns: int) -> StepStart:
+        return StepStart(step.frequency_hz, None, f"ramp to {step.frequency_hz:g} Hz")
+
+    def tick(self, step: Step, now_ns: int) -> float:
+        self.hz = min(self.hz + 1.0, step.frequency_hz)
+        self.ticks.append((now_ns, self.hz))
+        return self.hz
+
+
+def test_a_step_control_chooses_the_frequency_after_every_poll_and_only_changes_are_commanded():
+    """Speed tracking's shape: the ordinary runner asks its step control after every poll of the settle and record
+    windows; a step's start commands nothing when the control says so; nothing is scheduled ahead."""
+    rig = FakeRig()
+    control = Ramp()
+    steps = [Step(0, 3.0, 0.2, 0.3), Step(1, 5.0, 0.2, 0.3)]
+    result, sink = _run(rig, steps=steps, control=control)
+    assert result.status == "completed" and result.steps_done == 2
+    assert [round((t - START_NS) / NS, 9) for t, _ in control.ticks] == pytest.approx([0.1 * k for k in range(1, 11)])
+    frequencies = [(round(at, 9), hz) for at, what, hz in rig.motor.commands if what == "frequency"]
+    assert frequencies == [(0.1, 1.0), (0.2, 2.0), (0.3, 3.0), (0.6, 4.0), (0.7, 5.0)]  # held ticks: no command
+    assert sink.steps[1].frequency_hz == 5.0 and "ramp to 5 Hz" in [m for _, _, m in sink.events]
+    runner = Runner(rig, Hub([]), steps, LIMITS, control=control)
+    assert runner.schedule() == []
+
+
+def test_a_step_its_control_refuses_stops_the_run_before_the_motor_is_armed():
+    rig = FakeRig()
+    result, sink = _run(rig, steps=[Step(0, 5.0, 0.2, 0.3), Step(1, 15.0, 0.2, 0.3)], control=Ramp())
+    assert result.status == "fault" and "step 1: 15 Hz is more than this control drives" in result.message
+    assert [what for _, what, _ in rig.motor.commands] == ["idle", "idle"] and not sink.steps

@@ -358,3 +358,81 @@ def test_a_twin_map_run_names_its_two_phases_and_the_map_it_keeps(tmp_path):
     )
     assert f"speed map: {kept} (" in said and f"MB, kept: track.map: {kept} reuses it without the sweep)" in said
     assert "phase 2 of 2, the profile: 1 segment, 1.5 s of rig time on the sim backend" in said, said
+
+
+class InertPlant(Plant):
+    """The sim walker's two traits a map does not show: its body speeds up and slows down at most ``accel_mm_s2``
+    (~100 mm/s²: its momentum and the cart's), and driven back from a forward walk it reaches only ``backward``
+    of the map's backward speeds (the twin: ~-27 mm/s at 22 Hz, where its ascending sweep measured -84). Else as
+    :class:`Plant`: a first-order lag behind that speed, the drive ramping 50 Hz/s."""
+
+    def __init__(self, accel_mm_s2: float = 150.0, tau: float = 0.8, backward: float = 0.33) -> None:
+        super().__init__(tau=tau)
+        self.accel, self.backward = accel_mm_s2, backward
+
+    def run(self, seconds: float, seen: bool = True) -> Batch:
+        n = round(seconds * 360)
+        h = 1 / 360
+        t, x = np.empty(n), np.empty(n)
+        for i in range(n):
+            self.f += float(np.clip(self.cmd - self.f, -50 * h, 50 * h))
+            steady = _speed(self.f) if self.f >= 10 else 0.0
+            steady *= self.backward if steady < 0 else 1.0
+            self.v += float(np.clip((steady - self.v) / self.tau, -self.accel, self.accel)) * h
+            self.x_mm += self.v * h
+            self.t += h
+            t[i], x[i] = self.t, self.x_mm
+        pos = np.zeros((n, 3, 3))
+        pos[:, 0, 0] = x * 1e-3
+        return Batch(
+            "mocap",
+            (t * 1e9).astype(np.int64),
+            t,
+            {"data": pos, "frame": np.arange(n), "occluded": np.zeros((n, 3), bool)},
+        )
+
+
+def analysed_settling(ctl: TrackController, plant: Plant, profile: list[tuple[float, float]]) -> list[float]:
+    """Per segment, the settling time as ``beambench analyze`` judges it: the windowed slope of the body's position
+    (:func:`~beambench.analysis.speed_tracking.windowed_speed`) within the goal's tolerance to the segment's end."""
+    from beambench.analysis.speed_tracking import GRID_S, tolerance, windowed_speed
+
+    ts, xs = [], []
+    dt = ctl.c.control_s
+    for seg, (target, hold) in enumerate(profile):
+        ctl.set_target(target, seg)
+        for _ in range(round(hold / dt)):
+            batch = plant.run(dt)
+            ctl.write(batch)
+            ts.append(batch.device_time)
+            xs.append(batch.columns["data"][:, 0, 0] * 1e3)
+            plant.cmd = ctl.update(round(plant.t * 1e9)).frequency_hz
+    t, x = np.concatenate(ts), np.concatenate(xs)
+    grid = np.arange(0.0, t[-1], GRID_S)
+    v = windowed_speed(t, x, grid)
+    out, t0 = [], 0.0
+    for target, hold in profile:
+        k = (grid >= t0) & (grid <= t0 + hold) & np.isfinite(v)
+        ok = np.abs(v[k] - target) <= tolerance(target)
+        bad = np.flatnonzero(~ok)
+        out.append(math.nan if not ok[-1] else float(grid[k][bad[-1] + 1] - t0) if len(bad) else 0.0)
+        t0 += hold
+    return out
+
+
+@pytest.mark.parametrize(
+    ("profile", "within_s"),
+    [
+        ([(50.0, 4.0), (0.0, 3.0)], 1.0),  # the goal: within 1 s of the change
+        ([(130.0, 4.0), (60.0, 3.0)], 0.8),
+        ([(80.0, 4.0), (40.0, 3.0)], 0.58),
+        ([(0.0, 1.0), (60.0, 3.0)], 1.2),  # from rest the drive's ramp passes the backward speeds first
+    ],
+)
+def test_a_step_is_held_past_the_target_until_the_measured_speed_will_arrive(profile, within_s):
+    """A walker that reaches only a third of the map's backward speeds when braking (the sim walker does): a step is
+    held past the target until the measured speed, carried on at its measured acceleration, will get there; a
+    step handed over to feedback when a model of the body (a lag behind the map's speed) said it had arrived
+    left the body to creep the rest of the way (1.04, 0.86, 0.60 and 1.28 s for these)."""
+    settled = analysed_settling(controller(synthetic_map()), InertPlant(), profile)
+    assert settled[1] <= within_s, settled

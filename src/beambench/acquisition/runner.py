@@ -7,6 +7,9 @@ then drains what the devices still hold, logs the final event and closes the sin
 Stop signals (:mod:`beambench.acquisition.stop_signals`) never raise: they only set a :class:`StopSignal` flag,
 which the runner reads before and after every poll (settle, record, pause) and between steps.
 
+What a step commands is its :class:`~beambench.acquisition.step_control.StepControl`'s: a sweep's fixed frequency
+(the default), or the speed controller's choice after every poll (speed tracking).
+
 Monitors (:mod:`beambench.acquisition.monitors`) may pause a step's record window: while one reports a problem the
 window's clock stops (``pause``/``resume`` events mark the gap, the step records longer), and a pause
 longer than ``max_pause_s`` ends the run as a fault.
@@ -35,6 +38,7 @@ from beambench.acquisition.capabilities import (
 from beambench.acquisition.hub import Hub, SinkFailure
 from beambench.acquisition.monitors import Monitor
 from beambench.acquisition.protocol.plan import Step, step_name
+from beambench.acquisition.step_control import FixedFrequency, StepControl
 from beambench.acquisition.stop_signals import StopSignal, stop_on_signals
 from beambench.common.out_of_memory import out_of_memory
 
@@ -82,7 +86,8 @@ def record_polls(seconds: float, poll_s: float) -> list[float]:
 
 
 class Runner:
-    """Runs ``steps`` on ``rig``, streaming every batch to ``hub`` every ``poll_s`` of rig time."""
+    """Runs ``steps`` on ``rig``, streaming every batch to ``hub`` every ``poll_s`` of rig time; ``control`` chooses
+    each step's frequency (default: the step's own)."""
 
     def __init__(
         self,
@@ -95,8 +100,11 @@ class Runner:
         monitors: list[Monitor] | None = None,
         max_pause_s: float = 30.0,
         stop: StopSignal | None = None,
+        control: StepControl | None = None,
     ) -> None:
         self.rig, self.hub, self.steps, self.limits = rig, hub, steps, limits
+        self.control: StepControl = control or FixedFrequency()
+        self._commanded: float | None = None
         self.poll_s = poll_s
         self.on_progress = on_progress
         self.monitors = list(monitors or [])
@@ -111,7 +119,7 @@ class Runner:
             result = RunResult("error", 0, "")
             try:
                 self._check_stop()
-                self._check_steps()
+                self.control.check(self.steps, self.limits)
                 self.hub.event(self.rig.clock.now_ns(), "start", f"{len(self.steps)} steps")
                 self._check_stop()
                 self.rig.motor.arm(self.limits)
@@ -197,20 +205,12 @@ class Runner:
             raise _Stopped(self.stop.reason)
 
     # --- steps ----------------------------------------------------------------------------------------
-    def _check_steps(self) -> None:
-        for s in self.steps:
-            if not 0 <= s.frequency_hz <= self.limits.max_frequency_hz:
-                raise DeviceFault(f"{self._name(s)}: {s.frequency_hz} Hz outside 0..{self.limits.max_frequency_hz} Hz")
-
-    step_word = "step"  # what a step is called in words (a tracking run's are segments)
-
-    def _name(self, step: Step) -> str:
-        """The step in words: ``step 51 of 80 (index 50)`` (:func:`~beambench.acquisition.protocol.plan.step_name`)."""
-        return step_name(step.index, len(self.steps), self.step_word)
-
     def schedule(self) -> list[tuple[float, list[float]]]:
         """What the run will do if nothing stops or pauses it: each step's frequency and the rig-clock waits (polls)
-        that follow its command, in order (a hint for rigs that compute ahead, :class:`Anticipates`)."""
+        that follow its command, in order (a hint for rigs that compute ahead, :class:`Anticipates`); none when
+        the frequencies depend on the data (a closed-loop :class:`StepControl`)."""
+        if self.control.closed_loop:
+            return []
         record = record_polls if self.monitors else wait_polls
         return [
             (s.frequency_hz, wait_polls(s.settle_s, self.poll_s) + record(s.record_s, self.poll_s)) for s in self.steps
@@ -218,15 +218,30 @@ class Runner:
 
     def _run_step(self, step: Step) -> None:
         clock = self.rig.clock
-        self.rig.motor.set_frequency(step.frequency_hz)
+        start = self.control.start(step, clock.now_ns())
+        if start.command_hz is not None:  # every step's start is commanded, a repeat of the last frequency too
+            self.rig.motor.set_frequency(start.command_hz)
+            self._commanded = start.command_hz
         rec = StepRecord(
-            step.index, step.frequency_hz, clock.now_ns(), direction=step.direction, kind=step.kind, repeat=step.repeat
+            step.index, start.frequency_hz, clock.now_ns(), direction=step.direction, kind=step.kind, repeat=step.repeat
         )
-        self._begin_step(rec, f"{self._name(step)}: {step.frequency_hz:g} Hz")
+        self._begin_step(rec, start.message)
         self._wait(step.settle_s, step)
         rec.t_settled_ns = clock.now_ns()
         self._record(step)
         self._end_step(rec)
+
+    def _command(self, frequency_hz: float) -> None:
+        """Command ``frequency_hz`` unless the motor was last told it."""
+        if frequency_hz != self._commanded:
+            self.rig.motor.set_frequency(frequency_hz)
+            self._commanded = frequency_hz
+
+    def _steer(self, step: Step) -> float:
+        """After a poll of ``step``: its control's frequency, commanded if it changed."""
+        frequency = self.control.tick(step, self.rig.clock.now_ns())
+        self._command(frequency)
+        return frequency
 
     def _begin_step(self, rec: StepRecord, message: str) -> None:
         """A step starts: it is the one an abort closes, the sinks get its row and a ``step`` event."""
@@ -247,8 +262,9 @@ class Runner:
         for dt in wait_polls(seconds, self.poll_s):
             self._check_stop()
             self._poll(dt)
+            frequency = self._steer(step)
             if self.on_progress:
-                self.on_progress(step.index, step.frequency_hz, dt)
+                self.on_progress(step.index, frequency, dt)
 
     def _record(self, step: Step) -> None:
         """The record window: ``record_s`` of rig time during which no monitor reports a problem."""
@@ -264,21 +280,24 @@ class Runner:
             dt = min(self.poll_s, remaining)
             began = clock.now_ns()
             self._poll(dt)
+            frequency = self._steer(step)
             now = clock.now_ns()
             problem, since = self._problem()
             if problem and paused_at is None:
                 paused_at = now
                 remaining += max(0, began - since) * 1e-9  # earlier polls that counted bad data (the timeout)
-                self.hub.event(now, "pause", f"{self._name(step)}: {problem}")
+                self.hub.event(now, "pause", f"{step_name(step.index, len(self.steps))}: {problem}")
             elif problem and paused_at is not None and (now - paused_at) * 1e-9 > self.max_pause_s:
                 raise DeviceFault(f"{problem} (paused longer than monitors.max_pause_s = {self.max_pause_s:g} s)")
             elif not problem and paused_at is not None:
-                self.hub.event(now, "resume", f"{self._name(step)}: after {(now - paused_at) * 1e-9:.2f} s")
+                self.hub.event(
+                    now, "resume", f"{step_name(step.index, len(self.steps))}: after {(now - paused_at) * 1e-9:.2f} s"
+                )
                 paused_at = None
             elif not problem:
                 remaining -= dt  # a poll counts only if it began and ended with good data
                 if self.on_progress:
-                    self.on_progress(step.index, step.frequency_hz, dt)
+                    self.on_progress(step.index, frequency, dt)
 
     def _poll(self, seconds: float) -> None:
         """Let ``seconds`` of rig time pass, hand the batches to the hub, check the motor."""

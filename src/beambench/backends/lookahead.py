@@ -37,7 +37,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -61,6 +61,13 @@ class SegmentScene(Protocol):
     def snapshot(self) -> tuple: ...
 
     def presettle(self, hz: float, seconds: float, t_phys: float) -> dict[str, np.ndarray]: ...
+
+
+@runtime_checkable
+class ComputedElsewhere(Protocol):
+    """A segment scene computed in another process (a Dask worker): ``cpu_s`` is the CPU time it spent there."""
+
+    cpu_s: float
 
 
 def script(schedule: list[tuple[float, list[float]]], now_ns: int, max_chunk_ns: int) -> list[Call]:
@@ -228,7 +235,7 @@ class Lookahead:
         with self._cv:
             seg.results[i] = (out, snap)
             seg.done = i + 1
-            seg.cpu_s = time.thread_time() - c0 + getattr(seg.scene, "cpu_s", 0.0)  # a remote scene's worker too
+            seg.cpu_s = time.thread_time() - c0 + (seg.scene.cpu_s if isinstance(seg.scene, ComputedElsewhere) else 0.0)
             self._cv.notify_all()
         return True
 

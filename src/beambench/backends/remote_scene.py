@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -23,6 +24,9 @@ from beambench.acquisition.capabilities import DeviceFault
 from beambench.common.yaml_config import ConfigError
 from beambench.sim.engine.stepping import Trajectory, quiet_mujoco_warnings
 from beambench.sim.protocol_slice import SimSlice
+from beambench.sim.scenes.drive import DrivenScene
+
+SceneBuilder = Callable[[SimSlice], DrivenScene]  # how the rig builds its scene from the slice
 
 CONNECT_TIMEOUT_S = 10.0
 
@@ -45,12 +49,10 @@ def connect(address: str, timeout_s: float = CONNECT_TIMEOUT_S) -> Any:
 class SceneActor:
     """On a Dask worker: the scene of ``sim`` (built as the rig builds its own), MuJoCo's warnings collected."""
 
-    def __init__(self, sim: SimSlice) -> None:
-        from beambench.backends.sim import build_scene  # the rig's builder (that module imports this one)
-
+    def __init__(self, sim: SimSlice, build: SceneBuilder) -> None:
         self._quiet = contextlib.ExitStack()
         self.warnings = self._quiet.enter_context(quiet_mujoco_warnings())
-        self.scene = build_scene(sim)
+        self.scene = build(sim)
         self.cpu_s = 0.0  # CPU time of the calls (the actor's thread)
 
     def snapshot(self) -> tuple:
@@ -88,10 +90,10 @@ class RemoteScene:
     :attr:`cpu_s` the CPU time the worker spent on the calls. A worker or cluster lost is a
     :class:`DeviceFault` (the runner idles the motor and keeps what was recorded)."""
 
-    def __init__(self, client: Any, sim: SimSlice, worker: str | None = None) -> None:
+    def __init__(self, client: Any, sim: SimSlice, build: SceneBuilder, worker: str | None = None) -> None:
         where = {"workers": [worker], "allow_other_workers": False} if worker else {}
         try:
-            self._actor = client.submit(SceneActor, sim, actor=True, pure=False, **where).result()
+            self._actor = client.submit(SceneActor, sim, build, actor=True, pure=False, **where).result()
         except Exception as exc:
             raise _lost(exc) from None
         self._snap: tuple = self._ask("snapshot")
@@ -126,7 +128,8 @@ def _lost(exc: BaseException) -> DeviceFault:
     return DeviceFault(f"sim: the Dask worker computing a sweep segment failed ({type(exc).__name__}: {exc})")
 
 
-def remote_scenes(client: Any, sim: SimSlice, n: int) -> list[RemoteScene]:
-    """``n`` scenes of ``sim`` on the cluster, one per worker in turn (by address)."""
+def remote_scenes(client: Any, sim: SimSlice, n: int, build: SceneBuilder) -> list[RemoteScene]:
+    """``n`` scenes of ``sim`` on the cluster, built by ``build`` (the rig's builder, sent by reference), one per
+    worker in turn (by address)."""
     workers = sorted(client.scheduler_info().get("workers", {}))
-    return [RemoteScene(client, sim, workers[i % len(workers)] if workers else None) for i in range(n)]
+    return [RemoteScene(client, sim, build, workers[i % len(workers)] if workers else None) for i in range(n)]

@@ -162,7 +162,7 @@ class SimRig:
         cuts = lookahead.cut_points(calls, segments, lookahead.PRESETTLE_S, cost)
         clones: list[lookahead.SegmentScene]
         if self._client is not None:
-            remote = remote_scenes(self._client, self.sim, len(cuts))
+            remote = remote_scenes(self._client, self.sim, len(cuts), build_scene)
             self._remote += remote
             clones = list(remote)
         else:

@@ -23,12 +23,12 @@ from beambench.acquisition.batch import StreamSpec
 from beambench.acquisition.capabilities import Rig
 from beambench.acquisition.control.speed_controller import TrackController, track_spec
 from beambench.acquisition.control.speed_map import SpeedMap, SpeedMapError
+from beambench.acquisition.control.tracking_control import SpeedTracking
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import Step, motor_limits
 from beambench.acquisition.protocol.schema import Protocol
-from beambench.acquisition.runner import ProgressCallback
+from beambench.acquisition.runner import ProgressCallback, Runner
 from beambench.acquisition.stop_signals import StopSignal
-from beambench.acquisition.track_runner import TrackRunner
 from beambench.common.yaml_config import ConfigError
 
 DEFAULT_MOCAP_LOST_S = 0.25  # with monitors.mocap_lost_s: null the controller still never drives blind longer
@@ -152,18 +152,21 @@ class Tracking:
 
     def runner(
         self, rig: Rig, hub: Hub, steps: list[Step], on_progress: ProgressCallback | None, stop: StopSignal
-    ) -> TrackRunner:
+    ) -> Runner:
+        """The ordinary runner with speed tracking as its step control, polling every ``control_s``."""
         assert self.protocol.track is not None
-        return TrackRunner(
+        max_pause_s = self.protocol.monitors.max_pause_s
+        targets = [s.speed_mm_s for s in self.protocol.track.segments]
+        return Runner(
             rig,
             hub,
             steps,
             motor_limits(self.protocol),
-            self.controller,
-            [s.speed_mm_s for s in self.protocol.track.segments],
-            on_progress=on_progress,
-            max_pause_s=self.protocol.monitors.max_pause_s,
+            self.controller.c.control_s,
+            on_progress,
+            max_pause_s=max_pause_s,
             stop=stop,
+            control=SpeedTracking(self.controller, targets, hub, max_pause_s),
         )
 
 

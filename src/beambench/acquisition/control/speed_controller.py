@@ -9,15 +9,17 @@ Each control tick (``control.control_s`` of rig time) :meth:`TrackController.upd
   holds the crank still).
 - **feed-forward**: the band's frequency whose measured speed is the target.
 - **step** (a new segment): the walker's body takes a second or more to follow its drive (the sim walker's
-  momentum), so a step is not left to feedback on a measured speed that lags: the body's speed is predicted — a
-  first-order lag (``body_tau_s``) behind the map's speed at the motor's frequency (its telemetry; without it a ramp
-  at ``rate_hz_s``), started from the measured speed and pulled toward it at :data:`OBSERVE_PER_S` — and the drive
-  is set at once (the motor's own velocity ramp is the only limit) to the map's frequency for ``target + lead ×
-  (target − predicted)``: past the target, so the body gets there sooner. That speed may lie beyond the band's zero
-  edge, in the map's run through zero that holds the band: a slow-down brakes with backward speeds. The step ends
-  when the predicted or the measured speed is within :data:`HANDOVER_MM_S` of the target, or the measured one went
-  past it (a body faster than the model), or after 4 ``body_tau_s``; the frequency then goes straight to the
-  feedback's.
+  momentum), and how fast it gets there is not the map's to say (driven back from a forward walk the sim walker
+  reaches ~-27 mm/s at 22 Hz where its ascending sweep measured -84), so a step is steered by the measured speed
+  alone: the drive is set at once (the motor's own velocity ramp is the only limit) to the map's frequency for
+  ``target + lead × (target − v0)``, ``v0`` the speed measured at the step, past the target, so the body gets
+  there sooner. That speed may lie beyond the band's zero edge, in the map's run through zero that holds the
+  band: a slow-down brakes with backward speeds. The drive is held there until the measured speed, carried on at
+  its measured acceleration for the time the motor needs to ramp back to the target's frequency (at
+  ``rate_hz_s``; the body keeps being pushed meanwhile) plus half the speed window (its lag), reaches the target,
+  or the measured speed is within :data:`HANDOVER_MM_S` of it, or after 4 ``body_tau_s``; the frequency then
+  goes straight to the feedback's. With ``feedback: false`` there is no step (nothing is measured): the map's
+  frequency, rate limited.
 - **feedback** (PI, in speed units): ``u = target + kp·e + I`` with ``e = target − measured``, then the band's
   frequency for ``u``. Working in speed and inverting through the map keeps the loop gain near ``kp`` however
   steep the map is locally. ``u`` is clipped to the band's speeds (its frequency edges); the integrator does not
@@ -49,8 +51,8 @@ from beambench.acquisition.streams import MOCAP, MOTOR
 
 TRACK = "track"
 INTEGRATE_ABS_MM_S = 10.0  # the integrator's error band: control.integrate_within × |target| + this
-OBSERVE_PER_S = 4.0  # the prediction's pull toward the measured speed (1/s): the model's error does not grow
-HANDOVER_MM_S = 5.0  # a step ends when the predicted or measured speed is this close to the target (then PI)
+ACCEL_LAG_S = 0.1  # the measured acceleration: the windowed speed now against this long before
+HANDOVER_MM_S = 5.0  # a step ends when the measured speed is this close to the target (then PI)
 MOTOR_FRESH_S = 0.2  # motor telemetry older than this is not used (then the motor is taken to ramp at rate_hz_s)
 BODY_MARKER = "body"
 
@@ -167,10 +169,10 @@ class TrackController:
         self._lost_since: int | None = None
         self._motor: tuple[int, float] | None = None  # (host time ns, measured |velocity| Hz) of the last motor row
         self._pending = False  # a new segment: its step starts at the next tick
-        self._leading = False  # a step in progress: the lead drives the predicted speed to the target
+        self._leading = False  # a step in progress: the drive held past the target until the body will get there
         self._stepped_at = 0  # when the step started (ns)
         self._step_sign = 1.0  # the step's direction: +1 speeding up (forward), -1 slowing down
-        self.v_hat: float | None = None  # the predicted body speed (mm/s)
+        self._step_from = 0.0  # the speed measured at the step's start (mm/s)
         self._f_motor = 0.0  # the motor's frequency: its telemetry, else a ramp at rate_hz_s toward the command
 
     # --- sink -----------------------------------------------------------------------------------------
@@ -240,35 +242,32 @@ class TrackController:
             self._f_motor = min(max(self.f_cmd, self._f_motor - step), self._f_motor + step)
         return self._f_motor
 
-    def _predict(self, now_ns: int, dt: float, measured: float) -> float:
-        """The body speed one tick on: a first-order lag (``body_tau_s``) behind the map's speed at the motor's
-        frequency, started from the measured speed at each step."""
-        if self._pending or self.v_hat is None:
-            self.v_hat = measured if math.isfinite(measured) else (self.v_hat or 0.0)
-        else:
-            v_map = self.map.speed_at(self._motor_frequency(now_ns, dt))
-            self.v_hat += (v_map - self.v_hat) * min(dt / self.c.body_tau_s, 1.0)
-            if math.isfinite(measured):  # an observer: a body faster or slower than the model pulls it along
-                self.v_hat += (measured - self.v_hat) * min(OBSERVE_PER_S * dt, 1.0)
-        return self.v_hat
+    def _accel(self, now_ns: int, measured: float) -> float:
+        """The body's measured acceleration (mm/s²): the windowed speed now against ``ACCEL_LAG_S`` earlier."""
+        before = self.est.speed(now_ns - int(ACCEL_LAG_S * 1e9), self.window_s())
+        if not (math.isfinite(measured) and math.isfinite(before)):
+            return 0.0
+        return (measured - before) / ACCEL_LAG_S
 
-    def _lead(self, now_ns: int, measured: float) -> float | None:
-        """During a step: the frequency that drives the predicted speed to the target (None: the step is over: the
-        predicted or the measured speed got there, or the measured one went past it)."""
-        band, v_hat = self.band, self.v_hat
-        assert band is not None and v_hat is not None
-        e_hat = self.target - v_hat
-        arrived = math.isfinite(measured) and (
-            abs(self.target - measured) <= HANDOVER_MM_S or (self.target - measured) * self._step_sign < 0
-        )
-        if abs(e_hat) <= HANDOVER_MM_S or arrived or now_ns - self._stepped_at > 4 * self.c.body_tau_s * 1e9:
+    def _step_frequency(self, now_ns: int, dt: float, measured: float) -> float | None:
+        """During a step: the lead's frequency, in the run through zero speed that holds the band (None: the step is
+        over, see the module docstring)."""
+        band = self.band
+        assert band is not None
+        run = self.map.stand_band(band, self.max_hz) or band
+        f_motor, ff = self._f_motor, self.feedforward()
+        f_lead = min(run.frequency_for(self.target + self.c.lead * (self.target - self._step_from)), self.max_hz)
+        passed = (f_motor - ff) * (f_lead - ff) >= 0  # the motor got to the target's frequency on its way to the lead's
+        if math.isfinite(measured) and passed:
+            back_s = abs(f_motor - ff) / self.c.rate_hz_s
+            ahead = measured + self._accel(now_ns, measured) * (back_s + 0.5 * self.window_s())
+            if abs(self.target - measured) <= HANDOVER_MM_S or (self.target - ahead) * self._step_sign <= 0:
+                self._leading = False
+                return None
+        if now_ns - self._stepped_at > 4 * self.c.body_tau_s * 1e9:
             self._leading = False
             return None
-        # past the target within the band, or within the run through zero speed that holds it: braking a forward
-        # walk may command the backward speeds beyond its band's zero edge (and a sign change gets there sooner)
-        run = self.map.stand_band(band, self.max_hz) or band
-        u = run.clip(self.target + self.c.lead * e_hat + self.integral)
-        return min(run.frequency_for(u), self.max_hz)
+        return f_lead
 
     def window_s(self) -> float:
         f = max(self.f_cmd, 1e-6)
@@ -293,12 +292,15 @@ class TrackController:
             mode = HOLDING  # hold the last frequency, the integrator frozen
         else:
             mode = STANDING if self.band is None else TRACKING
-            v_hat = self._predict(now_ns, dt, measured)
+            f_motor = self._motor_frequency(now_ns, dt)
             if self._pending:  # a new segment: its step (the motor's own ramp is the only limit)
-                self._pending, self._leading, self._stepped_at = False, self.band is not None, now_ns
-                self._step_sign = 1.0 if self.target >= v_hat else -1.0  # v_hat: the speed measured at the step
+                self._pending, self._stepped_at = False, now_ns
+                self._leading = self.band is not None and self.c.feedback  # feed-forward alone measures nothing
+                now_speed = measured if math.isfinite(measured) else self.map.speed_at(f_motor)
+                self._step_sign = 1.0 if self.target >= now_speed else -1.0
+                self._step_from = now_speed
             leading = self._leading
-            lead = self._lead(now_ns, measured) if leading else None
+            lead = self._step_frequency(now_ns, dt, measured) if leading else None
             if self.band is None:
                 self.f_cmd = 0.0
             elif lead is not None:

@@ -243,8 +243,8 @@ class TrackControl(_Model):
     window_periods: float = Field(4.0, gt=0, le=100)  # measured speed: slope over this many drive periods
     min_window_s: float = Field(0.15, gt=0, le=10)
     max_window_s: float = Field(0.5, gt=0, le=10)
-    # after a step: the body's speed taken as a first-order lag (time constant body_tau_s) behind the map's speed at
-    # the motor's frequency, and driven past the target by lead × the predicted error until it gets there
+    # a step: the drive set to the map's frequency for target + lead × (target − the speed measured at the step),
+    # held until the measured speed, carried on at its acceleration, will get there; at most 4 × body_tau_s
     body_tau_s: float = Field(1.0, gt=0, le=10)
     lead: float = Field(1.5, ge=0, le=10)
 
