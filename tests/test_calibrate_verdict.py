@@ -23,7 +23,8 @@ from beambench.studies.executor import Pool
 from beambench.studies.twin_calibration import RIGS, CalibratableRig, CalibrationBase, Unknown
 from beambench.studies.twin_calibration.contact import contact_summary
 from beambench.studies.twin_calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
-from beambench.studies.twin_calibration.targets import CalibrationInputError, parse_targets
+from beambench.studies.twin_calibration.rig import parse_targets
+from beambench.studies.twin_calibration.targets import CalibrationInputError
 from beambench.studies.twin_calibration.verdict import (
     AT_BOUND_FRACTION,
     at_bound,

@@ -13,7 +13,8 @@
   :mod:`.written_run`: running a written protocol as its user will.
 
 Plugging in a rig: a module that calls ``register_rig(CalibratableRig(name=..., unknowns=(...), simulate=...,
-objective=..., base=..., write=..., summary=..., checks=...))``, imported below; ``simulate`` returns
+objective=..., base=..., write=..., summary=..., checks=..., file_targets=..., session_targets=...))``, imported
+below (its targets readers: ``--targets`` and ``--session`` are dispatched by the rig they name); ``simulate`` returns
 ``{"steps": [{"frequency_hz": f, ...}, ...], "extras": {...}}`` and the objective compares them with
 ``targets.table``. The CLI, the search, the log and the report are rig-agnostic.
 """

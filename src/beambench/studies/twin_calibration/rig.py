@@ -16,7 +16,13 @@ import pandas as pd
 
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration.checks import TargetCheck
-from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
+from beambench.studies.twin_calibration.targets import (
+    CalibrationInputError,
+    Targets,
+    open_session,
+    read_targets_file,
+    targets_rig,
+)
 from beambench.studies.unknowns import Unknown
 
 __all__ = [
@@ -26,7 +32,10 @@ __all__ = [
     "Landmarks",
     "Unknown",
     "get_rig",
+    "load_targets",
+    "parse_targets",
     "register_rig",
+    "session_targets",
     "unknowns_help",
 ]
 
@@ -77,6 +86,8 @@ class CalibratableRig:
     - ``boxes(base) -> {name: (lo, hi)}``: the prior set's physical ranges (its ``bounds:`` block) as the
       unknowns' boxes, in the unknowns' own units; they replace the unknowns' generic boxes (which stay for
       sets without bounds: the documented effective sets), so the search never leaves a physical range;
+    - ``file_targets(data, where) -> Targets``: its targets file's mapping read (``--targets``; None: it takes none);
+    - ``session_targets(path, session, general) -> Targets``: its session's targets (``--session``; None: none);
     - ``quick``: the rig's own ``--quick`` search settings, (name, value) pairs that override
       ``SearchSettings.quick()``'s (the contact rig's verify stage runs the written protocol: its quick search
       plans its budget around it).
@@ -99,6 +110,8 @@ class CalibratableRig:
     checks: Callable[[Targets], list[TargetCheck]] | None = None
     boxes: Callable[[CalibrationBase], dict[str, tuple[float, float]]] | None = None
     quick: tuple[tuple[str, Any], ...] = ()
+    file_targets: Callable[[dict[str, Any], str], Targets] | None = None
+    session_targets: Callable[[Path, Any, dict[str, Any]], Targets] | None = None
 
     @property
     def default_free(self) -> tuple[str, ...]:
@@ -133,3 +146,35 @@ def get_rig(name: str) -> CalibratableRig:
             f"rig: {name}: the calibrator does not know this rig yet (calibratable: {', '.join(sorted(RIGS))})"
         )
     return RIGS[name]
+
+
+def _calibratable(rig: str, where: str) -> CalibratableRig:
+    if rig not in RIGS:
+        known = " or ".join(RIGS)
+        raise CalibrationInputError(f"{where}: rig = {rig!r}: unknown rig for the calibrator ({known})")
+    return RIGS[rig]
+
+
+def parse_targets(data: Any, where: str = "<targets>") -> Targets:
+    """A targets mapping read by the reader its ``rig:`` registered (:attr:`CalibratableRig.file_targets`)."""
+    rig = _calibratable(targets_rig(data, where), where)
+    if rig.file_targets is None:
+        raise CalibrationInputError(f"{where}: rig = {rig.name!r}: the calibrator takes no targets file for it")
+    return rig.file_targets(data, where)
+
+
+def load_targets(path: str | Path) -> Targets:
+    """Read a targets YAML file (``calibrate sim --targets``)."""
+    return parse_targets(read_targets_file(path), str(path))
+
+
+def session_targets(path: str | Path) -> Targets:
+    """The targets of a measured (or twin-made) session, read by the reader its rig registered
+    (:attr:`CalibratableRig.session_targets`; the rig recorded in the session, as the analysis reads it)."""
+    from beambench.analysis.session_analysis import session_rig
+
+    p, session, general = open_session(path)
+    rig = _calibratable(session_rig(general), str(p))
+    if rig.session_targets is None:
+        raise CalibrationInputError(f"{p}: rig = {rig.name!r}: the calibrator takes no session of this rig")
+    return rig.session_targets(p, session, general)
