@@ -24,7 +24,7 @@ from beambench.studies.twin_calibration import RIGS, CalibratableRig, Calibratio
 from beambench.studies.twin_calibration.contact import contact_summary
 from beambench.studies.twin_calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
 from beambench.studies.twin_calibration.rig import parse_targets
-from beambench.studies.twin_calibration.targets import CalibrationInputError
+from beambench.studies.twin_calibration.targets import CalibrationInputError, contact_targets
 from beambench.studies.twin_calibration.verdict import (
     AT_BOUND_FRACTION,
     at_bound,
@@ -76,6 +76,7 @@ TOY = CalibratableRig(
     bracket="u",
     landmarks=contact_landmarks,
     checks=contact_checks,
+    file_targets=contact_targets,  # it reads the contact rig's targets files
 )
 
 

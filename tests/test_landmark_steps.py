@@ -24,7 +24,7 @@ from beambench.studies.twin_calibration import (
 )
 from beambench.studies.twin_calibration.contact_objective import contact_landmarks, contact_objective
 from beambench.studies.twin_calibration.landmark_steps import LandmarkPlan, fit_local_linear, landmark_steps, solve_step
-from beambench.studies.twin_calibration.targets import parse_targets
+from beambench.studies.twin_calibration.rig import parse_targets
 
 # ------------------------------------------------------------------------------------------------ the model
 
