@@ -312,8 +312,11 @@ CONTACT_QUICK: tuple[tuple[str, Any], ...] = (
     ("landmark_share", 0.55),
 )
 
-CONTACT = register_rig(
-    CalibratableRig(
+
+@register_rig
+def contact_rig() -> CalibratableRig:
+    """The contact rig as the calibrator knows it."""
+    return CalibratableRig(
         name="contact",
         unknowns=CONTACT_UNKNOWNS,
         simulate=simulate_contact,
@@ -332,4 +335,3 @@ CONTACT = register_rig(
         file_targets=contact_targets,
         session_targets=contact_session_targets,
     )
-)

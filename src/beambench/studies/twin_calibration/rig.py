@@ -1,8 +1,9 @@
 """What the calibrator knows of a rig (:class:`CalibratableRig`), the fixed part of its twin
 (:class:`CalibrationBase`) and the registry the rig modules register themselves in (:func:`register_rig`).
 
-A rig module (``contact.py``, ``walker.py``) builds one :class:`CalibratableRig` and registers it at import;
-the package imports every rig module, so ``get_rig(name)`` finds them — no module is loaded by a name string.
+A rig module (``contact.py``, ``walker.py``) registers the function that makes its :class:`CalibratableRig` with
+``@register_rig``; the package imports every rig module by name, so ``get_rig(name)`` finds them — no module is
+loaded by a name string.
 """
 
 from __future__ import annotations
@@ -122,10 +123,14 @@ class CalibratableRig:
 RIGS: dict[str, CalibratableRig] = {}
 
 
-def register_rig(rig: CalibratableRig) -> CalibratableRig:
-    """Add ``rig`` to the registry (a rig module calls this at import); returns it."""
+def register_rig(make: Callable[[], CalibratableRig]) -> Callable[[], CalibratableRig]:
+    """Register the rig the decorated function makes (a rig module's ``@register_rig``, as dm_control's
+    ``@SUITE.add``); a second rig of the same name is refused."""
+    rig = make()
+    if rig.name in RIGS:
+        raise ValueError(f"calibratable rig {rig.name!r} is registered twice")
     RIGS[rig.name] = rig
-    return rig
+    return make
 
 
 def unknowns_help() -> str:

@@ -235,8 +235,10 @@ def write_walker_protocol(
     return write_calibrated_protocol(cal, targets, out_dir, name)
 
 
-WALKER = register_rig(
-    CalibratableRig(
+@register_rig
+def walker_rig() -> CalibratableRig:
+    """The walker rig as the calibrator knows it."""
+    return CalibratableRig(
         name="walker",
         unknowns=WALKER_UNKNOWNS,
         simulate=simulate_walker,
@@ -252,4 +254,3 @@ WALKER = register_rig(
         file_targets=walker_targets,
         session_targets=walker_session_targets,
     )
-)
