@@ -47,11 +47,16 @@ class SceneInfo:
     driven: bool = True  # its steps drive at f > 0 Hz (the release test's one step is 0 Hz)
     plate: bool = False  # a load-cell plate under the foot: the loadcell stream measures a contact
     stage: bool = False  # a crank-driven stage: the protocol's amplitude_mm is the stage amplitude
-    measured_table: bool = False  # a measured model/timestep table (sim.model: auto, per-frequency timesteps)
+    timing_table: str | None = None  # its measured model/timestep table in sim_backend/ (sim.model: auto, timesteps)
     batched: bool = False  # a batched engine: sweepable by ``beambench sweep``
     own_motor: bool = False  # drives its own motor (the rig file's ``walker:`` section), not the lab's crank
     body_marker: str | None = None  # the marker on a free body its legs carry: it walks (speed, paths relative to it)
     free_decay: bool = False  # its session is one free decay after a load is let go (fitted as a 2nd-order system)
+
+    @property
+    def measured_table(self) -> bool:
+        """A measured model/timestep table: ``sim.model: auto`` and per-frequency timesteps apply."""
+        return self.timing_table is not None
 
     @property
     def walks(self) -> bool:
@@ -126,6 +131,7 @@ FREE_BEAM = declare(
         "the beam shaken at one end with nothing under its tip (sweeps and the fidelity ladder)",
         runnable=False,
         batched=True,
+        timing_table="ladder_table.csv",  # the fidelity ladder's measurements
     )
 )
 CONTACT = declare(
@@ -142,7 +148,7 @@ CONTACT = declare(
         },
         plate=True,
         stage=True,
-        measured_table=True,
+        timing_table="contact_table.csv",
         batched=True,
     )
 )
