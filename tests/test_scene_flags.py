@@ -14,6 +14,8 @@ from beambench.analysis.figures import FIGURES
 from beambench.analysis.synthetic import SynthSession, SynthStep, write_synthetic_session
 from beambench.cli import app
 from beambench.sinks.rerun_layout import layout_of
+from beambench.studies.sweep import SweepSpec
+from beambench.studies.sweep_figure import sweep_title
 
 PLATE_FIGURES = {"contact_frequency", "drift", "forces", "contact_direction"}
 WALKING_FIGURES = {"walking_speed", "body_trajectory", "gait", "tracking"}
@@ -95,3 +97,13 @@ def test_the_live_view_finds_a_walkers_body_from_its_scene_not_a_marker_name(dec
     assert hopper.body == "hub" and hopper.chains == (("hub", "foot"),) and not hopper.plate
     bodied = layout_of([mocap_spec(("body", "foot")), loadcell_spec(), motor_spec()], "bodied")
     assert bodied.body is None and bodied.chains == (("body", "foot"),) and bodied.plate
+
+
+def test_the_sweep_chart_shows_the_foot_only_where_the_scene_has_a_plate(declare):
+    """A sweepable scene with nothing under the beam charts its tip; one with a plate under the foot, the foot."""
+    declare(SceneInfo("shaker", "a shaken beam, nothing under it", markers=("stage", "tip"), stage=True, batched=True))
+    declare(SceneInfo("bench2", "a second plate rig", markers=("stage", "foot"), plate=True, stage=True, batched=True))
+    shaker = SweepSpec.model_construct(**{**SweepSpec().model_dump(), "name": "s", "scene": "shaker"})
+    assert sweep_title(shaker, ["twist_deg"]).startswith("s: tip path ellipse vs twist angle")
+    bench = shaker.model_copy(update={"scene": "bench2"})
+    assert sweep_title(bench, ["twist_deg"]).startswith("s: foot path relative to the stage ellipse")
