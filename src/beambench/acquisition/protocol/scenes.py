@@ -5,7 +5,8 @@ description — a :class:`SceneInfo` — lives here, below the simulator, becaus
 :data:`beambench.acquisition.protocol.schema.RigKind`), the standard streams (marker names) and the hardware backend read
 it without importing MuJoCo. Everything a scene *does* — how it is built for a run, its batched sweep engine — is
 registered in its own module in :mod:`beambench.sim.scenes` against the same :class:`SceneInfo`; adding a scene is
-one :func:`declare` line here plus its module there (docs/extending.md).
+one :func:`declare` line here plus its module there and that module's line in the package's import list
+(docs/extending.md). The rest of the code asks a scene's flags, never its name.
 
 ``options`` are the scene-specific knobs: the ``sim:`` fields of a protocol and the parameters of a sweep point
 that only this scene builds. Any other scene refuses them with one line (:func:`foreign_option`).
