@@ -49,9 +49,10 @@ record_s: 99.5
 amplitude_mm: 2.0
 sim:
   plate_gap_mm: 5.5
-  mocap_clock: {offset_s: 0.005, drift_ppm: 50, jitter_s: 0.0004}
-  loadcell_clock: {offset_s: -0.012, drift_ppm: -30, jitter_s: 0.0004}
-  motor_clock: {offset_s: 0.3, drift_ppm: 20, jitter_s: 0.001}
+  clocks:
+    mocap: {offset_s: 0.005, drift_ppm: 50, jitter_s: 0.0004}
+    loadcell: {offset_s: -0.012, drift_ppm: -30, jitter_s: 0.0004}
+    motor: {offset_s: 0.3, drift_ppm: 20, jitter_s: 0.001}
 """
 
 
@@ -122,11 +123,7 @@ def sync_accuracy() -> None:
     def host(stream: str, clock) -> np.ndarray:
         return fits[stream].to_host_ns(clock.offset_s + (1 + clock.drift_ppm * 1e-6) * probe)
 
-    m, lc, mo = (
-        host("mocap", p.sim.mocap_clock),
-        host("loadcell", p.sim.loadcell_clock),
-        host("motor", p.sim.motor_clock),
-    )
+    m, lc, mo = (host(name, p.sim.clocks[name]) for name in ("mocap", "loadcell", "motor"))
     print(f"sync over {probe[-1]:.0f} s (mocap 5 ms / 50 ppm / 0.4 ms jitter; load cells -12 ms / -30 ppm / 0.4 ms):")
     print(f"  max |mocap - loadcell| alignment error: {np.max(np.abs(m - lc)) / 1e6 * 1e3:.3f} µs (goal <= 500 µs)")
     print(f"  max |mocap - motor| alignment error:    {np.max(np.abs(m - mo)) / 1e6 * 1e3:.3f} µs")

@@ -29,7 +29,6 @@ import sys
 import time
 import warnings
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +39,6 @@ sys.path.insert(0, str(ROOT / "src"))
 PROTOCOL = ROOT / "protocols" / "contact_sweep.yaml"
 TARGETS = {"continuous_below_hz": (18.0, 2.0), "half_at_hz": (26.0, 2.0), "third_at_hz": (38.0, 2.0)}
 SIGNS = {26.0: -1, 40.0: 1}  # calibration/paper_contact_targets.yaml
-MAX_DT = 5e-5  # the shipped twin's converged timestep (rig.max_timestep)
 MAX_PRELOAD_M = 2e-3  # the Sobol sample's preload range (the shipped sag's 6.07 mm less h' 4.5 mm is 1.6 mm)
 # the unknowns the space-filling sample spans (the others move the map by less than a step: the ends show it)
 SOBOL_KEYS = (
@@ -63,50 +61,19 @@ def contact_keys(bounds: dict) -> list[str]:
     return [k for k in bounds if k.startswith(("beam.", "rig."))]
 
 
-def point_twin(values: dict[str, float]):
-    """The shipped twin with ``values`` (bounds keys → SI) applied: beam fields, material, rig overrides."""
-    from beambench.sim.models.params import load_params
-    from beambench.sim.scene_params import RigParams
-    from beambench.sim.scenes.contact_regimes import ContactTwin
-
-    params = load_params("physical", "rod")
-    rig = {**params.rig}
-    beam: dict[str, float] = {}
-    material: dict[str, float] = {}
-    for key, v in values.items():
-        block, _, name = key.partition(".")
-        if block == "rig":
-            rig[name] = v
-        elif name.startswith("material."):
-            material[name.removeprefix("material.")] = v
-        else:
-            beam[name] = v
-    if "contact_dampratio" in values:  # at a fixed stiffness: tc·ζ held
-        zeta = values["contact_dampratio"]
-        tc = values.get("rig.contact_timeconst", rig["contact_timeconst"])
-        rig["contact_timeconst"] = float(tc) / zeta
-    p = replace(params, material=replace(params.material, **material), **beam, rig=rig)
-    return ContactTwin("rod5g", p, {}), RigParams.with_overrides(rig)
-
-
-def converged_dt(rig) -> float:
-    """The timestep a point's map runs at: the shipped twin's converged step, finer where the contact is stiffer
-    (the contact's time scale tc·ζ resolved in 20 steps)."""
-    return min(MAX_DT, rig.contact_timeconst * rig.contact_dampratio / 20)
-
-
 def run_point(label: str, values: dict[str, float], settle: float, record: float) -> dict:
     """One point's stepped map (in a worker): landmarks, signs, contacts per cycle at 26–40 Hz, sag and preload."""
     from beambench.acquisition.protocol.schema import load_protocol
     from beambench.sim.scenes.contact_regimes import static_sag, stepped_regime_map, transitions
+    from beambench.sim.scenes.contact_screen import converged_dt, point_twin
     from beambench.sim.settings import SimSettings
 
     protocol, _ = load_protocol(PROTOCOL)
-    twin, rig = point_twin(values)
+    twin = point_twin(values)
+    beam, rig = twin.build()
     dt = converged_dt(rig)
     sim = SimSettings(settle, record, protocol.sim.twist_deg, protocol.amplitude_mm * 1e-3, "implicitfast", dt)
     c0 = time.process_time()
-    beam, rig = twin.build()
     sag = static_sag(beam, rig, sim.twist_deg)
     table = stepped_regime_map(list(protocol.sweep.values()), sim, twin)
     f = table["frequency_hz"].to_numpy(float)
@@ -164,8 +131,9 @@ def points(n_sobol: int, only: set[str], jobs: int) -> list[tuple[str, dict[str,
 def sag_of(values: dict[str, float]) -> float:
     """The static sag (m) of the shipped twin with ``values`` applied (in a worker)."""
     from beambench.sim.scenes.contact_regimes import static_sag
+    from beambench.sim.scenes.contact_screen import point_twin
 
-    beam, rig = point_twin(values)[0].build()
+    beam, rig = point_twin(values).build()
     return static_sag(beam, rig)
 
 

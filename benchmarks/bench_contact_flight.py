@@ -24,7 +24,6 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
-sys.path.insert(0, str(ROOT / "benchmarks"))
 G = 9.81
 
 
@@ -49,10 +48,9 @@ def measure(values: dict[str, float], hz: float, settle: float, record: float) -
     """One frequency held from rest: flights and contacts of the foot above the plate."""
     from beambench.sim.scenes.contact_regimes import static_sag
     from beambench.sim.scenes.contact_rig import ContactRigSim
-    from bench_contact_bounds import converged_dt, point_twin
+    from beambench.sim.scenes.contact_screen import converged_dt, point_twin
 
-    twin, rig = point_twin(values)
-    beam, rig = twin.build()
+    beam, rig = point_twin(values).build()
     sag = static_sag(beam, rig)
     dt = converged_dt(rig)
     scene = ContactRigSim(beam, 90.0, rig.plate_gap, 0.002, rig, "implicitfast", timestep=dt)

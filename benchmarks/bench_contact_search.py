@@ -35,7 +35,6 @@ import math
 import sys
 import time
 import warnings
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -88,30 +87,6 @@ def point_values(index: int) -> dict[str, float]:
     return values
 
 
-def point_twin(values: dict[str, float]):
-    """The shipped twin with ``values`` (bounds keys → SI; switches ignored) applied."""
-    from beambench.sim.models.params import load_params
-    from beambench.sim.scenes.contact_regimes import ContactTwin
-
-    params = load_params("physical", "rod")
-    rig = {**params.rig}
-    beam: dict[str, float] = {}
-    material: dict[str, float] = {}
-    for key, v in values.items():
-        block, _, name = key.partition(".")
-        if block == "rig":
-            rig[name] = v
-        elif name.startswith("material."):
-            material[name.removeprefix("material.")] = v
-        elif block == "beam":
-            beam[name] = v
-    if "rig.contact_dampratio" in values:  # at a fixed stiffness: tc·ζ held
-        tc = values.get("rig.contact_timeconst", rig["contact_timeconst"])
-        rig["contact_timeconst"] = float(tc) / values["rig.contact_dampratio"]
-    p = replace(params, material=replace(params.material, **material), **beam, rig=rig)
-    return ContactTwin("rod5g", p, {})
-
-
 def release_deflection(twin) -> float:
     """The release test's loaded tip deflection (m): 200 g at the tip, the static equilibrium against rest."""
     from beambench.sim.models.registry import make_beam_model
@@ -154,7 +129,7 @@ def screen_point(index: int, screen_all: bool = False) -> dict:
     """One Sobol point's screen (in a worker): values, sag, preload, release deflection, landmarks, CPU. A point
     whose foot hangs more than :data:`CLEAR_M` above the plate at rest gets ``screened`` 0 and meets nothing."""
     from beambench.sim.scenes.contact_regimes import static_sag
-    from beambench.sim.scenes.contact_screen import screen_map
+    from beambench.sim.scenes.contact_screen import point_twin, screen_map
 
     c0 = time.process_time()
     values = point_values(index)
@@ -265,7 +240,7 @@ def full_point(values: dict[str, float]) -> dict:
     """The full protocol's landmarks of a point (in a worker): stepped 1–40 Hz, 2 + 5 s, noise off."""
     from beambench.acquisition.protocol.schema import load_protocol
     from beambench.sim.scenes.contact_regimes import stepped_regime_map
-    from beambench.sim.scenes.contact_screen import converged_dt
+    from beambench.sim.scenes.contact_screen import converged_dt, point_twin
     from beambench.sim.settings import SimSettings
 
     protocol, _ = load_protocol(PROTOCOL)
@@ -321,7 +296,7 @@ def validate(n: int, csv_path: Path, jobs: int, scheduler: str | None) -> None:
 
 def screen_point_values(values: dict[str, float]) -> dict:
     """The screen's landmarks at explicit ``values`` (the shipped point: ``{}``)."""
-    from beambench.sim.scenes.contact_screen import screen_map
+    from beambench.sim.scenes.contact_screen import point_twin, screen_map
 
     return landmarks(screen_map(point_twin(values)))
 

@@ -57,7 +57,8 @@ PICTURES: dict[str, Picture] = {
     "contact_chart.png": Picture(
         (),
         "the contact scene's speed/accuracy chart from benchmarks/bench_contact_chart.py's table",
-        ("sim_backend/contact_chart.csv",),
+        # the table, and where its shipped default is read from (the protocol and its parameter set)
+        ("sim_backend/contact_chart.csv", "protocols/contact_sweep.yaml", "sim_backend/rod_physical.yaml"),
     ),
     "contact_search.png": Picture(
         (),
@@ -236,9 +237,9 @@ def chart_picture(out: Path) -> None:
 
 
 def _chart_code() -> list[Callable]:
-    from beambench.studies.contact_chart import chart_figure
+    from beambench.studies import contact_chart as c
 
-    return [chart_picture, chart_figure]
+    return [chart_picture, c.chart_figure, c.shipped_point, c.same_physics, c.front_check, c._front_panel]
 
 
 def _search_code() -> list[Callable]:

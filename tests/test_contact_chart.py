@@ -64,3 +64,67 @@ def test_a_chart_point_is_measured_against_its_own_finer_run():
     assert np.isfinite(coarse["own_contact_fraction_err"])  # 4e-4 has its 4× finer run, 1e-4 has none
     assert not np.isfinite(s.loc[1e-4].get("own_contact_fraction_err", np.nan))
     assert coarse["cpu_s_per_sim_s"] < s.loc[1e-4]["cpu_s_per_sim_s"]
+
+
+def _chart_table() -> pd.DataFrame:
+    from beambench.sim.models.params import SIM_BACKEND_DIR
+
+    return pd.read_csv(SIM_BACKEND_DIR / "contact_chart.csv")
+
+
+def test_the_shipped_default_is_read_from_the_shipped_protocol_and_lies_on_the_charts_front():
+    """The chart's data: the shipped contact sweep's point (its model, contact, integrator and timestep, read from
+    the protocol and its parameter set) is in the table, within tolerance of its physics' finest run, and no point
+    of the same physics within tolerance is cheaper (else the assertion names it)."""
+    from beambench.acquisition.protocol.schema import load_protocol
+    from beambench.common.resources import shipped_dir
+    from beambench.studies.contact_chart import FRACTION_TOLERANCE, front_check, shipped_point
+
+    point = shipped_point()
+    protocol, _ = load_protocol(shipped_dir("protocols") / "contact_sweep.yaml")
+    assert point.model == protocol.sim.model
+    table, beaten_by = front_check(_chart_table(), point)
+    assert table["shipped"].sum() == 1
+    assert beaten_by == [], f"the shipped default {point} is not on the chart's front: {beaten_by}"
+    me = table[table["shipped"]].iloc[0]
+    assert me["ref_contact_fraction_err"] <= FRACTION_TOLERANCE
+    # the front is not empty of rivals: cheaper points of the same physics exist and are out of tolerance
+    cheaper = table[table["cpu_s_per_sim_s"] < me["cpu_s_per_sim_s"] * 0.9]
+    assert len(cheaper) > 0 and not cheaper["within"].any()
+
+
+def test_the_front_check_names_a_cheaper_point_within_tolerance_and_follows_the_protocol(tmp_path):
+    from beambench.common.resources import shipped_dir
+    from beambench.studies.contact_chart import front_check, shipped_point
+
+    point = shipped_point()
+    rows = _chart_table()
+    # a matched-contact run at 2× the step made as accurate as the reference: it beats the shipped point
+    fine = rows[
+        (rows["model"] == point.model)
+        & (rows["formulation"] == point.formulation)
+        & (rows["integrator"] == point.integrator)
+    ]
+    ref = fine[fine["timestep"].round(12) == fine["timestep"].round(12).min()].sort_values("frequency_hz")
+    rival = rows[
+        (rows["model"] == point.model)
+        & (rows["formulation"] == "matched 1 ms")
+        & (rows["timestep"].round(12) == round(2 * point.timestep, 12))
+    ].sort_values("frequency_hz")
+    assert len(rival) == len(ref) > 0
+    better = rows.copy()
+    better.loc[rival.index, "in_contact_fraction"] = ref["in_contact_fraction"].to_numpy()
+    _, beaten_by = front_check(better, point)
+    assert len(beaten_by) == 1 and beaten_by[0].startswith(f"{point.model} matched 1 ms implicitfast 0.0001 s")
+    # a protocol with a coarser fixed timestep ships another point: out of tolerance, and the check says so
+    text = (
+        (shipped_dir("protocols") / "contact_sweep.yaml")
+        .read_text()
+        .replace("  twist_deg: 90", "  timestep: 1.0e-4\n  twist_deg: 90")
+    )
+    coarse = tmp_path / "coarse.yaml"
+    coarse.write_text(text)
+    other = shipped_point(coarse)
+    assert other.timestep == 1e-4
+    _, said = front_check(rows, other)
+    assert len(said) == 1 and "out of tolerance" in said[0]

@@ -16,17 +16,18 @@ def _dry_run(name: str) -> str:
     return res.stdout
 
 
-def test_the_walker_dry_run_estimates_from_a_timed_stretch_of_its_physics():
+def test_the_walker_dry_run_estimates_from_the_measured_stepping_costs():
     out = _dry_run("walker_sweep")
     line = next(ln for ln in out.splitlines() if ln.startswith("expected run time here:"))
-    assert "not estimated" not in line and "measured here" in line and "2 segments in parallel" in line
+    assert "not estimated" not in line and "from the measured cost table step_costs.csv" in line, line
+    assert "2 segments in parallel" in line
     found = re.search(r"about ([\d.]+) (s|min) of stepping", line)
     assert found, line
     seconds = float(found.group(1)) * (60 if found.group(2) == "min" else 1)
     assert 1 < seconds < 1800  # something, not nothing (the machine may be loaded: no tight upper bound)
     assert "max frequency: 80 Hz   amplitude: 2 mm" in out
     # the shipped walker stands on its legs (docs/walker-twin.md): no fold warning (tests/test_walker_leg_statics.py
-    # has a walker whose dry run and run give one)
+    # has a walker whose run gives one)
     assert not [ln for ln in out.splitlines() if ln.startswith("warning: ")], out
 
 

@@ -102,8 +102,8 @@ def test_dry_run_says_how_long_the_run_takes_on_this_backend(tmp_path):
     assert sim.returncode == 0 and emulated.returncode == 0, sim.stderr + emulated.stderr
     assert "total duration: 280 s of rig time" in sim.stdout
     sim_line = next(ln for ln in sim.stdout.splitlines() if ln.startswith("expected run time here:"))
-    # from the measured timing table where the protocol's model has one, else timed here on a short stretch
-    assert "of stepping" in sim_line and ("contact_table.csv" in sim_line or "measured here:" in sim_line)
+    # from the measured timing table where the protocol's model has one, else from the measured stepping costs
+    assert "of stepping" in sim_line and ("contact_table.csv" in sim_line or "step_costs.csv" in sim_line)
     # "about 67 s", or in minutes from 90 s on ("about 1.8 min": this machine timed under load by other work)
     number, unit = sim_line.split("about ")[1].split()[:2]
     assert unit in ("s", "min"), sim_line

@@ -58,7 +58,9 @@ def _finished(rrd) -> dict[int, str]:
     texts = _column(_chunks(rrd)["/step"], "TextDocument:text")
     found = {}
     for t in texts:
-        m = re.search(r"Last finished: step (\d+) \([^)]*\): (?:regime|speed) \*\*([^*]+)\*\*", str(t[0]))
+        m = re.search(
+            r"Last finished: step (\d+) of \d+ \(index \d+\) at [^:]*: (?:regime|speed) \*\*([^*]+)\*\*", str(t[0])
+        )
         if m:
             found[int(m.group(1))] = m.group(2)
     return found
@@ -117,7 +119,8 @@ def _finished_numbers(rrd) -> dict[int, tuple[str, str]]:
     found = {}
     for t in texts:
         m = re.search(
-            r"Last finished: step (\d+) \([^)]*\): regime \*\*([^*]+)\*\* \(([\d.]+) contacts/cycle\)", str(t[0])
+            r"Last finished: step (\d+) of \d+ \(index \d+\) at [^:]*: regime \*\*([^*]+)\*\* \(([\d.]+) contacts/cycle\)",
+            str(t[0]),
         )
         if m:
             found[int(m.group(1))] = (m.group(2), m.group(3))

@@ -419,3 +419,29 @@ def test_a_stalled_host_is_named_not_blamed_on_the_usb_link(tmp_path):
     assert "host stalled for" in out and "link lost" not in out, out
     ms = int(out.split("host stalled for ")[1].split(" ms")[0])
     assert 800 <= ms <= 5000, out
+
+
+def test_rows_a_full_buffer_evicts_are_counted_and_reported_lost(odrv):
+    """The telemetry buffer keeps the newest rows; every row it evicts unread is ``dropped`` in ``health()``, which
+    the run turns into a ``lost`` event (``ReportsHealth``), as for the CAN driver and the other streams."""
+    from beambench.acquisition.capabilities import ReportsHealth
+    from conftest import wait_until
+
+    m = OdriveUsbMotor(odrv=odrv, timing=UsbMotorTiming(poll_period_s=0.002), max_buffered_rows=20)
+    assert isinstance(m, ReportsHealth)
+    try:
+        m.start()
+        wait_until(lambda: m.health()["received"] >= 50, what="50 telemetry rows polled")
+        m.stop()
+        counts = m.health()
+        assert counts["unrecorded"] == 20  # the buffer's size: the newest rows wait
+        batch = m.read()
+        assert len(batch) == 20 and np.all(np.diff(batch.host_time_ns) > 0)
+        after = m.health()
+        assert after["dropped"] == after["received"] - 20 >= 30 and after["unrecorded"] == 0
+        m.start()  # a buffer read in time loses nothing
+        wait_until(lambda: m.health()["received"] >= after["received"] + 5, what="5 more rows")
+        m.stop()
+        assert len(m.read()) == m.health()["received"] - after["received"] and m.health()["dropped"] == after["dropped"]
+    finally:
+        m.close()

@@ -53,7 +53,7 @@ FIELDS = [
 ]
 SUBFIELDS = {
     "sweep": ["start", "stop", "step", "frequencies"],
-    "sim": ["model", "params", "timestep", "seed", "twist_deg", "plate_gap_mm", "noise", "mocap_clock"],
+    "sim": ["model", "params", "timestep", "seed", "twist_deg", "plate_gap_mm", "noise", "mocap_clock", "clocks"],
     "limits": ["max_frequency_hz", "max_current_a", "max_amplitude_mm"],
     "output": ["name"],
 }

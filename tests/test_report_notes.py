@@ -86,8 +86,8 @@ def test_an_interrupted_run_says_so_and_names_the_missing_steps(tmp_path):
     top = _top(html)
     assert "The run ended early: interrupted by user (SIGINT)." in top
     assert "covers 2 of the 5 planned steps" in top
-    assert re.search(r"Cut short[^:]*: step 2 \(14 Hz\)\.", top), top
-    assert "Never run: steps 3 (16 Hz), 4 (18 Hz)." in top
+    assert re.search(r"Cut short[^:]*: step 3 \(index 2, 14 Hz\)\.", top), top
+    assert "Never run: steps 4 (index 3, 16 Hz), 5 (index 4, 18 Hz)." in top
     assert list(table["status"]) == ["done", "done", "aborted"]  # the table the banner speaks of
     whole, _ = _report(tmp_path, "whole", SynthSession(steps[:2], record_s=1.2, settle_s=0.3))
     assert "planned steps" not in _top(whole) and "interrupted" not in _top(whole)
@@ -144,7 +144,7 @@ def test_a_sim_run_stopped_by_sigint_reports_the_steps_it_never_ran(tmp_path):
     assert (c.done, c.missing) == ([0, 1], [2, 3])
     note = completeness_note(c) or ""
     assert "The run ended early: interrupted by user (SIGINT)." in note and "2 of the 4 planned steps" in note
-    assert "step 2 (6 Hz)." in note and "Never run: step 3 (8 Hz)." in note
+    assert "step 3 (index 2, 6 Hz)." in note and "Never run: step 4 (index 3, 8 Hz)." in note
 
 
 def test_a_killed_run_and_a_faulted_run_say_how_they_ended():
@@ -153,7 +153,7 @@ def test_a_killed_run_and_a_faulted_run_say_how_they_ended():
     plan = {0: 2.0, 1: 3.0, 2: 4.0}
     killed = completeness_note(RunCompleteness(plan, [0], [1], "", "")) or ""
     assert "no closing event" in killed and "covers 1 of the 3 planned steps" in killed
-    assert "step 1 (3 Hz)." in killed and "Never run: step 2 (4 Hz)." in killed
+    assert "step 2 (index 1, 3 Hz)." in killed and "Never run: step 3 (index 2, 4 Hz)." in killed
     fault = completeness_note(RunCompleteness(plan, [0, 1], [], "fault", "device fault: motor overcurrent")) or ""
-    assert "ended early: device fault: motor overcurrent." in fault and "Never run: step 2 (4 Hz)." in fault
+    assert "ended early: device fault: motor overcurrent." in fault and "Never run: step 3 (index 2, 4 Hz)." in fault
     assert completeness_note(RunCompleteness(plan, [0, 1, 2], [], "stop", "all steps done")) is None

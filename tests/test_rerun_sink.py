@@ -8,7 +8,7 @@ import rerun.chunk as rc
 from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
 from beambench.sinks.rerun_view import SAVE_CHUNK_SECONDS, RerunSink
 
-MOTOR = StreamSpec("motor", 100.0, {"velocity": ColumnSpec(unit="turn/s")})
+MOTOR = StreamSpec("motor", 100.0, {"velocity": ColumnSpec(unit="turn/s", plotted=True)})
 
 
 def test_a_slow_stream_is_sent_at_least_every_chunk_span_of_session_time(tmp_path):
@@ -157,3 +157,36 @@ def test_the_step_panel_tells_a_standstill_from_a_walk():
         if index == 0:
             assert "+0.0 mm/s**: no net walking (the body swings ±4 mm in place)" in panel.last_done
     assert "+20.0 mm/s** (the body swings ±4 mm about that)" in panel.last_done
+
+
+def test_a_stream_the_layout_does_not_know_is_shown_by_what_its_spec_marks_plotted(tmp_path):
+    """No entry per stream in the sinks: a plotted column goes to ``<stream>/<label>`` with a panel of its own
+    (title from the descriptions and the unit); a column not marked plotted stays in the session file only."""
+    from beambench.sinks.rerun_layout import layout_of
+
+    imu = StreamSpec(
+        "imu",
+        200.0,
+        {
+            "acc": ColumnSpec((2,), "float64", "m/s²", ("ax", "ay"), "acceleration", plotted=True),
+            "temp": ColumnSpec((), "float64", "°C", (), "die temperature"),
+        },
+        description="tip IMU",
+    )
+    layout = layout_of([MOTOR, imu], "contact")
+    (panel,) = [p for p in layout.panels if any(s.entity.startswith("imu/") for s in p.series)]
+    assert panel.title == "tip IMU: acceleration (m/s²)"
+    assert [s.entity for s in panel.series] == ["imu/ax", "imu/ay"]
+    rrd = tmp_path / "imu.rrd"
+    sink = RerunSink("save", "imu", rrd, t0_ns=0)
+    sink.open([imu])
+    n = 50
+    t_ns = np.arange(n, dtype=np.int64) * 5_000_000
+    sink.write(Batch("imu", t_ns, t_ns * 1e-9, {"acc": np.ones((n, 2)), "temp": np.full(n, 30.0)}))
+    sink.close()
+    rows: dict[str, int] = {}
+    for chunk in rc.RrdReader(rrd).stream():
+        if not chunk.is_static:
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    assert rows.get("/imu/ax") == rows.get("/imu/ay") == n
+    assert not any(e.startswith("/imu/temp") for e in rows)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -278,6 +279,30 @@ def test_view_replays_a_session_into_an_rrd(short_run, tmp_path):
     assert rows["/loadcell/lc2"] == len(s.streams["loadcell"])
     assert rows["/mocap/tip"] == len(s.streams["mocap"])
     assert rows["/events"] == len(s.events)
+
+
+def test_view_replays_a_session_written_before_columns_said_they_are_plotted(short_run, tmp_path):
+    """Sessions from before the ``plotted`` attribute: their standard streams' panels are fed as they were."""
+
+    out, _ = short_run
+    old = tmp_path / "old.h5"
+    shutil.copy(out / "s.h5", old)
+    with h5py.File(old, "a") as f:
+        for group in f["acquisition"].values():
+            for ds in group.values():
+                ds.attrs.pop("plotted", None)
+    rrd = tmp_path / "old.rrd"
+    res = CliRunner().invoke(app, ["view", str(old), "--rerun", "save", "--out", str(rrd)])
+    assert res.exit_code == 0, res.output
+    s = read_session(old)
+    assert not any(c.plotted for c in s.streams["mocap"].spec.columns.values())
+    rows: dict[str, int] = {}
+    for chunk in rc.RrdReader(rrd).stream():
+        if not chunk.is_static:
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    assert rows["/motor/velocity"] == rows["/motor/iq_measured"] == len(s.streams["motor"])
+    assert rows["/loadcell/lc0"] == len(s.streams["loadcell"])
+    assert "/motor/position" not in rows
 
 
 def test_view_of_a_missing_file_is_one_clear_line(tmp_path):

@@ -8,7 +8,7 @@ import pytest
 from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.monitors import MocapLost
-from beambench.acquisition.protocol.plan import Step
+from beambench.acquisition.protocol.plan import Step, step_name
 from beambench.acquisition.runner import Runner
 from beambench.acquisition.stop_signals import StopSignal
 from beambench.acquisition.streams import LOADCELL, MOCAP, MOTOR
@@ -80,6 +80,23 @@ def test_a_mocap_gap_pauses_the_record_window_and_the_step_records_that_much_lon
     # 1 s of good data: the window ran 1 s plus the bad stretch (0.8 s → resumed), to poll granularity
     assert recorded_s == pytest.approx(1.0 + (resumed - 0.8), abs=0.1 + 1e-9)
     assert recorded_s > 1.0 + 0.5
+
+
+def test_steps_are_counted_from_1_in_words_with_their_index_beside_them():
+    """One numbering wherever a person reads a step: the run's events (step, pause, resume) and the live step panel
+    count from 1 (``step 2 of 3``) and show the plan's index (``index 1``, as ``/steps`` and steps.csv hold it)."""
+    rig = FakeRig(mocap={"silent": [(2.3, 2.8)]})  # inside step 2's record window (2.0-3.0 s)
+    result, sink = _run(rig, monitors=[MocapLost(0.2)])
+    assert result.status == "completed"
+    said = [(k, m) for k, _, m in sink.events if k in ("step", "pause", "resume")]
+    assert [m for k, m in said if k == "step"] == [
+        "step 1 of 3 (index 0): 5 Hz",
+        "step 2 of 3 (index 1): 10 Hz",
+        "step 3 of 3 (index 2): 15 Hz",
+    ]
+    assert [m.split(":")[0] for k, m in said if k in ("pause", "resume")] == ["step 2 of 3 (index 1)"] * 2
+    assert step_name(49, 80, "Step") == "Step 50 of 80 (index 49)"  # the live panel's heading (rerun_step)
+    assert step_name(4, None, "segment") == "segment 5 (index 4)"
 
 
 def test_a_pause_longer_than_the_limit_stops_the_run_as_a_fault_with_the_motor_idled():

@@ -43,7 +43,7 @@ BASE = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
         ("sweep: {frequencies: [5]}\nsim: {twist_deg: .nan}", "sim.twist_deg"),
         ("sweep: {frequencies: [5]}\namplitude_mm: .inf", "amplitude_mm"),
         ("sweep: {frequencies: [5]}\nsettle_s: false", "settle_s"),
-        ("sweep: {frequencies: [5]}\nsim: {mocap_clock: {drift_ppm: .nan}}", "sim.mocap_clock.drift_ppm"),
+        ("sweep: {frequencies: [5]}\nsim: {clocks: {mocap: {drift_ppm: .nan}}}", "sim.clocks.mocap.drift_ppm"),
         ("sweep: {frequencies: [5]}\nlimits: {max_frequency_hz: .nan}", "limits.max_frequency_hz"),
         ("sweep: {frequencies: ['5']}", "sweep.frequencies.0"),
     ],

@@ -7,7 +7,7 @@ import pytest
 
 from beambench.acquisition.batch import Batch
 from beambench.acquisition.capabilities import DeviceFault, MotorLimits, Rig
-from beambench.acquisition.protocol.schema import parse_protocol
+from beambench.acquisition.protocol.schema import ConfigError, parse_protocol
 from beambench.acquisition.streams import (
     CONTACT_MARKERS,
     loadcell_spec,
@@ -59,7 +59,7 @@ def test_rig_satisfies_the_protocols(two_seconds):
     assert isinstance(rig, Rig)
     assert [s.name for s in rig.streams] == ["motor", "mocap", "loadcell"]
     assert rig.mocap.describe() == mocap_spec(CONTACT_MARKERS)
-    assert rig.loadcells.describe() == loadcell_spec() and rig.motor.describe() == motor_spec()
+    assert rig.loadcell.describe() == loadcell_spec() and rig.motor.describe() == motor_spec()
 
 
 def test_exact_sample_counts_and_contiguous_reads(two_seconds):
@@ -134,6 +134,21 @@ def test_device_clocks_obey_offset_drift_latency_and_jitter():
     assert len(lc) == pytest.approx(1000 * 3 * (1 - 40e-6), abs=1)
 
 
+def test_clocks_by_stream_name_and_the_older_per_stream_keys_are_one_setting():
+    """``sim.clocks: {mocap: …}`` is the form; ``sim.mocap_clock: …`` (the form before it) gives the same slice;
+    both for one stream, or a clock for a stream the sim does not have, is one line naming the field."""
+    clk = "{offset_s: 2.5, drift_ppm: 80.0}"
+    new = sim_slice(protocol(f"clocks: {{mocap: {clk}, motor: {{latency_s: 0.002}}}}"))
+    old = sim_slice(protocol(f"mocap_clock: {clk}, motor_clock: {{latency_s: 0.002}}"))
+    assert new == old and new.clocks.of("mocap").drift_ppm == 80.0 and new.clocks.of("motor").latency_s == 0.002
+    assert new.clocks.of("loadcell") == sim_slice(protocol()).clocks.of("loadcell")  # not named: the default
+    with pytest.raises(ConfigError, match=r"mocap_clock and clocks\.mocap both given"):
+        protocol(f"mocap_clock: {clk}, clocks: {{mocap: {clk}}}")
+    with pytest.raises(ConfigError) as exc:
+        sim_slice(protocol(f"clocks: {{mocpa: {clk}}}"))
+    assert exc.value.field == "sim.clocks.mocpa" and "mocap" in str(exc.value) and "\n" not in str(exc.value)
+
+
 def test_same_seed_same_data_other_seed_other_noise():
     def record(seed: int) -> dict[str, Batch]:
         rig = build_sim_rig(sim_slice(protocol(f"seed: {seed}")))
@@ -158,7 +173,7 @@ def test_noise_off_gives_exact_tare_counts_without_contact():
     rig.open()
     out = run(rig, 25.0, 1.0)
     rig.close()
-    tare = np.round(rig.loadcells.cal.tare).astype(np.int32)
+    tare = np.round(rig.loadcell.cal.tare).astype(np.int32)
     assert np.all(out["loadcell"].columns["data"] == tare)
 
 

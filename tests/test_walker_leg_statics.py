@@ -153,7 +153,7 @@ def test_a_light_body_on_sideways_legs_stands_below_the_torsional_limit():
 
 
 def test_the_walker_says_when_its_legs_fold_and_not_otherwise():
-    """``leg_fold`` (the run's and the dry run's warning) names a walker on a 14 MPa strip, whose sole load beats
+    """``leg_fold`` (the run's warning) names a walker on a 14 MPa strip, whose sole load beats
     the torsional limit; not the anchored strip under the same foot (it holds), nor the PRB3 walker, nor legs
     hanging down. Its sole load is the standing PRB3 walker's measured contact force per sole within 3 %."""
     from beambench.sim.scenes.walker import leg_fold

@@ -15,13 +15,15 @@ import numpy as np
 
 @dataclass(frozen=True)
 class ColumnSpec:
-    """One per-sample column: its per-sample shape, dtype, unit and (optional) labels of the last axis."""
+    """One per-sample column: its per-sample shape, dtype, unit and (optional) labels of the last axis, and
+    whether the live view plots it as a time series (``plotted``: one series per label, else one)."""
 
     shape: tuple[int, ...] = ()
     dtype: str = "float64"
     unit: str = ""
     labels: tuple[str, ...] = ()
     description: str = ""
+    plotted: bool = False
 
 
 @dataclass(frozen=True)

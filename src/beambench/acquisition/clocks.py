@@ -1,6 +1,6 @@
 """The one model of a device clock against true (host) time, used by the simulated devices, the emulators
 (Motive's QPC counter, the load-cell MCU's microsecond clock) and, through ``from_model``, the protocol's
-``sim.*_clock`` settings (:class:`beambench.acquisition.protocol.schema.ClockModel`).
+``sim.clocks`` settings (:class:`beambench.acquisition.protocol.schema.ClockModel`).
 
 A device clock runs ``drift_ppm`` fast and started ``offset_s`` ahead: ``device = offset_s + (1 + drift)·true``
 with ``drift = drift_ppm·1e-6``. A device that samples every ``1/rate`` of *its* seconds therefore delivers
@@ -56,5 +56,5 @@ class DriftingClock:
 
     @classmethod
     def from_model(cls, model: ClockModel) -> DriftingClock:
-        """From the protocol's clock model (``sim.*_clock``)."""
+        """From the protocol's clock model (``sim.clocks.<stream>``)."""
         return cls(model.offset_s, model.drift_ppm)

@@ -34,7 +34,7 @@ from beambench.acquisition.capabilities import (
 )
 from beambench.acquisition.hub import Hub, SinkFailure
 from beambench.acquisition.monitors import Monitor
-from beambench.acquisition.protocol.plan import Step
+from beambench.acquisition.protocol.plan import Step, step_name
 from beambench.acquisition.stop_signals import StopSignal, stop_on_signals
 from beambench.common.out_of_memory import out_of_memory
 
@@ -200,7 +200,13 @@ class Runner:
     def _check_steps(self) -> None:
         for s in self.steps:
             if not 0 <= s.frequency_hz <= self.limits.max_frequency_hz:
-                raise DeviceFault(f"step {s.index}: {s.frequency_hz} Hz outside 0..{self.limits.max_frequency_hz} Hz")
+                raise DeviceFault(f"{self._name(s)}: {s.frequency_hz} Hz outside 0..{self.limits.max_frequency_hz} Hz")
+
+    step_word = "step"  # what a step is called in words (a tracking run's are segments)
+
+    def _name(self, step: Step) -> str:
+        """The step in words: ``step 51 of 80 (index 50)`` (:func:`~beambench.acquisition.protocol.plan.step_name`)."""
+        return step_name(step.index, len(self.steps), self.step_word)
 
     def schedule(self) -> list[tuple[float, list[float]]]:
         """What the run will do if nothing stops or pauses it: each step's frequency and the rig-clock waits (polls)
@@ -216,7 +222,7 @@ class Runner:
         rec = StepRecord(
             step.index, step.frequency_hz, clock.now_ns(), direction=step.direction, kind=step.kind, repeat=step.repeat
         )
-        self._begin_step(rec, f"step {step.index}: {step.frequency_hz:g} Hz")
+        self._begin_step(rec, f"{self._name(step)}: {step.frequency_hz:g} Hz")
         self._wait(step.settle_s, step)
         rec.t_settled_ns = clock.now_ns()
         self._record(step)
@@ -263,11 +269,11 @@ class Runner:
             if problem and paused_at is None:
                 paused_at = now
                 remaining += max(0, began - since) * 1e-9  # earlier polls that counted bad data (the timeout)
-                self.hub.event(now, "pause", f"step {step.index}: {problem}")
+                self.hub.event(now, "pause", f"{self._name(step)}: {problem}")
             elif problem and paused_at is not None and (now - paused_at) * 1e-9 > self.max_pause_s:
                 raise DeviceFault(f"{problem} (paused longer than monitors.max_pause_s = {self.max_pause_s:g} s)")
             elif not problem and paused_at is not None:
-                self.hub.event(now, "resume", f"step {step.index}: after {(now - paused_at) * 1e-9:.2f} s")
+                self.hub.event(now, "resume", f"{self._name(step)}: after {(now - paused_at) * 1e-9:.2f} s")
                 paused_at = None
             elif not problem:
                 remaining -= dt  # a poll counts only if it began and ended with good data

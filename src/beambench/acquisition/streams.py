@@ -45,7 +45,7 @@ def loadcell_spec(rate_hz: float = LOADCELL_RATE_HZ) -> StreamSpec:
         LOADCELL,
         rate_hz,
         {
-            "data": ColumnSpec((4,), "int32", "count", LOADCELL_CHANNELS, "raw ADC counts"),
+            "data": ColumnSpec((4,), "int32", "count", LOADCELL_CHANNELS, "raw ADC counts", plotted=True),
             "seq": ColumnSpec((), "int64", "", (), "MCU frame sequence number"),
             "sync_edges": ColumnSpec((), "int64", "", (), "mocap exposure pulses counted by the MCU"),
         },
@@ -55,9 +55,9 @@ def loadcell_spec(rate_hz: float = LOADCELL_RATE_HZ) -> StreamSpec:
 
 MOTOR_COLUMNS = {
     "position": ColumnSpec((), "float64", "turn", (), "encoder position estimate"),
-    "velocity": ColumnSpec((), "float64", "turn/s", (), "encoder velocity estimate"),
-    "velocity_setpoint": ColumnSpec((), "float64", "turn/s", (), "commanded velocity"),
-    "iq_measured": ColumnSpec((), "float64", "A", (), "measured quadrature current"),
+    "velocity": ColumnSpec((), "float64", "turn/s", (), "encoder velocity estimate", plotted=True),
+    "velocity_setpoint": ColumnSpec((), "float64", "turn/s", (), "commanded velocity", plotted=True),
+    "iq_measured": ColumnSpec((), "float64", "A", (), "measured quadrature current", plotted=True),
     "bus_voltage": ColumnSpec((), "float64", "V", (), "DC bus voltage"),
     "axis_state": ColumnSpec((), "int32", "", (), "ODrive AxisState"),
     "axis_error": ColumnSpec((), "int64", "", (), "ODrive axis error bits"),

@@ -30,6 +30,8 @@ from beambench.acquisition.stop_signals import StopSignal
 class TrackRunner(Runner):
     """Runs the segments ``steps`` (targets ``targets_mm_s``) under ``controller`` on ``rig``."""
 
+    step_word = "segment"
+
     def __init__(
         self,
         rig: Rig,
@@ -59,7 +61,7 @@ class TrackRunner(Runner):
         for s, v in zip(self.steps, self.targets):
             if v != 0 and self.controller.map.band_for(v, self.limits.max_frequency_hz) is None:
                 raise DeviceFault(
-                    f"segment {s.index}: {v:g} mm/s is out of reach below {self.limits.max_frequency_hz} Hz"
+                    f"{self._name(s)}: {v:g} mm/s is out of reach below {self.limits.max_frequency_hz} Hz"
                 )
 
     def _run_step(self, step: Step) -> None:
@@ -68,7 +70,7 @@ class TrackRunner(Runner):
         ff = ctl.set_target(target, step.index)
         rec = StepRecord(step.index, ff, clock.now_ns())
         band = "stand (0 Hz)" if ctl.band is None else f"band {ctl.band.index} {ctl.band.describe()}"
-        self._begin_step(rec, f"segment {step.index}: {target:+g} mm/s, {band}, feed-forward {ff:.2f} Hz")
+        self._begin_step(rec, f"{self._name(step)}: {target:+g} mm/s, {band}, feed-forward {ff:.2f} Hz")
         self._ticks(step.settle_s, step)
         rec.t_settled_ns = clock.now_ns()
         self._ticks(step.record_s, step)
@@ -101,11 +103,11 @@ class TrackRunner(Runner):
             return
         if mode in (HOLDING, LOST) and self._mode not in (HOLDING, LOST):
             self._lost_at = now
-            self.hub.event(now, "pause", f"segment {step.index}: {MODES[mode]} at {self.controller.f_cmd:.2f} Hz")
+            self.hub.event(now, "pause", f"{self._name(step)}: {MODES[mode]} at {self.controller.f_cmd:.2f} Hz")
         elif mode == LOST:
-            self.hub.event(now, "stand", f"segment {step.index}: {MODES[mode]} (0 Hz)")
+            self.hub.event(now, "stand", f"{self._name(step)}: {MODES[mode]} (0 Hz)")
         elif self._mode in (HOLDING, LOST):
             gone = (now - (self._lost_at or now)) * 1e-9
-            self.hub.event(now, "resume", f"segment {step.index}: mocap back after {gone:.2f} s")
+            self.hub.event(now, "resume", f"{self._name(step)}: mocap back after {gone:.2f} s")
             self._lost_at = None
         self._mode = mode

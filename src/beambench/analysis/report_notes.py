@@ -183,13 +183,16 @@ def run_completeness(a: SessionAnalysis) -> RunCompleteness:
 
 
 def _steps_text(indices: list[int], freq: dict[int, float], most: int = 8) -> str:
-    """``step 12 (13 Hz)``, ``steps 12 (13 Hz), 13 (14 Hz)``, or ``28 steps, 12–39 (13–40 Hz)`` for many."""
+    """Steps counted from 1 with their index (steps.csv's ``step``) and frequency, as every step is named
+    (:func:`~beambench.acquisition.protocol.plan.step_name`): ``step 13 (index 12, 13 Hz)``, ``steps 13 (index 12,
+    13 Hz), 14 (index 13, 14 Hz)``, or ``28 steps, 13–40 (index 12–39, 13–40 Hz)`` for many."""
     if len(indices) <= most:
         word = "step" if len(indices) == 1 else "steps"
-        return f"{word} " + ", ".join(f"{i} ({freq[i]:g} Hz)" if freq.get(i, 0) > 0 else str(i) for i in indices)
+        hz = {i: f", {freq[i]:g} Hz" if freq.get(i, 0) > 0 else "" for i in indices}
+        return f"{word} " + ", ".join(f"{i + 1} (index {i}{hz[i]})" for i in indices)
     fs = [freq[i] for i in indices if freq.get(i, 0) > 0]
-    span = f" ({min(fs):g}–{max(fs):g} Hz)" if fs else ""
-    return f"{len(indices)} steps, {indices[0]}–{indices[-1]}{span}"
+    span = f", {min(fs):g}–{max(fs):g} Hz" if fs else ""
+    return f"{len(indices)} steps, {indices[0] + 1}–{indices[-1] + 1} (index {indices[0]}–{indices[-1]}{span})"
 
 
 ENDINGS = ("interrupted", "fault", "failed", "error")  # the runner's closing events of a run that ended early

@@ -33,6 +33,7 @@ from beambench.acquisition.protocol.schema import (
     OdriveWiring,
     RigFile,
 )
+from beambench.acquisition.streams import LOADCELL, MOCAP
 from beambench.backends.hardware import DeviceRig
 from beambench.sim.protocol_slice import SimSlice
 
@@ -275,7 +276,7 @@ def _make_peers(spec: PeerSpec) -> _Peers:
         positions=motive_frame(exposed),
         command_port=0,
         multicast=False,
-        clock=EmulatorClock.from_model(sim.clocks.mocap),
+        clock=EmulatorClock.from_model(sim.clocks.of(MOCAP)),
         seed=sim.settings.seed,
         drop=drop if isinstance(drop, float) else outage,
         occlude=inject.get("mocap_occlude"),
@@ -283,7 +284,7 @@ def _make_peers(spec: PeerSpec) -> _Peers:
     mcu = EmulatedLoadCellMCU(
         force=physics.force,
         calibration=spec.calibration,
-        clock=McuClock(drift_ppm=sim.clocks.loadcell.drift_ppm),
+        clock=McuClock(drift_ppm=sim.clocks.of(LOADCELL).drift_ppm),
         noise_counts=50.0 if sim.settings.noise else 0.0,
         seed=sim.settings.seed,
         faults=LinkFaults(

@@ -22,18 +22,11 @@ import mujoco
 import numpy as np
 
 from beambench.acquisition.capabilities import DeviceFault, Stream, WarnsOfModel
-from beambench.acquisition.forces.loadcell_calibration import default_calibration
-from beambench.acquisition.protocol.scenes import scene_info
-from beambench.acquisition.protocol.schema import ClockModel, ConfigError
-from beambench.acquisition.streams import LOADCELL_RATE_HZ, MOCAP_RATE_HZ, MOTOR_RATE_HZ
+from beambench.acquisition.protocol.schema import ConfigError
+from beambench.acquisition.streams import LOADCELL, MOCAP, MOTOR, MOTOR_RATE_HZ
 from beambench.backends import lookahead
-from beambench.backends.sim_devices import (
-    DeviceClock,
-    SimClock,
-    SimLoadCells,
-    SimMocap,
-    SimMotor,
-)
+from beambench.backends.sim_devices import SampledStream, SimClock, SimMotor
+from beambench.backends.sim_streams import SIM_STREAMS, SimStreamContext
 from beambench.sim import scenes
 from beambench.sim.engine.stepping import Trajectory, quiet_mujoco_warnings
 from beambench.sim.models.registry import UnknownModelError, beam_model
@@ -42,6 +35,9 @@ from beambench.sim.scenes import SceneConfig
 from beambench.sim.scenes.drive import ChecksCuts, CostsByFrequency, DrivenScene, VelocityRamp, WarmsUp
 
 HISTORY_S = 0.02  # rows kept from earlier chunks (for interpolation and the load cells' boxcar)
+# the order the streams' noise seeds are drawn in (these three's from before streams were registered, so a seed
+# gives the same noise as it did); the other registered streams follow by name
+SEED_ORDER = (MOCAP, LOADCELL, MOTOR)
 
 
 def build_scene(sim: SimSlice) -> DrivenScene:
@@ -70,33 +66,27 @@ class SimRig:
         except BaseException:
             self._quiet.close()
             raise
-        seeds = np.random.SeedSequence(sim.settings.seed).spawn(3)
-        rng_mocap, rng_lc, rng_motor = (np.random.default_rng(s) for s in seeds)
+        names = [*SEED_ORDER, *sorted(set(SIM_STREAMS) - set(SEED_ORDER))]
+        seeds = np.random.SeedSequence(sim.settings.seed).spawn(len(names))
+        rngs = {name: np.random.default_rng(s) for name, s in zip(names, seeds, strict=True)}
         self.clock = SimClock(self._advance, realtime=realtime)
-        mocap_clock = DeviceClock(sim.clocks.mocap, MOCAP_RATE_HZ, rng_mocap)
-        self.mocap = SimMocap(self.scene.markers, mocap_clock, rng_mocap, noise_m=1e-4 if noise else 0.0)
-        self.loadcells = SimLoadCells(
-            DeviceClock(sim.clocks.loadcell, LOADCELL_RATE_HZ, rng_lc),
-            default_calibration(),
-            mocap_clock,
-            rng_lc,
-            noise_counts=15.0 if noise else 0.0,
-        )
+        ctx = SimStreamContext(sim, tuple(self.scene.markers), rngs)
+        self.named: dict[str, SampledStream] = {name: make(ctx) for name, make in SIM_STREAMS.items()}
         rig = self.scene.rig
         self.motor = SimMotor(
-            DeviceClock(sim.clocks.motor, MOTOR_RATE_HZ, rng_motor),
+            ctx.clock(MOTOR, MOTOR_RATE_HZ),
             self.scene.ramp,
             self.scene.motor_torque,
             self._command,
-            rng_motor,
+            ctx.rng(MOTOR),
             torque_constant=rig.torque_constant,
             bus_voltage=rig.bus_voltage,
             noise=noise,
             now=lambda: self.clock.now_ns() * 1e-9,
         )
         self.motor.amplitude_mm = None if sim.stage_amplitude_m is None else sim.stage_amplitude_m * 1e3
-        self.streams: list[Stream] = [self.motor, self.mocap, self.loadcells]
-        self._devices = [self.motor, self.mocap, self.loadcells]
+        self._devices: list[SampledStream] = [self.motor, *self.named.values()]
+        self.streams: list[Stream] = list(self._devices)
         self._hist: Trajectory | None = None
         self._state = "new"
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="sim-prefetch") if prefetch else None
@@ -107,6 +97,13 @@ class SimRig:
         self._look_info: dict[str, Any] | None = None
         self._scenes: list[DrivenScene] = [self.scene]  # every scene built (segments), closed at the end
         self._offset = {"x": 0.0, "theta": 0.0}  # added to the rows once a later segment's scene took over
+
+    def __getattr__(self, name: str) -> SampledStream:
+        """A simulated stream by its name (``rig.mocap``, ``rig.loadcell``)."""
+        named = self.__dict__.get("named", {})
+        if name in named:
+            return named[name]
+        raise AttributeError(f"{type(self).__name__} has no attribute or stream {name!r}")
 
     def open(self) -> None:
         if self._state != "new":
@@ -263,10 +260,6 @@ class SimRig:
 
     def identity(self) -> dict[str, Any]:
         sim = self.sim
-
-        def clock(c: ClockModel) -> dict[str, float]:
-            return c.model_dump()
-
         return {
             "backend": "sim",
             "rig": sim.scene,
@@ -274,28 +267,7 @@ class SimRig:
             "mujoco_version": mujoco.__version__,
             "seed": sim.settings.seed,
             "noise": sim.settings.noise,
-            "devices": {
-                "motor": {
-                    "kind": "SimMotor (ODrive-like velocity ramp)",
-                    "rate_hz": MOTOR_RATE_HZ,
-                    "clock": clock(sim.clocks.motor),
-                },
-                "mocap": {
-                    "kind": "SimMocap (Motive-like labeled markers)",
-                    "rate_hz": MOCAP_RATE_HZ,
-                    "markers": list(self.scene.markers),
-                    "noise_m": self.mocap.noise_m,
-                    "clock": clock(sim.clocks.mocap),
-                },
-                "loadcell": {
-                    "kind": "SimLoadCells (4 raw channels, boxcar over the sample period)",
-                    "rate_hz": LOADCELL_RATE_HZ,
-                    "noise_counts": self.loadcells.noise,
-                    "calibration": self.loadcells.cal.source,
-                    "clock": clock(sim.clocks.loadcell),
-                    "plate": scene_info(sim.scene).plate,
-                },
-            },
+            "devices": {name: dev.about() for name, dev in (("motor", self.motor), *self.named.items())},
         }
 
 

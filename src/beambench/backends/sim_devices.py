@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,8 +23,10 @@ from beambench.acquisition.clocks import DriftingClock
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
 from beambench.acquisition.protocol.schema import ClockModel
 from beambench.acquisition.streams import loadcell_spec, mocap_spec, motor_spec
-from beambench.sim.engine.stepping import Trajectory
-from beambench.sim.scenes.drive import VelocityRamp
+
+if TYPE_CHECKING:  # the simulated devices read the trajectory's arrays: no MuJoCo needed to import them
+    from beambench.sim.engine.stepping import Trajectory
+    from beambench.sim.scenes.drive import VelocityRamp
 
 # ODrive enums (odrive.enums, firmware 0.5/0.6)
 AXIS_STATE_IDLE = 1
@@ -115,7 +118,10 @@ class SimClock:
 
 # --- streams -----------------------------------------------------------------------------------------
 class SampledStream:
-    """A stream sampled from the trajectory on its own device clock; ``read`` drains what has arrived."""
+    """A stream sampled from the trajectory on its own device clock; ``read`` drains what has arrived.
+    A subclass implements :meth:`sample` and says what it simulates in ``kind`` (and :meth:`about`)."""
+
+    kind = ""  # what it simulates, for the session's device identities
 
     def __init__(self, spec: StreamSpec, clock: DeviceClock) -> None:
         self.name = spec.name
@@ -159,11 +165,22 @@ class SampledStream:
             self._pending.append(Batch(self.name, self.clock.host_ns(t), d, cols))
 
     def sample(self, hist: Trajectory, t: np.ndarray, index: np.ndarray) -> dict[str, np.ndarray]:
+        """The columns of the samples measured at true times ``t`` (``index``: their numbers from 0 at open())."""
         raise NotImplementedError
+
+    def about(self) -> dict[str, Any]:
+        """What the session's ``/general`` records of this simulated device: kind, rate, its own settings, clock."""
+        return {
+            "kind": self.kind or type(self).__name__,
+            "rate_hz": self.clock.rate,
+            "clock": self.clock.model.model_dump(),
+        }
 
 
 class SimMocap(SampledStream):
     """Motive-like labeled markers (m) at 360 Hz with Gaussian noise, frame numbers from 0 at open()."""
+
+    kind = "SimMocap (Motive-like labeled markers)"
 
     def __init__(
         self, markers: tuple[str, ...], clock: DeviceClock, rng: np.random.Generator, noise_m: float = 1e-4
@@ -177,10 +194,16 @@ class SimMocap(SampledStream):
             pos = pos + self.rng.normal(0.0, self.noise_m, pos.shape)
         return {"data": pos, "frame": index.astype(np.int64), "occluded": np.zeros(pos.shape[:2], bool)}
 
+    def about(self) -> dict[str, Any]:
+        return {**super().about(), "markers": list(self.markers), "noise_m": self.noise_m}
+
 
 class SimLoadCells(SampledStream):
     """Four raw channels at 1 kHz: plate force (mean over the sample period) through the calibration's
-    forward model, plus noise; ``sync_edges`` counts the mocap exposures seen so far."""
+    forward model, plus noise; ``sync_edges`` counts the mocap exposures seen so far. ``plate``: whether the scene
+    has a plate under the foot (recorded; the walker streams its load cells without one)."""
+
+    kind = "SimLoadCells (4 raw channels, boxcar over the sample period)"
 
     def __init__(
         self,
@@ -189,9 +212,15 @@ class SimLoadCells(SampledStream):
         mocap_clock: DeviceClock,
         rng: np.random.Generator,
         noise_counts: float = 15.0,
+        plate: bool = True,
     ) -> None:
         super().__init__(loadcell_spec(), clock)
         self.cal, self.mocap_clock, self.rng, self.noise = calibration, mocap_clock, rng, noise_counts
+        self.plate = plate
+
+    def about(self) -> dict[str, Any]:
+        extra = {"noise_counts": self.noise, "calibration": self.cal.source, "plate": self.plate}
+        return {**super().about(), **extra}
 
     def sample(self, hist: Trajectory, t: np.ndarray, index: np.ndarray) -> dict[str, np.ndarray]:
         force = box_average(hist.t, hist.channels["force_nt"], t, 1.0 / self.clock.rate)
@@ -213,6 +242,8 @@ class SimMotor(SampledStream):
     ``torque`` maps trajectory channels to the crank torque (N·m); iq = torque / Kt. Idle: the axis goes to
     IDLE (no current) and the crank coasts down at the ramp rate.
     """
+
+    kind = "SimMotor (ODrive-like velocity ramp)"
 
     def __init__(
         self,

@@ -212,7 +212,7 @@ def _phase_time(
 ) -> tuple[float | None, str]:
     """(seconds or None, in words) for one run: real time on emulated and hardware (and the sim with --realtime);
     on the sim, the stepping time from the measured timing table where the rig has one (``sim_plan``), else from
-    timing a short stretch of its physics here (the one part of a dry run that loads MuJoCo)."""
+    the measured stepping costs (``sim_backend/step_costs.csv``); neither loads MuJoCo."""
     from beambench.acquisition.protocol.backends import backend_info
     from beambench.acquisition.protocol.plan import plan
 
@@ -220,20 +220,29 @@ def _phase_time(
     total = sum(s.duration_s for s in steps)
     if not backend_info(backend).simulated_clock or realtime:
         return total, f"{_duration(total)} (real time on the {backend} backend{' with --realtime' if realtime else ''})"
-    if sim_plan is None:  # no measured table for this rig: time a short stretch of its physics here
+    if sim_plan is None:  # no measured timing table for this rig: the measured stepping costs (no MuJoCo here)
         from beambench.common.errors import BeambenchError
-        from beambench.session.estimate import probe_run_time
+        from beambench.session.estimate import COSTS_FILE, cost_key, table_run_time
+        from beambench.session.slices import sim_slice
 
         try:
-            est = probe_run_time(protocol)
+            sim = sim_slice(protocol)
         except BeambenchError as exc:  # the run itself would say so; the dry run still prints its plan
             return None, f"not estimated ({exc})"
+        est = table_run_time(protocol, sim)
+        if est is None:
+            key = ", ".join(f"{k} {v}" for k, v in cost_key(sim).items())
+            return None, (
+                f"not estimated (no measured stepping cost for {key} in {COSTS_FILE.name}: "
+                "`python benchmarks/bench_step_costs.py --ship PROTOCOL` measures it)"
+            )
         parts = f"; {est.parallel} segments in parallel" if est.parallel > 1 else ""
+        other = f", measured with params {est.params}" if est.params != sim.params else ""
         warn = "".join(f"\nwarning: {w}" for w in est.warnings)
-        return est.wall_s, (
-            f"{_about(est.wall_s)} of stepping ({protocol.sim.model}; measured here: "
-            f"{est.wall_per_s * 1e3:.0f} ms per simulated second at {est.probe_hz:g} Hz{parts}), plus recording "
-            f"overhead{warn}"
+        return est.seconds, (
+            f"{_about(est.seconds)} of stepping ({sim.model}; {est.cpu_per_s * 1e3:.0f} ms of CPU per simulated "
+            f"second at {est.at_hz:g} Hz from the measured cost table {COSTS_FILE.name}{other}, on the machine that "
+            f"measured it{parts}), plus recording overhead{warn}"
         )
     wall = sum(s.duration_s / 10.0 * sim_plan.wall_s_per_10s[s.frequency_hz] for s in steps)
     return wall, (

@@ -68,7 +68,7 @@ class EmulatorClock:
 
     @classmethod
     def from_model(cls, model: ClockModel, frequency_hz: int = 10_000_000) -> EmulatorClock:
-        """From the protocol's clock model (``sim.mocap_clock``)."""
+        """From the protocol's clock model (``sim.clocks.mocap``)."""
         return cls(model.offset_s, model.drift_ppm, model.jitter_s, model.latency_s, frequency_hz)
 
 

@@ -27,7 +27,7 @@ from beambench.acquisition.forces.loadcell_calibration import default_calibratio
 from beambench.acquisition.hub import Hub, Sink
 from beambench.acquisition.monitors import build_monitors
 from beambench.acquisition.protocol.backends import backend_info
-from beambench.acquisition.protocol.plan import plan
+from beambench.acquisition.protocol.plan import plan, step_name
 from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol
 from beambench.acquisition.runner import Runner, RunResult
 from beambench.acquisition.stop_signals import StopSignal, stop_on_signals
@@ -217,7 +217,7 @@ def _run_session(req: RunRequest, stop: StopSignal) -> RunResult:
 
         def on_progress(index: int, freq: float, waited: float) -> None:
             taken[0] += waited
-            done, desc = taken[0], f"{req.label}{what} {index + 1}/{len(steps)}  {round(freq, 1):g} Hz"
+            done, desc = taken[0], f"{req.label}{step_name(index, len(steps), what)}  {round(freq, 1):g} Hz"
             ahead = rig.computed_ahead() if isinstance(rig, ReportsComputedAhead) else None
             if ahead is not None and ahead[0] > done:  # parallel parts computed further: count all their work
                 done, desc = ahead[0], f"{req.label}{min(ahead[1], len(steps))}/{len(steps)} steps computed"

@@ -12,7 +12,9 @@ from pydantic import BaseModel
 from beambench.acquisition.protocol.backends import backend_info
 from beambench.acquisition.protocol.scenes import SceneInfo, foreign_option, runnable_names, scene_info
 from beambench.acquisition.protocol.schema import Backend, ConfigError, Protocol, SimOptions
+from beambench.acquisition.streams import MOTOR
 from beambench.backends.build import RigSlices
+from beambench.backends.sim_streams import SIM_STREAMS
 from beambench.sim.models.params import has_params
 from beambench.sim.models.registry import model_family
 from beambench.sim.protocol_slice import AUTO_TOLERANCE_MM, DeviceClocks, SimSlice
@@ -38,6 +40,7 @@ def sim_slice(protocol: Protocol) -> SimSlice:
     sim = protocol.sim
     info = scene_info(protocol.rig)
     _check_scene_options(info, sim)
+    _check_clocks(sim)
     plan = _plan(protocol)
     settings = SimSettings(
         settle_s=float(protocol.settle_s),
@@ -60,7 +63,7 @@ def sim_slice(protocol: Protocol) -> SimSlice:
         thermal=sim.thermal_drift,
         release=protocol.release,
         segments=sim.segments,
-        clocks=DeviceClocks(sim.mocap_clock, sim.loadcell_clock, sim.motor_clock),
+        clocks=DeviceClocks.of_mapping(sim.clocks),
         stage_amplitude_m=settings.amplitude_m if info.stage else None,
     )
 
@@ -80,6 +83,15 @@ def _check_scene_options(info: SceneInfo, sim: SimOptions) -> None:
         value = getattr(sim, option)
         shown = value.model_dump(exclude_unset=True) if isinstance(value, BaseModel) else value
         raise ConfigError("<protocol>", f"sim.{option}", shown, reason)
+
+
+def _check_clocks(sim: SimOptions) -> None:
+    """Each of ``sim.clocks`` names a simulated stream (the motor's or a registered one)."""
+    known = [MOTOR, *SIM_STREAMS]
+    for name in sim.clocks:
+        if name not in known:
+            reason = f"no simulated stream {name!r} (the sim's streams: {', '.join(known)})"
+            raise ConfigError("<protocol>", f"sim.clocks.{name}", sim.clocks[name].model_dump(), reason)
 
 
 def _plan(protocol: Protocol) -> Plan | None:

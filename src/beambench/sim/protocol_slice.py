@@ -10,6 +10,7 @@ different models.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from beambench.acquisition.protocol.schema import ClockModel, Release, ThermalDrift
@@ -23,11 +24,18 @@ AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the m
 
 @dataclass(frozen=True)
 class DeviceClocks:
-    """The simulated devices' clocks (offset, drift, jitter, latency)."""
+    """The simulated devices' clocks (offset, drift, jitter, latency) by stream name; a stream not named has the
+    default clock."""
 
-    mocap: ClockModel = field(default_factory=ClockModel)
-    loadcell: ClockModel = field(default_factory=ClockModel)
-    motor: ClockModel = field(default_factory=ClockModel)
+    named: tuple[tuple[str, ClockModel], ...] = ()
+
+    @classmethod
+    def of_mapping(cls, clocks: Mapping[str, ClockModel]) -> DeviceClocks:
+        return cls(tuple(sorted(clocks.items())))
+
+    def of(self, stream: str) -> ClockModel:
+        """The clock of the stream named ``stream``."""
+        return dict(self.named).get(stream, ClockModel())
 
 
 @dataclass(frozen=True)

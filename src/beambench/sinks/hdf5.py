@@ -393,6 +393,7 @@ def _create_stream(g: h5py.Group, spec: StreamSpec) -> None:
         ds.attrs["description"] = col.description
         if col.labels:
             ds.attrs["labels"] = list(col.labels)
+        ds.attrs["plotted"] = col.plotted
 
 
 class _Appender:

@@ -20,6 +20,8 @@ import numpy as np
 import pandas as pd
 
 from beambench.acquisition.batch import ColumnSpec, Frame, StreamSpec
+from beambench.acquisition.control.speed_controller import track_spec
+from beambench.acquisition.streams import loadcell_spec, motor_spec
 from beambench.common.inputs import check_input_file
 from beambench.common.yaml_config import ConfigError
 from beambench.sinks.session_schema import SessionSchemaError, check_schema
@@ -235,6 +237,15 @@ def _read_general(g: h5py.Group) -> dict[str, Any]:
     return out
 
 
+# the plotted columns of sessions written before a column said so itself (their standard streams' own)
+_PLOTTED_BEFORE = frozenset(
+    (spec.name, key)
+    for spec in (loadcell_spec(), motor_spec(), track_spec(1.0))
+    for key, c in spec.columns.items()
+    if c.plotted
+)
+
+
 def _read_stream(name: str, g: h5py.Group, geometry: dict[str, Any] | None = None) -> StreamData:
     # A closed file holds as many rows in every column (the schema check refuses it otherwise); a file still being
     # written (or left open by a killed run) may have grown one dataset of a batch but not yet the next: every
@@ -247,7 +258,8 @@ def _read_stream(name: str, g: h5py.Group, geometry: dict[str, Any] | None = Non
         cols[key] = ds[()]
         labels = tuple(str(x) for x in ds.attrs.get("labels", ()))
         unit, description = str(ds.attrs.get("unit", "")), str(ds.attrs.get("description", ""))
-        specs[key] = ColumnSpec(ds.shape[1:], ds.dtype.str, unit, labels, description)
+        plotted = bool(ds.attrs["plotted"]) if "plotted" in ds.attrs else (name, key) in _PLOTTED_BEFORE
+        specs[key] = ColumnSpec(ds.shape[1:], ds.dtype.str, unit, labels, description, plotted)
     host = g["host_time_ns"][()]
     dev = g["device_time"][()]
     n = min([len(host), len(dev), *(len(c) for c in cols.values())])

@@ -1,7 +1,9 @@
 """What the live view shows for a rig, and its Rerun blueprint: made from the streams' own specs and the rig name.
 
 :func:`layout_of` reads what a rig has (its markers, the force plate, the motor) from the :class:`StreamSpec`
-list and the session's rig name; :func:`blueprint` lays it out: a 3-D view of the beam beside a column of
+list and the session's rig name; the columns a spec marks ``plotted`` go to the view, each in a panel of its own
+unless one of the rig's panels below already shows it (so a new stream is shown with no entry here);
+:func:`blueprint` lays it out: a 3-D view of the beam beside a column of
 time series with one quantity per panel, each over a short window that scrolls with the time cursor and keeps
 peaks (min/max aggregation), and a text panel with the step. Rerun draws no unit on a plot's axis, so the unit
 is in each panel's title and in each series' legend name.
@@ -9,6 +11,7 @@ is in each panel's title and in each series' legend name.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +28,8 @@ DRIVE_WINDOW_S = 60.0  # the staircase of the last several steps
 TRACK_WINDOW_S = 30.0  # the speed controller: several control windows of the walker's body speed
 CURRENT_WINDOW_S = 10.0
 BODY_WINDOW_S = 30.0
+OTHER_WINDOW_S = 10.0  # a plotted column of a stream no panel below names
+OTHER_COLORS = ((255, 140, 0), (90, 160, 255), (60, 200, 90), (230, 90, 140), (200, 120, 255), (150, 150, 150))
 
 
 @dataclass(frozen=True)
@@ -61,9 +66,14 @@ class RigLayout:
     motor: bool
     mocap_rate_hz: float = 360.0
     track: bool = False  # a speed-tracking run (acquisition.control.speed_controller): target, measured, commanded
+    plotted: frozenset[tuple[str, str]] = frozenset()  # (stream, column) the view receives: the specs' plotted ones
+    others: tuple[Panel, ...] = ()  # a panel for each plotted column the rig's own panels do not show
 
     @property
     def panels(self) -> tuple[Panel, ...]:
+        return (*self._rig_panels(), *self.others)
+
+    def _rig_panels(self) -> list[Panel]:
         out: list[Panel] = []
         if self.motor:
             out.append(
@@ -119,7 +129,7 @@ class RigLayout:
             out.append(
                 Panel("Motor current (A)", (Series("motor/iq_measured", "Iq (A)", (200, 120, 255)),), CURRENT_WINDOW_S)
             )
-        return tuple(out)
+        return out
 
     @property
     def loadcell_panel(self) -> Panel | None:
@@ -133,14 +143,9 @@ class RigLayout:
         return Panel("Load cells (raw counts)", series, LOADCELL_WINDOW_S)
 
     def logged(self, stream: str, column: str) -> bool:
-        """Whether a stream's column goes to the view: what a panel plots (no counters, states or position)."""
-        if stream == "loadcell":
-            return self.plate and column == "data"
-        if stream == "motor":
-            return column in ("velocity", "velocity_setpoint", "iq_measured")
-        if stream == "track":
-            return self.track and column in ("target_mm_s", "measured_mm_s", "feedforward_hz", "frequency_hz")
-        return False
+        """Whether a stream's column goes to the view: one its spec marks ``plotted`` (the load cells' raw counts
+        only over a plate)."""
+        return (stream, column) in self.plotted
 
     def up_vector(self) -> np.ndarray:
         return axis_vector(self.up_axis)
@@ -180,7 +185,10 @@ def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
     loadcell = by_name.get("loadcell")
     plate = loadcell is not None and scene.plate
     channels = tuple(loadcell.columns["data"].labels) if loadcell is not None and "data" in loadcell.columns else ()
-    return RigLayout(
+    plotted = frozenset(
+        (s.name, key) for s in specs if s is not loadcell or plate for key, col in s.columns.items() if col.plotted
+    )
+    layout = RigLayout(
         rig=rig or "",
         markers=markers,
         up_axis=frame.up_axis if frame is not None else "z",
@@ -193,7 +201,37 @@ def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
         motor="motor" in by_name,
         mocap_rate_hz=mocap.rate_hz if mocap is not None and mocap.rate_hz > 0 else 360.0,
         track="track" in by_name,
+        plotted=plotted,
     )
+    return dataclasses.replace(layout, others=_other_panels(layout, specs))
+
+
+def _entities(stream: str, column: str, labels: tuple[str, ...]) -> tuple[str, ...]:
+    """The entities a plotted column is sent to (as :class:`beambench.sinks.rerun_view.RerunSink` sends them):
+    one per label, else one for the column."""
+    return tuple(f"{stream}/{label}" for label in labels) if labels else (f"{stream}/{column}",)
+
+
+def _other_panels(layout: RigLayout, specs: list[StreamSpec]) -> tuple[Panel, ...]:
+    """A panel for each plotted column that none of the rig's own panels shows: titled with the stream's and the
+    column's descriptions and the unit, a series per label."""
+    panels = [*layout.panels, *([layout.loadcell_panel] if layout.loadcell_panel else [])]
+    shown = {s.entity for p in panels for s in p.series}
+    out: list[Panel] = []
+    for spec in specs:
+        for key, col in spec.columns.items():
+            entities = _entities(spec.name, key, col.labels)
+            if (spec.name, key) not in layout.plotted or set(entities) <= shown:
+                continue
+            unit = f" ({col.unit})" if col.unit else ""
+            names = col.labels or (key,)
+            series = tuple(
+                Series(e, f"{n}{unit}", OTHER_COLORS[i % len(OTHER_COLORS)])
+                for i, (e, n) in enumerate(zip(entities, names))
+            )
+            title = f"{spec.description or spec.name}: {col.description or key}{unit}"
+            out.append(Panel(title, series, OTHER_WINDOW_S))
+    return tuple(out)
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ import rerun as rr
 
 from beambench.acquisition.batch import StepRecord
 from beambench.acquisition.forces.contact_events import ContactSummary, force_regime
+from beambench.acquisition.protocol.plan import step_name
 from beambench.sinks.rerun_layout import TIMELINE
 
 MEASURED_SPAN_S = 0.5  # the measured frequency: mean motor velocity over the last half second of the step
@@ -121,7 +122,7 @@ class StepPanel:
                     self._write((tk - self.t0_ns) / NS)
 
     def _summary(self, rec: StepRecord) -> str:
-        head = f"step {rec.index + 1} ({rec.frequency_hz:g} Hz)"
+        head = f"{step_name(rec.index, self.total)} at {rec.frequency_hz:g} Hz"
         if rec.status != "done":
             return f"{head}: {rec.status}"
         a, b = rec.t_settled_ns, rec.t_end_ns
@@ -149,8 +150,7 @@ class StepPanel:
         lines = []
         c = self.current
         if c is not None:
-            of = f" of {self.total}" if self.total else ""
-            lines.append(f"## Step {c.index + 1}{of} (index {c.index}): {c.frequency_hz:g} Hz")
+            lines.append(f"## {step_name(c.index, self.total, 'Step')}: {c.frequency_hz:g} Hz")
         else:
             lines.append("## Between steps")
         commanded = f"commanded {c.frequency_hz:g} Hz · " if c is not None else ""

@@ -4,7 +4,8 @@ The contact regime (paper Sec. IV-A, Figs. 1b and 4) comes from the load cells' 
 paper's does. A contact starts when the normal force rises above ``on`` and ends when it falls below ``off``
 (< ``on``); both scale with the force noise (``noise_factor``·σ, at least ``floor_n``). Blips shorter than
 ``min_contact_s`` are ignored. A *flight* (the foot off the plate between two contacts) only counts when it
-lasts more than ``min_flight_fraction`` of a drive period: a soft contact chatters (on/off ~1000×/s while the
+lasts more than ``min_flight_fraction`` of a drive period (counted in whole samples, so that the time stamps'
+rounding does not decide a flight of exactly that length): a soft contact chatters (on/off ~1000×/s while the
 foot stays down), and such gaps are merged into the contact. The contact ratio is flights (touchdowns) per
 drive cycle; the regime labels it ``"1"``, ``"1/2"``, ``"1/3"``…, ``"2"``…, ``"continuous"`` (in contact for
 at least ``continuous_fraction`` of the window, no flight), ``"none"`` or ``"irregular"``.
@@ -151,7 +152,15 @@ def detect_contacts(
     if len(cs) == 0:
         return empty
     period = 1.0 / drive_hz if drive_hz and np.isfinite(drive_hz) and drive_hz > 0 else 0.0
-    min_flight = params.min_flight_fraction * period
+    # a flight is counted in whole samples (from the first sample out of contact to the first one back, rounded to
+    # the nearest sample interval) against the threshold in samples: the time stamps' rounding and jitter below half
+    # a sample cannot decide it (compared in seconds, a flight of exactly the threshold counted or not by rounding)
+    sample_s = max(float(np.median(np.diff(t))), 1e-12)
+    min_flight = params.min_flight_fraction * period / sample_s  # samples; a whole number where within 0.05 of one
+    min_flight = (round(min_flight) if abs(min_flight - round(min_flight)) < 0.05 else min_flight) + 1e-6
+
+    def samples(span_s: float) -> int:
+        return round(span_s / sample_s)
 
     rise_ok = None
     if foot_height_m is not None and foot_t_s is not None:
@@ -171,7 +180,7 @@ def detect_contacts(
     counted = [bool(si[0] > 0)]  # a contact already on at the window start was not seen touching down
     for a, b in zip(cs[1:], ce[1:]):
         gap_from, gap_to = m_end[-1], a
-        real = (gap_to - gap_from) > min_flight
+        real = samples(gap_to - gap_from) > min_flight
         if real and rise_ok is not None:
             ft, fh, base = rise_ok
             sel = (ft >= gap_from) & (ft <= gap_to)
@@ -185,7 +194,7 @@ def detect_contacts(
             m_end[-1] = b
     start, end = np.asarray(m_start), np.asarray(m_end)
     touchdown = np.asarray(counted, bool)
-    if touchdown[0] and (start[0] - t[0]) <= min_flight:
+    if touchdown[0] and samples(start[0] - t[0]) <= min_flight:
         touchdown[0] = False  # began so close to the window start that its flight was not seen
     sub = np.zeros(len(t), bool)
     for a, b in zip(si, ei):

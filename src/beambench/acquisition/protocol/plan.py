@@ -32,6 +32,14 @@ class Step:
         return self.settle_s + self.record_s
 
 
+def step_name(index: int, total: int | None = None, word: str = "step") -> str:
+    """A step as words name it, one convention everywhere a person reads one (events, the live step panel, the
+    progress line, the report): counted from 1, with the plan's index (0-based, as ``/steps`` and ``steps.csv``
+    hold it) beside it: ``step 51 of 80 (index 50)``; without ``total``: ``step 51 (index 50)``."""
+    of = f" of {total}" if total else ""
+    return f"{word} {index + 1}{of} (index {index})"
+
+
 def _branches(protocol: Protocol) -> list[tuple[float, str]]:
     """One pass of the sweep: (frequency, direction) in order (``both``: up, then down without the turn twice)."""
     assert protocol.sweep is not None  # the model requires one without track:

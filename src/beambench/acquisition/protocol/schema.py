@@ -162,6 +162,10 @@ class ThermalDrift(_Model):
     heated_fraction: float = Field(1.0, gt=0, le=1)  # share of the drive power into the beam that heats it
 
 
+CLOCK_SUFFIX = "_clock"
+StreamName = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
+
+
 class SimOptions(_Model):
     """Options of the MuJoCo backend."""
 
@@ -179,10 +183,29 @@ class SimOptions(_Model):
     # after the first pre-settled at its first frequency: the state is not carried across the cuts; the contact rig
     # checks each cut and moves it where the regimes differ (beambench.backends.lookahead)
     segments: int = Field(1, ge=1, le=8)
-    mocap_clock: ClockModel = ClockModel()
-    loadcell_clock: ClockModel = ClockModel()
-    motor_clock: ClockModel = ClockModel()
+    # each simulated device's clock, by stream name (mocap, loadcell, motor, any stream the sim backend registers;
+    # checked against them by beambench.session.slices); a stream not named keeps the default clock
+    clocks: dict[StreamName, ClockModel] = Field(default_factory=dict, max_length=64)
     thermal_drift: ThermalDrift | None = None  # contact rig only
+
+    @model_validator(mode="before")
+    @classmethod
+    def _clock_keys(cls, data: Any) -> Any:
+        """``<stream>_clock: {...}`` (the form before ``clocks:``) is ``clocks: {<stream>: {...}}``."""
+        if not isinstance(data, dict):
+            return data
+        legacy = {k: k.removesuffix(CLOCK_SUFFIX) for k in data if isinstance(k, str) and k.endswith(CLOCK_SUFFIX)}
+        if not legacy:
+            return data
+        clocks = data.get("clocks", {})
+        if not isinstance(clocks, dict):
+            return data  # the field's own check says what is wrong with it
+        both = sorted(k for k, name in legacy.items() if name in clocks)
+        if both:
+            raise ValueError(f"{both[0]} and clocks.{legacy[both[0]]} both given: keep one")
+        out = {k: v for k, v in data.items() if k not in legacy}
+        out["clocks"] = {**clocks, **{name: data[k] for k, name in legacy.items()}}
+        return out
 
 
 class Release(_Model):

@@ -154,8 +154,7 @@ class OdriveCanMotor(TelemetryStream):
         self._rows: deque[tuple] = deque(maxlen=MAX_BUFFERED_ROWS)
         self._fault: str | None = None
         self.rx_count = 0
-        self.rows_received = 0
-        self.rows_evicted = 0  # telemetry rows a full buffer dropped before anyone read them
+        self.rows_received = self.rows_evicted = 0  # TelemetryStream._buffer counts them
         self._telemetry_ns: int | None = None  # host time of the newest Encoder_Estimates
         self._streaming_ns: int | None = None  # when the telemetry stream started
         self.tx_count = 0
@@ -309,12 +308,9 @@ class OdriveCanMotor(TelemetryStream):
                 self._pos, self._vel = msg.pos, msg.vel
                 self._telemetry_ns = host_ns
                 if self._streaming:
-                    self.rows_received += 1
-                    if len(self._rows) == self._rows.maxlen:  # a full buffer evicts its oldest row: lost
-                        self.rows_evicted += 1
                     dev_t = frame.timestamp if frame.timestamp else host_ns * 1e-9
                     hb = self._hb
-                    self._rows.append(
+                    self._buffer(
                         (
                             host_ns,
                             dev_t,

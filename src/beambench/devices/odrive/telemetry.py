@@ -69,6 +69,15 @@ class TelemetryStream:
     _streaming: bool
     _streaming_ns: int | None
     open: Any  # the driver's own: connects if needed
+    rows_received = 0  # telemetry rows buffered while streaming
+    rows_evicted = 0  # of those, rows a full buffer dropped before anyone read them: lost
+
+    def _buffer(self, row: tuple) -> None:
+        """Buffer one telemetry row (the caller holds ``_guard``): a full buffer evicts its oldest row, counted."""
+        self.rows_received += 1
+        if len(self._rows) == self._rows.maxlen:
+            self.rows_evicted += 1
+        self._rows.append(row)
 
     def describe(self) -> StreamSpec:
         return motor_spec()

@@ -22,7 +22,9 @@ Property names follow the firmware 0.5.x interface (``odrive-interface.yaml``):
 Telemetry rows are polled every ``poll_period_s`` (``encoder.pos_estimate``/``vel_estimate``,
 ``motor.current_control.Iq_measured``, ``vbus_voltage``, state and error). USB reads carry no device time:
 ``device_time`` is the host's monotonic clock at the read. There is no heartbeat on USB: a poll that has not
-succeeded for ``heartbeat_timeout_s`` (300 ms) makes :meth:`OdriveUsbMotor.check` raise.
+succeeded for ``heartbeat_timeout_s`` (300 ms) makes :meth:`OdriveUsbMotor.check` raise. Rows wait in a buffer
+for the run's reads; a full buffer evicts its oldest row, and :meth:`OdriveUsbMotor.health` counts those as
+``dropped`` (the run records them as lost, as it does every stream's).
 """
 
 from __future__ import annotations
@@ -95,6 +97,7 @@ class OdriveUsbMotor(TelemetryStream):
         odrv: Any = None,
         vel_ramp_rate: float = 20.0,
         timing: UsbMotorTiming = UsbMotorTiming(),
+        max_buffered_rows: int = MAX_BUFFERED_ROWS,
     ) -> None:
         if axis not in (0, 1):
             raise ValueError(f"axis must be 0 or 1 (ODrive v3.6 has two), got {axis}")
@@ -112,7 +115,8 @@ class OdriveUsbMotor(TelemetryStream):
         self._ax: Any = None
         self._lock = threading.Lock()
         self._guard = self._lock
-        self._rows: deque[tuple] = deque(maxlen=MAX_BUFFERED_ROWS)
+        self._rows: deque[tuple] = deque(maxlen=max_buffered_rows)  # a full one evicts its oldest row, counted
+        self.rows_received = self.rows_evicted = 0  # TelemetryStream._buffer counts them
         self._streaming = False
         self._armed = False
         self._limits: MotorLimits | None = None
@@ -194,7 +198,7 @@ class OdriveUsbMotor(TelemetryStream):
             self._link_error = None
             self._state, self._error, self._sub_errors = state, error, sub
             if self._streaming:
-                self._rows.append((now, now * 1e-9, pos, vel, setpoint, iq, vbus, state, error))
+                self._buffer((now, now * 1e-9, pos, vel, setpoint, iq, vbus, state, error))
 
     def _poll_loop(self) -> None:
         while not self._stop.wait(self.poll_period_s):
@@ -348,6 +352,18 @@ class OdriveUsbMotor(TelemetryStream):
                 )
             if self._armed and self._state != AxisState.CLOSED_LOOP_CONTROL:
                 raise DeviceFault(f"ODrive axis{self.axis_index} left closed loop (state {self._state})")
+
+    def health(self) -> dict[str, Any]:
+        """Counters for the session (``ReportsHealth``, as the CAN driver's): telemetry rows polled while streaming
+        (``received``), rows a full buffer evicted before anyone read them (``dropped``: the run says them lost),
+        rows polled but never read (``unrecorded``), and the last USB error (``link_error``)."""
+        with self._lock:
+            return {
+                "received": self.rows_received,
+                "dropped": self.rows_evicted,
+                "unrecorded": len(self._rows),
+                "link_error": self._link_error or "",
+            }
 
     def identity(self) -> dict[str, Any]:
         info: dict[str, Any] = {

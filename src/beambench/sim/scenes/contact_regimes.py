@@ -109,7 +109,7 @@ def regime_map(
             rows.append(row | {"contacts_per_cycle": np.nan, "regime": IRREGULAR, "ok": False})
             continue
         rows.append(row | how.classify(StepWindow(float(f), h, sim.settle_s, normal, tang, foot_x)))
-    df = _regime_table(rows, rig.plate_gap)
+    df = regime_table(rows, rig.plate_gap)
     df.attrs["wall_s"] = sw.wall_s
     return df
 
@@ -168,10 +168,10 @@ def stepped_regime_map(
             rows.append(row | how.classify(StepWindow(f, h, float(t_rec[0]) - h, normal, tang, foot_x)))
     finally:
         scene.physics.close()
-    return _regime_table(rows, rig.plate_gap)
+    return regime_table(rows, rig.plate_gap)
 
 
-def _regime_table(rows: list[dict], plate_gap_m: float) -> pd.DataFrame:
+def regime_table(rows: list[dict], plate_gap_m: float) -> pd.DataFrame:
     """Regime rows → the map's table (both maps: the same columns, signs 0 where a step has none)."""
     df = pd.DataFrame(rows, columns=list(REGIME_MAP_COLUMNS))
     df["tangential_sign"] = df["tangential_sign"].fillna(0).astype(int)

@@ -15,13 +15,15 @@ How well the screen agrees with the full protocol is measured, not assumed: ``be
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from beambench.acquisition.streams import CONTACT_MARKERS
-from beambench.sim.scenes.contact_regimes import IRREGULAR, ContactTwin, _regime_table
+from beambench.sim.scenes.contact_regimes import IRREGULAR, ContactTwin, regime_table
 from beambench.sim.scenes.contact_rig import ContactRigSim, RigParams
 from beambench.sim.scenes.step_regime import Classifier, StepWindow
 
@@ -36,6 +38,33 @@ def converged_dt(rig: RigParams) -> float:
     """The timestep a point's map runs at: the shipped twin's converged step, finer where the contact is stiffer
     (the contact's time scale tc·ζ resolved in :data:`STEPS_PER_CONTACT_TIME` steps)."""
     return min(MAX_DT, rig.contact_timeconst * rig.contact_dampratio / STEPS_PER_CONTACT_TIME)
+
+
+def point_twin(values: Mapping[str, float], base: str = "physical") -> ContactTwin:
+    """The rod5g contact twin of parameter set ``base`` with ``values`` applied: keys as the set's ``bounds:`` name
+    them (SI): ``beam.<field>``, ``beam.material.<field>``, ``rig.<field>``; other keys (a search's option
+    switches) are ignored. The contact's damping ratio moves at a fixed stiffness: MuJoCo's contact stiffness goes
+    with 1/(tc·ζ)², so with ``rig.contact_dampratio`` given the time constant (the given one, else the set's) is
+    scaled by 1/ζ and tc·ζ stays what it was."""
+    from beambench.sim.models.params import load_params
+
+    params = load_params(base, "rod")
+    rig = {**params.rig}
+    beam: dict[str, Any] = {}
+    material: dict[str, float] = {}
+    for key, v in values.items():
+        block, _, name = key.partition(".")
+        if block == "rig":
+            rig[name] = v
+        elif block == "beam" and name.startswith("material."):
+            material[name.removeprefix("material.")] = v
+        elif block == "beam":
+            beam[name] = v
+    if "rig.contact_dampratio" in values:
+        tc = values.get("rig.contact_timeconst", params.rig.get("contact_timeconst", RigParams.contact_timeconst))
+        rig["contact_timeconst"] = float(tc) / values["rig.contact_dampratio"]
+    p = replace(params, material=replace(params.material, **material), **beam, rig=rig)
+    return ContactTwin("rod5g", p, {})
 
 
 def screen_map(
@@ -78,6 +107,6 @@ def screen_map(
             lift.append(max(0.0, float(np.max(xyz[:, 2]) - plate_top)) * 1e3)
     finally:
         scene.physics.close()
-    table = _regime_table(rows, rig.plate_gap)
+    table = regime_table(rows, rig.plate_gap)
     table["liftoff_mm"] = lift
     return table
