@@ -91,7 +91,8 @@ def targets_of(case: str):
     from beambench.sim.settings import SimSettings
     from beambench.studies.twin_calibration import CalibrationBase
     from beambench.studies.twin_calibration.contact import simulate_contact
-    from beambench.studies.twin_calibration.targets import Targets, load_targets
+    from beambench.studies.twin_calibration.rig import load_targets
+    from beambench.studies.twin_calibration.targets import Targets
 
     if case == "paper":
         return load_targets(ROOT / "calibration" / "paper_contact_targets.yaml")

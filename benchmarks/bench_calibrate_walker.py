@@ -79,7 +79,7 @@ def main() -> None:
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     from beambench.common.resources import shipped_dir
-    from beambench.studies.twin_calibration.targets import load_targets, session_targets
+    from beambench.studies.twin_calibration.rig import load_targets, session_targets
 
     rows = []
     for case in args.cases.split(","):

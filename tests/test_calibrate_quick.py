@@ -66,7 +66,7 @@ def test_an_unknown_the_short_search_never_moved_is_reported_not_pinned():
     from beambench.studies.twin_calibration.contact_objective import contact_checks
     from beambench.studies.twin_calibration.evaluate import Point
     from beambench.studies.twin_calibration.intervals import intervals
-    from beambench.studies.twin_calibration.targets import parse_targets
+    from beambench.studies.twin_calibration.rig import parse_targets
 
     targets = parse_targets({"rig": "contact", "continuous_below_hz": 17, "half_at_hz": 32}, "t.yaml")
     u, w = TOY_UNKNOWNS

@@ -26,7 +26,8 @@ from beambench.studies.twin_calibration import (
 )
 from beambench.studies.twin_calibration.contact import simulate_contact
 from beambench.studies.twin_calibration.contact_objective import contact_objective, regime_level
-from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets, load_targets, parse_targets
+from beambench.studies.twin_calibration.rig import load_targets, parse_targets
+from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
 
 REPO = Path(__file__).resolve().parents[1]
 PAPER = REPO / "calibration" / "paper_contact_targets.yaml"

@@ -23,7 +23,8 @@ from beambench.studies.executor import Pool
 from beambench.studies.twin_calibration import RIGS, CalibratableRig, CalibrationBase
 from beambench.studies.twin_calibration.contact import contact_summary
 from beambench.studies.twin_calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
-from beambench.studies.twin_calibration.targets import CalibrationInputError, parse_targets
+from beambench.studies.twin_calibration.rig import parse_targets
+from beambench.studies.twin_calibration.targets import CalibrationInputError, contact_targets
 from beambench.studies.twin_calibration.verdict import (
     AT_BOUND_FRACTION,
     at_bound,
@@ -76,6 +77,7 @@ TOY = CalibratableRig(
     bracket="u",
     landmarks=contact_landmarks,
     checks=contact_checks,
+    file_targets=contact_targets,  # it reads the contact rig's targets files
 )
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration import get_rig
-from beambench.studies.twin_calibration.targets import parse_targets
+from beambench.studies.twin_calibration.rig import parse_targets
 
 TARGETS = parse_targets({"rig": "walker", "speed_mm_s": {23: -35.7, 65: 156.3}}, "<test>")
 

@@ -19,11 +19,10 @@ from beambench.studies.twin_calibration import (
     EvalLog,
     Evaluator,
     SearchSettings,
-    register_rig,
 )
 from beambench.studies.twin_calibration.contact_objective import contact_landmarks, contact_objective
 from beambench.studies.twin_calibration.landmark_steps import LandmarkPlan, fit_local_linear, landmark_steps, solve_step
-from beambench.studies.twin_calibration.targets import parse_targets
+from beambench.studies.twin_calibration.rig import parse_targets
 from beambench.studies.unknowns import Unknown
 
 # ------------------------------------------------------------------------------------------------ the model
@@ -105,7 +104,7 @@ def toy_simulate(base: CalibrationBase, values: dict[str, float], frequencies: l
 
 
 @pytest.fixture
-def toy_rig():
+def toy_rig(monkeypatch):
     rig = CalibratableRig(
         name="toy-landmarks",
         unknowns=TOY_UNKNOWNS,
@@ -116,9 +115,8 @@ def toy_rig():
         summary=lambda s: {},
         landmarks=contact_landmarks,
     )
-    register_rig(rig)
-    yield rig
-    RIGS.pop(rig.name, None)
+    monkeypatch.setitem(RIGS, rig.name, rig)
+    return rig
 
 
 @pytest.mark.parametrize("want", [(15.0, 30.0, 42.0), (20.0, 27.0, 45.0), (25.0, 33.0, 42.0)])

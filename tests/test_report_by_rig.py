@@ -76,18 +76,18 @@ def test_the_registry_picks_figures_by_rig():
     assert mixed == {"trajectories", "ellipse", "frequency", "sync"}
 
 
-def test_a_registry_refuses_unknown_rigs_and_a_second_figure_of_the_same_name():
+def test_a_registry_refuses_a_figure_for_no_rig_and_a_second_figure_of_the_same_name():
     reg = FigureRegistry()
 
-    @reg.add("a", rigs=("walker",), caption="A.")
+    @reg.add("a", scenes=lambda s: s.walks, caption="A.")
     def _a(analyses, path, options):
         return None
 
-    assert reg.keys() == ["a"] and reg["a"].caption_for("walker") == "A."
+    assert reg.keys() == ["a"] and reg["a"].caption_for("walker") == "A." and reg["a"].rigs == {"walker"}
     with pytest.raises(ValueError, match="registered twice"):
-        reg.add("a", rigs=("walker",), caption="again")
-    with pytest.raises(ValueError, match="unknown rigs"):
-        reg.add("b", rigs=("plate",), caption="B.")
+        reg.add("a", scenes=lambda s: s.walks, caption="again")
+    with pytest.raises(ValueError, match="applies to no rig of the scene catalogue"):
+        reg.add("b", scenes=lambda s: s.walks and s.plate, caption="B.")
 
 
 def test_walker_report_has_walker_figures_and_no_contact_rig_figure(sessions, tmp_path):

@@ -20,22 +20,25 @@ import beambench
 
 ROOT = Path(__file__).resolve().parents[1]
 CATALOGUE = Path("acquisition/protocol/scenes.py")
+IMPORT_LIST = Path("sim/scenes/__init__.py")
 
 
-def _the_documented_change() -> tuple[str, str, str]:
-    """(declaration line, module path, module text) as docs/extending.md's "A scene" section lists them."""
+def _the_documented_change() -> tuple[str, tuple[str, str], str, str]:
+    """(declaration line, (import list's context line, the line added after it), module path, module text) as
+    docs/extending.md's "A scene" section lists them."""
     text = (ROOT / "docs" / "extending.md").read_text()
     section = text.split("\n## A scene\n", 1)[1].split("\n## ", 1)[0]
     declaration = re.search(r"^\+(\w+ = declare\(SceneInfo\(.*\)\))$", section, re.M)
+    listed = re.search(r"^--- a/src/beambench/sim/scenes/__init__.py\n.*?^ ([^\n]+)\n\+([^\n]+)$", section, re.M | re.S)
     module = re.search(r"```python\n# src/beambench/(sim/scenes/\w+\.py)\n(.*?)```", section, re.S)
-    assert declaration and module, "docs/extending.md lists no declaration line or no scene module"
-    return declaration.group(1), module.group(1), module.group(2)
+    assert declaration and listed and module, "docs/extending.md lists no declaration, import line or scene module"
+    return declaration.group(1), (listed.group(1), listed.group(2)), module.group(1), module.group(2)
 
 
 @pytest.fixture(scope="module")
 def package_with_toy(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A copy of the installed package (its data links followed) with the documented change applied."""
-    declaration, module_path, module_text = _the_documented_change()
+    declaration, (after, line), module_path, module_text = _the_documented_change()
     src = tmp_path_factory.mktemp("src")
     pkg = src / "beambench"
     shutil.copytree(Path(beambench.__file__).parent, pkg, ignore=shutil.ignore_patterns("__pycache__"))
@@ -43,6 +46,10 @@ def package_with_toy(tmp_path_factory: pytest.TempPathFactory) -> Path:
     (pkg / module_path).write_text(module_text)
     with (pkg / CATALOGUE).open("a") as f:
         f.write(declaration + "\n")
+    listing = pkg / IMPORT_LIST
+    text = listing.read_text()
+    assert text.count(after + "\n") == 1, f"{IMPORT_LIST}: the page's context line {after!r} is not there once"
+    listing.write_text(text.replace(after + "\n", f"{after}\n{line}\n"))
     return src
 
 
@@ -71,6 +78,9 @@ def test_a_new_scene_module_and_its_declaration_line_make_a_runnable_and_sweepab
     (session,) = tmp_path.glob("toy_*.h5")
     res = _beambench(package_with_toy, "analyze", str(session), "--out", str(tmp_path / "report"), cwd=tmp_path)
     assert res.returncode == 0, res.stderr
+    # its flags (driven, a stage, no plate, no body) pick its figures: the driven rig's, none of the plate's
+    assert {p.stem for p in (tmp_path / "report").glob("*.png")} >= {"trajectories", "ellipse", "frequency"}
+    assert not {p.stem for p in (tmp_path / "report").glob("*.png")} & {"forces", "contact_frequency", "gait"}
     step = pd.read_csv(tmp_path / "report" / "steps.csv").iloc[0]
     assert step["status"] == "done" and step["stage_amplitude_mm"] == pytest.approx(2.0, rel=1e-3)
 

@@ -22,7 +22,8 @@ from typer.testing import CliRunner
 
 from beambench.cli import app
 from beambench.sinks.session_file.reader import SessionFileError, read_session
-from beambench.studies.twin_calibration.targets import CalibrationInputError, session_targets
+from beambench.studies.twin_calibration.rig import session_targets
+from beambench.studies.twin_calibration.targets import CalibrationInputError
 
 CONTACT = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
 

@@ -23,7 +23,8 @@ from typer.testing import CliRunner
 
 from beambench.cli import app
 from beambench.sinks.session_file.reader import SessionFileError, read_session
-from beambench.studies.twin_calibration.targets import CalibrationInputError, session_targets
+from beambench.studies.twin_calibration.rig import session_targets
+from beambench.studies.twin_calibration.targets import CalibrationInputError
 from conftest import SHORT_RELEASE, fuzz_examples, record_sim_sessions
 
 CONTACT = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"

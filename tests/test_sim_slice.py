@@ -12,7 +12,8 @@ from beambench.common.resources import shipped_dir
 from beambench.common.yaml_config import ConfigError
 from beambench.session.slices import sim_slice
 from beambench.studies.twin_calibration import get_rig
-from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets, parse_targets
+from beambench.studies.twin_calibration.rig import parse_targets
+from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
 
 TARGETS = {  # inside every shipped sweep, so the calibration's written sweep is the protocol's own
     "contact": {"rig": "contact", "half_at_hz": 30, "third_at_hz": 32},

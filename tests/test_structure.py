@@ -282,3 +282,44 @@ def test_every_import_names_the_module_a_name_lives_in() -> None:
                 if not _may_reexport(module, files[module], imported[name]):
                     found.append(f"{path.relative_to(REPO)}:{line}: {module}.{name} lives in {imported[name]}")
     assert found == []
+
+
+CATALOGUES = {PACKAGE / "acquisition" / "protocol" / "scenes.py", PACKAGE / "acquisition" / "protocol" / "backends.py"}
+
+
+def _catalogue_names() -> set[str]:
+    from beambench.acquisition.protocol.backends import BACKEND_INFO
+    from beambench.acquisition.protocol.scenes import SCENES
+
+    return set(SCENES) | set(BACKEND_INFO)
+
+
+def _named_in(node: ast.Compare | ast.MatchValue, names: set[str]) -> list[str]:
+    """The catalogue names a comparison spells out: a string literal on either side, or one in the tuple, list or
+    set a membership test (``in``) looks in (a whole list compared with ``==`` is a command line, not a name)."""
+    if isinstance(node, ast.MatchValue):
+        spelled = [node.value]
+    else:
+        spelled = [node.left]
+        for op, right in zip(node.ops, node.comparators):
+            if isinstance(op, ast.In | ast.NotIn) and isinstance(right, ast.Tuple | ast.List | ast.Set):
+                spelled += right.elts
+            else:
+                spelled.append(right)
+    return [e.value for e in spelled if isinstance(e, ast.Constant) and isinstance(e.value, str) and e.value in names]
+
+
+def test_no_module_outside_the_catalogues_compares_with_a_rig_or_backend_name() -> None:
+    """A rig or backend is asked for its catalogue flags (``scene_info(rig).walks``, ``backend_info(b).devices``),
+    never compared with its name (``rig == "walker"``, ``backend in ("sim", "emulated")``, ``case "contact":``):
+    a new scene or backend then gets every behaviour its flags call for. Names in messages are not comparisons."""
+    names = _catalogue_names()
+    assert {"contact", "walker", "release", "sim", "hardware"} <= names  # the check knows what it looks for
+    found = []
+    for path in _modules():
+        if path in CATALOGUES:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare | ast.MatchValue):
+                found += [f"{_name(path)}:{node.lineno} {n!r}" for n in _named_in(node, names)]
+    assert found == []

@@ -14,6 +14,7 @@ import pytest
 from beambench.acquisition.batch import Batch, Frame
 from beambench.acquisition.control.speed_controller import LOST, TRACKING, TrackController, track_spec
 from beambench.acquisition.control.speed_map import SpeedMap
+from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.protocol.schema import TrackControl, parse_protocol
 from beambench.acquisition.streams import WALKER_MARKERS, mocap_spec
 from beambench.common.yaml_config import ConfigError
@@ -81,7 +82,9 @@ def drive(ctl: TrackController, plant: Plant, profile: list[tuple[float, float]]
 
 
 def controller(speed_map: SpeedMap, feedback: bool = True) -> TrackController:
-    ctl = TrackController(speed_map, TrackControl(feedback=feedback), MAX_HZ, mocap_lost_s=0.25)
+    body = scene_info("walker").body_marker
+    assert body is not None
+    ctl = TrackController(speed_map, TrackControl(feedback=feedback), MAX_HZ, mocap_lost_s=0.25, body=body)
     ctl.open([mocap_spec(WALKER_MARKERS, frame=Frame("z", "x")), track_spec(0.05)])
     return ctl
 

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from beambench.acquisition.protocol.scenes import SceneInfo, scene_or_unknown
 from beambench.analysis.drift import drift_table
 from beambench.analysis.figures import FIGURES, FigureSpec, ReportOptions
 from beambench.analysis.figures.style import R2_SENSE_MIN
@@ -106,13 +107,12 @@ WALKER_COLUMNS = {
     "foot_left_sense": "left foot sense",
     "foot_left_ellipse_r2": "left foot ellipse R²",
 }
-RIG_COLUMNS = {"contact": SUMMARY_COLUMNS, "walker": WALKER_COLUMNS}
 
 
-def summary_table(table: pd.DataFrame, rig: str = "contact") -> pd.DataFrame:
-    """The readable subset of the per-step table for a rig: a dozen columns with units in the headers, sense
-    marked uncertain where the ellipse fit is poor."""
-    columns = RIG_COLUMNS.get(rig, SUMMARY_COLUMNS)
+def summary_table(table: pd.DataFrame, scene: SceneInfo | None = None) -> pd.DataFrame:
+    """The readable subset of the per-step table for a rig's scene: a dozen columns with units in the headers
+    (a walking body's speed and feet where the scene walks), sense marked uncertain where the ellipse fit is poor."""
+    columns = WALKER_COLUMNS if scene is not None and scene.walks else SUMMARY_COLUMNS
     cols = [c for c in columns if c in table]
     out = _sorted(table)[cols].copy()
     for m in ("tip", "foot_left"):
@@ -125,11 +125,11 @@ def summary_table(table: pd.DataFrame, rig: str = "contact") -> pd.DataFrame:
 
 def _per_step_html(a: SessionAnalysis) -> str:
     """The session's per-step table: the release test's decay fit, else the rig's summary columns."""
-    if a.rig == "release":
+    if scene_or_unknown(a.rig).free_decay:
         return "<p>Release and decay, fitted as a second-order system released from rest:</p>" + _html_table(
             release_table(a)
         )
-    return _html_table(summary_table(a.table, a.rig))
+    return _html_table(summary_table(a.table, scene_or_unknown(a.rig)))
 
 
 def _sorted(t: pd.DataFrame) -> pd.DataFrame:

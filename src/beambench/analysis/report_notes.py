@@ -20,6 +20,7 @@ import yaml
 
 from beambench.acquisition.protocol.backends import BACKEND_INFO
 from beambench.acquisition.protocol.plan import plan
+from beambench.acquisition.protocol.scenes import scene_or_unknown
 from beambench.acquisition.protocol.schema import parse_protocol
 
 if TYPE_CHECKING:
@@ -122,7 +123,7 @@ def contact_notes(analyses: list[SessionAnalysis]) -> list[str]:
     """The contact note of each session that has one (its label named when the report shows several)."""
     notes = []
     for a in analyses:
-        o = contact_overview(a.table) if a.rig == "contact" else None
+        o = contact_overview(a.table) if scene_or_unknown(a.rig).plate else None
         text = contact_note(o, a.backend) if o is not None else None
         if text:
             who = "" if len(analyses) == 1 else f"<em>{html.escape(a.label)}:</em> "

@@ -17,6 +17,7 @@ import yaml
 
 from beambench.acquisition.batch import Batch
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.streams import (
     CONTACT_MARKERS,
     WALKER_MARKERS,
@@ -173,7 +174,7 @@ def markers(cfg: SynthSession, t: np.ndarray, rng: np.random.Generator) -> np.nd
         vx_sign[sel] = st.touchdown_velocity_sign
         body_x[sel] = x_acc + st.body_speed_mm_s * 1e-3 * (t[sel] - sched[i][0])
         x_acc += st.body_speed_mm_s * 1e-3 * (cfg.settle_s + cfg.record_s)
-    if cfg.rig == "walker":
+    if scene_info(cfg.rig).walks:
         body = np.stack(
             [body_x + 0.2e-3 * np.sin(2 * np.pi * turns), np.zeros(n), 0.03 + 0.3e-3 * np.cos(2 * np.pi * turns)], 1
         )
@@ -253,8 +254,8 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
         rows = [*sched[:k_stop], (sched[k_stop][0], sched[k_stop][1], t_stop)]
         t_end = t_stop + 0.2
     cal = cfg.calibration or default_calibration()
-    names = WALKER_MARKERS if cfg.rig == "walker" else CONTACT_MARKERS
-    specs = [mocap_spec(names), motor_spec()] + ([loadcell_spec()] if cfg.rig == "contact" else [])
+    names = WALKER_MARKERS if (scene := scene_info(cfg.rig)).walks else CONTACT_MARKERS
+    specs = [mocap_spec(names), motor_spec()] + ([loadcell_spec()] if scene.plate else [])
     clocks = {s.name: cfg.clocks.get(s.name, SynthClock()) for s in specs}
 
     batches: list[Batch] = []
@@ -291,7 +292,7 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
         )
     )
     # load cells
-    if cfg.rig == "contact":
+    if scene.plate:
         tl = np.arange(0.0, t_end, 1e-3)
         tl_turns = _crank_turns(cfg, sched, tl - cfg.encoder_delay_s)
         fn, ft, _, _ = _contact_state(cfg, sched, tl, tl_turns)

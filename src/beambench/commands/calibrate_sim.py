@@ -200,7 +200,7 @@ def _sim(
     from beambench.common.resources import resolve_file
     from beambench.studies.executor import MAX_LOCAL_WORKERS, ExecutorError
     from beambench.studies.twin_calibration import SearchSettings, calibrate, get_rig, write_report
-    from beambench.studies.twin_calibration.targets import load_targets, session_targets
+    from beambench.studies.twin_calibration.rig import load_targets, session_targets
 
     if (session is None) == (targets is None):
         _fail("give a SESSION file or --targets FILE (one of them)")

@@ -152,7 +152,9 @@ def run(
 def check_scheduler(scheduler: str, backend: Backend, protocol: Protocol) -> None:
     """``--scheduler`` computes a segmented sweep's later parts: the sim backend, ``sim.segments`` > 1, a sweep
     computed ahead (not ``track:``), not paced to the wall clock; otherwise a ConfigError naming it."""
-    if backend != "sim":
+    from beambench.acquisition.protocol.backends import backend_info
+
+    if not backend_info(backend).simulated_clock:
         why = f"the {backend} backend runs in real time; --scheduler computes a sim sweep's segments"
     elif protocol.sim.segments < 2:
         why = "the sweep runs in one piece (sim.segments: 1); --scheduler computes its later segments"

@@ -16,6 +16,7 @@ from pathlib import Path
 from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.protocol.backends import backend_info, backends_with
 from beambench.acquisition.protocol.plan import Step, check_limits, motor_limits, plan
+from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.protocol.schema import Backend, Protocol
 from beambench.backends.build import RigSlices
 from beambench.common.yaml_config import ConfigError, shorten
@@ -55,7 +56,7 @@ def _reason(exc: Exception) -> str:
 def _check_overrides(params: BeamParams, rig: str, file: str, given: str) -> None:
     """The set's ``rig:`` block names contact-rig (or, on the walker, walker) parameters; ``walker:`` the walker's."""
     contact, walker = {f.name for f in fields(RigParams)}, {f.name for f in fields(WalkerParams)}
-    known_rig = walker | contact if rig == "walker" else contact
+    known_rig = walker | contact if scene_info(rig).walks else contact
     for block, names, known in (("rig", params.rig, known_rig), ("walker", params.walker, walker)):
         unknown = sorted(set(names) - known)
         if unknown:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from beambench.acquisition.batch import Batch, StepRecord
-from beambench.analysis.session_analysis import session_calibration
+from beambench.analysis.session_analysis import session_calibration, session_rig
 from beambench.analysis.step_contacts import window_contacts
 from beambench.sinks.session_file.reader import SessionFile, read_session
 from beambench.sinks.viewer import RerunMode
@@ -40,7 +40,7 @@ def replay_session(session_path: Path, mode: RerunMode, out: Path | None = None)
         rrd,
         t0_ns=t0,
         calibration=session_calibration(session.general),
-        rig=str(session.general.get("rig") or "") or None,
+        rig=session_rig(session.general),
         total_steps=len(session.steps) or None,
         step_contacts=window_contacts,
     )

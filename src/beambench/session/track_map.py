@@ -26,6 +26,7 @@ from beambench.acquisition.control.speed_map import SpeedMap, SpeedMapError
 from beambench.acquisition.control.tracking_control import SpeedTracking
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import Step, motor_limits
+from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.protocol.schema import Protocol
 from beambench.acquisition.runner import ProgressCallback, Runner
 from beambench.acquisition.stop_signals import StopSignal
@@ -181,6 +182,8 @@ def track_setup(protocol: Protocol, session_path: Path, run_twin: TwinRunner, sh
         speed_map = load_map(track.map)
     check_reach(protocol, speed_map)
     lost_s = protocol.monitors.mocap_lost_s or DEFAULT_MOCAP_LOST_S
-    controller = TrackController(speed_map, track.control, protocol.limits.max_frequency_hz, lost_s)
+    body = scene_info(protocol.rig).body_marker
+    assert body is not None  # the protocol model refuses track: on a rig whose scene does not walk
+    controller = TrackController(speed_map, track.control, protocol.limits.max_frequency_hz, lost_s, body)
     info = map_summary(speed_map, protocol.limits.max_frequency_hz)
     return Tracking(protocol, controller, track_spec(track.control.control_s), info)

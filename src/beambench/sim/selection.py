@@ -28,12 +28,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from beambench.acquisition.protocol.scenes import SCENES, scene_or_unknown
 from beambench.common.errors import BeambenchError
 from beambench.common.inputs import check_input_file
 from beambench.common.types import Floats
 from beambench.sim.models.params import SIM_BACKEND_DIR
 
-TABLES = {"free_beam": "ladder_table.csv", "contact": "contact_table.csv"}
 # "inaccurate" (free beam) only means > 1 % from converged, and "irregular" (contact) a regime no timestep
 # converges pointwise (its error column is then the excess over the finest runs): the error column decides
 STABLE = ("ok", "inaccurate", "irregular")
@@ -87,10 +87,12 @@ class Plan:
 
 
 def table_path(scene: str) -> Path:
-    try:
-        return SIM_BACKEND_DIR / TABLES[scene]
-    except KeyError:
-        raise SelectionError(f"scene = {scene!r}: no measured table (known: {', '.join(TABLES)})") from None
+    """The measured table of ``scene`` (its catalogue entry's ``timing_table``); one line if it has none."""
+    table = scene_or_unknown(scene).timing_table
+    if table is None:
+        tabled = ", ".join(s.name for s in SCENES.values() if s.timing_table)
+        raise SelectionError(f"scene = {scene!r}: no measured table (known: {tabled})")
+    return SIM_BACKEND_DIR / table
 
 
 def table_paths(scene: str) -> list[Path]:

@@ -46,18 +46,19 @@ class Override:
 
 def _set(params: BeamParams, path: str, new: Callable[[float], float], reads: bool) -> BeamParams:
     """``params`` with the field at ``path`` set to ``new(old value)`` (``reads``: ``new`` needs the old one)."""
+    from beambench.sim.models.params import OVERRIDE_BLOCKS
+
     head, _, rest = path.partition(".")
-    if head in ("rig", "walker"):
+    changes: dict[str, Any]
+    if head in OVERRIDE_BLOCKS:
         # walker.x: the block the walker scene reads — the set's walker block where it has one (the physical set,
-        # whose rig block is the contact rig's), else its rig block
-        block = "walker" if head == "walker" and params.walker else "rig"
+        # whose rig block is the contact rig's), else its rig block (the first, which every scene reads)
+        block = head if getattr(params, head) else OVERRIDE_BLOCKS[0]
         values = getattr(params, block)
         if reads and rest not in values:
             raise ValueError(f"{path}: the parameter set's {block} block has no {rest} to scale (use a function)")
-        updated = {**values, rest: new(values.get(rest, math.nan))}
-        return replace(params, walker=updated) if block == "walker" else replace(params, rig=updated)
-    changes: dict[str, Any]
-    if rest:
+        changes = {block: {**values, rest: new(values.get(rest, math.nan))}}
+    elif rest:
         inner = getattr(params, head)
         changes = {head: replace(inner, **{rest: new(getattr(inner, rest))})}
     else:

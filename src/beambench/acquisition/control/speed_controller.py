@@ -54,7 +54,6 @@ INTEGRATE_ABS_MM_S = 10.0  # the integrator's error band: control.integrate_with
 ACCEL_LAG_S = 0.1  # the measured acceleration: the windowed speed now against this long before
 HANDOVER_MM_S = 5.0  # a step ends when the measured speed is this close to the target (then PI)
 MOTOR_FRESH_S = 0.2  # motor telemetry older than this is not used (then the motor is taken to ramp at rate_hz_s)
-BODY_MARKER = "body"
 
 # modes (the ``mode`` column)
 TRACKING, HOLDING, STANDING, LOST = 0, 1, 2, 3
@@ -152,9 +151,10 @@ class TrackController:
     name = "track_controller"
 
     def __init__(
-        self, speed_map: SpeedMap, control: TrackControl, max_frequency_hz: float, mocap_lost_s: float
+        self, speed_map: SpeedMap, control: TrackControl, max_frequency_hz: float, mocap_lost_s: float, body: str
     ) -> None:
-        self.map, self.c = speed_map, control
+        """``body``: the marker whose speed is tracked (the walking scene's ``SceneInfo.body_marker``)."""
+        self.map, self.c, self.body_marker = speed_map, control, body
         self.max_hz = max_frequency_hz
         self.lost_ns = int(mocap_lost_s * 1e9)
         self.est = SpeedEstimator(control.max_window_s + 0.5)
@@ -181,9 +181,9 @@ class TrackController:
         if mocap is None:
             raise ValueError("speed tracking needs a mocap stream")
         labels = mocap.columns["data"].labels
-        if BODY_MARKER not in labels:
-            raise ValueError(f"speed tracking needs a {BODY_MARKER!r} marker (mocap has {', '.join(labels)})")
-        self._body = labels.index(BODY_MARKER)
+        if self.body_marker not in labels:
+            raise ValueError(f"speed tracking needs a {self.body_marker!r} marker (mocap has {', '.join(labels)})")
+        self._body = labels.index(self.body_marker)
         if mocap.frame is not None:
             self._fwd = _axis(mocap.frame.forward_axis)
 

@@ -329,13 +329,14 @@ class Protocol(_Model):
     monitors: Monitors = Monitors()
     output: Output = Output()
     rig_file: str | None = Field(None, max_length=4096)
-    track: Track | None = None  # walk a speed profile instead of sweeping (rig: walker)
+    track: Track | None = None  # walk a speed profile instead of sweeping (a rig whose scene walks)
 
     @model_validator(mode="after")
     def _driven_rigs_need_frequencies(self) -> Protocol:
         if self.track is not None:
-            if self.rig != "walker":
-                raise ValueError(f"track: applies to rig: walker only (this protocol is rig: {self.rig})")
+            if not scene_info(self.rig).walks:
+                walkers = " or ".join(n for n in runnable_names() if scene_info(n).walks)
+                raise ValueError(f"track: applies to rig: {walkers} only (this protocol is rig: {self.rig})")
             if self.track.map == "twin" and self.sweep is None:
                 raise ValueError("track: map: twin needs a sweep: (the twin's own speed map is measured on it)")
         elif self.sweep is None:

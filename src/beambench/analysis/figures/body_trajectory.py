@@ -24,7 +24,7 @@ LINE_COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b"]
 
 @FIGURES.add(
     "body_trajectory",
-    rigs=("walker",),
+    scenes=lambda s: s.walks,
     caption=f"The body marker's forward position through the record window of at most {MAX_LINES} steps, from "
     "where the window starts: the paper's walking points (23 and 65 Hz), the fastest step and steps spread over the "
     "sweep (the title says how many of the session's steps are shown; the walking-speed figure has every step). "

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 @FIGURES.add(
     "contact_direction",
-    rigs=("contact",),
+    scenes=lambda s: s.plate,
     caption="Foot velocity along the plate just before touchdown and the mean tangential force while in contact "
     "(paper Fig. 4).",
 )

@@ -34,7 +34,7 @@ if TYPE_CHECKING:
 
 @FIGURES.add(
     "contact_frequency",
-    rigs=("contact",),
+    scenes=lambda s: s.plate,
     caption="Touchdowns per second against the drive frequency (paper Fig. 1b). Guides at f, f/2, f/3. "
     "Broad pale bands: the paper's measured regimes (Sec. IV-A: continuous contact below 18 Hz, one contact per "
     "cycle to 26 Hz, one per two cycles to 38 Hz, one per three to 44 Hz); the title counts the steps whose "

@@ -23,7 +23,7 @@ MIN_REFERENCES = 3
 
 @FIGURES.add(
     "drift",
-    rigs=("contact",),
+    scenes=lambda s: s.plate,
     caption="Drift at the reference steps: contacts per cycle, peak normal force, tip ellipse axes and motor current "
     "of each reference step against session time, with the least-squares trend. Each panel's title gives the trend "
     "per hour ± its standard error; 'drift' where it exceeds the step-to-step noise (t-test on the slope, 5 %, and "

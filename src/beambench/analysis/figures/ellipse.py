@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
+from beambench.acquisition.protocol.scenes import scene_or_unknown
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import (
     R2_SENSE_MIN,
@@ -33,7 +34,7 @@ SENSE_NAMES = {"ccw": "counter-clockwise", "cw": "clockwise", "": "line (no sens
 
 @FIGURES.add(
     "ellipse",
-    rigs=("contact", "walker"),
+    scenes=lambda s: s.driven,
     caption="First-harmonic ellipse of the tip path (walker: the left foot relative to the body): full axis "
     "lengths, tilt of the major axis (unwrapped along the sweep from its lowest well-fitted frequency: an "
     "axis turning through vertical continues past ±90° instead of jumping by 180°) and sense of travel (paper Fig. 2e). The walker's foot path is relative to the "
@@ -56,7 +57,7 @@ def point_title(a: SessionAnalysis, m: str) -> str:
     """The figure's title: which point's path (the tip here, while trajectories.png shows the foot)."""
     if m == "tip":
         return "Tip path (the beam's free end; the trajectory grid shows the foot, whose sense can differ)"
-    relative = "the body" if a.rig == "walker" else "the stage"
+    relative = "the body" if scene_or_unknown(a.rig).walks else "the stage"
     return f"{marker_name(m).capitalize()} path relative to {relative}"
 
 

@@ -29,7 +29,7 @@ PERIOD: dict[str, Any] = dict(
 
 @FIGURES.add(
     "forces",
-    rigs=("contact",),
+    scenes=lambda s: s.plate,
     caption="Calibrated normal and tangential plate force over a few drive cycles (paper Fig. 4b). Shaded: "
     "detected contacts; ▼ each counted touchdown (the contacts the title counts); ◇ a dip below the contact "
     f"threshold shorter than {MERGED:.0%} of a drive period, which the contact detection merges into the contact around "

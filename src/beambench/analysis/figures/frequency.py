@@ -20,7 +20,7 @@ def _has(a: SessionAnalysis, col: str) -> bool:
 
 @FIGURES.add(
     "frequency",
-    rigs=("contact", "walker"),
+    scenes=lambda s: s.driven,
     caption="Commanded against measured drive frequency (stage marker sine fit; motor encoder speed) and, where "
     "there is a stage marker, the stage amplitude.",
 )

@@ -24,7 +24,7 @@ CYCLES = 4
 
 @FIGURES.add(
     "gait",
-    rigs=("walker",),
+    scenes=lambda s: s.walks,
     caption=f"Gait from the mocap. Top: each foot's height above the ground over {CYCLES} drive cycles at the "
     "paper's two walking frequencies and the fastest step; under it, a row per foot with bars where the foot "
     "is on the ground (within "

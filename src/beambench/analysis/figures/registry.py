@@ -1,20 +1,29 @@
-"""The report's figures as a registry: each figure module registers itself with ``@FIGURES.add``, naming the
-rigs it applies to, and the report draws the figures of the session's rig (as dm_control's ``@SUITE.add``)."""
+"""The report's figures as a registry: each figure module registers itself with ``@FIGURES.add``, saying which
+scenes it applies to by their flags (a predicate on :class:`~beambench.acquisition.protocol.scenes.SceneInfo`), and
+the report draws the figures of the session's rig (as dm_control's ``@SUITE.add``). The rigs come from the scene
+catalogue, so a newly declared scene gets every figure its flags call for."""
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
+from beambench.acquisition.protocol.scenes import SceneInfo, runnable_scenes, scene_or_unknown
 from beambench.common.figures import STYLE
 
 if TYPE_CHECKING:
     from beambench.analysis.session_analysis import SessionAnalysis
 
-RIGS = ("contact", "walker", "release")  # the rig names a session records in /general
+ScenePredicate = Callable[[SceneInfo], bool]
+Caption = str | Callable[[SceneInfo], str]  # one text, or one made from the session's scene
+
+
+def any_scene(scene: SceneInfo) -> bool:
+    """Every rig (a figure such as the clock fits applies to any session)."""
+    return True
 
 
 @dataclass(frozen=True)
@@ -29,18 +38,21 @@ Draw = Callable[["list[SessionAnalysis]", Path, ReportOptions], "Path | None"]
 
 @dataclass(frozen=True)
 class FigureSpec:
-    """One report figure: its file stem, the rigs it is drawn for, its caption and how it is drawn (``draw``
-    returns None when the sessions hold nothing to show)."""
+    """One report figure: its file stem, the scenes it is drawn for (a predicate on their flags), its caption and
+    how it is drawn (``draw`` returns None when the sessions hold nothing to show)."""
 
     key: str
-    rigs: frozenset[str]
-    caption: str | Mapping[str, str]  # one text, or one per rig
+    scenes: ScenePredicate
+    caption: Caption
     draw: Draw
 
+    @property
+    def rigs(self) -> frozenset[str]:
+        """The rigs of the scene catalogue this figure is drawn for."""
+        return frozenset(s.name for s in runnable_scenes() if self.scenes(s))
+
     def caption_for(self, rig: str) -> str:
-        if isinstance(self.caption, str):
-            return self.caption
-        return self.caption.get(rig) or next(iter(self.caption.values()), "")
+        return self.caption if isinstance(self.caption, str) else self.caption(scene_or_unknown(rig))
 
     def applies_to(self, rigs: set[str]) -> bool:
         """Drawn for a report whose sessions are all of rigs this figure applies to."""
@@ -53,17 +65,18 @@ class FigureRegistry:
     def __init__(self) -> None:
         self._specs: dict[str, FigureSpec] = {}
 
-    def add(self, key: str, rigs: tuple[str, ...], caption: str | Mapping[str, str]) -> Callable[[Draw], Draw]:
-        """Register the decorated ``draw(analyses, path, options)`` as figure ``key`` for ``rigs``; it is drawn
-        under the report's matplotlib style."""
-        unknown = set(rigs) - set(RIGS)
-        if unknown or not rigs:
-            raise ValueError(f"figure {key!r}: unknown rigs {sorted(unknown)} (known: {', '.join(RIGS)})")
+    def add(self, key: str, scenes: ScenePredicate, caption: Caption) -> Callable[[Draw], Draw]:
+        """Register the decorated ``draw(analyses, path, options)`` as figure ``key`` for the rigs whose
+        :class:`SceneInfo` ``scenes`` accepts (e.g. ``lambda s: s.plate``); it is drawn under the report's
+        matplotlib style. A predicate no rig of the catalogue meets, or a second figure ``key``, fails here."""
         if key in self._specs:
             raise ValueError(f"figure {key!r} is registered twice")
+        if not any(scenes(s) for s in runnable_scenes()):
+            known = ", ".join(s.name for s in runnable_scenes())
+            raise ValueError(f"figure {key!r}: applies to no rig of the scene catalogue ({known})")
 
         def decorator(fn: Draw) -> Draw:
-            self._specs[key] = FigureSpec(key, frozenset(rigs), caption, styled(fn))
+            self._specs[key] = FigureSpec(key, scenes, caption, styled(fn))
             return fn
 
         return decorator

@@ -23,7 +23,7 @@ ZOOM_SETTLING = 4.0  # the right panel spans this many settling times after the 
 
 @FIGURES.add(
     "release_decay",
-    rigs=("release",),
+    scenes=lambda s: s.free_decay,
     caption="Release test. Left: the tip markers' mean relative to the clamp, from its rest position, through the "
     "loaded hold, the release (dotted line) and the decay — bold along the loaded deflection, thin per world axis. "
     "Right: the decay after the release with the fitted free response of a second-order system (natural frequency "

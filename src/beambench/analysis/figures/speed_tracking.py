@@ -21,7 +21,7 @@ KEY = "tracking"
 CAPTION = "Speed tracking: target and measured body speed (shaded: ±tolerance after settling), commanded frequency"
 
 
-@FIGURES.add(KEY, rigs=("walker",), caption=CAPTION)
+@FIGURES.add(KEY, scenes=lambda s: s.walks, caption=CAPTION)
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
     """The figure for the sessions that have tracking results; None if none has (a sweep)."""
     results = [a.track for a in analyses if a.track is not None]

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from beambench.analysis.figures.registry import FIGURES, RIGS, ReportOptions
+from beambench.analysis.figures.registry import FIGURES, ReportOptions, any_scene
 from beambench.analysis.figures.style import SESSION_COLORS, new_figure
 from beambench.common.figures import legend_below
 
@@ -26,7 +26,7 @@ def shows_something(a: SessionAnalysis) -> bool:
 
 @FIGURES.add(
     "sync",
-    rigs=RIGS,
+    scenes=any_scene,
     caption="Clock sync: each sample's receive delay above the fitted device→host clock line (lower envelope).",
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions, max_points: int = 2500) -> Path | None:

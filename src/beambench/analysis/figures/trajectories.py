@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 import pandas as pd
 
+from beambench.acquisition.protocol.scenes import scene_or_unknown
 from beambench.analysis.figures.registry import FIGURES, ReportOptions
 from beambench.analysis.figures.style import (
     FOOT_COLORS,
@@ -47,24 +48,28 @@ TOUCHDOWN = "#ff7f0e"
 BOX = 0.8  # panel height / width
 
 
+STAGE_CAPTION = (
+    "Paths relative to the stage in the (drive, up) plane, each step drawn about its own mean position: "
+    "thin, the last cycles of the record window; bold, the mean path over the contact period with an arrow for "
+    "its sense of travel (grey with '?' where the first-harmonic ellipse explains less than half of the path, "
+    "R² < 0.5, so the sense is uncertain); brown, the plate (the foot's height at touchdown); orange, the foot's "
+    "direction of motion along the plate at touchdown, drawn on the plate line. Each title: the mean path's loop "
+    "sense (cw/ccw), or 'figure-8' / 'n crossings' where it crosses itself, and 'inverts' where its sense "
+    "flipped from the previous frequency (steps.csv: foot_crossings, foot_loop_sense, foot_path_inverts). " + NOISE_NOTE
+)
+BODY_CAPTION = (
+    "Both feet relative to the body in the (forward, up) plane, each step drawn about its own mean "
+    "position: thin, the last cycles of the record window; bold, the mean path over one drive cycle with an "
+    "arrow for its sense of travel (grey with '?' where the first-harmonic ellipse explains less than half of "
+    "the path). The title says which steps are shown when there are more than fit; each panel's title the left "
+    "foot's loop sense, 'figure-8' / 'n crossings' and 'inverts' as in steps.csv. " + NOISE_NOTE
+)
+
+
 @FIGURES.add(
     "trajectories",
-    rigs=("contact", "walker"),
-    caption={
-        "contact": "Paths relative to the stage in the (drive, up) plane, each step drawn about its own mean position: "
-        "thin, the last cycles of the record window; bold, the mean path over the contact period with an arrow for "
-        "its sense of travel (grey with '?' where the first-harmonic ellipse explains less than half of the path, "
-        "R² < 0.5, so the sense is uncertain); brown, the plate (the foot's height at touchdown); orange, the foot's "
-        "direction of motion along the plate at touchdown, drawn on the plate line. Each title: the mean path's loop "
-        "sense (cw/ccw), or 'figure-8' / 'n crossings' where it crosses itself, and 'inverts' where its sense "
-        "flipped from the previous frequency (steps.csv: foot_crossings, foot_loop_sense, foot_path_inverts). "
-        + NOISE_NOTE,
-        "walker": "Both feet relative to the body in the (forward, up) plane, each step drawn about its own mean "
-        "position: thin, the last cycles of the record window; bold, the mean path over one drive cycle with an "
-        "arrow for its sense of travel (grey with '?' where the first-harmonic ellipse explains less than half of "
-        "the path). The title says which steps are shown when there are more than fit; each panel's title the left "
-        "foot's loop sense, 'figure-8' / 'n crossings' and 'inverts' as in steps.csv. " + NOISE_NOTE,
-    },
+    scenes=lambda s: s.driven,
+    caption=lambda s: BODY_CAPTION if s.walks else STAGE_CAPTION,
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:
     return fig_trajectories(analyses, path)
@@ -110,7 +115,7 @@ def shape_note(a: SessionAnalysis, r: StepResult, marker: str) -> str:
 def _markers(a: SessionAnalysis, single: bool) -> list[str]:
     """The markers drawn for a session: both walker feet in a single-session report, else the primary one."""
     names = {m for r in a.steps for m in r.paths}
-    if single and a.rig == "walker":
+    if single and scene_or_unknown(a.rig).walks:
         feet = [m for m in FOOT_COLORS if m in names]
         if feet:
             return feet
@@ -141,7 +146,7 @@ def fig_trajectories(analyses: list[SessionAnalysis], path: Path, max_panels: in
     if not freqs:
         return None
     freqs, subset = _choose(freqs, max_panels)
-    walker = all(a.rig == "walker" for a in analyses)
+    walker = all(scene_or_unknown(a.rig).walks for a in analyses)
     fig, axes, ncol, legend_cols, height = _grid(len(freqs))
     plate_up = {} if walker else _plate_heights(analyses)
     marks = _Marks()
@@ -401,7 +406,7 @@ def _handles(analyses: list[SessionAnalysis], markers: dict[int, list[str]], mar
 
     handles: list[Any] = []
     if single:
-        walker = analyses[0].rig == "walker"
+        walker = scene_or_unknown(analyses[0].rig).walks
         for k, m in enumerate(markers[id(analyses[0])]):
             color = FOOT_COLORS.get(m, "#1f77b4") if walker else "#1f77b4"
             mean = _foot_style(k, color) if walker else dict(color=color, lw=1.8)

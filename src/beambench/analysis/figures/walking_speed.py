@@ -17,7 +17,7 @@ PAPER_WALKER = [(23.0, -35.7), (65.0, 156.3)]  # Sec. IV-B, mm/s
 
 @FIGURES.add(
     "walking_speed",
-    rigs=("walker",),
+    scenes=lambda s: s.walks,
     caption="Walker body speed from the body marker (least-squares slope over the record window).",
 )
 def draw(analyses: list[SessionAnalysis], path: Path, options: ReportOptions) -> Path | None:

@@ -20,6 +20,7 @@ import mujoco
 import numpy as np
 
 from beambench.common.types import Floats
+from beambench.sim.models import families
 from beambench.sim.models.params import BeamParams
 
 Vec3 = Floats
@@ -173,6 +174,12 @@ class PRB3(BeamModel):
         first.add_site(name=prefix + "root", quat=list(root_quat), size=[0.002, 0, 0])
         tip.add_site(name=prefix + "tip_site", size=[0.002, 0, 0])
         return BeamSites(prefix + "root", prefix + "tip_site", tip.name, tuple(joints), tuple(bodies))
+
+
+@families.beam_builder(families.PRB3)
+def build_prb3(name: str, params: BeamParams) -> PRB3:
+    """The PRB3 model (its family has the one name)."""
+    return PRB3(params)
 
 
 def add_beam(

@@ -94,7 +94,7 @@ class BeamParams:
         """The number at ``key`` (as in :attr:`bounds`: ``beam.beta``, ``beam.material.youngs_modulus``,
         ``rig.plate_gap``, ``walker.friction``, ratios ``beam.b/k``), or None where the set does not give it."""
         block, _, name = key.partition(".")
-        if block in ("rig", "walker"):
+        if block in OVERRIDE_BLOCKS:
             v = getattr(self, block).get(name)
             return None if v is None else float(v)
         if block != "beam":
@@ -222,7 +222,8 @@ NON_NEGATIVE_OVERRIDES = frozenset(
 )
 MIN_OVERRIDE_TIMESTEP_S = 1e-6
 FLAG_OVERRIDES = frozenset({"sole_at_corner"})  # rig switches: true/false, not numbers
-TOP_LEVEL_KEYS = frozenset({"name", "model", "source", "beam", "rig", "walker", "bounds", "fit"})
+OVERRIDE_BLOCKS = ("rig", "walker")  # a set's blocks of scene-parameter overrides (the BeamParams fields of the name)
+TOP_LEVEL_KEYS = frozenset({"name", "model", "source", "beam", *OVERRIDE_BLOCKS, "bounds", "fit"})
 
 
 def _in_range(value: float, where: str, key: str) -> float:

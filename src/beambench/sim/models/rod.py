@@ -34,6 +34,7 @@ import numpy as np
 
 from beambench.common.types import Floats
 from beambench.sim.models.beam import BeamModel, BeamSites, qinv, qmul, quat_x
+from beambench.sim.models.families import ROD, beam_builder
 from beambench.sim.models.names import ROD_NAME
 from beambench.sim.models.params import BeamParams, Material
 
@@ -288,6 +289,7 @@ class RodModel(BeamModel):
         }
 
 
+@beam_builder(ROD)
 def make_rod_model(name: str, params: BeamParams) -> RodModel:
     """A rod by name: ``rodN`` — N joints at the segment midpoints; ``rodNg`` — at the N Gauss–Legendre nodes
     (the same cost, far closer to the continuum for small N); a trailing ``s`` (``rod3gs``) makes a *strip*

@@ -19,7 +19,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from beambench.acquisition.batch import StreamSpec
-from beambench.acquisition.protocol.scenes import scene_info
+from beambench.acquisition.protocol.scenes import scene_or_unknown
 
 TIMELINE = "session_time"
 FORCE_WINDOW_S = 2.0  # 1 kHz plate forces: 2 s holds a few cycles of a slow step and stays readable at 40 Hz
@@ -162,17 +162,19 @@ def axis_vector(axis: str) -> np.ndarray:
 
 
 def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
-    """The layout for these streams on rig ``rig`` (``contact``, ``walker`` …; None: from the markers alone).
+    """The layout for these streams on rig ``rig`` (a name of the scene catalogue; None or a name it does not
+    know: a rig with no body and no plate flags).
 
-    A body marker makes a walker (legs drawn body → each foot); otherwise the markers form one chain in the
-    stream's order (stage → tip → foot). A load-cell stream is a plate under the foot where the scene catalogue
-    says the rig has one (:attr:`beambench.acquisition.protocol.scenes.SceneInfo.plate`; the walker's sim streams a load
-    cell but has no plate)."""
+    The rig's scene says what is drawn (:class:`beambench.acquisition.protocol.scenes.SceneInfo`): a scene that walks
+    has its legs drawn from its body marker to each other marker and the view follows the body; otherwise the
+    markers form one chain in the stream's order (stage → tip → foot). A load-cell stream is a plate under the foot
+    where the scene has one (``plate``; the walker's sim streams a load cell but has no plate)."""
     by_name = {s.name: s for s in specs}
     mocap = by_name.get("mocap")
     markers = tuple(mocap.columns["data"].labels) if mocap is not None and "data" in mocap.columns else ()
     frame = mocap.frame if mocap is not None else None
-    body = "body" if "body" in markers else None
+    scene = scene_or_unknown(rig or "")
+    body = scene.body_marker if scene.body_marker in markers else None
     chains: tuple[tuple[str, ...], ...]
     if body is not None:
         chains = tuple((body, m) for m in markers if m != body)
@@ -181,11 +183,7 @@ def layout_of(specs: list[StreamSpec], rig: str | None = None) -> RigLayout:
     feet = tuple(m for m in markers if m.startswith("foot"))
     trails = feet + tuple(m for m in markers if m == "tip")
     loadcell = by_name.get("loadcell")
-    try:  # the scene catalogue says whether the rig's load cells are a plate under the foot
-        has_plate = scene_info(rig).plate if rig else body is None
-    except KeyError:  # a rig the catalogue does not know: a plate unless it has a body (a walker)
-        has_plate = body is None
-    plate = loadcell is not None and has_plate
+    plate = loadcell is not None and scene.plate
     channels = tuple(loadcell.columns["data"].labels) if loadcell is not None and "data" in loadcell.columns else ()
     plotted = frozenset(
         (s.name, key) for s in specs if s is not loadcell or plate for key, col in s.columns.items() if col.plotted

@@ -44,6 +44,7 @@ import numpy as np
 import yaml
 
 from beambench.acquisition.protocol.backends import BACKEND_INFO
+from beambench.acquisition.protocol.scenes import runnable_names, scene_info, scene_or_unknown
 from beambench.common.errors import BeambenchError
 from beambench.common.names import check_name
 from beambench.sim.engine.stepping import quiet_mujoco_warnings
@@ -137,8 +138,9 @@ def load_release_session(
         proto = parse_protocol(str(s.general.get("protocol", "")), str(path))
     except ConfigError as exc:
         raise FitError(f"{path}: the session's protocol does not parse ({exc})") from None
-    if proto.rig != "release":
-        raise FitError(f"{path}: a {proto.rig} session; the fit needs a release test (rig: release)")
+    if not scene_or_unknown(proto.rig).free_decay:
+        decays = " or ".join(n for n in runnable_names() if scene_info(n).free_decay)
+        raise FitError(f"{path}: a {proto.rig} session; the fit needs a release test (rig: {decays})")
     mocap = s.streams.get("mocap")
     if mocap is None or len(mocap) < 20:
         raise FitError(f"{path}: no mocap data")

@@ -8,6 +8,7 @@ from typing import Any
 
 import pandas as pd
 
+from beambench.acquisition.protocol.scenes import scene_or_unknown
 from beambench.common.figures import new_figure
 from beambench.studies.sweep.run import SweepSpec
 
@@ -39,7 +40,7 @@ def sweep_title(spec: SweepSpec, shown: list[str]) -> str:
     """The sweep chart's title: which point's ellipse, against what, and the settings held fixed (the drive
     frequency when it does not vary, the amplitude), e.g. "twist_sweep: tip path ellipse vs twist angle φ at
     15 Hz, A = 2 mm (free_beam)"."""
-    point = "tip path" if spec.scene == "free_beam" else "foot path relative to the stage"
+    point = "foot path relative to the stage" if scene_or_unknown(spec.scene).plate else "tip path"
     held: list[str] = []
     freqs = spec.frequency_values()
     if "frequency_hz" not in shown and freqs:
@@ -52,16 +53,17 @@ def sweep_title(spec: SweepSpec, shown: list[str]) -> str:
 
 
 def plot_sweep(df: pd.DataFrame, spec: SweepSpec, path: str | Path) -> Path | None:
-    """Metrics against the first swept parameter (free beam: tip major/minor axes, as the paper's Fig. 2e;
-    contact: contacts per cycle and foot axes)."""
+    """Metrics against the first swept parameter (a scene with a plate under the foot: the foot's axes relative to
+    the stage and contacts per cycle; else the tip's major/minor axes and tilt, as the paper's Fig. 2e)."""
 
     axes = [a for a in spec.axes() if a in df.columns]
     if not axes or df.empty:
         return None
     x, series = axes[0], (axes[1] if len(axes) > 1 else None)
-    prefix = "tip" if spec.scene == "free_beam" else "foot_rel"
+    plate = scene_or_unknown(spec.scene).plate
+    prefix = "foot_rel" if plate else "tip"
     metrics = [(f"{prefix}_major_mm", "major axis (mm)"), (f"{prefix}_minor_mm", "minor axis (mm)")]
-    if spec.scene == "contact":
+    if plate:
         metrics.append(("contacts_per_cycle", "contacts per drive cycle"))
     else:
         metrics.append((f"{prefix}_tilt_deg", "tilt of the major axis (deg)"))

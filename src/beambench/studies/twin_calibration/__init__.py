@@ -12,8 +12,9 @@
 - :mod:`.report`, :mod:`.protocol_out`: what a calibration writes; :mod:`.targets`: what it fits to;
   :mod:`.written_run`: running a written protocol as its user will.
 
-Plugging in a rig: a module that calls ``register_rig(CalibratableRig(name=..., unknowns=(...), simulate=...,
-objective=..., base=..., write=..., summary=..., checks=...))``, imported below; ``simulate`` returns
+Plugging in a rig: a module whose ``@register_rig`` function returns its ``CalibratableRig(name=..., unknowns=(...),
+simulate=..., objective=..., base=..., write=..., summary=..., checks=..., file_targets=..., session_targets=...)``,
+imported below (``--targets`` and ``--session`` go to the readers of the rig they name); ``simulate`` returns
 ``{"steps": [{"frequency_hz": f, ...}, ...], "extras": {...}}`` and the objective compares them with
 ``targets.table``. The CLI, the search, the log and the report are rig-agnostic.
 """

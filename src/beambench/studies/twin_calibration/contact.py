@@ -23,7 +23,12 @@ from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
 from beambench.studies.twin_calibration.protocol_out import CalibratedSet, extended_sweep, write_calibrated_protocol
 from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, register_rig
-from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
+from beambench.studies.twin_calibration.targets import (
+    CalibrationInputError,
+    Targets,
+    contact_session_targets,
+    contact_targets,
+)
 from beambench.studies.twin_calibration.written_run import run_written_protocol
 from beambench.studies.unknowns import Override, Unknown, apply_values
 
@@ -307,8 +312,11 @@ CONTACT_QUICK: tuple[tuple[str, Any], ...] = (
     ("landmark_share", 0.55),
 )
 
-CONTACT = register_rig(
-    CalibratableRig(
+
+@register_rig
+def contact_rig() -> CalibratableRig:
+    """The contact rig as the calibrator knows it."""
+    return CalibratableRig(
         name="contact",
         unknowns=CONTACT_UNKNOWNS,
         simulate=simulate_contact,
@@ -324,5 +332,6 @@ CONTACT = register_rig(
         checks=contact_checks,
         boxes=contact_boxes,
         quick=CONTACT_QUICK,
+        file_targets=contact_targets,
+        session_targets=contact_session_targets,
     )
-)

@@ -1,8 +1,9 @@
 """What the calibrator knows of a rig (:class:`CalibratableRig`), the fixed part of its twin
 (:class:`CalibrationBase`) and the registry the rig modules register themselves in (:func:`register_rig`).
 
-A rig module (``contact.py``, ``walker.py``) builds one :class:`CalibratableRig` and registers it at import;
-the package imports every rig module, so ``get_rig(name)`` finds them — no module is loaded by a name string.
+A rig module (``contact.py``, ``walker.py``) registers the function that makes its :class:`CalibratableRig` with
+``@register_rig``; the package imports every rig module by name, so ``get_rig(name)`` finds them — no module is
+loaded by a name string.
 """
 
 from __future__ import annotations
@@ -16,10 +17,27 @@ import pandas as pd
 
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration.checks import TargetCheck
-from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
+from beambench.studies.twin_calibration.targets import (
+    CalibrationInputError,
+    Targets,
+    open_session,
+    read_targets_file,
+    targets_rig,
+)
 from beambench.studies.unknowns import Unknown
 
-__all__ = ["RIGS", "CalibratableRig", "CalibrationBase", "Landmarks", "get_rig", "register_rig", "unknowns_help"]
+__all__ = [
+    "RIGS",
+    "CalibratableRig",
+    "CalibrationBase",
+    "Landmarks",
+    "get_rig",
+    "load_targets",
+    "parse_targets",
+    "register_rig",
+    "session_targets",
+    "unknowns_help",
+]
 
 
 @dataclass(frozen=True)
@@ -68,6 +86,8 @@ class CalibratableRig:
     - ``boxes(base) -> {name: (lo, hi)}``: the prior set's physical ranges (its ``bounds:`` block) as the
       unknowns' boxes, in the unknowns' own units; they replace the unknowns' generic boxes (which stay for
       sets without bounds: the documented effective sets), so the search never leaves a physical range;
+    - ``file_targets(data, where) -> Targets``: its targets file's mapping read (``--targets``; None: it takes none);
+    - ``session_targets(path, session, general) -> Targets``: its session's targets (``--session``; None: none);
     - ``quick``: the rig's own ``--quick`` search settings, (name, value) pairs that override
       ``SearchSettings.quick()``'s (the contact rig's verify stage runs the written protocol: its quick search
       plans its budget around it).
@@ -90,6 +110,8 @@ class CalibratableRig:
     checks: Callable[[Targets], list[TargetCheck]] | None = None
     boxes: Callable[[CalibrationBase], dict[str, tuple[float, float]]] | None = None
     quick: tuple[tuple[str, Any], ...] = ()
+    file_targets: Callable[[dict[str, Any], str], Targets] | None = None
+    session_targets: Callable[[Path, Any, dict[str, Any]], Targets] | None = None
 
     @property
     def default_free(self) -> tuple[str, ...]:
@@ -100,10 +122,14 @@ class CalibratableRig:
 RIGS: dict[str, CalibratableRig] = {}
 
 
-def register_rig(rig: CalibratableRig) -> CalibratableRig:
-    """Add ``rig`` to the registry (a rig module calls this at import); returns it."""
+def register_rig(make: Callable[[], CalibratableRig]) -> Callable[[], CalibratableRig]:
+    """Register the rig the decorated function makes (a rig module's ``@register_rig``, as dm_control's
+    ``@SUITE.add``); a second rig of the same name is refused."""
+    rig = make()
+    if rig.name in RIGS:
+        raise ValueError(f"calibratable rig {rig.name!r} is registered twice")
     RIGS[rig.name] = rig
-    return rig
+    return make
 
 
 def unknowns_help() -> str:
@@ -124,3 +150,35 @@ def get_rig(name: str) -> CalibratableRig:
             f"rig: {name}: the calibrator does not know this rig yet (calibratable: {', '.join(sorted(RIGS))})"
         )
     return RIGS[name]
+
+
+def _calibratable(rig: str, where: str) -> CalibratableRig:
+    if rig not in RIGS:
+        known = " or ".join(RIGS)
+        raise CalibrationInputError(f"{where}: rig = {rig!r}: unknown rig for the calibrator ({known})")
+    return RIGS[rig]
+
+
+def parse_targets(data: Any, where: str = "<targets>") -> Targets:
+    """A targets mapping read by the reader its ``rig:`` registered (:attr:`CalibratableRig.file_targets`)."""
+    rig = _calibratable(targets_rig(data, where), where)
+    if rig.file_targets is None:
+        raise CalibrationInputError(f"{where}: rig = {rig.name!r}: the calibrator takes no targets file for it")
+    return rig.file_targets(data, where)
+
+
+def load_targets(path: str | Path) -> Targets:
+    """Read a targets YAML file (``calibrate sim --targets``)."""
+    return parse_targets(read_targets_file(path), str(path))
+
+
+def session_targets(path: str | Path) -> Targets:
+    """The targets of a measured (or twin-made) session, read by the reader its rig registered
+    (:attr:`CalibratableRig.session_targets`; the rig recorded in the session, as the analysis reads it)."""
+    from beambench.analysis.session_analysis import session_rig
+
+    p, session, general = open_session(path)
+    rig = _calibratable(session_rig(general), str(p))
+    if rig.session_targets is None:
+        raise CalibrationInputError(f"{p}: rig = {rig.name!r}: the calibrator takes no session of this rig")
+    return rig.session_targets(p, session, general)

@@ -51,11 +51,14 @@ from beambench.sim.scenes.contact_regimes import CONTINUOUS, transitions
 __all__ = [
     "CalibrationInputError",
     "Targets",
+    "contact_session_targets",
     "contact_targets",
-    "load_targets",
-    "parse_targets",
-    "session_targets",
+    "open_session",
+    "read_targets_file",
     "target_map",
+    "targets_rig",
+    "walker_session_targets",
+    "walker_targets",
 ]
 THIRD_SPAN_HZ = 4.0  # a targets file says nothing above third_at_hz + this: the ⅓ band's width is unknown
 
@@ -142,19 +145,15 @@ def _tolerance(where: str, data: dict[str, Any], key: str) -> dict[str, float]:
     return {key: x}
 
 
-def parse_targets(data: Any, where: str = "<targets>") -> Targets:
-    """Validate a targets mapping (see the module docstring) and build its target map."""
+def targets_rig(data: Any, where: str) -> str:
+    """The rig a targets mapping is for (its ``rig:`` field; :func:`~.rig.parse_targets` hands the mapping to that
+    rig's reader); one line when the mapping or the field is missing."""
     if not isinstance(data, dict):
         raise CalibrationInputError(f"{where}: expected a mapping with a rig: field")
     rig = data.get("rig")
     if rig is None:
-        raise CalibrationInputError(f"{where}: rig: missing (contact or walker)")
-    rig = str(rig)
-    if rig == "contact":
-        return contact_targets(data, where)
-    if rig == "walker":
-        return walker_targets(data, where)
-    raise CalibrationInputError(f"{where}: rig = {rig!r}: unknown rig (contact or walker)")
+        raise CalibrationInputError(f"{where}: rig: missing (the rig the targets are for)")
+    return str(rig)
 
 
 WALKER_LANDMARKS = ("reverses_at_hz", "peak_at_hz")  # beambench.analysis.walking.SpeedCurveShape's fields
@@ -261,26 +260,23 @@ def target_map(scalars: dict[str, Any], step_hz: float = 1.0) -> pd.DataFrame:
     return t[t["regime"].ne("") | t["tangential_sign"].notna()].reset_index(drop=True)
 
 
-def load_targets(path: str | Path) -> Targets:
-    """Read a targets YAML file."""
+def read_targets_file(path: str | Path) -> Any:
+    """A targets YAML file's contents (kind and size checked first; one line on any problem)."""
     p = Path(path)
     text = read_input_bytes(p, "targets file", TARGETS_MAX_BYTES, CalibrationInputError).decode("utf-8", "replace")
     try:
-        data = parse_yaml(text, str(p))  # the project's one YAML reading: caps, duplicate keys refused
+        return parse_yaml(text, str(p))  # the project's one YAML reading: caps, duplicate keys refused
     except ConfigError as exc:
         raise CalibrationInputError(str(exc)) from None
     except OSError as exc:
         raise CalibrationInputError(f"{p}: {exc.strerror or exc}") from None
-    return parse_targets(data, str(p))
 
 
 # --------------------------------------------------------------------------------------------- session
 
 
-def session_targets(path: str | Path) -> Targets:
-    """Per-step targets of a measured (or twin-made) session, analysed with :mod:`beambench.analysis.session_analysis`;
-    the release-test fit it holds (``/processing/fit``) or the parameter set it ran with is the prior."""
-    from beambench.analysis.session_analysis import analyze_session
+def open_session(path: str | Path) -> tuple[Path, Any, dict[str, Any]]:
+    """A session file to take targets from: its path, the session and its ``/general`` (one line if unreadable)."""
     from beambench.sinks.session_file.reader import SessionFileError, read_session
 
     p = Path(path)
@@ -292,12 +288,15 @@ def session_targets(path: str | Path) -> Targets:
         raise CalibrationInputError(str(exc)) from None
     except (OSError, KeyError) as exc:
         raise CalibrationInputError(f"{p}: not a beambench session file ({exc})") from None
-    general = dict(session.general)
-    rig = str(general.get("rig", ""))
-    if rig and rig != "contact":
-        if rig == "walker":
-            return _walker_session(p, session, general)
-        raise CalibrationInputError(f"{p}: rig = {rig!r}: the calibrator knows the contact and walker rigs")
+    return p, session, dict(session.general)
+
+
+def contact_session_targets(p: Path, session: Any, general: dict[str, Any]) -> Targets:
+    """Per-step targets of a measured (or twin-made) contact session, analysed with
+    :mod:`beambench.analysis.session_analysis`; the release-test fit it holds (``/processing/fit``) or the parameter
+    set it ran with is the prior."""
+    from beambench.analysis.session_analysis import analyze_session
+
     if "loadcell" not in session.streams or len(session.streams["loadcell"].host_time_ns) == 0:
         raise CalibrationInputError(f"{p}: no load-cell data: the contact calibration needs the normal force")
     if len(session.steps) == 0:
@@ -356,7 +355,8 @@ def _release_fit(path: Path) -> dict[str, float]:
         return {}
 
 
-def _walker_session(p: Path, session: Any, general: dict[str, Any]) -> Targets:
+def walker_session_targets(p: Path, session: Any, general: dict[str, Any]) -> Targets:
+    """The speeds and speed-curve landmarks of a measured (or twin-made) walker session."""
     from beambench.analysis.session_analysis import analyze_session
 
     analysis = analyze_session(session)

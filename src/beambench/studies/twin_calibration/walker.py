@@ -39,7 +39,12 @@ from beambench.studies.twin_calibration.checks import SPEED_TOLERANCE_FRACTION, 
 from beambench.studies.twin_calibration.protocol_out import CalibratedSet, write_calibrated_protocol
 from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, register_rig
 from beambench.studies.twin_calibration.targets import WALKER_LANDMARKS as LANDMARKS
-from beambench.studies.twin_calibration.targets import CalibrationInputError, Targets
+from beambench.studies.twin_calibration.targets import (
+    CalibrationInputError,
+    Targets,
+    walker_session_targets,
+    walker_targets,
+)
 from beambench.studies.unknowns import Override, Unknown, apply_values
 
 if TYPE_CHECKING:
@@ -230,8 +235,10 @@ def write_walker_protocol(
     return write_calibrated_protocol(cal, targets, out_dir, name)
 
 
-WALKER = register_rig(
-    CalibratableRig(
+@register_rig
+def walker_rig() -> CalibratableRig:
+    """The walker rig as the calibrator knows it."""
+    return CalibratableRig(
         name="walker",
         unknowns=WALKER_UNKNOWNS,
         simulate=simulate_walker,
@@ -244,5 +251,6 @@ WALKER = register_rig(
         stage_sim=walker_stage_sim,
         checks=walker_checks,
         boxes=walker_boxes,
+        file_targets=walker_targets,
+        session_targets=walker_session_targets,
     )
-)
