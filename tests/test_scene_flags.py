@@ -62,8 +62,9 @@ def test_a_rig_the_catalogue_does_not_know_gets_the_figures_of_any_rig_only():
 
 def test_a_new_walking_scenes_session_is_reported_as_a_walker(declare, tmp_path):
     """A synthetic session on a newly declared walking rig: its report has the walking figures and the body-speed
-    table, and no plate figure or contact note (the synthetic walker's markers: body and both feet)."""
-    declare(SceneInfo("strider", "a new walker", markers=("body", "foot_left", "foot_right"), body_marker="body"))
+    table, and no plate figure or contact note (the synthetic walker's markers: its body, here called hub, and both
+    feet: the analysis finds the body by the scene's name for it)."""
+    declare(SceneInfo("strider", "a new walker", markers=("hub", "foot_left", "foot_right"), body_marker="hub"))
     session = write_synthetic_session(
         tmp_path / "strider.h5",
         SynthSession(

@@ -8,7 +8,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +18,7 @@ import yaml
 
 from beambench.acquisition.forces.contact_events import ContactParams, Contacts, force_contacts
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.protocol.scenes import scene_or_unknown
 from beambench.analysis.branches import annotate_branches, with_step_labels
 from beambench.analysis.contact import touchdown_velocity
 from beambench.analysis.drift import drift_corrected
@@ -63,7 +64,7 @@ class AnalysisOptions:
     stage_marker: str = "stage"
     tip_marker: str = "tip"
     foot_marker: str = "foot"
-    body_marker: str = "body"
+    body_marker: str = ""  # "": the session's scene's (SceneInfo.body_marker; none where the rig does not walk)
     walker_feet: tuple[str, ...] = ("foot_left", "foot_right")
     drift_correct: bool = False  # add <metric>_drift_corrected columns (beambench.analysis.drift.drift_corrected)
 
@@ -385,6 +386,7 @@ def analyze_session(
     general = dict(session.general)
     proto = _protocol_dict(general)
     rig = session_rig(general)
+    options = replace(options, body_marker=options.body_marker or scene_or_unknown(rig).body_marker or "")
     backend = _text(general.get("backend")) or str(proto.get("backend", ""))
     name = _text(general.get("protocol_name")) or str(proto.get("name", ""))
     amplitude_mm = float(proto.get("amplitude_mm", np.nan)) if proto else float("nan")

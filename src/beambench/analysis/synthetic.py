@@ -254,7 +254,7 @@ def write_synthetic_session(path: str | Path, cfg: SynthSession) -> Path:
         rows = [*sched[:k_stop], (sched[k_stop][0], sched[k_stop][1], t_stop)]
         t_end = t_stop + 0.2
     cal = cfg.calibration or default_calibration()
-    names = WALKER_MARKERS if (scene := scene_info(cfg.rig)).walks else CONTACT_MARKERS
+    names = (scene.body_marker, *WALKER_MARKERS[1:]) if (scene := scene_info(cfg.rig)).body_marker else CONTACT_MARKERS
     specs = [mocap_spec(names), motor_spec()] + ([loadcell_spec()] if scene.plate else [])
     clocks = {s.name: cfg.clocks.get(s.name, SynthClock()) for s in specs}
 
