@@ -126,7 +126,7 @@ def _exit_code_decided() -> None:
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    exec("")  # noqa: S102  (an empty string: resets CPython's 'unhandled KeyboardInterrupt' flag, nothing else)
+    exec("")  # an empty string: resets that memory, nothing else
 
 
 _OUT_OF_MEMORY = b"beambench: error: out of memory; give the command more memory\n"  # built before it is needed
