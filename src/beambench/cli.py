@@ -124,9 +124,16 @@ def _exit_code_decided() -> None:
     import signal
     import threading
 
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-    exec("")  # an empty string: resets that memory, nothing else
+    # plain tries (no context manager): out of memory or interrupted before the ignore, the exit goes on
+    try:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except BaseException:
+        pass
+    try:  # noqa: SIM105
+        exec("")  # an empty string: resets that memory, nothing else
+    except BaseException:
+        pass
 
 
 _OUT_OF_MEMORY = b"beambench: error: out of memory; give the command more memory\n"  # built before it is needed
