@@ -128,6 +128,12 @@ runpy.run_module("beambench.cli", run_name="__main__", alter_sys=True)
 """
 
 
+def _sigint_as_in_a_terminal() -> None:
+    """SIGINT at its default, as for a command typed in a terminal, whatever started the tests (a script's background
+    job ignores it; for a command that does not take stop signals itself an ignored Ctrl-C stays ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _stopped_at_import(tmp_path: Path, package: str, via: str, args: list[str]) -> tuple[int, str]:
     (tmp_path / "stop_at_import.py").write_text(DRIVER)
     path = os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH") or str(ROOT / "src")])
@@ -139,6 +145,7 @@ def _stopped_at_import(tmp_path: Path, package: str, via: str, args: list[str]) 
         env=env,
         text=True,
         timeout=120,
+        preexec_fn=_sigint_as_in_a_terminal,
     )
     assert f"driver: SIGINT at the import of {package}" in proc.stderr, proc.stderr[-2000:]
     return proc.returncode, proc.stderr

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
+import threading
 from typing import NoReturn
 
 from beambench.common import early_signals
@@ -88,7 +90,10 @@ def main() -> None:
                 typer.echo("beambench: aborted", err=True)
             sys.exit(EXIT_STOPPED)
     except SystemExit as exc:
-        _exit_code_decided()
+        try:  # noqa: SIM105  (plain try: out of memory even for the call, the exit goes on)
+            _exit_code_decided()
+        except BaseException:
+            pass
         code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
         hdf5 = sys.modules.get("beambench.sinks.session_file.writer")
         if hdf5 is not None and hdf5.hdf5_left_open():
@@ -120,10 +125,8 @@ def _exit_code_decided() -> None:
     command caught: one that left code run from a string — ``exec``/``eval``, as dataclasses and namedtuples make
     their methods, or an extension's init through ``PyRun_String`` (MuJoCo's) — is remembered as unhandled even
     when caught, and ``python -m beambench`` would end by killing itself with SIGINT (exit -2, or 130 in a shell)
-    instead of with its code. Running a string resets that memory (CPython resets it at the start of every run)."""
-    import signal
-    import threading
-
+    instead of with its code. Running a string resets that memory (CPython resets it at the start of every run).
+    Nothing here imports or may raise (under a memory limit an import can fail)."""
     # plain tries (no context manager): out of memory or interrupted before the ignore, the exit goes on
     try:
         if threading.current_thread() is threading.main_thread():
