@@ -92,3 +92,29 @@ def test_an_error_in_the_pools_block_ends_a_worker_mid_task_at_once():
         raise RuntimeError("stop")
     assert time.monotonic() - t0 < 20  # the tasks would have taken 60 s
     assert pids and not any(process_alive(p) for p in pids), pids
+
+
+def test_a_stop_while_the_workers_start_leaves_no_traceback():
+    """A stop just after the first task was submitted, while the fork server is still starting the workers: a
+    worker that has not yet run its first line (nor said its pid) is stopped as well, so none wakes to find the
+    pool's queues gone and prints a traceback on the owner's stderr."""
+    code = textwrap.dedent(
+        """
+        import time
+        from beambench.studies.executor import make_executor
+        with make_executor(1) as pool:  # the fork server is up from here on
+            pool.executor.submit(time.sleep, 0).result()
+        for _ in range(6):
+            try:
+                with make_executor(2) as pool:
+                    pool.executor.submit(time.sleep, 60)
+                    pool.executor.submit(time.sleep, 60)
+                    raise RuntimeError("stop")
+            except RuntimeError:
+                pass
+        print("done", flush=True)
+        """
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.stdout.strip() == "done", proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr and "Error" not in proc.stderr, proc.stderr[-2000:]

@@ -28,7 +28,7 @@ PROTOCOL = "name: mem\nsweep: {frequencies: [6]}\nsettle_s: 0.5\nrecord_s: 1.0\n
 # the address-space limit to what the process maps now (plus 16 MiB) and fills it, holding the memory until the
 # run has commanded the idle (and a little longer), then prints what happened as JSON.
 ARMED_SCRIPT = r"""
-import json, resource, sys, threading, time
+import json, os, resource, sys, threading, time
 from pathlib import Path
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import motor_limits, plan
@@ -37,7 +37,7 @@ from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.odrive.cansimple import AxisState
 from beambench.session.slices import sim_slice
-from beambench.sinks.session_file.writer import SessionWriter
+from beambench.sinks.session_file.writer import SessionWriter, hdf5_left_open
 
 PROTOCOL = "name: oom\nsweep: {frequencies: [6]}\nsettle_s: 0.5\nrecord_s: 6.0\nsim: {seed: 2}\nmonitors: {mocap_lost_s: null}\n"
 protocol = parse_protocol(PROTOCOL)
@@ -95,7 +95,10 @@ except MemoryError:  # the shutdown after the idle ran out too (its saving, not 
 t.join(30)
 odrive = rig.peers[0].odrive.snapshot()
 print(json.dumps({"status": status, "message": message, **seen, "send_errors": list(rig.motor.send_errors),
-                  "odrive_state": odrive["state"], "odrive_axis_error": odrive["axis_error"]}))
+                  "odrive_state": odrive["state"], "odrive_axis_error": odrive["axis_error"]}), flush=True)
+if hdf5_left_open():  # the session file could not close under the limit: end as the command line does (HDF5's
+    sys.stderr.flush()  # exit handler would retry the close on a library that failed to allocate: heap corruption)
+    os._exit(0)
 """
 
 

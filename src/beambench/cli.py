@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
+import threading
 from typing import NoReturn
 
 from beambench.common import early_signals
@@ -76,16 +78,22 @@ for _module in COMMAND_MODULES:
 def main() -> None:
     """The ``beambench`` entry point: usage errors come out as one line like every other error (exit 2)."""
     STANDALONE["process"] = True
-    # the commands that take stop signals themselves take the ones that came while importing; for the others they
-    # are raised again now
-    early_signals.release(sys.argv[1:2] == ["run"] or sys.argv[1:3] == ["calibrate", "sim"])
     try:
-        _main_inner()
-    except KeyboardInterrupt:  # Ctrl-C before a command took its signals (imports): one line, never exit 130
-        with contextlib.suppress(OSError):
-            typer.echo("beambench: aborted", err=True)
-        sys.exit(EXIT_STOPPED)
+        try:
+            # the commands that take stop signals themselves take the ones that came while importing; for the
+            # others they are raised again now (inside: such a Ctrl-C ends like any other, below)
+            early_signals.release(sys.argv[1:2] == ["run"] or sys.argv[1:3] == ["calibrate", "sim"])
+            _main_inner()
+        except KeyboardInterrupt:  # Ctrl-C where no command took it (imports, a prompt): one line, never exit 130
+            _exit_code_decided()
+            with contextlib.suppress(OSError):
+                typer.echo("beambench: aborted", err=True)
+            sys.exit(EXIT_STOPPED)
     except SystemExit as exc:
+        try:  # noqa: SIM105  (plain try: out of memory even for the call, the exit goes on)
+            _exit_code_decided()
+        except BaseException:
+            pass
         code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
         hdf5 = sys.modules.get("beambench.sinks.session_file.writer")
         if hdf5 is not None and hdf5.hdf5_left_open():
@@ -99,6 +107,9 @@ def main() -> None:
         # at start, and no interpreter shutdown (it would need memory too); under a memory limit an extension that
         # fails to allocate may not even set its error (SystemError: "error return without exception set")
         if not isinstance(exc, MemoryError):  # checked first: the check below allocates
+            if isinstance(exc, KeyboardInterrupt):  # a second Ctrl-C while the first one's line was said
+                _exit_code_decided()
+                sys.exit(EXIT_STOPPED)
             try:
                 oom = out_of_memory(exc) is not None or (isinstance(exc, SystemError) and memory_limited())
             except MemoryError:
@@ -106,6 +117,26 @@ def main() -> None:
             if not oom:
                 raise
         _out_of_memory_exit(None)
+
+
+def _exit_code_decided() -> None:
+    """The command has decided how the process ends; from here a stop signal cannot change that. SIGINT is
+    ignored (a late Ctrl-C would raise in the middle of the exit), and CPython forgets any KeyboardInterrupt the
+    command caught: one that left code run from a string — ``exec``/``eval``, as dataclasses and namedtuples make
+    their methods, or an extension's init through ``PyRun_String`` (MuJoCo's) — is remembered as unhandled even
+    when caught, and ``python -m beambench`` would end by killing itself with SIGINT (exit -2, or 130 in a shell)
+    instead of with its code. Running a string resets that memory (CPython resets it at the start of every run).
+    Nothing here imports or may raise (under a memory limit an import can fail)."""
+    # plain tries (no context manager): out of memory or interrupted before the ignore, the exit goes on
+    try:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except BaseException:
+        pass
+    try:  # noqa: SIM105
+        exec("")  # an empty string: resets that memory, nothing else
+    except BaseException:
+        pass
 
 
 _OUT_OF_MEMORY = b"beambench: error: out of memory; give the command more memory\n"  # built before it is needed

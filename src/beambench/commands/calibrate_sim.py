@@ -69,40 +69,68 @@ def _interrupted(log: Path | None) -> NoReturn:
     raise typer.Exit(EXIT_STOPPED)
 
 
+class _Stops:
+    """The stop signals ``calibrate sim`` got, in order, and whether one interrupts now. While the command imports
+    and checks its inputs a stop is only recorded: an exception raised there would land inside a module's init or
+    a dataclass's generated code, where it may be swallowed or turned into another error. :meth:`arm` (before the
+    first evaluation) is the one place a recorded stop becomes the ``KeyboardInterrupt`` that stops the
+    calibration; armed, the first stop raises at once (the search waits on its workers: its pool stops them and
+    keeps the log), later ones are only counted (a second Ctrl-C cannot cut the workers' shutdown short)."""
+
+    def __init__(self) -> None:
+        self.got: list[int] = []
+        self.armed = False
+        self.raised = False
+
+    def take(self, signum: int) -> None:
+        """A stop signal came (the handler): recorded; the first one since :meth:`arm` raises."""
+        self.got.append(signum)
+        if self.armed and not self.raised:
+            self.raised = True
+            raise KeyboardInterrupt
+
+    def arm(self) -> None:
+        """From now on a stop interrupts; one already recorded (or held while the command line imported) does now."""
+        from beambench.common import early_signals
+
+        self.got += early_signals.take()
+        self.armed = True  # first: a stop from here on raises in the handler, none falls between
+        if self.got and not self.raised:
+            self.raised = True
+            raise KeyboardInterrupt
+
+
 @contextmanager
-def _interrupt_on_signals() -> Iterator[list[int]]:
-    """While inside, the stop signals interrupt the calibration as Ctrl-C does (a ``KeyboardInterrupt`` in the main
-    thread: the search stops its workers and keeps its log), taken as ``run`` takes them: SIGINT, SIGTERM and
-    SIGQUIT always — also where a shell started the command as a background job, which ignores SIGINT —, the
-    others where their disposition is the default. Only the first raises (one that came while the command line
-    was importing is in the list yielded, for the caller to raise); later ones are counted in the list yielded (a
-    second Ctrl-C cannot cut the workers' shutdown short). After, they stay ignored when this is the command line
-    (it is about to say its last line and exit); called in-process (a test), the handlers are put back."""
+def _interrupt_on_signals() -> Iterator[_Stops]:
+    """While inside, the stop signals are :class:`_Stops`' (armed, they interrupt the calibration as Ctrl-C does),
+    taken as ``run`` takes them: SIGINT, SIGTERM and SIGQUIT always — also where a shell started the command as a
+    background job, which ignores SIGINT —, the others where their disposition is the default. After, they stay
+    ignored when this is the command line (it is about to say its last line and exit); called in-process (a
+    test), the handlers are put back."""
     import signal
     import threading
 
     from beambench.acquisition.stop_signals import ALWAYS_SIGNALS, DEFAULT_SIGNALS
     from beambench.commands import STANDALONE
-    from beambench.common import early_signals
 
-    got: list[int] = []
+    stops = _Stops()
     if threading.current_thread() is not threading.main_thread():
-        yield got
+        yield stops
         return
 
     def handler(signum: int, frame: object) -> None:
-        got.append(signum)
-        if len(got) == 1:
-            raise KeyboardInterrupt
+        stops.take(signum)
 
     taken = [
         s for s in ALWAYS_SIGNALS + DEFAULT_SIGNALS if s in ALWAYS_SIGNALS or signal.getsignal(s) is signal.SIG_DFL
     ]
-    previous = {signum: signal.signal(signum, handler) for signum in taken}
+    previous: dict[int, Any] = {}
     try:
-        got += early_signals.take()  # a stop while the command line was importing: the caller raises it
-        yield got
+        for signum in taken:  # unarmed: a stop meanwhile is recorded, never raised here
+            previous[signum] = signal.signal(signum, handler)
+        yield stops
     finally:
+        stops.armed = False  # the command has decided how it ends: a stop from here is only counted
         for signum, before in previous.items():
             signal.signal(signum, signal.SIG_IGN if STANDALONE["process"] or before is None else before)
 
@@ -162,18 +190,16 @@ def sim(
     runnable protocol carrying the calibrated parameters and a report beside it, and says for every target
     whether the twin reached it."""
     log: list[Path] = []  # the evaluation log, once named
-    with _interrupt_on_signals() as got:
+    with _interrupt_on_signals() as stops:
         try:
-            if got:
-                raise KeyboardInterrupt
-            _sim(session, targets, out, workers, scheduler, budget_s, quick, name, free, log)
+            _sim(session, targets, out, workers, scheduler, budget_s, quick, name, free, log, stops)
         except KeyboardInterrupt:  # a stop signal, from the first line on: every finished evaluation is kept
             _interrupted(log[0] if log else None)
         except Exception:
-            if got:  # what the interrupt became where it landed (in a C extension's init: an ImportError)
+            if stops.got:  # what the interrupt became where it landed (a cleanup that turned it into an error)
                 _interrupted(log[0] if log else None)
             raise
-        if got:  # a stop that landed where it could not raise (a cleanup that swallowed it): still said
+        if stops.got:  # a stop that landed where it could not raise (a cleanup that swallowed it): still said
             _interrupted(log[0] if log else None)
 
 
@@ -188,8 +214,10 @@ def _sim(
     name: str | None,
     free: str | None,
     log: list[Path],
+    stops: _Stops,
 ) -> None:
-    """The body of :func:`sim`; ``log`` gets the evaluation log's path as soon as it is known."""
+    """The body of :func:`sim`; ``log`` gets the evaluation log's path as soon as it is known; ``stops`` is armed
+    once the inputs are checked, before anything is written."""
     from dataclasses import replace
 
     from rich.progress import BarColumn, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -219,6 +247,7 @@ def _sim(
     except ValueError as exc:
         _fail(str(exc))
     out_dir = out or default_out()
+    stops.arm()  # a stop during the imports and checks above interrupts here
     log.append(out_dir / f"{name}.evals.jsonl")
     _check_outputs(out_dir, name)
     try:

@@ -138,11 +138,13 @@ def make_executor(
 def _stop_workers(pool: ProcessPoolExecutor, started: Any, timeout_s: float = 5.0) -> None:
     """Terminate the pool's worker processes (SIGTERM, then SIGKILL after ``timeout_s``): a worker inside a long
     native simulation call would otherwise finish it before the pool could shut down. ``started`` holds the pid of
-    every worker the pool started (:func:`_worker_init` puts it there)."""
+    every worker that has run its first line (:func:`_worker_init` puts it there); the pool's own table adds the
+    ones still starting (forked, not yet at their first line: left alone, each would run a whole task before the
+    pool could end, or wake to find the pool's queues gone and print a traceback)."""
     if hasattr(pool, "terminate_workers"):  # Python >= 3.14
         pool.terminate_workers()
         return
-    pids = set()
+    pids = {pid for pid in dict(getattr(pool, "_processes", None) or {}) if isinstance(pid, int)}
     while not started.empty():
         pids.add(started.get())
     for sig in (signal.SIGTERM, signal.SIGKILL):

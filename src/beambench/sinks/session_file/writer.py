@@ -291,6 +291,8 @@ class SessionWriter:
         if not self._dead:
             try:
                 f.flush()
+            except MemoryError:  # HDF5 could not allocate: as a full disk (its exit handler would corrupt the heap)
+                why = "out of memory"
             except (OSError, RuntimeError, ValueError) as exc:
                 why = _reason(exc)
         if self._dead or why is not None:
@@ -299,6 +301,8 @@ class SessionWriter:
             self._datasets, self._tables = {}, {}
             try:
                 f.close()
+            except MemoryError:
+                why = "out of memory"
             except (OSError, RuntimeError, ValueError) as exc:
                 why = _reason(exc)
         del f
