@@ -96,8 +96,10 @@ def main() -> None:
             pass
         code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
         hdf5 = sys.modules.get("beambench.sinks.session_file.writer")
-        if hdf5 is not None and hdf5.hdf5_left_open():
-            # a session file HDF5 could not close (a full disk): its exit handler would retry and crash (SIGSEGV)
+        # a session file HDF5 could not close (a full disk): its exit handler would retry and crash (SIGSEGV); a
+        # failed command under a memory limit: the interpreter's shutdown (threads that could not start, extension
+        # exit handlers) needs memory too and has crashed there (SIGSEGV after the one line). Both end at once.
+        if (hdf5 is not None and hdf5.hdf5_left_open()) or (code != 0 and _limited()):
             with contextlib.suppress(Exception):
                 sys.stdout.flush()
                 sys.stderr.flush()
@@ -117,6 +119,14 @@ def main() -> None:
             if not oom:
                 raise
         _out_of_memory_exit(None)
+
+
+def _limited() -> bool:
+    """:func:`memory_limited`, False if even that cannot be asked."""
+    try:
+        return memory_limited()
+    except BaseException:
+        return False
 
 
 def _exit_code_decided() -> None:

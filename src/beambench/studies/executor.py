@@ -118,6 +118,7 @@ def make_executor(
         raise ExecutorError(f"workers = {n}: must be >= 1")
     ctx = _worker_context(preload)
     started = ctx.SimpleQueue()  # each worker's pid, put there as it starts
+    before = {p.pid for p in multiprocessing.active_children()}  # this process's children not of the pool
     pool = ProcessPoolExecutor(
         max_workers=n,
         mp_context=ctx,
@@ -127,7 +128,7 @@ def make_executor(
     try:
         yield Pool(pool, n, f"local process pool, {n} workers")
     except BaseException:  # Ctrl-C, a stop signal, an error: do not wait minutes for a running evaluation
-        _stop_workers(pool, started)
+        _stop_workers(pool, started, before)
         # the pool is broken now; its manager thread fails the pending futures itself (cancelling them as well
         # races it on Python 3.11: InvalidStateError in that thread)
         pool.shutdown(wait=True)
@@ -135,16 +136,16 @@ def make_executor(
     pool.shutdown(wait=True, cancel_futures=True)
 
 
-def _stop_workers(pool: ProcessPoolExecutor, started: Any, timeout_s: float = 5.0) -> None:
+def _stop_workers(pool: ProcessPoolExecutor, started: Any, before: set[int | None], timeout_s: float = 5.0) -> None:
     """Terminate the pool's worker processes (SIGTERM, then SIGKILL after ``timeout_s``): a worker inside a long
     native simulation call would otherwise finish it before the pool could shut down. ``started`` holds the pid of
-    every worker that has run its first line (:func:`_worker_init` puts it there); the pool's own table adds the
-    ones still starting (forked, not yet at their first line: left alone, each would run a whole task before the
+    every worker that has run its first line (:func:`_worker_init` puts it there); this process's children
+    started since the pool (``before``: the ones before it) add the ones still starting (forked, not yet at their first line: left alone, each would run a whole task before the
     pool could end, or wake to find the pool's queues gone and print a traceback)."""
     if hasattr(pool, "terminate_workers"):  # Python >= 3.14
         pool.terminate_workers()
         return
-    pids = {pid for pid in dict(getattr(pool, "_processes", None) or {}) if isinstance(pid, int)}
+    pids = {p.pid for p in multiprocessing.active_children() if p.pid is not None and p.pid not in before}
     while not started.empty():
         pids.add(started.get())
     for sig in (signal.SIGTERM, signal.SIGKILL):
