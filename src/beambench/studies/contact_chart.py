@@ -346,16 +346,7 @@ def chart_figure(table: pd.DataFrame, out: Path) -> None:
         for star in at.itertuples():  # the shipped default, ringed
             y = getattr(star, col, np.nan)
             if np.isfinite(y):
-                ax.scatter(
-                    star.cpu_s_per_sim_s,
-                    max(y, 1e-3) if log else y,
-                    marker="*",
-                    s=260,
-                    facecolors="none",
-                    edgecolors="k",
-                    lw=1.2,
-                    zorder=5,
-                )
+                _star(ax, star.cpu_s_per_sim_s, max(y, 1e-3) if log else y)
         ax.set_xscale("log")
         if log:
             ax.set_yscale("log")
@@ -382,6 +373,11 @@ def chart_figure(table: pd.DataFrame, out: Path) -> None:
     plt.close(fig)
 
 
+def _star(ax: Any, x: Any, y: Any) -> None:
+    """The shipped default's mark: a ringed star, on top."""
+    ax.scatter(x, y, marker="*", s=260, facecolors="none", edgecolors="k", lw=1.2, zorder=5)
+
+
 def _front_panel(ax: Any, table: pd.DataFrame, shipped: ChartPoint, colours: dict[str, str]) -> None:
     """The shipped physics' front: its points' cost against their in-contact-fraction error from the finest run,
     the cheapest-so-far envelope, the tolerance, and the shipped default with what (if anything) beats it."""
@@ -403,16 +399,7 @@ def _front_panel(ax: Any, table: pd.DataFrame, shipped: ChartPoint, colours: dic
     ax.step(order["cpu_s_per_sim_s"], np.maximum(best, 1e-3), where="post", color="k", lw=0.8, alpha=0.6)
     me = s[s["shipped"]]
     for r in me.itertuples():
-        ax.scatter(
-            r.cpu_s_per_sim_s,
-            r.ref_contact_fraction_err,
-            marker="*",
-            s=260,
-            facecolors="none",
-            edgecolors="k",
-            lw=1.2,
-            zorder=5,
-        )
+        _star(ax, r.cpu_s_per_sim_s, r.ref_contact_fraction_err)
         ax.annotate(
             f"shipped: {r.integrator} {r.timestep:g} s",
             (r.cpu_s_per_sim_s, r.ref_contact_fraction_err),
