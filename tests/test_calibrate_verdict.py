@@ -78,6 +78,7 @@ TOY = CalibratableRig(
     landmarks=contact_landmarks,
     checks=contact_checks,
     file_targets=contact_targets,  # it reads the contact rig's targets files
+    cpu_per_sim_s=lambda base, sim: 5e-4,  # a toy map's modelled cost: ~0.07 s of the budget's clock each
 )
 
 
@@ -332,3 +333,37 @@ def test_quick_help_states_each_rigs_budget_from_its_own_settings():
     text = " ".join(res.output.split())
     for rig in RIGS.values():
         assert f"{rig.name} rig {quick_budget_s(rig) / 60:.1f} min" in text, text
+
+
+def test_where_a_search_stops_depends_on_what_it_ran_not_on_how_long_each_map_took(toy, tmp_path):
+    """The budget is the batches' modelled time (their simulated seconds at the rig's measured stepping cost), not
+    the wall clock: the same search with maps that take random wall times (a loaded machine) evaluates the same
+    points and ends at the same winner."""
+    import random
+    import time
+    from dataclasses import replace
+
+    from beambench.studies.twin_calibration.evaluate import SearchSettings
+    from beambench.studies.twin_calibration.search import calibrate
+
+    # ⅓ at 66 Hz is out of reach (toy_edges): the search goes on until its budget stops it
+    targets = parse_targets({"rig": "contact", "continuous_below_hz": 17, "half_at_hz": 32, "third_at_hz": 66}, "t")
+
+    def run(seed: int, out: Path) -> tuple[list[str], dict[str, float], float]:
+        rng = random.Random(seed)
+
+        def slow(base: CalibrationBase, values: dict, frequencies: list, sim: object) -> dict:
+            time.sleep(rng.uniform(0.01, 0.1))  # a loaded machine: a wall-clock budget ends elsewhere each run
+            return toy_simulate(base, values, frequencies, sim)
+
+        RIGS["contact"] = replace(TOY, simulate=slow)
+        res = calibrate(targets, out, "t", settings=SearchSettings.quick(budget_s=2.0, good_enough=0.0))
+        keys = [json.loads(line)["key"] for line in (out / "t.evals.jsonl").read_text().splitlines()]
+        return sorted(keys), res.values, res.budget_clock_s
+
+    a, b = run(1, tmp_path / "a"), run(2, tmp_path / "b")
+    print(len(a[0]), a[2], a[1])
+    assert len(a[0]) > 10  # the budget, not the generation cap, ended it
+    assert a[1]["u"] == b[1]["u"] and a[1]["w"] == b[1]["w"], (a[1], b[1])
+    assert a[0] == b[0]
+    assert a[2] == b[2] <= 2.0 + 0.2  # the last batch may end past the budget by at most a few maps

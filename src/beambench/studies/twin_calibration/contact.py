@@ -22,7 +22,7 @@ import yaml
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration.contact_objective import contact_checks, contact_landmarks, contact_objective
 from beambench.studies.twin_calibration.protocol_out import CalibratedSet, extended_sweep, write_calibrated_protocol
-from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, register_rig
+from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, register_rig, stepping_cost
 from beambench.studies.twin_calibration.targets import (
     CalibrationInputError,
     Targets,
@@ -295,6 +295,18 @@ def write_contact_protocol(
     return write_calibrated_protocol(cal, targets, out_dir, name)
 
 
+# CPU seconds per simulated second of a contact map where the shipped stepping costs hold no row for its model
+# (rod5g at 5e-5 s, PGS: 0.11–0.13 in sim_backend/step_costs.csv)
+CONTACT_CPU_PER_SIM_S = 0.13
+
+
+def contact_cpu_per_sim_s(base: CalibrationBase, sim: SimSettings) -> float:
+    """A contact map's CPU seconds per simulated second on one idle core (the search's budget clock)."""
+    from beambench.sim.scenes.contact_screen import MAX_DT
+
+    return stepping_cost("contact", base.model, sim, MAX_DT, CONTACT_CPU_PER_SIM_S)
+
+
 # ``--quick`` on the contact rig: the whole search within its budget, the verify stage's two written-protocol runs
 # (one round on two workers, ~50 s for the shipped 280 s sweep at 5e-5 s) reserved first; the coarse stage gets
 # the rest (its lines and landmark steps all of it) less the fine maps of the best two points, which (and the
@@ -307,6 +319,8 @@ CONTACT_QUICK: tuple[tuple[str, Any], ...] = (
     ("budget_s", 120.0),
     ("written_factor", 1.25),
     ("plan_finish", True),
+    ("verify_top", 4),
+    ("verify_fill", True),
     ("spread_seeds", 2),
     ("line_share", 0.55),
     ("landmark_share", 0.55),
@@ -334,4 +348,5 @@ def contact_rig() -> CalibratableRig:
         quick=CONTACT_QUICK,
         file_targets=contact_targets,
         session_targets=contact_session_targets,
+        cpu_per_sim_s=contact_cpu_per_sim_s,
     )

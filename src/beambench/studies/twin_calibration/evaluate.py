@@ -44,6 +44,9 @@ class SearchSettings:
     good_enough: float = 0.01  # objective at which the coarse stage stops
     refine_top: int = 4
     verify_top: int = 3  # distinct best refined points re-run as the written protocol runs (rigs with ``verify``)
+    # with plan_finish: the budget reserves the verify of one candidate, and the stage verifies as many more (up to
+    # verify_top) as the budget left allows — a search that met its landmarks early spends the rest on them
+    verify_fill: bool = False
     bracket_rounds: int = 3
     prior_rounds: int = 3  # rounds of the 1-D bracket along the prior's line before the evolution
     line_cycles: int = 2  # passes of 1-D lines over every free unknown from the prior (search.prior_lines)
@@ -98,6 +101,12 @@ class SearchSettings:
         return self.fine_settle_s, self.fine_record_s
 
 
+# a rig's evaluation without a measured stepping cost: CPU seconds per simulated second (about the contact twin's)
+DEFAULT_CPU_PER_SIM_S = 0.15
+# a written protocol's run costs this much beyond its physics: the run's start, the session file and its analysis
+WRITTEN_EXTRA_S = 3.0
+
+
 class OutOfTime(Exception):
     """The coarse stage's share of the budget is spent (raised inside the evolution, caught around it)."""
 
@@ -139,6 +148,7 @@ class EvalLog:
         self.cache: dict[str, dict] = read_log(path)
         self.reused = 0
         self.new = 0
+        self.cpu_s = 0.0  # CPU seconds of the new evaluations (each record's ``cpu_s``)
 
     def get(self, k: str) -> dict | None:
         rec = self.cache.get(k)
@@ -149,6 +159,7 @@ class EvalLog:
     def add(self, rec: dict) -> None:
         self.cache[rec["key"]] = rec
         self.new += 1
+        self.cpu_s += float(rec.get("cpu_s", 0.0))
         append_record(self.path, rec, default=json_default)  # on a line of its own, after a cut one too
 
 
@@ -188,7 +199,7 @@ class Task:
 def evaluate_task(task: Task) -> dict:
     """Executor task: one simulation of a rig's map (runs in a worker process)."""
     rig = get_rig(task.rig)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     if isinstance(task.run, WrittenRun):
         if rig.run_written is None:
             raise ValueError(f"rig {rig.name} cannot run a written protocol")
@@ -196,6 +207,7 @@ def evaluate_task(task: Task) -> dict:
     else:
         out = rig.simulate(task.base, task.values, task.frequencies, task.run)
     out["wall_s"] = time.perf_counter() - t0
+    out["cpu_s"] = time.process_time() - c0  # the worker's CPU, its threads included
     return out
 
 
@@ -212,6 +224,18 @@ class Point:
     generation: int
 
 
+@dataclass
+class BudgetClock:
+    """A search's budget clock: the modelled time of every batch run so far — each new evaluation's nominal cost
+    (:meth:`Evaluator.cost_s`) scheduled on the pool's workers (:func:`makespan`) — so that where a search stops
+    depends on what it ran, never on the machine's load: a rerun stops at the same point."""
+
+    now_s: float = 0.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
 class Evaluator:
     """Runs batches of points on the executor, through the log (cache)."""
 
@@ -224,13 +248,14 @@ class Evaluator:
         log: EvalLog,
         settings: SearchSettings,
         on_eval: Callable[[Point], None] | None = None,
+        clock: BudgetClock | None = None,
     ) -> None:
         self.pool, self.rig, self.base, self.targets, self.log = pool, rig, base, targets, log
         self.settings = settings
         self.on_eval = on_eval or (lambda p: None)
         self.points: list[Point] = []
         self.generation = 0
-        self.rates: list[float] = []  # wall seconds per simulated second of each map run so far (sim_rate)
+        self.clock = clock or BudgetClock()
 
     def stage_sim(self, stage: str) -> SimSettings:
         """A stage's simulation settings: the base's with the search's windows (or the rig's own)."""
@@ -279,30 +304,49 @@ class Evaluator:
             self.on_eval(self._point(rec, stage))
 
         if tasks:
+            self.clock.now_s += makespan([self.cost_s(t.run, len(t.frequencies)) for t in tasks], self.pool.workers)
             run_tasks(self.pool.executor, evaluate_task, tasks, done)
         if cut:
             raise Interrupted(f"stopped after {limit} new evaluations")
         out = []
-        for k, r in zip(keys, per):
-            sim_s = len(freqs) * (r.settle_s + r.record_s) if isinstance(r, SimSettings) else 0.0
-            wall = self.log.cache[k].get("wall_s")
-            if sim_s > 0 and isinstance(wall, float | int) and wall > 0:
-                self.rates.append(float(wall) / sim_s)
+        for k in keys:
             p = self._point(self.log.cache[k], stage)
             out.append(p)
             self.points.append(p)
         return out
 
-    def sim_rate(self) -> float | None:
-        """Wall seconds per simulated second of one map on one worker: the median of the last 8 maps (None before
-        the first; the recent ones follow the machine's load). A map's simulated time is its steps × (settle +
-        record), each at the twin's timestep."""
-        return float(np.median(self.rates[-8:])) if self.rates else None
+    def sim_rate(self, sim: SimSettings | None = None) -> float:
+        """Nominal seconds per simulated second of one map on one idle worker (``sim``: the base's settings), from
+        the rig's measured stepping cost (``CalibratableRig.cpu_per_sim_s``; 0.15 where it names none)."""
+        sim = self.base.sim if sim is None else sim
+        return self.rig.cpu_per_sim_s(self.base, sim) if self.rig.cpu_per_sim_s is not None else DEFAULT_CPU_PER_SIM_S
+
+    def cost_s(self, run: SimSettings | WrittenRun, n_frequencies: int) -> float:
+        """One evaluation's nominal time: its simulated seconds at :meth:`sim_rate`; a written protocol's run (the
+        rig's ``verify`` sweep) at ``written_factor`` times that rate plus ``WRITTEN_EXTRA_S`` (the session's
+        pipeline, file and analysis)."""
+        if isinstance(run, SimSettings):
+            return n_frequencies * (run.settle_s + run.record_s) * self.sim_rate(run)
+        if self.rig.verify is None:
+            return 0.0
+        vfreqs, vsim = self.rig.verify(self.base)
+        sim_s = len(vfreqs) * (vsim.settle_s + vsim.record_s)
+        return sim_s * self.sim_rate(vsim) * self.settings.written_factor + WRITTEN_EXTRA_S
 
     def _point(self, rec: dict, stage: str) -> Point:
         steps = pd.DataFrame(rec["steps"])
         j, parts = self.rig.objective(steps, self.targets)
         return Point(dict(rec["values"]), float(j), parts, steps, dict(rec.get("extras", {})), stage, self.generation)
+
+
+def makespan(costs: list[float], workers: int) -> float:
+    """How long ``costs`` take on ``workers`` workers, each task to the first free worker in the order given (as
+    the executor hands them out)."""
+    lanes = [0.0] * max(1, min(workers, len(costs)))
+    for c in costs:
+        i = lanes.index(min(lanes))
+        lanes[i] += c
+    return max(lanes, default=0.0)
 
 
 # ------------------------------------------------------------------------------------------------ identifiability

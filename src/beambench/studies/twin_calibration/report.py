@@ -37,8 +37,9 @@ def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> 
         "twin_summary": result.summary,
         "identifiability": result.identifiability,
         "history": result.history,
-        "evaluations": {"new": result.evaluations, "reused_from_log": result.reused},
+        "evaluations": {"new": result.evaluations, "reused_from_log": result.reused, "cpu_s": result.cpu_s},
         "wall_s": result.wall_s,
+        "budget_clock_s": result.budget_clock_s,
         "settings": asdict(result.settings),
     }
     (out_dir / f"{name}_report.json").write_text(json.dumps(rep, indent=1, default=json_default))
@@ -49,7 +50,8 @@ def write_report(result: Result, targets: Targets, out_dir: Path, name: str) -> 
         f"- targets: {targets.source}",
         f"- protocol: `{result.protocol}`",
         f"- objective J: {result.j:.4f} ({result.j_stage}) after {result.evaluations} new "
-        f"evaluations ({result.reused} re-used from the log), {result.wall_s:.0f} s wall",
+        f"evaluations ({result.reused} re-used from the log), {result.wall_s:.0f} s wall, "
+        f"{result.cpu_s:.0f} CPU-s in the evaluations, {result.budget_clock_s:.0f} s of the budget's clock",
         f"- verdict: {closing_line(result.verdicts)}",
         "",
         "## Parameters",

@@ -88,6 +88,8 @@ class CalibratableRig:
       sets without bounds: the documented effective sets), so the search never leaves a physical range;
     - ``file_targets(data, where) -> Targets``: its targets file's mapping read (``--targets``; None: it takes none);
     - ``session_targets(path, session, general) -> Targets``: its session's targets (``--session``; None: none);
+    - ``cpu_per_sim_s(base, sim) -> float``: an evaluation's measured CPU seconds per simulated second on one idle
+      core, the search's budget clock (:class:`.evaluate.BudgetClock`; None: a default);
     - ``quick``: the rig's own ``--quick`` search settings, (name, value) pairs that override
       ``SearchSettings.quick()``'s (the contact rig's verify stage runs the written protocol: its quick search
       plans its budget around it).
@@ -112,11 +114,31 @@ class CalibratableRig:
     quick: tuple[tuple[str, Any], ...] = ()
     file_targets: Callable[[dict[str, Any], str], Targets] | None = None
     session_targets: Callable[[Path, Any, dict[str, Any]], Targets] | None = None
+    cpu_per_sim_s: Callable[[CalibrationBase, SimSettings], float] | None = None
 
     @property
     def default_free(self) -> tuple[str, ...]:
         """The unknowns fitted unless the caller names others, in their declared order."""
         return tuple(u.name for u in self.unknowns if u.fitted_by_default and not u.opt_in)
+
+
+def stepping_cost(scene: str, model: str, sim: SimSettings, own_dt: float, fallback: float) -> float:
+    """CPU seconds per simulated second of ``scene`` on one idle core (a rig's ``cpu_per_sim_s``): its measured
+    stepping cost at its own timestep ``own_dt`` (``sim_backend/step_costs.csv``, mean over the drive frequencies;
+    ``fallback`` where no row holds ``model``), scaled to a fixed ``sim.timestep``."""
+    from beambench.session.estimate import read_costs
+
+    integrator = sim.integrator or "implicitfast"
+    rows = [
+        float(r["cpu_s_per_sim_s"])
+        for r in read_costs()
+        if (r["scene"], r["model"], r["integrator"], r["timestep"]) == (scene, model, integrator, "auto")
+    ]
+    cost = sum(rows) / len(rows) if rows else fallback
+    if sim.timestep is not None:
+        dt = sim.timestep if isinstance(sim.timestep, float | int) else min(sim.timestep)
+        cost *= own_dt / float(dt)
+    return cost
 
 
 RIGS: dict[str, CalibratableRig] = {}

@@ -40,6 +40,7 @@ from beambench.common.console import TimeLeft
 from beambench.sim.settings import SimSettings
 from beambench.studies.executor import Pool
 from beambench.studies.twin_calibration.evaluate import (
+    BudgetClock,
     EvalLog,
     Evaluator,
     OutOfTime,
@@ -77,6 +78,8 @@ class Result:
     evaluations: int
     reused: int
     wall_s: float
+    cpu_s: float = 0.0  # CPU seconds of the new evaluations (their worker processes, threads included)
+    budget_clock_s: float = 0.0  # the budget's clock at the end (Search.elapsed: the batches' modelled time)
     free: tuple[Unknown, ...] = ()
     settings: SearchSettings = field(default_factory=SearchSettings)
     verdicts: list[Verdict] = field(default_factory=list)  # one per target (:mod:`.verdict`)
@@ -93,10 +96,6 @@ RunAt = Callable[[int], SimSettings | WrittenRun]  # the winner's run at its own
 COARSE_SHARE = 0.55
 FINE_SHARE = 0.85
 BRACKET_SHARE = 0.9
-# With ``SearchSettings.plan_finish`` the verify stage's written-protocol run is expected to cost
-# ``SearchSettings.written_factor`` times a search map per simulated second, plus WRITTEN_EXTRA_S, so the budget
-# reserves it before the coarse stage ends
-WRITTEN_EXTRA_S = 3.0
 
 
 def coarse_frequencies(targets: Targets, step_hz: float, lo: float) -> list[float]:
@@ -129,7 +128,8 @@ class Search:
     def __init__(
         self, rig: CalibratableRig, targets: Targets, log: EvalLog, settings: SearchSettings, progress: Any = None
     ) -> None:
-        self.t_start = time.perf_counter()
+        self.t_start = time.perf_counter()  # the wall clock, for the report; the budget's is elapsed()
+        self.clock = BudgetClock()
         self.rig, self.targets, self.log, self.settings = rig, targets, log, settings
         self.base = rig.base(targets)
         self.free, self.fixed = free_unknowns(rig, settings, rig.boxes(self.base) if rig.boxes else None)
@@ -140,7 +140,7 @@ class Search:
         self.stage_best: dict[str, float] = {}  # per stage: its objectives are comparable only within it
         self.progress = progress
         self.task = (  # the time left of the budget, read each time the line is shown (LogProgress, TimeLeft)
-            progress.add_task("calibrating", total=None, left=TimeLeft(settings.budget_s))
+            progress.add_task("calibrating", total=None, left=TimeLeft(settings.budget_s, self.elapsed))
             if progress is not None
             else None
         )
@@ -149,7 +149,9 @@ class Search:
 
     def start(self, pool: Pool) -> None:
         self.pool = pool
-        self.ev = Evaluator(pool, self.rig, self.base, self.targets, self.log, self.settings, self._on_eval)
+        self.ev = Evaluator(
+            pool, self.rig, self.base, self.targets, self.log, self.settings, self._on_eval, clock=self.clock
+        )
         self.t_record = self.elapsed()  # the first batch's time starts here, not at the set-up
 
     def _on_eval(self, p: Point) -> None:
@@ -174,7 +176,9 @@ class Search:
             )
 
     def elapsed(self) -> float:
-        return time.perf_counter() - self.t_start
+        """The budget's clock: the modelled time of the batches run so far (``Evaluator.clock_s``), not the wall
+        clock, so a search stops at the same point on a loaded machine as on an idle one."""
+        return self.clock()
 
     def values_of(self, x: np.ndarray) -> dict[str, float]:
         return {**self.fixed, **{u.name: u.value(float(v)) for u, v in zip(self.free, x)}}
@@ -215,16 +219,14 @@ class Search:
         the spread seeds beyond them) or, without a verify stage, the winner's spread seeds on every target
         frequency; from the cost per simulated second of the maps so far (0 before the first)."""
         rate, w, st = self.ev.sim_rate(), max(1, self.pool.workers), self.settings
-        if rate is None:
-            return 0.0
         settle, record = st.window("fine")
         fine_s = len(self.fine) * (settle + record) * rate
         out = math.ceil(st.refine_top / w) * fine_s if fine and st.refine_top > 0 else 0.0
         extra = max(0, st.spread_seeds - 2)
         if self.rig.verify is not None and st.verify_top > 0:
-            vfreqs, vsim = self.rig.verify(self.base)
-            run_s = len(vfreqs) * (vsim.settle_s + vsim.record_s) * rate * st.written_factor + WRITTEN_EXTRA_S
-            return out + math.ceil(2 * st.verify_top / w) * run_s + math.ceil(extra / w) * run_s
+            run_s = self.ev.cost_s(WrittenRun(""), 0)
+            n = 1 if st.verify_fill else st.verify_top
+            return out + math.ceil(2 * n / w) * run_s + math.ceil(extra / w) * run_s
         return out + math.ceil(max(0, st.spread_seeds - 1) / w) * fine_s
 
 
@@ -268,7 +270,7 @@ def calibrate(
         s.finish(winner, label)
     summary = rig.summary(winner.steps)
     verdicts = _judge(s, winner, ident, seeds)
-    wall = s.elapsed()
+    wall = time.perf_counter() - s.t_start
     protocol = rig.write(s.base, winner.values, winner.extras, targets, out_dir, name)
     for path in (protocol, out_dir / f"{name}_params.yaml"):
         annotate_yaml(Path(path), verdicts)
@@ -285,6 +287,8 @@ def calibrate(
         evaluations=s.log.new,
         reused=s.log.reused,
         wall_s=wall,
+        cpu_s=s.log.cpu_s,
+        budget_clock_s=s.elapsed(),
         free=tuple(s.free),
         settings=settings,
         verdicts=verdicts,
@@ -494,7 +498,7 @@ def _verify(s: Search, winner: Point, out_dir: Path, name: str) -> tuple[Point, 
     for p in [winner, *refined]:
         if all(_distance(p.values, q.values, s.free) > 1e-6 for q in cands):
             cands.append(p)
-        if len(cands) >= s.settings.verify_top:
+        if len(cands) >= verify_count(s):
             break
     seed = int(vsim.seed)
     values = [c.values for c in cands]
@@ -525,6 +529,21 @@ def _verify(s: Search, winner: Point, out_dir: Path, name: str) -> tuple[Point, 
         path = paths[ib]
         return best, vfreqs, lambda k: WrittenRun(path, seed + k)
     return best, vfreqs, lambda k: vsim.replace(seed=seed + k)
+
+
+def verify_count(s: Search) -> int:
+    """How many candidates the verify stage runs: ``verify_top``, or with ``verify_fill`` as many (at least one) as
+    the budget left after the spread seeds holds, two written runs each on the pool's workers."""
+    st = s.settings
+    if not (st.verify_fill and st.plan_finish):
+        return max(1, st.verify_top)
+    w = max(1, s.pool.workers)
+    run_s = s.ev.cost_s(WrittenRun(""), 0)
+    if run_s <= 0:
+        return max(1, st.verify_top)
+    left = st.budget_s - s.elapsed() - math.ceil(max(0, st.spread_seeds - 2) / w) * run_s
+    rounds = int(left // run_s)  # rounds of the workers, each running w written protocols at once
+    return max(1, min(st.verify_top, rounds * w // 2))
 
 
 def prior_lines(s: Search, start: dict[str, float], order: list[Unknown], freqs: list[float], n: int) -> Point:

@@ -37,7 +37,7 @@ from beambench.analysis.walking import SpeedCurveShape, speed_curve_shape
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration.checks import SPEED_TOLERANCE_FRACTION, TRANSITION_TOLERANCE_HZ, TargetCheck
 from beambench.studies.twin_calibration.protocol_out import CalibratedSet, write_calibrated_protocol
-from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, register_rig
+from beambench.studies.twin_calibration.rig import CalibratableRig, CalibrationBase, register_rig, stepping_cost
 from beambench.studies.twin_calibration.targets import WALKER_LANDMARKS as LANDMARKS
 from beambench.studies.twin_calibration.targets import (
     CalibrationInputError,
@@ -235,6 +235,16 @@ def write_walker_protocol(
     return write_calibrated_protocol(cal, targets, out_dir, name)
 
 
+WALKER_CPU_PER_SIM_S = 0.11  # rod5g legs at their own timestep (sim_backend/step_costs.csv: 0.094–0.119)
+
+
+def walker_cpu_per_sim_s(base: CalibrationBase, sim: SimSettings) -> float:
+    """A walker map's CPU seconds per simulated second on one idle core (the search's budget clock)."""
+    from beambench.sim.scene_params import WalkerParams
+
+    return stepping_cost("walker", base.model, sim, WalkerParams().timestep, WALKER_CPU_PER_SIM_S)
+
+
 @register_rig
 def walker_rig() -> CalibratableRig:
     """The walker rig as the calibrator knows it."""
@@ -249,6 +259,7 @@ def walker_rig() -> CalibratableRig:
         bracket="foot_mass",
         min_frequency_hz=1.0,
         stage_sim=walker_stage_sim,
+        cpu_per_sim_s=walker_cpu_per_sim_s,
         checks=walker_checks,
         boxes=walker_boxes,
         file_targets=walker_targets,
