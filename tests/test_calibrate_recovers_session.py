@@ -39,12 +39,6 @@ def _beambench(*args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=False,
-    reason="a known gap: the quick calibration missed this hidden twin's landmarks in 4 of 6 runs on 2026-12-05 "
-    "(passed in the 2 fresh-clone CI runs; missed in 4 run alone or under load, Newton and PGS alike; its budget is "
-    "wall time, so each run ends elsewhere); docs/contact-twin.md, 'Calibration time'",
-)
 def test_a_quick_calibration_recovers_a_hidden_twins_regime_map(tmp_path: Path) -> None:
     shipped = (shipped_dir("sim_backend") / "rod_physical.yaml").read_text()
     doc = yaml.safe_load(shipped)
@@ -64,7 +58,7 @@ def test_a_quick_calibration_recovers_a_hidden_twins_regime_map(tmp_path: Path) 
     res = _beambench("calibrate", "sim", str(session), "--quick", "--workers", "2", "--out", str(out))
     assert res.returncode in (0, 5), res.stderr  # 5: written, a target missed (the tangential share may be)
     report = json.loads(next(out.glob("*_report.json")).read_text())
-    assert report["evaluations"]["new"] >= 5, report["evaluations"]
+    assert report["evaluations"]["new"] >= 25, report["evaluations"]  # a search, not a few guesses
     assert report["history"][-1]["stage"] == "verify"  # the map below is the written protocol's own run
     marks = [v for v in report["verdict"]["targets"] if v["unit"] == "Hz"]
     assert marks, report["verdict"]  # the session has landmarks (its lowest 1/2 at 18 Hz: measured)

@@ -173,7 +173,13 @@ def sim(
     scheduler: Annotated[
         str | None, typer.Option("--scheduler", help="Dask scheduler address, e.g. tcp://host:8786.")
     ] = None,
-    budget_s: Annotated[float, typer.Option("--budget-s", help="Wall-time budget of the search (s).")] = 540.0,
+    budget_s: Annotated[
+        float,
+        typer.Option(
+            "--budget-s",
+            help="Budget of the search (s of modelled time: each run's simulated seconds at its measured stepping cost, on the workers; about the wall time on idle cores).",
+        ),
+    ] = 540.0,
     quick: Annotated[bool, typer.Option("--quick", help="A smaller, faster search.")] = False,
     name: Annotated[
         str | None, typer.Option("--name", help="Output name (default: <session or targets>_calibrated).")

@@ -36,6 +36,9 @@ class SearchSettings:
     coarse_step_hz: float = 1.0
     coarse_settle_s: float = 0.8
     coarse_record_s: float = 1.2
+    # the coarse maps' fixed timestep (None: the base's plan, the converged one): a cheaper, less sure map that only
+    # steers the search — the fine, bracket and verify maps run at the base's own
+    coarse_timestep: float | None = None
     fine_settle_s: float = 1.5
     fine_record_s: float = 2.0
     popsize: int = 16  # points per generation
@@ -64,12 +67,12 @@ class SearchSettings:
     # noise seeds the winner's map is run at for the verdict (its own first): a miss that another seed meets is the
     # twin's own seed-to-seed spread (irregular regimes that move with the noise), not a bound (verdict)
     spread_seeds: int = 4
-    # the budget is the search's whole wall time, verify included: a stage starts no batch whose expected end (its
-    # last batch's time) leaves less than the later stages' expected time (from the measured cost per simulated
-    # second: Search.reserve_s). False: the stages stop *starting* work at shares of the budget
+    # the budget is the whole search's modelled time (BudgetClock), verify included: a stage starts no batch whose
+    # end (its last batch's time) leaves less than the later stages' modelled time (Search.reserve_s). False: the
+    # stages stop *starting* work at shares of the budget
     plan_finish: bool = False
     # with plan_finish: the verify stage's written-protocol run is expected to cost this many times a search map per
-    # simulated second (plus search.WRITTEN_EXTRA_S): the session's pipeline, file and analysis, and two runs on
+    # simulated second (plus WRITTEN_EXTRA_S): the session's pipeline, file and analysis, and two runs on
     # two workers contending for more than their core
     written_factor: float = 1.5
 
@@ -103,6 +106,9 @@ class SearchSettings:
 
 # a rig's evaluation without a measured stepping cost: CPU seconds per simulated second (about the contact twin's)
 DEFAULT_CPU_PER_SIM_S = 0.15
+# a map costs this much beyond its physics: its model built and compiled, the static sag, the classification
+# (contact maps: 0.2-0.4 CPU-s above their stepping cost, measured on the paper's targets at 1e-4 s)
+EVAL_OVERHEAD_S = 0.3
 # a written protocol's run costs this much beyond its physics: the run's start, the session file and its analysis
 WRITTEN_EXTRA_S = 3.0
 
@@ -261,6 +267,8 @@ class Evaluator:
         """A stage's simulation settings: the base's with the search's windows (or the rig's own)."""
         settle, record = self.settings.window(stage)
         sim = self.base.sim.replace(settle_s=settle, record_s=record)
+        if stage == "coarse" and self.settings.coarse_timestep is not None:
+            sim = sim.replace(timestep=self.settings.coarse_timestep)
         return self.rig.stage_sim(stage, sim) if self.rig.stage_sim is not None else sim
 
     def batch(
@@ -322,11 +330,11 @@ class Evaluator:
         return self.rig.cpu_per_sim_s(self.base, sim) if self.rig.cpu_per_sim_s is not None else DEFAULT_CPU_PER_SIM_S
 
     def cost_s(self, run: SimSettings | WrittenRun, n_frequencies: int) -> float:
-        """One evaluation's nominal time: its simulated seconds at :meth:`sim_rate`; a written protocol's run (the
+        """One evaluation's nominal time: its simulated seconds at :meth:`sim_rate` plus ``EVAL_OVERHEAD_S``; a written protocol's run (the
         rig's ``verify`` sweep) at ``written_factor`` times that rate plus ``WRITTEN_EXTRA_S`` (the session's
         pipeline, file and analysis)."""
         if isinstance(run, SimSettings):
-            return n_frequencies * (run.settle_s + run.record_s) * self.sim_rate(run)
+            return n_frequencies * (run.settle_s + run.record_s) * self.sim_rate(run) + EVAL_OVERHEAD_S
         if self.rig.verify is None:
             return 0.0
         vfreqs, vsim = self.rig.verify(self.base)
@@ -407,7 +415,7 @@ def identifiability(points: list[Point], free: list[Unknown]) -> dict[str, Any]:
 
 
 def quick_budget_s(rig: CalibratableRig) -> float:
-    """The wall-time budget of ``rig``'s ``--quick`` search (its own quick settings over ``SearchSettings.quick``'s):
+    """The budget of ``rig``'s ``--quick`` search (its own quick settings over ``SearchSettings.quick``'s):
     the one figure ``calibrate sim --help`` states for ``--quick``."""
     return float(SearchSettings.quick(**dict(rig.quick)).budget_s)
 
@@ -416,6 +424,7 @@ def quick_help() -> str:
     """``--quick``'s time per rig, for ``calibrate sim --help``, from each rig's quick budget."""
     budgets = ", ".join(f"{rig.name} rig {quick_budget_s(rig) / 60:.1f} min" for rig in RIGS.values())
     return (
-        f"A smaller, faster search: a wall-time budget of {budgets}, plus start-up and the last batch; on a "
-        "loaded machine fewer evaluations fit in it and its last runs take longer (docs/performance.md)."
+        f"A smaller, faster search: a budget of {budgets} of modelled time (each run's simulated seconds at the "
+        "measured stepping cost, on the workers), about that much wall time on two idle cores plus start-up; the "
+        "same search on a loaded machine takes longer (docs/performance.md)."
     )

@@ -17,6 +17,11 @@
    backend, then the analysis: :mod:`.written_run`), so the winner's map (the protocol's seed) is the one a run
    of the written protocol shows, label for label (otherwise: the winner's map on every target frequency).
 
+The budget is modelled time, not wall time (:class:`.evaluate.BudgetClock`): each batch adds its evaluations'
+simulated seconds at the rig's measured stepping cost, scheduled on the pool's workers. Where a search stops
+therefore depends only on what it ran: the same targets and settings give the same search on an idle or a loaded
+machine (which only takes longer), and the budget is about the wall time on idle cores.
+
 Every evaluation is appended to ``<out>/<name>.evals.jsonl`` as soon as it finishes; a restart reads it back and
 re-uses every point already evaluated (the search is seeded, so it replays the same proposals), which makes a
 killed calibration resumable. The search writes the calibrated protocol (and the verify stage's candidates)
@@ -176,7 +181,7 @@ class Search:
             )
 
     def elapsed(self) -> float:
-        """The budget's clock: the modelled time of the batches run so far (``Evaluator.clock_s``), not the wall
+        """The budget's clock: the modelled time of the batches run so far (:class:`.evaluate.BudgetClock`), not the wall
         clock, so a search stops at the same point on a loaded machine as on an idle one."""
         return self.clock()
 
@@ -214,7 +219,7 @@ class Search:
         return lambda: self.elapsed() + self.last_batch_s > budget - self.reserve_s(fine=False)
 
     def reserve_s(self, fine: bool = True) -> float:
-        """The expected wall time of the stages after the coarse one (``fine``: the fine maps of the best
+        """The modelled time of the stages after the coarse one (``fine``: the fine maps of the best
         ``refine_top`` points too): the verify stage's written-protocol runs (two noise seeds per candidate, and
         the spread seeds beyond them) or, without a verify stage, the winner's spread seeds on every target
         frequency; from the cost per simulated second of the maps so far (0 before the first)."""
