@@ -49,9 +49,9 @@ class Thermometer:
 def thermometer():
     made: list[Thermometer] = []
 
-    @device_stream("thermometer")
-    def _make(rig, markers):  # type: ignore[no-untyped-def]
-        made.append(Thermometer(rig.loadcell.port + "-temp"))
+    @device_stream("thermometer", section="loadcell")
+    def _make(ctx):  # type: ignore[no-untyped-def]
+        made.append(Thermometer(ctx.section.port + "-temp"))
         return made[-1]
 
     try:
@@ -105,7 +105,7 @@ def test_check_and_close_loop_over_every_named_stream():
 
 def test_a_stream_name_registered_twice_is_refused():
     with pytest.raises(ValueError, match="registered twice"):
-        device_stream("mocap")(lambda rig, markers: None)  # type: ignore[arg-type,return-value]
+        device_stream("mocap", section="natnet")(lambda ctx: None)  # type: ignore[arg-type,return-value]
 
 
 class _Motor:

@@ -523,7 +523,9 @@ class RigFile(_Model):
     walker: WalkerDrive = Field(default_factory=WalkerDrive)
 
 
-def load_rig_file(path: str | Path) -> RigFile:
-    """Read and validate a rig file, with the same one-line errors and caps as protocols."""
+def load_rig_file(path: str | Path, model: type[RigFile] = RigFile) -> RigFile:
+    """Read and validate a rig file, with the same one-line errors and caps as protocols; ``model``: the rig
+    file's model with the sections the registered device streams bring
+    (:func:`beambench.backends.hardware.rig_file_model`)."""
     data, _ = load_yaml_file(path)
-    return validate(RigFile, data, str(path), what="rig wiring fields")
+    return validate(model, data, str(path), what="rig wiring fields")
