@@ -517,10 +517,9 @@ def odrive_config(own_motor: bool, rig_file: Path | None, config_type: Any) -> A
     protocol's limits through Set_Limits, as on the bench."""
     if not own_motor:
         return config_type(calibration_s=0.2)
-    from beambench.acquisition.protocol.schema import load_rig_file
-    from beambench.backends.hardware import DEFAULT_RIG_FILE
+    from beambench.backends.hardware import DEFAULT_RIG_FILE, load_wiring
 
-    drive = load_rig_file(rig_file or DEFAULT_RIG_FILE).walker
+    drive = load_wiring(rig_file or DEFAULT_RIG_FILE).walker
     return config_type(
         calibration_s=0.2,
         pole_pairs=drive.pole_pairs,

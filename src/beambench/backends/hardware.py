@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from pydantic import BaseModel, Field, create_model
+from pydantic import Field, create_model
 
 from beambench.acquisition.batch import Frame
 from beambench.acquisition.capabilities import (
@@ -25,7 +25,7 @@ from beambench.acquisition.capabilities import (
     ReportsHealth,
     Stream,
 )
-from beambench.acquisition.protocol.schema import OdriveWiring, RigFile, load_rig_file
+from beambench.acquisition.protocol.schema import OdriveWiring, RigFile, RigSection, load_rig_file
 from beambench.common.resources import shipped_dir
 from beambench.common.yaml_config import ConfigError
 
@@ -207,6 +207,8 @@ class DeviceContext:
 
 StreamFactory = Callable[[DeviceContext], Stream]
 PeerFactory = Callable[["PeerContext"], "EmulatedPeer"]
+Ping = Callable[[Any], dict[str, Any]]
+"""Asks the device wired by its rig-file section who it is (``found``: whether it answered, and what it said)."""
 
 
 @dataclass(frozen=True)
@@ -218,11 +220,14 @@ class DeviceStream:
     build: StreamFactory
     section: str
     """The rig file's section that wires it."""
-    wiring: type[BaseModel] | None
+    wiring: type[RigSection] | None
     """That section's model, when the stream brings its own (None: a section :class:`RigFile` has)."""
     peer: PeerFactory | None
     injections: tuple[str, ...]
     """The fault-injection keys its peer takes (``build_emulated_rig(inject=...)``)."""
+    ping: Ping | None
+    label: str
+    """What ``beambench devices`` calls it."""
 
 
 DEVICE_STREAMS: dict[str, DeviceStream] = {}
@@ -233,13 +238,16 @@ def device_stream(
     name: str,
     *,
     section: str | None = None,
-    wiring: type[BaseModel] | None = None,
+    wiring: type[RigSection] | None = None,
     peer: PeerFactory | None = None,
     injections: tuple[str, ...] = (),
+    ping: Ping | None = None,
+    label: str | None = None,
 ) -> Callable[[StreamFactory], StreamFactory]:
     """Register a stream of the device rigs: its driver's factory (decorated), the rig-file ``section`` that wires
-    it (default: ``name``) with its ``wiring`` model if :class:`RigFile` has no such section, and its emulated
-    ``peer`` (the emulated rig starts it and builds the driver against it through the same factory)."""
+    it (default: ``name``) with its ``wiring`` model if :class:`RigFile` has no such section, its emulated
+    ``peer`` (the emulated rig starts it and builds the driver against it through the same factory) with the
+    fault ``injections`` it takes, and how ``beambench devices`` pings it (shown as ``label``, default ``name``)."""
 
     def add(make: StreamFactory) -> StreamFactory:
         if name in DEVICE_STREAMS:
@@ -247,7 +255,7 @@ def device_stream(
         where = section or name
         if wiring is None and where not in RigFile.model_fields:
             raise ValueError(f"device stream {name!r}: the rig file has no section {where!r} (give its wiring model)")
-        DEVICE_STREAMS[name] = DeviceStream(name, make, where, wiring, peer, tuple(injections))
+        DEVICE_STREAMS[name] = DeviceStream(name, make, where, wiring, peer, tuple(injections), ping, label or name)
         return make
 
     return add
@@ -277,7 +285,21 @@ def _motive(ctx: PeerContext) -> EmulatedPeer:
     return MotivePeer(ctx)
 
 
-@device_stream("mocap", section="natnet", peer=_motive, injections=("mocap_drop", "mocap_occlude"))
+def _ping_natnet(section: Any) -> dict[str, Any]:
+    from beambench.devices.natnet import client as natnet
+
+    config = natnet.NatNetConfig.from_mapping(section.model_dump(exclude={"markers"}))
+    return {"found": True, **natnet.ping(config)}
+
+
+@device_stream(
+    "mocap",
+    section="natnet",
+    peer=_motive,
+    injections=("mocap_drop", "mocap_occlude"),
+    ping=_ping_natnet,
+    label="mocap (NatNet)",
+)
 def _make_mocap(ctx: DeviceContext) -> Stream:
     from beambench.devices.natnet.mocap import NatNetMocap
 
@@ -296,11 +318,20 @@ def _loadcell_mcu(ctx: PeerContext) -> EmulatedPeer:
     return LoadCellPeer(ctx)
 
 
+def _ping_loadcells(section: Any) -> dict[str, Any]:
+    from beambench.devices.loadcell.driver import ping
+
+    lc = ping(section.port, section.baudrate)
+    return {"found": lc.ok, **{k: v for k, v in vars(lc).items() if k not in ("ok", "stats")}}
+
+
 @device_stream(
     "loadcells",
     section="loadcell",
     peer=_loadcell_mcu,
     injections=("loadcell_crc", "loadcell_drop", "loadcell_garbage", "loadcell_stop_s"),
+    ping=_ping_loadcells,
+    label="load cells (serial)",
 )
 def _make_loadcells(ctx: DeviceContext) -> Stream:
     from beambench.devices.loadcell.driver import SerialLoadCells

@@ -114,10 +114,10 @@ def run(
         from_protocol = rig_file is None and protocol.rig_file is not None
         rig_file = rig_file or protocol_rig_file(protocol, protocol_file)  # --rig, else the protocol's rig_file
         if rig_file is not None:  # every input file too: kind, size, fields
-            from beambench.acquisition.protocol.schema import load_rig_file
+            from beambench.backends.hardware import load_wiring
 
             try:
-                load_rig_file(rig_file)
+                load_wiring(rig_file)
             except ConfigError as exc:
                 if not from_protocol:
                     raise

@@ -446,7 +446,12 @@ def load_protocol(path: str | Path) -> tuple[Protocol, str]:
 
 
 # --- rig wiring -----------------------------------------------------------------------------------------
-class NatNetWiring(_Model):
+class RigSection(_Model):
+    """A section of the rig file (strict, every field known); a device stream that brings its own section
+    subclasses it (``@device_stream(name, wiring=...)``, :mod:`beambench.backends.hardware`)."""
+
+
+class NatNetWiring(RigSection):
     """Where Motive is and how frames arrive."""
 
     server_address: str = "127.0.0.1"
@@ -463,14 +468,14 @@ class NatNetWiring(_Model):
     )
 
 
-class Geometry(_Model):
+class Geometry(RigSection):
     """The mocap's world frame as calibrated (Motive's default is y up); stored in each session for analysis."""
 
     up_axis: str = Field("y", pattern=r"^[+-]?[xyz]$")
     forward_axis: str = Field("x", pattern=r"^[+-]?[xyz]$")  # the walker's direction of travel
 
 
-class OdriveWiring(_Model):
+class OdriveWiring(RigSection):
     """How the ODrive is reached: CAN Simple over python-can, or USB through the ``odrive`` package."""
 
     transport: Literal["can", "usb"] = "can"
@@ -486,7 +491,7 @@ class OdriveWiring(_Model):
     telemetry_timeout_s: float | None = Field(1.0, gt=0, le=10)  # Encoder_Estimates (every 10 ms by default)
 
 
-class LoadCellWiring(_Model):
+class LoadCellWiring(RigSection):
     """The load-cell microcontroller's serial port."""
 
     port: str = "/dev/ttyACM0"
@@ -494,7 +499,7 @@ class LoadCellWiring(_Model):
     silence_timeout_s: float | None = Field(1.0, gt=0, le=60)  # no frame for this long (1 kHz board): fault
 
 
-class WalkerDrive(_Model):
+class WalkerDrive(RigSection):
     """The walker's motor on the ODrive (``calibration/rig.yaml`` ``walker:``): what the ODrive must be configured
     with for it, and what the emulated ODrive plays. Defaults: Maxon EC 45 flat Ø42.9 mm 30 W with Hall sensors,
     article 200142 (12 V winding), datasheet May 2012 edition (line numbers in the comments)."""
