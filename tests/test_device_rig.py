@@ -8,6 +8,7 @@ import pytest
 
 from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault
+from beambench.acquisition.protocol.schema import LoadCellWiring
 from beambench.backends.hardware import DEVICE_STREAMS, DeviceRig, build_device_rig, device_stream
 
 MARKERS = ("stage", "tip", "foot")
@@ -106,6 +107,14 @@ def test_check_and_close_loop_over_every_named_stream():
 def test_a_stream_name_registered_twice_is_refused():
     with pytest.raises(ValueError, match="registered twice"):
         device_stream("mocap", section="natnet")(lambda ctx: None)  # type: ignore[arg-type,return-value]
+
+
+def test_a_stream_is_wired_by_a_section_of_the_rig_file_or_brings_its_own():
+    with pytest.raises(ValueError, match="has no section 'laser'"):
+        device_stream("laser")(lambda ctx: None)  # type: ignore[arg-type,return-value]
+    with pytest.raises(ValueError, match="already has a section 'loadcell'"):
+        device_stream("scale", section="loadcell", wiring=LoadCellWiring)(lambda ctx: None)  # type: ignore[arg-type,return-value]
+    assert set(DEVICE_STREAMS) == {"mocap", "loadcells"}
 
 
 class _Motor:

@@ -253,8 +253,9 @@ def device_stream(
         if name in DEVICE_STREAMS:
             raise ValueError(f"device stream {name!r} registered twice")
         where = section or name
-        if wiring is None and where not in RigFile.model_fields:
-            raise ValueError(f"device stream {name!r}: the rig file has no section {where!r} (give its wiring model)")
+        if (wiring is None) != (where in RigFile.model_fields):
+            why = "has no section" if wiring is None else "already has a section"
+            raise ValueError(f"device stream {name!r}: the rig file {why} {where!r} (wiring= is for a new section)")
         DEVICE_STREAMS[name] = DeviceStream(name, make, where, wiring, peer, tuple(injections), ping, label or name)
         return make
 
