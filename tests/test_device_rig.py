@@ -132,3 +132,15 @@ class _Motor:
 
     def stop(self) -> None:
         pass
+
+
+def test_the_emulated_rig_takes_the_injections_its_registered_peers_name():
+    from beambench.acquisition.protocol.schema import parse_protocol
+    from beambench.backends.emulated import build_emulated_rig, injections
+    from beambench.session.slices import sim_slice
+
+    assert set(injections()) == {s for stream in DEVICE_STREAMS.values() for s in stream.injections}
+    assert {"mocap_drop", "loadcell_crc"} <= set(injections())
+    sim = sim_slice(parse_protocol("name: x\nsweep: {frequencies: [5]}\n"))
+    with pytest.raises(ValueError, match=r"unknown injections \['mocap_dorp'\]"):
+        build_emulated_rig(sim, inject={"mocap_dorp": 0.1})
