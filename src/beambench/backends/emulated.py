@@ -253,11 +253,17 @@ def _make_peers(spec: PeerSpec) -> tuple[_Peers, Wiring]:
 
     sim = spec.sim
     odrive_bus = LoopbackCanBus(0, peer_port=spec.can_port)  # the ODrive's end of the rig's bus (loopback)
-    config = odrive_config(scene_info(sim.scene).own_motor, spec.rig_file, OdriveEmulatorConfig)
-    odrive = EmulatedOdrive(channel=odrive_bus.channel_info, config=config, bus=odrive_bus)
-    peers = _Peers(odrive_bus, odrive, config, RealtimePhysics(sim, None))
-    ctx = PeerContext(peers.physics, sim.clocks, sim.settings.seed, sim.settings.noise, spec.inject, spec.calibration)
-    peers.streams, wiring = start_peers(ctx)
+    try:
+        config = odrive_config(scene_info(sim.scene).own_motor, spec.rig_file, OdriveEmulatorConfig)
+        odrive = EmulatedOdrive(channel=odrive_bus.channel_info, config=config, bus=odrive_bus)
+        peers = _Peers(odrive_bus, odrive, config, RealtimePhysics(sim, None))
+        ctx = PeerContext(
+            peers.physics, sim.clocks, sim.settings.seed, sim.settings.noise, spec.inject, spec.calibration
+        )
+        peers.streams, wiring = start_peers(ctx)
+    except BaseException:
+        odrive_bus.shutdown()
+        raise
     return peers, wiring
 
 

@@ -338,8 +338,7 @@ class LoadCellPeer:
             ),
             tx_buffer=1 << 22,  # frames the emulator sends late when its own process was starved are not lost
         )
-        stop_s = inject.get("loadcell_stop_s")
-        self._stop_s = None if stop_s is None else float(stop_s)
+        self._stop_s: Any = inject.get("loadcell_stop_s")
         self._stopper: threading.Timer | None = None
 
     def open(self) -> Wiring:
@@ -348,7 +347,7 @@ class LoadCellPeer:
     def start(self) -> None:
         self.mcu.start()
         if self._stop_s is not None:
-            self._stopper = threading.Timer(self._stop_s, self.mcu.stop)
+            self._stopper = threading.Timer(float(self._stop_s), self.mcu.stop)
             self._stopper.daemon = True
             self._stopper.start()
 
