@@ -21,7 +21,7 @@ from beambench.acquisition.protocol.schema import Backend, Protocol
 from beambench.backends.build import RigSlices
 from beambench.common.yaml_config import ConfigError, shorten
 from beambench.devices.odrive.can_log_formats import LOG_SUFFIXES
-from beambench.session.slices import rig_slices
+from beambench.session.slices import check_clocks, rig_slices
 from beambench.sim.models.params import BeamParams, ParamsError, load_params
 from beambench.sim.models.registry import model_family
 from beambench.sim.scene_params import RigParams, WalkerParams
@@ -90,7 +90,8 @@ def can_log_problem(path: Path) -> str | None:
 
 
 def _check_fields(protocol: Protocol, file: str, backend: str | None = None, can_log: Path | None = None) -> None:
-    """Raise :class:`ConfigError` for the first problem: limits, ``sim.model``, ``sim.params``, ``--can-log``."""
+    """Raise :class:`ConfigError` for the first problem: limits, ``sim.model``, ``sim.params``, ``sim.clocks``,
+    ``--can-log``."""
     check_limits(protocol, file)
     sim = protocol.sim
     family = "prb3"
@@ -104,6 +105,7 @@ def _check_fields(protocol: Protocol, file: str, backend: str | None = None, can
     except (ParamsError, OSError) as exc:
         raise ConfigError(file, "sim.params", sim.params, _reason(exc)) from None
     _check_overrides(params, protocol.rig, file, sim.params)
+    check_clocks(sim, file)  # on every backend: a protocol is checked whole wherever it runs
     if can_log is not None:
         if backend is not None and not backend_info(backend).devices:
             on_can = " or ".join(backends_with("devices"))
