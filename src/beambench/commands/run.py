@@ -18,6 +18,7 @@ from beambench.sinks.viewer import RerunMode
 
 if TYPE_CHECKING:
     from beambench.acquisition.protocol.schema import Protocol
+    from beambench.session.checks import Validated
     from beambench.sim.selection import Plan
 
 
@@ -100,7 +101,7 @@ def run(
     checked before anything moves. Ctrl-C, SIGTERM, SIGHUP (a closed terminal), SIGQUIT and the other stop
     signals idle the motor and close the file cleanly (exit 3); a full disk idles the motor too (exit 4).
     """
-    from beambench.acquisition.protocol.plan import session_path, summary
+    from beambench.acquisition.protocol.plan import session_path
     from beambench.acquisition.protocol.schema import load_protocol
     from beambench.session.checks import validate
 
@@ -127,11 +128,7 @@ def run(
                 raise ConfigError(f"{protocol_file}: rig_file: {exc}") from None
         mode: RerunMode = rerun or default_rerun_mode()
         if dry_run:
-            sim_plan = checked.slices.sim.plan if checked.slices.sim is not None else None
-            expected = expected_run_time(protocol, chosen, sim_plan, realtime)
-            _end_if_stopped(what)
-            print_dry_run(summary(protocol, chosen), expected)
-            _end_if_stopped(what)
+            _dry_run(protocol, chosen, checked, realtime)
             return
         path = session_path(protocol, chosen, out, name)
     except ConfigError as exc:
@@ -154,6 +151,18 @@ def run(
     except MemoryError:  # outside the runner (opening, closing): the rig's close has idled the motor
         fail("run error: out of memory (MemoryError) (motor idled)", EXIT_FAULT)
     report_run(result.status, result.message, path, mode == "save", result.warnings, result.idle)
+
+
+def _dry_run(protocol: Protocol, backend: Backend, checked: Validated, realtime: bool) -> None:
+    """The plan, the expected run time and the limits on stdout; a stop signal held since the command line started
+    ends it instead, before or after the printing (:func:`_end_if_stopped`)."""
+    from beambench.acquisition.protocol.plan import summary
+
+    sim_plan = checked.slices.sim.plan if checked.slices.sim is not None else None
+    expected = expected_run_time(protocol, backend, sim_plan, realtime)
+    _end_if_stopped("dry run")
+    print_dry_run(summary(protocol, backend), expected)
+    _end_if_stopped("dry run")
 
 
 def _end_if_stopped(what: str) -> None:
