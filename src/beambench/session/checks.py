@@ -43,7 +43,13 @@ def validate(protocol: Protocol, backend: Backend, file: str = "<protocol>", can
     """Check ``protocol`` for a run on ``backend`` (with ``--can-log``): the first problem is a one-line
     :class:`ConfigError` naming the field; else the run's plan, slices and limits."""
     _check_fields(protocol, file, backend, can_log)
-    return Validated(plan(protocol), rig_slices(protocol, backend), motor_limits(protocol))
+    try:
+        slices = rig_slices(protocol, backend)
+    except ConfigError as exc:  # the slices know the protocol, not its file: the line names the file
+        if exc.file != "<protocol>" or not exc.field:
+            raise
+        raise ConfigError(file, exc.field, exc.value, exc.reason) from None
+    return Validated(plan(protocol), slices, motor_limits(protocol))
 
 
 def _reason(exc: Exception) -> str:
