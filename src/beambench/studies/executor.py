@@ -233,7 +233,7 @@ def _exit_when_readable(fd: int) -> None:
 
 def _dask_slots(client: Any) -> int:
     """Worker threads the scheduler knows of now (at least 1), over every worker: ``Client.nthreads()`` lists them
-    all (``scheduler_info()`` lists only the first 5 in the Dask versions of 2025 to mid-2026)."""
+    all (``scheduler_info()`` lists only the first 5 in some Dask versions, 2025.7 among them)."""
     try:
         return max(1, sum(int(n) for n in client.nthreads().values()))
     except (OSError, TimeoutError, KeyError, TypeError, ValueError, AttributeError):  # busy scheduler: a guess
