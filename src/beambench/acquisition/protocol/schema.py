@@ -163,7 +163,6 @@ class ThermalDrift(_Model):
 
 
 CLOCK_SUFFIX = "_clock"
-StreamName = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
 
 
 class SimOptions(_Model):
@@ -184,8 +183,9 @@ class SimOptions(_Model):
     # checks each cut and moves it where the regimes differ (beambench.backends.lookahead)
     segments: int = Field(1, ge=1, le=8)
     # each simulated device's clock, by stream name (mocap, loadcell, motor, any stream the sim backend registers;
-    # checked against them by beambench.session.slices); a stream not named keeps the default clock
-    clocks: dict[StreamName, ClockModel] = Field(default_factory=dict, max_length=64)
+    # each name checked against them, with the file, by beambench.session.slices.check_clocks); a stream not named
+    # keeps the default clock
+    clocks: dict[str, ClockModel] = Field(default_factory=dict, max_length=64)
     thermal_drift: ThermalDrift | None = None  # contact rig only
 
     @model_validator(mode="before")
