@@ -18,8 +18,11 @@ Each control tick (``control.control_s`` of rig time) :meth:`TrackController.upd
   its measured acceleration for the time the motor needs to ramp back to the target's frequency (at
   ``rate_hz_s``; the body keeps being pushed meanwhile) plus half the speed window (its lag), reaches the target,
   or the measured speed is within :data:`HANDOVER_MM_S` of it, or after 4 ``body_tau_s``; the frequency then
-  goes straight to the feedback's. With ``feedback: false`` there is no step (nothing is measured): the map's
-  frequency, rate limited.
+  goes straight to the feedback's. A stop (target 0) from a walk leads to 0 Hz instead: the crank held still,
+  the feet planted, the sim walker's body brakes at ~500 mm/s², where its backward gait brakes it at ~120 mm/s²
+  at most; it then stands in place (below). Stopping the motor for the whole segment would not do: once stopped
+  the body rocks on its legs at up to ±25 mm/s for more than a second (docs/walker-twin.md). With
+  ``feedback: false`` there is no step (nothing is measured): the map's frequency, rate limited.
 - **feedback** (PI, in speed units): ``u = target + kp·e + I`` with ``e = target − measured``, then the band's
   frequency for ``u``. Working in speed and inverting through the map keeps the loop gain near ``kp`` however
   steep the map is locally. ``u`` is clipped to the band's speeds (its frequency edges); the integrator does not
@@ -256,7 +259,10 @@ class TrackController:
         assert band is not None
         run = self.map.stand_band(band, self.max_hz) or band
         f_motor, ff = self._f_motor, self.feedforward()
-        f_lead = min(run.frequency_for(self.target + self.c.lead * (self.target - self._step_from)), self.max_hz)
+        if self.target == 0:  # a stop: the crank held still brakes the body hardest (see the module docstring)
+            f_lead = 0.0
+        else:
+            f_lead = min(run.frequency_for(self.target + self.c.lead * (self.target - self._step_from)), self.max_hz)
         passed = (f_motor - ff) * (f_lead - ff) >= 0  # the motor got to the target's frequency on its way to the lead's
         if math.isfinite(measured) and passed:
             back_s = abs(f_motor - ff) / self.c.rate_hz_s
@@ -270,8 +276,11 @@ class TrackController:
         return f_lead
 
     def window_s(self) -> float:
-        f = max(self.f_cmd, 1e-6)
-        return min(max(self.c.window_periods / f, self.c.min_window_s), self.c.max_window_s)
+        """The speed window: ``window_periods`` drive periods, clipped; a crank held still (0 Hz) has no period to
+        average over, so the shortest (the lag of a long window would hide a stop's quick braking)."""
+        if self.f_cmd <= 0:
+            return self.c.min_window_s
+        return min(max(self.c.window_periods / self.f_cmd, self.c.min_window_s), self.c.max_window_s)
 
     def update(self, now_ns: int) -> Decision:
         """One tick at rig time ``now_ns``: the next commanded frequency (also in :attr:`f_cmd`)."""
