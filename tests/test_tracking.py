@@ -505,3 +505,18 @@ def test_the_shipped_walker_stops_within_1_s_of_the_change(shipped_walker_map, t
     start = track.bounds[1][0]
     braking = (track.t > start) & (track.t < start + 1.0)
     assert (track.frequency[braking] == 0).any() and track.frequency[-1] > 10
+
+
+def test_the_walker_drive_ramp_is_one_number_from_the_rig_file():
+    """The walker drive's velocity ramp: the rig file's (what its ODrive is configured with) is the one the sim twin
+    and the emulated ODrive ramp at, and the controller's default rate stays below it (its steps reckon with it)."""
+    from beambench.acquisition.protocol.schema import load_rig_file
+    from beambench.backends.emulated import odrive_config
+    from beambench.backends.hardware import DEFAULT_RIG_FILE
+    from beambench.emulators.odrive_can import OdriveEmulatorConfig
+    from beambench.sim.scene_params import WalkerParams
+
+    ramp = load_rig_file(DEFAULT_RIG_FILE).walker.vel_ramp_rate_turn_s2
+    assert ramp == RAMP_HZ_S == WalkerParams().vel_ramp_rate
+    assert odrive_config(True, None, OdriveEmulatorConfig).vel_ramp_rate == ramp
+    assert TrackControl().rate_hz_s < ramp

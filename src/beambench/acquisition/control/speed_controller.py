@@ -56,6 +56,7 @@ TRACK = "track"
 INTEGRATE_ABS_MM_S = 10.0  # the integrator's error band: control.integrate_within × |target| + this
 ACCEL_LAG_S = 0.1  # the measured acceleration: the windowed speed now against this long before
 HANDOVER_MM_S = 5.0  # a step ends when the measured speed is this close to the target (then PI)
+REBOUND_MM_S = 10.0  # a stop's catch: the body swinging back past 0 by more than this takes one more step
 MOTOR_FRESH_S = 0.2  # motor telemetry older than this is not used (then the motor is taken to ramp at rate_hz_s)
 
 # modes (the ``mode`` column)
@@ -176,6 +177,8 @@ class TrackController:
         self._stepped_at = 0  # when the step started (ns)
         self._step_sign = 1.0  # the step's direction: +1 speeding up (forward), -1 slowing down
         self._step_from = 0.0  # the speed measured at the step's start (mm/s)
+        self._catch = False  # the step is a stop's: the crank held still (0 Hz)
+        self._rebound = False  # a stop's catch ended: one more step if the body swings back past the target
         self._f_motor = 0.0  # the motor's frequency: its telemetry, else a ramp at rate_hz_s toward the command
 
     # --- sink -----------------------------------------------------------------------------------------
@@ -259,7 +262,7 @@ class TrackController:
         assert band is not None
         run = self.map.stand_band(band, self.max_hz) or band
         f_motor, ff = self._f_motor, self.feedforward()
-        if self.target == 0:  # a stop: the crank held still brakes the body hardest (see the module docstring)
+        if self._catch:  # a stop: the crank held still brakes the body hardest (see the module docstring)
             f_lead = 0.0
         else:
             f_lead = min(run.frequency_for(self.target + self.c.lead * (self.target - self._step_from)), self.max_hz)
@@ -274,6 +277,14 @@ class TrackController:
             self._leading = False
             return None
         return f_lead
+
+    def _start_step(self, now_ns: int, speed: float, catch: bool) -> None:
+        """A step from the measured ``speed`` (see the module docstring); ``catch``: a stop's, the crank held still."""
+        self._pending, self._stepped_at = False, now_ns
+        self._leading = self.band is not None and self.c.feedback  # feed-forward alone measures nothing
+        self._step_sign = 1.0 if self.target >= speed else -1.0
+        self._step_from = speed
+        self._catch = self._rebound = catch and self._leading
 
     def window_s(self) -> float:
         """The speed window: ``window_periods`` drive periods, clipped; a crank held still (0 Hz) has no period to
@@ -303,11 +314,11 @@ class TrackController:
             mode = STANDING if self.band is None else TRACKING
             f_motor = self._motor_frequency(now_ns, dt)
             if self._pending:  # a new segment: its step (the motor's own ramp is the only limit)
-                self._pending, self._stepped_at = False, now_ns
-                self._leading = self.band is not None and self.c.feedback  # feed-forward alone measures nothing
                 now_speed = measured if math.isfinite(measured) else self.map.speed_at(f_motor)
-                self._step_sign = 1.0 if self.target >= now_speed else -1.0
-                self._step_from = now_speed
+                self._start_step(now_ns, now_speed, catch=self.target == 0)
+            elif self._rebound and not self._leading and math.isfinite(measured):
+                if (self.target - measured) * self._step_sign < -REBOUND_MM_S:  # swung back past the target
+                    self._start_step(now_ns, measured, catch=False)
             leading = self._leading
             lead = self._step_frequency(now_ns, dt, measured) if leading else None
             if self.band is None:
