@@ -20,8 +20,10 @@ Each control tick (``control.control_s`` of rig time) :meth:`TrackController.upd
   or the measured speed is within :data:`HANDOVER_MM_S` of it, or after 4 ``body_tau_s``; the frequency then
   goes straight to the feedback's. A stop (target 0) from a walk leads to 0 Hz instead: the crank held still,
   the feet planted, the sim walker's body brakes at ~500 mm/s², where its backward gait brakes it at ~120 mm/s²
-  at most; it then stands in place (below). Stopping the motor for the whole segment would not do: once stopped
-  the body rocks on its legs at up to ±25 mm/s for more than a second (docs/walker-twin.md). With
+  at most; it then stands in place (below). The planted legs give some of the body's speed back: if it swings
+  back past 0 by more than :data:`REBOUND_MM_S`, one more step from there (in the run through zero, crank turning).
+  Stopping the motor for the whole segment would not do: once stopped the body rocks on its legs at up to
+  ±25 mm/s for more than a second (docs/walker-twin.md). With
   ``feedback: false`` there is no step (nothing is measured): the map's frequency, rate limited.
 - **feedback** (PI, in speed units): ``u = target + kp·e + I`` with ``e = target − measured``, then the band's
   frequency for ``u``. Working in speed and inverting through the map keeps the loop gain near ``kp`` however
@@ -316,9 +318,8 @@ class TrackController:
             if self._pending:  # a new segment: its step (the motor's own ramp is the only limit)
                 now_speed = measured if math.isfinite(measured) else self.map.speed_at(f_motor)
                 self._start_step(now_ns, now_speed, catch=self.target == 0)
-            elif self._rebound and not self._leading and math.isfinite(measured):
-                if (self.target - measured) * self._step_sign < -REBOUND_MM_S:  # swung back past the target
-                    self._start_step(now_ns, measured, catch=False)
+            elif self._rebound and not self._leading and (self.target - measured) * self._step_sign < -REBOUND_MM_S:
+                self._start_step(now_ns, measured, catch=False)  # a stop's catch swung the body back past 0
             leading = self._leading
             lead = self._step_frequency(now_ns, dt, measured) if leading else None
             if self.band is None:
