@@ -520,3 +520,19 @@ def test_the_walker_drive_ramp_is_one_number_from_the_rig_file():
     assert ramp == RAMP_HZ_S == WalkerParams().vel_ramp_rate
     assert odrive_config(True, None, OdriveEmulatorConfig).vel_ramp_rate == ramp
     assert TrackControl().rate_hz_s < ramp
+
+
+def test_the_shipped_walker_walks_off_from_rest_within_1_s(shipped_walker_map, tmp_path):
+    """From rest to 60 mm/s on the shipped walker's twin (walker_track's first segment): the drive's ramp
+    (calibration/rig.yaml's 200 turn/s²) passes the backward band in 0.1 s, so the walker is within the tolerance in
+    under 1 s; at 50 turn/s² it walked backward first and took 1.68 s."""
+    from beambench.analysis.session_analysis import analyze_session
+    from beambench.session.run import run_session
+    from beambench.sinks.session_file.reader import read_session
+
+    text = f"name: t\nrig: walker\n{SHIPPED_SIM}track: {{map: {shipped_walker_map}, segments: [{{speed_mm_s: 60, hold_s: 3}}]}}\n"
+    path = tmp_path / "start.h5"
+    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    track = analyze_session(read_session(path)).track
+    assert track is not None
+    assert track.segments[0]["settling_s"] <= 1.0, track.segments
