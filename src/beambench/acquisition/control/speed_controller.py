@@ -19,12 +19,12 @@ Each control tick (``control.control_s`` of rig time) :meth:`TrackController.upd
   ``rate_hz_s``; the body keeps being pushed meanwhile) plus half the speed window (its lag), reaches the target,
   or the measured speed is within :data:`HANDOVER_MM_S` of it, or after 4 ``body_tau_s``; the frequency then
   goes straight to the feedback's. A stop (target 0) from a walk leads to 0 Hz instead: the crank held still,
-  the feet planted, the sim walker's body brakes at ~500 mm/s², where its backward gait brakes it at ~120 mm/s²
+  the feet planted, the sim walker's body brakes at ~600 mm/s², where its backward gait brakes it at ~140 mm/s²
   at most; it then stands in place (below). The planted legs give some of the body's speed back: if it swings
   back past 0 by more than :data:`REBOUND_MM_S`, one more step from there (in the run through zero, crank turning).
   Stopping the motor for the whole segment would not do: once stopped the body rocks on its legs at up to
-  ±25 mm/s for more than a second (docs/walker-twin.md). With
-  ``feedback: false`` there is no step (nothing is measured): the map's frequency, rate limited.
+  ±25 mm/s for more than a second (docs/walker-twin.md). With ``feedback: false`` there is no step (nothing is
+  measured): the map's frequency, rate limited.
 - **feedback** (PI, in speed units): ``u = target + kp·e + I`` with ``e = target − measured``, then the band's
   frequency for ``u``. Working in speed and inverting through the map keeps the loop gain near ``kp`` however
   steep the map is locally. ``u`` is clipped to the band's speeds (its frequency edges); the integrator does not
