@@ -74,10 +74,11 @@ SYMMETRY = {"newton": (mujoco.mjtSolver.mjSOL_NEWTON, 1e-9, 1e-9), "pgs (shipped
 def test_mirror_image_walker_drifts_sideways_the_other_way(solver: str, monkeypatch: pytest.MonkeyPatch):
     """Mirroring the robot across its sagittal plane (both legs' chirality swapped, the flat motor's spin
     reversed) mirrors the motion: same forward path, opposite sideways drift (lateral slide freed). Checked
-    over 0.8 s: the gait is chaotic, so round-off differences grow ~100× per 0.3 s after that."""
+    over 0.8 s from rest with the crank ramping at 50 turn/s² (40 Hz at 0.8 s): the gait is chaotic once it walks,
+    so round-off differences grow ~100× per 0.3 s after that (a faster ramp walks sooner and grows them sooner)."""
     which, tol, _ = SYMMETRY[solver]
     monkeypatch.setattr(walker, "SOLVER", which)
-    base = {"motor_flat": 1.0, "lateral_free": 1.0, "timestep": 1e-4}
+    base = {"motor_flat": 1.0, "lateral_free": 1.0, "timestep": 1e-4, "vel_ramp_rate": 50.0}
     a = replace(WalkerParams(), left_chirality=1.0, right_chirality=1.0, spin=-1.0, **base)
     b = replace(WalkerParams(), left_chirality=-1.0, right_chirality=-1.0, spin=1.0, **base)
     sa, ta = _run(a, 40.0, 0.8)

@@ -532,8 +532,9 @@ def odrive_config(own_motor: bool, rig_file: Path | None, config_type: Any) -> A
         feedback=drive.feedback,
         torque_constant=drive.torque_constant_nm_a,
         # the offset mass's inertia arrives with the scene's rotor torque (fed back as the load torque); that torque
-        # also carries the rotor's own inertia, so the ramp sees it twice (≈ 3 mN·m at 50 turn/s², ≈ 0.1 A)
+        # also carries the rotor's own inertia, so the ramp sees it twice (≈ 12 mN·m at 200 turn/s², ≈ 0.5 A)
         inertia=drive.rotor_inertia_kg_m2,
+        vel_ramp_rate=drive.vel_ramp_rate_turn_s2,
         vel_gain=0.01,
         vel_integrator_gain=0.1,
         viscous_friction=0.0,

@@ -106,7 +106,7 @@ class WalkerParams:
     contact_timeconst: float = 0.0003  # N: solref time constant, converged with the timestep (module docstring)
     contact_dampratio: float = 1.0  # N: critically damped contact
     servo_hz: float = 300.0  # N: rotor angle servo bandwidth (the ODrive holds the commanded speed)
-    vel_ramp_rate: float = 50.0  # G: ODrive velocity ramp, turn/s²
+    vel_ramp_rate: float = 200.0  # turn/s²: the drive's ODrive ramp, calibration/rig.yaml walker.vel_ramp_rate_turn_s2
     spin: float = -1.0  # G: rotor turns about -y (with the legs below: backward at 23 Hz, forward above ~27 Hz)
     left_chirality: float = -1.0  # P: mirrored legs, left twisted -φ, right +φ
     right_chirality: float = 1.0  # P

@@ -238,7 +238,9 @@ class TrackControl(_Model):
     ki_per_s: float = Field(2.0, ge=0, le=50)  # integral gain (1/s)
     # the integrator runs only while |error| <= integrate_within × |target| + 10 mm/s (not during big transients)
     integrate_within: float = Field(0.25, ge=0, le=10)
-    rate_hz_s: float = Field(45.0, gt=0, le=1000)  # frequency rate limit (Hz/s): the ODrive ramps at 50 turn/s²
+    # frequency rate limit (Hz/s), and the motor's ramp the controller reckons with: below the walker drive's
+    # ramp (calibration/rig.yaml walker.vel_ramp_rate_turn_s2, 200 turn/s²)
+    rate_hz_s: float = Field(180.0, gt=0, le=1000)
     control_s: float = Field(0.05, ge=0.005, le=1)  # control period (rig time)
     window_periods: float = Field(4.0, gt=0, le=100)  # measured speed: slope over this many drive periods
     min_window_s: float = Field(0.15, gt=0, le=10)
@@ -515,6 +517,10 @@ class WalkerDrive(RigSection):
     continuous_current_a: float = Field(2.03, gt=0, le=60)  # line 6: nominal (max. continuous) current
     current_lim_a: float = Field(6.0, gt=0, le=60)  # ODrive current_lim: ~3× line 6 (twin: 5.1 A peaks at 80 Hz)
     vel_limit_turn_s: float = Field(88.0, gt=0, le=250)  # 80 Hz = 80 turn/s, ×1.1; 24 V reach 150 turn/s (line 13)
+    # ODrive controller.config.vel_ramp_rate (turn/s², set over USB): 200 turn/s² needs (9.25e-6 + 4.0e-6 kg·m²) ×
+    # 2π × 200 = 16.7 mN·m = 0.65 A at 25.5 mN·m/A (lines 12, 16), a third of line 6's 2.03 A continuous current;
+    # the sim twin shares it (WalkerParams.vel_ramp_rate) and draws ≤ 2.7 A peaks with it (benchmarks/bench_track.py)
+    vel_ramp_rate_turn_s2: float = Field(200.0, gt=0, le=1000)
 
 
 class RigFile(_Model):
