@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, TypeVar
 
+from beambench.common.registry import Registry
 from beambench.sim.models.names import ROD_NAME
 
 if TYPE_CHECKING:
@@ -40,10 +41,10 @@ class ModelFamily:
     """Why a claimed name is still refused (e.g. too many segments), else None."""
 
 
-FAMILIES: dict[str, ModelFamily] = {}
+FAMILIES: Registry[ModelFamily] = Registry("beam model family", verb="declared")
 """Every declared family by name, in declaration order."""
 Builder = Callable[[str, "BeamParams"], object]
-BUILDERS: dict[str, Builder] = {}
+BUILDERS: Registry[Builder] = Registry("builder of beam model family")
 """Each family's model builder ``(model name, parameters) → BeamModel`` (the builder modules import this one,
 so it names no model type), registered by its module."""
 B = TypeVar("B", bound=Builder)
@@ -51,19 +52,18 @@ B = TypeVar("B", bound=Builder)
 
 def declare(family: ModelFamily) -> ModelFamily:
     """Add a family (a name is declared once)."""
-    if family.name in FAMILIES:
-        raise ValueError(f"beam model family {family.name!r} is declared twice")
-    FAMILIES[family.name] = family
-    return family
+    return FAMILIES.add(family.name, family)
 
 
 def beam_builder(family: ModelFamily) -> Callable[[B], B]:
     """Register the decorated ``build(name, params)`` as the builder of ``family``'s models."""
 
     def add(build: B) -> B:
-        if FAMILIES.get(family.name) is not family or family.name in BUILDERS:
-            raise ValueError(f"beam model family {family.name!r}: not declared, or its builder registered twice")
-        BUILDERS[family.name] = build
+        if family.name not in FAMILIES:
+            raise ValueError(FAMILIES.unknown(family.name))
+        if FAMILIES[family.name] is not family:
+            raise ValueError(f"beam model family {family.name!r}: another family of that name is declared")
+        BUILDERS.add(family.name, build)
         return build
 
     return add
