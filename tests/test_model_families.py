@@ -63,3 +63,17 @@ def test_a_builder_needs_its_family_declared_once():
     with pytest.raises(ValueError, match="declared twice"):
         families.declare(ModelFamily("rod", re.compile("rod"), "rod", default="rod"))
 
+
+def test_the_walker_takes_its_legs_from_any_family_that_says_it_builds_them(stiff):
+    """A newly declared family is a walker leg unless it says otherwise (``walker_leg``), and the refusal lists
+    the families that are; what a model is never comes from a hand list of names."""
+    from beambench.sim.scenes.walker import WalkerLegError, check_leg_model
+
+    check_leg_model("stiff2")  # declared a moment ago: the walker builds it
+    flat = ModelFamily("flat", re.compile("flat"), "flat", default="flat", walker_leg=False)
+    with families.FAMILIES.restoring(flat.name):
+        families.declare(flat)
+        with pytest.raises(
+            WalkerLegError, match=r"^sim.model = 'flat': refused for the walker: .* prb3 or rod or stiff$"
+        ):
+            check_leg_model("flat")

@@ -36,7 +36,10 @@ class ModelFamily:
     default: str
     """The model the family's own name means where a model name is expected (``fit --model rod``)."""
     segmented: bool = False
-    """Its stiffness is a material (E, β) over segments, not joint springs (k, b)."""
+    """Its stiffness is a material (E, β) over segments, not joint springs (k, b) between rigid links (l1, l2, l3)
+    fitted without the physical set's E."""
+    walker_leg: bool = True
+    """The walker builds its legs from this family's models."""
     refuse: Callable[[re.Match[str]], str | None] | None = None
     """Why a claimed name is still refused (e.g. too many segments), else None."""
 
@@ -75,6 +78,9 @@ def _too_many_segments(m: re.Match[str]) -> str | None:
 
 PRB3 = declare(ModelFamily("prb3", re.compile("prb3"), "prb3", default="prb3"))
 """The paper's pseudo-rigid body: three links on joint springs (:class:`beambench.sim.models.beam.PRB3`)."""
+PAPER_MODEL = PRB3.default
+"""The model the paper simulates (and a protocol's ``sim.model`` unless it names another): the reference of cost in
+the model ladder's charts."""
 ROD = declare(
     ModelFamily(
         "rod",
