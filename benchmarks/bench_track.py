@@ -1,4 +1,5 @@
-"""Benchmark: speed tracking on the sim walker against issue 25's goals, each from one run.
+"""Benchmark: speed tracking on the sim walker against its goals (each segment's RMS error within tolerance after
+settling, direction within 1.5 s, within the frequency limit), each from one run.
 
     python benchmarks/bench_track.py [--out DIR] [--mismatch foot_mass=0.0022] [--profiles] [--ramp 100]
 

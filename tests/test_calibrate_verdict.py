@@ -311,8 +311,8 @@ def test_a_sessions_signed_steps_are_one_agreement_row():
 
 
 def test_the_maps_figure_places_each_step_at_its_label_as_the_table_reads_it():
-    """Issue 23: the figure disagreed with the table at 17 Hz (a '1' step drawn near continuous by its in-contact
-    fraction, a '1/2' step off its tick by its measured ratio)."""
+    """The figure agrees with the table: a '1' step is drawn at its regime's level, not near continuous by its
+    in-contact fraction, and a '1/2' step on its tick, not off it by its measured ratio."""
     from beambench.studies.twin_calibration.contact_objective import regime_level
     from beambench.studies.twin_calibration.report import _label_level
 

@@ -409,7 +409,7 @@ def test_bad_log_suffix_is_refused_up_front(tmp_path):
 
 @pytest.mark.parametrize(("kind", "code"), [("motor", 0x1), ("encoder", 0x4)])
 def test_the_first_fault_report_reads_the_error_register_first(motor, emu, kind, code):
-    """Issue 13.10: the heartbeat only flags MOTOR_FAILED; the report must carry the register's value, read
+    """The heartbeat only flags MOTOR_FAILED; the report must carry the register's value, read
     on the spot (was ``motor error 0x0``: the value before the RTR answer arrived)."""
     motor.arm(LIMITS)
     emu.inject_error(**{kind: code})

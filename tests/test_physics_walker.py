@@ -37,7 +37,7 @@ def test_standing_walker_rests_on_feet_and_wheels_with_its_weight():
 
 
 def test_walker_builds_the_physical_rod_legs_and_refuses_unknown_models():
-    """Issue 22: the walker's legs are the contact rig's physical rod (rod5g, sim_backend/rod_physical.yaml), with
+    """The walker's legs are the contact rig's physical rod (rod5g, sim_backend/rod_physical.yaml), with
     the set's walker block; a name no model family claims is a one-line WalkerLegError."""
     physical = load_params("physical", model="rod")
     sim = WalkerSim(make_beam_model("rod5g", physical), 90.0)
@@ -161,7 +161,7 @@ def test_default_walker_walks_backward_at_23_hz_and_forward_at_65_hz_like_the_pa
 
 
 def test_protocol_selects_the_named_set_and_refuses_unknown_legs():
-    """The shipped protocol runs the physical set's walker block on rod5g legs (issue 22); `sim.model: prb3,
+    """The shipped protocol runs the physical set's walker block on rod5g legs; `sim.model: prb3,
     sim.params: paper` the effective (PRB3) calibrated defaults, `walker_paper_guesses` the paper_guesses set; an
     unknown leg model is a one-line ConfigError before anything is built."""
     from beambench.acquisition.protocol.schema import parse_protocol

@@ -1,4 +1,4 @@
-"""Speed tracking (issue 25): the speed map's bands, the controller against a known synthetic plant, the
+"""Speed tracking: the speed map's bands, the controller against a known synthetic plant, the
 protocol's checks, and end to end on the sim walker (its own small twin map, measured once per test session)."""
 
 from __future__ import annotations

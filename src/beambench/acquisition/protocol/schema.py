@@ -163,7 +163,6 @@ class ThermalDrift(_Model):
 
 
 CLOCK_SUFFIX = "_clock"
-StreamName = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
 
 
 class SimOptions(_Model):
@@ -184,8 +183,9 @@ class SimOptions(_Model):
     # checks each cut and moves it where the regimes differ (beambench.backends.lookahead)
     segments: int = Field(1, ge=1, le=8)
     # each simulated device's clock, by stream name (mocap, loadcell, motor, any stream the sim backend registers;
-    # checked against them by beambench.session.slices); a stream not named keeps the default clock
-    clocks: dict[StreamName, ClockModel] = Field(default_factory=dict, max_length=64)
+    # each name checked against them, with the file, by beambench.session.slices.check_clocks); a stream not named
+    # keeps the default clock
+    clocks: dict[str, ClockModel] = Field(default_factory=dict, max_length=64)
     thermal_drift: ThermalDrift | None = None  # contact rig only
 
     @model_validator(mode="before")
@@ -446,7 +446,12 @@ def load_protocol(path: str | Path) -> tuple[Protocol, str]:
 
 
 # --- rig wiring -----------------------------------------------------------------------------------------
-class NatNetWiring(_Model):
+class RigSection(_Model):
+    """A section of the rig file (strict, every field known); a device stream that brings its own section
+    subclasses it (``@device_stream(name, wiring=...)``, :mod:`beambench.backends.hardware`)."""
+
+
+class NatNetWiring(RigSection):
     """Where Motive is and how frames arrive."""
 
     server_address: str = "127.0.0.1"
@@ -463,14 +468,14 @@ class NatNetWiring(_Model):
     )
 
 
-class Geometry(_Model):
+class Geometry(RigSection):
     """The mocap's world frame as calibrated (Motive's default is y up); stored in each session for analysis."""
 
     up_axis: str = Field("y", pattern=r"^[+-]?[xyz]$")
     forward_axis: str = Field("x", pattern=r"^[+-]?[xyz]$")  # the walker's direction of travel
 
 
-class OdriveWiring(_Model):
+class OdriveWiring(RigSection):
     """How the ODrive is reached: CAN Simple over python-can, or USB through the ``odrive`` package."""
 
     transport: Literal["can", "usb"] = "can"
@@ -486,7 +491,7 @@ class OdriveWiring(_Model):
     telemetry_timeout_s: float | None = Field(1.0, gt=0, le=10)  # Encoder_Estimates (every 10 ms by default)
 
 
-class LoadCellWiring(_Model):
+class LoadCellWiring(RigSection):
     """The load-cell microcontroller's serial port."""
 
     port: str = "/dev/ttyACM0"
@@ -494,7 +499,7 @@ class LoadCellWiring(_Model):
     silence_timeout_s: float | None = Field(1.0, gt=0, le=60)  # no frame for this long (1 kHz board): fault
 
 
-class WalkerDrive(_Model):
+class WalkerDrive(RigSection):
     """The walker's motor on the ODrive (``calibration/rig.yaml`` ``walker:``): what the ODrive must be configured
     with for it, and what the emulated ODrive plays. Defaults: Maxon EC 45 flat Ø42.9 mm 30 W with Hall sensors,
     article 200142 (12 V winding), datasheet May 2012 edition (line numbers in the comments)."""
@@ -523,7 +528,9 @@ class RigFile(_Model):
     walker: WalkerDrive = Field(default_factory=WalkerDrive)
 
 
-def load_rig_file(path: str | Path) -> RigFile:
-    """Read and validate a rig file, with the same one-line errors and caps as protocols."""
+def load_rig_file(path: str | Path, model: type[RigFile] = RigFile) -> RigFile:
+    """Read and validate a rig file, with the same one-line errors and caps as protocols; ``model``: the rig
+    file's model with the sections the registered device streams bring
+    (:func:`beambench.backends.hardware.rig_file_model`)."""
     data, _ = load_yaml_file(path)
-    return validate(RigFile, data, str(path), what="rig wiring fields")
+    return validate(model, data, str(path), what="rig wiring fields")
