@@ -91,9 +91,9 @@ def _threads(workers: int | None = None, scheduler: str | None = None, preload: 
 
 @pytest.fixture
 def toy(monkeypatch):
-    monkeypatch.setitem(RIGS, "contact", TOY)
     monkeypatch.setattr("beambench.studies.executor.make_executor", _threads)
-    return TOY
+    with RIGS.stand_in("contact", TOY):
+        yield TOY
 
 
 def _beambench(*args: str) -> subprocess.CompletedProcess:
@@ -207,9 +207,9 @@ def test_a_miss_that_another_noise_seed_meets_is_the_twins_own_spread_not_a_boun
     66 Hz target is within the twin's seed-to-seed spread, and the verdict says so instead of blaming w."""
     from dataclasses import replace
 
-    monkeypatch.setitem(RIGS, "contact", replace(TOY, simulate=noisy_simulate))
     monkeypatch.setattr("beambench.studies.executor.make_executor", _threads)
-    res, out = _calibrate(tmp_path, "rig: contact\ncontinuous_below_hz: 17\nhalf_at_hz: 32\nthird_at_hz: 66\n")
+    with RIGS.stand_in("contact", replace(TOY, simulate=noisy_simulate)):
+        res, out = _calibrate(tmp_path, "rig: contact\ncontinuous_below_hz: 17\nhalf_at_hz: 32\nthird_at_hz: 66\n")
     assert res.returncode == EXIT_MISSED == 5, res.stderr
     last = res.stderr.strip().splitlines()[-1]
     assert "third_at_hz twin 61 Hz vs 66 Hz" in last, last

@@ -20,7 +20,7 @@ from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.protocol.schema import Backend, Protocol
 from beambench.backends.build import RigSlices
 from beambench.common.yaml_config import ConfigError, shorten
-from beambench.devices.odrive.can_log_formats import LOG_SUFFIXES
+from beambench.devices.odrive.can_log import LOG_SUFFIXES
 from beambench.session.slices import check_clocks, rig_slices
 from beambench.sim.models.params import BeamParams, ParamsError, load_params
 from beambench.sim.models.registry import model_family
