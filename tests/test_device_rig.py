@@ -50,15 +50,14 @@ class Thermometer:
 def thermometer():
     made: list[Thermometer] = []
 
-    @device_stream("thermometer", section="loadcell")
-    def _make(ctx):  # type: ignore[no-untyped-def]
-        made.append(Thermometer(ctx.section.port + "-temp"))
-        return made[-1]
+    with DEVICE_STREAMS.restoring("thermometer"):
 
-    try:
+        @device_stream("thermometer", section="loadcell")
+        def _make(ctx):  # type: ignore[no-untyped-def]
+            made.append(Thermometer(ctx.section.port + "-temp"))
+            return made[-1]
+
         yield made
-    finally:
-        DEVICE_STREAMS.pop("thermometer")
 
 
 def test_the_hardware_rig_is_its_motor_and_its_registered_streams():

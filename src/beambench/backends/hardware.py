@@ -26,6 +26,7 @@ from beambench.acquisition.capabilities import (
     Stream,
 )
 from beambench.acquisition.protocol.schema import OdriveWiring, RigFile, RigSection, load_rig_file
+from beambench.common.registry import Registry
 from beambench.common.resources import shipped_dir
 from beambench.common.yaml_config import ConfigError
 
@@ -230,7 +231,7 @@ class DeviceStream:
     """What ``beambench devices`` calls it."""
 
 
-DEVICE_STREAMS: dict[str, DeviceStream] = {}
+DEVICE_STREAMS: Registry[DeviceStream] = Registry("device stream")
 """The streams of the hardware and emulated rigs, by name (the rig's identity key and ``rig.<name>``)."""
 
 
@@ -250,13 +251,12 @@ def device_stream(
     fault ``injections`` it takes, and how ``beambench devices`` pings it (shown as ``label``, default ``name``)."""
 
     def add(make: StreamFactory) -> StreamFactory:
-        if name in DEVICE_STREAMS:
-            raise ValueError(f"device stream {name!r} registered twice")
+        DEVICE_STREAMS.check_free(name)
         where = section or name
         if (wiring is None) != (where in RigFile.model_fields):
             why = "has no section" if wiring is None else "already has a section"
             raise ValueError(f"device stream {name!r}: the rig file {why} {where!r} (wiring= is for a new section)")
-        DEVICE_STREAMS[name] = DeviceStream(name, make, where, wiring, peer, tuple(injections), ping, label or name)
+        DEVICE_STREAMS.add(name, DeviceStream(name, make, where, wiring, peer, tuple(injections), ping, label or name))
         return make
 
     return add
