@@ -1,4 +1,5 @@
-"""``beambench calibrate sim`` end to end, each case from one run (issue 11 goals):
+"""``beambench calibrate sim`` end to end, each case from one run (goal: the calibrated protocol's run meets each
+target transition within ± 2 Hz):
 
 1. a session the twin made with another gap and seed (``beambench run`` on a short sweep, ``sim.plate_gap_mm``
    changed) → calibrate against the session;
@@ -13,7 +14,7 @@ Per case: the calibration's wall time, the fitted parameters, and the calibrated
 
 Writes ``<out>/bench_calibrate.json``; prints a table. Nothing is written outside ``--out``.
 
-Measured 2026-12-01 (branch issue11b, as-built PRB3 contact scene, prior = the paper set; 2-core machine shared,
+Measured 2026-12-01 (as-built PRB3 contact scene, prior = the paper set; 2-core machine shared,
 load average 6–14 throughout, so ~5–10 s per evaluation instead of ~1.5 s), one run per case:
 
 - case 1, session with gap 1.0 mm, seed 7 (4–44 Hz, 2 Hz): 559 s, 55 evaluations; k_scale 1, b_scale 1,
@@ -26,7 +27,7 @@ load average 6–14 throughout, so ~5–10 s per evaluation instead of ~1.5 s), 
   to 42 Hz. This model family cannot give both the continuous band and the subharmonics with force-only
   regimes; the weighting only chooses which to lose (kept at −1).
 
-After merging issue 11 part A (shipped sweep on the ``contact_paper`` set, which is then the prior; load 1–5):
+With the shipped sweep on the ``contact_paper`` set (then the prior; load 1–5):
 
 - case 2, targets 15 / 30 / 42: 332 s, 266 evaluations, J 0.025; k_scale 0.717, b_scale 0.679, gap 8.787 mm.
   Calibrator's map: ½ at 30, ⅓ at 41, continuous ≤ 8 then "2"/irregular to 14. Stepped run of the protocol:
@@ -35,21 +36,21 @@ After merging issue 11 part A (shipped sweep on the ``contact_paper`` set, which
 - case 3, paper: 142 s, 186 evaluations (stall after the prior line found the set: k_scale 1, b_scale 1,
   gap 7.377 mm); stepped run: ½ at 27, ⅓ at 38 (± 2 Hz); continuous 3–9 Hz with "2" at 12–17 (edge MISS).
 
-With the opt-in unknowns (``--free k_scale,b_scale,preload_mm,frame_mass_g,mass_dx_mm --workers 1``; branch
-s10-contact-edge, load ~3.5, one run each; details in docs/contact-twin.md):
+With the opt-in unknowns (``--free k_scale,b_scale,preload_mm,frame_mass_g,mass_dx_mm --workers 1``; load ~3.5,
+one run each; details in docs/contact-twin.md):
 
 - case 2, 15 / 30 / 42: 360 s, 164 evaluations; k_scale 0.563, b_scale 1.35, preload 0.962 mm, frame 2.76 g,
   offset 8.2 mm; run: ½ at 30, ⅓ at 41 (± 2 Hz), continuous 1–9 and 11–12 (edge MISS), no stray subharmonics.
 - case 3, paper: 344 s, 146 evaluations; k_scale 0.837, b_scale 1.55, preload 0.561 mm, frame 3.35 g, offset
   3.1 mm; run: ½ at 28, ⅓ at 37 (± 2 Hz), continuous 1–4 and 6–9 (edge MISS).
 
-From the new default prior (``contact_stuck``, non-sliding sole), default unknowns, ``--workers 1 --budget-s 300``:
+From the ``contact_stuck`` prior (non-sliding sole), default unknowns, ``--workers 1 --budget-s 300``:
 
 - case 2, 15 / 30 / 42: 222 s, 130 evaluations; k_scale 0.698, b_scale 1.63, preload 0.211 mm; run: continuous
   1–16 (± 2 Hz), ½ at 30, ⅓ at 45 (MISS by 1 Hz beyond ± 2). Another run: continuous below 21, ½ at 31, no ⅓ —
   its own (from-rest) map had continuous below 15: the calibrator fitted a different map than the run makes.
 
-Third pass (branch s11-contact-cal; docs/contact-twin.md "Calibrating to other targets"): stepped maps as the run
+With the calibrator as documented in docs/contact-twin.md ("Calibrating to other targets"): stepped maps as the run
 steps them (1 Hz steps), a transition term in the objective, default unknowns b_scale, preload_mm,
 friction_scale (k at the prior's), 1-D lines from the prior before the evolution, a verify stage with the
 written protocol's sweep/windows/noise (two seeds), tangential-sign weight 0.1. ``--workers 1 --budget-s 300``,
@@ -60,14 +61,14 @@ marginal step at a transition:
   friction_scale 0.751 (not identified: the paper set's sole slides either way); run: ½ at 30 (session 30) ✓.
 - case 2, 15 / 30 / 42: 296 s, 79 evaluations; b_scale 0.595, preload 0.415 mm, friction_scale 0.955 (gap
   9.268 mm); run: continuous below 14 ✓, ½ at 26 (MISS by 2 Hz beyond ± 2; the verify map had 27), ⅓ at 44 ✓.
-  An earlier state of the branch (before the lines, search maps without noise, one verify seed) found b_scale 2.11, preload 0.487 mm,
+  A calibrator without the 1-D lines, with search maps without noise and one verify seed, found b_scale 2.11, preload 0.487 mm,
   friction_scale 0.814 in 240 s: run 14 / 29 / 42, all ✓ — the search finds the region in some runs only.
 - case 3, paper 18 / 26 / 38 (tangential_sign {26: −1, 40: 1}): 291 s, 82 evaluations; b_scale 1, preload
   0.391 mm, friction_scale 1 (gap 9.288 mm: the shipped set with 0.01 mm less interference); run: continuous
   below 16, ½ at 26, ⅓ at 38, all ✓ (signs − / −: the 40 Hz sign is not reproduced). With the tangential weight
   at 0.5 the same search chose b_scale 0.707 (signs right, ⅓ at 42: MISS).
-- another target set, 16 / 24 / 34 (``--cases 2 --other 16,24,34``), earlier states of the branch at 300 and
-  540 s: continuous below 12–13 (MISS), ½ at 24 ✓, ⅓ at 35–36 ✓ or a stray ⅓ at the edge (13 Hz; MISS). The
+- another target set, 16 / 24 / 34 (``--cases 2 --other 16,24,34``), at 300 and 540 s (calibrators without the
+  1-D lines): continuous below 12–13 (MISS), ½ at 24 ✓, ⅓ at 35–36 ✓ or a stray ⅓ at the edge (13 Hz; MISS). The
   maps that reach 16 / 24 / 34 need friction ×1.07–1.1 with preload ~0.3 mm, and their continuous edge is
   marginal (a ¼ or ½ label at the edge under noise). 20 / 24 / 34 is beyond the twin: friction ×1.15 (6.9) gives
   continuous below 18 with ½ at 24 and ⅓ at 37.

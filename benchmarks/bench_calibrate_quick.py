@@ -1,4 +1,4 @@
-"""``beambench calibrate sim --quick`` on the contact rig against its 2-minute goal (issue 33), two cases:
+"""``beambench calibrate sim --quick`` on the contact rig against its 2-minute goal, two cases:
 
 1. ``paper``: the paper's targets (``--targets paper_contact_targets``);
 2. ``session``: a twin-made session it has not seen: the shipped twin (``rod5g``/``physical``) with hidden damping

@@ -1,11 +1,11 @@
-"""``beambench calibrate sim`` on the walker, each case from one run (issue 12 goal: ± 30 % at each target
-frequency, ≤ 10 min wall):
+"""``beambench calibrate sim`` on the walker, each case from one run (goal: ± 30 % at each target frequency,
+≤ 10 min wall):
 
 1. ``paper``: the paper's speeds (``calibration/paper_walker_targets.yaml``: 23 Hz −35.7, 65 Hz +156.3);
 2. ``twin``: a session the twin made with another foot mass and friction (hidden: 5 g, 0.45; 30/50/70 Hz, settle
    3 s, record 1.5 s; ``beambench run`` then calibrate against the session, speeds from ``beambench.analysis``);
 3. ``other``: a targets file with other speeds (``--other``, default {25: -50, 45: 100, 65: 120});
-4. ``unreachable``: {20: -20, 50: 80, 70: 120} — research12 found no (foot mass, friction) in the box for it
+4. ``unreachable``: {20: -20, 50: 80, 70: 120} — a 2-D scan of the box finds no (foot mass, friction) for it
    (20 Hz never −20 mm/s while 50 Hz is ≈ 80); kept to show how a failed fit reports.
 
 Per case: the calibration's wall time, the fitted parameters, and the calibrated parameter set's steady speeds at

@@ -1,4 +1,4 @@
-"""Benchmark: which unknowns of the contact-rig twin move its regime map (issue 11).
+"""Benchmark: which unknowns of the contact-rig twin move its regime map.
 
     python benchmarks/bench_contact_sensitivity.py [--params contact_paper] [--out bench_out/contact_sensitivity]
         [--start 2 --stop 44 --step 2] [--settle 1.5] [--record 2.0] [--noise] [--only U1,U2] [--nthread N]
@@ -6,7 +6,7 @@
 One unknown at a time, each at two values around the parameter set (default: the shipped calibrated
 ``prb3_contact_paper``): stiffness scale (k and k_twist), damping scale (b and b_twist), the gap h' (from the
 unloaded foot), the foot mass, the contact time constant, friction, the load's offset from the sole along
-the stage travel, and the clamp orientation (section turned 90° at the clamp); then (second pass) the stiffness
+the stage travel, and the clamp orientation (section turned 90° at the clamp); then the stiffness
 and the load frame's own mass at the same interference (sag − gap), the load's offset along y, a stuck foot
 (friction 6) and a compliant sole (``--only 'compliant sole,friction'`` runs a subset; ``_match_sag`` rows move
 the gap with the sag so the interference stays the base's). For each: the continuous
@@ -63,7 +63,7 @@ def variations(base_rig) -> list[tuple[str, str, dict, dict]]:
         ("mass offset", "−10 mm", {}, {"mass_dx": base_rig.mass_dx - 0.01}),
         ("clamp orientation", "turned 90°", {}, {"clamp_roll_deg": 90.0}),
         ("clamp orientation", "turned 90°, gap −sag diff", {}, {"clamp_roll_deg": 90.0, "_match_sag": 1.0}),
-        # second pass (docs/contact-twin.md, "What moves the continuous edge")
+        # at the same interference (docs/contact-twin.md, "What moves the continuous edge")
         ("stiffness at same interference", "×0.8", {"k": 0.8}, {"_match_sag": 1.0}),
         ("stiffness at same interference", "×1.25", {"k": 1.25}, {"_match_sag": 1.0}),
         ("frame mass at same interference", "5 g", {}, {"frame_mass": 0.005, "_match_sag": 1.0}),

@@ -72,8 +72,8 @@ def bench_bus(reps: int = 15) -> None:
         # RTR round trip
         rtts = []
         for _ in range(reps * 4):
-            with motor._cond:
-                motor._vbus = float("nan")
+            with motor.view.cond:
+                motor.view.vbus = float("nan")
             t0 = time.perf_counter()
             motor.request(cs.Cmd.GET_BUS_VOLTAGE_CURRENT)
             while motor.latest()["bus_voltage"] != motor.latest()["bus_voltage"]:  # NaN until answered

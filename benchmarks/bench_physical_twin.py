@@ -1,4 +1,4 @@
-"""Benchmark: the physical twin's candidates (issue 22) — what each physical ingredient does to the contact rig.
+"""Benchmark: the physical twin's candidates — what each physical ingredient does to the contact rig.
 
     nice -n 15 python benchmarks/bench_physical_twin.py [--out bench_out/physical_twin] [--only NAME,NAME]
         [--settle 2.0] [--record 2.0] [--nthread 2]

@@ -14,7 +14,7 @@ CI runs none of it. Reports, from one run:
   made it durable; batch-to-Rerun: from the same arrival to the end of the Rerun sink's write; p50/p99/max;
 - the sizes of the .h5 and .rrd files.
 
-Targets (issue 13): 0 samples lost, ≤ 15 % CPU, flat RSS, ≤ 200 ms to disk and ≤ 100 ms to Rerun at p99.
+Targets: 0 samples lost, ≤ 15 % CPU, flat RSS, ≤ 200 ms to disk and ≤ 100 ms to Rerun at p99.
 
 Measured 2026-12-01, 60 min, ``--nice -10`` (machine shared with a calibration at nice 19 and, for 15 min, the
 test suite; load 1.4–5): 0 lost of 1,303,008 mocap frames and 3,619,462 load-cell samples, motor 99.8 Hz;

@@ -1,4 +1,5 @@
-"""Benchmark: speed tracking on the sim walker against issue 25's goals, each from one run.
+"""Benchmark: speed tracking on the sim walker against its goals (each segment's RMS error within tolerance after
+settling, direction within 1.5 s, within the frequency limit), each from one run.
 
     python benchmarks/bench_track.py [--out DIR] [--mismatch foot_mass=0.0022] [--profiles] [--ramp 100]
 
@@ -10,7 +11,8 @@
 3. ``--profiles``: more profiles on run 1's map (:data:`PROFILES`: steps up and down, stops, through zero, backward),
    with how many segments settle within 1 s.
 4. ``--ramp R``: the shipped profile and :data:`PROFILES` on run 1's map with the twin's motor ramping at R turn/s²
-   (its ``vel_ramp_rate``; the shipped twin's is 50): how much of the settling is the motor's ramp.
+   (its ``vel_ramp_rate``; the shipped twin's is the walker drive's, 200 in calibration/rig.yaml): how much of the
+   settling is the motor's ramp.
 
 Per run and segment: target, mean speed, RMS error after ``track.settle_s`` against its tolerance (15 % of
 |target|, 10 mm/s below 60 mm/s), settling and direction times, highest frequency; a verdict per goal. Writes

@@ -1,6 +1,6 @@
 """Walker (paper Sec. IV-B): numerical convergence, the 1–80 Hz speed curve, and the sensitivity to the unknowns.
 
-    python benchmarks/bench_walker.py --goal [--repeats 3] [--segments N]   # issue 12's goals, one command
+    python benchmarks/bench_walker.py --goal [--repeats 3] [--segments N]   # speed, wall-time and convergence goals
     python benchmarks/bench_walker.py --check                               # the convergence criterion only
     python benchmarks/bench_walker.py --sweep [--repeats 3] [--segments N]  # the shipped sweep's wall time only
     python benchmarks/bench_walker.py [--quick] [--out DIR]                 # the tables below

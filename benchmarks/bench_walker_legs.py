@@ -1,4 +1,4 @@
-"""Can the physical strip legs carry the walker? Geometry variants of the physical twin's walker (issue 22).
+"""Can the physical strip legs carry the walker? Geometry variants of the physical twin's walker.
 
     python benchmarks/bench_walker_legs.py [--out DIR] [--quick]
 

@@ -77,6 +77,6 @@ def test_contact_sweep_ratio_equals_independent_peak_count(tmp_path):
         assert row["regime"] == nearest_label(ratio)
     # the sweep crosses from one contact per cycle to one per two cycles (paper Fig. 1b, at a different f)
     assert report["regime"].iloc[0] == "1" and report["regime"].iloc[-1] == "1/2"
-    # the stage follows the command (issue 2's acceptance, seen from the analysis side)
+    # the stage follows the command: the measured drive frequency and amplitude are the protocol's
     assert np.allclose(report["measured_frequency_hz"], report["frequency_hz"], atol=0.1)
     assert np.allclose(report["stage_amplitude_mm"], 2.0, rtol=0.02)

@@ -1,4 +1,4 @@
-"""``analyze`` checks every place it writes before it writes anything (issue 21.6): a read-only report folder or
+"""``analyze`` checks every place it writes before it writes anything: a read-only report folder or
 session is one line and exit 2, and the session is left as it was (``/processing`` was written first, then a
 PermissionError traceback, exit 1). Analysing a session again does not grow it (~9 kB per run before).
 

@@ -1,4 +1,4 @@
-"""Issue 22 §2: on a prior set with physical bounds (sim_backend/rod_physical.yaml's ``bounds:``) the calibrator's
+"""On a prior set with physical bounds (sim_backend/rod_physical.yaml's ``bounds:``) the calibrator's
 unknowns are searched inside those ranges — every corner of the box is a physically possible rig — and the
 documented effective sets (no bounds) keep the generic boxes."""
 

@@ -1,5 +1,5 @@
-"""``calibrate sim`` and stop signals (issue 43.11), as ``run`` takes them: SIGINT, SIGTERM (and the other stop
-signals) at any moment from beambench's first line on — during the imports, the checks, the pool's start or the search — end it with the one
+"""``calibrate sim`` and stop signals, as ``run`` takes them: SIGINT, SIGTERM (and the other stop signals) at any
+moment from beambench's first line on — during the imports, the checks, the pool's start or the search — end it with the one
 line that says how to resume and its interrupted exit code, never an empty stderr; SIGINT is taken even when the
 command was started with it ignored (a shell script's background job); the worker pool is shut down, so Python's
 resource tracker finds no leaked semaphore. The default run makes three stops at random moments of the first
@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from beambench.commands import EXIT_STOPPED
+from import_stops import stopped_at_import
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = ROOT / "calibration" / "paper_contact_targets.yaml"
@@ -94,63 +95,6 @@ def test_more_stops_at_random_moments(tmp_path, sig, ignored, n):
     _stop_at(tmp_path, sig, random.uniform(0.0, 15.0), ignored)
 
 
-# A stop at an exact moment, the same every time: the command line runs under this driver, which sends the process
-# SIGINT when the first module of a package is about to be imported (after beambench's first line) — from code run
-# through CPython's PyRun_String, as an extension module's init runs Python (MuJoCo's pybind11 callbacks module does,
-# on its import during the command's imports), or from plain Python code.
-DRIVER = """
-import ctypes, os, runpy, signal, sys
-
-PACKAGE, VIA = sys.argv[1], sys.argv[2]
-run_string = ctypes.pythonapi.PyRun_String
-run_string.restype = ctypes.py_object
-run_string.argtypes = [ctypes.c_char_p, ctypes.c_int, ctypes.py_object, ctypes.py_object]
-STOP = "import os, signal\\nos.kill(os.getpid(), signal.SIGINT)\\nfor _ in range(10000): pass\\n"
-
-
-class StopAtImport:
-    fired = False
-
-    def find_spec(self, name, path=None, target=None):
-        if not self.fired and (name == PACKAGE or name.startswith(PACKAGE + ".")):
-            self.fired = True
-            sys.stderr.write("driver: SIGINT at the import of " + name + "\\n")
-            if VIA == "PyRun_String":
-                run_string(STOP.encode(), 257, {}, {})  # 257: Py_file_input
-            else:
-                exec(STOP)
-        return None
-
-
-sys.meta_path.insert(0, StopAtImport())
-sys.argv = ["beambench", *sys.argv[3:]]
-runpy.run_module("beambench.cli", run_name="__main__", alter_sys=True)
-"""
-
-
-def _sigint_as_in_a_terminal() -> None:
-    """SIGINT at its default, as for a command typed in a terminal, whatever started the tests (a script's background
-    job ignores it; for a command that does not take stop signals itself an ignored Ctrl-C stays ignored)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
-def _stopped_at_import(tmp_path: Path, package: str, via: str, args: list[str]) -> tuple[int, str]:
-    (tmp_path / "stop_at_import.py").write_text(DRIVER)
-    path = os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH") or str(ROOT / "src")])
-    env = dict(os.environ, PYTHONPATH=path, PYTHONUNBUFFERED="1")
-    proc = subprocess.run(  # as ``python -m``: the tests' (and a user's) way; CPython ends it by its own rules
-        [sys.executable, "-m", "stop_at_import", package, via, *args],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        env=env,
-        text=True,
-        timeout=120,
-        preexec_fn=_sigint_as_in_a_terminal,
-    )
-    assert f"driver: SIGINT at the import of {package}" in proc.stderr, proc.stderr[-2000:]
-    return proc.returncode, proc.stderr
-
-
 @pytest.mark.parametrize("via", ["PyRun_String", "Python"])
 @pytest.mark.parametrize("package", ["beambench.studies", "mujoco"])
 def test_a_stop_inside_the_commands_imports_exits_with_its_code(tmp_path, package, via):
@@ -159,7 +103,7 @@ def test_a_stop_inside_the_commands_imports_exits_with_its_code(tmp_path, packag
     left PyRun_String as unhandled even when it was caught, and would end ``python -m`` by killing itself with
     SIGINT (returncode -2) after the line."""
     args = ["calibrate", "sim", "--targets", str(TARGETS), "--quick", "--out", str(tmp_path / "o")]
-    code, err = _stopped_at_import(tmp_path, package, via, [*args, "--workers", "1", "--name", "c"])
+    code, err = stopped_at_import(tmp_path, package, via, [*args, "--workers", "1", "--name", "c"])
     said = [ln for ln in err.splitlines() if ln.startswith("beambench:")]
     assert code == EXIT_STOPPED, err[-2000:]
     assert len(said) == 1 and "calibration interrupted: before its first evaluation" in said[0], err[-2000:]
@@ -170,7 +114,7 @@ def test_a_stop_inside_the_commands_imports_exits_with_its_code(tmp_path, packag
 def test_a_stop_while_the_command_line_imports_ends_other_commands_with_one_line(tmp_path, via):
     """A command that does not take stop signals itself (here ``doctor``) gets a Ctrl-C that came while the command
     line imported as if it had just come: one line and the interrupted exit code, no traceback."""
-    code, err = _stopped_at_import(tmp_path, "typer", via, ["doctor"])
+    code, err = stopped_at_import(tmp_path, "typer", via, ["doctor"])
     said = [ln for ln in err.splitlines() if ln.startswith("beambench:")]
     assert code == EXIT_STOPPED, err[-2000:]
     assert said == ["beambench: aborted"], err[-2000:]

@@ -107,7 +107,7 @@ def test_default_set_is_continuous_at_low_frequency_and_halves_in_the_mid_twenti
     assert lab[22.0] == "1"
     assert lab[28.0] == lab[30.0] == "1/2"
     assert lab[39.0] == "1/3"
-    # the paper's own PRB values never reach the plate at its 5.5 mm gap (issue 11)
+    # the paper's own PRB values never reach the plate at its 5.5 mm gap: its release-test fit is not a contact twin
     paper = regime_map([5.0, 28.0], SimSettings(settle_s=0.8, record_s=0.8), ContactTwin(params="paper"))
     assert paper.regime.tolist() == ["none", "none"]
 
@@ -128,7 +128,7 @@ def test_physical_default_map_from_rest():
 
 @pytest.mark.slow
 def test_effective_stuck_set_keeps_the_foot_down_to_17_hz_where_a_sliding_sole_hops():
-    """The effective, non-physical set ``contact_stuck`` (the default before issue 22: a sole that does not slide,
+    """The effective, non-physical set ``contact_stuck`` (an earlier default: a sole that does not slide,
     friction 6) is continuous through 17 Hz,
     bounces once a cycle at 22 Hz and every other cycle at 30 Hz; the same beam with a sliding sole (friction
     1.5, the first calibration's value) loses the continuous contact at 12-16 Hz (the sole's sliding makes the

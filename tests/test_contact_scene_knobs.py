@@ -1,4 +1,4 @@
-"""The contact scene's optional parts (issue 11, second pass): a compliant sole, the load frame's own mass and the
+"""The contact scene's optional parts: a compliant sole, the load frame's own mass and the
 load's offset along the beam axis — each does what its physical meaning says."""
 
 from __future__ import annotations

@@ -8,6 +8,7 @@ import pytest
 
 from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault
+from beambench.acquisition.protocol.schema import LoadCellWiring
 from beambench.backends.hardware import DEVICE_STREAMS, DeviceRig, build_device_rig, device_stream
 
 MARKERS = ("stage", "tip", "foot")
@@ -49,15 +50,14 @@ class Thermometer:
 def thermometer():
     made: list[Thermometer] = []
 
-    @device_stream("thermometer")
-    def _make(rig, markers):  # type: ignore[no-untyped-def]
-        made.append(Thermometer(rig.loadcell.port + "-temp"))
-        return made[-1]
+    with DEVICE_STREAMS.restoring("thermometer"):
 
-    try:
+        @device_stream("thermometer", section="loadcell")
+        def _make(ctx):  # type: ignore[no-untyped-def]
+            made.append(Thermometer(ctx.section.port + "-temp"))
+            return made[-1]
+
         yield made
-    finally:
-        DEVICE_STREAMS.pop("thermometer")
 
 
 def test_the_hardware_rig_is_its_motor_and_its_registered_streams():
@@ -105,7 +105,15 @@ def test_check_and_close_loop_over_every_named_stream():
 
 def test_a_stream_name_registered_twice_is_refused():
     with pytest.raises(ValueError, match="registered twice"):
-        device_stream("mocap")(lambda rig, markers: None)  # type: ignore[arg-type,return-value]
+        device_stream("mocap", section="natnet")(lambda ctx: None)  # type: ignore[arg-type,return-value]
+
+
+def test_a_stream_is_wired_by_a_section_of_the_rig_file_or_brings_its_own():
+    with pytest.raises(ValueError, match="has no section 'laser'"):
+        device_stream("laser")(lambda ctx: None)  # type: ignore[arg-type,return-value]
+    with pytest.raises(ValueError, match="already has a section 'loadcell'"):
+        device_stream("scale", section="loadcell", wiring=LoadCellWiring)(lambda ctx: None)  # type: ignore[arg-type,return-value]
+    assert set(DEVICE_STREAMS) == {"mocap", "loadcells"}
 
 
 class _Motor:
@@ -123,3 +131,15 @@ class _Motor:
 
     def stop(self) -> None:
         pass
+
+
+def test_the_emulated_rig_takes_the_injections_its_registered_peers_name():
+    from beambench.acquisition.protocol.schema import parse_protocol
+    from beambench.backends.emulated import build_emulated_rig, injections
+    from beambench.session.slices import sim_slice
+
+    assert set(injections()) == {s for stream in DEVICE_STREAMS.values() for s in stream.injections}
+    assert {"mocap_drop", "loadcell_crc"} <= set(injections())
+    sim = sim_slice(parse_protocol("name: x\nsweep: {frequencies: [5]}\n"))
+    with pytest.raises(ValueError, match=r"unknown injections \['mocap_dorp'\]"):
+        build_emulated_rig(sim, inject={"mocap_dorp": 0.1})

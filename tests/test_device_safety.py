@@ -1,6 +1,6 @@
-"""Issue 13, device side, on the emulated rig (real drivers, emulated peers in their own process):
-forged NatNet frames never reach the session and are counted (13.5); a load-cell board that falls silent ends
-the run as a fault, motor idle first, the session saved (13.6); every driver's counters are in the session."""
+"""Device safety on the emulated rig (real drivers, emulated peers in their own process): forged NatNet frames
+never reach the session and are counted; a load-cell board that falls silent ends the run as a fault, motor idle
+first, the session saved; every driver's counters are in the session."""
 
 from __future__ import annotations
 
@@ -80,7 +80,7 @@ def forged_and_dropped(tmp_path_factory):
 
 def test_forged_natnet_frames_are_dropped_and_counted(forged_and_dropped):
     """A forger on loopback streams valid frames (markers at 9 m) to the client's socket while the emulated
-    Motive streams: none lands in the session, and the driver counts every one (issue 13.5)."""
+    Motive streams: none lands in the session, and the driver counts every one."""
     sent, (result, rig, s) = forged_and_dropped
     assert result.status == "completed", result.message
     assert sent["n"] == 300
@@ -93,7 +93,7 @@ def test_forged_natnet_frames_are_dropped_and_counted(forged_and_dropped):
 
 def test_a_silent_load_cell_board_is_a_fault_that_idles_and_saves(tmp_path):
     """The board stops sending 1 s after the rig opened: the run ends as a fault (not ``completed``), the
-    motor idled first, everything recorded before is in the file (issue 13.6)."""
+    motor idled first, everything recorded before is in the file."""
     result, rig, s = _run(tmp_path, "silent.h5", inject={"loadcell_stop_s": 1.0})
     assert result.status == "fault", result.message
     assert "loadcell" in result.message and "silent" in result.message
@@ -118,7 +118,7 @@ def test_every_driver_reports_its_counters_into_the_session(forged_and_dropped):
 
 
 def test_the_emulated_peers_run_in_their_own_process_and_the_heartbeat_timeout_is_a_rig_setting():
-    """Issue 13.11: the emulators and their physics are another process (their scheduling is not ours), and
+    """The emulators and their physics are another process (their scheduling is not ours), and
     the ODrive heartbeat timeout comes from the rig file (default 1 s: ten 100 ms heartbeat periods)."""
     import os
 

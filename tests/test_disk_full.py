@@ -4,7 +4,7 @@
 
 The disk is a small tmpfs mounted for the test (root only; skipped with the reason elsewhere). A filler file takes
 all but a few hundred kB once the run has started, as another program filling the disk would.
-``BEAMBENCH_DISK_FULL_RUNS`` repeats each case (the soak loops of issue 21).
+``BEAMBENCH_DISK_FULL_RUNS`` repeats each case (for soak loops).
 """
 
 from __future__ import annotations

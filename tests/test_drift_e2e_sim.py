@@ -1,4 +1,4 @@
-"""Issue 24's done-when on the sim: a contact protocol swept both ways with reference steps and two repeats runs
+"""Drift and hysteresis end to end on the sim: a contact protocol swept both ways with reference steps and two repeats runs
 and analyses; hysteresis flags, spreads, path metrics and the drift table are in steps.csv and the report; with
 the twin's thermal drift on the reference steps show a significant trend, with it off they do not.
 

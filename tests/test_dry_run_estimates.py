@@ -1,4 +1,4 @@
-"""Issue 23 point 6: every shipped protocol's dry run estimates its run time here, and the release test's says
+"""Every shipped protocol's dry run estimates its run time here, and the release test's says
 that it drives nothing."""
 
 from __future__ import annotations

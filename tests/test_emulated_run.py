@@ -190,7 +190,7 @@ def test_natnet_echo_exchanges_are_kept_for_clock_sync(clean):
 
 def test_injected_load_cell_faults_are_exactly_the_lost_samples(injected):
     rig, s = injected
-    mcu = rig.peers[0].mcu
+    mcu = rig.peers[0].reported["loadcells"]
     seq = s.streams["loadcell"].columns["seq"]
     lo, hi = int(seq[0]), int(seq[-1])
     missing = set(range(lo, hi + 1)) - set(seq.tolist())

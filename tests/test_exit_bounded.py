@@ -1,6 +1,6 @@
-"""Stopping a run never waits without bound (issue 43.7): after the motor's idle the run's exit waited for the
-emulated peers' process to report and then to end (up to 10 s, then 5 s more: 10–16 s under load). The peers now
-stop their senders first and report, get :data:`REPORT_TIMEOUT_S` for that and :data:`EXIT_GRACE_S` to end, and are
+"""Stopping a run never waits without bound: after the motor's idle the run's exit waits for the emulated peers'
+process to report and then to end, never the 10-16 s (under load) of waiting for each in turn. The peers stop their
+senders first and report, get :data:`REPORT_TIMEOUT_S` for that and :data:`EXIT_GRACE_S` to end, and are
 killed after. A peers' process that hangs (stopped with SIGSTOP here) costs a rig's close no more than that."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Figures say what they show in words: swept columns get names with units, the speed/accuracy chart states the
-default model's error against the reference (issue 14, point 9)."""
+default model's error against the reference."""
 
 from __future__ import annotations
 

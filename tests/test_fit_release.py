@@ -306,3 +306,13 @@ def test_registration_maps_a_mocap_frame_onto_the_model():
     back, r, _ = register_to_model(moved)
     assert np.abs(back.markers - data.markers).max() < 6e-4
     assert np.allclose(r @ rot, np.eye(3), atol=5e-3)
+
+
+def test_free_l1_asks_for_a_model_on_joint_springs(tmp_path):
+    """``--free-l1`` frees PRB3's first link: refused (one line, exit 2) when every model named is segmented, the
+    models on joint springs named from their family's flag; with one among them the options pass."""
+    missing = str(tmp_path / "none.h5")
+    res = CliRunner().invoke(app, ["fit", missing, "--model", "rod,rod5g", "--free-l1"])
+    assert res.exit_code == 2 and "--free-l1 applies to a model on joint springs (prb3)" in res.output, res.output
+    res = CliRunner().invoke(app, ["fit", missing, "--model", "rod,prb3", "--free-l1"])
+    assert res.exit_code == 2 and "no such session file" in res.output, res.output  # past the --free-l1 check

@@ -130,7 +130,7 @@ def test_every_row_received_is_stored_or_counted_unrecorded(run):
 
 def test_garbage_between_load_cell_frames_is_counted_in_the_session(run):
     rig, s = run
-    mcu = rig.peers[0].mcu
+    mcu = rig.peers[0].reported["loadcells"]
     garbled = int(s.general["devices"]["loadcell"]["garbled"])
     assert mcu.injected.garbage_bursts > 0
     # each burst the driver read is one garbled stretch (the emulator goes on sending for a moment after the driver

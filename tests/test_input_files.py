@@ -1,4 +1,4 @@
-"""Every file input is checked for its kind and size before it is read (issue 21.5): a folder, a FIFO (which would
+"""Every file input is checked for its kind and size before it is read: a folder, a FIFO (which would
 block the read), a device (``/dev/zero`` never ends) or a 2 GB file is one line and exit 2, at once — for the
 protocol, the rig file, a sweep file, calibrate's --targets, a session, a NatNet capture, a load-cell calibration.
 (A 2 GB --targets was read whole before: 4.3 GB of memory, 10-19 s, then a two-line YAML error.)"""

@@ -104,7 +104,7 @@ def toy_simulate(base: CalibrationBase, values: dict[str, float], frequencies: l
 
 
 @pytest.fixture
-def toy_rig(monkeypatch):
+def toy_rig():
     rig = CalibratableRig(
         name="toy-landmarks",
         unknowns=TOY_UNKNOWNS,
@@ -115,8 +115,8 @@ def toy_rig(monkeypatch):
         summary=lambda s: {},
         landmarks=contact_landmarks,
     )
-    monkeypatch.setitem(RIGS, rig.name, rig)
-    return rig
+    with RIGS.stand_in(rig.name, rig):
+        yield rig
 
 
 @pytest.mark.parametrize("want", [(15.0, 30.0, 42.0), (20.0, 27.0, 45.0), (25.0, 33.0, 42.0)])

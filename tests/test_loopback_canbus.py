@@ -1,5 +1,5 @@
 """The emulated rig's CAN bus between processes: each end hears the other and never itself, as on a real bus; it
-binds loopback only, and a frame from any other socket is dropped and counted, never a motor row (issue 21.3).
+binds loopback only, and a frame from any other socket is dropped and counted, never a motor row.
 During an emulated run nothing the run's processes listen on is beyond loopback."""
 
 from __future__ import annotations

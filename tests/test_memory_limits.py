@@ -1,4 +1,4 @@
-"""Memory running out (issue 43.6): under an address-space limit the command ends with one line and exit 1 — never
+"""Memory running out: under an address-space limit the command ends with one line and exit 1 — never
 a traceback, never exit 130 (OpenBLAS, failing to start its threads, raises SIGINT at its own process); a peer of
 the emulated rig that fails (a thread it cannot start) is one line too; and memory exhausted while the motor is
 armed and turning still idles it: the emulated ODrive decodes the idle from the CAN bus (IDLE, no watchdog error)."""

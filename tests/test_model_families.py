@@ -31,16 +31,17 @@ STIFF = ModelFamily("stiff", re.compile(r"stiff([1-9])"), "stiff<1-9>", default=
 
 
 @pytest.fixture
-def stiff(monkeypatch: pytest.MonkeyPatch) -> Iterator[ModelFamily]:
+def stiff() -> Iterator[ModelFamily]:
     """The family declared, and its builder registered, for one test (the catalogue is process-wide)."""
-    monkeypatch.setitem(families.FAMILIES, STIFF.name, STIFF)
+    with families.FAMILIES.restoring(STIFF.name), families.BUILDERS.restoring(STIFF.name):
+        families.declare(STIFF)
 
-    @beam_builder(STIFF)
-    def build(name: str, params: BeamParams) -> Stiff:
-        return Stiff(replace(params, k=params.k * int(name.removeprefix("stiff"))))
+        @beam_builder(STIFF)
+        def build(name: str, params: BeamParams) -> Stiff:
+            return Stiff(replace(params, k=params.k * int(name.removeprefix("stiff"))))
 
-    yield STIFF
-    families.BUILDERS.pop(STIFF.name)
+        yield STIFF
+    assert "stiff" not in families.FAMILIES and "stiff" not in families.BUILDERS
 
 
 def test_a_declared_family_is_a_model_name_and_builds_through_its_builder(stiff):
@@ -61,3 +62,18 @@ def test_a_builder_needs_its_family_declared_once():
         beam_builder(families.ROD)(lambda name, params: None)
     with pytest.raises(ValueError, match="declared twice"):
         families.declare(ModelFamily("rod", re.compile("rod"), "rod", default="rod"))
+
+
+def test_the_walker_takes_its_legs_from_any_family_that_says_it_builds_them(stiff):
+    """A newly declared family is a walker leg unless it says otherwise (``walker_leg``), and the refusal lists
+    the families that are; what a model is never comes from a hand list of names."""
+    from beambench.sim.scenes.walker import WalkerLegError, check_leg_model
+
+    check_leg_model("stiff2")  # declared a moment ago: the walker builds it
+    flat = ModelFamily("flat", re.compile("flat"), "flat", default="flat", walker_leg=False)
+    with families.FAMILIES.restoring(flat.name):
+        families.declare(flat)
+        with pytest.raises(
+            WalkerLegError, match=r"^sim.model = 'flat': refused for the walker: .* prb3 or rod or stiff$"
+        ):
+            check_leg_model("flat")

@@ -88,7 +88,7 @@ def _run(tmp_path, outage_s: float, max_pause_s: float):
         waited["s"] += seconds
         if not waited["started"] and waited["s"] >= protocol.settle_s + 0.3:  # 0.3 s into the record window
             waited["started"] = True
-            rig.peers[0].mocap_outage(outage_s)  # the emulated Motive (own process) sends nothing this long
+            rig.peers[0].outage("mocap", outage_s)  # the emulated Motive (own process) sends nothing this long
 
     runner = Runner(
         rig,
@@ -119,7 +119,7 @@ def test_an_outage_pauses_the_window_and_the_step_still_gets_its_full_record(tmp
     assert inside.sum() >= 0.99 * 360 * 1.0  # a full second of good frames despite the outage
     gaps = np.diff(m.host_time_ns[inside]) * 1e-9
     assert gaps.max() > 0.5  # and the outage really happened on the wire
-    assert len(rig.peers[0].motive.dropped_frames) > 0.5 * 360
+    assert len(rig.peers[0].reported["mocap"].dropped_frames) > 0.5 * 360
 
 
 def test_an_outage_longer_than_max_pause_is_a_fault_that_idles_and_saves(tmp_path):

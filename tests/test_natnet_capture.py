@@ -297,8 +297,8 @@ def _ip_fragment(ident: int, offset: int, more: bool, data: bytes) -> bytes:
 
 
 def test_an_empty_first_fragment_does_not_hang_the_decoder(tmp_path):
-    """Issue 13.8: an empty fragment at offset 0 (more fragments set) followed by the last fragment made the
-    reassembly loop spin forever; now it is dropped and the good frames around it still decode."""
+    """An empty fragment at offset 0 (more fragments set) followed by the last fragment is dropped (it must not
+    make the reassembly loop spin forever) and the good frames around it still decode."""
     import dpkt
 
     good = nn.encode(nf.FrameOfData(5, timestamp=5 / 360, mid_exposure=1, data_received=2, transmit=3), (4, 1))
@@ -314,7 +314,7 @@ def test_an_empty_first_fragment_does_not_hang_the_decoder(tmp_path):
 
 
 def test_ticks_above_2_63_fit_the_frame_table(tmp_path):
-    """Issue 13.8: QPC tick fields are uint64 on the wire; a value above 2**63 raised TypeError in the table."""
+    """QPC tick fields are uint64 on the wire: a value above 2**63 reaches the table whole (not a TypeError)."""
     big = 2**63 + 12345
     frame = nf.FrameOfData(3, timestamp=0.01, mid_exposure=big, data_received=big + 1, transmit=2**64 - 1)
     path = tmp_path / "ticks.pcap"

@@ -137,7 +137,7 @@ def test_garbage_packets_are_counted_and_never_stop_the_stream():
             junk.close()
             wait_until(lambda: client.stats.forged == len(garbage) and client.stats.frames > before + 50, what="junk")
             client.check()
-            # not from the server: dropped unread and counted as forged (issue 13.5), never a parse error
+            # not from the server: dropped unread and counted as forged, never a parse error
             assert client.stats.forged == len(garbage) and client.stats.parse_errors == 0
             assert client.stats.frames > before + 50  # still streaming
             assert client._thread.is_alive()

@@ -19,11 +19,12 @@ from beambench.acquisition.batch import Batch
 from beambench.acquisition.capabilities import DeviceFault, Motor, MotorLimits
 from beambench.acquisition.streams import motor_spec
 from beambench.devices.odrive import cansimple as cs
+from beambench.devices.odrive.can_link import RECEIVE_COALESCE_S, receive_ns
 from beambench.devices.odrive.can_motor import OdriveCanMotor
 from beambench.devices.odrive.can_ping import ping
-from beambench.devices.odrive.can_timing import RECEIVE_COALESCE_S, CanMotorTiming, receive_ns
+from beambench.devices.odrive.can_timing import CanMotorTiming
 from beambench.devices.odrive.cansimple import AxisError, AxisState
-from beambench.devices.odrive.telemetry import MAX_VEL_LIMIT, LimitError
+from beambench.devices.odrive.limits import MAX_VEL_LIMIT, LimitError
 from beambench.devices.receive_time import mono_minus_real_ns
 from beambench.emulators.odrive_can import (
     EmulatedOdrive,
@@ -377,7 +378,7 @@ def test_arm_without_odrive_raises(tmp_path):
 def test_fuzz_frames_never_crash_driver_or_emulator(arb_id, data, rtr):
     frame = can.Message(arbitration_id=arb_id, data=data, is_remote_frame=rtr, dlc=8 if rtr else len(data))
     driver = OdriveCanMotor("unused", "virtual", NODE)  # never opened: only its receive path runs
-    driver._on_rx(frame)
+    driver.receive(frame)
     with contextlib.suppress(DeviceFault):
         driver.check()  # a fuzzed heartbeat may carry error bits: then a DeviceFault, nothing else
     model = OdriveAxisModel(OdriveEmulatorConfig(node_id=NODE, calibrated=True, watchdog_timeout_s=0))
@@ -408,9 +409,27 @@ def test_bad_log_suffix_is_refused_up_front(tmp_path):
 
 @pytest.mark.parametrize(("kind", "code"), [("motor", 0x1), ("encoder", 0x4)])
 def test_the_first_fault_report_reads_the_error_register_first(motor, emu, kind, code):
-    """Issue 13.10: the heartbeat only flags MOTOR_FAILED; the report must carry the register's value, read
+    """The heartbeat only flags MOTOR_FAILED; the report must carry the register's value, read
     on the spot (was ``motor error 0x0``: the value before the RTR answer arrived)."""
     motor.arm(LIMITS)
     emu.inject_error(**{kind: code})
     first = str(wait_until(lambda: raised(motor.check, DeviceFault), 3.0, "a fault", interval_s=0.001))
     assert f"{kind} error {code:#x}" in first, first
+
+
+def test_a_heartbeat_waited_for_is_found_behind_the_burst_that_followed_it():
+    """A stalled host reads a full socket buffer at once: the closed-loop heartbeat a waiter looks for came before
+    heartbeats that say otherwise, and the wait still finds it (the driver keeps a log, not only the latest);
+    a heartbeat from before the wait began, or from another node, is not an answer."""
+    driver = OdriveCanMotor("unused", "virtual", NODE)  # never opened: only its receive path runs
+    t0 = time.monotonic_ns()
+    driver.receive(cs.to_can(NODE, cs.Heartbeat(axis_state=AxisState.CLOSED_LOOP_CONTROL)), t0 - 5)  # before
+    driver.receive(cs.to_can(NODE + 1, cs.Heartbeat(axis_state=AxisState.CLOSED_LOOP_CONTROL)), t0 + 1)
+    burst = [AxisState.IDLE, AxisState.CLOSED_LOOP_CONTROL, AxisState.IDLE, AxisState.IDLE]
+    for i, state in enumerate(burst):
+        driver.receive(cs.to_can(NODE, cs.Heartbeat(axis_state=state, axis_error=i)), t0 + 10 + i)
+    assert driver.heartbeat == cs.Heartbeat(axis_state=AxisState.IDLE, axis_error=3)  # the latest is idle
+    hb = driver.view.wait_heartbeat(lambda h: h.axis_state == AxisState.CLOSED_LOOP_CONTROL, 0.0, t0)
+    assert hb == cs.Heartbeat(axis_state=AxisState.CLOSED_LOOP_CONTROL, axis_error=1)
+    assert driver.view.wait_heartbeat(lambda h: h.axis_error == 7, 0.01, t0) is None  # none such: a timeout
+    assert driver.health()["frames_received"] == 5  # the other node's frame is not this axis's

@@ -24,7 +24,7 @@ from beambench.devices.odrive.cansimple import (
     ControlMode,
     InputMode,
 )
-from beambench.devices.odrive.telemetry import LimitError
+from beambench.devices.odrive.limits import LimitError
 from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming, ping
 from conftest import require_shared
 

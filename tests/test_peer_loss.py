@@ -1,5 +1,5 @@
 """The emulated rig's peers (Motive, the ODrive, the load-cell board: a process of their own) lost at any moment of
-a run's start-up, and the run itself killed by SIGKILL (issue 21.1, 21.4).
+a run's start-up, and the run itself killed by SIGKILL.
 
 - Peers killed 0.3-3 s after they started (handshake, start, arm, first steps): one line naming the loss, exit 1
   (EXIT_FAULT), no traceback, and never the misleading "errors persist after Clear_Errors" of a stale heartbeat.

@@ -1,4 +1,4 @@
-"""The physical twin (issue 22): the shipped bounded beam against hand calculations, its friction bound in a
+"""The physical twin: the shipped bounded beam against hand calculations, its friction bound in a
 contact run, and the same beam object on both rigs."""
 
 from __future__ import annotations

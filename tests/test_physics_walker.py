@@ -37,7 +37,7 @@ def test_standing_walker_rests_on_feet_and_wheels_with_its_weight():
 
 
 def test_walker_builds_the_physical_rod_legs_and_refuses_unknown_models():
-    """Issue 22: the walker's legs are the contact rig's physical rod (rod5g, sim_backend/rod_physical.yaml), with
+    """The walker's legs are the contact rig's physical rod (rod5g, sim_backend/rod_physical.yaml), with
     the set's walker block; a name no model family claims is a one-line WalkerLegError."""
     physical = load_params("physical", model="rod")
     sim = WalkerSim(make_beam_model("rod5g", physical), 90.0)
@@ -74,10 +74,11 @@ SYMMETRY = {"newton": (mujoco.mjtSolver.mjSOL_NEWTON, 1e-9, 1e-9), "pgs (shipped
 def test_mirror_image_walker_drifts_sideways_the_other_way(solver: str, monkeypatch: pytest.MonkeyPatch):
     """Mirroring the robot across its sagittal plane (both legs' chirality swapped, the flat motor's spin
     reversed) mirrors the motion: same forward path, opposite sideways drift (lateral slide freed). Checked
-    over 0.8 s: the gait is chaotic, so round-off differences grow ~100× per 0.3 s after that."""
+    over 0.8 s from rest with the crank ramping at 50 turn/s² (40 Hz at 0.8 s): the gait is chaotic once it walks,
+    so round-off differences grow ~100× per 0.3 s after that (a faster ramp walks sooner and grows them sooner)."""
     which, tol, _ = SYMMETRY[solver]
     monkeypatch.setattr(walker, "SOLVER", which)
-    base = {"motor_flat": 1.0, "lateral_free": 1.0, "timestep": 1e-4}
+    base = {"motor_flat": 1.0, "lateral_free": 1.0, "timestep": 1e-4, "vel_ramp_rate": 50.0}
     a = replace(WalkerParams(), left_chirality=1.0, right_chirality=1.0, spin=-1.0, **base)
     b = replace(WalkerParams(), left_chirality=-1.0, right_chirality=-1.0, spin=1.0, **base)
     sa, ta = _run(a, 40.0, 0.8)
@@ -161,7 +162,7 @@ def test_default_walker_walks_backward_at_23_hz_and_forward_at_65_hz_like_the_pa
 
 
 def test_protocol_selects_the_named_set_and_refuses_unknown_legs():
-    """The shipped protocol runs the physical set's walker block on rod5g legs (issue 22); `sim.model: prb3,
+    """The shipped protocol runs the physical set's walker block on rod5g legs; `sim.model: prb3,
     sim.params: paper` the effective (PRB3) calibrated defaults, `walker_paper_guesses` the paper_guesses set; an
     unknown leg model is a one-line ConfigError before anything is built."""
     from beambench.acquisition.protocol.schema import parse_protocol

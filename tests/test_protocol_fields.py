@@ -71,3 +71,42 @@ def test_a_parameter_set_of_another_model_family_is_refused(given, tmp_path, mon
     if given == "a path":  # the same file for a rod: its own family, accepted
         code, out = cli("run", str(proto), "--dry-run")
         assert code == 0, out
+
+
+@pytest.mark.parametrize(
+    ("clocks", "key"),
+    [
+        ("clocks: {Mocap: {offset_s: 0.1}}", "Mocap"),  # a stream's name with a capital
+        ("clocks: {mocap-x: {offset_s: 0.1}}", "mocap-x"),  # a character no stream name has
+        ("clocks: {laser: {drift_ppm: 5}}", "laser"),  # well formed, but no such stream registered
+        ("Mocap_clock: {offset_s: 0.1}", "Mocap"),  # the older per-stream key
+    ],
+)
+@pytest.mark.parametrize("backend", ["sim", "emulated"])
+def test_a_clock_for_a_stream_the_sim_has_not_is_one_line_naming_the_key_and_the_streams(
+    clocks, key, backend, tmp_path
+):
+    from beambench.acquisition.streams import MOTOR
+    from beambench.backends.sim_streams import SIM_STREAMS
+
+    proto = tmp_path / "p.yaml"
+    proto.write_text(BASE + f"sim: {{{clocks}}}\n")
+    line = one_line_error(*cli("run", str(proto), "--backend", backend, "--dry-run"), f"{proto}: sim.clocks")
+    assert repr(key) in line, line
+    assert f"streams: {', '.join([MOTOR, *SIM_STREAMS])})" in line, line  # every registered stream, by name
+    assert "pattern" not in line, line
+
+
+@pytest.mark.parametrize(
+    ("rig", "sim", "field"),
+    [
+        ("walker", "{thermal_drift: {tau_s: 50}}", "sim.thermal_drift"),  # another scene's option
+        ("contact", "{model: auto, tolerance_mm: 0.00001}", "sim.tolerance_mm"),  # a tolerance nothing meets
+        ("contact", "{clocks: {laser: {drift_ppm: 5}}}", "sim.clocks.laser"),
+    ],
+)
+def test_a_simulation_the_rig_cannot_make_is_one_line_naming_the_protocols_file(rig, sim, field, tmp_path):
+    proto = tmp_path / "p.yaml"
+    proto.write_text(f"rig: {rig}\nsweep: {{frequencies: [20, 25]}}\nsettle_s: 0.1\nrecord_s: 0.1\nsim: {sim}\n")
+    line = one_line_error(*cli("run", str(proto), "--dry-run"), field)
+    assert line.startswith(f"beambench: error: {proto}: {field}"), line

@@ -1,4 +1,4 @@
-"""The calibrator's resume log (issue 21.7): a last line cut by a kill (no newline) is skipped with a warning and
+"""The calibrator's resume log: a last line cut by a kill (no newline) is skipped with a warning and
 cut off, so the next evaluation is not appended onto it and lost; ``calibrate sim`` stopped by Ctrl-C says where
 its evaluations are and how to resume."""
 

@@ -1,8 +1,7 @@
 """Bad input never gets in, never hangs, never overwrites, and always ends in one line with exit code 2.
 
-Issue 13 points 2 (names, exclusive creation), 3 (truncated sessions), 4 (caps), 7 (finite numbers, booleans),
-9 (tracebacks turned into one line) and issue 14 points 2 (model and parameter set, dry run included) and 7
-(the wrong kind of file).
+Checked here: session names and exclusive creation, truncated sessions, size caps, finite numbers and booleans,
+tracebacks turned into one line, the model and parameter set (dry run included) and the wrong kind of file.
 """
 
 from __future__ import annotations
@@ -265,7 +264,7 @@ def test_an_unwritable_session_path_is_a_session_file_error(tmp_path):
         SessionWriter(tmp_path / "f" / "s.h5", {}).open([])
 
 
-# --- issue 14 point 7: the wrong kind of file ---------------------------------------------------------
+# --- the wrong kind of file --------------------------------------------------------------------------
 def test_a_sweep_file_given_to_run_says_so():
     code, out = cli("run", str(PROTOCOLS / "twist_sweep.yaml"), "--dry-run")
     one_line_error(code, out, "sweep file", "beambench sweep")

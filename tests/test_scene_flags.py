@@ -4,6 +4,8 @@ flags call for, and a rig named like a shipped one but flagged otherwise does no
 
 from __future__ import annotations
 
+import contextlib
+
 import pytest
 from typer.testing import CliRunner
 
@@ -23,15 +25,16 @@ DRIVEN_FIGURES = {"trajectories", "ellipse", "frequency"}
 
 
 @pytest.fixture
-def declare(monkeypatch: pytest.MonkeyPatch):
+def declare():
     """Declare a scene in the catalogue for one test (the catalogue is process-wide: it is put back after)."""
+    with contextlib.ExitStack() as undo:
 
-    def add(info: SceneInfo) -> SceneInfo:
-        assert info.name not in scenes.SCENES
-        monkeypatch.setitem(scenes.SCENES, info.name, info)
-        return info
+        def add(info: SceneInfo) -> SceneInfo:
+            assert info.name not in scenes.SCENES
+            undo.enter_context(scenes.SCENES.restoring(info.name))
+            return scenes.declare(info)
 
-    return add
+        yield add
 
 
 def _figures(rig: str) -> set[str]:

@@ -1,4 +1,4 @@
-"""Issue 23, points 1, 2 and 6: shipped files by name from any folder, default outputs in the per-user folder
+"""Shipped files by name from any folder, default outputs in the per-user folder
 (shown in --help), nothing written outside --out and that folder, whole lines on a non-terminal stderr."""
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ Set_Axis_State on the CAN bus (``--can-log``) requests IDLE, the emulated ODrive
 
 The default run makes one run per signal on the sim and one each of SIGINT, SIGTERM and SIGHUP on the emulated rig;
 the soak tier (``pytest --soak``, ``make soak``, CI) the other 24 at other random moments.
-``BEAMBENCH_SIGNAL_RUNS`` multiplies the number of runs of both (the soak loops of issue 21 ran it at 5-10).
+``BEAMBENCH_SIGNAL_RUNS`` multiplies the number of runs of both (soak loops run it at 5-10).
 
 Starting ``python -m beambench.cli`` costs seconds of imports per run, so most runs are forked from a "zygote"
 process that imported beambench once: each child is ``beambench.cli.main()`` with the run's argv and Python's
@@ -271,7 +271,7 @@ def _sig(name: str) -> int:
     return int(getattr(signal, name))
 
 
-# (signal, runs on the sim, runs on the emulated backend): the hang-up and quit signals of issue 21 as often as
+# (signal, runs on the sim, runs on the emulated backend): the hang-up and quit signals as often as
 # SIGINT/SIGTERM, the rarer ones a few times each. The default run makes the first run of each signal on the sim and
 # of EMULATED_DEFAULT on the emulated rig; the soak tier (--soak, CI) the others, at other random moments.
 SIGNAL_RUNS = [

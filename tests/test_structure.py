@@ -323,3 +323,39 @@ def test_no_module_outside_the_catalogues_compares_with_a_rig_or_backend_name() 
             if isinstance(node, ast.Compare | ast.MatchValue):
                 found += [f"{_name(path)}:{node.lineno} {n!r}" for n in _named_in(node, names)]
     assert found == []
+
+
+FAMILY_REGISTRY = {PACKAGE / "sim" / "models" / "families.py", PACKAGE / "sim" / "models" / "registry.py"}
+
+
+def _compared_strings(node: ast.Compare) -> list[str]:
+    """Every string literal a comparison spells out (either side, or inside the tuple, list or set ``in`` looks in)."""
+    spelled = [node.left]
+    for op, right in zip(node.ops, node.comparators):
+        is_collection = isinstance(right, ast.Tuple | ast.List | ast.Set)
+        spelled += right.elts if isinstance(op, ast.In | ast.NotIn) and is_collection else [right]
+    return [e.value for e in spelled if isinstance(e, ast.Constant) and isinstance(e.value, str)]
+
+
+def test_no_module_outside_the_family_registry_compares_with_a_model_name():
+    """What a beam model is (joint springs or segments, a walker's leg, the paper's model) is asked of its family
+    (``family_of(m).segmented``, ``.walker_leg``, ``PAPER_MODEL``), never read off its name (``m == "prb3"``):
+    a newly declared family then gets every behaviour its flags call for."""
+    from beambench.sim.models.registry import UnknownModelError, family_of
+
+    def is_model_name(text: str) -> bool:
+        try:
+            family_of(text)
+        except UnknownModelError:
+            return False
+        return True
+
+    assert all(map(is_model_name, ("prb3", "rod10", "rod3g"))) and not is_model_name("walker")  # the check's premise
+    found = []
+    for path in _modules():
+        if path in FAMILY_REGISTRY:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Compare):
+                found += [f"{_name(path)}:{node.lineno} {s!r}" for s in _compared_strings(node) if is_model_name(s)]
+    assert found == []

@@ -1,5 +1,5 @@
 """``sweep: {start, stop, step}`` has an inclusive stop (README): a step that does not land on it is refused with
-one line naming the field and the steps that would fit (issue 21.7: 1 to 10 by 4 silently gave 1, 5, 9)."""
+one line naming the field and the steps that would fit (1 to 10 by 4 must not silently give 1, 5, 9)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Speed tracking (issue 25): the speed map's bands, the controller against a known synthetic plant, the
+"""Speed tracking: the speed map's bands, the controller against a known synthetic plant, the
 protocol's checks, and end to end on the sim walker (its own small twin map, measured once per test session)."""
 
 from __future__ import annotations
@@ -15,11 +15,12 @@ from beambench.acquisition.batch import Batch, Frame
 from beambench.acquisition.control.speed_controller import LOST, TRACKING, TrackController, track_spec
 from beambench.acquisition.control.speed_map import SpeedMap
 from beambench.acquisition.protocol.scenes import scene_info
-from beambench.acquisition.protocol.schema import TrackControl, parse_protocol
+from beambench.acquisition.protocol.schema import TrackControl, WalkerDrive, parse_protocol
 from beambench.acquisition.streams import WALKER_MARKERS, mocap_spec
 from beambench.common.yaml_config import ConfigError
 
 MAX_HZ = 60.0
+RAMP_HZ_S = WalkerDrive().vel_ramp_rate_turn_s2  # the walker drive's ramp (f Hz = f turn/s)
 
 
 def _map_curve(f: np.ndarray) -> np.ndarray:
@@ -42,7 +43,8 @@ def synthetic_map(irregular_above: float = 52.0) -> SpeedMap:
 
 class Plant:
     """A walker: its steady speed is ``gain × map + offset`` at the drive frequency, reached with a first-order
-    lag; the drive follows the command at a 50 Hz/s ramp; the body marker's forward position, sampled at 360 Hz."""
+    lag; the drive follows the command at the walker drive's ramp (:data:`RAMP_HZ_S`); the body marker's forward
+    position, sampled at 360 Hz."""
 
     def __init__(self, gain: float = 1.0, offset: float = 0.0, tau: float = 0.5) -> None:
         self.gain, self.offset, self.tau = gain, offset, tau
@@ -54,7 +56,7 @@ class Plant:
         h = 1 / 360
         t, x = np.empty(n), np.empty(n)
         for i in range(n):
-            self.f += float(np.clip(self.cmd - self.f, -50 * h, 50 * h))
+            self.f += float(np.clip(self.cmd - self.f, -RAMP_HZ_S * h, RAMP_HZ_S * h))
             steady = self.gain * _speed(self.f) + self.offset if self.f >= 10 else 0.0
             self.v += (steady - self.v) * h / self.tau
             self.x_mm += self.v * h
@@ -364,24 +366,31 @@ def test_a_twin_map_run_names_its_two_phases_and_the_map_it_keeps(tmp_path):
 
 
 class InertPlant(Plant):
-    """The sim walker's two traits a map does not show: its body speeds up and slows down at most ``accel_mm_s2``
-    (~100 mm/s²: its momentum and the cart's), and driven back from a forward walk it reaches only ``backward``
-    of the map's backward speeds (the twin: ~-27 mm/s at 22 Hz, where its ascending sweep measured -84). Else as
-    :class:`Plant`: a first-order lag behind that speed, the drive ramping 50 Hz/s."""
+    """The sim walker's three traits a map does not show: its body speeds up and slows down at most ``accel_mm_s2``
+    while it steps (~100 mm/s²: its momentum and the cart's); driven back from a forward walk it reaches only
+    ``backward`` of the map's backward speeds (the twin: ~-27 mm/s at 22 Hz, where its ascending sweep measured
+    -84); and with the crank still (below 1 Hz) its planted feet stop the body at ``planted_mm_s2`` (the twin:
+    120 mm/s to ~0 in 0.15 s once its crank stopped). Else as :class:`Plant`: a first-order lag behind the speed,
+    the drive ramping at :data:`RAMP_HZ_S`."""
 
-    def __init__(self, accel_mm_s2: float = 150.0, tau: float = 0.8, backward: float = 0.33) -> None:
+    def __init__(
+        self, accel_mm_s2: float = 150.0, tau: float = 0.8, backward: float = 0.33, planted_mm_s2: float = 600.0
+    ) -> None:
         super().__init__(tau=tau)
-        self.accel, self.backward = accel_mm_s2, backward
+        self.accel, self.backward, self.planted = accel_mm_s2, backward, planted_mm_s2
 
     def run(self, seconds: float, seen: bool = True) -> Batch:
         n = round(seconds * 360)
         h = 1 / 360
         t, x = np.empty(n), np.empty(n)
         for i in range(n):
-            self.f += float(np.clip(self.cmd - self.f, -50 * h, 50 * h))
+            self.f += float(np.clip(self.cmd - self.f, -RAMP_HZ_S * h, RAMP_HZ_S * h))
             steady = _speed(self.f) if self.f >= 10 else 0.0
             steady *= self.backward if steady < 0 else 1.0
-            self.v += float(np.clip((steady - self.v) / self.tau, -self.accel, self.accel)) * h
+            if self.f < 1.0:  # the crank still: the feet planted
+                self.v -= float(np.clip(self.v, -self.planted * h, self.planted * h))
+            else:
+                self.v += float(np.clip((steady - self.v) / self.tau, -self.accel, self.accel)) * h
             self.x_mm += self.v * h
             self.t += h
             t[i], x[i] = self.t, self.x_mm
@@ -439,3 +448,91 @@ def test_a_step_is_held_past_the_target_until_the_measured_speed_will_arrive(pro
     left the body to creep the rest of the way (1.04, 0.86, 0.60 and 1.28 s for these)."""
     settled = analysed_settling(controller(synthetic_map()), InertPlant(), profile)
     assert settled[1] <= within_s, settled
+
+
+@pytest.mark.parametrize("walking", [120.0, 90.0, 50.0, -40.0])
+def test_a_stop_brakes_with_the_crank_still_then_stands_in_place_within_1_s(walking):
+    """A stop (target 0) from a walk: the step holds the crank still (0 Hz: the feet planted brake the body far
+    harder than a backward gait does), hands over when the measured speed will reach 0, and the walker then stands
+    in place at the map's zero crossing (stepping, ready to walk on). Braked with the backward run instead, a plant
+    with the sim walker's traits settled in 1.42 / 1.22 / 0.82 / 0.24 s from these speeds (1.62 / 1.36 / 0.92 /
+    0.38 s with the drive ramping at 50 turn/s²)."""
+    ctl = controller(synthetic_map())
+    plant = InertPlant()
+    profile = [(walking, 4.0), (0.0, 3.0)]
+    settled = analysed_settling(ctl, plant, profile)
+    assert settled[1] <= 1.0, settled
+    assert abs(ctl.f_cmd - ctl.feedforward()) < 1 and ctl.feedforward() > 10  # stands stepping in place
+
+
+SHIPPED_SIM = (
+    "sim: {model: rod5g, params: physical, twist_deg: 90, noise: true, seed: 0}\n"
+    "limits: {max_frequency_hz: 80, max_current_a: 6}\n"
+)
+
+
+@pytest.fixture(scope="session")
+def shipped_walker_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 9-frequency map of the shipped walker (walker_track's twin: its backward band, zero crossing and forward
+    rise), measured once per test session."""
+    from beambench.session.run import run_session
+
+    path = tmp_path_factory.mktemp("shipped_map") / "map.h5"
+    text = (
+        "name: map\nrig: walker\nsweep: {frequencies: [12, 16, 22, 28, 34, 40, 48, 56, 62]}\nsettle_s: 1\n"
+        f"record_s: 1\n{SHIPPED_SIM}"
+    )
+    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    return path
+
+
+@pytest.mark.parametrize("walking", [110.0, 80.0, 50.0])
+def test_the_shipped_walker_stops_within_1_s_of_the_change(shipped_walker_map, tmp_path, walking):
+    """On the shipped walker's twin: a stop from a walk is within 10 mm/s of 0 (the analysis' windowed speed) within
+    1 s and stays there; the crank was held still on the way (0 Hz) and the walker ends standing in place. With the
+    drive ramping at 50 turn/s² and the stop braked in the backward run these took 1.26 / 1.60 / 1.22 s."""
+    from beambench.analysis.session_analysis import analyze_session
+    from beambench.session.run import run_session
+    from beambench.sinks.session_file.reader import read_session
+
+    segs = f"[{{speed_mm_s: {walking}, hold_s: 3}}, {{speed_mm_s: 0, hold_s: 2.5}}]"
+    text = f"name: t\nrig: walker\n{SHIPPED_SIM}track: {{map: {shipped_walker_map}, segments: {segs}}}\n"
+    path = tmp_path / "stop.h5"
+    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    track = analyze_session(read_session(path)).track
+    assert track is not None
+    assert track.segments[1]["settling_s"] <= 1.0, track.segments
+    start = track.bounds[1][0]
+    braking = (track.t > start) & (track.t < start + 1.0)
+    assert (track.frequency[braking] == 0).any() and track.frequency[-1] > 10
+
+
+def test_the_walker_drive_ramp_is_one_number_from_the_rig_file():
+    """The walker drive's velocity ramp: the rig file's (what its ODrive is configured with) is the one the sim twin
+    and the emulated ODrive ramp at, and the controller's default rate stays below it (its steps reckon with it)."""
+    from beambench.acquisition.protocol.schema import load_rig_file
+    from beambench.backends.emulated import odrive_config
+    from beambench.backends.hardware import DEFAULT_RIG_FILE
+    from beambench.emulators.odrive_can import OdriveEmulatorConfig
+    from beambench.sim.scene_params import WalkerParams
+
+    ramp = load_rig_file(DEFAULT_RIG_FILE).walker.vel_ramp_rate_turn_s2
+    assert ramp == RAMP_HZ_S == WalkerParams().vel_ramp_rate
+    assert odrive_config(True, None, OdriveEmulatorConfig).vel_ramp_rate == ramp
+    assert TrackControl().rate_hz_s < ramp
+
+
+def test_the_shipped_walker_walks_off_from_rest_within_1_s(shipped_walker_map, tmp_path):
+    """From rest to 60 mm/s on the shipped walker's twin (walker_track's first segment): the drive's ramp
+    (calibration/rig.yaml's 200 turn/s²) passes the backward band in 0.1 s, so the walker is within the tolerance in
+    under 1 s; at 50 turn/s² it walked backward first and took 1.68 s."""
+    from beambench.analysis.session_analysis import analyze_session
+    from beambench.session.run import run_session
+    from beambench.sinks.session_file.reader import read_session
+
+    text = f"name: t\nrig: walker\n{SHIPPED_SIM}track: {{map: {shipped_walker_map}, segments: [{{speed_mm_s: 60, hold_s: 3}}]}}\n"
+    path = tmp_path / "start.h5"
+    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    track = analyze_session(read_session(path)).track
+    assert track is not None
+    assert track.segments[0]["settling_s"] <= 1.0, track.segments

@@ -1,4 +1,4 @@
-"""Can strip legs carry the walker? Statics of the physical twin's walker (issue 22) against hand calculations.
+"""Can strip legs carry the walker? Statics of the physical twin's walker against hand calculations.
 
 The physical set's legs are the contact rig's 20 × 3 × 50 mm TPU strip (sim_backend/rod_physical.yaml). Two hand
 results decide whether the walker stands:

@@ -189,6 +189,10 @@ def _main_inner() -> None:
             if reason is None:
                 raise
             _out_of_memory_exit(reason)
+        if early_signals.take():  # held for a command that takes stop signals itself but never started (bad flags)
+            with contextlib.suppress(OSError):
+                typer.echo("beambench: aborted", err=True)
+            sys.exit(EXIT_STOPPED)
         ctx = getattr(exc, "ctx", None)
         if type(exc).__name__ == "NoArgsIsHelpError" and ctx is not None:  # bare ``beambench`` or a group
             typer.echo(ctx.get_help())

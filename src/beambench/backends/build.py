@@ -11,6 +11,7 @@ from pathlib import Path
 from beambench.acquisition.capabilities import Rig
 from beambench.acquisition.protocol.backends import BACKEND_INFO, backend_info
 from beambench.acquisition.protocol.schema import Backend
+from beambench.common.registry import Registry
 from beambench.sim.protocol_slice import SimSlice
 
 
@@ -38,20 +39,15 @@ class BuildOptions:
 
 
 RigBuilder = Callable[[RigSlices, BuildOptions], Rig]
-BUILDERS: dict[str, RigBuilder] = {}
+BUILDERS: Registry[RigBuilder] = Registry("rig builder of backend")
 """Each backend's rig builder, by backend name (:data:`beambench.acquisition.protocol.backends.BACKEND_INFO`)."""
 
 
 def rig_builder(backend: str) -> Callable[[RigBuilder], RigBuilder]:
     """Register how ``backend`` (a name of the backend catalogue) builds its rig."""
-
-    def add(build: RigBuilder) -> RigBuilder:
-        if backend not in BACKEND_INFO or backend in BUILDERS:
-            raise ValueError(f"backend {backend!r}: not in the backend catalogue, or registered twice")
-        BUILDERS[backend] = build
-        return build
-
-    return add
+    if backend not in BACKEND_INFO:
+        raise ValueError(f"backend {backend!r} is not in the backend catalogue ({', '.join(BACKEND_INFO)})")
+    return BUILDERS.register(backend)
 
 
 def build_rig(

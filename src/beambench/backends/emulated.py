@@ -1,6 +1,8 @@
-"""The emulated rig: the real drivers against wire-level emulated peers on this machine (Motive on UDP
-loopback, an ODrive on a two-ended CAN bus over loopback UDP (:mod:`beambench.emulators.canbus`), the load-cell MCU on a pseudo-terminal), all driven in real
-time by the MuJoCo physics of the sim scene.
+"""The emulated rig: the hardware rig (:mod:`beambench.backends.hardware`) built with loopback wiring. Every
+registered device stream's emulated peer (Motive on UDP loopback, the load-cell MCU on a pseudo-terminal, ...) and
+an ODrive on a two-ended CAN bus over loopback UDP (:mod:`beambench.emulators.canbus`) run in a process of their
+own, driven in real time by the MuJoCo physics of the sim scene; the drivers are built by the same registered
+factories as on the bench, from a rig file whose addresses, ports and paths are the peers'.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import sys
 import threading
 import time
 import uuid
-from collections.abc import Collection, Iterator
+from collections.abc import Iterator, Mapping
 from multiprocessing.connection import Connection
 from pathlib import Path
 from types import SimpleNamespace
@@ -23,19 +25,15 @@ from typing import Any
 
 import numpy as np
 
-from beambench.acquisition.batch import Frame
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.protocol.scenes import scene_info
-from beambench.acquisition.protocol.schema import (
-    LoadCellWiring,
-    NatNetWiring,
-    OdriveWiring,
-    RigFile,
-)
-from beambench.acquisition.streams import LOADCELL, MOCAP
-from beambench.backends.hardware import DeviceRig
+from beambench.acquisition.protocol.schema import RigFile
+from beambench.backends.hardware import DEVICE_STREAMS, DeviceRig, build_streams, make_motor, rig_file_model
+from beambench.emulators.peer import EmulatedPeer, GoesSilent, PeerContext, StillPhysics, Wiring
 from beambench.sim.protocol_slice import SimSlice
+
+PHYSICS_THREAD = "emulated-physics"
 
 
 class RealtimePhysics:
@@ -64,9 +62,13 @@ class RealtimePhysics:
         self.error: BaseException | None = None
         self.advance(0.05)
 
+    @property
+    def markers(self) -> tuple[str, ...]:
+        return tuple(self.scene.markers)
+
     def start(self) -> None:
         self._t0 = time.monotonic() - float(self.scene.physics.time)
-        self._thread = threading.Thread(target=self._run, name="emulated-physics", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=PHYSICS_THREAD, daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
@@ -122,73 +124,67 @@ class RealtimePhysics:
         return float(fn), float(ft)
 
 
+def wired(base: RigFile, sections: Mapping[str, Mapping[str, Any]]) -> RigFile:
+    """``base`` (any rig file: its timeouts and settings) with the fields of ``sections`` set (the peers' addresses,
+    ports and paths), validated as a rig file with every registered stream's section."""
+    data = base.model_dump()
+    for name, fields in sections.items():
+        data[name] = {**data.get(name, {}), **fields}
+    return rig_file_model().model_validate(data)
+
+
+def injections() -> tuple[str, ...]:
+    """The fault-injection keys of every registered stream's peer."""
+    return tuple(key for s in DEVICE_STREAMS.values() for key in s.injections)
+
+
+def start_peers(ctx: PeerContext) -> tuple[dict[str, EmulatedPeer], Wiring]:
+    """Every registered stream's emulated peer, opened (not sending yet), and the rig-file sections that reach
+    them. A peer that cannot open closes the ones before it."""
+    peers: dict[str, EmulatedPeer] = {}
+    wiring: Wiring = {}
+    try:
+        for name, stream in DEVICE_STREAMS.items():
+            if stream.peer is None:
+                continue
+            peers[name] = stream.peer(ctx)
+            for section, fields in peers[name].open().items():
+                wiring.setdefault(section, {}).update(fields)
+    except BaseException:
+        close_peers(peers)
+        raise
+    return peers, wiring
+
+
+def close_peers(peers: Mapping[str, EmulatedPeer]) -> None:
+    """Stop every peer (the last opened first), then close them."""
+    for peer in reversed(list(peers.values())):
+        with contextlib.suppress(Exception):
+            peer.stop()
+    for peer in reversed(list(peers.values())):
+        with contextlib.suppress(Exception):
+            peer.close()
+
+
 @contextlib.contextmanager
 def emulated_peers() -> Iterator[RigFile]:
-    """Start the three emulated peers on loopback/virtual bus/pty; yields the rig wiring that reaches them."""
-    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
-    from beambench.emulators.motive import MotiveEmulator
+    """Start every registered peer (at rest: :class:`StillPhysics`) and an ODrive on the python-can virtual bus,
+    in this process; yields the rig wiring that reaches them (``beambench devices --emulate`` pings it)."""
     from beambench.emulators.odrive_can import EmulatedOdrive
 
     channel = f"beambench-{uuid.uuid4().hex[:8]}"
     odrive = EmulatedOdrive(channel=channel)
-    motive = MotiveEmulator(command_port=0, multicast=False, wait_for_client=False)
-    mcu = EmulatedLoadCellMCU()
     odrive.start()
     try:
-        motive.start()
+        peers, wiring = start_peers(PeerContext(StillPhysics(tuple(RigFile().natnet.markers))))
         try:
-            port = mcu.open()
-            mcu.start()
-            try:
-                yield RigFile(
-                    natnet=NatNetWiring.model_validate(
-                        {
-                            "server_address": "127.0.0.1",
-                            "local_address": "127.0.0.1",
-                            "command_port": motive.command_address[1],
-                            "multicast": False,
-                        }
-                    ),
-                    odrive=OdriveWiring.model_validate({"interface": "virtual", "channel": channel}),
-                    loadcell=LoadCellWiring.model_validate({"port": port}),
-                )
-            finally:
-                mcu.close()
+            for peer in peers.values():
+                peer.start()
+            yield wired(RigFile(), {**wiring, "odrive": {"interface": "virtual", "channel": channel}})
         finally:
-            motive.stop()
+            close_peers(peers)
     finally:
         odrive.stop()
-
-
-INJECTIONS = (
-    "mocap_drop",  # a probability per frame, or the frame numbers to drop
-    "mocap_occlude",  # a probability per marker and frame, or {frame number: marker indices}
-    "loadcell_crc",
-    "loadcell_drop",
-    "loadcell_garbage",
-    "loadcell_stop_s",  # the load-cell board stops sending this many seconds after the rig opened
-)
-
-
-class _Outage:
-    """Motive frame filter: every frame is dropped from ``start()`` for ``seconds`` (a real UDP silence), and the
-    frames numbered in ``base`` (the injected drops) always."""
-
-    def __init__(self, base: Collection[int] | None) -> None:
-        self.base = frozenset(base or ())
-        self.t0: float | None = None
-        self.seconds = 0.0
-
-    def start(self, seconds: float) -> None:
-        self.seconds, self.t0 = seconds, time.monotonic()
-
-    def __call__(self, number: int) -> bool:
-        if self.t0 is not None and time.monotonic() - self.t0 < self.seconds:
-            return True
-        return number in self.base
-
-
-DEVICE_THREADS = ("motive-", "loadcell-mcu", "odrive-emulator")
 
 
 def _favour_device_threads() -> None:
@@ -197,9 +193,10 @@ def _favour_device_threads() -> None:
     default). The physics (heavy) is not raised: on a 2-core machine it would starve the acquisition process,
     whose ODrive watchdog feed must keep to 0.5 s."""
     for t in threading.enumerate():
-        if t.native_id is not None and t.name.startswith(DEVICE_THREADS):
-            with contextlib.suppress(OSError):
-                os.setpriority(os.PRIO_PROCESS, t.native_id, -10)
+        if t is threading.main_thread() or t.name == PHYSICS_THREAD or t.native_id is None:
+            continue
+        with contextlib.suppress(OSError):
+            os.setpriority(os.PRIO_PROCESS, t.native_id, -10)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,7 +206,7 @@ class PeerSpec:
     sim: SimSlice
     """The physics driving the peers, and their clocks, noise and seed."""
     inject: dict[str, Any]
-    """Faults to inject (keys in :data:`INJECTIONS`)."""
+    """Faults to inject (keys in :func:`injections`)."""
     calibration: LoadCellCalibration
     """The load-cell MCU's calibration (counts per newton)."""
     can_port: int
@@ -243,80 +240,51 @@ class _Peers:
     odrive: Any
     config: Any
     physics: RealtimePhysics
-    motive: Any
-    mcu: Any
-    outage: _Outage
+    streams: dict[str, EmulatedPeer] = dataclasses.field(default_factory=dict)
+    """Each registered stream's peer, by stream name."""
     started: bool = False
-    stop_mcu: threading.Timer | None = None
 
 
-def _make_peers(spec: PeerSpec) -> _Peers:
-    """Motive, the ODrive and the load-cell MCU, driven by the realtime physics of ``spec.sim``."""
+def _make_peers(spec: PeerSpec) -> tuple[_Peers, Wiring]:
+    """The ODrive and every registered stream's peer, driven by the realtime physics of ``spec.sim``; the peers
+    are opened (their rig-file sections returned), not sending yet."""
     from beambench.emulators.canbus import LoopbackCanBus
-    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock
-    from beambench.emulators.motive import EmulatorClock, MotiveEmulator, motive_frame
     from beambench.emulators.odrive_can import EmulatedOdrive, OdriveEmulatorConfig
 
-    inject, sim = spec.inject, spec.sim
+    sim = spec.sim
     odrive_bus = LoopbackCanBus(0, peer_port=spec.can_port)  # the ODrive's end of the rig's bus (loopback)
-    config = odrive_config(scene_info(sim.scene).own_motor, spec.rig_file, OdriveEmulatorConfig)
-    odrive = EmulatedOdrive(channel=odrive_bus.channel_info, config=config, bus=odrive_bus)
-    physics = RealtimePhysics(sim, None)
-    drop = inject.get("mocap_drop")
-    outage = _Outage(None if isinstance(drop, float) else drop)
-    motive: MotiveEmulator | None = None
-
-    def exposed(t: float) -> np.ndarray:  # t: stream time of a frame, exposed at stream start + t
-        if motive is None or motive.t0 is None:  # not streaming yet (the model definition asks): now
-            return physics.positions(t)
-        return physics.positions_at(motive.t0 + t)
-
-    motive = MotiveEmulator(
-        marker_names=tuple(physics.scene.markers),
-        positions=motive_frame(exposed),
-        command_port=0,
-        multicast=False,
-        clock=EmulatorClock.from_model(sim.clocks.of(MOCAP)),
-        seed=sim.settings.seed,
-        drop=drop if isinstance(drop, float) else outage,
-        occlude=inject.get("mocap_occlude"),
-    )
-    mcu = EmulatedLoadCellMCU(
-        force=physics.force,
-        calibration=spec.calibration,
-        clock=McuClock(drift_ppm=sim.clocks.of(LOADCELL).drift_ppm),
-        noise_counts=50.0 if sim.settings.noise else 0.0,
-        seed=sim.settings.seed,
-        faults=LinkFaults(
-            crc_error_prob=inject.get("loadcell_crc", 0.0),
-            drop_prob=inject.get("loadcell_drop", 0.0),
-            garbage_prob=inject.get("loadcell_garbage", 0.0),
-        ),
-        tx_buffer=1 << 22,  # frames the emulator sends late when its own process was starved are not lost
-    )
-    return _Peers(odrive_bus, odrive, config, physics, motive, mcu, outage)
+    try:
+        config = odrive_config(scene_info(sim.scene).own_motor, spec.rig_file, OdriveEmulatorConfig)
+        odrive = EmulatedOdrive(channel=odrive_bus.channel_info, config=config, bus=odrive_bus)
+        peers = _Peers(odrive_bus, odrive, config, RealtimePhysics(sim, None))
+        ctx = PeerContext(
+            peers.physics, sim.clocks, sim.settings.seed, sim.settings.noise, spec.inject, spec.calibration
+        )
+        peers.streams, wiring = start_peers(ctx)
+    except BaseException:
+        odrive_bus.shutdown()
+        raise
+    return peers, wiring
 
 
 def _peer_main(conn: Connection, spec: PeerSpec) -> None:
-    """The emulated peers' process: Motive, the ODrive, the load-cell MCU and the realtime physics driving them.
+    """The emulated peers' process: the ODrive, every registered stream's peer and the realtime physics driving
+    them.
 
     Tells the parent where to find them (``ready``), starts on ``start``, answers ``snapshot`` and ``outage``
     while running, and on ``stop`` stops everything and sends back what it injected (a report).
     """
-    peers = _make_peers(spec)
+    peers, wiring = _make_peers(spec)
     try:
-        peers.motive.start()  # binds its ports; streams once the client connects
-        lc_port = peers.mcu.open()
         ready = {
-            "command_port": peers.motive.command_address[1],
-            "loadcell_port": lc_port,
-            "markers": tuple(peers.physics.scene.markers),
+            "wiring": wiring,  # the rig-file sections that reach the peers
+            "markers": peers.physics.markers,
             "scene": peers.physics.scene.identity(),
             "odrive_config": dataclasses.asdict(peers.config),  # the motor the emulated ODrive plays
             "can_port": peers.odrive_bus.port,  # the host's end accepts frames from this port only
         }
         conn.send(("ready", ready))
-        _serve(conn, peers, spec.inject)
+        _serve(conn, peers)
     except (EOFError, OSError, KeyboardInterrupt):  # the parent went away (killed: SIGKILL, a crash)
         if peers.started:
             _await_watchdog(peers.odrive, peers.config.watchdog_timeout_s)
@@ -336,7 +304,7 @@ def _failure(exc: BaseException) -> str:
     return f"out of memory ({reason})" if reason else f"{type(exc).__name__}: {text}"
 
 
-def _serve(conn: Connection, peers: _Peers, inject: dict[str, Any]) -> None:
+def _serve(conn: Connection, peers: _Peers) -> None:
     """Answer the parent's commands until ``stop``."""
     while True:
         if not conn.poll(0.2):
@@ -347,17 +315,19 @@ def _serve(conn: Connection, peers: _Peers, inject: dict[str, Any]) -> None:
             peers.odrive.start()
             peers.physics.odrive = peers.odrive
             peers.physics.start()
-            peers.mcu.start()
+            for peer in peers.streams.values():
+                peer.start()
             _favour_device_threads()
-            if inject.get("loadcell_stop_s") is not None:
-                peers.stop_mcu = threading.Timer(float(inject["loadcell_stop_s"]), peers.mcu.stop)
-                peers.stop_mcu.daemon = True
-                peers.stop_mcu.start()
             conn.send(("started", None))
         elif cmd == "snapshot":
             conn.send(("snapshot", peers.odrive.snapshot()))
         elif cmd == "outage":
-            peers.outage.start(float(arg))
+            name, seconds = arg
+            silent = peers.streams.get(name)
+            if not isinstance(silent, GoesSilent):
+                conn.send(("error", f"no peer of stream {name!r} can go silent"))
+                continue
+            silent.outage(float(seconds))
             conn.send(("outage", None))
         elif cmd == "stop":
             return
@@ -365,38 +335,26 @@ def _serve(conn: Connection, peers: _Peers, inject: dict[str, Any]) -> None:
 
 def _stop_peers(conn: Connection, peers: _Peers) -> None:
     """Stop every peer, then send the parent what they injected (the report) and close the socket."""
-    motive, mcu, physics, odrive = peers.motive, peers.mcu, peers.physics, peers.odrive
-    if peers.stop_mcu is not None:
-        peers.stop_mcu.cancel()
-    for peer in (mcu, motive, odrive):  # the senders first; the physics (nothing samples it now) after the report
+    for peer in reversed(list(peers.streams.values())):  # the senders first; the physics after the report
         with contextlib.suppress(Exception):
             peer.stop()
     with contextlib.suppress(Exception):
-        peers.odrive_bus.shutdown()
-    report = {
-        "motive": {
-            "dropped_frames": list(motive.dropped_frames),
-            "occlusions": list(motive.occlusions),
-            "frames_sent": motive.frames_sent,
-            "error": repr(motive.error) if motive.error else "",
-        },
-        "mcu": {
-            "injected": mcu.injected.as_dict(),
-            "broken_seqs": list(mcu.broken_seqs),
-            "overflowed_seqs": list(mcu.overflowed_seqs),
-            "error": mcu.error or "",
-        },
-        "odrive": odrive.snapshot(),
-        "physics_error": repr(physics.error) if physics.error else "",
-    }
+        peers.odrive.stop()
     with contextlib.suppress(Exception):
-        mcu.close()
+        peers.odrive_bus.shutdown()
+    report: dict[str, Any] = {"streams": {}}
+    for name, peer in peers.streams.items():
+        with contextlib.suppress(Exception):
+            report["streams"][name] = peer.report()
+    report["odrive"] = peers.odrive.snapshot()
+    report["physics_error"] = repr(peers.physics.error) if peers.physics.error else ""
+    close_peers(peers.streams)
     with contextlib.suppress(Exception):
         conn.send(("report", report))
     with contextlib.suppress(Exception):
         conn.close()
     with contextlib.suppress(Exception):
-        physics.stop()
+        peers.physics.stop()
 
 
 def _await_watchdog(odrive: Any, timeout_s: float) -> None:
@@ -440,8 +398,9 @@ class PeerProcess:
     """The emulated peers in a process of their own (spawned), as real devices are: the acquisition process's
     scheduling cannot make them late, and theirs cannot make it late.
 
-    After :meth:`stop`, what they injected is here: ``motive.dropped_frames``, ``mcu.injected``,
-    ``mcu.broken_seqs``, ``mcu.overflowed_seqs``, ``odrive.snapshot()`` (as when they stopped).
+    After :meth:`stop`, what each stream's peer reported is in ``reported[<stream>]`` (``reported["mocap"]
+    .dropped_frames``, ``reported["loadcells"].injected.garbage_bursts``), and ``odrive.snapshot()`` is the ODrive
+    as it stopped.
     """
 
     def __init__(self, spec: PeerSpec, ready_timeout_s: float = 60.0) -> None:
@@ -468,8 +427,7 @@ class PeerProcess:
         self._lock = threading.Lock()
         self.report: dict[str, Any] | None = None
         self.odrive = _Snapshot(self)
-        self.motive: Any = None
-        self.mcu: Any = None
+        self.reported: dict[str, SimpleNamespace] = {}
         try:
             self._conn.send(spec)
             self.ready = self._expect("ready", ready_timeout_s)
@@ -518,9 +476,9 @@ class PeerProcess:
     def start(self) -> None:
         self._ask("start")
 
-    def mocap_outage(self, seconds: float) -> None:
-        """Motive sends nothing for ``seconds`` from now (a real UDP silence)."""
-        self._ask("outage", seconds)
+    def outage(self, stream: str, seconds: float) -> None:
+        """The peer of ``stream`` sends nothing for ``seconds`` from now (a real silence on its wire)."""
+        self._ask("outage", (stream, seconds))
 
     def odrive_snapshot(self) -> dict[str, Any]:
         if self.report is not None:
@@ -550,11 +508,12 @@ class PeerProcess:
             with contextlib.suppress(Exception):
                 self._conn.close()
             if self.report is not None:
-                from beambench.emulators.loadcell_mcu import Injected
+                self.reported = {name: _namespace(r) for name, r in self.report["streams"].items()}
 
-                m, c = self.report["motive"], self.report["mcu"]
-                self.motive = SimpleNamespace(**m)
-                self.mcu = SimpleNamespace(**{**c, "injected": Injected(**c["injected"])})
+
+def _namespace(report: Mapping[str, Any]) -> SimpleNamespace:
+    """A peer's report with attribute access, one level down too (``injected.garbage_bursts``)."""
+    return SimpleNamespace(**{k: _namespace(v) if isinstance(v, Mapping) else v for k, v in report.items()})
 
 
 def odrive_config(own_motor: bool, rig_file: Path | None, config_type: Any) -> Any:
@@ -564,18 +523,18 @@ def odrive_config(own_motor: bool, rig_file: Path | None, config_type: Any) -> A
     protocol's limits through Set_Limits, as on the bench."""
     if not own_motor:
         return config_type(calibration_s=0.2)
-    from beambench.acquisition.protocol.schema import load_rig_file
-    from beambench.backends.hardware import DEFAULT_RIG_FILE
+    from beambench.backends.hardware import DEFAULT_RIG_FILE, load_wiring
 
-    drive = load_rig_file(rig_file or DEFAULT_RIG_FILE).walker
+    drive = load_wiring(rig_file or DEFAULT_RIG_FILE).walker
     return config_type(
         calibration_s=0.2,
         pole_pairs=drive.pole_pairs,
         feedback=drive.feedback,
         torque_constant=drive.torque_constant_nm_a,
         # the offset mass's inertia arrives with the scene's rotor torque (fed back as the load torque); that torque
-        # also carries the rotor's own inertia, so the ramp sees it twice (≈ 3 mN·m at 50 turn/s², ≈ 0.1 A)
+        # also carries the rotor's own inertia, so the ramp sees it twice (≈ 12 mN·m at 200 turn/s², ≈ 0.5 A)
         inertia=drive.rotor_inertia_kg_m2,
+        vel_ramp_rate=drive.vel_ramp_rate_turn_s2,
         vel_gain=0.01,
         vel_integrator_gain=0.1,
         viscous_friction=0.0,
@@ -593,26 +552,20 @@ def build_emulated_rig(
     inject: dict[str, Any] | None = None,
     wiring: RigFile | None = None,
 ) -> DeviceRig:
-    """Real drivers against emulated Motive, ODrive and load-cell MCU, all driven by the MuJoCo physics, which
-    run in a process of their own (started here; they start sending when the rig opens).
+    """The hardware rig wired to emulated peers: every registered stream's peer and an ODrive, all driven by the
+    MuJoCo physics, run in a process of their own (started here; they start sending when the rig opens); the
+    drivers are built by the registered factories (:func:`beambench.backends.hardware.build_streams`) from
+    ``wiring`` (timeouts and settings, as in a rig file) with the peers' addresses, ports and paths.
 
-    ``inject`` sets faults (keys in :data:`INJECTIONS`); the peers report exactly what they injected when they
-    stop (``rig.peers[0].motive.dropped_frames``, ``.mcu.injected``). ``wiring`` gives the drivers' settings
-    (heartbeat and silence timeouts) as in a rig file; addresses and ports are the emulators'.
+    ``inject`` sets faults (keys in :func:`injections`); the peers report exactly what they injected when they
+    stop (``rig.peers[0].reported["mocap"].dropped_frames``, ``["loadcells"].injected``).
     """
     inject = dict(inject or {})
-    unknown = sorted(set(inject) - set(INJECTIONS))
+    unknown = sorted(set(inject) - set(injections()))
     if unknown:
-        raise ValueError(f"unknown injections {unknown}; known: {list(INJECTIONS)}")
-    from beambench.devices.loadcell.driver import SerialLoadCells
-    from beambench.devices.natnet.client import NatNetConfig
-    from beambench.devices.natnet.mocap import NatNetMocap
-    from beambench.devices.odrive.can_motor import OdriveCanMotor
-    from beambench.devices.odrive.can_timing import CanMotorTiming
+        raise ValueError(f"unknown injections {unknown}; known: {list(injections())}")
     from beambench.emulators.canbus import LoopbackCanBus
-    from beambench.emulators.motive import MOTIVE_GEOMETRY
 
-    wiring = wiring or RigFile()
     bus = LoopbackCanBus(0)  # the host's end, on loopback: the peers learn its port, it learns theirs
     try:
         peers = PeerProcess(PeerSpec(sim, inject, calibration or default_calibration(), bus.port, rig_file))
@@ -622,41 +575,21 @@ def build_emulated_rig(
     try:
         ready = peers.ready
         bus.connect(int(ready["can_port"]))
+        odrive = {"transport": "can", "interface": "loopback", "channel": bus.channel_info, "node_id": 0}
+        rig = wired(wiring or RigFile(), {**ready["wiring"], "odrive": odrive})
         markers = tuple(ready["markers"])  # the scene's own markers (release test: stage, tip1..tip3)
-        mocap = NatNetMocap(
-            markers,
-            NatNetConfig(
-                server_address="127.0.0.1",
-                local_address="127.0.0.1",
-                command_port=int(ready["command_port"]),
-                multicast=False,
-            ),
-            frame=Frame(**MOTIVE_GEOMETRY),
-            silence_timeout_s=wiring.natnet.silence_timeout_s,
-        )
-        channel = bus.channel_info
-        motor = OdriveCanMotor(
-            channel,
-            "loopback",
-            0,
-            bus=bus,
-            own_bus=True,
-            can_log=can_log,
-            timing=CanMotorTiming(
-                heartbeat_timeout_s=wiring.odrive.heartbeat_timeout_s,
-                telemetry_timeout_s=wiring.odrive.telemetry_timeout_s,
-                watchdog_timeout_s=wiring.odrive.watchdog_timeout_s,
-            ),
-        )
-        loadcells = SerialLoadCells(ready["loadcell_port"], silence_timeout_s=wiring.loadcell.silence_timeout_s)
+        streams = build_streams(rig, markers)
+        motor = make_motor(rig.odrive, can_log, bus=bus, own_bus=True)
     except BaseException:
         peers.stop()
         bus.shutdown()
         raise
     return DeviceRig(
         motor,
-        {"mocap": mocap, "loadcells": loadcells},
+        streams,
         "emulated",
         peers=[peers],
-        extra_identity={"emulated": {"scene": ready["scene"], "can_channel": channel, "peers": "own process (spawn)"}},
+        extra_identity={
+            "emulated": {"scene": ready["scene"], "can_channel": bus.channel_info, "peers": "own process (spawn)"}
+        },
     )

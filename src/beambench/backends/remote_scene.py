@@ -130,6 +130,7 @@ def _lost(exc: BaseException) -> DeviceFault:
 
 def remote_scenes(client: Any, sim: SimSlice, n: int, build: SceneBuilder) -> list[RemoteScene]:
     """``n`` scenes of ``sim`` on the cluster, built by ``build`` (the rig's builder, sent by reference), one per
-    worker in turn (by address)."""
-    workers = sorted(client.scheduler_info().get("workers", {}))
+    worker in turn (by address). ``Client.nthreads()`` lists every worker (``scheduler_info()`` only the first 5 in some
+    Dask versions, 2025.7 among them)."""
+    workers = sorted(client.nthreads())
     return [RemoteScene(client, sim, build, workers[i % len(workers)] if workers else None) for i in range(n)]

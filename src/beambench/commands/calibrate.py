@@ -146,17 +146,15 @@ def loadcells(
 
 def _wired_port(rig: Path | None, baudrate: int | None, out: Path | None) -> tuple[str, int, Path]:
     """The port, baud rate and default output of the rig file (``--rig``, else the shipped ``rig.yaml``)."""
-    from beambench.acquisition.protocol.schema import load_rig_file
+    from beambench.backends.hardware import DEFAULT_RIG_FILE, load_wiring
     from beambench.common.yaml_config import ConfigError
 
     if rig is None:
-        from beambench.backends.hardware import DEFAULT_RIG_FILE
-
         rig = DEFAULT_RIG_FILE
     if not rig.exists():
         fail(f"no --port given and no rig file at {rig}")
     try:
-        wiring = load_rig_file(rig)
+        wiring = load_wiring(rig)
     except ConfigError as exc:
         fail(str(exc))
     return (

@@ -21,18 +21,18 @@ def register(app: typer.Typer) -> None:
         ),
         emulate: bool = typer.Option(False, "--emulate", help="Start the emulated rig on loopback and ping it."),
     ) -> None:
-        """Ping the mocap server, the ODrive and the load-cell MCU; print version, serial and rate. Moves nothing."""
+        """Ping the ODrive and every device stream of the rig (the mocap server, the load-cell MCU, ...); print version,
+        serial and rate. Moves nothing."""
         from rich.console import Console
         from rich.markup import escape
         from rich.table import Table
 
-        from beambench.acquisition.protocol.schema import load_rig_file
-        from beambench.backends.hardware import DEFAULT_RIG_FILE
+        from beambench.backends.hardware import DEFAULT_RIG_FILE, load_wiring
         from beambench.common.text import printable
         from beambench.common.yaml_config import ConfigError
 
         try:
-            rig = load_rig_file(rig_file or DEFAULT_RIG_FILE) if not emulate else None
+            rig = load_wiring(rig_file or DEFAULT_RIG_FILE) if not emulate else None
         except ConfigError as exc:
             fail(str(exc))
         if emulate:
@@ -59,17 +59,12 @@ def register(app: typer.Typer) -> None:
 
 
 def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
-    """Ping each device of a :class:`beambench.acquisition.protocol.schema.RigFile`; never raises for a device that is absent."""
-    from beambench.devices.loadcell import driver as loadcell
-    from beambench.devices.natnet import client as natnet
+    """Ping the motor and every registered device stream that can be pinged, each as its rig file
+    (:func:`beambench.backends.hardware.load_wiring`) wires it; never raises for a device that is absent."""
+    from beambench.backends.hardware import DEVICE_STREAMS
     from beambench.devices.odrive import can_ping as odrive_can
 
     out: dict[str, dict[str, Any]] = {}
-    nn = rig.natnet.model_dump(exclude={"markers"})
-    try:
-        out["mocap (NatNet)"] = {"found": True, **natnet.ping(natnet.NatNetConfig.from_mapping(nn))}
-    except Exception as exc:
-        out["mocap (NatNet)"] = {"found": False, "error": str(exc)}
     od = rig.odrive
     if od.transport == "can":
         out["motor (ODrive CAN)"] = odrive_can.ping(od.channel, od.interface, od.node_id, bitrate=od.bitrate)
@@ -77,9 +72,11 @@ def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
         from beambench.devices.odrive import usb_motor as odrive_usb
 
         out["motor (ODrive USB)"] = odrive_usb.ping(od.serial_number)
-    try:
-        lc = loadcell.ping(rig.loadcell.port, rig.loadcell.baudrate)
-        out["load cells (serial)"] = {"found": lc.ok, **{k: v for k, v in vars(lc).items() if k not in ("ok", "stats")}}
-    except Exception as exc:
-        out["load cells (serial)"] = {"found": False, "error": str(exc)}
+    for stream in DEVICE_STREAMS.values():
+        if stream.ping is None:
+            continue
+        try:
+            out[stream.label] = stream.ping(getattr(rig, stream.section))
+        except Exception as exc:
+            out[stream.label] = {"found": False, "error": str(exc)}
     return out

@@ -35,8 +35,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.table import Table
 
-        from beambench.acquisition.protocol.schema import load_rig_file
-        from beambench.backends.hardware import DEFAULT_RIG_FILE
+        from beambench.backends.hardware import DEFAULT_RIG_FILE, load_wiring
         from beambench.common.console import LOG_WIDTH
         from beambench.common.yaml_config import ConfigError
         from beambench.session.doctor import Machine, check_machine, failed
@@ -44,7 +43,7 @@ def register(app: typer.Typer) -> None:
         if not min_free_gb >= 0:
             fail(f"--min-free-gb {min_free_gb:g}: must be 0 or more")
         try:
-            rig = load_rig_file(rig_file or DEFAULT_RIG_FILE)
+            rig = load_wiring(rig_file or DEFAULT_RIG_FILE)
         except ConfigError as exc:
             fail(str(exc))
         rows = check_machine(Machine(rig, out, root, None, sim, min_free_gb))

@@ -117,7 +117,8 @@ def fit(args: FitArgs) -> None:
 def _checked(args: FitArgs) -> list[str]:
     """The models to fit; one line and exit 2 for bad options."""
     from beambench.common.names import check_name
-    from beambench.sim.models.registry import UnknownModelError, canonical_model
+    from beambench.sim.models.families import FAMILIES
+    from beambench.sim.models.registry import UnknownModelError, canonical_model, is_rod
 
     models = [m.strip() for m in args.model.split(",") if m.strip()]
     if not models:
@@ -132,8 +133,9 @@ def _checked(args: FitArgs) -> list[str]:
             canonical_model(m)
         except UnknownModelError:
             fail(f"--model = {m[:40]!r}: prb3, rod, or rodN (e.g. rod10, rod5g)")
-    if args.free_l1 and "prb3" not in models:
-        fail("--free-l1 applies to the prb3 model")
+    if args.free_l1 and all(is_rod(m) for m in models):
+        joint_springs = " or ".join(f.name for f in FAMILIES.values() if not f.segmented)
+        fail(f"--free-l1 applies to a model on joint springs ({joint_springs})")
     if not args.session.is_file():
         fail(f"{args.session}: no such session file")
     from beambench.studies.fit.release import METHODS
@@ -177,12 +179,13 @@ def _fit_one(data: Any, m: str, args: FitArgs, console: Any) -> Any:
     from rich.progress import BarColumn, TextColumn, TimeElapsedColumn
 
     from beambench.common.console import LogProgress
+    from beambench.sim.models.registry import is_rod
     from beambench.studies.fit.release import FitError, FitOptions, fit_release
 
     options = FitOptions(
         method=args.method,
         max_iters=args.max_iters,
-        free_l1=args.free_l1 and m == "prb3",
+        free_l1=args.free_l1 and not is_rod(m),
         popsize=args.popsize,
         maxiter=args.maxiter,
         seed=args.seed,

@@ -18,6 +18,7 @@ from beambench.sinks.viewer import RerunMode
 
 if TYPE_CHECKING:
     from beambench.acquisition.protocol.schema import Protocol
+    from beambench.session.checks import Validated
     from beambench.sim.selection import Plan
 
 
@@ -37,14 +38,16 @@ NO_VIEW_NOTE = (
 )
 
 
-def resolve_protocol(given: Path) -> Path:
+def resolve_protocol(given: Path, what: str = "run") -> Path:
     """``given`` if it is a file; else the shipped protocol of that name (``contact_sweep`` or
-    ``protocols/contact_sweep.yaml`` from any folder); else one line naming the shipped protocols, exit 2."""
+    ``protocols/contact_sweep.yaml`` from any folder); else one line naming the shipped protocols, exit 2 (or the
+    ``what`` interrupted line, exit 3, if a stop signal came meanwhile)."""
     from beambench.common.resources import ShippedFileError, resolve_file
 
     try:
         return resolve_file("protocol", given)
     except ShippedFileError as exc:
+        _end_if_stopped(what)  # stopped meanwhile: that, not the bad input, ends it
         fail(str(exc))
 
 
@@ -98,11 +101,12 @@ def run(
     checked before anything moves. Ctrl-C, SIGTERM, SIGHUP (a closed terminal), SIGQUIT and the other stop
     signals idle the motor and close the file cleanly (exit 3); a full disk idles the motor too (exit 4).
     """
-    from beambench.acquisition.protocol.plan import session_path, summary
+    from beambench.acquisition.protocol.plan import session_path
     from beambench.acquisition.protocol.schema import load_protocol
     from beambench.session.checks import validate
 
-    protocol_file = resolve_protocol(protocol_file)
+    what = "dry run" if dry_run else "run"  # a stop before either starts ends it with one line (_end_if_stopped)
+    protocol_file = resolve_protocol(protocol_file, what)
     try:
         protocol, text = load_protocol(protocol_file)
         chosen: Backend = backend or protocol.backend
@@ -114,21 +118,21 @@ def run(
         from_protocol = rig_file is None and protocol.rig_file is not None
         rig_file = rig_file or protocol_rig_file(protocol, protocol_file)  # --rig, else the protocol's rig_file
         if rig_file is not None:  # every input file too: kind, size, fields
-            from beambench.acquisition.protocol.schema import load_rig_file
+            from beambench.backends.hardware import load_wiring
 
             try:
-                load_rig_file(rig_file)
+                load_wiring(rig_file)
             except ConfigError as exc:
                 if not from_protocol:
                     raise
                 raise ConfigError(f"{protocol_file}: rig_file: {exc}") from None
         mode: RerunMode = rerun or default_rerun_mode()
         if dry_run:
-            sim_plan = checked.slices.sim.plan if checked.slices.sim is not None else None
-            print_dry_run(summary(protocol, chosen), expected_run_time(protocol, chosen, sim_plan, realtime))
+            _dry_run(protocol, chosen, checked, realtime)
             return
         path = session_path(protocol, chosen, out, name)
     except ConfigError as exc:
+        _end_if_stopped(what)  # the user stopped it while it was being checked: that, not the bad input, ends it
         fail(str(exc))
     from beambench.session.run import RigStartError, RunRequest, run_request
 
@@ -147,6 +151,36 @@ def run(
     except MemoryError:  # outside the runner (opening, closing): the rig's close has idled the motor
         fail("run error: out of memory (MemoryError) (motor idled)", EXIT_FAULT)
     report_run(result.status, result.message, path, mode == "save", result.warnings, result.idle)
+
+
+def _dry_run(protocol: Protocol, backend: Backend, checked: Validated, realtime: bool) -> None:
+    """The plan, the expected run time and the limits on stdout; a stop signal held since the command line started
+    ends it instead, before or after the printing (:func:`_end_if_stopped`)."""
+    from beambench.acquisition.protocol.plan import summary
+
+    sim_plan = checked.slices.sim.plan if checked.slices.sim is not None else None
+    expected = expected_run_time(protocol, backend, sim_plan, realtime)
+    _end_if_stopped("dry run")
+    print_dry_run(summary(protocol, backend), expected)
+    _end_if_stopped("dry run")
+
+
+def _end_if_stopped(what: str) -> None:
+    """A stop signal the command line held (:mod:`beambench.common.early_signals`: one that came while it imported,
+    or while this command checked its inputs) ends the command here, before the run would take it: one line and
+    the interrupted exit code. The run itself takes what is still held when it starts (the session records it)."""
+    from beambench.acquisition.stop_signals import StopSignal
+    from beambench.common import early_signals
+
+    got = early_signals.take()
+    if not got:
+        return
+    stop = StopSignal()
+    for signum in got:
+        stop.request(signum)
+    with contextlib.suppress(OSError):  # a closed terminal (SIGHUP) cannot take it: the exit code still tells
+        typer.echo(f"beambench: {what} interrupted: {stop.reason} (nothing moved; no session written)", err=True)
+    raise typer.Exit(EXIT_STOPPED)
 
 
 def check_scheduler(scheduler: str, backend: Backend, protocol: Protocol) -> None:

@@ -32,12 +32,15 @@ import time
 import tty
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
 from beambench.acquisition.clocks import DriftingClock
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
+from beambench.acquisition.streams import LOADCELL
 from beambench.devices.loadcell.protocol import FRAME_LEN, encode_frame
+from beambench.emulators.peer import PeerContext, Wiring
 
 ForceSource = Callable[[float], tuple[float, float]]
 _I32 = (-(2**31), 2**31 - 1)
@@ -312,3 +315,55 @@ class EmulatedLoadCellMCU:
                 pass
         except OSError:
             pass
+
+
+class LoadCellPeer:
+    """The ``loadcells`` stream's emulated peer: the load-cell MCU on a pseudo-terminal, sending the physics' plate
+    force through the calibration, on its own drifting clock (``sim.clocks.loadcell``). Injections: ``loadcell_crc``,
+    ``loadcell_drop``, ``loadcell_garbage`` (probabilities per frame) and ``loadcell_stop_s`` (the board stops
+    sending this many seconds after it started)."""
+
+    def __init__(self, ctx: PeerContext) -> None:
+        inject = ctx.inject
+        self.mcu = EmulatedLoadCellMCU(
+            force=ctx.physics.force,
+            calibration=ctx.calibration,
+            clock=McuClock(drift_ppm=ctx.clock(LOADCELL).drift_ppm),
+            noise_counts=50.0 if ctx.noise else 0.0,
+            seed=ctx.seed,
+            faults=LinkFaults(
+                crc_error_prob=inject.get("loadcell_crc", 0.0),
+                drop_prob=inject.get("loadcell_drop", 0.0),
+                garbage_prob=inject.get("loadcell_garbage", 0.0),
+            ),
+            tx_buffer=1 << 22,  # frames the emulator sends late when its own process was starved are not lost
+        )
+        self._stop_s: Any = inject.get("loadcell_stop_s")
+        self._stopper: threading.Timer | None = None
+
+    def open(self) -> Wiring:
+        return {"loadcell": {"port": self.mcu.open()}}
+
+    def start(self) -> None:
+        self.mcu.start()
+        if self._stop_s is not None:
+            self._stopper = threading.Timer(float(self._stop_s), self.mcu.stop)
+            self._stopper.daemon = True
+            self._stopper.start()
+
+    def stop(self) -> None:
+        if self._stopper is not None:
+            self._stopper.cancel()
+        self.mcu.stop()
+
+    def report(self) -> dict[str, Any]:
+        m = self.mcu
+        return {
+            "injected": m.injected.as_dict(),
+            "broken_seqs": list(m.broken_seqs),
+            "overflowed_seqs": list(m.overflowed_seqs),
+            "error": m.error or "",
+        }
+
+    def close(self) -> None:
+        self.mcu.close()

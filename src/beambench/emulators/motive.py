@@ -23,17 +23,20 @@ import threading
 import time
 from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from beambench.acquisition.clocks import DriftingClock
 from beambench.acquisition.protocol.schema import ClockModel
+from beambench.acquisition.streams import MOCAP
 from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import modeldef as nm
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet import wire as nw
+from beambench.emulators.peer import PeerContext, Wiring
 
-__all__ = ["APP_VERSIONS", "EmulatorClock", "MotiveEmulator"]
+__all__ = ["APP_VERSIONS", "EmulatorClock", "MotiveEmulator", "MotivePeer"]
 
 APP_VERSIONS = {nw.V3_0: nw.Version(2, 2, 0, 0), nw.V4_0: nw.Version(3, 0, 0, 0), nw.V4_1: nw.Version(3, 1, 0, 0)}
 
@@ -429,3 +432,87 @@ class MotiveEmulator:
                 if self.keep_sent:
                     self.sent.append(frame)
             k += 1
+
+
+class _Outage:
+    """Frame filter: every frame is dropped from ``start()`` for ``seconds`` (a real UDP silence), and the frames
+    numbered in ``base`` (the injected drops) always."""
+
+    def __init__(self, base: Collection[int] | None) -> None:
+        self.base = frozenset(base or ())
+        self.t0: float | None = None
+        self.seconds = 0.0
+
+    def start(self, seconds: float) -> None:
+        self.seconds, self.t0 = seconds, time.monotonic()
+
+    def __call__(self, number: int) -> bool:
+        if self.t0 is not None and time.monotonic() - self.t0 < self.seconds:
+            return True
+        return number in self.base
+
+
+class MotivePeer:
+    """The ``mocap`` stream's emulated peer: Motive on loopback (unicast), streaming the physics' markers in its
+    y-up frame, each frame's markers taken at its own exposure time. Injections: ``mocap_drop`` (a probability
+    per frame, or the frame numbers to drop), ``mocap_occlude`` (a probability per marker and frame, or
+    {frame number: marker indices}); :meth:`outage` silences it for a while."""
+
+    def __init__(self, ctx: PeerContext) -> None:
+        physics = ctx.physics
+        drop = ctx.inject.get("mocap_drop")
+        self._outage = _Outage(None if isinstance(drop, float) else drop)
+
+        def exposed(t: float) -> np.ndarray:  # t: stream time of a frame, exposed at stream start + t
+            if self.emulator.t0 is None:  # not streaming yet (the model definition asks): now
+                return physics.positions(t)
+            return physics.positions_at(self.emulator.t0 + t)
+
+        self.emulator = MotiveEmulator(
+            marker_names=physics.markers,
+            positions=motive_frame(exposed),
+            command_port=0,
+            multicast=False,
+            clock=EmulatorClock.from_model(ctx.clock(MOCAP)),
+            seed=ctx.seed,
+            drop=drop if isinstance(drop, float) else self._outage,
+            occlude=ctx.inject.get("mocap_occlude"),
+        )
+
+    def open(self) -> Wiring:
+        self.emulator.start()  # binds its ports; streams once the client connects
+        host, port = self.emulator.command_address
+        markers = {
+            name: f"{mid >> 16}:{mid & 0xFFFF}"
+            for name, mid in zip(self.emulator.marker_names, self.emulator.marker_ids or ())
+        }
+        natnet = {
+            "server_address": host,
+            "local_address": host,
+            "command_port": port,
+            "multicast": False,
+            "markers": markers,
+        }
+        return {"natnet": natnet, "geometry": dict(MOTIVE_GEOMETRY)}
+
+    def start(self) -> None:
+        pass  # streaming started when the client connected
+
+    def outage(self, seconds: float) -> None:
+        """Send nothing for ``seconds`` from now."""
+        self._outage.start(seconds)
+
+    def stop(self) -> None:
+        self.emulator.stop()
+
+    def report(self) -> dict[str, Any]:
+        m = self.emulator
+        return {
+            "dropped_frames": list(m.dropped_frames),
+            "occlusions": list(m.occlusions),
+            "frames_sent": m.frames_sent,
+            "error": repr(m.error) if m.error else "",
+        }
+
+    def close(self) -> None:
+        pass

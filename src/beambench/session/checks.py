@@ -20,8 +20,8 @@ from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.protocol.schema import Backend, Protocol
 from beambench.backends.build import RigSlices
 from beambench.common.yaml_config import ConfigError, shorten
-from beambench.devices.odrive.can_log_formats import LOG_SUFFIXES
-from beambench.session.slices import rig_slices
+from beambench.devices.odrive.can_log import LOG_SUFFIXES
+from beambench.session.slices import check_clocks, rig_slices
 from beambench.sim.models.params import BeamParams, ParamsError, load_params
 from beambench.sim.models.registry import model_family
 from beambench.sim.scene_params import RigParams, WalkerParams
@@ -43,7 +43,13 @@ def validate(protocol: Protocol, backend: Backend, file: str = "<protocol>", can
     """Check ``protocol`` for a run on ``backend`` (with ``--can-log``): the first problem is a one-line
     :class:`ConfigError` naming the field; else the run's plan, slices and limits."""
     _check_fields(protocol, file, backend, can_log)
-    return Validated(plan(protocol), rig_slices(protocol, backend), motor_limits(protocol))
+    try:
+        slices = rig_slices(protocol, backend)
+    except ConfigError as exc:  # the slices know the protocol, not its file: the line names the file
+        if exc.file != "<protocol>" or not exc.field:
+            raise
+        raise ConfigError(file, exc.field, exc.value, exc.reason) from None
+    return Validated(plan(protocol), slices, motor_limits(protocol))
 
 
 def _reason(exc: Exception) -> str:
@@ -90,7 +96,8 @@ def can_log_problem(path: Path) -> str | None:
 
 
 def _check_fields(protocol: Protocol, file: str, backend: str | None = None, can_log: Path | None = None) -> None:
-    """Raise :class:`ConfigError` for the first problem: limits, ``sim.model``, ``sim.params``, ``--can-log``."""
+    """Raise :class:`ConfigError` for the first problem: limits, ``sim.model``, ``sim.params``, ``sim.clocks``,
+    ``--can-log``."""
     check_limits(protocol, file)
     sim = protocol.sim
     family = "prb3"
@@ -104,6 +111,7 @@ def _check_fields(protocol: Protocol, file: str, backend: str | None = None, can
     except (ParamsError, OSError) as exc:
         raise ConfigError(file, "sim.params", sim.params, _reason(exc)) from None
     _check_overrides(params, protocol.rig, file, sim.params)
+    check_clocks(sim, file)  # on every backend: a protocol is checked whole wherever it runs
     if can_log is not None:
         if backend is not None and not backend_info(backend).devices:
             on_can = " or ".join(backends_with("devices"))

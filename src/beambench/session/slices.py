@@ -15,14 +15,14 @@ from beambench.acquisition.protocol.schema import Backend, Protocol, SimOptions
 from beambench.acquisition.streams import MOTOR
 from beambench.backends.build import RigSlices
 from beambench.backends.sim_streams import SIM_STREAMS
-from beambench.common.yaml_config import ConfigError
+from beambench.common.yaml_config import MISSING, ConfigError, shorten
 from beambench.sim.models.params import has_params
 from beambench.sim.models.registry import model_family
 from beambench.sim.protocol_slice import AUTO_TOLERANCE_MM, DeviceClocks, SimSlice
 from beambench.sim.selection import Plan, SelectionError, plan_sweep, table_models
 from beambench.sim.settings import SimSettings
 
-__all__ = ["rig_slices", "sim_slice"]
+__all__ = ["check_clocks", "rig_slices", "sim_slice"]
 
 
 def rig_slices(protocol: Protocol, backend: Backend) -> RigSlices:
@@ -41,7 +41,7 @@ def sim_slice(protocol: Protocol) -> SimSlice:
     sim = protocol.sim
     info = scene_info(protocol.rig)
     _check_scene_options(info, sim)
-    _check_clocks(sim)
+    check_clocks(sim)
     plan = _plan(protocol)
     settings = SimSettings(
         settle_s=float(protocol.settle_s),
@@ -86,13 +86,14 @@ def _check_scene_options(info: SceneInfo, sim: SimOptions) -> None:
         raise ConfigError("<protocol>", f"sim.{option}", shown, reason)
 
 
-def _check_clocks(sim: SimOptions) -> None:
-    """Each of ``sim.clocks`` names a simulated stream (the motor's or a registered one)."""
+def check_clocks(sim: SimOptions, file: str = "<protocol>") -> None:
+    """Each key of ``sim.clocks`` names a simulated stream (the motor's or a registered one); else one line naming
+    the field, the key and the streams there are."""
     known = [MOTOR, *SIM_STREAMS]
     for name in sim.clocks:
         if name not in known:
-            reason = f"no simulated stream {name!r} (the sim's streams: {', '.join(known)})"
-            raise ConfigError("<protocol>", f"sim.clocks.{name}", sim.clocks[name].model_dump(), reason)
+            reason = f"no simulated stream {shorten(name)} (the sim's streams: {', '.join(known)})"
+            raise ConfigError(file, f"sim.clocks.{name[:40]}", MISSING, reason)
 
 
 def _plan(protocol: Protocol) -> Plan | None:

@@ -76,7 +76,7 @@ class RigParams:
 
 # Where each number comes from: P = the paper (Sec. IV-B, Fig. 5a); D = Maxon EC 45 flat Ø42.9 mm 30 W datasheet
 # (article 200142, Hall sensors, 12 V winding; May 2012 edition; line numbers are the datasheet's); C = calibrated
-# to the paper's two speeds (research12: 2-D scan settle 3 s; the calibrator ``beambench calibrate sim`` redoes it);
+# to the paper's two speeds (a 2-D scan, settle 3 s; the calibrator ``beambench calibrate sim`` redoes it);
 # G = guessed (the paper is silent; the module docstring and benchmarks/bench_walker.py give what each does);
 # N = numerics (converged, benchmarks/bench_walker.py).
 @dataclass(frozen=True)
@@ -94,7 +94,7 @@ class WalkerParams:
     length: float = 0.295  # P: 295 mm platform, plate front to cart tail
     leg_offset: float = 0.03  # G: clamp distance from the centre line (≈ no effect on the speed)
     foot_length: float = 0.0665  # P (Sec. IV-A): 66.5 mm foot
-    # C: point mass at each sole (paper_guesses: 20 g, the Sec. IV-A foot load). research12's steady 2-D scan: 3.0 g
+    # C: point mass at each sole (paper_guesses: 20 g, the Sec. IV-A foot load). A steady 2-D scan: 3.0 g
     # at μ 0.5 → −35.5 / +154.7 mm/s at 23 / 65 Hz; `beambench calibrate sim` on the paper's targets (540 s budget)
     # lands in the same basin (3.3 g, μ 0.507 → −36.3 / +138.8)
     foot_mass: float = 0.003
@@ -106,7 +106,7 @@ class WalkerParams:
     contact_timeconst: float = 0.0003  # N: solref time constant, converged with the timestep (module docstring)
     contact_dampratio: float = 1.0  # N: critically damped contact
     servo_hz: float = 300.0  # N: rotor angle servo bandwidth (the ODrive holds the commanded speed)
-    vel_ramp_rate: float = 50.0  # G: ODrive velocity ramp, turn/s²
+    vel_ramp_rate: float = 200.0  # turn/s²: the drive's ODrive ramp, calibration/rig.yaml walker.vel_ramp_rate_turn_s2
     spin: float = -1.0  # G: rotor turns about -y (with the legs below: backward at 23 Hz, forward above ~27 Hz)
     left_chirality: float = -1.0  # P: mirrored legs, left twisted -φ, right +φ
     right_chirality: float = 1.0  # P

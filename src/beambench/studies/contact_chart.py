@@ -143,8 +143,11 @@ def run_point(p: ChartPoint, freqs: tuple[float, ...] = CHART_FREQS) -> list[dic
     return rows
 
 
+REFERENCE_MODEL = "rod10"  # the accuracy reference: its finest run of each formulation (the ``rod10_*`` columns)
+
+
 def chart_points(
-    models: tuple[str, ...] = ("prb3", "rod3g", "rod5g", "rod10"),
+    models: tuple[str, ...] = ("prb3", "rod3g", "rod5g", REFERENCE_MODEL),
     timesteps: tuple[float, ...] = (1.6e-3, 8e-4, 4e-4, 2e-4, 1e-4, 5e-5),
 ) -> list[ChartPoint]:
     """The grid: every model × formulation with ``implicitfast`` at each timestep and its 4× finer run; the
@@ -190,7 +193,7 @@ def summarize(table: pd.DataFrame) -> pd.DataFrame:
         row["reason"] = next((str(r) for r in g["reason"] if isinstance(r, str) and r), "")
         row["cpu_s_per_sim_s"] = float(g["point_cpu_s"].iloc[0]) / (len(g) * (CHART_SETTLE_S + CHART_RECORD_S))
         own = runs.get((m, form, integ, round(dt / 4, 12)))
-        rod10 = [k for k in runs if k[0] == "rod10" and k[1] == form and k[2] == "implicitfast"]
+        rod10 = [k for k in runs if k[0] == REFERENCE_MODEL and k[1] == form and k[2] == "implicitfast"]
         ref10 = runs[min(rod10, key=lambda k: k[3])] if rod10 else None
         for name, ref in (("own", own), ("rod10", ref10)):
             row |= _accuracy(g, ref, name) if ref is not None and ref["ok"].all() and row["stable"] else {}

@@ -232,11 +232,11 @@ def _exit_when_readable(fd: int) -> None:
 
 
 def _dask_slots(client: Any) -> int:
-    """Worker threads the scheduler knows of now (at least 1)."""
+    """Worker threads the scheduler knows of now (at least 1), over every worker: ``Client.nthreads()`` lists them
+    all (``scheduler_info()`` lists only the first 5 in some Dask versions, 2025.7 among them)."""
     try:
-        info = client.scheduler_info()
-        return max(1, sum(int(w.get("nthreads", 1)) for w in info.get("workers", {}).values()))
-    except (OSError, TimeoutError, KeyError, TypeError, AttributeError):  # busy or old scheduler: a modest guess
+        return max(1, sum(int(n) for n in client.nthreads().values()))
+    except (OSError, TimeoutError, KeyError, TypeError, ValueError, AttributeError):  # busy scheduler: a guess
         return 8
 
 

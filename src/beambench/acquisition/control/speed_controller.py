@@ -18,8 +18,13 @@ Each control tick (``control.control_s`` of rig time) :meth:`TrackController.upd
   its measured acceleration for the time the motor needs to ramp back to the target's frequency (at
   ``rate_hz_s``; the body keeps being pushed meanwhile) plus half the speed window (its lag), reaches the target,
   or the measured speed is within :data:`HANDOVER_MM_S` of it, or after 4 ``body_tau_s``; the frequency then
-  goes straight to the feedback's. With ``feedback: false`` there is no step (nothing is measured): the map's
-  frequency, rate limited.
+  goes straight to the feedback's. A stop (target 0) from a walk leads to 0 Hz instead: the crank held still,
+  the feet planted, the sim walker's body brakes at ~600 mm/s², where its backward gait brakes it at ~140 mm/s²
+  at most; it then stands in place (below). The planted legs give some of the body's speed back: if it swings
+  back past 0 by more than :data:`REBOUND_MM_S`, one more step from there (in the run through zero, crank turning).
+  Stopping the motor for the whole segment would not do: once stopped the body rocks on its legs at up to
+  ±25 mm/s for more than a second (docs/walker-twin.md). With ``feedback: false`` there is no step (nothing is
+  measured): the map's frequency, rate limited.
 - **feedback** (PI, in speed units): ``u = target + kp·e + I`` with ``e = target − measured``, then the band's
   frequency for ``u``. Working in speed and inverting through the map keeps the loop gain near ``kp`` however
   steep the map is locally. ``u`` is clipped to the band's speeds (its frequency edges); the integrator does not
@@ -53,6 +58,7 @@ TRACK = "track"
 INTEGRATE_ABS_MM_S = 10.0  # the integrator's error band: control.integrate_within × |target| + this
 ACCEL_LAG_S = 0.1  # the measured acceleration: the windowed speed now against this long before
 HANDOVER_MM_S = 5.0  # a step ends when the measured speed is this close to the target (then PI)
+REBOUND_MM_S = 10.0  # a stop's catch: the body swinging back past 0 by more than this takes one more step
 MOTOR_FRESH_S = 0.2  # motor telemetry older than this is not used (then the motor is taken to ramp at rate_hz_s)
 
 # modes (the ``mode`` column)
@@ -173,6 +179,8 @@ class TrackController:
         self._stepped_at = 0  # when the step started (ns)
         self._step_sign = 1.0  # the step's direction: +1 speeding up (forward), -1 slowing down
         self._step_from = 0.0  # the speed measured at the step's start (mm/s)
+        self._catch = False  # the step is a stop's: the crank held still (0 Hz)
+        self._rebound = False  # a stop's catch ended: one more step if the body swings back past the target
         self._f_motor = 0.0  # the motor's frequency: its telemetry, else a ramp at rate_hz_s toward the command
 
     # --- sink -----------------------------------------------------------------------------------------
@@ -256,7 +264,10 @@ class TrackController:
         assert band is not None
         run = self.map.stand_band(band, self.max_hz) or band
         f_motor, ff = self._f_motor, self.feedforward()
-        f_lead = min(run.frequency_for(self.target + self.c.lead * (self.target - self._step_from)), self.max_hz)
+        if self._catch:  # a stop: the crank held still brakes the body hardest (see the module docstring)
+            f_lead = 0.0
+        else:
+            f_lead = min(run.frequency_for(self.target + self.c.lead * (self.target - self._step_from)), self.max_hz)
         passed = (f_motor - ff) * (f_lead - ff) >= 0  # the motor got to the target's frequency on its way to the lead's
         if math.isfinite(measured) and passed:
             back_s = abs(f_motor - ff) / self.c.rate_hz_s
@@ -269,9 +280,20 @@ class TrackController:
             return None
         return f_lead
 
+    def _start_step(self, now_ns: int, speed: float, catch: bool) -> None:
+        """A step from the measured ``speed`` (see the module docstring); ``catch``: a stop's, the crank held still."""
+        self._pending, self._stepped_at = False, now_ns
+        self._leading = self.band is not None and self.c.feedback  # feed-forward alone measures nothing
+        self._step_sign = 1.0 if self.target >= speed else -1.0
+        self._step_from = speed
+        self._catch = self._rebound = catch and self._leading
+
     def window_s(self) -> float:
-        f = max(self.f_cmd, 1e-6)
-        return min(max(self.c.window_periods / f, self.c.min_window_s), self.c.max_window_s)
+        """The speed window: ``window_periods`` drive periods, clipped; a crank held still (0 Hz) has no period to
+        average over, so the shortest (the lag of a long window would hide a stop's quick braking)."""
+        if self.f_cmd <= 0:
+            return self.c.min_window_s
+        return min(max(self.c.window_periods / self.f_cmd, self.c.min_window_s), self.c.max_window_s)
 
     def update(self, now_ns: int) -> Decision:
         """One tick at rig time ``now_ns``: the next commanded frequency (also in :attr:`f_cmd`)."""
@@ -294,11 +316,10 @@ class TrackController:
             mode = STANDING if self.band is None else TRACKING
             f_motor = self._motor_frequency(now_ns, dt)
             if self._pending:  # a new segment: its step (the motor's own ramp is the only limit)
-                self._pending, self._stepped_at = False, now_ns
-                self._leading = self.band is not None and self.c.feedback  # feed-forward alone measures nothing
                 now_speed = measured if math.isfinite(measured) else self.map.speed_at(f_motor)
-                self._step_sign = 1.0 if self.target >= now_speed else -1.0
-                self._step_from = now_speed
+                self._start_step(now_ns, now_speed, catch=self.target == 0)
+            elif self._rebound and not self._leading and (self.target - measured) * self._step_sign < -REBOUND_MM_S:
+                self._start_step(now_ns, measured, catch=False)  # a stop's catch swung the body back past 0
             leading = self._leading
             lead = self._step_frequency(now_ns, dt, measured) if leading else None
             if self.band is None:

@@ -17,6 +17,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
+from beambench.common.registry import Registry
+
 __all__ = [
     "CONTACT",
     "FREE_BEAM",
@@ -70,16 +72,13 @@ class SceneInfo:
         return self.bench_markers if self.bench_markers is not None else self.markers
 
 
-SCENES: dict[str, SceneInfo] = {}
+SCENES: Registry[SceneInfo] = Registry("scene", verb="declared")
 """Every declared scene by name, in declaration order (read it through the functions below)."""
 
 
 def declare(info: SceneInfo) -> SceneInfo:
     """Add a scene to the catalogue (a name is declared once)."""
-    if info.name in SCENES:
-        raise ValueError(f"scene {info.name!r} is declared twice")
-    SCENES[info.name] = info
-    return info
+    return SCENES.add(info.name, info)
 
 
 def scene_info(name: str) -> SceneInfo:

@@ -163,7 +163,6 @@ class ThermalDrift(_Model):
 
 
 CLOCK_SUFFIX = "_clock"
-StreamName = Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,39}$")]
 
 
 class SimOptions(_Model):
@@ -184,8 +183,9 @@ class SimOptions(_Model):
     # checks each cut and moves it where the regimes differ (beambench.backends.lookahead)
     segments: int = Field(1, ge=1, le=8)
     # each simulated device's clock, by stream name (mocap, loadcell, motor, any stream the sim backend registers;
-    # checked against them by beambench.session.slices); a stream not named keeps the default clock
-    clocks: dict[StreamName, ClockModel] = Field(default_factory=dict, max_length=64)
+    # each name checked against them, with the file, by beambench.session.slices.check_clocks); a stream not named
+    # keeps the default clock
+    clocks: dict[str, ClockModel] = Field(default_factory=dict, max_length=64)
     thermal_drift: ThermalDrift | None = None  # contact rig only
 
     @model_validator(mode="before")
@@ -238,7 +238,9 @@ class TrackControl(_Model):
     ki_per_s: float = Field(2.0, ge=0, le=50)  # integral gain (1/s)
     # the integrator runs only while |error| <= integrate_within × |target| + 10 mm/s (not during big transients)
     integrate_within: float = Field(0.25, ge=0, le=10)
-    rate_hz_s: float = Field(45.0, gt=0, le=1000)  # frequency rate limit (Hz/s): the ODrive ramps at 50 turn/s²
+    # frequency rate limit (Hz/s), and the motor's ramp the controller reckons with: below the walker drive's
+    # ramp (calibration/rig.yaml walker.vel_ramp_rate_turn_s2, 200 turn/s²)
+    rate_hz_s: float = Field(180.0, gt=0, le=1000)
     control_s: float = Field(0.05, ge=0.005, le=1)  # control period (rig time)
     window_periods: float = Field(4.0, gt=0, le=100)  # measured speed: slope over this many drive periods
     min_window_s: float = Field(0.15, gt=0, le=10)
@@ -446,7 +448,12 @@ def load_protocol(path: str | Path) -> tuple[Protocol, str]:
 
 
 # --- rig wiring -----------------------------------------------------------------------------------------
-class NatNetWiring(_Model):
+class RigSection(_Model):
+    """A section of the rig file (strict, every field known); a device stream that brings its own section
+    subclasses it (``@device_stream(name, wiring=...)``, :mod:`beambench.backends.hardware`)."""
+
+
+class NatNetWiring(RigSection):
     """Where Motive is and how frames arrive."""
 
     server_address: str = "127.0.0.1"
@@ -463,14 +470,14 @@ class NatNetWiring(_Model):
     )
 
 
-class Geometry(_Model):
+class Geometry(RigSection):
     """The mocap's world frame as calibrated (Motive's default is y up); stored in each session for analysis."""
 
     up_axis: str = Field("y", pattern=r"^[+-]?[xyz]$")
     forward_axis: str = Field("x", pattern=r"^[+-]?[xyz]$")  # the walker's direction of travel
 
 
-class OdriveWiring(_Model):
+class OdriveWiring(RigSection):
     """How the ODrive is reached: CAN Simple over python-can, or USB through the ``odrive`` package."""
 
     transport: Literal["can", "usb"] = "can"
@@ -486,7 +493,7 @@ class OdriveWiring(_Model):
     telemetry_timeout_s: float | None = Field(1.0, gt=0, le=10)  # Encoder_Estimates (every 10 ms by default)
 
 
-class LoadCellWiring(_Model):
+class LoadCellWiring(RigSection):
     """The load-cell microcontroller's serial port."""
 
     port: str = "/dev/ttyACM0"
@@ -494,7 +501,7 @@ class LoadCellWiring(_Model):
     silence_timeout_s: float | None = Field(1.0, gt=0, le=60)  # no frame for this long (1 kHz board): fault
 
 
-class WalkerDrive(_Model):
+class WalkerDrive(RigSection):
     """The walker's motor on the ODrive (``calibration/rig.yaml`` ``walker:``): what the ODrive must be configured
     with for it, and what the emulated ODrive plays. Defaults: Maxon EC 45 flat Ø42.9 mm 30 W with Hall sensors,
     article 200142 (12 V winding), datasheet May 2012 edition (line numbers in the comments)."""
@@ -510,6 +517,10 @@ class WalkerDrive(_Model):
     continuous_current_a: float = Field(2.03, gt=0, le=60)  # line 6: nominal (max. continuous) current
     current_lim_a: float = Field(6.0, gt=0, le=60)  # ODrive current_lim: ~3× line 6 (twin: 5.1 A peaks at 80 Hz)
     vel_limit_turn_s: float = Field(88.0, gt=0, le=250)  # 80 Hz = 80 turn/s, ×1.1; 24 V reach 150 turn/s (line 13)
+    # ODrive controller.config.vel_ramp_rate (turn/s², set over USB): 200 turn/s² needs (9.25e-6 + 4.0e-6 kg·m²) ×
+    # 2π × 200 = 16.7 mN·m = 0.65 A at 25.5 mN·m/A (lines 12, 16), a third of line 6's 2.03 A continuous current;
+    # the sim twin shares it (WalkerParams.vel_ramp_rate) and draws ≤ 2.7 A peaks with it (benchmarks/bench_track.py)
+    vel_ramp_rate_turn_s2: float = Field(200.0, gt=0, le=1000)
 
 
 class RigFile(_Model):
@@ -523,7 +534,9 @@ class RigFile(_Model):
     walker: WalkerDrive = Field(default_factory=WalkerDrive)
 
 
-def load_rig_file(path: str | Path) -> RigFile:
-    """Read and validate a rig file, with the same one-line errors and caps as protocols."""
+def load_rig_file(path: str | Path, model: type[RigFile] = RigFile) -> RigFile:
+    """Read and validate a rig file, with the same one-line errors and caps as protocols; ``model``: the rig
+    file's model with the sections the registered device streams bring
+    (:func:`beambench.backends.hardware.rig_file_model`)."""
     data, _ = load_yaml_file(path)
-    return validate(RigFile, data, str(path), what="rig wiring fields")
+    return validate(model, data, str(path), what="rig wiring fields")

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 from beambench.acquisition.protocol.scenes import SceneInfo, runnable_scenes, scene_or_unknown
 from beambench.common.figures import STYLE
+from beambench.common.registry import Registry
 
 if TYPE_CHECKING:
     from beambench.analysis.session_analysis import SessionAnalysis
@@ -63,20 +64,19 @@ class FigureRegistry:
     """Figures in registration order (the order of the report)."""
 
     def __init__(self) -> None:
-        self._specs: dict[str, FigureSpec] = {}
+        self._specs: Registry[FigureSpec] = Registry("figure")
 
     def add(self, key: str, scenes: ScenePredicate, caption: Caption) -> Callable[[Draw], Draw]:
         """Register the decorated ``draw(analyses, path, options)`` as figure ``key`` for the rigs whose
         :class:`SceneInfo` ``scenes`` accepts (e.g. ``lambda s: s.plate``); it is drawn under the report's
         matplotlib style. A predicate no rig of the catalogue meets, or a second figure ``key``, fails here."""
-        if key in self._specs:
-            raise ValueError(f"figure {key!r} is registered twice")
+        self._specs.check_free(key)
         if not any(scenes(s) for s in runnable_scenes()):
             known = ", ".join(s.name for s in runnable_scenes())
             raise ValueError(f"figure {key!r}: applies to no rig of the scene catalogue ({known})")
 
         def decorator(fn: Draw) -> Draw:
-            self._specs[key] = FigureSpec(key, scenes, caption, styled(fn))
+            self._specs.add(key, FigureSpec(key, scenes, caption, styled(fn)))
             return fn
 
         return decorator

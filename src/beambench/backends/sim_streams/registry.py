@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from beambench.backends.sim_devices import DeviceClock, SampledStream
+from beambench.common.registry import Registry
 from beambench.sim.protocol_slice import SimSlice
 
 __all__ = ["SIM_STREAMS", "SimStreamContext", "SimStreamFactory", "sim_stream"]
@@ -44,18 +45,11 @@ class SimStreamContext:
 
 
 SimStreamFactory = Callable[[SimStreamContext], SampledStream]
-SIM_STREAMS: dict[str, SimStreamFactory] = {}
+SIM_STREAMS: Registry[SimStreamFactory] = Registry("sim stream")
 """How the sim backend builds each of its streams, by stream name (the name of the stream's spec)."""
 
 
 def sim_stream(name: str) -> Callable[[SimStreamFactory], SimStreamFactory]:
     """Register a simulated stream: ``name`` is its stream's name (the session's ``/acquisition/<name>``, the
     key of its clock in ``sim.clocks``)."""
-
-    def add(make: SimStreamFactory) -> SimStreamFactory:
-        if name in SIM_STREAMS:
-            raise ValueError(f"sim stream {name!r} registered twice")
-        SIM_STREAMS[name] = make
-        return make
-
-    return add
+    return SIM_STREAMS.register(name)

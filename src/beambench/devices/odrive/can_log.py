@@ -1,6 +1,7 @@
-"""The ``--can-log`` file: every CAN frame sent and received, through python-can's writers. A sink like the
-session file: a write that fails (a full disk) stops the logging and is reported (:attr:`TrafficLog.failure`),
-never silently truncated and never raised into the receive thread or a send."""
+"""The ``--can-log`` file: every CAN frame sent and received, through python-can's writers, in one of
+:data:`LOG_SUFFIXES` (read by the input checks without loading python-can: it is imported when a log opens).
+A sink like the session file: a write that fails (a full disk) stops the logging and is reported
+(:attr:`TrafficLog.failure`), never silently truncated and never raised into the receive thread or a send."""
 
 from __future__ import annotations
 
@@ -8,23 +9,30 @@ import contextlib
 import copy
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import can
+if TYPE_CHECKING:
+    import can
+
+LOG_SUFFIXES = (".asc", ".blf", ".log", ".trc", ".csv")  # python-can writers that keep direction or ids
 
 
 class TrafficLog:
     """python-can's ``can.Logger`` shared by the receive thread (received) and senders (sent), locked."""
 
     def __init__(self, path: str | Path) -> None:
+        import can
+
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._writer = can.Logger(str(self.path))
+        self._channel_number = can.util.channel2int
         self._lock = threading.Lock()
         self._closed = False
         self.failure: str | None = None  # why the log stopped early (its file holds the frames before)
 
     def on_message_received(self, msg: can.Message) -> None:
-        number = can.util.channel2int(msg.channel)
+        number = self._channel_number(msg.channel)
         if msg.channel is not None and (number is None or not 0 <= number < 0xFFFF):
             # .blf stores the channel as a 16-bit number read off the name's trailing digits; a name such as
             # a virtual bus "odrive-…93817" would overflow it: log such frames on the file's default channel

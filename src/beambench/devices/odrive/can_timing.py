@@ -1,11 +1,9 @@
-"""How the CAN driver times the ODrive: its liveness timeouts, receive coalescing, the arming waits
-(:class:`CanMotorTiming`) and when a frame arrived on the monotonic clock (:func:`receive_ns`)."""
+"""How the CAN driver times the ODrive: its liveness timeouts, the arming waits and the periods of its feeder
+(:class:`CanMotorTiming`)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-import can
 
 # The ODrive sends its heartbeat every axis.config.can.heartbeat_rate_ms, 100 ms by default, and
 # Encoder_Estimates every encoder_rate_ms, 10 ms by default (firmware 0.5.x: CANConfig_t in
@@ -15,20 +13,6 @@ import can
 # watchdog (armed over USB, watchdog_timeout_s) is what idles the motor when the host stops. The rig file sets
 # it (odrive.heartbeat_timeout_s).
 HEARTBEAT_TIMEOUT_S = 1.0
-RECEIVE_COALESCE_S = 0.02  # after a frame arrives, let others gather this long: one wake-up handles them all
-MAX_FRAMES_PER_WAKE = 1024  # a flood cannot keep the receive thread from checking its stop flag
-
-
-def receive_ns(frame: can.Message, now_ns: int, mono_minus_real_ns: int) -> int:
-    """When ``frame`` arrived, on the monotonic clock: python-can's timestamp moved from the wall clock when it
-    is one (not after ``now_ns``, at most a second before it); otherwise ``now_ns`` (an interface whose stamps
-    run on another clock, or none)."""
-    ts = frame.timestamp
-    if ts:
-        stamped = int(ts * 1e9) + mono_minus_real_ns
-        if now_ns - 1_000_000_000 <= stamped <= now_ns:
-            return stamped
-    return now_ns
 
 
 @dataclass(frozen=True)

@@ -46,13 +46,8 @@ from beambench.devices.odrive.cansimple import (
     error_names,
 )
 from beambench.devices.odrive.host_stall import HostStall, idle_not_confirmed
-from beambench.devices.odrive.telemetry import (
-    MAX_BUFFERED_ROWS,
-    LimitError,
-    TelemetryStream,
-    current_limit_for,
-    vel_limit_for,
-)
+from beambench.devices.odrive.limits import LimitError, current_limit_for, vel_limit_for
+from beambench.devices.odrive.telemetry import MAX_BUFFERED_ROWS, TelemetryStream
 
 
 def find_odrive(serial_number: str | None = None, timeout_s: float = 10.0) -> Any:

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, TypeVar
 
+from beambench.common.registry import Registry
 from beambench.sim.models.names import ROD_NAME
 
 if TYPE_CHECKING:
@@ -35,15 +36,18 @@ class ModelFamily:
     default: str
     """The model the family's own name means where a model name is expected (``fit --model rod``)."""
     segmented: bool = False
-    """Its stiffness is a material (E, β) over segments, not joint springs (k, b)."""
+    """Its stiffness is a material (E, β) over segments, not joint springs (k, b) between rigid links (l1, l2, l3)
+    fitted without the physical set's E."""
+    walker_leg: bool = True
+    """The walker builds its legs from this family's models."""
     refuse: Callable[[re.Match[str]], str | None] | None = None
     """Why a claimed name is still refused (e.g. too many segments), else None."""
 
 
-FAMILIES: dict[str, ModelFamily] = {}
+FAMILIES: Registry[ModelFamily] = Registry("beam model family", verb="declared")
 """Every declared family by name, in declaration order."""
 Builder = Callable[[str, "BeamParams"], object]
-BUILDERS: dict[str, Builder] = {}
+BUILDERS: Registry[Builder] = Registry("builder of beam model family")
 """Each family's model builder ``(model name, parameters) → BeamModel`` (the builder modules import this one,
 so it names no model type), registered by its module."""
 B = TypeVar("B", bound=Builder)
@@ -51,19 +55,18 @@ B = TypeVar("B", bound=Builder)
 
 def declare(family: ModelFamily) -> ModelFamily:
     """Add a family (a name is declared once)."""
-    if family.name in FAMILIES:
-        raise ValueError(f"beam model family {family.name!r} is declared twice")
-    FAMILIES[family.name] = family
-    return family
+    return FAMILIES.add(family.name, family)
 
 
 def beam_builder(family: ModelFamily) -> Callable[[B], B]:
     """Register the decorated ``build(name, params)`` as the builder of ``family``'s models."""
 
     def add(build: B) -> B:
-        if FAMILIES.get(family.name) is not family or family.name in BUILDERS:
-            raise ValueError(f"beam model family {family.name!r}: not declared, or its builder registered twice")
-        BUILDERS[family.name] = build
+        if family.name not in FAMILIES:
+            raise ValueError(FAMILIES.unknown(family.name))
+        if FAMILIES[family.name] is not family:
+            raise ValueError(f"beam model family {family.name!r}: another family of that name is declared")
+        BUILDERS.add(family.name, build)
         return build
 
     return add
@@ -75,6 +78,9 @@ def _too_many_segments(m: re.Match[str]) -> str | None:
 
 PRB3 = declare(ModelFamily("prb3", re.compile("prb3"), "prb3", default="prb3"))
 """The paper's pseudo-rigid body: three links on joint springs (:class:`beambench.sim.models.beam.PRB3`)."""
+PAPER_MODEL = PRB3.default
+"""The model the paper simulates (and a protocol's ``sim.model`` unless it names another): the reference of cost in
+the model ladder's charts."""
 ROD = declare(
     ModelFamily(
         "rod",

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from beambench.acquisition.protocol.scenes import SceneInfo, scene_info
+from beambench.common.registry import Registry
 from beambench.sim.models.beam import BeamModel
 from beambench.sim.protocol_slice import SimSlice
 from beambench.sim.scenes.drive import DrivenScene
@@ -66,16 +67,15 @@ class Scene:
     build: Builder
 
 
-_REGISTRY: dict[str, Scene] = {}
+SCENES: Registry[Scene] = Registry("scene", missing="has no builder")
+"""Every scene with a builder, by name, in registration order."""
 
 
 def register(info: SceneInfo) -> Callable[[Builder], Builder]:
     """Decorator: ``build`` makes the scene ``info`` describes (once per scene)."""
 
     def add(build: Builder) -> Builder:
-        if info.name in _REGISTRY:
-            raise ValueError(f"scene {info.name!r} is registered twice")
-        _REGISTRY[info.name] = Scene(info, build)
+        SCENES.add(info.name, Scene(info, build))
         return build
 
     return add
@@ -84,10 +84,7 @@ def register(info: SceneInfo) -> Callable[[Builder], Builder]:
 def get(name: str) -> Scene:
     """The registered scene ``name`` (KeyError naming the known ones)."""
     scene_info(name)  # an undeclared name: the catalogue's KeyError
-    try:
-        return _REGISTRY[name]
-    except KeyError:
-        raise KeyError(f"scene {name!r} has no builder (registered: {', '.join(_REGISTRY)})") from None
+    return SCENES[name]
 
 
 @dataclass(frozen=True)
@@ -145,7 +142,8 @@ class JobRun:
 
 
 BatchEngine = Callable[[BatchTask], list[JobRun]]
-_BATCHED: dict[str, BatchEngine] = {}
+BATCH_ENGINES: Registry[BatchEngine] = Registry("scene", verb="given a batched engine", missing="has no batched engine")
+"""The batched engine of every sweepable scene, by scene name."""
 
 
 def batched(info: SceneInfo) -> Callable[[BatchEngine], BatchEngine]:
@@ -154,10 +152,7 @@ def batched(info: SceneInfo) -> Callable[[BatchEngine], BatchEngine]:
     def add(run: BatchEngine) -> BatchEngine:
         if not info.batched:
             raise ValueError(f"{info.name} declares no batched engine")
-        if info.name in _BATCHED:
-            raise ValueError(f"{info.name} has a batched engine already")
-        _BATCHED[info.name] = run
-        return run
+        return BATCH_ENGINES.add(info.name, run)
 
     return add
 
@@ -165,12 +160,9 @@ def batched(info: SceneInfo) -> Callable[[BatchEngine], BatchEngine]:
 def batch_engine(name: str) -> BatchEngine:
     """The batched engine of scene ``name`` (KeyError naming the scenes that have one)."""
     scene_info(name)
-    try:
-        return _BATCHED[name]
-    except KeyError:
-        raise KeyError(f"scene {name!r} has no batched engine (registered: {', '.join(_BATCHED)})") from None
+    return BATCH_ENGINES[name]
 
 
 def batched_scenes() -> tuple[str, ...]:
     """The scenes whose module registered a batched engine."""
-    return tuple(_BATCHED)
+    return tuple(BATCH_ENGINES)

@@ -38,13 +38,12 @@ from beambench.common.errors import BeambenchError
 from beambench.common.yaml_config import ConfigError
 from beambench.sim.engine.stepping import INTEGRATORS, Physics
 from beambench.sim.models.beam import BeamModel, add_beam, qinv, qmul, quat_x, quat_y
+from beambench.sim.models.families import FAMILIES
 from beambench.sim.models.hysteretic import HystereticDamping
-from beambench.sim.models.registry import UnknownModelError, model_family
+from beambench.sim.models.registry import UnknownModelError, family_of
 from beambench.sim.scene_params import WalkerParams
 from beambench.sim.scenes.drive import DrivenScene, KinematicServo, VelocityRamp
 from beambench.sim.scenes.registry import SceneConfig, register
-
-LEG_FAMILIES = ("prb3", "rod")  # leg model families the walker builds (the physical twin's legs are rods)
 
 
 class WalkerLegError(BeambenchError, ValueError):
@@ -56,14 +55,15 @@ class WalkerLegError(BeambenchError, ValueError):
 
 
 def check_leg_model(name: str) -> None:
-    """Refuse leg models of a family the walker cannot build (every known family builds today: PRB3 and the
-    segmented rods; the shipped walker stands on the contact rig's physical rod, docs/walker-twin.md)."""
+    """Refuse leg models of a family the walker cannot build (its ``walker_leg`` flag; every shipped family builds:
+    PRB3 and the segmented rods; the shipped walker stands on the contact rig's physical rod, docs/walker-twin.md)."""
     try:
-        family = model_family(name)
+        family = family_of(name)
     except UnknownModelError as exc:
         raise WalkerLegError(name, str(exc).split(": ", 1)[-1]) from None
-    if family not in LEG_FAMILIES:
-        raise WalkerLegError(name, f"refused for the walker: use a leg model of {' or '.join(LEG_FAMILIES)}")
+    if not family.walker_leg:
+        legs = " or ".join(f.name for f in FAMILIES.values() if f.walker_leg)
+        raise WalkerLegError(name, f"refused for the walker: use a leg model of {legs}")
 
 
 # PGS, not Newton: at most 10 constraint rows (two pyramidal soles, two wheels) against 35 dofs, so Newton's dense

@@ -6,7 +6,7 @@ frequency runs in C, in one ``mujoco.rollout`` call per chunk, on ``nthread`` th
 least-squares slope of the body marker's x over ``record_s`` after the ramp plus ``settle_s`` — the same slope
 ``beambench analyze`` fits (``body_speed_mm_s``).
 
-The speed needs ~3 s from rest to reach its steady value (23 / 65 Hz, research12: settle 0.6 s → −41 / +139 mm/s,
+The speed needs ~3 s from rest to reach its steady value (23 / 65 Hz, measured: settle 0.6 s → −41 / +139 mm/s,
 2 s → −58 / +170, 4 s → −63 / +175 at a 2.5 g foot), hence :data:`STEADY_SETTLE_S`.
 """
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from beambench.sim.models.params import BeamParams
-from beambench.sim.models.registry import default_params
+from beambench.sim.models.registry import default_params, family_of, model_family
 from beambench.studies.unknowns import BEAM_OVERRIDES, Unknown
 
 __all__ = ["ParamSpace", "ReleaseData"]
@@ -82,7 +82,7 @@ class ParamSpace:
     def values(self, x: Sequence[float] | np.ndarray) -> dict[str, float]:
         """Physical values of a search vector (``l2_share`` resolved into l2)."""
         out = {v.name: v.value(xi) for v, xi in zip(self.variables, x)}
-        if self.model == "prb3":
+        if not family_of(self.model).segmented:  # joint springs between three links (PRB3)
             L = self.base.length
             if self.free_l1:
                 out["l2"] = out.pop("l2_share") * (L - out["l1"])
@@ -93,7 +93,7 @@ class ParamSpace:
         return out
 
     def params(self, x: Sequence[float] | np.ndarray, name: str = "fit") -> BeamParams:
-        p = replace(self.base, name=name, model="prb3" if self.model == "prb3" else "rod")
+        p = replace(self.base, name=name, model=model_family(self.model))
         for key, value in self.values(x).items():
             p = BEAM_OVERRIDES[key](p, value)
         return p

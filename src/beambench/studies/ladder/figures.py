@@ -12,6 +12,7 @@ import pandas as pd
 
 from beambench.common.figures import new_figure
 from beambench.common.types import Floats
+from beambench.sim.models.families import PAPER_MODEL
 from beambench.studies.ladder.run import (
     PAPER_FEA_S,
     PAPER_PRB_S,
@@ -110,7 +111,7 @@ def place_labels(
 def default_model_sentence(summary: pd.DataFrame) -> str | None:
     """The speed/accuracy chart's message in words: the default model's error against the reference and its cost."""
     default = summary[
-        (summary.model == "prb3") & (summary.integrator == "implicitfast") & np.isclose(summary.timestep, 1e-4)
+        (summary.model == PAPER_MODEL) & (summary.integrator == "implicitfast") & np.isclose(summary.timestep, 1e-4)
     ]
     if not len(default) or not np.isfinite(default.err_mean_mm.iloc[0]):
         return None
@@ -177,7 +178,7 @@ def plot_speed_accuracy(
     # label each model's Pareto front below the paper model's error (above it every model is just as bad;
     # those configurations stay as grey dots), plus the fastest point of each model
     paper_err = stable[
-        (stable.model == "prb3") & (stable.integrator == "implicitfast") & np.isclose(stable.timestep, 1e-4)
+        (stable.model == PAPER_MODEL) & (stable.integrator == "implicitfast") & np.isclose(stable.timestep, 1e-4)
     ].err_mean_mm
     cap = 0.5 * float(paper_err.iloc[0]) if len(paper_err) else math.inf
     for model in summary.model.unique():
@@ -205,10 +206,10 @@ def plot_speed_accuracy(
             )
             shown.append(r)
     # the paper's model at the paper's kind of setting, always shown
-    paper = stable[(stable.model == "prb3") & (stable.integrator == "implicitfast") & (stable.timestep == 1e-4)]
+    paper = stable[(stable.model == PAPER_MODEL) & (stable.integrator == "implicitfast") & (stable.timestep == 1e-4)]
     for _, r in paper.iterrows():
         if not any(_config_label(s) == _config_label(r) for s in shown):
-            ax.scatter(r.wall_s_per_10s, r.err_mean_mm, color=_MODEL_COLORS["prb3"], marker="o", s=30, zorder=4)
+            ax.scatter(r.wall_s_per_10s, r.err_mean_mm, color=_MODEL_COLORS[PAPER_MODEL], marker="o", s=30, zorder=4)
             shown.append(r)
     ax.set_xscale("log")
     ax.set_yscale("log")

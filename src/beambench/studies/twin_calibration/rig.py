@@ -15,6 +15,7 @@ from typing import Any
 
 import pandas as pd
 
+from beambench.common.registry import Registry
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration.checks import TargetCheck
 from beambench.studies.twin_calibration.targets import (
@@ -141,16 +142,15 @@ def stepping_cost(scene: str, model: str, sim: SimSettings, own_dt: float, fallb
     return cost
 
 
-RIGS: dict[str, CalibratableRig] = {}
+RIGS: Registry[CalibratableRig] = Registry("calibratable rig")
+"""Every calibratable rig by name, in registration order."""
 
 
 def register_rig(make: Callable[[], CalibratableRig]) -> Callable[[], CalibratableRig]:
     """Register the rig the decorated function makes (a rig module's ``@register_rig``, as dm_control's
     ``@SUITE.add``); a second rig of the same name is refused."""
     rig = make()
-    if rig.name in RIGS:
-        raise ValueError(f"calibratable rig {rig.name!r} is registered twice")
-    RIGS[rig.name] = rig
+    RIGS.add(rig.name, rig)
     return make
 
 
