@@ -37,6 +37,7 @@ def test_a_quick_contact_search_ends_within_its_budget_with_its_verify_stage(mon
         simulate=costly_simulate,
         verify=lambda base: (TOY_FREQS, WRITTEN),
         quick=CONTACT_QUICK,
+        cpu_per_sim_s=lambda base, sim: WALL_PER_SIM_S,  # the budget's model of a map's time is the map's time
     )
     monkeypatch.setattr("beambench.studies.executor.make_executor", _threads)
     t = tmp_path / "t.yaml"

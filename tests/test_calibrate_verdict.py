@@ -78,7 +78,7 @@ TOY = CalibratableRig(
     landmarks=contact_landmarks,
     checks=contact_checks,
     file_targets=contact_targets,  # it reads the contact rig's targets files
-    cpu_per_sim_s=lambda base, sim: 5e-4,  # a toy map's modelled cost: ~0.07 s of the budget's clock each
+    cpu_per_sim_s=lambda base, sim: 5e-4,  # a toy map's modelled cost: ~0.4 s of the budget's clock each
 )
 
 
@@ -353,11 +353,11 @@ def test_where_a_search_stops_depends_on_what_it_ran_not_on_how_long_each_map_to
         rng = random.Random(seed)
 
         def slow(base: CalibrationBase, values: dict, frequencies: list, sim: object) -> dict:
-            time.sleep(rng.uniform(0.01, 0.1))  # a loaded machine: a wall-clock budget ends elsewhere each run
+            time.sleep(rng.uniform(0.1, 0.4))  # a loaded machine: a wall-clock budget ends elsewhere each run
             return toy_simulate(base, values, frequencies, sim)
 
         with RIGS.stand_in("contact", replace(TOY, simulate=slow)):
-            res = calibrate(targets, out, "t", settings=SearchSettings.quick(budget_s=2.0, good_enough=0.0))
+            res = calibrate(targets, out, "t", settings=SearchSettings.quick(budget_s=8.0, good_enough=0.0))
         keys = [json.loads(line)["key"] for line in (out / "t.evals.jsonl").read_text().splitlines()]
         return sorted(keys), res.values, res.budget_clock_s
 
@@ -365,4 +365,4 @@ def test_where_a_search_stops_depends_on_what_it_ran_not_on_how_long_each_map_to
     assert len(a[0]) > 20  # the budget, not the generation cap, ended it: a real search
     assert a[1]["u"] == b[1]["u"] and a[1]["w"] == b[1]["w"], (a[1], b[1])
     assert a[0] == b[0]
-    assert a[2] == b[2] <= 2.0 + 0.2  # the last batch may end past the budget by at most a few maps
+    assert a[2] == b[2] <= 8.0 + 1.0  # the last batch may end past the budget by a few maps
