@@ -96,7 +96,7 @@ class LogProgress(Progress):
 
 
 class TimeLeft:
-    """A progress field that says, each time it is shown, the time left of a wall-time budget (``str()`` reads the
+    """A progress field that says, each time it is shown, the time left of a budget (``str()`` reads the
     clock): "1:20 left of the 150 s budget", then "150 s budget spent: finishing" once it is over."""
 
     def __init__(self, budget_s: float, clock: Callable[[], float] = time.monotonic) -> None:
