@@ -110,8 +110,12 @@ def _env() -> dict[str, str]:
 def test_memory_exhausted_while_armed_idles_the_motor(tmp_path):
     script = tmp_path / "oom_armed.py"
     script.write_text(ARMED_SCRIPT)
+    # faulthandler: a C library that crashes under the limit instead of raising MemoryError (seen: a NULL thread
+    # state in CPython's _PyErr_GetTopmostException, error raised with the GIL released; numpy's "error return
+    # without exception set") prints where, so a failure here names the library
+    env = dict(_env(), PYTHONFAULTHANDLER="1")
     proc = subprocess.run(
-        [sys.executable, str(script), str(tmp_path / "oom.h5")], capture_output=True, text=True, env=_env(), timeout=300
+        [sys.executable, str(script), str(tmp_path / "oom.h5")], capture_output=True, text=True, env=env, timeout=300
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     got = json.loads(proc.stdout.strip().splitlines()[-1])
