@@ -7,18 +7,14 @@ is no place for test output."""
 
 from __future__ import annotations
 
-import os
 import re
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-import beambench
 from beambench.sinks.session_file.reader import read_session
+from package_copy import apply_hunk, copy_package, run_copy
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,14 +30,6 @@ def _the_documented_change() -> tuple[list[tuple[str, str]], str, list[str]]:
     return modules, diffs[0][0], diffs[0][1].splitlines()
 
 
-def _apply(text: str, hunk: list[str]) -> str:
-    """``text`` with one diff hunk applied (its context must occur exactly once)."""
-    before = "".join(line[1:] + "\n" for line in hunk if line[:1] in (" ", "-"))
-    after = "".join(line[1:] + "\n" for line in hunk if line[:1] in (" ", "+"))
-    assert text.count(before) == 1, f"the hunk's context is not in the file once:\n{before}"
-    return text.replace(before, after)
-
-
 def test_the_recipe_is_a_driver_an_emulated_peer_and_one_registration():
     modules, registration, _ = _the_documented_change()
     assert sorted(path.split("/")[0] for path, _ in modules) == ["devices", "emulators"]
@@ -54,21 +42,13 @@ def package_with_laser(tmp_path_factory: pytest.TempPathFactory) -> Path:
     modules and the one registration, nothing else."""
     modules, registration, hunk = _the_documented_change()
     src = tmp_path_factory.mktemp("src")
-    pkg = src / "beambench"
-    shutil.copytree(Path(beambench.__file__).parent, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    pkg = copy_package(src)
     for path, text in modules:
         assert not (pkg / path).exists()
         (pkg / path).write_text(text)
     target = pkg / registration
-    target.write_text(_apply(target.read_text(), hunk))
+    target.write_text(apply_hunk(target.read_text(), hunk))
     return src
-
-
-def _beambench(src: Path, *args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "PYTHONPATH": str(src)}  # the peers' process imports the copy too
-    return subprocess.run(
-        [sys.executable, "-m", "beambench", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300
-    )
 
 
 PROTOCOL = """name: laser
@@ -84,7 +64,7 @@ sim: {model: prb3, noise: false}
 def test_an_emulated_run_records_the_new_stream_measuring_the_marker(package_with_laser, tmp_path):
     protocol = tmp_path / "laser.yaml"
     protocol.write_text(PROTOCOL)
-    res = _beambench(
+    res = run_copy(
         package_with_laser, "run", str(protocol), "--rerun", "off", "--name", "s", "--out", str(tmp_path), cwd=tmp_path
     )
     assert res.returncode == 0, res.stderr
@@ -114,9 +94,9 @@ def test_a_rig_file_takes_the_new_section_checked_field_by_field(package_with_la
     protocol.write_text(PROTOCOL.replace("backend: emulated", "backend: hardware"))
     rig = tmp_path / "rig.yaml"
     rig.write_text("laser: {address: 10.0.0.7, port: 5006}\n")
-    res = _beambench(package_with_laser, "run", str(protocol), "--rig", str(rig), "--dry-run", cwd=tmp_path)
+    res = run_copy(package_with_laser, "run", str(protocol), "--rig", str(rig), "--dry-run", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
     rig.write_text("laser: {address: 10.0.0.7, port: 70000}\n")
-    res = _beambench(package_with_laser, "run", str(protocol), "--rig", str(rig), "--dry-run", cwd=tmp_path)
+    res = run_copy(package_with_laser, "run", str(protocol), "--rig", str(rig), "--dry-run", cwd=tmp_path)
     assert res.returncode == 2, res.stderr
     assert "laser.port" in res.stderr and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1

@@ -6,17 +6,13 @@ package folder is no place for test output."""
 
 from __future__ import annotations
 
-import os
 import re
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
 
-import beambench
+from package_copy import copy_package, run_copy
 
 ROOT = Path(__file__).resolve().parents[1]
 CATALOGUE = Path("acquisition/protocol/scenes.py")
@@ -40,8 +36,7 @@ def package_with_toy(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A copy of the installed package (its data links followed) with the documented change applied."""
     declaration, (after, line), module_path, module_text = _the_documented_change()
     src = tmp_path_factory.mktemp("src")
-    pkg = src / "beambench"
-    shutil.copytree(Path(beambench.__file__).parent, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    pkg = copy_package(src)
     assert not (pkg / module_path).exists()
     (pkg / module_path).write_text(module_text)
     with (pkg / CATALOGUE).open("a") as f:
@@ -51,13 +46,6 @@ def package_with_toy(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert text.count(after + "\n") == 1, f"{IMPORT_LIST}: the page's context line {after!r} is not there once"
     listing.write_text(text.replace(after + "\n", f"{after}\n{line}\n"))
     return src
-
-
-def _beambench(src: Path, *args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "PYTHONPATH": str(src)}  # workers inherit it: they import the copy too
-    return subprocess.run(
-        [sys.executable, "-m", "beambench", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300
-    )
 
 
 PROTOCOL = """name: toy
@@ -73,10 +61,10 @@ sim: {model: prb3, twist_deg: 90, noise: false}
 def test_a_new_scene_module_and_its_declaration_line_make_a_runnable_and_sweepable_scene(package_with_toy, tmp_path):
     protocol = tmp_path / "toy_protocol.yaml"
     protocol.write_text(PROTOCOL)
-    res = _beambench(package_with_toy, "run", str(protocol), "--rerun", "off", "--out", str(tmp_path), cwd=tmp_path)
+    res = run_copy(package_with_toy, "run", str(protocol), "--rerun", "off", "--out", str(tmp_path), cwd=tmp_path)
     assert res.returncode == 0, res.stderr
     (session,) = tmp_path.glob("toy_*.h5")
-    res = _beambench(package_with_toy, "analyze", str(session), "--out", str(tmp_path / "report"), cwd=tmp_path)
+    res = run_copy(package_with_toy, "analyze", str(session), "--out", str(tmp_path / "report"), cwd=tmp_path)
     assert res.returncode == 0, res.stderr
     # its flags (driven, a stage, no plate, no body) pick its figures: the driven rig's, none of the plate's
     assert {p.stem for p in (tmp_path / "report").glob("*.png")} >= {"trajectories", "ellipse", "frequency"}
@@ -90,7 +78,7 @@ def test_a_new_scene_module_and_its_declaration_line_make_a_runnable_and_sweepab
         "frequencies: [15]\nsettle_s: 0.3\nrecord_s: 0.4\n"
     )
     out = tmp_path / "toy.parquet"
-    res = _beambench(
+    res = run_copy(
         package_with_toy, "sweep", str(sweep), "--out", str(out), "--workers", "1", "--no-figure", cwd=tmp_path
     )
     assert res.returncode == 0, res.stderr
@@ -116,7 +104,7 @@ def test_a_new_scene_module_and_its_declaration_line_make_a_runnable_and_sweepab
 def test_the_new_scene_refuses_another_scenes_option_in_one_line(package_with_toy, tmp_path):
     sweep = tmp_path / "bad.yaml"
     sweep.write_text("scene: weightless\nbase: {gap_mm: 2.0}\nfrequencies: [15]\n")
-    res = _beambench(package_with_toy, "sweep", str(sweep), "--dry-run", cwd=tmp_path)
+    res = run_copy(package_with_toy, "sweep", str(sweep), "--dry-run", cwd=tmp_path)
     assert res.returncode == 2
     assert "gap_mm applies to scene: contact only (the weightless scene has no plate)" in res.stderr
     assert "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1

@@ -6,19 +6,15 @@ for test output."""
 
 from __future__ import annotations
 
-import os
 import re
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import rerun.chunk as rc
 
-import beambench
 from beambench.sinks.session_file.reader import read_session
+from package_copy import apply_hunk, copy_package, run_copy
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,34 +30,18 @@ def _the_documented_change() -> tuple[str, list[str], str, str]:
     return diff.group(1), diff.group(2).splitlines(), module.group(1), module.group(2)
 
 
-def _apply(text: str, hunk: list[str]) -> str:
-    """``text`` with one diff hunk applied (its context must occur exactly once)."""
-    before = "".join(line[1:] + "\n" for line in hunk if line[:1] in (" ", "-"))
-    after = "".join(line[1:] + "\n" for line in hunk if line[:1] in (" ", "+"))
-    assert text.count(before) == 1, f"the hunk's context is not in the file once:\n{before}"
-    return text.replace(before, after)
-
-
 @pytest.fixture(scope="module")
 def package_with_laser(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A copy of the installed package (its data links followed) with the documented change applied: the new
     module and the one registration edit, nothing else."""
     registration, hunk, module_path, module_text = _the_documented_change()
     src = tmp_path_factory.mktemp("src")
-    pkg = src / "beambench"
-    shutil.copytree(Path(beambench.__file__).parent, pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    pkg = copy_package(src)
     assert not (pkg / module_path).exists()
     (pkg / module_path).write_text(module_text)
     target = pkg / registration
-    target.write_text(_apply(target.read_text(), hunk))
+    target.write_text(apply_hunk(target.read_text(), hunk))
     return src
-
-
-def _beambench(src: Path, *args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    env = {**os.environ, "PYTHONPATH": str(src)}
-    return subprocess.run(
-        [sys.executable, "-m", "beambench", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300
-    )
 
 
 OFFSET_S = 0.25  # the laser's clock runs this far ahead of the sim's: its device times show it
@@ -80,7 +60,7 @@ def laser_run(package_with_laser, tmp_path_factory) -> tuple[Path, Path]:
     out = tmp_path_factory.mktemp("run")
     protocol = out / "laser.yaml"
     protocol.write_text(PROTOCOL)
-    res = _beambench(
+    res = run_copy(
         package_with_laser, "run", str(protocol), "--rerun", "save", "--name", "s", "--out", str(out), cwd=out
     )
     assert res.returncode == 0, res.stderr
@@ -123,7 +103,7 @@ def test_the_new_stream_is_in_the_rerun_recording_and_its_replay(package_with_la
     assert rows["/motor/velocity"] == len(s.streams["motor"])  # the rig's own panels are still fed
     # the session file keeps what the view plots: a replay shows the stream too
     replay = rrd.with_name("replay.rrd")
-    res = _beambench(package_with_laser, "view", str(session), "--rerun", "save", "--out", str(replay), cwd=rrd.parent)
+    res = run_copy(package_with_laser, "view", str(session), "--rerun", "save", "--out", str(replay), cwd=rrd.parent)
     assert res.returncode == 0, res.stderr
     assert _rows(replay)["/laser/data"] == len(s.streams["laser"])
 
@@ -131,7 +111,7 @@ def test_the_new_stream_is_in_the_rerun_recording_and_its_replay(package_with_la
 def test_a_clock_for_a_stream_nobody_registered_is_one_line(package_with_laser, tmp_path):
     protocol = tmp_path / "typo.yaml"
     protocol.write_text(PROTOCOL.replace("laser: {", "lazer: {"))
-    res = _beambench(package_with_laser, "run", str(protocol), "--dry-run", cwd=tmp_path)
+    res = run_copy(package_with_laser, "run", str(protocol), "--dry-run", cwd=tmp_path)
     assert res.returncode == 2, res.stderr
     assert "sim.clocks.lazer" in res.stderr and "'lazer'" in res.stderr and "laser" in res.stderr
     assert "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
