@@ -8,6 +8,7 @@ loaded by a name string.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -127,19 +128,27 @@ def stepping_cost(scene: str, model: str, sim: SimSettings, own_dt: float, fallb
     """CPU seconds per simulated second of ``scene`` on one idle core (a rig's ``cpu_per_sim_s``): its measured
     stepping cost at its own timestep ``own_dt`` (``sim_backend/step_costs.csv``, mean over the drive frequencies;
     ``fallback`` where no row holds ``model``), scaled to a fixed ``sim.timestep``."""
-    from beambench.session.estimate import read_costs
-
-    integrator = sim.integrator or "implicitfast"
-    rows = [
-        float(r["cpu_s_per_sim_s"])
-        for r in read_costs()
-        if (r["scene"], r["model"], r["integrator"], r["timestep"]) == (scene, model, integrator, "auto")
-    ]
-    cost = sum(rows) / len(rows) if rows else fallback
+    measured = _measured_cost(scene, model, sim.integrator or "implicitfast")
+    cost = fallback if measured is None else measured
     if sim.timestep is not None:
         dt = sim.timestep if isinstance(sim.timestep, float | int) else min(sim.timestep)
         cost *= own_dt / float(dt)
     return cost
+
+
+@functools.cache
+def _measured_cost(scene: str, model: str, integrator: str) -> float | None:
+    """The mean measured cost of ``scene`` at its own timestep (None: no row), read once: the search's clock asks
+    for it at every batch and every stop test."""
+    from beambench.session.estimate import read_costs
+
+    key = (scene, model, integrator, "auto")
+    rows = [
+        float(r["cpu_s_per_sim_s"])
+        for r in read_costs()
+        if (r["scene"], r["model"], r["integrator"], r["timestep"]) == key
+    ]
+    return sum(rows) / len(rows) if rows else None
 
 
 RIGS: Registry[CalibratableRig] = Registry("calibratable rig")

@@ -218,6 +218,12 @@ class Search:
             return lambda: self.elapsed() + self.last_batch_s > share / COARSE_SHARE * (budget - self.reserve_s())
         return lambda: self.elapsed() + self.last_batch_s > budget - self.reserve_s(fine=False)
 
+    def spread_beyond_verify_s(self) -> float:
+        """The modelled time of the written runs at the spread seeds beyond the verify stage's two (rigs with
+        ``verify``)."""
+        w = max(1, self.pool.workers)
+        return math.ceil(max(0, self.settings.spread_seeds - 2) / w) * self.ev.cost_s(WrittenRun(""), 0)
+
     def reserve_s(self, fine: bool = True) -> float:
         """The modelled time of the stages after the coarse one (``fine``: the fine maps of the best
         ``refine_top`` points too): the verify stage's written-protocol runs (two noise seeds per candidate, and
@@ -227,11 +233,10 @@ class Search:
         settle, record = st.window("fine")
         fine_s = len(self.fine) * (settle + record) * rate
         out = math.ceil(st.refine_top / w) * fine_s if fine and st.refine_top > 0 else 0.0
-        extra = max(0, st.spread_seeds - 2)
         if self.rig.verify is not None and st.verify_top > 0:
             run_s = self.ev.cost_s(WrittenRun(""), 0)
             n = 1 if st.verify_fill else st.verify_top
-            return out + math.ceil(2 * n / w) * run_s + math.ceil(extra / w) * run_s
+            return out + math.ceil(2 * n / w) * run_s + self.spread_beyond_verify_s()
         return out + math.ceil(max(0, st.spread_seeds - 1) / w) * fine_s
 
 
@@ -543,10 +548,8 @@ def verify_count(s: Search) -> int:
     if not (st.verify_fill and st.plan_finish):
         return max(1, st.verify_top)
     w = max(1, s.pool.workers)
-    run_s = s.ev.cost_s(WrittenRun(""), 0)
-    if run_s <= 0:
-        return max(1, st.verify_top)
-    left = st.budget_s - s.elapsed() - math.ceil(max(0, st.spread_seeds - 2) / w) * run_s
+    run_s = s.ev.cost_s(WrittenRun(""), 0)  # > 0: the verify stage runs only for rigs with ``verify``
+    left = st.budget_s - s.elapsed() - s.spread_beyond_verify_s()
     rounds = int(left // run_s)  # rounds of the workers, each running w written protocols at once
     return max(1, min(st.verify_top, rounds * w // 2))
 
