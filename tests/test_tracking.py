@@ -17,6 +17,7 @@ from beambench.acquisition.control.speed_map import SpeedMap
 from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.protocol.schema import TrackControl, WalkerDrive, parse_protocol
 from beambench.acquisition.streams import WALKER_MARKERS, mocap_spec
+from beambench.analysis.speed_tracking import TrackResult
 from beambench.common.yaml_config import ConfigError
 
 MAX_HZ = 60.0
@@ -211,13 +212,30 @@ def test_track_protocol_checks():
 
 
 # --- the sim walker, end to end ---------------------------------------------------------------------------
+def _run(text: str, path: Path, backend: str = "sim") -> None:
+    """Run a protocol (its text) to a session file at ``path``; the run must complete."""
+    from beambench.session.run import run_session
+
+    assert run_session(parse_protocol(text), text, backend, path, show_progress=False).status == "completed"
+
+
+def _track(text: str, path: Path) -> TrackResult:
+    """Run a ``track:`` protocol (:func:`_run`) and return its analysed tracking (segments, times, frequencies)."""
+    from beambench.analysis.session_analysis import analyze_session
+    from beambench.sinks.session_file.reader import read_session
+
+    _run(text, path)
+    track = analyze_session(read_session(path)).track
+    assert track is not None
+    return track
+
+
 SIM = "sim: {model: prb3, params: paper, noise: true, seed: 0}\nlimits: {max_frequency_hz: 60, max_current_a: 6}\n"
 
 
 @pytest.fixture(scope="session")
 def twin_map_session(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, SpeedMap]:
     """A small map of today's twin (its sweep, 7 frequencies): measured once per test session."""
-    from beambench.session.run import run_session
     from beambench.session.track_map import map_from_session
 
     out = tmp_path_factory.mktemp("track_map")
@@ -225,7 +243,7 @@ def twin_map_session(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Sp
         f"name: map\nrig: walker\nsweep: {{frequencies: [16, 20, 24, 28, 34, 40, 46]}}\nsettle_s: 1\nrecord_s: 1\n{SIM}"
     )
     path = out / "map.h5"
-    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    _run(text, path)
     return path, map_from_session(path)
 
 
@@ -246,7 +264,6 @@ def _track_text(map_path: Path, segments: list[tuple[float, float]], extra: str 
 
 def test_walker_follows_a_short_profile_on_the_sim(twin_map_session, tmp_path):
     from beambench.analysis.session_analysis import analyze_session
-    from beambench.session.run import run_session
     from beambench.sinks.session_file.reader import read_session
 
     map_path, speed_map = twin_map_session
@@ -255,7 +272,7 @@ def test_walker_follows_a_short_profile_on_the_sim(twin_map_session, tmp_path):
     profile = [(0.5 * fwd, 3.0), (0.5 * back, 3.0)]
     text = _track_text(map_path, profile)
     path = tmp_path / "track.h5"
-    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    _run(text, path)
     s = read_session(path)
     a = analyze_session(s)
     assert a.track is not None and len(a.track.segments) == 2
@@ -271,7 +288,6 @@ def test_walker_follows_a_short_profile_on_the_sim(twin_map_session, tmp_path):
 
 def test_losing_mocap_stands_the_sim_walker(twin_map_session, tmp_path, monkeypatch):
     from beambench.backends import sim_devices
-    from beambench.session.run import run_session
     from beambench.sinks.session_file.reader import read_session
 
     map_path, speed_map = twin_map_session
@@ -287,7 +303,7 @@ def test_losing_mocap_stands_the_sim_walker(twin_map_session, tmp_path, monkeypa
         map_path, [(0.5 * speed_map.reach(60)[1], 3.0)], "monitors: {mocap_lost_s: 0.3, max_pause_s: 30}\n"
     )
     path = tmp_path / "lost.h5"
-    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    _run(text, path)
     s = read_session(path)
     tr = s.streams["track"]
     t = (tr.host_time_ns - tr.host_time_ns[0]) * 1e-9
@@ -319,14 +335,13 @@ def test_target_out_of_reach_is_refused_before_anything_moves(twin_map_session, 
 
 def test_the_same_controller_drives_the_emulated_walker_through_the_real_drivers(twin_map_session, tmp_path):
     """Real time: NatNet over UDP (y up, as Motive) and the ODrive over CAN; the controller cannot tell."""
-    from beambench.session.run import run_session
     from beambench.sinks.session_file.reader import read_session
 
     map_path, speed_map = twin_map_session
     target = 0.5 * speed_map.reach(60)[1]
     text = _track_text(map_path, [(target, 4.0), (0.0, 1.5)])
     path = tmp_path / "emu.h5"
-    assert run_session(parse_protocol(text), text, "emulated", path, show_progress=False).status == "completed"
+    _run(text, path, "emulated")
     s = read_session(path)
     assert s.general["geometry"]["up_axis"] == "y"
     tr, motor = s.streams["track"], s.streams["motor"]
@@ -475,14 +490,13 @@ SHIPPED_SIM = (
 def shipped_walker_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 9-frequency map of the shipped walker (walker_track's twin: its backward band, zero crossing and forward
     rise), measured once per test session."""
-    from beambench.session.run import run_session
 
     path = tmp_path_factory.mktemp("shipped_map") / "map.h5"
     text = (
         "name: map\nrig: walker\nsweep: {frequencies: [12, 16, 22, 28, 34, 40, 48, 56, 62]}\nsettle_s: 1\n"
         f"record_s: 1\n{SHIPPED_SIM}"
     )
-    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
+    _run(text, path)
     return path
 
 
@@ -491,16 +505,11 @@ def test_the_shipped_walker_stops_within_1_s_of_the_change(shipped_walker_map, t
     """On the shipped walker's twin: a stop from a walk is within 10 mm/s of 0 (the analysis' windowed speed) within
     1 s and stays there; the crank was held still on the way (0 Hz) and the walker ends standing in place. With the
     drive ramping at 50 turn/s² and the stop braked in the backward run these took 1.26 / 1.60 / 1.22 s."""
-    from beambench.analysis.session_analysis import analyze_session
-    from beambench.session.run import run_session
-    from beambench.sinks.session_file.reader import read_session
 
     segs = f"[{{speed_mm_s: {walking}, hold_s: 3}}, {{speed_mm_s: 0, hold_s: 2.5}}]"
     text = f"name: t\nrig: walker\n{SHIPPED_SIM}track: {{map: {shipped_walker_map}, segments: {segs}}}\n"
     path = tmp_path / "stop.h5"
-    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
-    track = analyze_session(read_session(path)).track
-    assert track is not None
+    track = _track(text, path)
     assert track.segments[1]["settling_s"] <= 1.0, track.segments
     start = track.bounds[1][0]
     braking = (track.t > start) & (track.t < start + 1.0)
@@ -526,13 +535,8 @@ def test_the_shipped_walker_walks_off_from_rest_within_1_s(shipped_walker_map, t
     """From rest to 60 mm/s on the shipped walker's twin (walker_track's first segment): the drive's ramp
     (calibration/rig.yaml's 200 turn/s²) passes the backward band in 0.1 s, so the walker is within the tolerance in
     under 1 s; at 50 turn/s² it walked backward first and took 1.68 s."""
-    from beambench.analysis.session_analysis import analyze_session
-    from beambench.session.run import run_session
-    from beambench.sinks.session_file.reader import read_session
 
     text = f"name: t\nrig: walker\n{SHIPPED_SIM}track: {{map: {shipped_walker_map}, segments: [{{speed_mm_s: 60, hold_s: 3}}]}}\n"
     path = tmp_path / "start.h5"
-    assert run_session(parse_protocol(text), text, "sim", path, show_progress=False).status == "completed"
-    track = analyze_session(read_session(path)).track
-    assert track is not None
+    track = _track(text, path)
     assert track.segments[0]["settling_s"] <= 1.0, track.segments
