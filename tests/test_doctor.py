@@ -17,8 +17,8 @@ from typer.testing import CliRunner
 from beambench.acquisition.protocol.schema import load_rig_file
 from beambench.cli import app
 from beambench.common.vulkan import VulkanReport
-from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
-from beambench.emulators.motive import MotiveEmulator
+from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU
+from beambench.devices.natnet.emulated_motive import MotiveEmulator
 from beambench.session import doctor
 from beambench.session.doctor import Machine, check_machine, failed, kernel_has_can, vulkan_row
 from beambench.session.viewer import vulkan_available

@@ -11,7 +11,7 @@ from beambench.acquisition.capabilities import DeviceFault, Stream
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
 from beambench.acquisition.streams import LOADCELL, loadcell_spec
 from beambench.devices.loadcell.driver import SerialLoadCells, Unwrap32
-from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock
+from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock
 from conftest import holds_for, raised, wait_until
 
 SENS = np.array([[20000.0, 1000.0], [21000.0, -800.0], [500.0, 19000.0], [-300.0, 20500.0]])

@@ -40,7 +40,7 @@ from beambench.acquisition.clocks import DriftingClock
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.streams import LOADCELL
 from beambench.devices.loadcell.protocol import FRAME_LEN, encode_frame
-from beambench.emulators.peer import PeerContext, Wiring
+from beambench.devices.peer import PeerContext, Wiring
 
 ForceSource = Callable[[float], tuple[float, float]]
 _I32 = (-(2**31), 2**31 - 1)
