@@ -169,3 +169,54 @@ def test_a_rig_file_takes_the_new_section_checked_field_by_field(package_with_la
     res = run_copy(package_with_laser, "run", str(protocol), "--rig", str(rig), "--dry-run", cwd=tmp_path)
     assert res.returncode == 2, res.stderr
     assert "laser.port" in res.stderr and "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
+
+
+# on the copy: the doctor's row for the new stream, from its ping: the head answering (its emulated peer on
+# loopback, started) and a port nobody listens on
+DOCTOR = """
+import json, socket, sys
+import numpy as np
+from beambench.backends.hardware import load_wiring
+from beambench.devices.peer import PeerContext
+from beambench.devices.streams.laser import LaserPeer
+from beambench.session.doctor import Machine, check_machine
+
+class Held:
+    markers = ("stage", "tip", "foot")
+    def positions_at(self, host_s):
+        return np.zeros((3, 3))
+
+peer = LaserPeer(PeerContext(Held()))
+(section,) = peer.open().values()
+peer.start()
+with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+    s.bind(("127.0.0.1", 0))
+    closed = s.getsockname()[1]
+rows = {}
+for name, port in (("answers", section["port"]), ("closed", closed)):
+    with open(sys.argv[1], "w") as f:
+        f.write("laser: {address: 127.0.0.1, port: %d}\\n" % port)
+    rows[name] = [vars(r) for r in check_machine(Machine(load_wiring(sys.argv[1]), sim_only=True))]
+peer.stop()
+peer.close()
+print(json.dumps(rows))
+"""
+
+
+def test_the_doctor_gives_the_new_stream_a_row_from_its_ping(package_with_laser, tmp_path):
+    res = subprocess.run(
+        [sys.executable, "-c", DOCTOR, str(tmp_path / "rig.yaml")],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(package_with_laser)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 0, res.stderr
+    rows = json.loads(res.stdout.strip().splitlines()[-1])
+    laser = {name: [r for r in got if r["part"] == "laser head (UDP)"] for name, got in rows.items()}
+    assert [r["state"] for r in laser["answers"]] == ["ok"], rows["answers"]
+    assert [r["state"] for r in laser["closed"]] == ["missing"], rows["closed"]
+    assert "no answer" in laser["closed"][0]["found"] and "laser: section" in laser["closed"][0]["todo"]
+    parts = [r["part"] for r in rows["answers"]]
+    assert parts.index("mocap (NatNet)") < parts.index("load cells (serial)") < parts.index("laser head (UDP)")

@@ -102,8 +102,8 @@ def test_a_machine_with_every_part_has_only_ok_rows_and_exits_0(world):
     parts = [r.part for r in rows]
     assert parts == [
         "motor bus (SocketCAN)",
-        "load cells (serial)",
         "mocap (NatNet)",
+        "load cells (serial)",
         "disk for sessions",
         "Vulkan (Rerun viewer)",
         "rerun viewer",
