@@ -3,7 +3,8 @@ and its line in the import list of ``devices/streams``: the toy laser head liste
 device", taken from the page itself) is added to a copy of the package exactly as the page shows, and with no other
 edit an emulated run (the peer in the peers' process, the driver over UDP loopback) records the stream in the session
 file, measuring what the mocap measures; the hardware rig built from a rig file receives it over UDP from a head on
-this machine; and rig files take its ``laser:`` section, checked field by field. A copy, because the registries are
+this machine; rig files take its ``laser:`` section, checked field by field; and the doctor gives it a row from
+its ping. A copy, because the registries are
 process-wide and the package folder is no place for test output."""
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import re
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -142,17 +144,22 @@ print(json.dumps({
 """
 
 
-def test_the_hardware_rig_receives_the_new_stream_from_its_rig_files_address(package_with_laser, tmp_path):
+def _script_on_copy(script: str, package: Path, tmp_path: Path) -> Any:
+    """Run ``script`` with the copy on the path and a rig file path as its argument; its last line's JSON."""
     res = subprocess.run(
-        [sys.executable, "-c", HARDWARE, str(tmp_path / "rig.yaml")],
+        [sys.executable, "-c", script, str(tmp_path / "rig.yaml")],
         cwd=tmp_path,
-        env={**os.environ, "PYTHONPATH": str(package_with_laser)},
+        env={**os.environ, "PYTHONPATH": str(package)},
         capture_output=True,
         text=True,
         timeout=120,
     )
     assert res.returncode == 0, res.stderr
-    got = json.loads(res.stdout.strip().splitlines()[-1])
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def test_the_hardware_rig_receives_the_new_stream_from_its_rig_files_address(package_with_laser, tmp_path):
+    got = _script_on_copy(HARDWARE, package_with_laser, tmp_path)
     assert got["streams"] == ["mocap", "loadcells", "laser"] and got["identity"] == "UdpLaser"
     assert len(got["height"]) >= 200 and set(got["height"]) == {0.0123}  # the held marker's height, over UDP
     assert np.all(np.diff(got["seq"]) >= 1) and got["health"]["garbled"] == 0
@@ -204,16 +211,7 @@ print(json.dumps(rows))
 
 
 def test_the_doctor_gives_the_new_stream_a_row_from_its_ping(package_with_laser, tmp_path):
-    res = subprocess.run(
-        [sys.executable, "-c", DOCTOR, str(tmp_path / "rig.yaml")],
-        cwd=tmp_path,
-        env={**os.environ, "PYTHONPATH": str(package_with_laser)},
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert res.returncode == 0, res.stderr
-    rows = json.loads(res.stdout.strip().splitlines()[-1])
+    rows = _script_on_copy(DOCTOR, package_with_laser, tmp_path)
     laser = {name: [r for r in got if r["part"] == "laser head (UDP)"] for name, got in rows.items()}
     assert [r["state"] for r in laser["answers"]] == ["ok"], rows["answers"]
     assert [r["state"] for r in laser["closed"]] == ["missing"], rows["closed"]
