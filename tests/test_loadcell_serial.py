@@ -52,11 +52,12 @@ def acquire(
         mcu.stop()
         bytes_in: list[int] = []
 
-        def drained() -> bool:  # the driver has read everything that was sent: 3 polls with nothing new
-            bytes_in.append(lc.stats()["bytes_in"] if mcu.flushed() else -len(bytes_in) - 1)
+        def drained() -> bool:  # the board handed everything to the pty, the line is empty, the driver has it all
+            empty = mcu.flushed() and mcu.unread() == 0
+            bytes_in.append(lc.stats()["bytes_in"] if empty else -len(bytes_in) - 1)
             return len(bytes_in) >= 3 and len(set(bytes_in[-3:])) == 1
 
-        wait_until(drained, timeout_s=5, what="every byte sent", interval_s=0.05)
+        wait_until(drained, timeout_s=10, what="every byte sent", interval_s=0.05)
         batches.append(lc.read())
     finally:
         lc.stop()
