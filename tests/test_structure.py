@@ -369,3 +369,42 @@ def test_no_module_outside_the_family_registry_compares_with_a_model_name():
             if isinstance(node, ast.Compare):
                 found += [f"{_name(path)}:{node.lineno} {s!r}" for s in _compared_strings(node) if is_model_name(s)]
     assert found == []
+
+
+# optional engines only a few tests run: every xdist worker collects the whole suite, so a test module imports
+# them inside its tests or fixtures, never at its top (Dask and PyElastica with numba: about 1 CPU-s a worker)
+NOT_AT_COLLECTION = {"dask", "distributed", "elastica", "numba"}
+
+
+def _collection_time_imports(body: list[ast.stmt]) -> list[tuple[int, str]]:
+    """(line, package) of each import a module's top level runs (inside its ``if``/``try``/``with`` blocks too),
+    ``pytest.importorskip("x")`` included."""
+    found = []
+    for node in body:
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name.split(".")[0]) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            found.append((node.lineno, (node.module or "").split(".")[0]))
+        elif isinstance(node, ast.If | ast.Try | ast.With):
+            blocks = [node.body, getattr(node, "orelse", []), getattr(node, "finalbody", [])]
+            blocks += [h.body for h in getattr(node, "handlers", [])]
+            found += [hit for block in blocks for hit in _collection_time_imports(block)]
+        for call in ast.walk(node) if isinstance(node, ast.Expr | ast.Assign) else []:
+            if (
+                isinstance(call, ast.Call)
+                and ast.unparse(call.func) == "pytest.importorskip"
+                and call.args
+                and isinstance(call.args[0], ast.Constant)
+            ):
+                found.append((node.lineno, str(call.args[0].value).split(".")[0]))
+    return found
+
+
+def test_no_test_module_imports_an_optional_engine_at_collection() -> None:
+    found = [
+        f"{path.relative_to(REPO)}:{line}: {package}"
+        for path in sorted((REPO / "tests").glob("*.py"))
+        for line, package in _collection_time_imports(_tree(path).body)
+        if package in NOT_AT_COLLECTION
+    ]
+    assert found == []
