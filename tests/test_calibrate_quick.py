@@ -58,6 +58,7 @@ def test_a_quick_contact_search_ends_within_its_budget_with_its_verify_stage(mon
     # the verify stage was reserved, not squeezed out, and the search ran before it
     assert stages[-1] == "verify", stages
     assert stages.count("prior line") >= 2, json.dumps(rep["history"])
+    assert "fine" not in stages and "bracket" not in stages, stages  # the verify judges the coarse points itself
 
 
 def test_without_a_fine_stage_the_verify_runs_the_best_distinct_coarse_points(tmp_path):
