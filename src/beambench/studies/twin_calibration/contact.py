@@ -309,24 +309,22 @@ def contact_cpu_per_sim_s(base: CalibrationBase, sim: SimSettings) -> float:
 
 # ``--quick`` on the contact rig: the whole search within its budget, the verify stage's two written-protocol runs
 # (one round on two workers, ~40 CPU-s each for the paper's 294 s sweep) reserved first at their measured cost
-# (written_factor 1.15 and WRITTEN_EXTRA_S: evaluate.py); the coarse stage gets all the rest (its lines and
-# landmark steps all of it); what is left when the verify starts verifies more candidates (up to four); the
-# verdict's seed spread is the verify's two seeds. No fine stage: the verify runs the best distinct coarse points
-# as the written protocol (the truth the fine maps approximated); on the paper's targets the fine maps cost ~5
-# coarse maps each and the verify chose the same point with and without them. The coarse maps: 1 Hz steps,
-# 0.4 + 0.6 s windows at 1e-4 s (2.6 CPU-s a map on the paper's targets, 3-42 Hz, against 3.3 with 0.5 + 0.8 s);
-# on 15 points whose written runs were known their landmarks were about as close to the written maps' as with
-# 0.5 + 0.8 s; 0.3 + 0.5 s, or 2e-4 s with 0.4 + 0.6 s, moved them twice as far (docs/evidence.md)
+# (written_factor 1.15 and WRITTEN_EXTRA_S: evaluate.py); the coarse stage gets the rest (its lines and landmark
+# steps all of it) less the fine maps of the best two points, which (and the preload's bracket) run only if they fit
+# before the verify's reserve; what is left when the verify starts verifies more candidates (up to four); the
+# verdict's seed spread is the verify's two seeds. The coarse maps: 1 Hz steps, 0.5 + 0.8 s windows at 1e-4 s (3.3
+# CPU-s a map on the paper's targets). Cheaper ones (0.4 + 0.6 s) with no fine stage fit 59 evaluations instead of
+# 40 in the budget, but lost a twin-made session's continuous edge (16 Hz for 20 ± 2) and two of the three
+# landmarks the paper's search meets (docs/evidence.md)
 CONTACT_QUICK: tuple[tuple[str, Any], ...] = (
     ("budget_s", 120.0),
     ("written_factor", 1.15),
     ("plan_finish", True),
     ("verify_top", 4),
     ("verify_fill", True),
-    ("refine_top", 0),
     ("coarse_timestep", 1e-4),
-    ("coarse_settle_s", 0.4),
-    ("coarse_record_s", 0.6),
+    ("coarse_settle_s", 0.5),
+    ("coarse_record_s", 0.8),
     ("spread_seeds", 2),
     ("line_share", 0.55),
     ("landmark_share", 0.55),
