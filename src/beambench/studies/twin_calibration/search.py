@@ -54,6 +54,7 @@ from beambench.studies.twin_calibration.evaluate import (
     WrittenRun,
     identifiability,
     key,
+    makespan,
 )
 from beambench.studies.twin_calibration.intervals import intervals, landmark_spread
 from beambench.studies.twin_calibration.landmark_steps import LandmarkPlan, landmark_steps, within
@@ -208,17 +209,26 @@ class Search:
             }
         )
 
-    def over(self, share: float) -> Callable[[], bool]:
-        """A stop test: more than ``share`` of the budget spent. With ``plan_finish``: the next batch (as long as
-        the last one) would end past the stage's deadline — for the coarse shares (≤ ``COARSE_SHARE``) that share
-        of the time left once the later stages are reserved (:meth:`reserve_s`), for the fine ones the budget
-        less the verify stage's."""
+    def over(self, share: float, next_batch_s: float | None = None) -> Callable[[], bool]:
+        """A stop test: more than ``share`` of the budget spent. With ``plan_finish``: the next batch (its modelled
+        time ``next_batch_s`` where the stage knows it, else as long as the last one) would end past the stage's
+        deadline — for the coarse shares (≤ ``COARSE_SHARE``) that share of the time left once the later stages
+        are reserved (:meth:`reserve_s`), for the fine ones the budget less the verify stage's."""
         budget = self.settings.budget_s
         if not self.settings.plan_finish:
             return lambda: self.elapsed() > share * budget
+
+        def ahead() -> float:
+            return self.last_batch_s if next_batch_s is None else next_batch_s
+
         if share <= COARSE_SHARE:
-            return lambda: self.elapsed() + self.last_batch_s > share / COARSE_SHARE * (budget - self.reserve_s())
-        return lambda: self.elapsed() + self.last_batch_s > budget - self.reserve_s(fine=False)
+            return lambda: self.elapsed() + ahead() > share / COARSE_SHARE * (budget - self.reserve_s())
+        return lambda: self.elapsed() + ahead() > budget - self.reserve_s(fine=False)
+
+    def fine_batch_s(self, n: int) -> float:
+        """The modelled time of a batch of ``n`` fine maps on the pool's workers."""
+        one = self.ev.cost_s(self.ev.stage_sim("fine"), len(self.fine))
+        return makespan([one] * n, max(1, self.pool.workers))
 
     def spread_beyond_verify_s(self) -> float:
         """The modelled time of the written runs at the spread seeds beyond the verify stage's two (rigs with
@@ -482,16 +492,16 @@ def _refine(s: Search) -> Point:
             picks.append(p.values)
         if len(picks) >= settings.refine_top:
             break
-    late = s.over(FINE_SHARE)
+    late = s.over(FINE_SHARE, s.fine_batch_s(len(picks)))
     finals = s.ev.batch(picks, s.fine, "fine") if not late() else []
     s.record("fine", finals)
     winner = min(finals, key=lambda p: p.j) if finals else ranked[0]
-    if br is not None and finals and settings.bracket_rounds > 0 and not late():
+    per_round = max(2, 2 * s.pool.workers)  # the bracket's points a round
+    bracket_late = s.over(BRACKET_SHARE, s.fine_batch_s(per_round))
+    if br is not None and finals and settings.bracket_rounds > 0 and not late() and not bracket_late():
         c = br.coord(winner.values[br.name])
         half = 0.06 * (br.bounds[1] - br.bounds[0])
-        line = Line(
-            s.fine, "fine", settings.bracket_rounds, max(2, 2 * s.pool.workers), "bracket", s.over(BRACKET_SHARE)
-        )
+        line = Line(s.fine, "fine", settings.bracket_rounds, per_round, "bracket", bracket_late)
         winner = min(winner, bracket(s, winner.values, br, (c - half, c + half), line), key=lambda p: p.j)
     return winner
 
