@@ -8,6 +8,9 @@
   fit, …) writes into the real per-user folder.
 - :func:`wait_until` / :func:`holds_for`: the one way a test waits on real time (a thread, a socket, a child
   process): poll a condition until it holds, or check that it keeps holding for a while; no fixed sleeps.
+- :func:`pause` / :func:`random_moment`: where a delay *is* the test's input (a stall of a given length, a worker's
+  compute time, a peer's pacing, the random moment a signal or fault is raced at), it is spelled so, saying what it
+  stands for; tests/test_structure.py fails on any other ``time.sleep`` in tests/ (in code strings a child runs too).
 - The soak tier (``@pytest.mark.soak``): more repetitions of a race check, at other random moments, than the
   default run's one or few. Deselected unless ``--soak`` is given (``make soak``; CI runs it after ``make test``).
   Every Hypothesis test belongs to it too: the default run makes a fifth of its examples (at least 50,
@@ -17,6 +20,7 @@
 from __future__ import annotations
 
 import os
+import random
 import subprocess
 import time
 from collections.abc import Callable, Iterator
@@ -113,6 +117,22 @@ def holds_for(condition: Callable[[], object], duration_s: float, what: str = ""
         if time.monotonic() >= end:
             return
         time.sleep(interval_s)
+
+
+def pause(seconds: float, why: str) -> None:
+    """Let ``seconds`` pass where the delay is the test's input, not a wait for something to happen: a stall of
+    a given length, a stand-in's compute time, a peer's pacing. ``why`` says which."""
+    if not why:
+        raise ValueError("pause: say what the delay stands for")
+    time.sleep(seconds)
+
+
+def random_moment(rng: random.Random, lo_s: float, hi_s: float, why: str) -> float:
+    """Let a random time in [``lo_s``, ``hi_s``] pass (drawn from ``rng``) and return it: the moment something is
+    raced at (a signal, a fault), other each run, so repeated runs cover the window."""
+    delay = rng.uniform(lo_s, hi_s)
+    pause(delay, why)
+    return delay
 
 
 def raised(call: Callable[[], object], kind: type[E]) -> E | None:

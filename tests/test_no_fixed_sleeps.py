@@ -1,0 +1,106 @@
+"""No fixed sleep in the tests: a test waits for a condition (conftest's ``wait_until`` / ``holds_for``), and a
+delay that is the test's input says so (``pause`` / ``random_moment``). The same holds in the code strings a test
+runs in a child process (a stand-in peer, a script): there a sleep sits in a helper of one of those names that the
+string defines (a child cannot import conftest)."""
+
+from __future__ import annotations
+
+import ast
+import textwrap
+from pathlib import Path
+
+TESTS = Path(__file__).resolve().parent
+HELPERS = {"wait_until", "holds_for", "pause"}  # the only functions a sleep may be called in
+
+
+def _sleep_names(tree: ast.AST) -> tuple[set[str], set[str]]:
+    """The names ``time`` is imported as, and the names ``time.sleep`` itself is imported as."""
+    modules, functions = set(), set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            modules |= {a.asname or a.name for a in node.names if a.name == "time"}
+        elif isinstance(node, ast.ImportFrom) and node.module == "time":
+            functions |= {a.asname or a.name for a in node.names if a.name == "sleep"}
+    return modules, functions
+
+
+def _bare_sleeps(tree: ast.AST) -> list[int]:
+    """Lines of ``time.sleep(…)`` calls outside a function named in HELPERS."""
+    modules, functions = _sleep_names(tree)
+    found: list[int] = []
+
+    def visit(node: ast.AST, allowed: bool) -> None:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            allowed = node.name in HELPERS
+        if isinstance(node, ast.Call) and not allowed:
+            f = node.func
+            if (isinstance(f, ast.Attribute) and f.attr == "sleep" and isinstance(f.value, ast.Name)) and (
+                f.value.id in modules
+            ):
+                found.append(node.lineno)
+            elif isinstance(f, ast.Name) and f.id in functions:
+                found.append(node.lineno)
+        for child in ast.iter_child_nodes(node):
+            visit(child, allowed)
+
+    visit(tree, False)
+    return found
+
+
+def _code_strings(tree: ast.AST) -> list[tuple[int, str]]:
+    """String literals that mention a sleep (f-strings with their fields as a placeholder name), dedented."""
+    out = []
+    parts_of_fstrings = {id(v) for node in ast.walk(tree) if isinstance(node, ast.JoinedStr) for v in node.values}
+    for node in ast.walk(tree):
+        if id(node) in parts_of_fstrings:
+            continue
+        if isinstance(node, ast.JoinedStr):
+            parts = [v.value if isinstance(v, ast.Constant) else "_field" for v in node.values]
+            text = "".join(str(p) for p in parts)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            text = node.value
+        else:
+            continue
+        if "sleep(" in text:
+            out.append((node.lineno, textwrap.dedent(text)))
+    return out
+
+
+def fixed_sleeps(path: Path) -> list[str]:
+    """``file:line`` of each fixed sleep in one test module, in its own code or in a code string it runs."""
+    tree = ast.parse(path.read_text(), str(path))
+    where = [f"{path.name}:{line}" for line in _bare_sleeps(tree)]
+    for line, code in _code_strings(tree):
+        try:
+            inner = ast.parse(code)
+        except SyntaxError:
+            where.append(f"{path.name}:{line} (a string mentioning sleep( that is not code: cannot be checked)")
+            continue
+        where += [f"{path.name}:{line} (code string, its line {n})" for n in _bare_sleeps(inner)]
+    return where
+
+
+def test_no_fixed_sleep_outside_a_polling_or_input_helper() -> None:
+    files = sorted(TESTS.glob("*.py"))
+    assert len(files) > 50 and TESTS / "conftest.py" in files
+    files.remove(Path(__file__).resolve())  # this file's probe spells sleeps on purpose
+    found = [w for path in files for w in fixed_sleeps(path)]
+    assert not found, "wait with wait_until/holds_for, or name a delay that is an input with pause/random_moment: " + (
+        ", ".join(found)
+    )
+
+
+def test_the_check_finds_each_spelling_of_a_sleep(tmp_path: Path) -> None:
+    """The checker itself: every way of calling sleep is found, in code and in code strings; the helpers pass."""
+    probe = tmp_path / "probe.py"
+    probe.write_text(
+        "import time\nimport time as _t\nfrom time import sleep as nap\n"
+        "def wait_until():\n    time.sleep(0.01)\n"
+        "def f():\n    time.sleep(1)\n    _t.sleep(1)\n    nap(1)\n"
+        "CODE = 'import time\\nfor _ in range(3):\\n    time.sleep(0.1)\\n'\n"
+        "OK = 'import time\\ndef pause(s, why):\\n    time.sleep(s)\\n'\n"
+        "PROSE = 'call sleep( here'\n"
+    )
+    found = fixed_sleeps(probe)
+    assert [w.split(" ")[0] for w in found] == ["probe.py:7", "probe.py:8", "probe.py:9", "probe.py:10", "probe.py:12"]
+    assert "its line 3" in found[3] and "not code" in found[4]
