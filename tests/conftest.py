@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import random
+import re
 import subprocess
 import time
 from collections.abc import Callable, Iterator
@@ -128,8 +129,9 @@ def pause(seconds: float, why: str) -> None:
 
 
 def random_moment(rng: random.Random, lo_s: float, hi_s: float, why: str) -> float:
-    """Let a random time in [``lo_s``, ``hi_s``] pass (drawn from ``rng``) and return it: the moment something is
-    raced at (a signal, a fault), other each run, so repeated runs cover the window."""
+    """Let a random time in [``lo_s``, ``hi_s``] pass (drawn from ``rng``) and return it: a delay that is the test's
+    input and varies, such as the moment a signal or fault is raced at (another each run, so repeated runs cover
+    the window) or a stand-in's varying compute time."""
     delay = rng.uniform(lo_s, hi_s)
     pause(delay, why)
     return delay
@@ -213,6 +215,17 @@ def tmpfs(folder: Path, size: str) -> Iterator[Path]:
 
 
 SET_AXIS_STATE = 0x07  # CAN Simple command id (node 0)
+_CLOSED_LOOP_REQUEST = re.compile(r"^ *(\d+\.\d+) +\d+ +7 +Tx +d 8 08 ", re.M)  # Set_Axis_State CLOSED_LOOP, node 0
+_LOGGED_AT = re.compile(r"^ *(\d+\.\d+) ", re.M)
+
+
+def armed_for(can_log: Path, for_s: float) -> bool:
+    """A run's .asc CAN log (read as it is written) shows the closed-loop request and ``for_s`` of traffic after
+    it: the motor is armed and turning (a condition for :func:`wait_until`)."""
+    text = can_log.read_text(errors="replace") if can_log.exists() else ""
+    armed = _CLOSED_LOOP_REQUEST.search(text)
+    stamps = _LOGGED_AT.findall(text[armed.end() :]) if armed else []
+    return bool(armed and stamps and float(stamps[-1]) - float(armed.group(1)) >= for_s)
 
 
 def last_requested_state(can_log: Path) -> int | None:

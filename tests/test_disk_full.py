@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from beambench.sinks.session_file.reader import read_session
-from conftest import last_requested_state, tmpfs
+from conftest import last_requested_state, tmpfs, wait_until
 
 ENDLESS = """
 name: endless
@@ -81,12 +81,13 @@ def _run_until_disk_full(
         cmd += ["--can-log", str(can_log)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), start_new_session=True)
     try:
-        deadline = time.monotonic() + 120
-        while not path.exists() or path.stat().st_size < 100_000:
+
+        def size() -> int:
             assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
-            assert time.monotonic() < deadline, "the run never started recording"
-            time.sleep(0.05)
-        time.sleep(0.5)
+            return path.stat().st_size if path.exists() else 0
+
+        started = wait_until(lambda: (n := size()) >= 100_000 and n, 120, "the run to start recording", 0.05)
+        wait_until(lambda: size() > started, 60, "the run to write on (mid-run, past its start)", 0.05)
         _fill(disk, leave)
         full_at = time.monotonic()
         _, err = proc.communicate(timeout=60)

@@ -24,6 +24,13 @@ def _sleep_names(tree: ast.AST) -> tuple[set[str], set[str]]:
     return modules, functions
 
 
+def _is_sleep(f: ast.expr, modules: set[str], functions: set[str]) -> bool:
+    """``f`` names ``time.sleep``: ``time.sleep`` (or an alias of ``time``), or ``sleep`` imported from ``time``."""
+    if isinstance(f, ast.Attribute):
+        return f.attr == "sleep" and isinstance(f.value, ast.Name) and f.value.id in modules
+    return isinstance(f, ast.Name) and f.id in functions
+
+
 def _bare_sleeps(tree: ast.AST) -> list[int]:
     """Lines of ``time.sleep(…)`` calls outside a function named in HELPERS."""
     modules, functions = _sleep_names(tree)
@@ -32,14 +39,8 @@ def _bare_sleeps(tree: ast.AST) -> list[int]:
     def visit(node: ast.AST, allowed: bool) -> None:
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
             allowed = node.name in HELPERS
-        if isinstance(node, ast.Call) and not allowed:
-            f = node.func
-            if (isinstance(f, ast.Attribute) and f.attr == "sleep" and isinstance(f.value, ast.Name)) and (
-                f.value.id in modules
-            ):
-                found.append(node.lineno)
-            elif isinstance(f, ast.Name) and f.id in functions:
-                found.append(node.lineno)
+        if isinstance(node, ast.Call) and not allowed and _is_sleep(node.func, modules, functions):
+            found.append(node.lineno)
         for child in ast.iter_child_nodes(node):
             visit(child, allowed)
 
