@@ -56,13 +56,43 @@ def vm_bytes():
             return int(line.split()[1]) * 1024
 
 
+def wait_until(condition, timeout_s, interval_s=0.01):
+    # poll until condition() holds or timeout_s passed: whether it held (a polling helper: this script cannot
+    # import the tests' conftest)
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(interval_s)
+    return True
+
+
+motor = rig.motor
+base = {"rows": 0, "tx": 0}
+
+
+def armed():
+    return motor.heartbeat is not None and motor.heartbeat.axis_state == AxisState.CLOSED_LOOP_CONTROL
+
+
+def turning():  # armed and turning: 0.3 s of telemetry
+    return motor.rows_received >= base["rows"] + 30
+
+
+def idle_sent():
+    return motor._idle_sent_ns is not None
+
+
+def idle_frames_out():  # the idle frames went out under the limit
+    return motor.tx_count >= base["tx"] + 2
+
+
 def consume():
-    motor = rig.motor
-    while not (motor.heartbeat is not None and motor.heartbeat.axis_state == AxisState.CLOSED_LOOP_CONTROL):
-        time.sleep(0.01)
-    rows = motor.rows_received
-    while motor.rows_received < rows + 30:  # armed and turning: 0.3 s of telemetry
-        time.sleep(0.01)
+    if not wait_until(armed, 120):
+        return
+    base["rows"] = motor.rows_received
+    if not wait_until(turning, 60):
+        return
     held = []
     resource.setrlimit(resource.RLIMIT_AS, (vm_bytes() + (16 << 20), hard))
     for size in (1 << 20, 1 << 16, 1 << 12, 1 << 8, 1 << 6):
@@ -72,13 +102,9 @@ def consume():
         except MemoryError:
             pass
     seen["exhausted"] = True
-    deadline = time.monotonic() + 20
-    while motor._idle_sent_ns is None and time.monotonic() < deadline:
-        time.sleep(0.005)
-    seen["idle_while_exhausted"] = motor._idle_sent_ns is not None
-    sent = motor.tx_count
-    while motor.tx_count < sent + 2 and time.monotonic() < deadline:  # the idle frames went out under the limit
-        time.sleep(0.005)
+    seen["idle_while_exhausted"] = wait_until(idle_sent, 20, 0.005)
+    base["tx"] = motor.tx_count
+    wait_until(idle_frames_out, 20, 0.005)
     seen["held_mb"] = sum(len(b) for b in held) / 2**20
     held.clear()
     resource.setrlimit(resource.RLIMIT_AS, (hard, hard))
