@@ -80,12 +80,12 @@ def _run_until_disk_full(
     if can_log is not None:
         cmd += ["--can-log", str(can_log)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), start_new_session=True)
+
+    def size() -> int:
+        assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
+        return path.stat().st_size if path.exists() else 0
+
     try:
-
-        def size() -> int:
-            assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
-            return path.stat().st_size if path.exists() else 0
-
         started = wait_until(lambda: (n := size()) >= 100_000 and n, 120, "the run to start recording", 0.05)
         wait_until(lambda: size() > started, 60, "the run to write on (mid-run, past its start)", 0.05)
         _fill(disk, leave)
