@@ -81,13 +81,15 @@ def _run_until_disk_full(
         cmd += ["--can-log", str(can_log)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), start_new_session=True)
 
-    def size() -> int:
+    def stepping() -> bool:  # mid-run: the file set up and a step begun (a file that grows may still be opening)
         assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
-        return path.stat().st_size if path.exists() else 0
+        try:
+            return len(read_session(path).steps) >= 1
+        except OSError:  # not created yet, or still being set up
+            return False
 
     try:
-        started = wait_until(lambda: (n := size()) >= 100_000 and n, 120, "the run to start recording", 0.05)
-        wait_until(lambda: size() > started, 60, "the run to write on (mid-run, past its start)", 0.05)
+        wait_until(stepping, 120, "the run to begin its first step", 0.1)
         _fill(disk, leave)
         full_at = time.monotonic()
         _, err = proc.communicate(timeout=60)
