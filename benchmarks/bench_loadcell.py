@@ -43,7 +43,7 @@ def main() -> None:
     sys.path.insert(0, str(ROOT / "src"))
     import math
 
-    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults
+    from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU, LinkFaults
 
     def force(t: float) -> tuple[float, float]:
         return (1 + math.sin(40 * t), 0.3 * math.cos(40 * t))

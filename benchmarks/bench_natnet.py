@@ -25,7 +25,7 @@ from pathlib import Path
 from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet import wire as nw
-from beambench.emulators.motive import MotiveEmulator
+from beambench.devices.natnet.emulated_motive import MotiveEmulator
 
 CAPTURE = Path(__file__).resolve().parents[1] / ".." / "shared" / "fixtures" / "natnet" / "traffic.pcapng"
 

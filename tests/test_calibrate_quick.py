@@ -59,6 +59,60 @@ def test_a_quick_contact_search_ends_within_its_budget_with_its_verify_stage(mon
     # the verify stage was reserved, not squeezed out, and the search ran before it
     assert stages[-1] == "verify", stages
     assert stages.count("prior line") >= 2, json.dumps(rep["history"])
+    assert "fine" not in stages and "bracket" not in stages, stages  # the verify judges the coarse points itself
+
+
+def test_without_a_fine_stage_the_verify_runs_the_best_distinct_coarse_points(tmp_path):
+    """With refine_top 0 (contact --quick) the verify stage's candidates are the winner and then the best coarse
+    points that are distinct from those already picked (a near-copy of the winner is skipped), not the winner
+    alone."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import pandas as pd
+
+    from beambench.studies.executor import Pool
+    from beambench.studies.twin_calibration.evaluate import EvalLog, Point, SearchSettings
+    from beambench.studies.twin_calibration.rig import parse_targets
+    from beambench.studies.twin_calibration.search import Search, verify_candidates
+
+    targets = parse_targets({"rig": "contact", "continuous_below_hz": 17, "half_at_hz": 32}, "t.yaml")
+    settings = SearchSettings.quick(refine_top=0, verify_top=3)
+    s = Search(TOY, targets, EvalLog(tmp_path / "t.evals.jsonl"), settings)
+    with ThreadPoolExecutor(2) as ex:
+        s.start(Pool(ex, 2, "threads"))
+        js = {0.40: 0.1, 0.4001: 0.15, 0.7: 0.3, 0.1: 0.5, 0.9: 0.9}  # u: J; 0.4001 is a near-copy of the best
+        s.ev.points = [Point({"u": u, "w": 1.0}, j, {}, pd.DataFrame(), {}, "coarse", 0) for u, j in js.items()]
+        got = [p.values["u"] for p in verify_candidates(s, s.ev.points[0])]
+    assert got == [0.40, 0.7, 0.1]
+
+
+def test_the_reserve_prices_the_later_maps_as_their_batches_are_priced(tmp_path):
+    """Search.reserve_s (what the coarse stage leaves to the later stages) prices the fine maps of the best
+    refine_top points and the winner's spread seeds with Evaluator.cost_s, as their batches add to the budget's
+    clock: each map's overhead and the rig's own stage windows (its stage_sim) included."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import pytest
+
+    from beambench.studies.executor import Pool
+    from beambench.studies.twin_calibration.evaluate import EvalLog, SearchSettings, makespan
+    from beambench.studies.twin_calibration.rig import parse_targets
+    from beambench.studies.twin_calibration.search import Search
+
+    def long_fine(stage: str, sim: SimSettings) -> SimSettings:
+        return sim.replace(settle_s=3.0, record_s=4.0) if stage == "fine" else sim
+
+    rig = replace(TOY, stage_sim=long_fine)
+    targets = parse_targets({"rig": "contact", "continuous_below_hz": 17, "half_at_hz": 32}, "t.yaml")
+    settings = SearchSettings.quick(refine_top=3, spread_seeds=3, plan_finish=True)
+    s = Search(rig, targets, EvalLog(tmp_path / "t.evals.jsonl"), settings)
+    with ThreadPoolExecutor(2) as ex:
+        s.start(Pool(ex, 2, "threads"))
+        fine_map = s.ev.cost_s(s.ev.stage_sim("fine"), len(s.fine))
+        assert s.ev.stage_sim("fine").settle_s == 3.0  # the rig's own window, not the search's
+        assert s.reserve_s(fine=False) == pytest.approx(makespan([fine_map] * 2, 2))  # spread: two more seeds
+        fine_batch = makespan([fine_map] * 3, 2)
+        assert s.reserve_s(fine=True) - s.reserve_s(fine=False) == pytest.approx(fine_batch)
 
 
 def test_an_unknown_the_short_search_never_moved_is_reported_not_pinned():

@@ -5,7 +5,7 @@ from pathlib import Path
 import pytest
 
 from beambench.acquisition.protocol.plan import check_limits, plan, session_path, summary
-from beambench.acquisition.protocol.schema import load_protocol, parse_protocol
+from beambench.acquisition.protocol.schema import load_protocol, load_rig_file, parse_protocol
 from beambench.common.yaml_config import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,3 +81,19 @@ def test_session_path_never_overwrites(tmp_path):
     assert session_path(p, "sim", tmp_path, "run") == tmp_path / "run_1.h5"
     auto = session_path(p, "sim", tmp_path)
     assert auto.name.startswith("t_sim_") and auto.suffix == ".h5"
+
+
+@pytest.mark.parametrize(
+    "text, field",
+    [
+        ("natnet: {markers: {Tip: [1, 2]}}\n", "natnet.markers.Tip"),  # a user's name, not a union branch
+        ("natnet: {markers: {tip: [1, 2]}}\n", "natnet.markers.tip"),
+        ("natnet: {markers: {Foot: 1.5}}\n", "natnet.markers.Foot"),
+    ],
+)
+def test_a_capitalised_key_of_the_users_is_named_in_the_error(tmp_path, text, field):
+    path = tmp_path / "rig.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_rig_file(path)
+    assert f"rig.yaml: {field} = " in str(info.value)

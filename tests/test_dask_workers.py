@@ -5,7 +5,6 @@ threads (``Client.scheduler_info()`` lists only the first five workers in some D
 from __future__ import annotations
 
 import pytest
-from distributed import Client, LocalCluster
 
 from beambench.acquisition.protocol.schema import parse_protocol
 from beambench.backends.remote_scene import remote_scenes
@@ -27,11 +26,15 @@ sim: {model: rod5g, params: physical, noise: false, segments: 2}
 
 @pytest.fixture(scope="module")
 def cluster():
+    from distributed import LocalCluster  # here, not at collection: only the worker running these tests loads it
+
     with LocalCluster(n_workers=WORKERS, threads_per_worker=1, processes=False, dashboard_address=None) as local:
         yield local
 
 
 def test_a_sweeps_scenes_go_one_to_each_worker(cluster):
+    from distributed import Client
+
     with Client(cluster) as client:
         scenes = remote_scenes(client, sim_slice(parse_protocol(CONTACT)), WORKERS, build_scene)
         try:

@@ -9,7 +9,8 @@ import pytest
 from beambench.acquisition.batch import Batch, ColumnSpec, StreamSpec
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.protocol.schema import LoadCellWiring
-from beambench.backends.hardware import DEVICE_STREAMS, DeviceRig, build_device_rig, device_stream
+from beambench.backends.hardware import DeviceRig, build_device_rig
+from beambench.devices.streams import DEVICE_STREAMS, device_stream
 
 MARKERS = ("stage", "tip", "foot")
 

@@ -17,8 +17,8 @@ from typer.testing import CliRunner
 from beambench.acquisition.protocol.schema import load_rig_file
 from beambench.cli import app
 from beambench.common.vulkan import VulkanReport
-from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
-from beambench.emulators.motive import MotiveEmulator
+from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU
+from beambench.devices.natnet.emulated_motive import MotiveEmulator
 from beambench.session import doctor
 from beambench.session.doctor import Machine, check_machine, failed, kernel_has_can, vulkan_row
 from beambench.session.viewer import vulkan_available
@@ -102,8 +102,8 @@ def test_a_machine_with_every_part_has_only_ok_rows_and_exits_0(world):
     parts = [r.part for r in rows]
     assert parts == [
         "motor bus (SocketCAN)",
-        "load cells (serial)",
         "mocap (NatNet)",
+        "load cells (serial)",
         "disk for sessions",
         "Vulkan (Rerun viewer)",
         "rerun viewer",

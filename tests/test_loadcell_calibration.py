@@ -18,7 +18,7 @@ from beambench.acquisition.forces.loadcell_calibration import (
 from beambench.commands.calibrate import register
 from beambench.devices.loadcell.calibrate import emulated_plate, parse_loads, walkthrough
 from beambench.devices.loadcell.driver import SerialLoadCells
-from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU
 from conftest import wait_until
 
 RNG = np.random.default_rng(42)

@@ -12,7 +12,7 @@ import pytest
 
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.devices.loadcell.driver import MAX_LOST_FRACTION, SerialLoadCells
-from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU
 from conftest import wait_until
 
 BIG_TX = 1 << 22  # no scheduling stall on a loaded machine overflows it: losses are the thief's only

@@ -11,7 +11,7 @@ from beambench.acquisition.capabilities import DeviceFault, Stream
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
 from beambench.acquisition.streams import LOADCELL, loadcell_spec
 from beambench.devices.loadcell.driver import SerialLoadCells, Unwrap32
-from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock
+from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU, LinkFaults, McuClock
 from conftest import holds_for, raised, wait_until
 
 SENS = np.array([[20000.0, 1000.0], [21000.0, -800.0], [500.0, 19000.0], [-300.0, 20500.0]])
@@ -52,11 +52,12 @@ def acquire(
         mcu.stop()
         bytes_in: list[int] = []
 
-        def drained() -> bool:  # the driver has read everything that was sent: 3 polls with nothing new
-            bytes_in.append(lc.stats()["bytes_in"] if mcu.flushed() else -len(bytes_in) - 1)
+        def drained() -> bool:  # the board handed everything to the pty, the line is empty, the driver has it all
+            empty = mcu.flushed() and mcu.unread() == 0
+            bytes_in.append(lc.stats()["bytes_in"] if empty else -len(bytes_in) - 1)
             return len(bytes_in) >= 3 and len(set(bytes_in[-3:])) == 1
 
-        wait_until(drained, timeout_s=5, what="every byte sent", interval_s=0.05)
+        wait_until(drained, timeout_s=10, what="every byte sent", interval_s=0.05)
         batches.append(lc.read())
     finally:
         lc.stop()

@@ -18,9 +18,9 @@ from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet import wire as nw
 from beambench.devices.natnet.client import NatNetClient, NatNetConfig, NatNetError, ping
+from beambench.devices.natnet.emulated_motive import EmulatorClock, MotiveEmulator
 from beambench.devices.natnet.mocap import MarkerSource, NatNetMocap
 from beambench.devices.receive_time import mono_minus_real_ns
-from beambench.emulators.motive import EmulatorClock, MotiveEmulator
 from conftest import holds_for, pause, wait_until
 
 MARKERS = ("stage", "tip", "foot")

@@ -13,7 +13,7 @@ import pytest
 
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet import wire as nw
-from beambench.emulators.motive import MotiveEmulator
+from beambench.devices.natnet.emulated_motive import MotiveEmulator
 from conftest import wait_until
 
 natnet = pytest.importorskip("natnet", reason="the PyPI 'natnet' package (dev-only cross-check) is not installed")

@@ -24,7 +24,7 @@ def test_every_runnable_scene_has_a_builder_and_every_batched_one_a_sweep_runner
         scenes.get("free_beam")
     with pytest.raises(KeyError, match="'walker' has no batched engine"):
         scenes.batch_engine("walker")
-    with pytest.raises(KeyError, match="unknown scene 'boat'"):
+    with pytest.raises(KeyError, match="scene 'boat' is not declared \\(declared: free_beam, contact"):
         catalogue.scene_info("boat")
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from distributed import LocalCluster
 from typer.testing import CliRunner
 
 from beambench.analysis.session_analysis import analyze_session
@@ -36,6 +35,8 @@ def run(tmp_path, name: str, *extra: str, segments: int = 2):
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory):
     """The same segmented sweep on local threads and with a Dask scheduler (one worker process)."""
+    from distributed import LocalCluster  # here, not at collection: only the worker running these tests loads it
+
     out = tmp_path_factory.mktemp("dask")
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         local = run(out, "local")

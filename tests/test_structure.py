@@ -4,6 +4,7 @@ reaches for another's private names."""
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import beambench
@@ -19,28 +20,39 @@ def _modules(*packages: str) -> list[Path]:
     return sorted(p for root in roots for p in root.rglob("*.py"))
 
 
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """``path`` parsed once for the whole module (every check reads the same files; none changes a tree)."""
+    return ast.parse(path.read_text())
+
+
+@functools.cache
+def _nodes(path: Path) -> tuple[ast.AST, ...]:
+    """Every node of ``path``'s tree, in ``ast.walk`` order, listed once."""
+    return tuple(ast.walk(_tree(path)))
+
+
 def _name(path: Path) -> str:
     rel = path.relative_to(PACKAGE.parent).with_suffix("")
     parts = rel.parts[:-1] if rel.name == "__init__" else rel.parts
     return ".".join(parts)
 
 
-def _imports_protocol_model(tree: ast.Module) -> bool:
+def _imports_protocol_model(path: Path) -> bool:
     return any(
         isinstance(node, ast.ImportFrom)
         and node.module == "beambench.acquisition.protocol.schema"
         and any(a.name == "Protocol" for a in node.names)
-        for node in ast.walk(tree)
+        for node in _nodes(path)
     )
 
 
 def test_no_layer_below_session_takes_the_whole_protocol() -> None:
     found = []
     for path in _modules(*SLICED):
-        tree = ast.parse(path.read_text())
-        if not _imports_protocol_model(tree):
+        if not _imports_protocol_model(path):
             continue
-        for node in ast.walk(tree):
+        for node in _nodes(path):
             if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
                 args = [*node.args.posonlyargs, *node.args.args, *node.args.kwonlyargs]
                 found += [
@@ -62,7 +74,7 @@ def test_no_module_imports_another_modules_private_names() -> None:
     found = []
     for path in _modules():
         home = _name(path).rsplit(".", 1)[0] if path.name != "__init__.py" else _name(path)
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in _nodes(path):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("beambench"):
                 module = node.module or ""
                 shared = module in SHARES_PRIVATE_NAMES and module.rsplit(".", 1)[0] == home
@@ -77,7 +89,7 @@ PROBE_FREE = ("backends", "session")  # capabilities are checked with isinstance
 def test_capabilities_are_checked_by_protocol_not_by_probing_attribute_names() -> None:
     found = []
     for path in [*_modules(*PROBE_FREE), PACKAGE / "analysis" / "session_analysis.py"]:
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in _nodes(path):
             if (
                 isinstance(node, ast.Call)
                 and isinstance(node.func, ast.Name)
@@ -91,10 +103,9 @@ def test_capabilities_are_checked_by_protocol_not_by_probing_attribute_names() -
 
 
 def test_the_device_rig_reads_the_mocaps_echoes_through_its_protocol_not_its_client() -> None:
-    tree = ast.parse((PACKAGE / "backends" / "hardware.py").read_text())
     reached = [
         ast.unparse(n)
-        for n in ast.walk(tree)
+        for n in _nodes(PACKAGE / "backends" / "hardware.py")
         if (isinstance(n, ast.Attribute) and n.attr == "client")
         or (isinstance(n, ast.Constant) and n.value == "client")
     ]
@@ -144,7 +155,7 @@ def test_modules_and_functions_stay_small() -> None:
         text = path.read_text()
         if text.count("\n") > MAX_MODULE_LINES:
             long_modules.append(f"{_name(path)}: {text.count(chr(10))} lines")
-        for node in ast.walk(ast.parse(text)):
+        for node in _nodes(path):
             if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
                 n = (node.end_lineno or node.lineno) - node.lineno + 1
                 if n > MAX_FUNCTION_LINES:
@@ -158,10 +169,9 @@ def test_the_calibration_result_is_built_by_keyword_and_its_budget_shares_are_na
     from beambench.studies.twin_calibration.search import Result
 
     assert all(f.kw_only for f in dataclasses.fields(Result))
-    tree = ast.parse((PACKAGE / "studies" / "twin_calibration" / "search.py").read_text())
     shares = [
         ast.unparse(n)
-        for n in ast.walk(tree)
+        for n in _nodes(PACKAGE / "studies" / "twin_calibration" / "search.py")
         if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr == "over"
     ]
     assert shares and all(not isinstance(ast.parse(c).body[0].value.args[0], ast.Constant) for c in shares), shares  # type: ignore[attr-defined]
@@ -175,7 +185,7 @@ PROBED = {"signal", "yaml", "socket", "exc", "self._bus"}
 def test_no_silent_default_read_of_our_own_objects() -> None:
     found = []
     for path in _modules():
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in _nodes(path):
             if (
                 isinstance(node, ast.Call)
                 and isinstance(node.func, ast.Name)
@@ -230,7 +240,7 @@ def test_no_module_re_exports_a_name_it_imports() -> None:
     """``__all__`` and ``import x as x`` offer only the module's own names (a package's: its submodules')."""
     found = []
     for module, path in _module_files().items():
-        tree = ast.parse(path.read_text())
+        tree = _tree(path)
         defined, imported = _top_level(tree)
         offered: list[str] = []
         for node in tree.body:
@@ -248,11 +258,11 @@ def test_no_module_re_exports_a_name_it_imports() -> None:
     assert found == []
 
 
-def _uses(tree: ast.Module, files: dict[str, Path]) -> list[tuple[int, str, str]]:
+def _uses(nodes: tuple[ast.AST, ...], files: dict[str, Path]) -> list[tuple[int, str, str]]:
     """(line, module, name) for every ``from beambench.M import N`` and every ``alias.N`` of a module imported as
     ``alias`` (``from beambench.P import M as alias``, ``import beambench.M as alias``)."""
     uses, aliases = [], {}
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.ImportFrom) and node.module in files:
             for a in node.names:
                 if f"{node.module}.{a.name}" in files:
@@ -261,7 +271,7 @@ def _uses(tree: ast.Module, files: dict[str, Path]) -> list[tuple[int, str, str]
                     uses.append((node.lineno, node.module, a.name))
         elif isinstance(node, ast.Import):
             aliases.update({a.asname: a.name for a in node.names if a.asname and a.name in files})
-    for node in ast.walk(tree):
+    for node in nodes:
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases:
             uses.append((node.lineno, aliases[node.value.id], node.attr))
     return uses
@@ -271,11 +281,11 @@ def test_every_import_names_the_module_a_name_lives_in() -> None:
     """``from beambench.M import N`` and ``M.N`` (in the package, its tests, benchmarks and docs): N is defined in
     M, is a submodule of M, or M is a package offering one of its own submodules' names; never a name M imported."""
     files = _module_files()
-    tops = {m: _top_level(ast.parse(p.read_text())) for m, p in files.items()}
+    tops = {m: _top_level(_tree(p)) for m, p in files.items()}
     found = []
     for folder in IMPORTERS:
         for path in sorted((REPO / folder).rglob("*.py")):
-            for line, module, name in _uses(ast.parse(path.read_text()), files):
+            for line, module, name in _uses(_nodes(path), files):
                 defined, imported = tops[module]
                 if name in defined or f"{module}.{name}" in files or name not in imported:
                     continue
@@ -319,7 +329,7 @@ def test_no_module_outside_the_catalogues_compares_with_a_rig_or_backend_name() 
     for path in _modules():
         if path in CATALOGUES:
             continue
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in _nodes(path):
             if isinstance(node, ast.Compare | ast.MatchValue):
                 found += [f"{_name(path)}:{node.lineno} {n!r}" for n in _named_in(node, names)]
     assert found == []
@@ -355,7 +365,46 @@ def test_no_module_outside_the_family_registry_compares_with_a_model_name():
     for path in _modules():
         if path in FAMILY_REGISTRY:
             continue
-        for node in ast.walk(ast.parse(path.read_text())):
+        for node in _nodes(path):
             if isinstance(node, ast.Compare):
                 found += [f"{_name(path)}:{node.lineno} {s!r}" for s in _compared_strings(node) if is_model_name(s)]
+    assert found == []
+
+
+# optional engines only a few tests run: every xdist worker collects the whole suite, so a test module imports
+# them inside its tests or fixtures, never at its top (Dask and PyElastica with numba: about 1 CPU-s a worker)
+NOT_AT_COLLECTION = {"dask", "distributed", "elastica", "numba"}
+
+
+def _collection_time_imports(body: list[ast.stmt]) -> list[tuple[int, str]]:
+    """(line, package) of each import a module's top level runs (inside its ``if``/``try``/``with`` blocks too),
+    ``pytest.importorskip("x")`` included."""
+    found = []
+    for node in body:
+        if isinstance(node, ast.Import):
+            found += [(node.lineno, a.name.split(".")[0]) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0:
+            found.append((node.lineno, (node.module or "").split(".")[0]))
+        elif isinstance(node, ast.If | ast.Try | ast.With):
+            blocks = [node.body, getattr(node, "orelse", []), getattr(node, "finalbody", [])]
+            blocks += [h.body for h in getattr(node, "handlers", [])]
+            found += [hit for block in blocks for hit in _collection_time_imports(block)]
+        for call in ast.walk(node) if isinstance(node, ast.Expr | ast.Assign) else []:
+            if (
+                isinstance(call, ast.Call)
+                and ast.unparse(call.func) == "pytest.importorskip"
+                and call.args
+                and isinstance(call.args[0], ast.Constant)
+            ):
+                found.append((node.lineno, str(call.args[0].value).split(".")[0]))
+    return found
+
+
+def test_no_test_module_imports_an_optional_engine_at_collection() -> None:
+    found = [
+        f"{path.relative_to(REPO)}:{line}: {package}"
+        for path in sorted((REPO / "tests").glob("*.py"))
+        for line, package in _collection_time_imports(_tree(path).body)
+        if package in NOT_AT_COLLECTION
+    ]
     assert found == []

@@ -1,6 +1,7 @@
 """The one model of a device clock against true (host) time, used by the simulated devices, the emulators
 (Motive's QPC counter, the load-cell MCU's microsecond clock) and, through ``from_model``, the protocol's
-``sim.clocks`` settings (:class:`beambench.acquisition.protocol.schema.ClockModel`).
+``sim.clocks`` settings (:class:`beambench.acquisition.protocol.schema.ClockModel`), and those settings by stream
+name (:class:`DeviceClocks`).
 
 A device clock runs ``drift_ppm`` fast and started ``offset_s`` ahead: ``device = offset_s + (1 + drift)·true``
 with ``drift = drift_ppm·1e-6``. A device that samples every ``1/rate`` of *its* seconds therefore delivers
@@ -9,15 +10,15 @@ with ``drift = drift_ppm·1e-6``. A device that samples every ``1/rate`` of *its
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, overload
+from typing import overload
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from beambench.acquisition.protocol.schema import ClockModel
+from beambench.acquisition.protocol.schema import ClockModel
 
-__all__ = ["DriftingClock"]
+__all__ = ["DeviceClocks", "DriftingClock"]
 
 
 @dataclass(frozen=True)
@@ -58,3 +59,19 @@ class DriftingClock:
     def from_model(cls, model: ClockModel) -> DriftingClock:
         """From the protocol's clock model (``sim.clocks.<stream>``)."""
         return cls(model.offset_s, model.drift_ppm)
+
+
+@dataclass(frozen=True)
+class DeviceClocks:
+    """The simulated devices' clocks (offset, drift, jitter, latency) by stream name; a stream not named has the
+    default clock."""
+
+    named: tuple[tuple[str, ClockModel], ...] = ()
+
+    @classmethod
+    def of_mapping(cls, clocks: Mapping[str, ClockModel]) -> DeviceClocks:
+        return cls(tuple(sorted(clocks.items())))
+
+    def of(self, stream: str) -> ClockModel:
+        """The clock of the stream named ``stream``."""
+        return dict(self.named).get(stream, ClockModel())

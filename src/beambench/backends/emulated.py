@@ -29,8 +29,9 @@ from beambench.acquisition.capabilities import DeviceFault
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.protocol.scenes import scene_info
 from beambench.acquisition.protocol.schema import RigFile
-from beambench.backends.hardware import DEVICE_STREAMS, DeviceRig, build_streams, make_motor, rig_file_model
-from beambench.emulators.peer import EmulatedPeer, GoesSilent, PeerContext, StillPhysics, Wiring
+from beambench.backends.hardware import DeviceRig, build_streams, make_motor, rig_file_model
+from beambench.devices.peer import EmulatedPeer, GoesSilent, PeerContext, StillPhysics, Wiring
+from beambench.devices.streams import DEVICE_STREAMS
 from beambench.sim.protocol_slice import SimSlice
 
 PHYSICS_THREAD = "emulated-physics"

@@ -1,21 +1,20 @@
 """The rig of real drivers: :class:`DeviceRig` (a motor and its streams on the wall clock, opened, checked and
-closed together) and :func:`build_device_rig`, which wires the lab's devices from the rig file
-(``calibration/rig.yaml``). The emulated backend (:mod:`beambench.backends.emulated`) builds the same
-:class:`DeviceRig` with its drivers pointed at wire-level peers on this machine.
+closed together) and :func:`build_device_rig`, which wires the motor and every stream of the device catalogue
+(:mod:`beambench.devices.streams`) from the rig file (``calibration/rig.yaml``). The emulated backend
+(:mod:`beambench.backends.emulated`) builds the same :class:`DeviceRig` with its drivers pointed at wire-level peers
+on this machine.
 """
 
 from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pydantic import Field, create_model
 
-from beambench.acquisition.batch import Frame
 from beambench.acquisition.capabilities import (
     Connectable,
     HasSilenceTimeout,
@@ -25,13 +24,9 @@ from beambench.acquisition.capabilities import (
     ReportsHealth,
     Stream,
 )
-from beambench.acquisition.protocol.schema import OdriveWiring, RigFile, RigSection, load_rig_file
-from beambench.common.registry import Registry
+from beambench.acquisition.protocol.schema import OdriveWiring, RigFile, load_rig_file
 from beambench.common.resources import shipped_dir
-from beambench.common.yaml_config import ConfigError
-
-if TYPE_CHECKING:
-    from beambench.emulators.peer import EmulatedPeer, PeerContext
+from beambench.devices.streams import DEVICE_STREAMS, DeviceContext
 
 DEFAULT_RIG_FILE = shipped_dir("calibration") / "rig.yaml"
 
@@ -196,72 +191,6 @@ def make_motor(od: OdriveWiring, can_log: Path | None, **can_kw: Any) -> Motor:
     )
 
 
-@dataclass(frozen=True)
-class DeviceContext:
-    """What a stream's driver is built from: the whole rig file, the stream's own section of it, and the markers
-    the mocap is wired to (the scene's)."""
-
-    rig: RigFile
-    section: Any
-    markers: tuple[str, ...]
-
-
-StreamFactory = Callable[[DeviceContext], Stream]
-PeerFactory = Callable[["PeerContext"], "EmulatedPeer"]
-Ping = Callable[[Any], dict[str, Any]]
-"""Asks the device wired by its rig-file section who it is (``found``: whether it answered, and what it said)."""
-
-
-@dataclass(frozen=True)
-class DeviceStream:
-    """One registered stream of the device rigs: how its driver is built, where it is wired, and the emulated peer
-    that speaks its wire protocol on this machine."""
-
-    name: str
-    build: StreamFactory
-    section: str
-    """The rig file's section that wires it."""
-    wiring: type[RigSection] | None
-    """That section's model, when the stream brings its own (None: a section :class:`RigFile` has)."""
-    peer: PeerFactory | None
-    injections: tuple[str, ...]
-    """The fault-injection keys its peer takes (``build_emulated_rig(inject=...)``)."""
-    ping: Ping | None
-    label: str
-    """What ``beambench devices`` calls it."""
-
-
-DEVICE_STREAMS: Registry[DeviceStream] = Registry("device stream")
-"""The streams of the hardware and emulated rigs, by name (the rig's identity key and ``rig.<name>``)."""
-
-
-def device_stream(
-    name: str,
-    *,
-    section: str | None = None,
-    wiring: type[RigSection] | None = None,
-    peer: PeerFactory | None = None,
-    injections: tuple[str, ...] = (),
-    ping: Ping | None = None,
-    label: str | None = None,
-) -> Callable[[StreamFactory], StreamFactory]:
-    """Register a stream of the device rigs: its driver's factory (decorated), the rig-file ``section`` that wires
-    it (default: ``name``) with its ``wiring`` model if :class:`RigFile` has no such section, its emulated
-    ``peer`` (the emulated rig starts it and builds the driver against it through the same factory) with the
-    fault ``injections`` it takes, and how ``beambench devices`` pings it (shown as ``label``, default ``name``)."""
-
-    def add(make: StreamFactory) -> StreamFactory:
-        DEVICE_STREAMS.check_free(name)
-        where = section or name
-        if (wiring is None) != (where in RigFile.model_fields):
-            why = "has no section" if wiring is None else "already has a section"
-            raise ValueError(f"device stream {name!r}: the rig file {why} {where!r} (wiring= is for a new section)")
-        DEVICE_STREAMS.add(name, DeviceStream(name, make, where, wiring, peer, tuple(injections), ping, label or name))
-        return make
-
-    return add
-
-
 def rig_file_model() -> type[RigFile]:
     """The rig file's model: :class:`RigFile` plus the sections the registered streams bring."""
     extra: dict[str, Any] = {
@@ -278,67 +207,6 @@ def load_wiring(path: Path) -> RigFile:
 def build_streams(rig: RigFile, markers: tuple[str, ...]) -> dict[str, Stream]:
     """Every registered stream's driver, wired by ``rig``, in registration order."""
     return {name: s.build(DeviceContext(rig, getattr(rig, s.section), markers)) for name, s in DEVICE_STREAMS.items()}
-
-
-def _motive(ctx: PeerContext) -> EmulatedPeer:
-    from beambench.emulators.motive import MotivePeer
-
-    return MotivePeer(ctx)
-
-
-def _ping_natnet(section: Any) -> dict[str, Any]:
-    from beambench.devices.natnet import client as natnet
-
-    config = natnet.NatNetConfig.from_mapping(section.model_dump(exclude={"markers"}))
-    return {"found": True, **natnet.ping(config)}
-
-
-@device_stream(
-    "mocap",
-    section="natnet",
-    peer=_motive,
-    injections=("mocap_drop", "mocap_occlude"),
-    ping=_ping_natnet,
-    label="mocap (NatNet)",
-)
-def _make_mocap(ctx: DeviceContext) -> Stream:
-    from beambench.devices.natnet.mocap import NatNetMocap
-
-    frame = Frame(**ctx.rig.geometry.model_dump())
-    section = ctx.section.model_dump()
-    silence = section.pop("silence_timeout_s", None)
-    missing = [m for m in ctx.markers if m not in section["markers"]]
-    if missing:
-        raise ConfigError("<rig file>", "natnet.markers", sorted(section["markers"]), f"no source for {missing}")
-    return NatNetMocap.from_rig(section, markers=ctx.markers, frame=frame, silence_timeout_s=silence)
-
-
-def _loadcell_mcu(ctx: PeerContext) -> EmulatedPeer:
-    from beambench.emulators.loadcell_mcu import LoadCellPeer
-
-    return LoadCellPeer(ctx)
-
-
-def _ping_loadcells(section: Any) -> dict[str, Any]:
-    from beambench.devices.loadcell.driver import ping
-
-    lc = ping(section.port, section.baudrate)
-    return {"found": lc.ok, **{k: v for k, v in vars(lc).items() if k not in ("ok", "stats")}}
-
-
-@device_stream(
-    "loadcells",
-    section="loadcell",
-    peer=_loadcell_mcu,
-    injections=("loadcell_crc", "loadcell_drop", "loadcell_garbage", "loadcell_stop_s"),
-    ping=_ping_loadcells,
-    label="load cells (serial)",
-)
-def _make_loadcells(ctx: DeviceContext) -> Stream:
-    from beambench.devices.loadcell.driver import SerialLoadCells
-
-    lc = ctx.section
-    return SerialLoadCells(lc.port, lc.baudrate, silence_timeout_s=lc.silence_timeout_s)
 
 
 def build_device_rig(markers: tuple[str, ...], rig_file: Path | None = None, can_log: Path | None = None) -> DeviceRig:

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from rich.console import Console
 
     from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration
-    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+    from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU
 
 __all__ = ["loadcells", "register"]
 
@@ -182,7 +182,7 @@ def _asker(console: Console, unattended: bool) -> Callable[[str], str]:
 
 def _emulated_mcu(console: Console) -> EmulatedLoadCellMCU:
     """An emulated MCU on a pty, with a plate unlike the shipped calibration (``--emulate``)."""
-    from beambench.emulators.loadcell_mcu import EmulatedLoadCellMCU
+    from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU
 
     mcu = EmulatedLoadCellMCU(calibration=emulated_plate(), noise_counts=40.0, seed=1)
     port = mcu.open()

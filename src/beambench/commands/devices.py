@@ -61,8 +61,8 @@ def register(app: typer.Typer) -> None:
 def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
     """Ping the motor and every registered device stream that can be pinged, each as its rig file
     (:func:`beambench.backends.hardware.load_wiring`) wires it; never raises for a device that is absent."""
-    from beambench.backends.hardware import DEVICE_STREAMS
     from beambench.devices.odrive import can_ping as odrive_can
+    from beambench.devices.streams import DEVICE_STREAMS
 
     out: dict[str, dict[str, Any]] = {}
     od = rig.odrive

@@ -29,7 +29,8 @@ def register(app: typer.Typer) -> None:
         root: Path = typer.Option(Path("/"), "--root", hidden=True, help="Read /sys and /dev below this folder."),
     ) -> None:
         """Check this machine for each part: the motor's SocketCAN interface and bitrate, the load cells' serial
-        port and the permission to open it, the NatNet server, free disk where sessions go, the Vulkan driver
+        port and the permission to open it, the NatNet server, any other registered device stream's device (its
+        ping), free disk where sessions go, the Vulkan driver
         and the rerun program of the real viewer, the clock source. Each row says what to do. Exit status 1
         when a required part is missing (the rig file's devices, unless --sim, and the disk)."""
         from rich.console import Console

@@ -221,21 +221,37 @@ def _is_tag(part: Any) -> bool:
     return isinstance(part, str) and (text.startswith("function-") or "[" in text or text[:1].isupper())
 
 
-def field_path(loc: tuple[Any, ...]) -> str:
-    """``sweep.frequencies.0`` from a pydantic error location (validator and union-branch entries dropped)."""
-    return ".".join(str(p) for p in loc if not _is_tag(p)) or "(top level)"
+def _walk(data: Any, loc: tuple[Any, ...]) -> tuple[list[Any], Any]:
+    """The data's own path along ``loc`` and the value there (:data:`MISSING` past a missing key). An entry that
+    is a key (or index) of the data is part of the path, even one that looks like a tag (a user's ``Tip``
+    marker); one that is not is a missing field where the data is a mapping and it does not look like a tag,
+    otherwise a tag (``str`` under a list value, ``Range`` under a mapping)."""
+    path: list[Any] = []
+    for key in loc:
+        if data is not MISSING:
+            try:
+                data = data[key]
+                path.append(key)
+                continue
+            except (KeyError, IndexError, TypeError):
+                if _is_tag(key) or not isinstance(data, dict):
+                    continue
+        elif _is_tag(key):
+            continue
+        data = MISSING
+        path.append(key)
+    return path, data
+
+
+def field_path(loc: tuple[Any, ...], data: Any = MISSING) -> str:
+    """``sweep.frequencies.0`` from a pydantic error location in ``data`` (validator and union-branch entries
+    dropped)."""
+    return ".".join(str(p) for p in _walk(data, loc)[0]) or "(top level)"
 
 
 def lookup(data: Any, loc: tuple[Any, ...]) -> Any:
     """The value at ``loc`` in ``data``, or :data:`MISSING`."""
-    for key in loc:
-        if _is_tag(key):
-            continue
-        try:
-            data = data[key]
-        except (KeyError, IndexError, TypeError):
-            return MISSING
-    return data
+    return _walk(data, loc)[1]
 
 
 def _reason(err: dict[str, Any]) -> str:
@@ -269,7 +285,7 @@ def validate(
         # in a union, a branch's "wrong type" hides the real problem of the branch the value was meant for
         err = next((e for e in errors if not str(e["type"]).endswith("_type")), errors[0])
         loc = tuple(err["loc"])
-        raise error(file, field_path(loc), lookup(data, loc), _reason(dict(err))) from None
+        raise error(file, field_path(loc, data), lookup(data, loc), _reason(dict(err))) from None
     except RecursionError:
         raise error(file, "(file)", MISSING, f"nested deeper than {MAX_DEPTH} levels") from None
 

@@ -2,7 +2,8 @@
 with what to do (:func:`check_machine`).
 
 Required (the command exits 1 when one is missing): the parts the rig file names (the SocketCAN interface at
-its bitrate, the load-cell serial port and the permission to open it, the NatNet server answering) and free disk
+its bitrate; each registered device stream: the load-cell serial port and the permission to open it, the NatNet
+server answering, any other stream's device answering its own ping) and free disk
 where sessions go; with ``sim_only`` only the disk. Advisory: the Vulkan driver of the real Rerun viewer, the
 ``rerun`` binary, the clock source. The system is read below ``root`` (``/sys``, ``/dev``) and programs are found
 on ``path``, so a test can point both at a tree of its own.
@@ -17,6 +18,7 @@ import re
 import shutil
 import socket
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -24,6 +26,8 @@ from typing import Literal
 from beambench.acquisition.protocol.schema import RigFile
 from beambench.common.oserrors import CAN_KERNEL_FIX, DIALOUT_FIX, can_link_up_fix
 from beambench.common.vulkan import vulkan_devices
+from beambench.devices.streams import DEVICE_STREAMS
+from beambench.devices.streams.registry import DeviceStream
 
 State = Literal["ok", "missing", "advice"]
 CAN_ARPHRD = "280"  # ARPHRD_CAN: /sys/class/net/<if>/type of a CAN interface
@@ -59,11 +63,11 @@ class Machine:
 
 
 def check_machine(m: Machine) -> list[Row]:
-    """Every row, in a fixed order: rig devices, disk, viewer, clock."""
+    """Every row, in a fixed order: the motor's bus, each registered device stream (in the rig's order), disk,
+    viewer, clock."""
     return [
         can_row(m),
-        serial_row(m),
-        natnet_row(m),
+        *(stream_row(m, s) for s in DEVICE_STREAMS.values()),
         disk_row(m),
         vulkan_row(),
         rerun_row(m),
@@ -147,6 +151,30 @@ def can_row(m: Machine) -> Row:
     return Row(part, "ok", found, "", need)
 
 
+def stream_row(m: Machine, stream: DeviceStream) -> Row:
+    """A registered device stream's row: the doctor's own check for the sections it knows more about (the
+    load-cell port, the NatNet server), else the stream's own ping of the device its rig-file section wires."""
+    special = SECTION_ROWS.get(stream.section)
+    if special is not None:
+        return special(m)
+    need = not m.sim_only
+    section = getattr(m.rig, stream.section, None)
+    if stream.ping is None or section is None:
+        why = "no section in this rig file" if section is None else "its driver cannot ask it who it is"
+        return Row(stream.label, "advice", f"not checked: {why}", f"see the rig file's {stream.section}: section")
+    try:
+        answer = stream.ping(section)
+    except Exception as exc:  # any failure to reach the device is the row's answer, never the doctor's crash
+        answer = {"found": False, "error": str(exc)}
+    said = ", ".join(f"{k} {v}" for k, v in answer.items() if k not in ("found", "error"))
+    if answer.get("found"):
+        return Row(stream.label, "ok", said or "answers", "", need)
+    found = f"no answer: {answer.get('error') or said or 'nothing received'}"
+    return Row(
+        stream.label, "missing", found, f"switch it on or correct the rig file's {stream.section}: section", need
+    )
+
+
 def serial_ports(m: Machine) -> list[Path]:
     """The USB serial ports (``/dev/ttyACM*``, ``/dev/ttyUSB*``)."""
     dev = m.root / "dev"
@@ -190,6 +218,10 @@ def natnet_row(m: Machine) -> Row:
         return Row("mocap (NatNet)", "missing", f"no answer from {where}: {exc}", fix, need)
     app = " ".join(str(info[k]) for k in ("app_name", "app_version") if info.get(k)) or "a NatNet server"
     return Row("mocap (NatNet)", "ok", f"{app} answers at {where} (NatNet {info.get('natnet_version')})", "", need)
+
+
+SECTION_ROWS: dict[str, Callable[[Machine], Row]] = {"loadcell": serial_row, "natnet": natnet_row}
+"""The rig-file sections the doctor checks more closely than a ping (the port's permission, Motive's settings)."""
 
 
 def disk_row(m: Machine) -> Row:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel
 
+from beambench.acquisition.clocks import DeviceClocks
 from beambench.acquisition.protocol.backends import backend_info
 from beambench.acquisition.protocol.scenes import SceneInfo, foreign_option, runnable_names, scene_info
 from beambench.acquisition.protocol.schema import Backend, Protocol, SimOptions
@@ -18,7 +19,7 @@ from beambench.backends.sim_streams import SIM_STREAMS
 from beambench.common.yaml_config import MISSING, ConfigError, shorten
 from beambench.sim.models.params import has_params
 from beambench.sim.models.registry import model_family
-from beambench.sim.protocol_slice import AUTO_TOLERANCE_MM, DeviceClocks, SimSlice
+from beambench.sim.protocol_slice import AUTO_TOLERANCE_MM, SimSlice
 from beambench.sim.selection import Plan, SelectionError, plan_sweep, table_models
 from beambench.sim.settings import SimSettings
 

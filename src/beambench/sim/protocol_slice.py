@@ -10,32 +10,16 @@ different models.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from beambench.acquisition.protocol.schema import ClockModel, Release, ThermalDrift
+from beambench.acquisition.clocks import DeviceClocks
+from beambench.acquisition.protocol.schema import Release, ThermalDrift
 from beambench.sim.selection import Plan
 from beambench.sim.settings import SimSettings
 
-__all__ = ["AUTO_TOLERANCE_MM", "DeviceClocks", "SimSlice"]
+__all__ = ["AUTO_TOLERANCE_MM", "SimSlice"]
 
 AUTO_TOLERANCE_MM = 0.1  # sim.model: auto without sim.tolerance_mm (about the mocap's noise)
-
-
-@dataclass(frozen=True)
-class DeviceClocks:
-    """The simulated devices' clocks (offset, drift, jitter, latency) by stream name; a stream not named has the
-    default clock."""
-
-    named: tuple[tuple[str, ClockModel], ...] = ()
-
-    @classmethod
-    def of_mapping(cls, clocks: Mapping[str, ClockModel]) -> DeviceClocks:
-        return cls(tuple(sorted(clocks.items())))
-
-    def of(self, stream: str) -> ClockModel:
-        """The clock of the stream named ``stream``."""
-        return dict(self.named).get(stream, ClockModel())
 
 
 @dataclass(frozen=True)

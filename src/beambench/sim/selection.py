@@ -23,16 +23,18 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from beambench.acquisition.protocol.scenes import SCENES, scene_or_unknown
 from beambench.common.errors import BeambenchError
 from beambench.common.inputs import check_input_file
 from beambench.common.types import Floats
 from beambench.sim.models.params import SIM_BACKEND_DIR
+
+if TYPE_CHECKING:  # pandas loads only where a table is read: a dry run on a measured cost table needs none
+    import pandas as pd
 
 # "inaccurate" (free beam) only means > 1 % from converged, and "irregular" (contact) a regime no timestep
 # converges pointwise (its error column is then the excess over the finest runs): the error column decides
@@ -114,6 +116,8 @@ def load_table(scene: str, path: str | Path | None = None) -> pd.DataFrame:
         )
     for p in paths:  # kind and size before pandas reads it
         check_input_file(p, "timing table", TABLE_MAX_BYTES, SelectionError)
+    import pandas as pd
+
     frames = [_normalize(pd.read_csv(p), str(p)) for p in paths]
     return pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
 

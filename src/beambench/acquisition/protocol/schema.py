@@ -450,7 +450,7 @@ def load_protocol(path: str | Path) -> tuple[Protocol, str]:
 # --- rig wiring -----------------------------------------------------------------------------------------
 class RigSection(_Model):
     """A section of the rig file (strict, every field known); a device stream that brings its own section
-    subclasses it (``@device_stream(name, wiring=...)``, :mod:`beambench.backends.hardware`)."""
+    subclasses it (``@device_stream(name, wiring=...)``, :mod:`beambench.devices.streams.registry`)."""
 
 
 class NatNetWiring(RigSection):

@@ -101,6 +101,8 @@ RunAt = Callable[[int], SimSettings | WrittenRun]  # the winner's run at its own
 COARSE_SHARE = 0.55
 FINE_SHARE = 0.85
 BRACKET_SHARE = 0.9
+# two points this far apart (in the unknowns' ranges) are distinct candidates for the fine and verify stages
+DISTINCT = 0.02
 
 
 def coarse_frequencies(targets: Targets, step_hz: float, lo: float) -> list[float]:
@@ -229,9 +231,8 @@ class Search:
         ``refine_top`` points too): the verify stage's written-protocol runs (two noise seeds per candidate, and
         the spread seeds beyond them) or, without a verify stage, the winner's spread seeds on every target
         frequency; from the cost per simulated second of the maps so far (0 before the first)."""
-        rate, w, st = self.ev.sim_rate(), max(1, self.pool.workers), self.settings
-        settle, record = st.window("fine")
-        fine_s = len(self.fine) * (settle + record) * rate
+        w, st = max(1, self.pool.workers), self.settings
+        fine_s = self.ev.cost_s(self.ev.stage_sim("fine"), len(self.fine))  # as the fine batch will be priced
         out = math.ceil(st.refine_top / w) * fine_s if fine and st.refine_top > 0 else 0.0
         if self.rig.verify is not None and st.verify_top > 0:
             run_s = self.ev.cost_s(WrittenRun(""), 0)
@@ -477,7 +478,7 @@ def _refine(s: Search) -> Point:
         return ranked[0]  # no fine stage: the verify stage (or the winner's spread) runs the best coarse point
     picks: list[dict[str, float]] = []
     for p in ranked:
-        if all(_distance(p.values, q, s.free) > 0.02 for q in picks):
+        if all(_distance(p.values, q, s.free) > DISTINCT for q in picks):
             picks.append(p.values)
         if len(picks) >= settings.refine_top:
             break
@@ -503,13 +504,7 @@ def _verify(s: Search, winner: Point, out_dir: Path, name: str) -> tuple[Point, 
     rig, base = s.rig, s.base
     assert rig.verify is not None
     vfreqs, vsim = rig.verify(base)
-    refined = sorted((p for p in s.ev.points if p.stage == "fine"), key=lambda p: p.j) or [winner]
-    cands: list[Point] = []
-    for p in [winner, *refined]:
-        if all(_distance(p.values, q.values, s.free) > 1e-6 for q in cands):
-            cands.append(p)
-        if len(cands) >= verify_count(s):
-            break
+    cands = verify_candidates(s, winner)
     seed = int(vsim.seed)
     values = [c.values for c in cands]
     if rig.run_written is not None:  # the candidates' protocols, written and run as the user will run them
@@ -539,6 +534,23 @@ def _verify(s: Search, winner: Point, out_dir: Path, name: str) -> tuple[Point, 
         path = paths[ib]
         return best, vfreqs, lambda k: WrittenRun(path, seed + k)
     return best, vfreqs, lambda k: vsim.replace(seed=seed + k)
+
+
+def verify_candidates(s: Search, winner: Point) -> list[Point]:
+    """The points the verify stage runs (up to :func:`verify_count`): the winner, then the refined points by
+    objective; without a fine stage (``refine_top`` 0) the best coarse points, each at least ``DISTINCT`` apart
+    (in the unknowns' ranges) from those already picked, as the fine stage picks its points."""
+    fine = sorted((p for p in s.ev.points if p.stage == "fine"), key=lambda p: p.j)
+    ranked = fine or sorted((p for p in s.ev.points if p.stage == "coarse"), key=lambda p: p.j)
+    apart = 1e-6 if fine else DISTINCT
+    n = verify_count(s)
+    cands: list[Point] = []
+    for p in [winner, *ranked]:
+        if all(_distance(p.values, q.values, s.free) > apart for q in cands):
+            cands.append(p)
+        if len(cands) >= n:
+            break
+    return cands
 
 
 def verify_count(s: Search) -> int:

@@ -34,7 +34,7 @@ from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import modeldef as nm
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet import wire as nw
-from beambench.emulators.peer import PeerContext, Wiring
+from beambench.devices.peer import PeerContext, Wiring
 
 __all__ = ["APP_VERSIONS", "EmulatorClock", "MotiveEmulator", "MotivePeer"]
 

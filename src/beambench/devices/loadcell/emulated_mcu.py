@@ -24,9 +24,12 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import math
 import os
 import random
+import struct
+import termios
 import threading
 import time
 import tty
@@ -40,7 +43,7 @@ from beambench.acquisition.clocks import DriftingClock
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.streams import LOADCELL
 from beambench.devices.loadcell.protocol import FRAME_LEN, encode_frame
-from beambench.emulators.peer import PeerContext, Wiring
+from beambench.devices.peer import PeerContext, Wiring
 
 ForceSource = Callable[[float], tuple[float, float]]
 _I32 = (-(2**31), 2**31 - 1)
@@ -260,6 +263,12 @@ class EmulatedLoadCellMCU:
     def flushed(self) -> bool:
         """True when everything generated has been handed to the pty."""
         return not self._tx
+
+    def unread(self) -> int:
+        """Bytes on the line that no reader has taken yet (the pty's input queue, as ``FIONREAD`` counts it)."""
+        if self._slave is None:
+            return 0
+        return int(struct.unpack("i", fcntl.ioctl(self._slave, termios.FIONREAD, b"\0" * 4))[0])
 
     def _run(self) -> None:
         self.started_ns = time.monotonic_ns()

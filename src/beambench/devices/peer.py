@@ -1,7 +1,7 @@
-"""What an emulated peer is to the emulated rig: a device on this machine that speaks a stream's wire protocol
+"""What a device's emulated peer is: the other end of the device's wire protocol, on this machine
 (:class:`EmulatedPeer`), made from a :class:`PeerContext` (the physics it measures, its clock model, seed, noise and
-the faults to inject). A device stream registers its peer beside its driver (``@device_stream(name, peer=...)`` in
-:mod:`beambench.backends.hardware`); the emulated backend starts every registered one."""
+the faults to inject). A device stream registers its peer beside its driver (``@device_stream(name, peer=...)``,
+:mod:`beambench.devices.streams.registry`); the emulated backend starts every registered one in the peers' process."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from beambench.acquisition.clocks import DeviceClocks
 from beambench.acquisition.forces.loadcell_calibration import LoadCellCalibration, default_calibration
 from beambench.acquisition.protocol.schema import ClockModel
-from beambench.sim.protocol_slice import DeviceClocks
 
 __all__ = ["EmulatedPeer", "GoesSilent", "PeerContext", "PhysicsSource", "StillPhysics", "Wiring"]
 
