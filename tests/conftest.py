@@ -8,6 +8,9 @@
   fit, …) writes into the real per-user folder.
 - :func:`wait_until` / :func:`holds_for`: the one way a test waits on real time (a thread, a socket, a child
   process): poll a condition until it holds, or check that it keeps holding for a while; no fixed sleeps.
+- :func:`pause` / :func:`random_moment`: where a delay *is* the test's input (a stall of a given length, a worker's
+  compute time, a peer's pacing, the random moment a signal or fault is raced at), it is spelled so, saying what it
+  stands for; tests/test_structure.py fails on any other ``time.sleep`` in tests/ (in code strings a child runs too).
 - The soak tier (``@pytest.mark.soak``): more repetitions of a race check, at other random moments, than the
   default run's one or few. Deselected unless ``--soak`` is given (``make soak``; CI runs it after ``make test``).
   Every Hypothesis test belongs to it too: the default run makes a fifth of its examples (at least 50,
@@ -17,6 +20,8 @@
 from __future__ import annotations
 
 import os
+import random
+import re
 import subprocess
 import time
 from collections.abc import Callable, Iterator
@@ -115,6 +120,23 @@ def holds_for(condition: Callable[[], object], duration_s: float, what: str = ""
         time.sleep(interval_s)
 
 
+def pause(seconds: float, why: str) -> None:
+    """Let ``seconds`` pass where the delay is the test's input, not a wait for something to happen: a stall of
+    a given length, a stand-in's compute time, a peer's pacing. ``why`` says which."""
+    if not why:
+        raise ValueError("pause: say what the delay stands for")
+    time.sleep(seconds)
+
+
+def random_moment(rng: random.Random, lo_s: float, hi_s: float, why: str) -> float:
+    """Let a random time in [``lo_s``, ``hi_s``] pass (drawn from ``rng``) and return it: a delay that is the test's
+    input and varies, such as the moment a signal or fault is raced at (another each run, so repeated runs cover
+    the window) or a stand-in's varying compute time."""
+    delay = rng.uniform(lo_s, hi_s)
+    pause(delay, why)
+    return delay
+
+
 def raised(call: Callable[[], object], kind: type[E]) -> E | None:
     """The ``kind`` exception ``call()`` raises, or None (a condition for :func:`wait_until`: a fault reported)."""
     try:
@@ -193,6 +215,17 @@ def tmpfs(folder: Path, size: str) -> Iterator[Path]:
 
 
 SET_AXIS_STATE = 0x07  # CAN Simple command id (node 0)
+_CLOSED_LOOP_REQUEST = re.compile(r"^ *(\d+\.\d+) +\d+ +7 +Tx +d 8 08 ", re.M)  # Set_Axis_State CLOSED_LOOP, node 0
+_LOGGED_AT = re.compile(r"^ *(\d+\.\d+) ", re.M)
+
+
+def armed_for(can_log: Path, for_s: float) -> bool:
+    """A run's .asc CAN log (read as it is written) shows the closed-loop request and ``for_s`` of traffic after
+    it: the motor is armed and turning (a condition for :func:`wait_until`)."""
+    text = can_log.read_text(errors="replace") if can_log.exists() else ""
+    armed = _CLOSED_LOOP_REQUEST.search(text)
+    stamps = _LOGGED_AT.findall(text[armed.end() :]) if armed else []
+    return bool(armed and stamps and float(stamps[-1]) - float(armed.group(1)) >= for_s)
 
 
 def last_requested_state(can_log: Path) -> int | None:

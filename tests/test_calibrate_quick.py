@@ -13,6 +13,7 @@ from dataclasses import replace
 from beambench.sim.settings import SimSettings
 from beambench.studies.twin_calibration import RIGS, CalibrationBase
 from beambench.studies.twin_calibration.contact import CONTACT_QUICK
+from conftest import pause
 from test_calibrate_verdict import TOY, TOY_FREQS, TOY_UNKNOWNS, _beambench, _threads, toy_simulate
 
 WALL_PER_SIM_S = 0.0075  # wall seconds per simulated second: a search map ~0.8 s, a written-protocol map ~3.6 s
@@ -23,7 +24,7 @@ def costly_simulate(
     base: CalibrationBase, values: dict[str, float], frequencies: list[float], sim: SimSettings
 ) -> dict:
     """The toy map after as long as the twin would take to simulate it (a model of compute time, not a wait)."""
-    time.sleep(WALL_PER_SIM_S * len(frequencies) * (sim.settle_s + sim.record_s))
+    pause(WALL_PER_SIM_S * len(frequencies) * (sim.settle_s + sim.record_s), "the twin's compute time for these maps")
     return toy_simulate(base, values, frequencies, sim)
 
 

@@ -13,12 +13,12 @@ import random
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from beambench.commands import EXIT_STOPPED
+from conftest import holds_for, wait_until
 from import_stops import stopped_at_import
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,11 +39,12 @@ def _catches_sigterm(pid: int) -> bool:
 def _wait_for_its_handlers(proc: subprocess.Popen, err: Path) -> None:
     """Until beambench's first line has run (it catches SIGTERM from then on): before, the interpreter is still
     starting, which no program can take a signal in."""
-    deadline = time.monotonic() + 60
-    while not _catches_sigterm(proc.pid):
+
+    def handles_sigterm() -> bool:
         assert proc.poll() is None, err.read_text()[-2000:]
-        assert time.monotonic() < deadline, "beambench did not start within 60 s"
-        time.sleep(0.005)
+        return _catches_sigterm(proc.pid)
+
+    wait_until(handles_sigterm, 60, "beambench to start (catch SIGTERM)", interval_s=0.005)
 
 
 def _stop_at(tmp_path: Path, sig: signal.Signals, after_s: float, ignored: bool) -> None:
@@ -58,10 +59,12 @@ def _stop_at(tmp_path: Path, sig: signal.Signals, after_s: float, ignored: bool)
         )
         try:
             _wait_for_its_handlers(proc, err)
-            deadline = time.monotonic() + after_s
-            while time.monotonic() < deadline and proc.poll() is None:  # polling: the stop's random moment
-                time.sleep(0.01)
-            assert proc.poll() is None, err.read_text()[-2000:]
+
+            def running() -> bool:
+                assert proc.poll() is None, err.read_text()[-2000:]
+                return True
+
+            holds_for(running, after_s, "the calibration running until the stop's random moment")
             proc.send_signal(sig)
             with contextlib.suppress(subprocess.TimeoutExpired):
                 proc.wait(timeout=90)

@@ -34,6 +34,7 @@ from beambench.studies.twin_calibration.verdict import (
 )
 from beambench.studies.twin_calibration.walker import walker_checks
 from beambench.studies.unknowns import Unknown
+from conftest import random_moment
 
 TOY_FREQS = [float(f) for f in range(3, 71)]
 TOY_UNKNOWNS = (Unknown("u", 0.0, 1.0), Unknown("w", 0.5, 2.0, log=True))
@@ -340,7 +341,6 @@ def test_where_a_search_stops_depends_on_what_it_ran_not_on_how_long_each_map_to
     the wall clock: the same search with maps that take random wall times (a loaded machine) evaluates the same
     points and ends at the same winner."""
     import random
-    import time
     from dataclasses import replace
 
     from beambench.studies.twin_calibration.evaluate import SearchSettings
@@ -353,7 +353,7 @@ def test_where_a_search_stops_depends_on_what_it_ran_not_on_how_long_each_map_to
         rng = random.Random(seed)
 
         def slow(base: CalibrationBase, values: dict, frequencies: list, sim: object) -> dict:
-            time.sleep(rng.uniform(0.1, 0.4))  # a loaded machine: a wall-clock budget ends elsewhere each run
+            random_moment(rng, 0.1, 0.4, "a map's wall time on a loaded machine: a wall-clock budget ends elsewhere")
             return toy_simulate(base, values, frequencies, sim)
 
         with RIGS.stand_in("contact", replace(TOY, simulate=slow)):

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from beambench.sinks.session_file.reader import read_session
-from conftest import last_requested_state, tmpfs
+from conftest import last_requested_state, tmpfs, wait_until
 
 ENDLESS = """
 name: endless
@@ -80,13 +80,16 @@ def _run_until_disk_full(
     if can_log is not None:
         cmd += ["--can-log", str(can_log)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), start_new_session=True)
+
+    def stepping() -> bool:  # mid-run: the file set up and a step begun (a file that grows may still be opening)
+        assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
+        try:
+            return len(read_session(path).steps) >= 1
+        except OSError:  # not created yet, or still being set up
+            return False
+
     try:
-        deadline = time.monotonic() + 120
-        while not path.exists() or path.stat().st_size < 100_000:
-            assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
-            assert time.monotonic() < deadline, "the run never started recording"
-            time.sleep(0.05)
-        time.sleep(0.5)
+        wait_until(stepping, 120, "the run to begin its first step", 0.1)
         _fill(disk, leave)
         full_at = time.monotonic()
         _, err = proc.communicate(timeout=60)

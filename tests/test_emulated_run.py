@@ -18,6 +18,7 @@ from beambench.session.run import run_session
 from beambench.session.slices import sim_slice
 from beambench.sinks.session_file.reader import read_session
 from beambench.sinks.session_file.writer import SessionWriter, append_general
+from conftest import pause
 
 PROTOCOL = """
 name: emu
@@ -247,7 +248,7 @@ def test_a_mocap_frame_carries_the_markers_of_its_exposure_time_however_late_it_
     physics._t0 = time.monotonic() - 0.5  # scene time 0.5 s is now
     exposed = physics._t0 + 0.3003 + physics.lag_s  # a frame exposed at scene time 0.3003 s (between rows)
     on_time = physics.positions_at(exposed)
-    time.sleep(0.04)
+    pause(0.04, "the frame made 40 ms late")
     late = physics.positions_at(exposed)
     i = int(np.searchsorted(physics._t, 0.3003, side="right")) - 1
     np.testing.assert_array_equal(on_time, late)

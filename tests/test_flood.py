@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import socket
 import threading
-import time
 
 import numpy as np
 import pytest
@@ -22,7 +21,7 @@ from beambench.devices.odrive.cansimple import AxisError, AxisState
 from beambench.session.slices import sim_slice
 from beambench.sinks.session_file.reader import read_session
 from beambench.sinks.session_file.writer import SessionWriter, append_general
-from conftest import last_requested_state
+from conftest import last_requested_state, wait_until
 
 PROTOCOL = """
 name: flood
@@ -35,17 +34,10 @@ monitors: {mocap_lost_s: null}
 N = 1000  # datagrams to each port, as fast as one socket sends them
 
 
-def _wait_for(cond, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        assert time.monotonic() < deadline, f"no {what} within {timeout_s} s"
-        time.sleep(0.01)
-
-
 def _flood(rig, stop: threading.Event, sent: dict) -> None:
     """Once the motor is in closed loop: N datagrams of random junk (1 to 1400 bytes) to each port."""
     motor = rig.motor
-    _wait_for(
+    wait_until(
         lambda: (
             stop.is_set()
             or (motor.heartbeat is not None and motor.heartbeat.axis_state == AxisState.CLOSED_LOOP_CONTROL)

@@ -9,13 +9,13 @@ import os
 import random
 import signal
 import threading
-import time
 
 import numpy as np
 import pytest
 
 from beambench.devices.loadcell.driver import SerialLoadCells
 from beambench.devices.loadcell.protocol import encode_frame
+from conftest import wait_until
 
 
 def _frames(first: int, n: int) -> bytes:
@@ -24,13 +24,14 @@ def _frames(first: int, n: int) -> bytes:
 
 def _collect(lc: SerialLoadCells, want: int, timeout_s: float = 30.0) -> int:
     """Read until ``want`` frames arrived (polling, as the runner does): the rows read."""
-    got = 0
-    deadline = time.monotonic() + timeout_s
-    while got < want:
-        assert time.monotonic() < deadline, f"{got} of {want} frames"
-        got += len(lc.read())
-        time.sleep(0.01)
-    return got
+    got = [0]
+
+    def enough() -> bool:
+        got[0] += len(lc.read())
+        return got[0] >= want
+
+    wait_until(enough, timeout_s, f"{want} frames")
+    return got[0]
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

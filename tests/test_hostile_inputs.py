@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from beambench.common.yaml_config import ConfigError, parse_yaml
-from conftest import cli, one_line_error, skip_unless_ci, unwritable_folder
+from conftest import cli, one_line_error, skip_unless_ci, unwritable_folder, wait_until
 
 BASE = "name: t\nsweep: {frequencies: [5, 10]}\nsettle_s: 0.2\nrecord_s: 0.3\n"
 
@@ -279,7 +279,6 @@ def xvfb_display(tmp_path):
     """A private X server for a windowed viewer (no display on CI)."""
     import shutil
     import subprocess
-    import time
 
     if shutil.which("Xvfb") is None:
         pytest.skip("Xvfb is not installed")
@@ -291,11 +290,13 @@ def xvfb_display(tmp_path):
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
+
+    def listening() -> bool:
+        assert proc.poll() is None, "Xvfb exited"
+        return Path(f"/tmp/.X11-unix/X{n}").exists()
+
     try:
-        deadline = time.monotonic() + 30
-        while not Path(f"/tmp/.X11-unix/X{n}").exists():
-            assert proc.poll() is None and time.monotonic() < deadline, "Xvfb did not start"
-            time.sleep(0.05)
+        wait_until(listening, 30, "Xvfb to start", 0.05)
         yield f":{n}"
     finally:
         proc.kill()

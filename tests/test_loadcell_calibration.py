@@ -19,6 +19,7 @@ from beambench.commands.calibrate import register
 from beambench.devices.loadcell.calibrate import emulated_plate, parse_loads, walkthrough
 from beambench.devices.loadcell.driver import SerialLoadCells
 from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU
+from conftest import wait_until
 
 RNG = np.random.default_rng(42)
 
@@ -190,7 +191,8 @@ def test_a_host_that_reads_late_still_records_each_load_after_its_enter():
     try:
         lc.start()
         mcu.start()
-        time.sleep(0.5)
+        # half a second of the board's frames in (more than the reader's lag: the first prompt has some held)
+        wait_until(lambda: lc.counters.received >= 0.5 * mcu.rate_hz, what="half a second of load-cell frames")
         late = LateReader(lc, 0.3)
         cal, _ = walkthrough(
             late, [(1.0, 0.0), (0.0, 1.0)], ask, Console(file=io.StringIO()), settle_s=0.1, duration_s=0.2

@@ -7,13 +7,13 @@ import errno
 import os
 import re
 import threading
-import time
 
 import pytest
 
 from beambench.acquisition.capabilities import DeviceFault
 from beambench.devices.loadcell.driver import MAX_LOST_FRACTION, SerialLoadCells
 from beambench.devices.loadcell.emulated_mcu import EmulatedLoadCellMCU
+from conftest import wait_until
 
 BIG_TX = 1 << 22  # no scheduling stall on a loaded machine overflows it: losses are the thief's only
 
@@ -59,18 +59,16 @@ def test_a_port_stolen_by_a_second_reader_fails_the_check_naming_the_lost_frames
     try:
         lc.start()
         mcu.start()
-        deadline = time.monotonic() + 60
-        while lc.counters.received < 1500:  # more than one loss window of a clean link
-            assert time.monotonic() < deadline, "no load-cell frames"
+
+        def clean_window() -> bool:
             lc.read()
             lc.check()  # a clean link: no fault
-            time.sleep(0.02)
+            return lc.counters.received >= 1500
+
+        wait_until(clean_window, 60, "1500 load-cell frames (more than one loss window of a clean link)", 0.02)
         assert lc.counters.dropped == 0
         _steal(port, stop)
-        fault = None
-        while fault is None and time.monotonic() < deadline + 60:
-            fault = _poll(lc)
-            time.sleep(0.02)
+        fault = wait_until(lambda: _poll(lc), 60, "the check to fail once the port is stolen", 0.02)
     finally:
         stop.set()
         lc.stop()
@@ -82,29 +80,34 @@ def test_a_port_stolen_by_a_second_reader_fails_the_check_naming_the_lost_frames
     assert any(w in str(fault) for w in ("frames lost", "multiple access", "silent")), fault
 
 
+def _read_after_an_overflow(threshold: float | None) -> tuple[int, DeviceFault | None]:
+    """A board left unread until its transmit buffer overflowed 200 frames, then read as the runner polls until
+    a fault or 1500 frames: the frames counted dropped, and the fault."""
+    mcu = EmulatedLoadCellMCU(tx_buffer=34 * 20, seed=8)
+    lc = SerialLoadCells(mcu.open(), max_lost_fraction=threshold)
+    polled: list[DeviceFault | None] = [None]
+
+    def fault_or_frames() -> bool:
+        polled.append(_poll(lc))
+        return polled[-1] is not None or lc.counters.received >= 1500
+
+    try:
+        mcu.start()
+        wait_until(lambda: mcu.injected.frames_overflowed >= 200, 60, "the board to overflow its buffer")
+        lc.start()
+        wait_until(fault_or_frames, 60, "a fault or 1500 load-cell frames", 0.02)
+    finally:
+        lc.stop()
+        mcu.close()
+    return lc.counters.dropped, polled[-1]
+
+
 def test_frames_lost_past_the_threshold_are_a_fault_and_below_it_are_counted():
     """Frames the board dropped (its transmit buffer overflowed while nobody read: sequence gaps): more than
     ``MAX_LOST_FRACTION`` of a window is a fault naming how many; with the threshold off they are only counted."""
     for threshold in (MAX_LOST_FRACTION, None):
-        mcu = EmulatedLoadCellMCU(tx_buffer=34 * 20, seed=8)
-        port = mcu.open()
-        lc = SerialLoadCells(port, max_lost_fraction=threshold)
-        fault = None
-        try:
-            mcu.start()
-            deadline = time.monotonic() + 60
-            while mcu.injected.frames_overflowed < 200:  # nobody reads yet: the board drops whole frames
-                assert time.monotonic() < deadline, "the board never overflowed"
-                time.sleep(0.01)
-            lc.start()
-            while lc.counters.received < 1500 and fault is None:
-                assert time.monotonic() < deadline, "no load-cell frames"
-                fault = _poll(lc)
-                time.sleep(0.02)
-        finally:
-            lc.stop()
-            mcu.close()
-        assert lc.counters.dropped >= 100
+        dropped, fault = _read_after_an_overflow(threshold)
+        assert dropped >= 100
         if threshold is None:
             assert fault is None, fault
         else:

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from beambench.studies.executor import make_executor
-from conftest import descendants, process_alive
+from conftest import descendants, process_alive, wait_until
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "pidfd_open"), reason="the fork server pool needs os.pidfd_open")
 
@@ -37,35 +37,41 @@ def test_workers_come_from_one_single_threaded_server_that_preloaded_the_simulat
     assert "mujoco" in maps  # MuJoCo was imported in the server, once, not in each worker
 
 
+def _asleep(pid: int) -> bool:
+    """``pid`` is blocked in a sleep (``time.sleep``'s nanosleep, as the kernel's wait channel names it)."""
+    return "nanosleep" in Path(f"/proc/{pid}/wchan").read_text()
+
+
 def test_a_worker_mid_task_dies_with_the_pools_owner(tmp_path):
     """SIGKILL the process owning a pool while its worker sleeps in a task: the worker, the server and the
     resource tracker all end within seconds (the task would have run a minute)."""
     code = textwrap.dedent(
         """
-        import sys, time
+        import os, time
         from beambench.studies.executor import make_executor
         with make_executor(1) as pool:
+            worker = pool.executor.submit(os.getpid).result()
             fut = pool.executor.submit(time.sleep, 60)
-            time.sleep(0.5)
-            print("running", flush=True)
+            print(worker, flush=True)
             fut.result()
         """
     )
     owner = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
-        assert owner.stdout is not None and owner.stdout.readline().strip() == "running"
+        assert owner.stdout is not None
+        worker = int(owner.stdout.readline())
+        wait_until(lambda: _asleep(worker), 30, "the worker to sleep in its minute-long task")
         family = descendants(owner.pid)
-        assert len(family) >= 3, family  # resource tracker, fork server, worker
+        assert len(family) >= 3 and worker in family, family  # resource tracker, fork server, worker
     finally:
         owner.send_signal(signal.SIGKILL)
         owner.wait()
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and any(process_alive(p) for p in family):
-        time.sleep(0.05)
-    left = [p for p in family if process_alive(p)]
-    for p in left:
-        os.kill(p, signal.SIGKILL)
-    assert not left
+    try:
+        wait_until(lambda: not any(process_alive(p) for p in family), 10, "the pool's processes to end", 0.05)
+    finally:
+        for p in family:
+            if process_alive(p):
+                os.kill(p, signal.SIGKILL)
 
 
 def test_workers_see_the_owners_environment_and_folder_as_they_are_when_the_pool_starts(tmp_path, monkeypatch):

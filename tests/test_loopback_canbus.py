@@ -20,6 +20,7 @@ from can.interfaces.udp_multicast.utils import pack_message
 from beambench.devices.odrive import cansimple as cs
 from beambench.emulators.canbus import LoopbackCanBus
 from beambench.sinks.session_file.reader import read_session
+from conftest import armed_for, wait_until
 
 
 def drain(bus: can.BusABC, timeout: float = 0.3) -> list[can.Message]:
@@ -133,6 +134,19 @@ def _bound_inet(pids: list[int]) -> list[tuple[str, str, int]]:
     return found
 
 
+def _queued(pids: list[int]) -> int:
+    """Bytes waiting in the receive queues of the processes' UDP sockets (from /proc/net)."""
+    inodes = set().union(*(_socket_inodes(p) for p in pids))
+    queued = 0
+    for proto in ("udp", "udp6"):
+        path = Path(f"/proc/net/{proto}")
+        for line in path.read_text().splitlines()[1:] if path.exists() else []:
+            cols = line.split()
+            if cols[9] in inodes:
+                queued += int(cols[4].split(":")[1], 16)  # tx_queue:rx_queue
+    return queued
+
+
 def _children(pid: int) -> list[int]:
     kids = []
     for task in Path(f"/proc/{pid}/task").iterdir():
@@ -149,14 +163,18 @@ def test_an_emulated_run_listens_on_loopback_only_and_counts_forged_can_frames(t
     src = str(Path(__file__).resolve().parents[1] / "src")
     env = dict(os.environ, PYTHONPATH=os.environ.get("PYTHONPATH") or src)
     cmd = [sys.executable, "-m", "beambench.cli", "run", str(proto), "-b", "emulated", "--out", str(tmp_path)]
-    proc = subprocess.Popen([*cmd, "--name", "e", "--rerun", "off"], stderr=subprocess.PIPE, env=env)
+    can_log = tmp_path / "e.asc"
+    proc = subprocess.Popen(
+        [*cmd, "--name", "e", "--rerun", "off", "--can-log", str(can_log)], stderr=subprocess.PIPE, env=env
+    )
     intruder = None
+
+    def armed() -> bool:
+        assert proc.poll() is None, "the run ended before it armed the motor"
+        return armed_for(can_log, 0.2)
+
     try:
-        deadline = time.monotonic() + 120
-        while not path.exists():
-            assert proc.poll() is None and time.monotonic() < deadline, "the run never started"
-            time.sleep(0.1)
-        time.sleep(1.0)
+        wait_until(armed, 120, "the run to arm the motor (its sockets bound, its motor rows coming)", 0.05)
         pids = [proc.pid, *_children(proc.pid)]
         bound = _bound_inet(pids)
         assert bound, "no sockets found: the listing is broken"
@@ -170,17 +188,21 @@ def test_an_emulated_run_listens_on_loopback_only_and_counts_forged_can_frames(t
                 "-c",
                 "import sys, time\nfrom beambench.emulators.canbus import LoopbackCanBus\n"
                 "from beambench.devices.odrive import cansimple as cs\n"
+                "def pause(seconds, why):\n    time.sleep(seconds)\n"
                 "frame = cs.to_can(0, cs.EncoderEstimates(0.0, 999.0))\n"
                 "for port in map(int, sys.argv[1:]):\n"
                 "    bus = LoopbackCanBus(0, peer_port=port)\n"
-                "    for _ in range(100):\n        bus.send(frame); time.sleep(0.001)\n"
+                "    for _ in range(100):\n"
+                "        bus.send(frame)\n"
+                "        pause(0.001, 'the intruder sends at 1 kHz, as a bus would')\n"
                 "    bus.shutdown()\n",
                 *map(str, ports),
             ],
             env=env,
             timeout=60,
         )
-        time.sleep(0.5)
+        # the run's own sockets (the motor's end of the bus among them) have read every forged datagram
+        wait_until(lambda: _queued([proc.pid]) == 0, 30, "the run to read the forged datagrams")
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=60)
     finally:

@@ -56,13 +56,43 @@ def vm_bytes():
             return int(line.split()[1]) * 1024
 
 
+def wait_until(condition, timeout_s, interval_s=0.01):
+    # poll until condition() holds or timeout_s passed: whether it held (a polling helper: this script cannot
+    # import the tests' conftest)
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(interval_s)
+    return True
+
+
+motor = rig.motor
+base = {"rows": 0, "tx": 0}
+
+
+def armed():
+    return motor.heartbeat is not None and motor.heartbeat.axis_state == AxisState.CLOSED_LOOP_CONTROL
+
+
+def turning():  # armed and turning: 0.3 s of telemetry
+    return motor.rows_received >= base["rows"] + 30
+
+
+def idle_sent():
+    return motor._idle_sent_ns is not None
+
+
+def idle_frames_out():  # the idle frames went out under the limit
+    return motor.tx_count >= base["tx"] + 2
+
+
 def consume():
-    motor = rig.motor
-    while not (motor.heartbeat is not None and motor.heartbeat.axis_state == AxisState.CLOSED_LOOP_CONTROL):
-        time.sleep(0.01)
-    rows = motor.rows_received
-    while motor.rows_received < rows + 30:  # armed and turning: 0.3 s of telemetry
-        time.sleep(0.01)
+    if not wait_until(armed, 120):
+        return
+    base["rows"] = motor.rows_received
+    if not wait_until(turning, 60):
+        return
     held = []
     resource.setrlimit(resource.RLIMIT_AS, (vm_bytes() + (16 << 20), hard))
     for size in (1 << 20, 1 << 16, 1 << 12, 1 << 8, 1 << 6):
@@ -72,13 +102,9 @@ def consume():
         except MemoryError:
             pass
     seen["exhausted"] = True
-    deadline = time.monotonic() + 20
-    while motor._idle_sent_ns is None and time.monotonic() < deadline:
-        time.sleep(0.005)
-    seen["idle_while_exhausted"] = motor._idle_sent_ns is not None
-    sent = motor.tx_count
-    while motor.tx_count < sent + 2 and time.monotonic() < deadline:  # the idle frames went out under the limit
-        time.sleep(0.005)
+    seen["idle_while_exhausted"] = wait_until(idle_sent, 20, 0.005)
+    base["tx"] = motor.tx_count
+    wait_until(idle_frames_out, 20, 0.005)
     seen["held_mb"] = sum(len(b) for b in held) / 2**20
     held.clear()
     resource.setrlimit(resource.RLIMIT_AS, (hard, hard))
@@ -99,6 +125,48 @@ print(json.dumps({"status": status, "message": message, **seen, "send_errors": l
 if hdf5_left_open():  # the session file could not close under the limit: end as the command line does (HDF5's
     sys.stderr.flush()  # exit handler would retry the close on a library that failed to allocate: heap corruption)
     os._exit(0)
+"""
+
+
+# NatNet frames decoded many at a time while memory runs out, then comes back a few bytes at a time: every call
+# either decodes or raises MemoryError (numpy's buffered ufuncs allocate with the GIL released, and a failure there
+# is a crash, not an exception); prints how many calls did which.
+BLOCK_SCRIPT = r"""
+import resource
+from beambench.devices.natnet import block as nb
+from beambench.devices.natnet import frame as nf
+from beambench.devices.natnet import protocol as nn
+from beambench.devices.natnet import wire as nw
+
+def frame(k):
+    lms = tuple(nf.LabeledMarker((1 << 16) | (i + 1), (0.1 * k, 0.2, i), 0.014, 2, 1e-5) for i in range(4))
+    body = nf.RigidBody(7, (0.0, 0.1 * k, 0.3), (0.0, 0.0, 0.0, 1.0), 1e-4, 1)
+    sets = (nf.MarkerSetData("beam", ((0.0, 0.0, k), (1.0, 0.0, k))),)
+    return nf.FrameOfData(1000 + k, marker_sets=sets, rigid_bodies=(body,), labeled_markers=lms, timestamp=k / 360)
+
+packets = [nn.encode(frame(k), nw.V4_1) for k in range(36)]
+layout = nb.frame_layout(packets[0], nw.V4_1)
+assert nb.decode_block(packets, layout)[1].all()
+vm = next(int(ln.split()[1]) * 1024 for ln in open("/proc/self/status") if ln.startswith("VmSize:"))
+_, hard = resource.getrlimit(resource.RLIMIT_AS)
+resource.setrlimit(resource.RLIMIT_AS, (vm + (8 << 20), hard))
+decoded = exhausted = 0
+for _ in range(6):  # the heap ends up differently each time: more chances to run out at each allocation
+    held = []
+    for size in (1 << 20, 1 << 16, 1 << 12, 1 << 8, 1 << 6):
+        try:
+            while True:
+                held.append(bytearray(size))
+        except MemoryError:
+            pass
+    while held:
+        held.pop()
+        try:
+            decoded += int(nb.decode_block(packets, layout)[1].all())
+        except MemoryError:
+            exhausted += 1
+resource.setrlimit(resource.RLIMIT_AS, (hard, hard))
+print(decoded, exhausted)
 """
 
 
@@ -126,6 +194,19 @@ def test_memory_exhausted_while_armed_idles_the_motor(tmp_path):
     assert got["odrive_state"] == AxisState.IDLE and got["odrive_axis_error"] == 0, got  # decoded, not the watchdog
     if got["status"] != "escaped":  # else the shutdown's later steps ran out too (said in the report; not the idle)
         assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
+
+
+def test_frames_decoded_while_memory_runs_out_raise_memory_error_never_crash(tmp_path):
+    """The mocap stream decodes a poll's frames at once (devices.natnet.block) in the run's process: out of memory,
+    that must be a MemoryError the run reports (and idles the motor on), not a crash of the whole process."""
+    script = tmp_path / "oom_block.py"
+    script.write_text(BLOCK_SCRIPT)
+    proc = subprocess.run(
+        [sys.executable, "-X", "faulthandler", str(script)], capture_output=True, text=True, env=_env(), timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    decoded, exhausted = map(int, proc.stdout.split())
+    assert exhausted > 0 and decoded > 0, proc.stdout  # memory ran out in the decode, and it decoded again after
 
 
 def _limited(mib: int):

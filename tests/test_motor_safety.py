@@ -8,14 +8,13 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from beambench.sinks.session_file.reader import read_session
-from conftest import tmpfs
+from conftest import armed_for, pause, tmpfs, wait_until
 
 SHORT = """
 name: short
@@ -24,8 +23,6 @@ settle_s: 1.0
 record_s: 1.0
 sim: {seed: 5}
 """
-CLOSED_LOOP_REQUEST = re.compile(r"^ *(\d+\.\d+) +\d+ +7 +Tx +d 8 08 ", re.M)  # Set_Axis_State CLOSED_LOOP, node 0
-LOGGED_AT = re.compile(r"^ *(\d+\.\d+) ", re.M)
 
 
 def _env() -> dict[str, str]:
@@ -48,16 +45,12 @@ def _start(tmp_path: Path, *extra: str) -> subprocess.Popen:
 
 def _wait_armed(proc: subprocess.Popen, can_log: Path, for_s: float = 0.5, timeout: float = 120.0) -> None:
     """Until the CAN log shows the closed-loop request and ``for_s`` of traffic after it (the motor is armed)."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
+
+    def armed() -> bool:
         assert proc.poll() is None, proc.communicate()[1].decode(errors="replace")[-2000:]
-        text = can_log.read_text(errors="replace") if can_log.exists() else ""
-        armed = CLOSED_LOOP_REQUEST.search(text)
-        stamps = LOGGED_AT.findall(text[armed.end() :]) if armed else []
-        if armed and stamps and float(stamps[-1]) - float(armed.group(1)) >= for_s:
-            return
-        time.sleep(0.05)
-    raise AssertionError("the run never armed the motor")
+        return armed_for(can_log, for_s)
+
+    wait_until(armed, timeout, "the run to arm the motor", 0.05)
 
 
 def _said(err: bytes) -> list[str]:
@@ -78,7 +71,7 @@ def test_a_stalled_host_is_said_to_be_the_host_not_the_odrive(tmp_path, stall_s)
     try:
         _wait_armed(proc, can_log)
         proc.send_signal(signal.SIGSTOP)
-        time.sleep(stall_s)  # the stall itself is what is tested: its length is the input
+        pause(stall_s, "the host's stall: its length is the input")
         proc.send_signal(signal.SIGCONT)
         _, err = proc.communicate(timeout=120)
     finally:

@@ -21,7 +21,7 @@ from beambench.devices.natnet.client import NatNetClient, NatNetConfig, NatNetEr
 from beambench.devices.natnet.emulated_motive import EmulatorClock, MotiveEmulator
 from beambench.devices.natnet.mocap import MarkerSource, NatNetMocap
 from beambench.devices.receive_time import mono_minus_real_ns
-from conftest import holds_for, wait_until
+from conftest import holds_for, pause, wait_until
 
 MARKERS = ("stage", "tip", "foot")
 VERSIONS = ("3.0", "4.0", "4.1")
@@ -382,7 +382,7 @@ class _FrameBeforeServerInfo(MotiveEmulator):
     def _command(self, msg, addr, now_ticks):  # type: ignore[no-untyped-def]
         if isinstance(msg, nn.Connect) and not isinstance(msg, nn.Discovery) and self._data is not None:
             self._data.sendto(nn.encode(nf.FrameOfData(1, timestamp=0.0), self.stream_version), addr)
-            time.sleep(0.02)
+            pause(0.02, "the SERVERINFO reply comes 20 ms after the frame")
         super()._command(msg, addr, now_ticks)
 
 

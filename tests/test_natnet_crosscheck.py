@@ -8,13 +8,13 @@ of our precision-timestamp seconds; everything else must agree with what our emu
 from __future__ import annotations
 
 import socket
-import time
 
 import pytest
 
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet import wire as nw
 from beambench.devices.natnet.emulated_motive import MotiveEmulator
+from conftest import wait_until
 
 natnet = pytest.importorskip("natnet", reason="the PyPI 'natnet' package (dev-only cross-check) is not installed")
 
@@ -53,9 +53,8 @@ def test_pypi_natnet_client_decodes_our_emulator_over_multicast(version):
             client.connect(timeout=2.0)
             client.run_async()
             client.request_modeldef()
-            deadline = time.monotonic() + 5.0  # ~0.2 s at 360 Hz; a busy machine gets longer, not fewer frames
-            while (len(received) <= 60 or not descriptions) and time.monotonic() < deadline:
-                time.sleep(0.05)
+            # ~0.2 s at 360 Hz; a busy machine gets longer, not fewer frames
+            wait_until(lambda: len(received) > 60 and descriptions, 30, "60 frames and the model description", 0.05)
         finally:
             client.shutdown()
     v = nw.Version.parse(version)

@@ -26,7 +26,7 @@ from beambench.devices.odrive.cansimple import (
 )
 from beambench.devices.odrive.limits import LimitError
 from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming, ping
-from conftest import require_shared
+from conftest import pause, raised, require_shared, wait_until
 
 LIMITS = MotorLimits(max_frequency_hz=20.0, max_current_a=8.0, amplitude_mm=2.0)
 FIRMWARE_INTERFACE = ("fixtures", "odrive", "odrive-interface-0.5.6.yaml")
@@ -293,8 +293,7 @@ def test_watchdog_fed_while_armed_and_telemetry(motor, odrv):
     motor.read()
     feeds = odrv.axis0.feeds
     odrv.axis0.encoder.vel_estimate = 3.0
-    time.sleep(0.1)
-    assert odrv.axis0.feeds > feeds + 3
+    wait_until(lambda: odrv.axis0.feeds > feeds + 3, what="four polls that fed the watchdog")
     batch = motor.read()
     assert set(batch.columns) == set(motor_spec().columns) and len(batch) > 3
     assert batch.columns["velocity"][-1] == 3.0 and batch.columns["bus_voltage"][-1] == 24.0
@@ -314,11 +313,17 @@ def test_idle_on_close_restores_watchdog_and_never_raises(odrv):
     m.close()
 
 
+def _fault_saying(motor: OdriveUsbMotor, text: str) -> DeviceFault | None:
+    """The fault ``motor.check()`` raises if it says ``text`` (a condition for wait_until), else None."""
+    fault = raised(motor.check, DeviceFault)
+    return fault if fault is not None and text in str(fault) else None
+
+
 def test_check_reports_axis_errors_and_lost_link(motor, odrv):
     motor.arm(LIMITS)
     object.__setattr__(odrv.axis0, "error", int(AxisError.WATCHDOG_TIMER_EXPIRED))
     object.__setattr__(odrv.axis0, "current_state", int(AxisState.IDLE))
-    time.sleep(0.05)
+    wait_until(lambda: _fault_saying(motor, "WATCHDOG_TIMER_EXPIRED"), what="a poll that read the axis error")
     with pytest.raises(DeviceFault, match="WATCHDOG_TIMER_EXPIRED"):
         motor.check()
     odrv.clear_errors()
@@ -328,7 +333,7 @@ def test_check_reports_axis_errors_and_lost_link(motor, odrv):
             raise OSError("USB device disconnected")
 
     object.__setattr__(odrv.axis0, "encoder", Unplugged())
-    time.sleep(0.4)
+    wait_until(lambda: _fault_saying(motor, "link lost"), what="the heartbeat timeout without a good poll")
     with pytest.raises(DeviceFault, match=r"link lost.*disconnected"):
         motor.check()
 
@@ -383,18 +388,21 @@ def test_a_stalled_host_is_named_not_blamed_on_the_usb_link(tmp_path):
 
     script = tmp_path / "stall.py"
     script.write_text(
-        "import sys, time\n"
+        "import sys\n"
         f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
         "import yaml\n"
+        "from conftest import wait_until\n"
         "from test_odrive_usb import KNOWN, LIMITS, StandInODrive, interface_paths\n"
         f"KNOWN.update(interface_paths(yaml.safe_load(open({str(require_shared(*FIRMWARE_INTERFACE))!r}).read())))\n"
         "from beambench.devices.odrive.usb_motor import OdriveUsbMotor, UsbMotorTiming\n"
         "from beambench.acquisition.capabilities import DeviceFault\n"
-        "m = OdriveUsbMotor(odrv=StandInODrive(), timing=UsbMotorTiming(poll_period_s=0.005))\n"
+        "odrv = StandInODrive()\n"
+        "m = OdriveUsbMotor(odrv=odrv, timing=UsbMotorTiming(poll_period_s=0.005))\n"
         "m.arm(LIMITS)\n"
         "print('armed', flush=True)\n"
         "sys.stdin.readline()\n"
-        "time.sleep(0.05)\n"
+        "fed = odrv.axis0.feeds\n"
+        "wait_until(lambda: odrv.axis0.feeds > fed, what='a poll after the stall')  # the poller ran first\n"
         "try:\n"
         "    m.check(); print('no fault', flush=True)\n"
         "except DeviceFault as exc:\n"
@@ -408,7 +416,7 @@ def test_a_stalled_host_is_named_not_blamed_on_the_usb_link(tmp_path):
         assert proc.stdout is not None and proc.stdin is not None
         assert proc.stdout.readline().strip() == "armed"
         os.kill(proc.pid, signal.SIGSTOP)
-        time.sleep(1.0)
+        pause(1.0, "the host's stall")
         os.kill(proc.pid, signal.SIGCONT)
         proc.stdin.write("\n")
         proc.stdin.flush()

@@ -14,12 +14,12 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from beambench.sinks.session_file.reader import read_session
+from conftest import pause, wait_until
 
 ENDLESS = """
 name: endless
@@ -81,15 +81,16 @@ pytestmark = pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="fi
 def test_peers_killed_during_start_up_are_one_line_and_exit_1(tmp_path, delay):
     proc, path = _start(tmp_path, "p")
     try:
-        deadline = time.monotonic() + 60
-        while (peers := _peers_pid(proc.pid)) is None:
+
+        def peers_started() -> int | None:
             assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
-            assert time.monotonic() < deadline, "no peers process"
-            time.sleep(0.01)
+            return _peers_pid(proc.pid)
+
+        peers = wait_until(peers_started, 60, "the peers' process")
         # no GLFW version probe (a `python -c` child of the peers, which mujoco's import starts unless MUJOCO_GL
         # says otherwise): killed with the peers, it printed a BrokenPipeError traceback on the run's stderr
         assert b"MUJOCO_GL=disable" in Path(f"/proc/{peers}/environ").read_bytes().split(b"\0")
-        time.sleep(delay)
+        pause(delay, "the moment in the start-up the peers are killed at")
         os.kill(peers, signal.SIGKILL)
         _, err_b = proc.communicate(timeout=60)
     finally:
@@ -122,10 +123,12 @@ def _stepping(path: Path) -> bool:
 def test_a_run_killed_by_sigkill_leaves_the_emulated_odrive_to_its_watchdog(tmp_path):
     proc, path = _start(tmp_path, "k")
     try:
-        deadline = time.monotonic() + 120
-        while not _stepping(path):  # the motor turning
-            assert proc.poll() is None and time.monotonic() < deadline, "the run never started stepping"
-            time.sleep(0.1)
+
+        def stepping() -> bool:  # the motor turning
+            assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
+            return _stepping(path)
+
+        wait_until(stepping, 120, "the run to step", 0.1)
         peers = _peers_pid(proc.pid)
         assert peers is not None
         os.kill(proc.pid, signal.SIGKILL)

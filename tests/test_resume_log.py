@@ -10,13 +10,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 
 from beambench.commands import EXIT_STOPPED
 from beambench.common.jsonl import append_record, read_records
+from conftest import wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -79,11 +79,12 @@ def test_calibrate_sim_stopped_by_ctrl_c_says_how_to_resume(tmp_path):
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err, env=env, start_new_session=True)
         try:
             log = tmp_path / "c.evals.jsonl"  # written after the first evaluation: imports done, the search running
-            deadline = time.monotonic() + 180
-            while not (log.exists() and log.stat().st_size > 0):
+
+            def evaluated() -> bool:
                 assert proc.poll() is None, err_path.read_text()[-2000:]
-                assert time.monotonic() < deadline, "no evaluation in 180 s"
-                time.sleep(0.05)
+                return log.exists() and log.stat().st_size > 0
+
+            wait_until(evaluated, 180, "the first evaluation", 0.05)
             assert proc.poll() is None, err_path.read_text()[-2000:]
             os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal sends: the whole process group
             with contextlib.suppress(subprocess.TimeoutExpired):

@@ -7,7 +7,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import h5py
@@ -18,6 +17,7 @@ from typer.testing import CliRunner
 
 from beambench.cli import app
 from beambench.sinks.session_file.reader import read_session
+from conftest import wait_until
 
 SHORT = """
 name: short
@@ -218,18 +218,18 @@ def _start_long_run(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
         stderr=subprocess.PIPE,
         env=env,
     )
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:  # wait until a few steps have been recorded
-        if path.exists():
-            try:
-                if len(read_session(path).steps) >= 3:
-                    break
-            except Exception:
-                pass
-        time.sleep(0.2)
-    else:
+
+    def three_steps() -> bool:
+        try:
+            return path.exists() and len(read_session(path).steps) >= 3
+        except Exception:  # being created, or mid-write
+            return False
+
+    try:
+        wait_until(three_steps, 60, "the run to record three steps", 0.2)
+    except AssertionError:
         proc.kill()
-        pytest.fail("run did not start recording")
+        raise
     return proc, path
 
 

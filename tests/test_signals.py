@@ -31,7 +31,6 @@ import subprocess
 import sys
 import textwrap
 import threading
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -40,7 +39,7 @@ import pytest
 
 from beambench.acquisition.stop_signals import signal_name
 from beambench.sinks.session_file.reader import read_session
-from conftest import last_requested_state, wait_until
+from conftest import last_requested_state, pause, random_moment, wait_until
 
 # Long enough that no run can finish before its signal (200 steps x 0.5 s of rig time).
 ENDLESS = """
@@ -239,10 +238,10 @@ def _signal_runs(
             status_read = False
             try:
                 _wait_for_file(path, lambda pid=pid: _pid_alive(pid))
-                time.sleep(delays[i])
+                pause(delays[i], "the random moment the signal is sent at")
                 os.kill(pid, sig)
                 if doubles[i]:
-                    time.sleep(rng.uniform(0, 0.05))
+                    random_moment(rng, 0, 0.05, "the second signal's moment, during the shutdown")
                     with contextlib.suppress(ProcessLookupError):
                         os.kill(pid, sig)
                 code = z.status()
@@ -387,7 +386,7 @@ def test_python_m_beambench_run_stops_on_a_signal(tmp_path, backend, sig):
     )
     try:
         _wait_for_file(path, lambda: proc.poll() is None, timeout=120)
-        time.sleep(random.Random(hash(backend) + sig).uniform(0.2, 1.5))
+        random_moment(random.Random(hash(backend) + sig), 0.2, 1.5, "the moment the signal is sent at")
         proc.send_signal(sig)
         out, _ = proc.communicate(timeout=60)
     finally:
@@ -445,8 +444,9 @@ def test_a_real_sigint_mid_step_and_another_during_the_idle_still_idle_and_save(
     idle = rig.motor.idle
 
     def idle_with_a_second_ctrl_c():
+        count = runner.stop.count
         os.kill(os.getpid(), signal.SIGINT)  # delivered while we are inside the shutdown
-        time.sleep(0.01)
+        wait_until(lambda: runner.stop.count > count, what="the run's handler to take the second SIGINT")
         idle()
 
     rig.motor.idle = idle_with_a_second_ctrl_c

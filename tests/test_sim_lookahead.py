@@ -15,6 +15,7 @@ from beambench.backends.sim import SimRig
 from beambench.cli import app
 from beambench.session.slices import sim_slice
 from beambench.sinks.session_file.reader import read_session
+from conftest import wait_until
 
 WALKER = """
 name: walk
@@ -230,18 +231,13 @@ def test_a_segmented_sweep_walks_on_without_a_jump_at_the_cut(segmented):
 def test_progress_counts_the_work_of_every_parallel_segment():
     """A sweep cut into two segments: before the runner takes anything, the rig reports what both workers computed
     (every step, all the rig time), so progress does not sit at the first segment's share and then jump to the end."""
-    import time
-
     rig = SimRig(sim_slice(walker("40, 45, 50, 55", 0.3, 0.4, segments=2)))
     rig.open()
     rig.motor.arm(MotorLimits(max_frequency_hz=80, max_current_a=6, amplitude_mm=2.0))
     try:
         assert rig.computed_ahead() is None  # nothing announced: nothing computed ahead
         rig.anticipate([(hz, [0.3, 0.4]) for hz in (40, 45, 50, 55)])
-        deadline = time.monotonic() + 120
-        while (rig.computed_ahead() or (0.0, 0))[1] < 4:
-            assert time.monotonic() < deadline, rig.computed_ahead()
-            time.sleep(0.02)
+        wait_until(lambda: (rig.computed_ahead() or (0.0, 0))[1] >= 4, 120, "all four steps computed ahead", 0.02)
         seconds, steps = rig.computed_ahead()  # type: ignore[misc]
         assert steps == 4 and seconds == pytest.approx(4 * 0.7)
         assert rig.clock.now_ns() == 0  # the runner has taken none of it

@@ -23,7 +23,7 @@ from beambench.studies.sweep.run import (
     run_sweep,
     write_table,
 )
-from conftest import cli, descendants, one_line_error, process_alive
+from conftest import cli, descendants, one_line_error, process_alive, wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -180,7 +180,6 @@ def test_killed_sweep_resumes_from_task_files(tmp_path):
     """A sweep killed mid-run leaves finished tasks in <table>.parts/: the rerun merges them, computes the rest."""
     import subprocess
     import sys
-    import time as _time
 
     spec_file = tmp_path / "k.yaml"
     spec_file.write_text(
@@ -205,21 +204,18 @@ def test_killed_sweep_resumes_from_task_files(tmp_path):
         stderr=subprocess.DEVNULL,
     )
     parts = tmp_path / "k.parquet.parts"
-    deadline = _time.monotonic() + 60
-    while _time.monotonic() < deadline and len(list(parts.glob("*.parquet"))) < 3:
-        _time.sleep(0.05)
+    wait_until(lambda: len(list(parts.glob("*.parquet"))) >= 3, 60, "three points saved", 0.05)
     children = descendants(proc.pid)
     assert len(children) >= 2  # at least the worker and the process it was started from
     proc.kill()
     proc.wait()
     # the sweep's worker processes die with it, mid-task (no orphans left computing or waiting)
-    deadline = _time.monotonic() + 10
-    while _time.monotonic() < deadline and any(Path(f"/proc/{c}").exists() for c in children):
-        _time.sleep(0.05)
-    alive = [c for c in children if process_alive(c)]
-    for c in alive:  # do not leave them behind even when the assertion fails
-        os.kill(c, signal.SIGKILL)
-    assert not alive
+    try:
+        wait_until(lambda: not any(process_alive(c) for c in children), 10, "the sweep's workers to end", 0.05)
+    finally:
+        for c in children:  # do not leave them behind even when the assertion fails
+            if process_alive(c):
+                os.kill(c, signal.SIGKILL)
     saved = len(list(parts.glob("*.parquet")))
     assert 3 <= saved < 12  # killed part-way
     spec = load_sweep(spec_file)

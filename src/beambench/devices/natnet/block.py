@@ -144,13 +144,17 @@ def decode_block(packets: list[bytes], layout: FrameLayout) -> tuple[FrameBlock,
 
     Packets of another length or another layout are marked ``False``: decode those one by one with the codec.
     """
-    n = len(packets)
-    matches = np.fromiter((len(p) == layout.length for p in packets), dtype=bool, count=n)
-    same = [p for p, ok in zip(packets, matches, strict=True) if ok]
-    raw = np.frombuffer(b"".join(same), np.uint8).reshape(len(same), layout.length)
-    fits = np.all(raw[:, layout.structure] == layout.signature, axis=1)
-    matches[matches] = fits
-    raw = raw[fits]
+    # The layout's bytes of every packet of the right length, gathered with ``np.take`` and compared row by row
+    # as bytes: no ufunc, so no iterator buffer allocated with the GIL released (numpy turns a failed buffer
+    # allocation there into a fatal error, not a MemoryError: the process would die while the motor turns).
+    sized = [p for p in packets if len(p) == layout.length]
+    head = np.frombuffer(b"".join(sized), np.uint8).reshape(len(sized), layout.length)
+    picked = np.take(head, layout.structure, axis=1).tobytes()
+    signature, k = layout.signature.tobytes(), len(layout.structure)
+    fits = iter([picked[i : i + k] == signature for i in range(0, len(picked), k)])
+    matches = np.fromiter((len(p) == layout.length and next(fits) for p in packets), dtype=bool, count=len(packets))
+    raw = np.frombuffer(b"".join(p for p, ok in zip(packets, matches, strict=True) if ok), np.uint8)
+    raw = raw.reshape(-1, layout.length)
 
     def records(offset: int, count: int, dtype: np.dtype) -> np.ndarray:
         block = np.ascontiguousarray(raw[:, offset : offset + count * dtype.itemsize])
