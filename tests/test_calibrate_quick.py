@@ -7,7 +7,6 @@ written protocol is a long sweep, as the contact rig's is."""
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import replace
 
 from beambench.sim.settings import SimSettings
