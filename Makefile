@@ -1,7 +1,7 @@
 # Two commands on a fresh clone (needs Python ≥ 3.11 and GNU make):
 #   make run    create .venv on first use (reused after), install beambench, run the contact sweep on the sim
 #   make test   the same venv with the dev extra; lint, format, type and import-layer checks, then the tests
-#   make soak   the soak tier only: more repetitions of the signal and peer-loss races (CI runs it after make test)
+#   make soak   the soak tier only: more race repetitions, the whole 2-min calibration test (CI runs it after make test)
 # Variables: PYTHON (python3), VENV (.venv), OUT (data), RUN_ARGS (extra `beambench run` flags),
 # PYTEST_ARGS (e.g. tests/test_run_sim.py), PYTEST_WORKERS (3; 0 runs in one process). `make clean-venv` removes the venv.
 

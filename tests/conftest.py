@@ -10,9 +10,10 @@
   process): poll a condition until it holds, or check that it keeps holding for a while; no fixed sleeps.
 - :func:`pause` / :func:`random_moment`: where a delay *is* the test's input (a stall of a given length, a worker's
   compute time, a peer's pacing, the random moment a signal or fault is raced at), it is spelled so, saying what it
-  stands for; tests/test_structure.py fails on any other ``time.sleep`` in tests/ (in code strings a child runs too).
+  stands for; tests/test_no_fixed_sleeps.py fails on any other ``time.sleep`` in tests/ (in code strings a child
+  runs too).
 - The soak tier (``@pytest.mark.soak``): more repetitions of a race check, at other random moments, than the
-  default run's one or few. Deselected unless ``--soak`` is given (``make soak``; CI runs it after ``make test``).
+  default run's one or few, and the one test that runs a whole 2-min calibration search. Deselected unless ``--soak`` is given (``make soak``; CI runs it after ``make test``).
   Every Hypothesis test belongs to it too: the default run makes a fifth of its examples (at least 50,
   :func:`fuzz_examples`), the soak tier all of them.
 """

@@ -1,7 +1,9 @@
 """``beambench calibrate sim SESSION --quick`` recovers a twin-made contact session it has not seen: the session is
 the shipped twin at a hidden point (damping, friction and h' moved, none of them the shipped values), noise on; the
 calibration's prior is the shipped twin. The calibrated protocol's map (the verify stage: the written protocol run
-as the user runs it) puts the session's landmarks within ±2 Hz."""
+as the user runs it) puts the session's landmarks within ±2 Hz. The whole search takes its 2 min on both cores, so
+it runs in the soak tier (``make soak``, CI); the default tier checks its parts on toy rigs
+(``test_calibrate_quick.py``, ``test_calibrate_verdict.py``) and in a tiny real search (``test_calibrate_sim.py``)."""
 
 from __future__ import annotations
 
@@ -39,6 +41,7 @@ def _beambench(*args: str) -> subprocess.CompletedProcess:
 
 
 @pytest.mark.slow
+@pytest.mark.soak  # the whole 2-min search on both cores: the CI tier (its parts run by default: test_calibrate_*)
 def test_a_quick_calibration_recovers_a_hidden_twins_regime_map(tmp_path: Path) -> None:
     shipped = (shipped_dir("sim_backend") / "rod_physical.yaml").read_text()
     doc = yaml.safe_load(shipped)

@@ -248,3 +248,29 @@ def test_a_peer_that_fails_is_one_line_not_a_traceback(capfd):
         rig.close()
     err = capfd.readouterr().err
     assert "Traceback" not in err, err
+
+
+@pytest.mark.parametrize(
+    "exc",
+    [
+        MemoryError(),
+        ImportError("std::bad_alloc"),  # MuJoCo's import under a limit (pybind11 passes the C++ error on)
+        RuntimeError("Could not allocate memory"),
+        ImportError("/x/_mujoco.so: failed to map segment from shared object"),
+        RuntimeError("can't start new thread"),
+    ],
+)
+def test_every_shape_of_running_out_is_named_out_of_memory(exc):
+    from beambench.common.out_of_memory import out_of_memory
+
+    assert out_of_memory(exc) is not None
+    wrapped = RuntimeError("the rig could not be built")
+    wrapped.__cause__ = exc
+    assert out_of_memory(wrapped) is not None  # also where it is the cause of another error
+
+
+@pytest.mark.parametrize("exc", [ImportError("No module named 'mujoco'"), ValueError("bad alloc size")])
+def test_other_errors_are_not_out_of_memory(exc):
+    from beambench.common.out_of_memory import out_of_memory
+
+    assert out_of_memory(exc) is None

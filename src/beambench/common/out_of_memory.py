@@ -1,7 +1,8 @@
 """One answer to "did the process run out of memory?", shared by the runner and the command line.
 
 Under a memory limit the failure takes several shapes: a ``MemoryError``, MuJoCo's "Could not allocate memory",
-an extension module's import that cannot map its segment, or CPython refusing a thread ("can't start new thread").
+an extension module's import that cannot map its segment or whose C++ start-up runs out (pybind11 passes on
+``std::bad_alloc`` as the import's error: MuJoCo's), or CPython refusing a thread ("can't start new thread").
 Each is a resource running out, not a bug, and gets one line instead of a traceback.
 """
 
@@ -9,7 +10,13 @@ from __future__ import annotations
 
 __all__ = ["memory_limited", "out_of_memory", "preload_blas"]
 
-_NO_MEMORY = ("could not allocate memory", "cannot allocate memory", "failed to map segment", "can't start new thread")
+_NO_MEMORY = (
+    "could not allocate memory",
+    "cannot allocate memory",
+    "failed to map segment",
+    "can't start new thread",
+    "std::bad_alloc",
+)
 _CHAIN = 8  # how far down __cause__/__context__ to look
 
 
