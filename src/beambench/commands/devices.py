@@ -73,10 +73,7 @@ def ping_all(rig: Any) -> dict[str, dict[str, Any]]:
 
         out["motor (ODrive USB)"] = odrive_usb.ping(od.serial_number)
     for stream in DEVICE_STREAMS.values():
-        if stream.ping is None:
-            continue
-        try:
-            out[stream.label] = stream.ping(getattr(rig, stream.section))
-        except Exception as exc:
-            out[stream.label] = {"found": False, "error": str(exc)}
+        answer = stream.ask(rig)
+        if answer is not None:
+            out[stream.label] = answer
     return out

@@ -158,14 +158,11 @@ def stream_row(m: Machine, stream: DeviceStream) -> Row:
     if special is not None:
         return special(m)
     need = not m.sim_only
-    section = getattr(m.rig, stream.section, None)
-    if stream.ping is None or section is None:
-        why = "no section in this rig file" if section is None else "its driver cannot ask it who it is"
+    wired = hasattr(m.rig, stream.section)
+    answer = stream.ask(m.rig) if wired else None
+    if answer is None:
+        why = "its driver cannot ask it who it is" if wired else "no section in this rig file"
         return Row(stream.label, "advice", f"not checked: {why}", f"see the rig file's {stream.section}: section")
-    try:
-        answer = stream.ping(section)
-    except Exception as exc:  # any failure to reach the device is the row's answer, never the doctor's crash
-        answer = {"found": False, "error": str(exc)}
     said = ", ".join(f"{k} {v}" for k, v in answer.items() if k not in ("found", "error"))
     if answer.get("found"):
         return Row(stream.label, "ok", said or "answers", "", need)

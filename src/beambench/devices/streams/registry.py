@@ -54,6 +54,16 @@ class DeviceStream:
     label: str
     """What ``beambench devices`` calls it."""
 
+    def ask(self, rig: Any) -> dict[str, Any] | None:
+        """Its device's answer to :attr:`ping`, wired by ``rig``'s section (``found``: whether it answered); a
+        failure to reach it is the answer (``found`` False and the ``error``), never raised; None: no ping."""
+        if self.ping is None:
+            return None
+        try:
+            return self.ping(getattr(rig, self.section))
+        except Exception as exc:  # an absent or broken device is an answer, never the caller's crash
+            return {"found": False, "error": str(exc)}
+
 
 DEVICE_STREAMS: Registry[DeviceStream] = Registry("device stream")
 """The streams of the hardware and emulated rigs, by name (the rig's identity key and ``rig.<name>``), in the order of
