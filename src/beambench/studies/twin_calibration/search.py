@@ -230,25 +230,26 @@ class Search:
         one = self.ev.cost_s(self.ev.stage_sim("fine"), len(self.fine))
         return makespan([one] * n, max(1, self.pool.workers))
 
+    def written_batch_s(self, n: int) -> float:
+        """The modelled time of ``n`` written-protocol runs on the pool's workers (rigs with ``verify``)."""
+        return makespan([self.ev.cost_s(WrittenRun(""), 0)] * n, max(1, self.pool.workers))
+
     def spread_beyond_verify_s(self) -> float:
         """The modelled time of the written runs at the spread seeds beyond the verify stage's two (rigs with
         ``verify``)."""
-        w = max(1, self.pool.workers)
-        return math.ceil(max(0, self.settings.spread_seeds - 2) / w) * self.ev.cost_s(WrittenRun(""), 0)
+        return self.written_batch_s(max(0, self.settings.spread_seeds - 2))
 
     def reserve_s(self, fine: bool = True) -> float:
         """The modelled time of the stages after the coarse one (``fine``: the fine maps of the best
         ``refine_top`` points too): the verify stage's written-protocol runs (two noise seeds per candidate, and
         the spread seeds beyond them) or, without a verify stage, the winner's spread seeds on every target
         frequency; from the cost per simulated second of the maps so far (0 before the first)."""
-        w, st = max(1, self.pool.workers), self.settings
-        fine_s = self.ev.cost_s(self.ev.stage_sim("fine"), len(self.fine))  # as the fine batch will be priced
-        out = math.ceil(st.refine_top / w) * fine_s if fine and st.refine_top > 0 else 0.0
+        st = self.settings
+        out = self.fine_batch_s(st.refine_top) if fine and st.refine_top > 0 else 0.0
         if self.rig.verify is not None and st.verify_top > 0:
-            run_s = self.ev.cost_s(WrittenRun(""), 0)
             n = 1 if st.verify_fill else st.verify_top
-            return out + math.ceil(2 * n / w) * run_s + self.spread_beyond_verify_s()
-        return out + math.ceil(max(0, st.spread_seeds - 1) / w) * fine_s
+            return out + self.written_batch_s(2 * n) + self.spread_beyond_verify_s()
+        return out + self.fine_batch_s(max(0, st.spread_seeds - 1))
 
 
 def calibrate(
