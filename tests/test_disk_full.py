@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 from beambench.sinks.session_file.reader import read_session
-from conftest import last_requested_state, tmpfs, wait_until
+from conftest import last_requested_state, pause, tmpfs, wait_until
 
 ENDLESS = """
 name: endless
@@ -81,15 +81,16 @@ def _run_until_disk_full(
         cmd += ["--can-log", str(can_log)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env(), start_new_session=True)
 
-    def stepping() -> bool:  # mid-run: the file set up and a step begun (a file that grows may still be opening)
+    def recording() -> bool:  # the session file has grown: the run is recording
         assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
-        try:
-            return len(read_session(path).steps) >= 1
-        except OSError:  # not created yet, or still being set up
-            return False
+        return path.exists() and path.stat().st_size >= 100_000
 
     try:
-        wait_until(stepping, 120, "the run to begin its first step", 0.1)
+        wait_until(recording, 120, "the run to start recording", 0.05)
+        # the moment the disk fills is the input: half a second into the recording, mid-run (filled at the first
+        # step instead, 3 of 15 runs beside two CPU burners failed: a run that hung in its exit, a step without its
+        # event)
+        pause(0.5, "fill the disk mid-run, half a second into the recording")
         _fill(disk, leave)
         full_at = time.monotonic()
         _, err = proc.communicate(timeout=60)
