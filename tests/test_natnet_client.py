@@ -172,6 +172,7 @@ def test_a_frame_encoded_before_a_bitstream_change_is_still_read_after_it():
     old = nn.encode(frame, nw.V4_1)
     with pytest.raises(nw.NatNetParseError):
         nn.decode(old, nw.V3_0)  # the premise: in the new version this packet does not parse
+
     def old_ones() -> int:
         return sum(f.frame_number == 99_999 for _, f in list(client.frames))
 
