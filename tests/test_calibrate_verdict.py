@@ -353,7 +353,7 @@ def test_where_a_search_stops_depends_on_what_it_ran_not_on_how_long_each_map_to
         rng = random.Random(seed)
 
         def slow(base: CalibrationBase, values: dict, frequencies: list, sim: object) -> dict:
-            random_moment(rng, 0.1, 0.4, "a map's wall time on a loaded machine: a wall-clock budget ends elsewhere")
+            random_moment(rng, 0.02, 0.12, "a map's wall time on a loaded machine: a wall-clock budget ends elsewhere")
             return toy_simulate(base, values, frequencies, sim)
 
         with RIGS.stand_in("contact", replace(TOY, simulate=slow)):
