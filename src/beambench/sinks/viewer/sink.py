@@ -33,6 +33,7 @@ import numpy as np
 import rerun as rr
 
 from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
+from beambench.common.unfinished import leave_unfinished
 from beambench.sinks.viewer import RerunMode
 from beambench.sinks.viewer.layout import TIMELINE, RigLayout, blueprint, layout_of, series_styles
 from beambench.sinks.viewer.scene import FOLLOW_ENTITY, Scene3D
@@ -241,14 +242,18 @@ class RerunSink:
 
     def close(self) -> None:
         """Send what waits, flush and disconnect, within :data:`CLOSE_TIMEOUT_S`: on a full disk the SDK's file
-        sink never finishes (``RecordingStream::set_sink`` waits for it), so the wait is bounded and given up."""
+        sink never finishes (``RecordingStream::set_sink`` waits for it), so the wait is bounded and given up. A
+        recording given up is left unfinished (:mod:`beambench.common.unfinished`): the SDK's exit hook and its
+        drop at interpreter shutdown would wait for the stuck sink too, so the command line ends the process
+        past them."""
         try:
             for entity in list(self._pending):
                 self._flush(entity)
         finally:
             finished = _within(self._finish, CLOSE_TIMEOUT_S)
         if not finished:
-            rr.unregister_shutdown()  # the SDK's exit hook would wait for the stuck sink too
+            rr.unregister_shutdown()  # for a caller that ends the process itself: one hook less that would wait
+            leave_unfinished(self.label, self.rec)
             raise RuntimeError(f"not finished within {CLOSE_TIMEOUT_S:g} s (a full disk?): it may be cut short")
 
     def _finish(self) -> None:
