@@ -246,6 +246,35 @@ def test_whichever_of_a_step_row_and_its_event_meets_the_full_disk_the_file_hold
     assert list(s.steps["index"]) == list(range(begun)) and s.steps["status"].iloc[-1] == "failed"
 
 
+def test_a_view_saved_onto_a_full_disk_ends_in_one_line_and_exit_4(tmp_path, small_disk):
+    """``beambench view --rerun save``: the recording's file sink stops at the full disk (or never finishes); the
+    command ends in one line naming the recording, exit 4, without a traceback and without hanging at its exit."""
+    rig = FakeRig()
+    session = tmp_path / "s.h5"
+    writer = SessionWriter(session, {"protocol": ENDLESS, "rig": "plate"})
+    hub = Hub([writer], critical=(writer,))
+    hub.open([s.describe() for s in rig.streams])
+    rig.open()
+    limits = MotorLimits(max_frequency_hz=20.0, max_current_a=5.0, amplitude_mm=2.0)
+    Runner(rig, hub, [Step(i, 5.0, 0.5, 1.5) for i in range(10)], limits, poll_s=0.1).run()
+    _fill(small_disk, 100_000)  # a session of ~2 MB: its recording does not fit
+    rrd = small_disk / "v.rrd"
+    started = time.monotonic()
+    res = subprocess.run(
+        [sys.executable, "-m", "beambench.cli", "view", str(session), "--rerun", "save", "--out", str(rrd)],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=120,
+    )
+    took = time.monotonic() - started
+    assert res.returncode == 4, res.stderr[-3000:]
+    assert "Traceback" not in res.stderr and "Fatal Python" not in res.stderr, res.stderr[-3000:]
+    said = [line for line in res.stderr.splitlines() if "beambench:" in line]
+    assert len(said) == 1 and f"recording {rrd}: not finished" in said[0], said
+    assert took < 60.0, f"{took:.1f} s"  # the close is given up after CLOSE_TIMEOUT_S; a hung exit never ends
+
+
 def test_a_disk_that_stays_full_still_ends_in_one_line_without_a_crash(tmp_path, small_disk):
     """No reserve to free (shrunk to 8 kB here): the file cannot be flushed nor closed. Nothing may print h5py's
     "Can't decrement id ref count" nor crash in HDF5's exit handler (exit 139 before); the file reads as of its

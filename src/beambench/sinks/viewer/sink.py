@@ -63,6 +63,15 @@ def view_coordinates(up_axis: str) -> rr.components.ViewCoordinates:
     return _UP[up_axis.lstrip("+")]
 
 
+class RecordingNotFinished(RuntimeError):
+    """A recording's close failed or was given up (its file could not be written: a full disk?); ``label`` names
+    the recording (``recording PATH`` or ``live view``), the message says why."""
+
+    def __init__(self, label: str, reason: str) -> None:
+        super().__init__(reason)
+        self.label = label
+
+
 @dataclass
 class _Pending:
     """Columns of one entity waiting to go out in one ``send_columns`` call."""
@@ -250,11 +259,17 @@ class RerunSink:
             for entity in list(self._pending):
                 self._flush(entity)
         finally:
-            finished = _within(self._finish, CLOSE_TIMEOUT_S)
+            try:
+                finished = _within(self._finish, CLOSE_TIMEOUT_S)
+            except RuntimeError as exc:  # the SDK's file sink stopped at a write error ("File-writer thread …")
+                raise RecordingNotFinished(
+                    self.label, f"not finished ({exc}; a full disk?): it may be cut short"
+                ) from None
         if not finished:
             rr.unregister_shutdown()  # for a caller that ends the process itself: one hook less that would wait
             leave_unfinished(self.label, self.rec)
-            raise RuntimeError(f"not finished within {CLOSE_TIMEOUT_S:g} s (a full disk?): it may be cut short")
+            why = f"not finished within {CLOSE_TIMEOUT_S:g} s (a full disk?): it may be cut short"
+            raise RecordingNotFinished(self.label, why)
 
     def _finish(self) -> None:
         self.rec.flush(timeout_sec=CLOSE_TIMEOUT_S)
