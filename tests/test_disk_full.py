@@ -275,6 +275,78 @@ def test_a_view_saved_onto_a_full_disk_ends_in_one_line_and_exit_4(tmp_path, sma
     assert took < 60.0, f"{took:.1f} s"  # the close is given up after CLOSE_TIMEOUT_S; a hung exit never ends
 
 
+# A command that saves a recording into a file that stops taking writes (a FIFO whose reader never reads: the
+# SDK's file sink blocks, as on a disk that stalls); after the close is given up its flush thread ends, the
+# command drops the sink (the garbage collector would drop the SDK's stream: before, that waited for the stuck
+# sink for ever) and says its line.
+STUCK_RECORDING = r"""
+import gc, os, sys, threading, time
+from pathlib import Path
+import numpy as np
+import beambench.cli as cli
+from beambench.acquisition.batch import Batch
+from beambench.acquisition.streams import motor_spec
+from beambench.commands import EXIT_SINK, fail
+from beambench.sinks.viewer.sink import RerunSink
+
+
+def wait_until(condition, timeout_s):
+    end = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < end:
+        time.sleep(0.05)
+
+
+@cli.app.command("stuck")
+def stuck(fifo: Path) -> None:
+    os.mkfifo(fifo)
+    os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader that never reads
+    sink = RerunSink("save", "stuck", fifo)
+    spec = motor_spec()
+    sink.open([spec])
+    n = 50_000  # megabytes: far more than a pipe holds
+    cols = {name: np.zeros((n, *c.shape), c.dtype) for name, c in spec.columns.items()}
+    sink.write(Batch("motor", np.arange(n, dtype=np.int64) * 1_000_000, np.arange(n) * 1e-3, cols))
+    try:
+        sink.close()
+    except RuntimeError as exc:
+        why = f"{sink.label}: {exc}"
+    else:
+        why = "closed"
+    wait_until(lambda: all(t.name != "rerun-close" for t in threading.enumerate()), 30)
+    del sink
+    gc.collect()
+    fail(why, EXIT_SINK)
+
+
+sys.argv = ["beambench", "stuck", sys.argv[1]]
+cli.main()
+"""
+
+
+def test_a_recording_whose_file_stops_taking_writes_ends_the_command_in_one_line(tmp_path):
+    script = tmp_path / "stuck.py"
+    script.write_text(STUCK_RECORDING)
+    fifo = tmp_path / "stuck.rrd"
+    proc = subprocess.Popen(
+        [sys.executable, str(script), str(fifo)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=_env(),
+        start_new_session=True,
+    )
+    try:
+        _, err = proc.communicate(timeout=60)  # the close is given up after 5 s; a hung exit never ends
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    text = err.decode(errors="replace")
+    assert proc.returncode == 4, text[-3000:]
+    said = [line for line in text.splitlines() if "beambench:" in line]
+    assert len(said) == 1 and f"recording {fifo}: not finished within" in said[0], said
+    assert "Traceback" not in text and "Fatal Python" not in text, text[-3000:]
+
+
 def test_a_disk_that_stays_full_still_ends_in_one_line_without_a_crash(tmp_path, small_disk):
     """No reserve to free (shrunk to 8 kB here): the file cannot be flushed nor closed. Nothing may print h5py's
     "Can't decrement id ref count" nor crash in HDF5's exit handler (exit 139 before); the file reads as of its

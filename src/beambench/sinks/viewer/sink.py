@@ -251,25 +251,24 @@ class RerunSink:
 
     def close(self) -> None:
         """Send what waits, flush and disconnect, within :data:`CLOSE_TIMEOUT_S`: on a full disk the SDK's file
-        sink never finishes (``RecordingStream::set_sink`` waits for it), so the wait is bounded and given up. A
-        recording given up is left unfinished (:mod:`beambench.common.unfinished`): the SDK's exit hook and its
-        drop at interpreter shutdown would wait for the stuck sink too, so the command line ends the process
-        past them."""
+        sink may never finish (``RecordingStream::set_sink`` waits for it), so the wait is bounded and given up.
+
+        A recording that did not finish (given up, or its file sink stopped at a write error) is left unfinished
+        (:mod:`beambench.common.unfinished`), its stream kept: dropping it (the garbage collector, the SDK's exit
+        hook) waits for the stuck sink for ever, so the command line ends the process past them."""
         try:
             for entity in list(self._pending):
                 self._flush(entity)
         finally:
             try:
                 finished = _within(self._finish, CLOSE_TIMEOUT_S)
+                why = f"not finished within {CLOSE_TIMEOUT_S:g} s (a full disk?): it may be cut short"
             except RuntimeError as exc:  # the SDK's file sink stopped at a write error ("File-writer thread …")
-                raise RecordingNotFinished(
-                    self.label, f"not finished ({exc}; a full disk?): it may be cut short"
-                ) from None
-        if not finished:
-            rr.unregister_shutdown()  # for a caller that ends the process itself: one hook less that would wait
-            leave_unfinished(self.label, self.rec)
-            why = f"not finished within {CLOSE_TIMEOUT_S:g} s (a full disk?): it may be cut short"
-            raise RecordingNotFinished(self.label, why)
+                finished, why = False, f"not finished ({exc}; a full disk?): it may be cut short"
+            if not finished:
+                rr.unregister_shutdown()  # for a caller that ends the process itself: one hook less that would wait
+                leave_unfinished(self.label, self.rec)
+                raise RecordingNotFinished(self.label, why)
 
     def _finish(self) -> None:
         self.rec.flush(timeout_sec=CLOSE_TIMEOUT_S)
