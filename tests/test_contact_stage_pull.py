@@ -18,6 +18,24 @@ def _rig(clamp_roll_deg: float, dt: float, gap_m: float = 0.002) -> ContactRigSi
     return ContactRigSim(beam, 90.0, gap_m, rig=rig, timestep=dt)
 
 
+def _pull_and_controls(sim: ContactRigSim, t_end: float) -> tuple[np.ndarray, np.ndarray]:
+    """Advance ``sim`` to ``t_end``: the new rows' ``pull_x`` and the controls its physics was stepped with, one
+    row a step (watched on ``physics.step``)."""
+    physics = sim.physics
+    step, applied = physics.step, []
+
+    def watched(ctrl: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        applied.append(np.array(ctrl, copy=True))
+        return step(ctrl)
+
+    physics.step = watched  # type: ignore[method-assign]
+    try:
+        pull = sim.advance_to(t_end).channels["pull_x"]
+    finally:
+        del physics.step  # the class's own again
+    return pull, np.concatenate(applied)
+
+
 def test_a_hanging_beam_pulls_the_held_stage_along_its_travel_by_nothing_at_any_clamp_roll():
     # the beam and its 30 g frame hang from the clamp: their weight (~0.34 N) is vertical, so the stage, held
     # still, feels no force along x (the plate 50 mm down, out of reach); a sensor read in the clamp's turned
@@ -38,9 +56,9 @@ def test_the_pull_is_the_clamped_subtrees_force_on_the_stage_to_first_order_in_t
         sim.set_frequency(25.0)
         sim.advance_to(1.5)
         snap = sim.snapshot()
-        new = sim.advance_to(1.7).channels["pull_x"]
+        new, ctrl = _pull_and_controls(sim, 1.7)
         sim.restore(snap)
-        ctrl, _ = sim._plan(len(new), dt)
+        assert len(ctrl) == len(new)
         m, d = sim.physics.model, sim.physics.data
         clamp = m.body("clamp").id
         ref = np.empty(len(new))

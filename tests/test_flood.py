@@ -45,7 +45,7 @@ def _flood(rig, stop: threading.Event, sent: dict) -> None:
         60,
         "closed loop",
     )
-    targets = {"mocap": rig.mocap.client._cmd.getsockname(), "motor": ("127.0.0.1", motor.link.bus.port)}
+    targets = {"mocap": rig.mocap.client.receive_address, "motor": ("127.0.0.1", motor.link.bus.port)}
     rng = np.random.default_rng(7)
     junk = [rng.bytes(int(n)) for n in rng.integers(1, 1400, 64)]
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

@@ -327,17 +327,26 @@ def test_a_spawned_viewer_listens_on_loopback_only(xvfb_display, monkeypatch):
 
 
 def test_the_headless_viewer_listens_on_loopback_only():
+    """The viewer process it starts (this process's new child, listening on the viewer's port) listens on
+    loopback only, on every port it opens."""
+    import psutil
+
     from beambench.session.viewer import HeadlessViewer, ViewerUnavailable, vulkan_available
 
     if not vulkan_available():
         skip_unless_ci("no Vulkan driver for the headless viewer")
+    me = psutil.Process()
+    before = {p.pid for p in me.children(recursive=True)}
     try:
         viewer = HeadlessViewer().__enter__()
     except ViewerUnavailable as exc:
         skip_unless_ci(str(exc))
     try:
-        assert viewer._proc is not None
-        addresses = _listening_addresses(viewer._proc.pid)
+        spawned = [p for p in me.children(recursive=True) if p.pid not in before]
+        assert len(spawned) == 1, spawned
+        connections = spawned[0].net_connections(kind="inet")
+        assert viewer.port in {c.laddr.port for c in connections if c.status == psutil.CONN_LISTEN}
+        addresses = _listening_addresses(spawned[0].pid)
         assert addresses and all(a in ("127.0.0.1", "::1") for a in addresses), addresses
     finally:
         viewer.__exit__(None, None, None)

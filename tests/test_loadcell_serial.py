@@ -248,23 +248,24 @@ def test_a_silence_found_by_check_is_not_raised_again_by_the_final_read():
         mcu.close()
 
 
-def test_a_reader_that_got_no_cpu_does_not_make_a_streaming_board_silent():
+def test_a_reader_that_got_no_cpu_does_not_make_a_streaming_board_silent(monkeypatch):
     """A host that stalls (suspended, starved of CPU) leaves the reader thread asleep while the board's frames
     wait on the wire: the board is not silent, and a check that runs before the reader wakes must not blame it
     (it did: a 2 s SIGSTOP of a run ended as 'loadcell: silent for 2.02 s' instead of the host's stall, now and
-    then under load). The reader is held here as a stall holds it, before its next read of the port. Held for
-    over ten timeouts it is hung, and the board is then judged on the host's clock."""
+    then under load). The reader is held here as a stall holds it, before its next read of the port (pyserial's
+    read, which the driver's thread alone calls: the emulated board writes its pty's other end). Held for over ten
+    timeouts it is hung, and the board is then judged on the host's clock."""
+    import serial
+
     mcu = EmulatedLoadCellMCU(force, PLATE, tx_buffer=BIG_TX, seed=5)
     port = mcu.open()
     lc = SerialLoadCells(port, silence_timeout_s=0.1)
     awake = threading.Event()
     awake.set()
+    read = serial.Serial.read
+    monkeypatch.setattr(serial.Serial, "read", lambda ser, n=1: (awake.wait(), read(ser, n))[1])
     try:
         lc.start()
-        ser = lc._ser
-        assert ser is not None
-        read = ser.read
-        ser.read = lambda n=1: (awake.wait(), read(n))[1]  # type: ignore[method-assign]
         mcu.start()
         wait_until(lambda: lc.last_receive_ns is not None, what="a first frame")
         awake.clear()  # the reader stops at its next read; the board keeps sending

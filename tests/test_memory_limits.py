@@ -81,7 +81,7 @@ def turning():  # armed and turning: 0.3 s of telemetry
 
 
 def idle_sent():
-    return motor._idle_sent_ns is not None
+    return motor.idle_sent_ns is not None
 
 
 def idle_frames_out():  # the idle frames went out under the limit

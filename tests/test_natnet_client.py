@@ -17,7 +17,7 @@ from beambench.acquisition.streams import MOCAP
 from beambench.devices.natnet import frame as nf
 from beambench.devices.natnet import protocol as nn
 from beambench.devices.natnet import wire as nw
-from beambench.devices.natnet.client import NatNetClient, NatNetConfig, NatNetError, ping
+from beambench.devices.natnet.client import BITSTREAM_GRACE_NS, NatNetClient, NatNetConfig, NatNetError, ping
 from beambench.devices.natnet.emulated_motive import EmulatorClock, MotiveEmulator
 from beambench.devices.natnet.mocap import MarkerSource, NatNetMocap
 from beambench.devices.receive_time import mono_minus_real_ns
@@ -119,7 +119,9 @@ def test_garbage_packets_are_counted_and_never_stop_the_stream():
     with emulator("4.1", multicast=False) as emu:
         client = NatNetClient(config_for(emu)).connect()
         try:
-            port = client._cmd.getsockname()[1]  # unicast frames come to the command socket
+            address = client.receive_address  # unicast frames come to the command socket
+            assert address is not None and address[0] == "127.0.0.1"
+            port = address[1]
             junk = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             good = nn.encode(nf.FrameOfData(1, timestamp=1.0), nw.V4_1)
             garbage = [
@@ -140,7 +142,8 @@ def test_garbage_packets_are_counted_and_never_stop_the_stream():
             # not from the server: dropped unread and counted as forged, never a parse error
             assert client.stats.forged == len(garbage) and client.stats.parse_errors == 0
             assert client.stats.frames > before + 50  # still streaming
-            assert client._thread.is_alive()
+            after = client.stats.frames
+            wait_until(lambda: client.stats.frames > after, what="frames after the junk")  # the thread lives on
         finally:
             client.close()
 
@@ -169,16 +172,22 @@ def test_a_frame_encoded_before_a_bitstream_change_is_still_read_after_it():
     old = nn.encode(frame, nw.V4_1)
     with pytest.raises(nw.NatNetParseError):
         nn.decode(old, nw.V3_0)  # the premise: in the new version this packet does not parse
-    with emulator("4.1", multicast=False) as emu, NatNetClient(config_for(emu, bitstream_version="3.0")) as client:
-        assert client.version == nw.V3_0
+
+    def old_ones() -> int:
+        return sum(f.frame_number == 99_999 for _, f in list(client.frames))
+
+    with emulator("4.1", multicast=False) as emu, NatNetClient(config_for(emu)) as client:
         client.keep_frames = True
         errors = client.stats.parse_errors
-        client._handle(old, time.monotonic_ns())  # as the receive thread hands it a datagram from the server
+        client.set_bitstream_version("3.0")
+        assert client.version == nw.V3_0
+        assert emu.send_packet(old) == 1  # from the server's data port, after the change: as a late frame goes out
+        wait_until(old_ones, what="the frame encoded before the change")
         assert client.stats.parse_errors == errors
-        assert any(f.frame_number == 99_999 for _, f in list(client.frames))
-        client._previous_bitstream = (nw.V4_1, time.monotonic_ns() - 1)  # the grace is over
-        client._handle(old, time.monotonic_ns())
-        assert client.stats.parse_errors == errors + 1
+        pause(BITSTREAM_GRACE_NS * 1e-9, "the grace after the change runs out")
+        assert emu.send_packet(old) == 1
+        wait_until(lambda: client.stats.parse_errors == errors + 1, what="the old frame refused after the grace")
+        assert old_ones() == 1
 
 
 @pytest.mark.parametrize("keep_raw", [False, True], ids=["decoded", "raw"])

@@ -356,7 +356,7 @@ def test_fuzz_random_bytes(packet, version):
 
 
 @settings(max_examples=fuzz_examples(1500), deadline=BOUND)
-@given(st.sampled_from(list(nn._MESSAGES)), st.binary(max_size=400), VERSIONS)
+@given(st.sampled_from(list(nw.MessageId)), st.binary(max_size=400), VERSIONS)
 def test_fuzz_every_message_id_with_random_payload(msg_id, payload, version):
     check_only_parse_error(struct.pack("<HH", msg_id, len(payload)) + payload, version)
 

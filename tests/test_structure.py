@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import functools
+import textwrap
 from pathlib import Path
 
 import beambench
@@ -408,3 +409,139 @@ def test_no_test_module_imports_an_optional_engine_at_collection() -> None:
         if package in NOT_AT_COLLECTION
     ]
     assert found == []
+
+
+TESTS = REPO / "tests"
+# A test's own stand-in may hold a private name that one of beambench's objects also has: expression as written in
+# its test module → why it is the test's own
+OWN_PRIVATES = {
+    ("test_odrive_usb.py", "odrv._log"): "the USB ODrive stand-in (a test class) logs the properties written to it",
+    ("test_odrive_usb.py", "stuck._log"): "a stand-in axis of that test shares the stand-in device's log",
+    ("test_disk_full.py", "w._tables"): "the writer's steps table, mid-write: not yet observed through the file",
+}
+
+
+def _is_private(name: str) -> bool:
+    return len(name) > 1 and name.startswith("_") and not name.startswith("__")
+
+
+@functools.cache
+def _beambench_private_names() -> frozenset[str]:
+    """Every private name beambench defines: attributes it assigns (``self._x = …``), functions, methods and
+    classes, module- and class-level names (a superset: locals too)."""
+    names: set[str] = set()
+    for path in _modules():
+        for node in _nodes(path):
+            if isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+                names.add(node.attr)
+            elif isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                names.add(node.name)
+            elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+                names.add(node.id)
+    return frozenset(filter(_is_private, names))
+
+
+def _foreign_names(tree: ast.AST) -> set[str]:
+    """The names a module binds by importing from outside beambench (``os``, ``np``, ``sleep`` …)."""
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {a.asname or a.name.split(".")[0] for a in node.names if not a.name.startswith("beambench")}
+        elif isinstance(node, ast.ImportFrom) and not (node.module or "").startswith("beambench"):
+            names |= {a.asname or a.name for a in node.names}
+    return names
+
+
+def _root(node: ast.expr) -> ast.expr:
+    """The name an expression such as ``rig.mocap.client._cmd`` or ``f(x)._y[0]._z`` starts from (``super()``
+    stands for ``self``)."""
+    while isinstance(node, ast.Attribute | ast.Subscript | ast.Call):
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "super":
+            return ast.Name("self")
+        node = node.func if isinstance(node, ast.Call) else node.value
+    return node
+
+
+def _private_reaches(tree: ast.AST, private: frozenset[str]) -> list[tuple[int, str]]:
+    """(line, expression) of each ``x._name`` (and ``getattr``/``setattr``/``hasattr`` of ``"_name"``) where
+    ``_name`` is one of beambench's private names and ``x`` is not ``self``/``cls``/``super()`` (a class's own, or
+    its base's, in a subclass a test defines) or imported from elsewhere."""
+    foreign = _foreign_names(tree) | {"self", "cls"}
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and node.attr in private:
+            root = _root(node.value)
+            if not (isinstance(root, ast.Name) and root.id in foreign):
+                found.append((node.lineno, ast.unparse(node)))
+        elif (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id in ("getattr", "setattr", "hasattr")
+            and len(node.args) >= 2
+            and isinstance(node.args[1], ast.Constant)
+            and node.args[1].value in private
+        ):
+            found.append((node.lineno, ast.unparse(node)))
+    return found
+
+
+def _code_strings(tree: ast.AST) -> list[tuple[int, ast.Module]]:
+    """The string literals of several lines that parse as Python (scripts a test runs in a child), parsed."""
+    parsed = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and "\n" in node.value.strip():
+            try:
+                parsed.append((node.lineno, ast.parse(textwrap.dedent(node.value))))
+            except SyntaxError:
+                continue
+    return parsed
+
+
+def private_reaches(path: Path) -> list[str]:
+    """``file:line expression`` of each reach into a beambench private name in one test module, in its own code
+    and in the code strings it runs, less :data:`OWN_PRIVATES`."""
+    private = _beambench_private_names()
+    tree = ast.parse(path.read_text(), str(path))
+    found = [(line, expr, "") for line, expr in _private_reaches(tree, private)]
+    for line, inner in _code_strings(tree):
+        found += [(line, expr, f" (code string, its line {n})") for n, expr in _private_reaches(inner, private)]
+    kept = sorted(hit for hit in found if (path.name, hit[1]) not in OWN_PRIVATES)
+    return [f"{path.name}:{line} {expr}{where}" for line, expr, where in kept]
+
+
+def test_no_test_reaches_into_a_private_attribute_of_beambench() -> None:
+    """A test observes a driver through what a user has: the socket it talks to, a public property, the file, the
+    wire; never ``rig.mocap.client._cmd``. Its own stand-ins' private names are listed in :data:`OWN_PRIVATES`."""
+    files = sorted(TESTS.glob("*.py"))
+    assert len(files) > 50
+    files.remove(Path(__file__).resolve())  # its probe spells private reaches on purpose
+    found = [hit for path in files for hit in private_reaches(path)]
+    assert found == []
+
+
+def test_the_private_reach_check_finds_each_spelling(tmp_path: Path) -> None:
+    """The checker itself: attribute chains, module privates, ``getattr`` by name and code strings are found;
+    ``self``/``super()``, names imported from elsewhere, names beambench does not define and allow-listed stand-ins
+    pass."""
+    assert {"_cmd", "_ser", "_MESSAGES", "_idle_sent_ns", "_log"} <= _beambench_private_names()
+    assert "_not_a_beambench_name" not in _beambench_private_names()
+    code = (
+        "import os\nfrom beambench.devices.natnet import protocol as nn\n"
+        "class Peer:\n    def f(self):\n        return self._cmd, super()._command\n"
+        "def g(rig, lc, odrv):\n    rig.mocap.client._cmd.getsockname()\n    os._exit(0)\n    nn._MESSAGES\n"
+        "    getattr(lc, '_ser')\n    rig._not_a_beambench_name\n    rig.__dict__\n    odrv._log\n"
+        "SCRIPT = 'x = 1\\nmotor._idle_sent_ns\\n'\n"
+        "PROSE = 'reads client._cmd\\nand more'\n"
+    )
+    probe = tmp_path / "test_probe.py"
+    probe.write_text(code)
+    assert private_reaches(probe) == [
+        "test_probe.py:7 rig.mocap.client._cmd",
+        "test_probe.py:9 nn._MESSAGES",
+        "test_probe.py:10 getattr(lc, '_ser')",
+        "test_probe.py:13 odrv._log",
+        "test_probe.py:14 motor._idle_sent_ns (code string, its line 2)",
+    ]
+    allowed = tmp_path / "test_odrive_usb.py"  # the same line in the module whose stand-in it is: allowed
+    allowed.write_text("def g(odrv):\n    return odrv._log\n")
+    assert private_reaches(allowed) == []

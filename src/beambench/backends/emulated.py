@@ -67,6 +67,11 @@ class RealtimePhysics:
     def markers(self) -> tuple[str, ...]:
         return tuple(self.scene.markers)
 
+    @property
+    def t0(self) -> float:
+        """The host monotonic time (s) of scene time 0: the physics' time is now when :meth:`start` is called."""
+        return self._t0
+
     def start(self) -> None:
         self._t0 = time.monotonic() - float(self.scene.physics.time)
         self._thread = threading.Thread(target=self._run, name=PHYSICS_THREAD, daemon=True)

@@ -171,6 +171,16 @@ class NatNetClient:
     def server_address(self) -> tuple[str, int]:
         return (self.config.server_address, self.config.command_port)
 
+    @property
+    def receive_address(self) -> tuple[str, int] | None:
+        """Our end of the command socket (host, port): where the server's replies, and in unicast its frames,
+        arrive (what a unicast server sees as this client); None while not connected."""
+        cmd = self._cmd
+        if cmd is None:
+            return None
+        host, port = cmd.getsockname()
+        return (host, port)
+
     def connect(self) -> NatNetClient:
         """Handshake (CONNECT/SERVERINFO), join the data stream, fetch MODELDEF and frame rate, sync clocks."""
         cfg = self.config

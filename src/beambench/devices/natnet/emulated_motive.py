@@ -310,6 +310,18 @@ class MotiveEmulator:
                 del self.clients[a]
             return list(self.clients)
 
+    def send_packet(self, packet: bytes) -> int:
+        """Send ``packet`` as it is from the data port, where the stream's frames come from, to every client (the
+        group in multicast): a packet the stream would not make, e.g. a frame encoded before a bitstream change
+        that goes out after it. Returns the number of targets it was sent to."""
+        sock = self._data
+        if sock is None:
+            raise RuntimeError("emulator not started")
+        targets = self._targets()
+        for addr in targets:
+            sock.sendto(packet, addr)
+        return len(targets)
+
     def _is_dropped(self, number: int) -> bool:
         d = self.drop
         if d is None:

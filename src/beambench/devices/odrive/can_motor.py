@@ -323,6 +323,11 @@ class OdriveCanMotor(TelemetryStream):
             return self.view.hb
 
     @property
+    def idle_sent_ns(self) -> int | None:
+        """When :meth:`idle` last sent its frames (host monotonic ns); None before it has."""
+        return self._idle_sent_ns
+
+    @property
     def tx_count(self) -> int:
         """Frames sent."""
         return self.link.tx_count
