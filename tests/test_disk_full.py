@@ -9,6 +9,7 @@ all but a few hundred kB once the run has started, as another program filling th
 
 from __future__ import annotations
 
+import errno
 import os
 import signal
 import subprocess
@@ -21,8 +22,15 @@ import h5py
 import numpy as np
 import pytest
 
+from beambench.acquisition.batch import StepRecord
+from beambench.acquisition.capabilities import MotorLimits
+from beambench.acquisition.hub import Hub
+from beambench.acquisition.protocol.plan import Step
+from beambench.acquisition.runner import Runner
 from beambench.sinks.session_file.reader import read_session
+from beambench.sinks.session_file.writer import SessionWriter
 from conftest import last_requested_state, pause, tmpfs, wait_until
+from fake_rig import FakeRig
 
 ENDLESS = """
 name: endless
@@ -47,11 +55,22 @@ def small_disk(tmp_path: Path) -> Iterator[Path]:
 
 
 def _fill(disk: Path, leave_bytes: int) -> None:
-    """Take all the free space of ``disk`` but ``leave_bytes``."""
-    free = os.statvfs(disk).f_bavail * os.statvfs(disk).f_frsize
+    """Take all the free space of ``disk`` but ``leave_bytes`` (asked again while the run's own writes take some
+    between the look and the allocation)."""
     fd = os.open(disk / "filler", os.O_RDWR | os.O_CREAT, 0o600)
     try:
-        os.posix_fallocate(fd, 0, max(0, free - leave_bytes))
+        for _ in range(50):
+            st = os.statvfs(disk)
+            more = st.f_bavail * st.f_frsize - leave_bytes
+            if more <= 0:
+                return
+            try:
+                os.posix_fallocate(fd, os.fstat(fd).st_size, more)
+                return
+            except OSError as exc:
+                if exc.errno != errno.ENOSPC:
+                    raise
+        raise AssertionError(f"{disk}: could not take its free space")
     finally:
         os.close(fd)
 
@@ -67,9 +86,28 @@ def _no_unwritten_rows(path: Path) -> None:
         assert not np.any(f["steps"][()]["status"] == b"")
 
 
+def _steps_begun(path: Path) -> int:
+    """How many step rows the running session's file shows (read as an SWMR reader; 0 while it cannot be read)."""
+    try:
+        with h5py.File(path, "r", libver="latest", swmr=True) as f:
+            return len(f["steps"])
+    except (OSError, KeyError):
+        return 0
+
+
 def _run_until_disk_full(
-    tmp: Path, disk: Path, backend: str, rerun: str, name: str, leave: int = 200_000, script: Path | None = None
+    tmp: Path,
+    disk: Path,
+    backend: str,
+    rerun: str,
+    name: str,
+    leave: int = 200_000,
+    script: Path | None = None,
+    at_first_step: bool = False,
 ) -> tuple[int, str, float, Path, Path | None]:
+    """Run ENDLESS onto ``disk`` and fill the disk half a second into the recording (or, ``at_first_step``, as soon
+    as the file shows the first step's row); the exit code, stderr, seconds from the full disk to the exit, the
+    session's path and the CAN log's."""
     proto = tmp / "endless.yaml"
     proto.write_text(ENDLESS)
     path = disk / f"{name}.h5"
@@ -85,12 +123,17 @@ def _run_until_disk_full(
         assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
         return path.exists() and path.stat().st_size >= 100_000
 
+    def first_step() -> bool:
+        assert proc.poll() is None, proc.communicate()[1].decode()[-2000:]
+        return path.exists() and _steps_begun(path) > 0
+
     try:
-        wait_until(recording, 120, "the run to start recording", 0.05)
-        # the moment the disk fills is the input: half a second into the recording, mid-run (filled at the first
-        # step instead, 3 of 15 runs beside two CPU burners failed: a run that hung in its exit, a step without its
-        # event)
-        pause(0.5, "fill the disk mid-run, half a second into the recording")
+        if at_first_step:
+            wait_until(first_step, 120, "the run's first step", 0.01)
+        else:
+            wait_until(recording, 120, "the run to start recording", 0.05)
+            # the moment the disk fills is the input: half a second into the recording, mid-run
+            pause(0.5, "fill the disk mid-run, half a second into the recording")
         _fill(disk, leave)
         full_at = time.monotonic()
         _, err = proc.communicate(timeout=60)
@@ -134,6 +177,174 @@ def test_a_full_disk_mid_run_idles_says_one_line_and_leaves_only_real_rows(tmp_p
             leftover.unlink()
         result = _run_until_disk_full(tmp_path, small_disk, backend, rerun, f"r{k}")
         _check_failed_cleanly(*result)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["sim", "emulated"])
+def test_a_disk_full_at_the_first_step_with_the_view_saved_ends_in_time_with_each_step_and_its_event(
+    tmp_path, small_disk, backend
+):
+    """The disk fills as the first step begins, with the live view saved to a file on the same disk: the Rerun
+    file sink cannot finish (its close is given up), yet the process ends within the bound, the motor idle; the
+    step whose row or event was being written when the disk filled has both in the file, not one."""
+    for k in range(REPEAT):
+        for leftover in small_disk.iterdir():
+            leftover.unlink()
+        result = _run_until_disk_full(tmp_path, small_disk, backend, "save", f"f{k}", at_first_step=True)
+        _check_failed_cleanly(*result)
+
+
+class _FillsTheDisk:
+    """A sink ahead of the session writer in the hub: fills ``disk`` as the record ``at`` reaches it, so that
+    record is the writer's first write on a full disk. ``at``: ("step", i), the row of step i as it begins, or
+    ("event", n), the n-th event (0-based)."""
+
+    label = "filler"
+
+    def __init__(self, disk: Path, at: tuple[str, int]) -> None:
+        self.disk, self.at, self.events = disk, at, 0
+
+    def open(self, specs: object) -> None:
+        pass
+
+    def write(self, batch: object) -> None:
+        pass
+
+    def event(self, host_time_ns: int, kind: str, message: str) -> None:
+        if self.at == ("event", self.events):
+            _fill(self.disk, 0)
+        self.events += 1
+
+    def step(self, record: StepRecord) -> None:
+        if self.at == ("step", record.index) and record.status == "running":
+            _fill(self.disk, 0)
+
+    def close(self) -> None:
+        pass
+
+
+# the first step's row (the first write of /steps); a row and an event that each begin a new chunk of their
+# table (64 rows a chunk: events 0 and 1 are start and armed, so event 64 is step 62's)
+@pytest.mark.parametrize("at", [("step", 0), ("step", 64), ("event", 64)], ids=["step-0", "step-64", "event-64"])
+def test_whichever_of_a_step_row_and_its_event_meets_the_full_disk_the_file_holds_both(tmp_path, small_disk, at):
+    rig = FakeRig()
+    writer = SessionWriter(small_disk / "s.h5", {"protocol": "x"})
+    hub = Hub([_FillsTheDisk(small_disk, at), writer], critical=(writer,))
+    hub.open([s.describe() for s in rig.streams])
+    rig.open()
+    steps = [Step(i, 5.0, 0.05, 0.05) for i in range(70)]
+    limits = MotorLimits(max_frequency_hz=20.0, max_current_a=5.0, amplitude_mm=2.0)
+    result = Runner(rig, hub, steps, limits, poll_s=0.05).run()
+    assert result.status == "failed" and "No space left on device" in result.message, result.message
+    assert rig.motor.commands[-2][1] == "idle"  # the runner's idle, before the rig's own on close
+    _no_unwritten_rows(small_disk / "s.h5")
+    s = read_session(small_disk / "s.h5")
+    kinds = list(s.events["kind"])
+    assert kinds[-1] == "failed" and "idle" in kinds, kinds
+    begun = at[1] + 1 if at[0] == "step" else at[1] - 1  # the steps begun when the disk filled
+    assert len(s.steps) == kinds.count("step") == begun, (len(s.steps), kinds.count("step"), begun)
+    assert list(s.steps["index"]) == list(range(begun)) and s.steps["status"].iloc[-1] == "failed"
+
+
+def test_a_view_saved_onto_a_full_disk_ends_in_one_line_and_exit_4(tmp_path, small_disk):
+    """``beambench view --rerun save``: the recording's file sink stops at the full disk (or never finishes); the
+    command ends in one line naming the recording, exit 4, without a traceback and without hanging at its exit."""
+    rig = FakeRig()
+    session = tmp_path / "s.h5"
+    writer = SessionWriter(session, {"protocol": ENDLESS, "rig": "plate"})
+    hub = Hub([writer], critical=(writer,))
+    hub.open([s.describe() for s in rig.streams])
+    rig.open()
+    limits = MotorLimits(max_frequency_hz=20.0, max_current_a=5.0, amplitude_mm=2.0)
+    Runner(rig, hub, [Step(i, 5.0, 0.5, 1.5) for i in range(10)], limits, poll_s=0.1).run()
+    _fill(small_disk, 100_000)  # a session of ~2 MB: its recording does not fit
+    rrd = small_disk / "v.rrd"
+    started = time.monotonic()
+    res = subprocess.run(
+        [sys.executable, "-m", "beambench.cli", "view", str(session), "--rerun", "save", "--out", str(rrd)],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=120,
+    )
+    took = time.monotonic() - started
+    assert res.returncode == 4, res.stderr[-3000:]
+    assert "Traceback" not in res.stderr and "Fatal Python" not in res.stderr, res.stderr[-3000:]
+    said = [line for line in res.stderr.splitlines() if "beambench:" in line]
+    assert len(said) == 1 and f"recording {rrd}: not finished" in said[0], said
+    assert took < 60.0, f"{took:.1f} s"  # the close is given up after CLOSE_TIMEOUT_S; a hung exit never ends
+
+
+# A command that saves a recording into a file that stops taking writes (a FIFO whose reader never reads: the
+# SDK's file sink blocks, as on a disk that stalls); after the close is given up its flush thread ends, the
+# command drops the sink (the garbage collector would drop the SDK's stream: before, that waited for the stuck
+# sink for ever) and says its line.
+STUCK_RECORDING = r"""
+import gc, os, sys, threading, time
+from pathlib import Path
+import numpy as np
+import beambench.cli as cli
+from beambench.acquisition.batch import Batch
+from beambench.acquisition.streams import motor_spec
+from beambench.commands import EXIT_SINK, fail
+from beambench.sinks.viewer.sink import RerunSink
+
+
+def wait_until(condition, timeout_s):
+    end = time.monotonic() + timeout_s
+    while not condition() and time.monotonic() < end:
+        time.sleep(0.05)
+
+
+@cli.app.command("stuck")
+def stuck(fifo: Path) -> None:
+    os.mkfifo(fifo)
+    os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)  # a reader that never reads
+    sink = RerunSink("save", "stuck", fifo)
+    spec = motor_spec()
+    sink.open([spec])
+    n = 50_000  # megabytes: far more than a pipe holds
+    cols = {name: np.zeros((n, *c.shape), c.dtype) for name, c in spec.columns.items()}
+    sink.write(Batch("motor", np.arange(n, dtype=np.int64) * 1_000_000, np.arange(n) * 1e-3, cols))
+    try:
+        sink.close()
+    except RuntimeError as exc:
+        why = f"{sink.label}: {exc}"
+    else:
+        why = "closed"
+    wait_until(lambda: all(t.name != "rerun-close" for t in threading.enumerate()), 30)
+    del sink
+    gc.collect()
+    fail(why, EXIT_SINK)
+
+
+sys.argv = ["beambench", "stuck", sys.argv[1]]
+cli.main()
+"""
+
+
+def test_a_recording_whose_file_stops_taking_writes_ends_the_command_in_one_line(tmp_path):
+    script = tmp_path / "stuck.py"
+    script.write_text(STUCK_RECORDING)
+    fifo = tmp_path / "stuck.rrd"
+    proc = subprocess.Popen(
+        [sys.executable, str(script), str(fifo)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=_env(),
+        start_new_session=True,
+    )
+    try:
+        _, err = proc.communicate(timeout=60)  # the close is given up after 5 s; a hung exit never ends
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    text = err.decode(errors="replace")
+    assert proc.returncode == 4, text[-3000:]
+    said = [line for line in text.splitlines() if "beambench:" in line]
+    assert len(said) == 1 and f"recording {fifo}: not finished within" in said[0], said
+    assert "Traceback" not in text and "Fatal Python" not in text, text[-3000:]
 
 
 def test_a_disk_that_stays_full_still_ends_in_one_line_without_a_crash(tmp_path, small_disk):

@@ -37,7 +37,8 @@ from beambench.acquisition.runner import Runner
 from beambench.backends.emulated import build_emulated_rig
 from beambench.devices.odrive.cansimple import AxisState
 from beambench.session.slices import sim_slice
-from beambench.sinks.session_file.writer import SessionWriter, hdf5_left_open
+from beambench.common.unfinished import left_unfinished
+from beambench.sinks.session_file.writer import SessionWriter
 
 PROTOCOL = "name: oom\nsweep: {frequencies: [6]}\nsettle_s: 0.5\nrecord_s: 6.0\nsim: {seed: 2}\nmonitors: {mocap_lost_s: null}\n"
 protocol = parse_protocol(PROTOCOL)
@@ -122,7 +123,7 @@ t.join(30)
 odrive = rig.peers[0].odrive.snapshot()
 print(json.dumps({"status": status, "message": message, **seen, "send_errors": list(rig.motor.send_errors),
                   "odrive_state": odrive["state"], "odrive_axis_error": odrive["axis_error"]}), flush=True)
-if hdf5_left_open():  # the session file could not close under the limit: end as the command line does (HDF5's
+if left_unfinished():  # the session file could not close under the limit: end as the command line does (HDF5's
     sys.stderr.flush()  # exit handler would retry the close on a library that failed to allocate: heap corruption)
     os._exit(0)
 """

@@ -38,6 +38,7 @@ from beambench.commands import (
     sweep,
 )
 from beambench.common.out_of_memory import memory_limited, out_of_memory, preload_blas
+from beambench.common.unfinished import left_unfinished
 
 
 def _version(value: bool) -> None:
@@ -95,11 +96,11 @@ def main() -> None:
         except BaseException:
             pass
         code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
-        hdf5 = sys.modules.get("beambench.sinks.session_file.writer")
-        # a session file HDF5 could not close (a full disk): its exit handler would retry and crash (SIGSEGV); a
-        # failed command under a memory limit: the interpreter's shutdown (threads that could not start, extension
-        # exit handlers) needs memory too and has crashed there (SIGSEGV after the one line). Both end at once.
-        if (hdf5 is not None and hdf5.hdf5_left_open()) or (code != 0 and _limited()):
+        # something a library's exit handler would hang or crash on (a session file HDF5 could not close, a Rerun
+        # recording whose file sink never finished: a full disk); a failed command under a memory limit: the
+        # interpreter's shutdown (threads that could not start, extension exit handlers) needs memory too and has
+        # crashed there (SIGSEGV after the one line). Both end at once.
+        if left_unfinished() or (code != 0 and _limited()):
             with contextlib.suppress(Exception):
                 sys.stdout.flush()
                 sys.stderr.flush()

@@ -244,10 +244,14 @@ class Runner:
         return frequency
 
     def _begin_step(self, rec: StepRecord, message: str) -> None:
-        """A step starts: it is the one an abort closes, the sinks get its row and a ``step`` event."""
+        """A step starts: it is the one an abort closes, the sinks get its row and a ``step`` event. The event goes
+        out even when a critical sink failed on the row (a full disk): that sink still takes closing records, and
+        the step it will close has its event beside its row."""
         self._current = rec
-        self.hub.step(rec)
-        self.hub.event(rec.t_start_ns, "step", message)
+        try:
+            self.hub.step(rec)
+        finally:
+            self.hub.event(rec.t_start_ns, "step", message)
 
     def _end_step(self, rec: StepRecord) -> None:
         """A step ran to its end: its row is closed ``done``."""

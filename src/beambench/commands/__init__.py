@@ -30,7 +30,7 @@ EXIT_MISSED = 5  # calibrate sim: written, but a target is not met within its to
 EVERY = (EXIT_OK, EXIT_FAULT, EXIT_USAGE, EXIT_STOPPED)
 EXIT_CODES: dict[str, tuple[int, ...]] = {
     "run": (*EVERY, EXIT_SINK),
-    "view": EVERY,
+    "view": (*EVERY, EXIT_SINK),
     "analyze": EVERY,
     "compare": EVERY,
     "devices": EVERY,

@@ -406,11 +406,14 @@ def view(
         check_writable(rrd, "--out")
     from beambench.session.replay import replay_session
     from beambench.sinks.session_file.reader import SessionFileError
+    from beambench.sinks.viewer.sink import RecordingNotFinished
 
     try:
         written = replay_session(session, mode, rrd)
     except SessionFileError as exc:  # already one line naming the file
         fail(str(exc))
+    except RecordingNotFinished as exc:  # a full disk under the .rrd: the process then ends past Rerun's exit hooks
+        fail(f"{exc.label}: {exc}", EXIT_SINK)
     except OSError as exc:
         fail(f"{session}: cannot read session ({exc})")
     if written is not None:
@@ -421,6 +424,7 @@ def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) ->
     """``view --screenshot``: the picture's path on stdout, or one line saying what is missing."""
     from beambench.session.viewer import ViewerUnavailable, session_screenshot
     from beambench.sinks.session_file.reader import SessionFileError
+    from beambench.sinks.viewer.sink import RecordingNotFinished
 
     if png.suffix.lower() != ".png":
         fail(f"{png}: --screenshot writes a PNG (give FILE.png)")
@@ -440,6 +444,8 @@ def _screenshot(session: Path, png: Path, at: float | None, rrd: Path | None) ->
         shown = session_screenshot(session, png, at, rrd)
     except ViewerUnavailable as exc:
         fail(f"cannot take a screenshot: {exc}")
+    except RecordingNotFinished as exc:  # the replay's .rrd (--out, else a temporary one) on a full disk
+        fail(f"cannot take a screenshot: {exc.label}: {exc}", EXIT_SINK)
     except ValueError as exc:
         fail(str(exc))
     except SessionFileError as exc:  # already one line naming the file

@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
+from beambench.common.unfinished import leave_unfinished
 from beambench.sinks.session_file.reader import (
     SessionFileError,
 )
@@ -132,15 +133,6 @@ class _SpaceReserve:
         return True
 
 
-LEFT_OPEN: list[tuple[Any, ...]] = []  # session files that could not be closed, with their h5py objects (kept)
-
-
-def hdf5_left_open() -> bool:
-    """True if a session file could not be closed in this process. HDF5's own exit handler then tries again and
-    crashes (segmentation fault), so the command line ends such a process with ``os._exit`` after its last line."""
-    return bool(LEFT_OPEN)
-
-
 class SessionWriter:
     """A :class:`~beambench.acquisition.hub.Sink` that writes one session file (the run's critical sink).
 
@@ -215,7 +207,7 @@ class SessionWriter:
         try:
             f.close()
         except (OSError, RuntimeError, ValueError):
-            LEFT_OPEN.append((self.path, f))
+            leave_unfinished(self.label, f)  # HDF5's exit handler would retry the close and crash
         del f
         raise SessionFileError(f"{self.path}: cannot write the session file ({why})")
 
@@ -242,14 +234,14 @@ class SessionWriter:
 
     def event(self, host_time_ns: int, kind: str, message: str) -> None:
         row = np.array([(host_time_ns, _encode(kind, 32), _encode(message, EVENT_TEXT))], dtype=EVENT_DTYPE)
-        self._guard(self._event, row)
+        self._guard(self._event, row, record=True)
 
     def _event(self, row: np.ndarray) -> None:
         self._tables["events"].append(row)
         self._flush()
 
     def step(self, record: StepRecord) -> None:
-        self._guard(self._step, record)
+        self._guard(self._step, record, record=True)
 
     def _step(self, record: StepRecord) -> None:
         steps = self._tables["steps"]
@@ -279,8 +271,8 @@ class SessionWriter:
 
         A file that cannot be flushed (the disk stayed full) is not closed: HDF5 would retry the flush on every
         id it releases, fail on each (h5py prints "Can't decrement id ref count" for each) and crash at exit.
-        Its objects are kept (:data:`LEFT_OPEN`) and the file stays as of its last flush, which SWMR readers read;
-        the command line then ends the process without HDF5's exit handler (:func:`hdf5_left_open`)."""
+        Its objects are kept and the file stays as of its last flush, which SWMR readers read; the command line
+        then ends the process without HDF5's exit handler (:mod:`beambench.common.unfinished`)."""
         f, self._f = self._f, None
         if f is None:
             return
@@ -296,7 +288,7 @@ class SessionWriter:
             except (OSError, RuntimeError, ValueError) as exc:
                 why = _reason(exc)
         if self._dead or why is not None:
-            LEFT_OPEN.append((self.path, f, self._datasets, self._tables))
+            leave_unfinished(self.label, f, self._datasets, self._tables)
         else:
             self._datasets, self._tables = {}, {}
             try:
@@ -320,8 +312,12 @@ class SessionWriter:
         for appender in self._appenders():
             appender.flushed = appender.n
 
-    def _guard(self, op: Callable[..., None], *args: Any) -> None:
-        """Run one write; a failure becomes one :class:`SessionWriteError` raised outside the HDF5 frames."""
+    def _guard(self, op: Callable[..., None], *args: Any, record: bool = False) -> None:
+        """Run one write; a failure becomes one :class:`SessionWriteError` raised outside the HDF5 frames.
+
+        The first failure frees the reserve and rolls back to the last flush; a ``record`` (a step row or an
+        event, not data) whose write failed is then written again, in the reserve, before the error is raised:
+        a step's row and its ``step`` event are both in the file or neither, whichever of them met the full disk."""
         if self._dead:
             return
         try:
@@ -331,10 +327,20 @@ class SessionWriter:
             why = _reason(exc)
         if self.failed is None:
             self.failed = why
-            if self._reserve is not None and self._reserve.release() and self._roll_back():
+            freed = self._reserve is not None and self._reserve.release() and self._roll_back()
+            if freed and (not record or self._again(op, *args)):
                 raise SessionWriteError(why)  # the closing records may still fit in the freed reserve
         self._dead = True
         raise SessionWriteError(why)
+
+    @staticmethod
+    def _again(op: Callable[..., None], *args: Any) -> bool:
+        """``op`` once more (after the rollback, in the freed reserve); False if it failed again."""
+        try:
+            op(*args)
+        except (OSError, RuntimeError, ValueError, KeyError):
+            return False
+        return True
 
     def _roll_back(self) -> bool:
         """Every dataset back to its rows of the last successful flush; False if even that failed."""

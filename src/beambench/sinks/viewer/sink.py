@@ -33,6 +33,7 @@ import numpy as np
 import rerun as rr
 
 from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
+from beambench.common.unfinished import leave_unfinished
 from beambench.sinks.viewer import RerunMode
 from beambench.sinks.viewer.layout import TIMELINE, RigLayout, blueprint, layout_of, series_styles
 from beambench.sinks.viewer.scene import FOLLOW_ENTITY, Scene3D
@@ -60,6 +61,15 @@ _UP = {
 def view_coordinates(up_axis: str) -> rr.components.ViewCoordinates:
     """Rerun's right-handed view coordinates with ``up_axis`` (``y``, ``-z``, ``+x`` …) pointing up."""
     return _UP[up_axis.lstrip("+")]
+
+
+class RecordingNotFinished(RuntimeError):
+    """A recording's close failed or was given up (its file could not be written: a full disk?); ``label`` names
+    the recording (``recording PATH`` or ``live view``), the message says why."""
+
+    def __init__(self, label: str, reason: str) -> None:
+        super().__init__(reason)
+        self.label = label
 
 
 @dataclass
@@ -241,15 +251,24 @@ class RerunSink:
 
     def close(self) -> None:
         """Send what waits, flush and disconnect, within :data:`CLOSE_TIMEOUT_S`: on a full disk the SDK's file
-        sink never finishes (``RecordingStream::set_sink`` waits for it), so the wait is bounded and given up."""
+        sink may never finish (``RecordingStream::set_sink`` waits for it), so the wait is bounded and given up.
+
+        A recording that did not finish (given up, or its file sink stopped at a write error) is left unfinished
+        (:mod:`beambench.common.unfinished`), its stream kept: dropping it (the garbage collector, the SDK's exit
+        hook) waits for the stuck sink for ever, so the command line ends the process past them."""
         try:
             for entity in list(self._pending):
                 self._flush(entity)
         finally:
-            finished = _within(self._finish, CLOSE_TIMEOUT_S)
-        if not finished:
-            rr.unregister_shutdown()  # the SDK's exit hook would wait for the stuck sink too
-            raise RuntimeError(f"not finished within {CLOSE_TIMEOUT_S:g} s (a full disk?): it may be cut short")
+            try:
+                finished = _within(self._finish, CLOSE_TIMEOUT_S)
+                why = f"not finished within {CLOSE_TIMEOUT_S:g} s (a full disk?): it may be cut short"
+            except RuntimeError as exc:  # the SDK's file sink stopped at a write error ("File-writer thread …")
+                finished, why = False, f"not finished ({exc}; a full disk?): it may be cut short"
+            if not finished:
+                rr.unregister_shutdown()  # for a caller that ends the process itself: one hook less that would wait
+                leave_unfinished(self.label, self.rec)
+                raise RecordingNotFinished(self.label, why)
 
     def _finish(self) -> None:
         self.rec.flush(timeout_sec=CLOSE_TIMEOUT_S)
