@@ -3,7 +3,7 @@
 #   make test   the same venv with the dev extra; lint, format, type and import-layer checks, then the tests
 #   make soak   the soak tier only: more race repetitions, the whole 2-min calibration test (CI runs it after make test)
 # Variables: PYTHON (python3), VENV (.venv), OUT (data), RUN_ARGS (extra `beambench run` flags),
-# PYTEST_ARGS (e.g. tests/test_run_sim.py), PYTEST_WORKERS (3; 0 runs in one process). `make clean-venv` removes the venv.
+# PYTEST_ARGS (e.g. tests/test_run_sim.py), PYTEST_WORKERS (4: two cores, and many tests wait on real time; 0 runs in one process). `make clean-venv` removes the venv.
 
 PYTHON ?= python3
 VENV ?= .venv
@@ -16,7 +16,7 @@ PYTEST_ARGS ?=
 # --dist worksteal: each worker starts on its share of the suite, in file order (a module's shared fixtures are
 # made once, not in every worker), and an idle worker takes pending tests from the others (no long test left
 # queued behind another at the end)
-PYTEST_WORKERS ?= 3
+PYTEST_WORKERS ?= 4
 # pytest runs with bytecode caching on even where the environment sets PYTHONDONTWRITEBYTECODE: without it each
 # worker re-rewrote every test module's asserts (collection 11 s -> 6 s of CPU) and every subprocess recompiled
 # beambench. The caches are __pycache__/ folders (git-ignored, never in the wheel).
