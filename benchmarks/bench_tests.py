@@ -71,7 +71,9 @@ def main() -> None:
         cpu = statistics.median(r[0] for r in results)
         wall = statistics.median(r[1] for r in results)
         each = " ".join(f"{r[0]:.2f}" for r in results)
-        print(f"{name:<60} {cpu:>7.2f} {wall:>7.1f}  {each}" + (f"  (pytest exit {failed})" if failed else ""), flush=True)
+        print(
+            f"{name:<60} {cpu:>7.2f} {wall:>7.1f}  {each}" + (f"  (pytest exit {failed})" if failed else ""), flush=True
+        )
 
 
 if __name__ == "__main__":

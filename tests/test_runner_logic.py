@@ -206,3 +206,24 @@ def test_a_step_its_control_refuses_stops_the_run_before_the_motor_is_armed():
     result, sink = _run(rig, steps=[Step(0, 5.0, 0.2, 0.3), Step(1, 15.0, 0.2, 0.3)], control=Ramp())
     assert result.status == "fault" and "step 1: 15 Hz is more than this control drives" in result.message
     assert [what for _, what, _ in rig.motor.commands] == ["idle", "idle"] and not sink.steps
+
+
+def test_a_step_that_ran_to_its_end_stays_done_when_a_sink_fails_on_its_row():
+    """The critical sink fails writing step 0's ``done`` row (a full disk): the run stops there, motor idle, and
+    the step keeps its ``done`` (its windows ran whole); the shutdown does not close it again as ``failed``."""
+
+    class FailsOnTheDoneRow(RecordingSink):
+        def step(self, record):  # type: ignore[no-untyped-def]
+            super().step(record)
+            if record.status == "done":
+                raise OSError("no space left on device")
+
+    rig = FakeRig()
+    sink = FailsOnTheDoneRow()
+    hub = Hub([sink], critical=(sink,))
+    hub.open([s.describe() for s in rig.streams])
+    rig.open()
+    result = Runner(rig, hub, STEPS, LIMITS, poll_s=0.1).run()
+    assert result.status == "failed" and "no space left on device" in result.message
+    assert list(sink.steps) == [0] and sink.steps[0].status == "done", sink.steps
+    assert sink.steps[0].t_end_ns is not None and rig.motor.commands[-2][1] == "idle" and sink.closed

@@ -254,12 +254,13 @@ class Runner:
             self.hub.event(rec.t_start_ns, "step", message)
 
     def _end_step(self, rec: StepRecord) -> None:
-        """A step ran to its end: its row is closed ``done``."""
+        """A step ran to its end: its row is closed ``done``. It is no longer the one an abort closes before the
+        sinks get that row: a critical sink failing on it (a full disk) stops the run, but the step stays done."""
         rec.t_end_ns = self.rig.clock.now_ns()
         rec.status = "done"
-        self.hub.step(rec)
         self._current = None
         self.steps_done += 1
+        self.hub.step(rec)
 
     def _wait(self, seconds: float, step: Step) -> None:
         """Let ``seconds`` of rig time pass in polls of at most ``poll_s``, pumping batches after each."""
