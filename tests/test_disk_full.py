@@ -179,7 +179,7 @@ def test_a_full_disk_mid_run_idles_says_one_line_and_leaves_only_real_rows(tmp_p
         _check_failed_cleanly(*result)
 
 
-@pytest.mark.slow
+@pytest.mark.soak  # a race at one more moment; the invariant itself: test_whichever_of_a_step_row_and_its_event_…
 @pytest.mark.parametrize("backend", ["sim", "emulated"])
 def test_a_disk_full_at_the_first_step_with_the_view_saved_ends_in_time_with_each_step_and_its_event(
     tmp_path, small_disk, backend
