@@ -78,6 +78,21 @@ def test_fit_degenerate_inputs():
         fit_clock(d, np.zeros(3, np.int64))
 
 
+@pytest.mark.parametrize("host", ["constant", "backwards"])
+def test_host_stamps_that_do_not_advance_are_no_clock_fit_and_no_division_by_zero(host):
+    """An edited or broken session whose receive stamps stand still (or run back) while the device clock advances:
+    a clock map with a rate <= 0 has no inverse (drift and offset divided by zero); it is a pure offset instead,
+    and echo exchanges like it are refused."""
+    d = np.linspace(0, 10, 101)
+    h = np.full(101, 5 * NS, np.int64) if host == "constant" else (5 * NS - d * NS).astype(np.int64)
+    with np.errstate(all="raise"):
+        f = fit_clock(d, h, "still")
+        assert f.method == "offset" and f.rate == 1.0
+        assert np.isfinite(f.drift_ppm) and np.isfinite(f.offset_s)
+        with pytest.raises(ValueError, match="do not advance"):
+            fit_echo(h, h + 1000, d)
+
+
 def test_fit_roundtrips_through_table():
     d = np.linspace(0, 100, 5001)
     h = np.round((d * (1 + 20e-6) + 3.0) * NS).astype(np.int64)

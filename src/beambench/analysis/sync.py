@@ -193,6 +193,8 @@ def fit_clock(
         i, j = hull[k], hull[k + 1]
         slope = (yk[j] - yk[i]) / (xk[j] - xk[i])
         intercept = yk[i] - slope * xk[i]
+    if not 1.0 + slope > 0:  # host stamps that never advance (or run back) with the device's: no clock to fit
+        return ClockFit.identity(stream, h, d)
     res = yk - (intercept + slope * xk)
     res_us = res * 1e6
     return ClockFit(
@@ -255,6 +257,8 @@ def fit_echo(
         slope, intercept = np.polyfit(x, mid[use], 1)
     else:
         slope, intercept = 1.0, float(np.mean(mid[use] - x))
+    if not slope > 0:
+        raise ValueError("the echo exchanges' host times do not advance with the server's clock")
     res_us = (mid[use] - (intercept + slope * x)) * 1e6
     return ClockFit(
         stream,
