@@ -133,6 +133,9 @@ class _SpaceReserve:
         return True
 
 
+_WRITE_FAILURES = (OSError, RuntimeError, ValueError, KeyError)  # how one write of h5py's fails (a full disk …)
+
+
 class SessionWriter:
     """A :class:`~beambench.acquisition.hub.Sink` that writes one session file (the run's critical sink).
 
@@ -323,7 +326,7 @@ class SessionWriter:
         try:
             op(*args)
             return
-        except (OSError, RuntimeError, ValueError, KeyError) as exc:
+        except _WRITE_FAILURES as exc:
             why = _reason(exc)
         if self.failed is None:
             self.failed = why
@@ -338,7 +341,7 @@ class SessionWriter:
         """``op`` once more (after the rollback, in the freed reserve); False if it failed again."""
         try:
             op(*args)
-        except (OSError, RuntimeError, ValueError, KeyError):
+        except _WRITE_FAILURES:
             return False
         return True
 
