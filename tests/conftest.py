@@ -13,7 +13,8 @@
   stands for; tests/test_no_fixed_sleeps.py fails on any other ``time.sleep`` in tests/ (in code strings a child
   runs too).
 - The soak tier (``@pytest.mark.soak``): more repetitions of a race check, at other random moments, than the
-  default run's one or few, and the one test that runs a whole 2-min calibration search. Deselected unless ``--soak`` is given (``make soak``; CI runs it after ``make test``).
+  default run's one or few, and the one test that runs a whole 2-min calibration search. Deselected unless
+  ``--soak`` is given (``make soak``; CI runs it after ``make test``).
   Every Hypothesis test belongs to it too: the default run makes a fifth of its examples (at least 50,
   :func:`fuzz_examples`), the soak tier all of them.
 """

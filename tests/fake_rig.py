@@ -20,6 +20,7 @@ from beambench.acquisition.streams import loadcell_spec, mocap_spec, motor_spec
 
 NS = 1_000_000_000
 START_NS = 5 * NS  # a rig clock that does not start at zero
+LIMITS = MotorLimits(max_frequency_hz=20.0, max_current_a=5.0, amplitude_mm=2.0)  # what a run on it arms with
 
 
 class ManualClock:

@@ -23,14 +23,13 @@ import numpy as np
 import pytest
 
 from beambench.acquisition.batch import StepRecord
-from beambench.acquisition.capabilities import MotorLimits
 from beambench.acquisition.hub import Hub
 from beambench.acquisition.protocol.plan import Step
 from beambench.acquisition.runner import Runner
 from beambench.sinks.session_file.reader import read_session
 from beambench.sinks.session_file.writer import SessionWriter
 from conftest import last_requested_state, pause, tmpfs, wait_until
-from fake_rig import FakeRig
+from fake_rig import LIMITS, FakeRig
 
 ENDLESS = """
 name: endless
@@ -233,8 +232,7 @@ def test_whichever_of_a_step_row_and_its_event_meets_the_full_disk_the_file_hold
     hub.open([s.describe() for s in rig.streams])
     rig.open()
     steps = [Step(i, 5.0, 0.05, 0.05) for i in range(70)]
-    limits = MotorLimits(max_frequency_hz=20.0, max_current_a=5.0, amplitude_mm=2.0)
-    result = Runner(rig, hub, steps, limits, poll_s=0.05).run()
+    result = Runner(rig, hub, steps, LIMITS, poll_s=0.05).run()
     assert result.status == "failed" and "No space left on device" in result.message, result.message
     assert rig.motor.commands[-2][1] == "idle"  # the runner's idle, before the rig's own on close
     _no_unwritten_rows(small_disk / "s.h5")
@@ -255,8 +253,7 @@ def test_a_view_saved_onto_a_full_disk_ends_in_one_line_and_exit_4(tmp_path, sma
     hub = Hub([writer], critical=(writer,))
     hub.open([s.describe() for s in rig.streams])
     rig.open()
-    limits = MotorLimits(max_frequency_hz=20.0, max_current_a=5.0, amplitude_mm=2.0)
-    Runner(rig, hub, [Step(i, 5.0, 0.5, 1.5) for i in range(10)], limits, poll_s=0.1).run()
+    Runner(rig, hub, [Step(i, 5.0, 0.5, 1.5) for i in range(10)], LIMITS, poll_s=0.1).run()
     _fill(small_disk, 100_000)  # a session of ~2 MB: its recording does not fit
     rrd = small_disk / "v.rrd"
     started = time.monotonic()

@@ -13,9 +13,8 @@ from beambench.acquisition.runner import Runner
 from beambench.acquisition.step_control import StepStart
 from beambench.acquisition.stop_signals import StopSignal
 from beambench.acquisition.streams import LOADCELL, MOCAP, MOTOR
-from fake_rig import NS, START_NS, FakeRig, RecordingSink
+from fake_rig import LIMITS, NS, START_NS, FakeRig, RecordingSink
 
-LIMITS = MotorLimits(max_frequency_hz=20.0, max_current_a=5.0, amplitude_mm=2.0)
 STEPS = [Step(0, 5.0, 0.5, 1.0), Step(1, 10.0, 0.5, 1.0), Step(2, 15.0, 0.3, 0.7)]
 
 

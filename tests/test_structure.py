@@ -200,6 +200,7 @@ def test_no_silent_default_read_of_our_own_objects() -> None:
 
 
 REPO = PACKAGE.parents[1]
+TESTS = REPO / "tests"
 IMPORTERS = ("src", "tests", "benchmarks", "docs")  # every place that imports beambench
 
 
@@ -404,14 +405,13 @@ def _collection_time_imports(body: list[ast.stmt]) -> list[tuple[int, str]]:
 def test_no_test_module_imports_an_optional_engine_at_collection() -> None:
     found = [
         f"{path.relative_to(REPO)}:{line}: {package}"
-        for path in sorted((REPO / "tests").glob("*.py"))
+        for path in sorted(TESTS.glob("*.py"))
         for line, package in _collection_time_imports(_tree(path).body)
         if package in NOT_AT_COLLECTION
     ]
     assert found == []
 
 
-TESTS = REPO / "tests"
 # A test's own stand-in may hold a private name that one of beambench's objects also has: expression as written in
 # its test module → why it is the test's own
 OWN_PRIVATES = {
@@ -501,7 +501,7 @@ def private_reaches(path: Path) -> list[str]:
     """``file:line expression`` of each reach into a beambench private name in one test module, in its own code
     and in the code strings it runs, less :data:`OWN_PRIVATES`."""
     private = _beambench_private_names()
-    tree = ast.parse(path.read_text(), str(path))
+    tree = _tree(path)
     found = [(line, expr, "") for line, expr in _private_reaches(tree, private)]
     for line, inner in _code_strings(tree):
         found += [(line, expr, f" (code string, its line {n})") for n, expr in _private_reaches(inner, private)]
