@@ -13,9 +13,10 @@ PYTEST_ARGS ?=
 # pytest-xdist workers: a quarter of the suite's time is spent waiting (real-time emulated peers, CAN and NatNet
 # timeouts, subprocesses), so on 2 cores a third worker fills those waits (measured on this machine, same tree:
 # -n 2 294 s, -n 3 271 s; CPU use 76 % -> 85 %);
-# --dist worksteal: each worker starts on its share of the suite, in file order (a module's shared fixtures are
-# made once, not in every worker), and an idle worker takes pending tests from the others (no long test left
-# queued behind another at the end)
+# --dist loadfile: a worker takes whole modules from one queue (a module's shared fixtures are made once; with
+# worksteal a module split between workers made its emulated runs in each, 7 runs instead of 2), and the queue is
+# longest module first by the last run's times (tests/longest_first.py, pytest's cache), so no long module starts
+# last (same tree, interleaved: worksteal 217-222 s, loadfile 211 s)
 PYTEST_WORKERS ?= 4
 # pytest runs with bytecode caching on even where the environment sets PYTHONDONTWRITEBYTECODE: without it each
 # worker re-rewrote every test module's asserts (collection 11 s -> 6 s of CPU) and every subprocess recompiled
@@ -34,13 +35,13 @@ test: $(DEV_STAMP)
 	for check in "ruff check src tests benchmarks" "ruff format --check src tests benchmarks" "mypy" "lint-imports"; do \
 	  echo "== $$check"; $(BIN)/$$check || status=1; \
 	done; \
-	echo "== pytest"; env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist worksteal $(PYTEST_ARGS); rc=$$?; \
+	echo "== pytest"; env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "pytest collected no tests — that is a failure for this project" >&2; rc=1; fi; \
 	if [ $$status -ne 0 ]; then echo "lint, format, type or import checks failed (see above)" >&2; fi; \
 	[ $$rc -eq 0 ] && [ $$status -eq 0 ]
 
 soak: $(DEV_STAMP)
-	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist worksteal --soak -m soak $(PYTEST_ARGS)
+	env -u PYTHONDONTWRITEBYTECODE $(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile --no-loadscope-reorder --soak -m soak $(PYTEST_ARGS)
 
 lint: $(DEV_STAMP)
 	$(BIN)/ruff check src tests benchmarks

@@ -35,6 +35,8 @@ import pytest
 
 from beambench.common.resources import USER_DIR_ENV
 
+pytest_plugins = ["longest_first"]  # make test's module order: the longest modules first
+
 T = TypeVar("T")
 E = TypeVar("E", bound=BaseException)
 SHARED_ENV = "BEAMBENCH_SHARED"

@@ -164,8 +164,9 @@ def test_view_screenshot_command_writes_the_viewer_picture(sessions, tmp_path):
     res = CliRunner().invoke(app, ["view", str(sessions["contact"]), "--screenshot", str(png), "--at", "4.5"])
     assert res.exit_code == 0, res.output
     assert res.stdout.strip() == str(png)
-    image = Image.open(png)
-    assert image.size == (1600, 900) and colour_fraction(png.read_bytes()) > 0.01
+    with Image.open(png) as image:
+        size = image.size
+    assert size == (1600, 900) and colour_fraction(png.read_bytes()) > 0.01
     outside = CliRunner().invoke(app, ["view", str(sessions["contact"]), "--screenshot", str(png), "--at", "99"])
     assert outside.exit_code == 2 and "outside the session" in outside.stderr
 

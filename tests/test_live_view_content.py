@@ -41,12 +41,18 @@ def touching(tmp_path_factory):
     return out / "t.h5"
 
 
-def _chunks(rrd) -> dict[str, list[dict]]:
-    out: dict[str, list[dict]] = {}
-    for chunk in rc.RrdReader(rrd).stream():
-        if not chunk.is_static:
-            out.setdefault(chunk.entity_path, []).append(chunk.to_record_batch().to_pydict())
-    return out
+def _entities(rrd) -> set[str]:
+    """The entity paths the recording logs over time."""
+    return {str(chunk.entity_path) for chunk in rc.RrdReader(rrd).stream() if not chunk.is_static}
+
+
+def _batches(rrd, entity: str) -> list[dict]:
+    """The time-varying chunks of ``entity`` in the recording, as column dicts."""
+    return [
+        chunk.to_record_batch().to_pydict()
+        for chunk in rc.RrdReader(rrd).stream()
+        if not chunk.is_static and chunk.entity_path == entity
+    ]
 
 
 def _column(batches: list[dict], suffix: str) -> list:
@@ -55,7 +61,7 @@ def _column(batches: list[dict], suffix: str) -> list:
 
 def _finished(rrd) -> dict[int, str]:
     """Step number (1-based) → regime or speed text of the step panel's "Last finished" line."""
-    texts = _column(_chunks(rrd)["/step"], "TextDocument:text")
+    texts = _column(_batches(rrd, "/step"), "TextDocument:text")
     found = {}
     for t in texts:
         m = re.search(
@@ -81,17 +87,20 @@ def test_layout_comes_from_the_streams_and_the_rig():
 
 def test_beam_strips_are_the_markers_in_mm(touching):
     s = read_session(touching)
-    chunks = _chunks(touching.with_suffix(".rrd"))
-    strips = _column(chunks["/mocap/beam/foot"], "LineStrips3D:strips")
+    rrd = touching.with_suffix(".rrd")
+    strips = _column(_batches(rrd, "/mocap/beam/foot"), "LineStrips3D:strips")
     assert len(strips) == len(s.streams["mocap"])
     first = np.asarray(strips[0][0], float)
     np.testing.assert_allclose(first, s.streams["mocap"].columns["data"][0] * 1000.0, atol=1e-3)
-    assert not [e for e in chunks if "sync_edges" in e or e.endswith("/position") or e.endswith("/seq")]
+    entities = _entities(rrd)
+    assert "/mocap/beam/foot" in entities and not [
+        e for e in entities if "sync_edges" in e or e.endswith("/position") or e.endswith("/seq")
+    ]
 
 
 def test_plate_sits_at_the_foots_contact_height(touching):
     s = read_session(touching)
-    boxes = _chunks(touching.with_suffix(".rrd"))["/mocap/plate"]
+    boxes = _batches(touching.with_suffix(".rrd"), "/mocap/plate")
     centres = np.asarray([c[0] for c in _column(boxes, "Boxes3D:centers")], float)
     halves = np.asarray([h[0] for h in _column(boxes, "Boxes3D:half_sizes")], float)
     top = centres[-1, 2] + halves[-1, 2]  # sim: z up
@@ -115,7 +124,7 @@ sim: {model: rod5g, params: physical, twist_deg: 90, noise: true, seed: 0}
 
 def _finished_numbers(rrd) -> dict[int, tuple[str, str]]:
     """Step number (1-based) → (regime, contacts per cycle as shown) of the step panel's "Last finished" line."""
-    texts = _column(_chunks(rrd)["/step"], "TextDocument:text")
+    texts = _column(_batches(rrd, "/step"), "TextDocument:text")
     found = {}
     for t in texts:
         m = re.search(
@@ -148,7 +157,7 @@ def test_the_step_panel_shows_the_measured_frequency_of_the_step_in_sight(touchi
     half a second of the step exists, the measured frequency is this step's own (within 2 % of the command by
     the step's end); after the last step, the panel says it ended (motor samples stamped after the end do not
     bring the running step back)."""
-    batches = _chunks(touching.with_suffix(".rrd"))["/step"]
+    batches = _batches(touching.with_suffix(".rrd"), "/step")
     texts = [str(t[0]) for t in _column(batches, "TextDocument:text")]
     times = np.asarray(_column(batches, "session_time"), "timedelta64[ns]").astype(np.int64)
     last = texts[max(range(len(texts)), key=lambda i: (times[i], i))]  # what the viewer shows at the end

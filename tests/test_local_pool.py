@@ -3,6 +3,7 @@ that imported the callers' task modules once and holds no thread, and that die w
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -19,22 +20,32 @@ from conftest import descendants, process_alive, wait_until
 pytestmark = pytest.mark.skipif(not hasattr(os, "pidfd_open"), reason="the fork server pool needs os.pidfd_open")
 
 
-def _threads(pid: int) -> list[str]:
-    return [(t / "comm").read_text().strip() for t in Path(f"/proc/{pid}/task").iterdir()]
-
-
 def test_workers_come_from_one_single_threaded_server_that_preloaded_the_simulation():
-    with make_executor(2, preload=("beambench.sim.scenes",)) as pool:
-        servers = {f.result() for f in [pool.executor.submit(os.getppid) for _ in range(4)]}
-        workers = {f.result() for f in [pool.executor.submit(os.getpid) for _ in range(4)]}
-    with make_executor(1, preload=("beambench.sim.scenes",)) as pool:
-        again = pool.executor.submit(os.getppid).result()
-    assert len(servers) == 1 and servers == {again}  # a later pool reuses the server
-    (server,) = servers
-    assert server != os.getpid() and os.getpid() not in workers
-    assert _threads(server) == ["python"]  # no BLAS pool, no jemalloc purge thread: a clean fork
-    maps = Path(f"/proc/{server}/maps").read_text()
-    assert "mujoco" in maps  # MuJoCo was imported in the server, once, not in each worker
+    # in a fresh process: the fork server is the first pool's of its process (whatever a test before made stays)
+    code = textwrap.dedent(
+        """
+        import json, os
+        from pathlib import Path
+        from beambench.studies.executor import make_executor
+        with make_executor(2, preload=("beambench.sim.scenes",)) as pool:
+            servers = {f.result() for f in [pool.executor.submit(os.getppid) for _ in range(4)]}
+            workers = {f.result() for f in [pool.executor.submit(os.getpid) for _ in range(4)]}
+            server = min(servers)
+            threads = [(t / "comm").read_text().strip() for t in Path(f"/proc/{server}/task").iterdir()]
+            maps = Path(f"/proc/{server}/maps").read_text()
+        with make_executor(1, preload=("beambench.sim.scenes",)) as pool:
+            again = pool.executor.submit(os.getppid).result()
+        print(json.dumps({"servers": sorted(servers), "workers": sorted(workers), "again": again, "owner": os.getpid(),
+                          "threads": threads, "mujoco": "mujoco" in maps}))
+        """
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    seen = json.loads(out.stdout.splitlines()[-1])
+    assert len(seen["servers"]) == 1 and seen["servers"] == [seen["again"]]  # a later pool reuses the server
+    assert seen["servers"][0] != seen["owner"] and seen["owner"] not in seen["workers"]
+    assert seen["threads"] == ["python"]  # no BLAS pool, no jemalloc purge thread: a clean fork
+    assert seen["mujoco"]  # MuJoCo was imported in the server, once, not in each worker
 
 
 def _asleep(pid: int) -> bool:
@@ -65,7 +76,7 @@ def test_a_worker_mid_task_dies_with_the_pools_owner(tmp_path):
         assert len(family) >= 3 and worker in family, family  # resource tracker, fork server, worker
     finally:
         owner.send_signal(signal.SIGKILL)
-        owner.wait()
+        owner.communicate()
     try:
         wait_until(lambda: not any(process_alive(p) for p in family), 10, "the pool's processes to end", 0.05)
     finally:

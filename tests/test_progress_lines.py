@@ -70,6 +70,8 @@ def test_a_run_on_a_pipe_prints_timestamped_progress_during_the_run(tmp_path):
         arrivals.append((time.monotonic(), line.rstrip("\n")))
     assert proc.wait(timeout=300) == 0, [line for _, line in arrivals]
     reader.join()
+    proc.stdout.close()  # type: ignore[union-attr]
+    proc.stderr.close()
     progress = [(t, line) for t, line in arrivals if STAMP.match(line) and " Hz: " in line]
     assert len(progress) >= 4, arrivals
     stamps = [int(h) * 3600 + int(m) * 60 + int(s) for h, m, s, _ in (STAMP.match(x).groups() for _, x in progress)]

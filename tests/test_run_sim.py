@@ -229,6 +229,7 @@ def _start_long_run(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
         wait_until(three_steps, 60, "the run to record three steps", 0.2)
     except AssertionError:
         proc.kill()
+        proc.communicate()
         raise
     return proc, path
 
@@ -236,7 +237,7 @@ def _start_long_run(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
 def test_sigkill_leaves_a_readable_file(tmp_path):
     proc, path = _start_long_run(tmp_path)
     proc.send_signal(signal.SIGKILL)
-    proc.wait(timeout=30)
+    proc.communicate(timeout=30)
     s = read_session(path)  # opens with swmr=True
     n_steps = len(s.steps)
     assert 3 <= n_steps < 20

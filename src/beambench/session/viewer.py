@@ -45,6 +45,20 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _startable_viewer() -> Path:
+    """The viewer binary, once this machine can run it headless; else :class:`ViewerUnavailable` saying why."""
+    binary = rerun_binary()
+    if binary is None:
+        raise ViewerUnavailable("the rerun viewer binary was not found (it ships with the rerun-sdk wheel)")
+    vulkan = vulkan_devices()
+    if not vulkan.usable:
+        raise ViewerUnavailable(
+            f"the Rerun viewer needs a Vulkan driver: {vulkan.error}; on Debian/Ubuntu `apt-get install "
+            "mesa-vulkan-drivers libvulkan1` (Mesa's software renderer; no GPU or display needed)"
+        )
+    return binary
+
+
 class HeadlessViewer:
     """``with HeadlessViewer() as v: v.open(rrd); v.screenshot(png, at=140)`` — one viewer process, ended on
     exit."""
@@ -58,15 +72,11 @@ class HeadlessViewer:
         self.client: Any = None
 
     def __enter__(self) -> HeadlessViewer:
-        binary = rerun_binary()
-        if binary is None:
-            raise ViewerUnavailable("the rerun viewer binary was not found (it ships with the rerun-sdk wheel)")
-        vulkan = vulkan_devices()
-        if not vulkan.usable:
-            raise ViewerUnavailable(
-                f"the Rerun viewer needs a Vulkan driver: {vulkan.error}; on Debian/Ubuntu `apt-get install "
-                "mesa-vulkan-drivers libvulkan1` (Mesa's software renderer; no GPU or display needed)"
-            )
+        try:
+            binary = _startable_viewer()
+        except ViewerUnavailable:
+            self._tmp.cleanup()  # no viewer started: no __exit__ to remove its folder
+            raise
         # RUST_LOG: the viewer shows its info and warning log lines as toasts over the views (in screenshots too)
         env = dict(os.environ, XDG_RUNTIME_DIR=self._tmp.name, MESA_VK_WSI_DEBUG="noshm", RUST_LOG="error")
         if "VK_ICD_FILENAMES" not in env and LAVAPIPE_ICD.exists() and not Path("/dev/dri").exists():

@@ -23,6 +23,7 @@ path (:attr:`EmulatedLoadCellMCU.port`) with pyserial, exactly as it opens ``/de
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import errno
 import fcntl
 import math
@@ -274,11 +275,12 @@ class EmulatedLoadCellMCU:
         self.started_ns = time.monotonic_ns()
         t0 = self.started_ns * 1e-9
         k0 = self._k
+        rate = self.true_rate_hz
         try:
             while not self._stop.is_set():
-                due = k0 + int((time.monotonic() - t0) * self.true_rate_hz) + 1
+                due = k0 + int((time.monotonic() - t0) * rate) + 1
                 if due > self._k:
-                    before = Injected(**self.injected.as_dict())
+                    before = dataclasses.replace(self.injected)
                     n_broken = len(self.broken_seqs)
                     frames = self.frames_bytes(self._k, due - self._k)
                     self._k = due
