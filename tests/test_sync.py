@@ -214,3 +214,19 @@ def test_sync_edge_check_sees_a_misaligned_mocap_clock():
     late = sync_edge_check(ns(t_l), edges, ns(t_m + 0.001), frames)
     assert late.median_s == pytest.approx(good.median_s - 0.001, abs=1e-4)
     assert sync_edge_check(ns(t_l), np.zeros(len(t_l), np.int64), ns(t_m), frames) is None
+
+
+def test_a_damaged_device_stamp_keeps_its_receive_time_and_the_rest_follow_the_fit():
+    from types import SimpleNamespace
+
+    from beambench.analysis.session_analysis import stream_host_times
+
+    fit = ClockFit("s", "lower_envelope", t0=10.0, host0_ns=5_000_000_000, rate=1.0 + 20e-6)
+    device = np.array([10.0, 10.5, np.nan, 11.0, 1e300, -np.inf])
+    host = np.array([5_000_100_000, 5_500_120_000, 5_600_000_000, 6_000_150_000, 6_100_000_000, 6_200_000_000])
+    assert fit.placeable(device).tolist() == [True, True, False, True, False, False]
+    with np.errstate(all="raise"):  # no invalid cast on the way
+        got = stream_host_times(SimpleNamespace(device_time=device, host_time_ns=host), fit)
+    ok = [0, 1, 3]
+    assert (got[ok] == fit.to_host_ns(device[ok])).all()
+    assert (got[[2, 4, 5]] == host[[2, 4, 5]]).all()

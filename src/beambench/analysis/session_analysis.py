@@ -167,10 +167,11 @@ def _geometry_axis(general: dict[str, Any], key: str) -> str | None:
 
 
 def stream_host_times(stream: Any, fit: ClockFit | None) -> np.ndarray:
-    """Event times of a stream on the host clock (ns): the clock fit applied to the device stamps."""
+    """Event times of a stream on the host clock (ns): the clock fit applied to the device stamps; a sample whose
+    device stamp the fit cannot place (damaged: NaN, 1e300) keeps its own receive time."""
     if fit is None or fit.method in ("none",):
         return np.asarray(stream.host_time_ns, np.int64)
-    return fit.to_host_ns(stream.device_time)
+    return fit.host_times(stream.device_time, stream.host_time_ns)
 
 
 def fit_session_clocks(session: Any) -> dict[str, ClockFit]:

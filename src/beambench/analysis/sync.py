@@ -65,6 +65,24 @@ class ClockFit:
         out = np.round((d - self.t0) * (self.rate * NS)).astype(np.int64)
         return out + np.int64(self.host0_ns)
 
+    def placeable(self, device_time: np.ndarray) -> np.ndarray:
+        """Which device stamps this map puts on the int64 host clock (finite, and within ±2^62 ns of ``host0_ns``):
+        a damaged stamp (NaN, 1e300) is not one."""
+        with np.errstate(invalid="ignore", over="ignore"):
+            offset = (np.asarray(device_time, dtype=np.float64) - self.t0) * (self.rate * NS)
+            return np.isfinite(offset) & (np.abs(offset) < 2.0**62)
+
+    def host_times(self, device_time: np.ndarray, host_time_ns: np.ndarray) -> np.ndarray:
+        """Host times (int64 ns) of samples stamped ``device_time`` and received at ``host_time_ns``: the map's,
+        except for a stamp it cannot place (:meth:`placeable`), which keeps its receive time."""
+        device = np.asarray(device_time, np.float64)
+        ok = self.placeable(device)
+        if ok.all():
+            return self.to_host_ns(device)
+        out = np.asarray(host_time_ns, np.int64).copy()
+        out[ok] = self.to_host_ns(device[ok])
+        return out
+
     def to_device(self, host_time_ns: np.ndarray | int) -> np.ndarray:
         """Inverse map: device time (s) for host times (ns)."""
         h = np.asarray(host_time_ns, dtype=np.int64) - np.int64(self.host0_ns)
