@@ -16,7 +16,7 @@ PYTEST_ARGS ?=
 # --dist loadfile: a worker takes whole modules from one queue (a module's shared fixtures are made once; with
 # worksteal a module split between workers made its emulated runs in each, 7 runs instead of 2), and the queue is
 # longest module first by the last run's times (tests/longest_first.py, pytest's cache), so no long module starts
-# last (same tree, interleaved: worksteal 217-222 s, loadfile 211 s)
+# last (same tree: worksteal 217-222 s, loadfile 204-208 s; docs/evidence.md)
 PYTEST_WORKERS ?= 4
 # pytest runs with bytecode caching on even where the environment sets PYTHONDONTWRITEBYTECODE: without it each
 # worker re-rewrote every test module's asserts (collection 11 s -> 6 s of CPU) and every subprocess recompiled
