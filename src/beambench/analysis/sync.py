@@ -25,6 +25,11 @@ import pandas as pd
 NS = 1_000_000_000
 
 
+def _placeable(offset_ns: np.ndarray) -> np.ndarray:
+    """Offsets (float ns) that fit the int64 host clock: finite and within ±2^62 ns."""
+    return np.isfinite(offset_ns) & (np.abs(offset_ns) < 2.0**62)
+
+
 @dataclass(frozen=True)
 class ClockFit:
     """A device→host clock map: ``host_ns = host0_ns + rate · (device_s − t0) · 1e9``.
@@ -61,27 +66,26 @@ class ClockFit:
 
     def to_host_ns(self, device_time: np.ndarray | float) -> np.ndarray:
         """Host time (int64 ns) of events stamped ``device_time`` (s) on the device clock."""
-        d = np.asarray(device_time, dtype=np.float64)
-        out = np.round((d - self.t0) * (self.rate * NS)).astype(np.int64)
-        return out + np.int64(self.host0_ns)
+        return np.round(self._offset_ns(device_time)).astype(np.int64) + np.int64(self.host0_ns)
+
+    def _offset_ns(self, device_time: np.ndarray | float) -> np.ndarray:
+        """Host ns after ``host0_ns`` of device stamps, as floats (a damaged stamp gives NaN or inf)."""
+        return (np.asarray(device_time, dtype=np.float64) - self.t0) * (self.rate * NS)
 
     def placeable(self, device_time: np.ndarray) -> np.ndarray:
         """Which device stamps this map puts on the int64 host clock (finite, and within ±2^62 ns of ``host0_ns``):
         a damaged stamp (NaN, 1e300) is not one."""
         with np.errstate(invalid="ignore", over="ignore"):
-            offset = (np.asarray(device_time, dtype=np.float64) - self.t0) * (self.rate * NS)
-            return np.isfinite(offset) & (np.abs(offset) < 2.0**62)
+            return _placeable(self._offset_ns(device_time))
 
     def host_times(self, device_time: np.ndarray, host_time_ns: np.ndarray) -> np.ndarray:
         """Host times (int64 ns) of samples stamped ``device_time`` and received at ``host_time_ns``: the map's,
         except for a stamp it cannot place (:meth:`placeable`), which keeps its receive time."""
-        device = np.asarray(device_time, np.float64)
-        ok = self.placeable(device)
-        if ok.all():
-            return self.to_host_ns(device)
-        out = np.asarray(host_time_ns, np.int64).copy()
-        out[ok] = self.to_host_ns(device[ok])
-        return out
+        with np.errstate(invalid="ignore", over="ignore"):
+            offset = self._offset_ns(device_time)
+            ok = _placeable(offset)
+        mapped = np.round(np.where(ok, offset, 0.0)).astype(np.int64) + np.int64(self.host0_ns)
+        return np.where(ok, mapped, np.asarray(host_time_ns, np.int64))
 
     def to_device(self, host_time_ns: np.ndarray | int) -> np.ndarray:
         """Inverse map: device time (s) for host times (ns)."""

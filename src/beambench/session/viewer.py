@@ -73,10 +73,14 @@ class HeadlessViewer:
 
     def __enter__(self) -> HeadlessViewer:
         try:
-            binary = _startable_viewer()
-        except ViewerUnavailable:
-            self._tmp.cleanup()  # no viewer started: no __exit__ to remove its folder
+            self._start()
+        except BaseException:
+            self.__exit__(None, None, None)  # undo what started: the process, its log, the temporary folder
             raise
+        return self
+
+    def _start(self) -> None:
+        binary = _startable_viewer()
         # RUST_LOG: the viewer shows its info and warning log lines as toasts over the views (in screenshots too)
         env = dict(os.environ, XDG_RUNTIME_DIR=self._tmp.name, MESA_VK_WSI_DEBUG="noshm", RUST_LOG="error")
         if "VK_ICD_FILENAMES" not in env and LAVAPIPE_ICD.exists() and not Path("/dev/dri").exists():
@@ -86,14 +90,9 @@ class HeadlessViewer:
         args += ["--window-size", f"{self.window[0]}x{self.window[1]}", "--renderer", "vulkan"]
         if self.rrd is not None:  # loaded whole (``open`` registers a file and fetches its chunks on demand)
             args.append(str(self.rrd))
-        self._log = open(Path(self._tmp.name) / "viewer.log", "wb")  # closed in __exit__
+        self._log = open(Path(self._tmp.name) / "viewer.log", "wb")  # noqa: SIM115 (closed in __exit__)
         self._proc = subprocess.Popen(args, env=env, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True)
-        try:
-            self._connect()
-        except BaseException:
-            self.__exit__(None, None, None)
-            raise
-        return self
+        self._connect()
 
     def _connect(self) -> None:
         from rerun.experimental import ViewerClient
