@@ -326,6 +326,24 @@ def test_a_spawned_viewer_listens_on_loopback_only(xvfb_display, monkeypatch):
         proc.wait()
 
 
+def test_a_viewer_that_exits_at_start_is_one_line_with_its_own_reason():
+    """The viewer's own last line (here: a memory limit it cannot read) is the error, not a guess."""
+    import socket
+
+    from beambench.sinks.viewer.spawn import ViewerStartError, rerun_binary, spawn_viewer
+
+    if rerun_binary() is None:
+        skip_unless_ci("the rerun viewer binary is missing")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(ViewerStartError) as err:
+        spawn_viewer(port, memory_limit="bogus")
+    line = str(err.value)
+    assert line.startswith("the Rerun viewer exited at start (status ") and "\n" not in line, line
+    assert "bogus" in line and "memory-limit" in line and "\x1b" not in line, line
+
+
 def test_the_headless_viewer_listens_on_loopback_only():
     """The viewer process it starts (this process's new child, listening on the viewer's port) listens on
     loopback only, on every port it opens."""

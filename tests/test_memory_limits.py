@@ -123,8 +123,8 @@ t.join(30)
 odrive = rig.peers[0].odrive.snapshot()
 print(json.dumps({"status": status, "message": message, **seen, "send_errors": list(rig.motor.send_errors),
                   "odrive_state": odrive["state"], "odrive_axis_error": odrive["axis_error"]}), flush=True)
-if left_unfinished():  # the session file could not close under the limit: end as the command line does (HDF5's
-    sys.stderr.flush()  # exit handler would retry the close on a library that failed to allocate: heap corruption)
+if left_unfinished() or seen["exhausted"]:  # end as the command line does under a memory limit (lifted above only so
+    sys.stderr.flush()  # this could print): a library that failed to allocate may abort in its exit handler (heap damage)
     os._exit(0)
 """
 

@@ -130,3 +130,18 @@ def test_the_readme_example_plots_one_step(session_file, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     exec(compile(code, "README.md", "exec"), {})
     assert (tmp_path / "step25.png").stat().st_size > 10_000
+
+
+def test_every_name_the_analysis_package_exports_resolves_to_its_home_module():
+    """``beambench.analysis`` loads its names on first use; each one it lists is there, and is its module's own."""
+    import importlib
+
+    import beambench.analysis as analysis
+
+    assert len(analysis.__all__) >= 18
+    for name in analysis.__all__:
+        value = getattr(analysis, name)
+        assert value.__module__.startswith("beambench.analysis."), name
+        assert getattr(importlib.import_module(value.__module__), name) is value and name in dir(analysis)
+    with pytest.raises(AttributeError, match="no_such_name"):
+        analysis.no_such_name  # noqa: B018

@@ -9,9 +9,9 @@ import pytest
 from beambench.commands import EXIT_STOPPED
 from import_stops import stopped_at_import
 
-# pydantic: imported while the command line imports its commands; pandas: by ``run`` as it checks the protocol and
+# pydantic: imported while the command line imports its commands; numpy: by ``run`` as it checks the protocol and
 # estimates its run time; rich: as the dry run prints its plan
-PACKAGES = ["pydantic", "pandas", "rich"]
+PACKAGES = ["pydantic", "numpy", "rich"]
 
 
 def _said(err: str) -> list[str]:

@@ -226,3 +226,39 @@ def test_a_step_that_ran_to_its_end_stays_done_when_a_sink_fails_on_its_row():
     assert result.status == "failed" and "no space left on device" in result.message
     assert list(sink.steps) == [0] and sink.steps[0].status == "done", sink.steps
     assert sink.steps[0].t_end_ns is not None and rig.motor.commands[-2][1] == "idle" and sink.closed
+
+
+@pytest.mark.parametrize("limited", [True, False], ids=["memory-limited", "no-limit"])
+def test_an_extension_error_left_unset_is_out_of_memory_only_under_a_memory_limit(limited):
+    """Under an address-space limit numpy can fail an allocation without setting its error ("SystemError: error
+    return without exception set", seen in the mocap decode): the run ends as out of memory with the motor idled,
+    as the command line says it. Without a limit the same error is a bug: raised, after the motor is idled."""
+    import resource
+
+    from beambench.common.unfinished import left_unfinished
+
+    rig = FakeRig()
+    read = rig.mocap.read
+
+    def read_until_it_breaks():  # type: ignore[no-untyped-def]
+        if rig.clock.now_ns() - START_NS >= 1.2 * NS:
+            raise SystemError("error return without exception set")
+        return read()
+
+    rig.mocap.read = read_until_it_breaks  # type: ignore[method-assign]
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    if limited:  # a limit far above anything this process maps: only its presence matters
+        resource.setrlimit(resource.RLIMIT_AS, (1 << 44 if hard == resource.RLIM_INFINITY else hard, hard))
+    try:
+        if limited:
+            result, sink = _run(rig)
+            assert result.status == "error" and "out of memory" in result.message, result
+            assert "without exception set" in result.message and sink.steps[0].status != "done"
+            assert "memory: the process ran out of it" in left_unfinished()  # the command line ends past exit handlers
+        else:
+            with pytest.raises(SystemError):
+                _run(rig)
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+    idle_at = next(at for at, what, _ in rig.motor.commands if what == "idle")
+    assert idle_at == pytest.approx(1.2, abs=0.11)  # the poll that hit it

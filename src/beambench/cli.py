@@ -37,7 +37,7 @@ from beambench.commands import (
     run,
     sweep,
 )
-from beambench.common.out_of_memory import memory_limited, out_of_memory, preload_blas
+from beambench.common.out_of_memory import memory_limited, out_of_memory, out_of_memory_here, preload_blas
 from beambench.common.unfinished import left_unfinished
 
 
@@ -114,7 +114,7 @@ def main() -> None:
                 _exit_code_decided()
                 sys.exit(EXIT_STOPPED)
             try:
-                oom = out_of_memory(exc) is not None or (isinstance(exc, SystemError) and memory_limited())
+                oom = out_of_memory_here(exc) is not None
             except MemoryError:
                 oom = True
             if not oom:

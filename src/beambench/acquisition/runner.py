@@ -40,7 +40,8 @@ from beambench.acquisition.monitors import Monitor
 from beambench.acquisition.protocol.plan import Step, step_name
 from beambench.acquisition.step_control import FixedFrequency, StepControl
 from beambench.acquisition.stop_signals import StopSignal, stop_on_signals
-from beambench.common.out_of_memory import out_of_memory
+from beambench.common.out_of_memory import out_of_memory_here
+from beambench.common.unfinished import leave_unfinished
 
 
 class Terminated(BaseException):
@@ -83,6 +84,16 @@ def record_polls(seconds: float, poll_s: float) -> list[float]:
         polls.append(dt)
         remaining -= dt
     return polls
+
+
+def _ran_out_of_memory() -> None:
+    """The process ran out of memory: a library that failed to allocate may have left its heap damaged (seen:
+    glibc's "corrupted double-linked list" at the interpreter's exit), so the command line ends the process past
+    the exit handlers (:mod:`beambench.common.unfinished`). Plain try: recording it allocates too."""
+    try:  # noqa: SIM105
+        leave_unfinished("memory: the process ran out of it")
+    except BaseException:
+        pass
 
 
 class Runner:
@@ -145,11 +156,14 @@ class Runner:
                     result = RunResult("fault", self.steps_done, f"device fault: {exc}{self._during_flood()}")
             except MemoryError:  # the shutdown below idles the motor without allocating; then one line
                 result = RunResult("error", self.steps_done, "out of memory (MemoryError)")
-            except RuntimeError as exc:
-                if out_of_memory(exc) is None:
+                _ran_out_of_memory()
+            except (RuntimeError, SystemError) as exc:  # MuJoCo's, a thread refused, an extension's unset error
+                reason = out_of_memory_here(exc)
+                if reason is None:
                     result = RunResult("error", self.steps_done, f"{type(exc).__name__}: {exc}")
                     raise
-                result = RunResult("error", self.steps_done, f"out of resources: {exc}")
+                result = RunResult("error", self.steps_done, f"out of memory ({reason})")
+                _ran_out_of_memory()
             except Exception as exc:
                 result = RunResult("error", self.steps_done, f"{type(exc).__name__}: {exc}")
                 raise

@@ -8,7 +8,7 @@ Each is a resource running out, not a bug, and gets one line instead of a traceb
 
 from __future__ import annotations
 
-__all__ = ["memory_limited", "out_of_memory", "preload_blas"]
+__all__ = ["memory_limited", "out_of_memory", "out_of_memory_here", "preload_blas"]
 
 _NO_MEMORY = (
     "could not allocate memory",
@@ -33,6 +33,15 @@ def out_of_memory(exc: BaseException) -> str | None:
             return f"{type(seen).__name__}: {text[:160]}"
         seen = seen.__cause__ or seen.__context__
     return None
+
+
+def out_of_memory_here(exc: BaseException) -> str | None:
+    """:func:`out_of_memory`, and under an address-space limit a ``SystemError`` too: an extension that fails to
+    allocate there may not set its error at all (numpy's fancy indexing: "error return without exception set")."""
+    reason = out_of_memory(exc)
+    if reason is None and isinstance(exc, SystemError) and memory_limited():
+        return f"SystemError under a memory limit: {str(exc)[:160]}"
+    return reason
 
 
 def memory_limited() -> bool:

@@ -2,6 +2,8 @@
 
 A session file HDF5 could not close (a full disk): HDF5's exit handler retries the close and crashes. A Rerun
 recording whose file sink never finished: the SDK's drop at interpreter shutdown waits for that sink for ever.
+A process that ran out of memory: a library that failed to allocate may have damaged its heap, and the exit handlers
+then abort in glibc.
 Whatever leaves such a thing records it here (keeping its objects alive, so no finaliser retries before the
 end); the command line then ends the process with :func:`os._exit` after its last line, past every exit handler.
 """

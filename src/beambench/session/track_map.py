@@ -14,9 +14,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 import yaml
 
 from beambench.acquisition.batch import StreamSpec
@@ -31,6 +31,9 @@ from beambench.acquisition.protocol.schema import Protocol
 from beambench.acquisition.runner import ProgressCallback, Runner
 from beambench.acquisition.stop_signals import StopSignal
 from beambench.common.yaml_config import ConfigError
+
+if TYPE_CHECKING:  # a run reads a table only when its map is a steps.csv
+    import pandas as pd
 
 DEFAULT_MOCAP_LOST_S = 0.25  # with monitors.mocap_lost_s: null the controller still never drives blind longer
 
@@ -75,6 +78,8 @@ def load_map(spec: str) -> SpeedMap:
             "<protocol>", "track.map", spec, "no such file (a walker session .h5, its steps.csv, or twin)"
         )
     if path.suffix.lower() == ".csv":
+        import pandas as pd
+
         try:
             table = pd.read_csv(path)
         except (OSError, ValueError) as exc:

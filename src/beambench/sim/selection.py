@@ -19,11 +19,13 @@ timestep changes from step to step.
 
 from __future__ import annotations
 
+import csv
 import math
-from collections.abc import Sequence
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -33,7 +35,7 @@ from beambench.common.inputs import check_input_file
 from beambench.common.types import Floats
 from beambench.sim.models.params import SIM_BACKEND_DIR
 
-if TYPE_CHECKING:  # pandas loads only where a table is read: a dry run on a measured cost table needs none
+if TYPE_CHECKING:  # planning reads the CSV itself: a run or dry run never loads pandas for it (~0.3 s a process)
     import pandas as pd
 
 # "inaccurate" (free beam) only means > 1 % from converged, and "irregular" (contact) a regime no timestep
@@ -46,6 +48,21 @@ class SelectionError(BeambenchError, ValueError):
 
 
 TABLE_MAX_BYTES = 16 << 20  # a measured timing table is a few hundred kB
+
+
+class TableRow(NamedTuple):
+    """One configuration at one drive frequency: the columns planning reads."""
+
+    model: str
+    integrator: str
+    timestep: float
+    frequency_hz: float
+    status: str
+    err_mm: float
+    wall_s_per_10s: float
+
+
+COLUMNS = TableRow._fields
 
 
 @dataclass(frozen=True)
@@ -105,27 +122,76 @@ def table_paths(scene: str) -> list[Path]:
     return [p for p in [main, *extra] if p.exists()]
 
 
-def load_table(scene: str, path: str | Path | None = None) -> pd.DataFrame:
-    """The measured table for ``scene`` — every shipped file of it, so ``sim.model: auto`` considers every
-    model that has one — or the CSV at ``path``, with an ``err_mm`` column."""
+def _paths(scene: str, path: str | Path | None) -> list[Path]:
+    """The table files to read, each checked (exists, a regular file, no larger than a table can be)."""
     paths = [Path(path)] if path else table_paths(scene)
     if not paths or not all(p.exists() for p in paths):
         where = paths[0] if paths else table_path(scene)
         raise SelectionError(
             f"{where}: no measured table for the {scene} scene (run benchmarks/bench_models.py --ship)"
         )
-    for p in paths:  # kind and size before pandas reads it
+    for p in paths:  # kind and size before anything reads it
         check_input_file(p, "timing table", TABLE_MAX_BYTES, SelectionError)
+    return paths
+
+
+def load_table(scene: str, path: str | Path | None = None) -> pd.DataFrame:
+    """The measured table for ``scene`` as a DataFrame, all its columns — every shipped file of it, or the CSV at
+    ``path`` — with an ``err_mm`` column and without reference rows. Planning reads :func:`table_rows` instead."""
     import pandas as pd
 
-    frames = [_normalize(pd.read_csv(p), str(p)) for p in paths]
+    frames = [_normalize(pd.read_csv(p), str(p)) for p in _paths(scene, path)]
     return pd.concat(frames, ignore_index=True) if len(frames) > 1 else frames[0]
+
+
+def table_rows(scene: str, path: str | Path | None = None) -> list[TableRow]:
+    """The rows planning reads from ``scene``'s measured table (every shipped file of it, so ``sim.model: auto``
+    considers every model that has one) or from the CSV at ``path``; reference rows left out."""
+    return [row for p in _paths(scene, path) for row in _read_csv(p)]
+
+
+def _read_csv(path: Path) -> list[TableRow]:
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        have = set(reader.fieldnames or ())
+        err = "err_mm" if "err_mm" in have else "tip_err_mm"
+        missing = set(COLUMNS) - have - ({"err_mm"} if err in have else set())
+        if missing:
+            raise SelectionError(f"{path}: missing columns {sorted(missing)}")
+        rows = []
+        for line, rec in enumerate(reader, start=2):
+            if _true(rec.get("is_reference")):
+                continue
+            try:
+                rows.append(
+                    TableRow(
+                        rec["model"],
+                        rec["integrator"],
+                        float(rec["timestep"]),
+                        float(rec["frequency_hz"]),
+                        rec["status"],
+                        _number(rec[err]),
+                        _number(rec["wall_s_per_10s"]),
+                    )
+                )
+            except (TypeError, ValueError) as exc:  # a short line (None) or a word where a number belongs
+                raise SelectionError(f"{path}: line {line}: {exc}") from None
+    return rows
+
+
+def _true(cell: str | None) -> bool:
+    return (cell or "").strip().lower() in ("true", "1", "1.0")
+
+
+def _number(cell: str) -> float:
+    """A number cell; empty is NaN (not measured), as in the tables' own writers."""
+    return float(cell) if cell.strip() else math.nan
 
 
 def table_models(scene: str) -> list[str]:
     """The models the shipped tables of ``scene`` cover."""
     try:
-        return sorted(str(m) for m in load_table(scene).model.unique())
+        return sorted({row.model for row in table_rows(scene)})
     except SelectionError:
         return []
 
@@ -133,13 +199,22 @@ def table_models(scene: str) -> list[str]:
 def _normalize(df: pd.DataFrame, where: str = "table") -> pd.DataFrame:
     if "err_mm" not in df and "tip_err_mm" in df:
         df = df.assign(err_mm=df["tip_err_mm"])
-    need = {"model", "integrator", "timestep", "frequency_hz", "status", "err_mm", "wall_s_per_10s"}
-    missing = need - set(df.columns)
+    missing = set(COLUMNS) - set(df.columns)
     if missing:
         raise SelectionError(f"{where}: missing columns {sorted(missing)}")
     if "is_reference" in df:
         df = df[~df.is_reference.astype(bool)]
     return df
+
+
+def _frame_rows(df: pd.DataFrame) -> list[TableRow]:
+    """A table given as a DataFrame (a study's fresh measurement) as planning rows."""
+    df = _normalize(df)
+    cols = [df[c].tolist() for c in COLUMNS]
+    return [
+        TableRow(str(m), str(i), float(dt), float(f), str(st), float(e), float(w))
+        for m, i, dt, f, st, e, w in zip(*cols)
+    ]
 
 
 def _bracket(freqs: np.ndarray, f: float) -> list[float]:
@@ -153,22 +228,22 @@ def _bracket(freqs: np.ndarray, f: float) -> list[float]:
     return [float(freqs[i])] if math.isclose(freqs[i], f) else [float(freqs[i - 1]), float(freqs[i])]
 
 
-def _converged_rows(g: pd.DataFrame, tolerance_mm: float) -> dict[tuple[float, float], Any]:
+def _converged_rows(rows: Iterable[TableRow], tolerance_mm: float) -> dict[tuple[float, float], TableRow]:
     """(timestep, frequency) → row of one model/integrator that is stable within tolerance at that frequency,
     with every finer timestep in the table stable within tolerance there too (unless the regime is
     irregular there)."""
-    good = g.status.isin(STABLE).to_numpy() & (g.err_mm <= tolerance_mm).to_numpy()
-    irregular = g.status.to_numpy() == "irregular"
-    rows = list(g.itertuples())
+    by_frequency: dict[float, list[TableRow]] = defaultdict(list)
+    for row in rows:
+        by_frequency[row.frequency_hz].append(row)
     out = {}
-    for idx in g.groupby("frequency_hz").indices.values():
-        converging = not irregular[idx].any()
-        for i in sorted(idx, key=lambda i: rows[i].timestep):  # finest first
-            if not good[i]:
+    for group in by_frequency.values():
+        converging = not any(r.status == "irregular" for r in group)
+        for r in sorted(group, key=lambda r: r.timestep):  # finest first
+            if not (r.status in STABLE and r.err_mm <= tolerance_mm):
                 if converging:
                     break
                 continue
-            out[(rows[i].timestep, rows[i].frequency_hz)] = rows[i]
+            out[(r.timestep, r.frequency_hz)] = r
     return out
 
 
@@ -188,12 +263,9 @@ def plan_sweep(
     """
     if tolerance_mm <= 0:
         raise SelectionError(f"tolerance_mm = {tolerance_mm}: must be > 0")
-    df = _normalize(table) if table is not None else load_table(scene, table_file)
-    if models:
-        df = df[df.model.isin(models)]
-    if integrators:
-        df = df[df.integrator.isin(integrators)]
-    freqs = np.array(sorted(df.frequency_hz.unique()), float)
+    rows = _frame_rows(table) if table is not None else table_rows(scene, table_file)
+    rows = [r for r in rows if (not models or r.model in models) and (not integrators or r.integrator in integrators)]
+    freqs = np.array(sorted({r.frequency_hz for r in rows}), float)
     if not len(freqs):
         raise SelectionError(f"{scene}: the table has no rows for models={models} integrators={integrators}")
     wanted = sorted({abs(float(f)) for f in frequencies})
@@ -201,9 +273,12 @@ def plan_sweep(
     if wanted and wanted[-1] > freqs[-1] + 1e-9:
         notes.append(f"{wanted[-1]:g} Hz is above the table's {freqs[-1]:g} Hz: its row is used")
 
+    by_method: dict[tuple[str, str], list[TableRow]] = defaultdict(list)
+    for r in rows:
+        by_method[(r.model, r.integrator)].append(r)
     best: tuple[float, Plan] | None = None
-    for (model, integ), g in df.groupby(["model", "integrator"]):
-        ok = _converged_rows(g, tolerance_mm)
+    for (model, integ), group in sorted(by_method.items()):  # in name order: a tie in cost goes to the first
+        ok = _converged_rows(group, tolerance_mm)
         if not ok:
             continue
         dts = sorted({dt for dt, _ in ok}, reverse=True)  # largest (cheapest) first

@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
-import pandas as pd
 
 from beambench.acquisition.batch import ColumnSpec, Frame, StreamSpec
 from beambench.acquisition.control.speed_controller import track_spec
@@ -26,7 +25,8 @@ from beambench.common.inputs import check_input_file
 from beambench.common.yaml_config import ConfigError
 from beambench.sinks.session_file.schema import SessionSchemaError, check_schema
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # tables are built where a session is read: a run that writes one never loads pandas
+    import pandas as pd
     import xarray as xr
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -288,6 +288,8 @@ def real_rows(host_time_ns: np.ndarray) -> np.ndarray:
 
 def read_session(path: str | Path) -> SessionFile:
     """Read a session (opened with ``swmr=True``, so files being written or cut off by a kill also read)."""
+    import pandas as pd
+
     path = Path(path)
     with _open_session(path) as f:
         try:
@@ -318,6 +320,8 @@ def read_session(path: str | Path) -> SessionFile:
 def read_processing(path: str | Path, name: str) -> pd.DataFrame:
     """Read ``/processing/<name>`` back as a DataFrame, its columns in the order they were written (``steps``:
     one row per protocol step, as ``beambench analyze`` wrote it)."""
+    import pandas as pd
+
     with _open_session(Path(path)) as f:
         g = f["processing"][name]
         stored = json.loads(g.attrs["columns"]) if "columns" in g.attrs else []

@@ -25,17 +25,19 @@ import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
-import pandas as pd
 
 from beambench.acquisition.batch import Batch, StepRecord, StreamSpec
 from beambench.common.unfinished import leave_unfinished
 from beambench.sinks.session_file.reader import (
     SessionFileError,
 )
+
+if TYPE_CHECKING:  # a table handed in is one already: writing a session never loads pandas
+    import pandas as pd
 
 SCHEMA_VERSION = "1.0"
 EVENT_TEXT = 240  # bytes of a fixed-length event message (SWMR datasets cannot hold variable-length strings)
@@ -497,7 +499,7 @@ def write_processing(path: str | Path, name: str, table: pd.DataFrame | dict[str
     by ~9 kB per ``analyze``. A table of the same columns, shapes and types (the same session analysed again) is
     written over the old one in place instead: the file does not grow. A table of another layout still replaces
     the group; ``h5repack SESSION.h5 COPY.h5`` reclaims the space that leaves (README, "Session files")."""
-    cols = {c: table[c].to_numpy() for c in table.columns} if isinstance(table, pd.DataFrame) else dict(table)
+    cols = dict(table) if isinstance(table, dict) else {c: table[c].to_numpy() for c in table.columns}
     arrays = {key: _stored(values) for key, values in cols.items()}
     with h5py.File(path, "r+") as f:
         proc = f.require_group("processing")

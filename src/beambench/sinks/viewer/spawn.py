@@ -9,11 +9,14 @@ user starts a viewer of their own elsewhere. A missing viewer binary or a viewer
 from __future__ import annotations
 
 import importlib.util
+import re
 import shutil
 import socket
 import subprocess
+import tempfile
 import time
 from pathlib import Path
+from typing import IO
 
 from beambench.common.errors import BeambenchError
 
@@ -21,6 +24,7 @@ __all__ = ["LOOPBACK", "VIEWER_PORT", "ViewerStartError", "rerun_binary", "spawn
 
 LOOPBACK = "127.0.0.1"
 VIEWER_PORT = 9876  # Rerun's default: `--rerun connect` and a viewer started by hand find it there
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")
 START_TIMEOUT_S = 30.0  # a cold start on a loaded machine (Vulkan initialisation) takes seconds
 
 
@@ -64,15 +68,29 @@ def spawn_viewer(
         )
     args = [str(binary), "--bind", LOOPBACK, "--port", str(port)]
     args += ["--memory-limit", memory_limit, "--server-memory-limit", server_memory_limit]
-    proc = subprocess.Popen(  # detached: the viewer outlives the run, as with rr.spawn
-        args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
-    )
-    deadline = time.monotonic() + START_TIMEOUT_S
-    while not _listening(port):
-        code = proc.poll()
-        if code is not None:
-            raise ViewerStartError(f"the Rerun viewer exited at start (status {code}; no display?)")
-        if time.monotonic() > deadline:
-            raise ViewerStartError(f"the Rerun viewer did not listen on {LOOPBACK}:{port} within {START_TIMEOUT_S:g} s")
-        time.sleep(0.05)  # polling a condition with a deadline, not a fixed wait
+    with tempfile.TemporaryFile() as log:  # its own lines, said if it exits at start (the file is unlinked: the
+        # viewer keeps writing its few warnings there, the space freed when it exits)
+        proc = subprocess.Popen(  # detached: the viewer outlives the run, as with rr.spawn
+            args, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log, start_new_session=True
+        )
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while not _listening(port):
+            code = proc.poll()
+            if code is not None:
+                said = _last_line(log)
+                raise ViewerStartError(
+                    f"the Rerun viewer exited at start (status {code}{': ' + said if said else '; no display?'})"
+                )
+            if time.monotonic() > deadline:
+                raise ViewerStartError(
+                    f"the Rerun viewer did not listen on {LOOPBACK}:{port} within {START_TIMEOUT_S:g} s"
+                )
+            time.sleep(0.05)  # polling a condition with a deadline, not a fixed wait
     return proc
+
+
+def _last_line(log: IO[bytes]) -> str:
+    """The last line the viewer wrote to ``log`` (its terminal colours removed), at most 200 characters."""
+    log.seek(0)
+    lines = [ln.strip() for ln in _ANSI.sub("", log.read()[-4096:].decode("utf-8", "replace")).splitlines()]
+    return next((ln for ln in reversed(lines) if ln), "")[:200]
