@@ -174,6 +174,33 @@ def test_selection_skips_a_coarse_step_that_passes_where_a_finer_one_fails():
     assert select.plan_sweep("contact", 0.1, [10.0], table=_table(irregular)).timestep(10.0) == 4e-4
 
 
+def test_a_table_file_plans_as_its_dataframe_does_and_a_damaged_one_is_one_line(tiny_table, tmp_path):
+    """Planning reads a table's CSV itself (no pandas in a run): the same plan as from the DataFrame the ladder
+    measured; a short line or a word in a number column is one line naming the file and the line."""
+    path = tmp_path / "table.csv"
+    tiny_table.to_csv(path, index=False)
+    for tol in (0.5, 50.0):
+        a = select.plan_sweep("free_beam", tol, [10.0, 40.0], table_file=path)
+        b = select.plan_sweep("free_beam", tol, [10.0, 40.0], table=tiny_table)
+        assert (a.model, a.integrator, a.timesteps, a.expected_err_mm, a.wall_s_per_10s) == (
+            b.model,
+            b.integrator,
+            b.timesteps,
+            b.expected_err_mm,
+            b.wall_s_per_10s,
+        )
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    k = next(i for i, ln in enumerate(lines) if i and ln.split(",")[header.index("is_reference")] == "False")
+    cells = lines[k].split(",")
+    word = [*cells[: header.index("timestep")], "fast", *cells[header.index("timestep") + 1 :]]
+    for bad, why in ((",".join(cells[:3]), f"line {k + 1}: fewer cells"), (",".join(word), f"line {k + 1}: could not")):
+        path.write_text("\n".join([*lines[:k], bad, *lines[k + 1 :]]) + "\n")
+        with pytest.raises(select.SelectionError) as err:
+            select.plan_sweep("free_beam", 50.0, [10.0], table_file=path)
+        assert str(err.value).startswith(f"{path}: {why}") and "\n" not in str(err.value), err.value
+
+
 def test_fixed_model_gets_the_timestep_each_frequency_needs_unless_one_is_given():
     """``sim.model: prb3`` without ``sim.timestep``: the plan for that model and integrator from the contact
     table (recorded in the session); with ``sim.timestep`` that step is used throughout."""

@@ -158,23 +158,21 @@ def _read_csv(path: Path) -> list[TableRow]:
         missing = set(COLUMNS) - have - ({"err_mm"} if err in have else set())
         if missing:
             raise SelectionError(f"{path}: missing columns {sorted(missing)}")
+        cells = ("model", "integrator", "timestep", "frequency_hz", "status", err, "wall_s_per_10s")  # TableRow's
         rows = []
         for line, rec in enumerate(reader, start=2):
             if _true(rec.get("is_reference")):
                 continue
+            if any(rec.get(c) is None for c in cells):
+                raise SelectionError(f"{path}: line {line}: fewer cells than the header's {len(have)}")
+            model, integrator, timestep, frequency, status, err_mm, wall = (str(rec[c]) for c in cells)
             try:
                 rows.append(
                     TableRow(
-                        rec["model"],
-                        rec["integrator"],
-                        float(rec["timestep"]),
-                        float(rec["frequency_hz"]),
-                        rec["status"],
-                        _number(rec[err]),
-                        _number(rec["wall_s_per_10s"]),
+                        model, integrator, float(timestep), float(frequency), status, _number(err_mm), _number(wall)
                     )
                 )
-            except (TypeError, ValueError) as exc:  # a short line (None) or a word where a number belongs
+            except ValueError as exc:  # a word where a number belongs
                 raise SelectionError(f"{path}: line {line}: {exc}") from None
     return rows
 
