@@ -9,7 +9,6 @@ lavapipe (Debian: ``apt-get install mesa-vulkan-drivers libvulkan1``). It is con
 from __future__ import annotations
 
 import os
-import re
 import socket
 import subprocess
 import tempfile
@@ -19,7 +18,7 @@ from types import TracebackType
 from typing import Any
 
 from beambench.common.vulkan import vulkan_devices
-from beambench.sinks.viewer.spawn import LOOPBACK, rerun_binary
+from beambench.sinks.viewer.spawn import LOOPBACK, rerun_binary, viewer_reason
 
 LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")
 WINDOW = (1600, 900)
@@ -116,10 +115,7 @@ class HeadlessViewer:
 
     def _last_log_line(self) -> str:
         """The viewer's reason: its panic line if it panicked, else its last line of output."""
-        text = (Path(self._tmp.name) / "viewer.log").read_text(errors="replace")
-        lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in text.splitlines() if line.strip()]
-        panics = [line for line in lines if "panicked" in line or " ERROR " in line]
-        return (panics or lines or ["no output"])[-1][-300:]
+        return viewer_reason((Path(self._tmp.name) / "viewer.log").read_bytes()) or "no output"
 
     def open(self, rrd: Path | None = None) -> Any:
         """Open a recording (None: the one given at start); wait until it is loaded and its views exist.

@@ -154,10 +154,7 @@ def _read_csv(path: Path) -> list[TableRow]:
     with path.open(newline="") as fh:
         reader = csv.DictReader(fh)
         have = set(reader.fieldnames or ())
-        err = "err_mm" if "err_mm" in have else "tip_err_mm"
-        missing = set(COLUMNS) - have - ({"err_mm"} if err in have else set())
-        if missing:
-            raise SelectionError(f"{path}: missing columns {sorted(missing)}")
+        err = _error_column(have, str(path))
         cells = ("model", "integrator", "timestep", "frequency_hz", "status", err, "wall_s_per_10s")  # TableRow's
         rows = []
         for line, rec in enumerate(reader, start=2):
@@ -194,12 +191,20 @@ def table_models(scene: str) -> list[str]:
         return []
 
 
-def _normalize(df: pd.DataFrame, where: str = "table") -> pd.DataFrame:
-    if "err_mm" not in df and "tip_err_mm" in df:
-        df = df.assign(err_mm=df["tip_err_mm"])
-    missing = set(COLUMNS) - set(df.columns)
+def _error_column(have: set[str], where: str) -> str:
+    """The column holding the error (``err_mm``, or the free beam's ``tip_err_mm``) of a table with columns ``have``;
+    a table without every column planning reads is one line."""
+    err = "err_mm" if "err_mm" in have else "tip_err_mm"
+    missing = set(COLUMNS) - have - ({"err_mm"} if err in have else set())
     if missing:
         raise SelectionError(f"{where}: missing columns {sorted(missing)}")
+    return err
+
+
+def _normalize(df: pd.DataFrame, where: str = "table") -> pd.DataFrame:
+    err = _error_column(set(df.columns), where)
+    if err != "err_mm":
+        df = df.assign(err_mm=df[err])
     if "is_reference" in df:
         df = df[~df.is_reference.astype(bool)]
     return df

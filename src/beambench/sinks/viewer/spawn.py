@@ -9,22 +9,20 @@ user starts a viewer of their own elsewhere. A missing viewer binary or a viewer
 from __future__ import annotations
 
 import importlib.util
-import re
 import shutil
 import socket
 import subprocess
 import tempfile
 import time
 from pathlib import Path
-from typing import IO
 
 from beambench.common.errors import BeambenchError
+from beambench.common.text import printable
 
-__all__ = ["LOOPBACK", "VIEWER_PORT", "ViewerStartError", "rerun_binary", "spawn_viewer", "viewer_url"]
+__all__ = ["LOOPBACK", "VIEWER_PORT", "ViewerStartError", "rerun_binary", "spawn_viewer", "viewer_reason", "viewer_url"]
 
 LOOPBACK = "127.0.0.1"
 VIEWER_PORT = 9876  # Rerun's default: `--rerun connect` and a viewer started by hand find it there
-_ANSI = re.compile(r"\x1b\[[0-9;]*m")
 START_TIMEOUT_S = 30.0  # a cold start on a loaded machine (Vulkan initialisation) takes seconds
 
 
@@ -77,7 +75,8 @@ def spawn_viewer(
         while not _listening(port):
             code = proc.poll()
             if code is not None:
-                said = _last_line(log)
+                log.seek(0)
+                said = viewer_reason(log.read())
                 raise ViewerStartError(
                     f"the Rerun viewer exited at start (status {code}{': ' + said if said else '; no display?'})"
                 )
@@ -89,8 +88,10 @@ def spawn_viewer(
     return proc
 
 
-def _last_line(log: IO[bytes]) -> str:
-    """The last line the viewer wrote to ``log`` (its terminal colours removed), at most 200 characters."""
-    log.seek(0)
-    lines = [ln.strip() for ln in _ANSI.sub("", log.read()[-4096:].decode("utf-8", "replace")).splitlines()]
-    return next((ln for ln in reversed(lines) if ln), "")[:200]
+def viewer_reason(output: bytes) -> str:
+    """What a viewer that failed said: its panic or ERROR line, else its last line (escape sequences removed, at
+    most its last 300 characters); "" when it said nothing."""
+    raw_lines = output.decode("utf-8", "replace").splitlines()
+    lines = [line for line in (printable(raw, limit=None).strip() for raw in raw_lines) if line]
+    panics = [line for line in lines if "panicked" in line or " ERROR " in line]
+    return (panics or lines or [""])[-1][-300:]
